@@ -1,0 +1,13 @@
+/* commands.h - the subcommands of the `squish` command line; each returns an exit code. */
+#ifndef SQ_COMMANDS_H
+#define SQ_COMMANDS_H
+
+int sq_cmd_mesh(int argc, char **argv);     /* cmd_mesh.c:     mesh info | box | convert */
+int sq_cmd_run(int argc, char **argv);      /* cmd_run.c:      batch run of a scene */
+int sq_cmd_serve(int argc, char **argv);    /* cmd_serve.c:    the WebSocket service */
+int sq_cmd_render(int argc, char **argv);   /* cmd_render.c:   headless PNG rendering */
+int sq_cmd_bench(int argc, char **argv);    /* cmd_bench.c:    benchmarks */
+int sq_cmd_tradeoff(int argc, char **argv); /* cmd_tradeoff.c: speed/accuracy grid */
+int sq_cmd_sweep(int argc, char **argv);    /* cmd_tradeoff.c: stability sweep */
+
+#endif

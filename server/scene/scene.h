@@ -1,0 +1,93 @@
+/* scene.h - JSON scene files and the running world (bodies, tools, probes).
+ *
+ * A scene (sq_scene) is the parsed, validated file with its meshes loaded: immutable and
+ * shareable between sessions. A world (sq_world) is one running instance of a scene: its
+ * bodies' state, tool poses, frame counter. The server holds one world per session; the
+ * batch command line holds one.
+ */
+#ifndef SQ_SCENE_H
+#define SQ_SCENE_H
+
+#include "sim/sim.h"
+
+#define SQ_MAX_BODIES 8
+#define SQ_MAX_PROBES 32
+#define SQ_MAX_KEYFRAMES 256
+
+typedef struct sq_keyframe {
+    double t;          /* simulated time, s */
+    double pos[3];
+    int active;
+} sq_keyframe;
+
+/* a scripted tool: pose interpolated linearly between keyframes; active of the last
+ * keyframe at or before t */
+typedef struct sq_tool_script {
+    sq_tool tool;      /* shape, radius/half, id */
+    char name[64];
+    int nkeys;
+    sq_keyframe keys[SQ_MAX_KEYFRAMES];
+} sq_tool_script;
+
+typedef struct sq_probe {
+    char name[64];
+    int body;
+    double point[3];   /* rest-space point */
+} sq_probe;
+
+typedef struct sq_scene {
+    char name[64];
+    char description[256];
+    char path[512];        /* scene file, or "<default>" */
+    double gravity[3];
+    double frame_rate;     /* Hz */
+    int nbodies;
+    sq_body_def bodies[SQ_MAX_BODIES];
+    char body_names[SQ_MAX_BODIES][64];
+    sq_mesh *meshes[SQ_MAX_BODIES][SQ_MAX_LEVELS]; /* owned */
+    int ntools;
+    sq_tool_script tools[SQ_MAX_TOOLS];
+    int nprobes;
+    sq_probe probes[SQ_MAX_PROBES];
+} sq_scene;
+
+/* load and validate a scene file; unknown keys and wrong types are errors naming the JSON
+ * path (e.g. "bodies[0].material.nu: must be in [0, 0.5)") */
+sq_scene *sq_scene_load(const char *path, sq_err *err);
+/* parse from text; mesh paths relative to base_dir */
+sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *label, sq_err *err);
+/* the embedded default scene: the paper's 1 m cube (section 2.6) */
+sq_scene *sq_scene_default(sq_err *err);
+void sq_scene_free(sq_scene *s);
+
+/* world: one running instance of a scene */
+typedef struct sq_world {
+    const sq_scene *scene;   /* borrowed */
+    int nbodies;
+    sq_body *bodies[SQ_MAX_BODIES];
+    long frame;              /* frames stepped */
+    double time;             /* simulated time, s */
+    int ntools;
+    sq_tool tools[SQ_MAX_TOOLS];           /* current poses (scripted or set live) */
+    int tool_scripted[SQ_MAX_TOOLS];       /* 1 while driven by the scene's keyframes */
+    sq_tool_feedback feedback[SQ_MAX_BODIES][SQ_MAX_TOOLS];
+    sq_frame_profile profile[SQ_MAX_BODIES];
+    long deadline_misses;
+    long resets;
+} sq_world;
+
+sq_world *sq_world_create(const sq_scene *scene, sq_err *err);
+void sq_world_destroy(sq_world *w);
+void sq_world_reset(sq_world *w);
+/* advance one frame: scripted tools take their pose at the new time, then every body
+ * steps with all tools; budget_s is the compute budget for splitting decisions
+ * (0 = unlimited, e.g. batch runs) */
+void sq_world_step(sq_world *w, double budget_s);
+/* set or add a live tool pose by id (replaces a scripted one with the same id); -1 + err
+ * if the table is full or values are invalid */
+int sq_world_set_tool(sq_world *w, const sq_tool *t, sq_err *err);
+/* probe displacement u[3]; -1 if the probe point is outside the body */
+int sq_world_probe(const sq_world *w, int probe, double u[3]);
+int sq_world_find_body(const sq_world *w, const char *name);
+
+#endif

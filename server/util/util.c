@@ -1,0 +1,174 @@
+/* util.c - errors, timing, progress bar, allocation, file reading. */
+#include "util/util.h"
+
+#include <errno.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+int sq_err_set(sq_err *err, const char *fmt, ...)
+{
+    if (err) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(err->msg, sizeof err->msg, fmt, ap);
+        va_end(ap);
+    }
+    return -1;
+}
+
+int sq_err_prefix(sq_err *err, const char *fmt, ...)
+{
+    if (err) {
+        char pre[256], old[sizeof err->msg];
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(pre, sizeof pre, fmt, ap);
+        va_end(ap);
+        memcpy(old, err->msg, sizeof old);
+        size_t n = strlen(pre);
+        if (n > sizeof err->msg - 3)
+            n = sizeof err->msg - 3;
+        memcpy(err->msg, pre, n);
+        memcpy(err->msg + n, ": ", 2);
+        size_t room = sizeof err->msg - n - 3;
+        size_t m = strnlen(old, room);
+        memcpy(err->msg + n + 2, old, m);
+        err->msg[n + 2 + m] = 0;
+    }
+    return -1;
+}
+
+double sq_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+void sq_progress_begin(sq_progress *p, const char *label, double total)
+{
+    p->label = label;
+    p->total = total > 0 ? total : 1;
+    p->last_draw = 0;
+    p->enabled = isatty(2) || getenv("SQ_PROGRESS") != NULL;
+    sq_progress_update(p, 0);
+}
+
+void sq_progress_update(sq_progress *p, double done)
+{
+    if (!p->enabled)
+        return;
+    double t = sq_now();
+    if (done < p->total && t - p->last_draw < 0.1)
+        return;
+    p->last_draw = t;
+    double f = done / p->total;
+    if (f > 1)
+        f = 1;
+    int width = 30, filled = (int)(f * width);
+    char bar[64];
+    for (int i = 0; i < width; i++)
+        bar[i] = i < filled ? '#' : '.';
+    bar[width] = 0;
+    fprintf(stderr, "\r%s [%s] %5.1f%%", p->label, bar, 100.0 * f);
+    fflush(stderr);
+}
+
+void sq_progress_end(sq_progress *p)
+{
+    if (!p->enabled)
+        return;
+    p->last_draw = 0;
+    sq_progress_update(p, p->total);
+    fputc('\n', stderr);
+}
+
+static void oom(size_t n)
+{
+    fprintf(stderr, "squish: out of memory allocating %zu bytes; use a smaller mesh or free memory\n", n);
+    abort();
+}
+
+void *sq_malloc(size_t n)
+{
+    void *p = malloc(n ? n : 1);
+    if (!p)
+        oom(n);
+    return p;
+}
+
+void *sq_calloc(size_t count, size_t size)
+{
+    void *p = calloc(count ? count : 1, size ? size : 1);
+    if (!p)
+        oom(count * size);
+    return p;
+}
+
+void *sq_realloc(void *p, size_t n)
+{
+    void *q = realloc(p, n ? n : 1);
+    if (!q)
+        oom(n);
+    return q;
+}
+
+char *sq_strdup(const char *s)
+{
+    size_t n = strlen(s) + 1;
+    char *d = sq_malloc(n);
+    memcpy(d, s, n);
+    return d;
+}
+
+char *sq_read_file(const char *path, size_t *len, size_t max_len, sq_err *err)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        sq_err_set(err, "%s: cannot open: %s", path, strerror(errno));
+        return NULL;
+    }
+    size_t cap = 1 << 16, n = 0;
+    char *buf = sq_malloc(cap + 1);
+    for (;;) {
+        if (n == cap) {
+            if (cap >= max_len) {
+                free(buf);
+                fclose(f);
+                sq_err_set(err, "%s: file larger than the limit of %zu bytes", path, max_len);
+                return NULL;
+            }
+            cap *= 2;
+            buf = sq_realloc(buf, cap + 1);
+        }
+        size_t got = fread(buf + n, 1, cap - n, f);
+        n += got;
+        if (got == 0)
+            break;
+    }
+    int bad = ferror(f);
+    fclose(f);
+    if (bad) {
+        free(buf);
+        sq_err_set(err, "%s: read error", path);
+        return NULL;
+    }
+    buf[n] = 0;
+    if (len)
+        *len = n;
+    return buf;
+}
+
+uint64_t sq_hash_bytes(uint64_t h, const void *data, size_t n)
+{
+    const unsigned char *p = data;
+    for (size_t i = 0; i < n; i++) {
+        h ^= p[i];
+        h *= 1099511628211ULL;
+    }
+    return h;
+}
