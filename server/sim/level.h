@@ -1,0 +1,65 @@
+/* level.h - one level of detail of a body: its rest mesh, precomputed operator and state.
+ *
+ * Internal to the engine (sim and lod); not used by scene, net or render, which go through
+ * sim.h. The fixed-resolution step (sim/) and the adaptive multi-level step (lod/) are both
+ * built from these per-level primitives, so a level behaves the same whichever drives it.
+ *
+ * Elastic force on node i: f_i = - sum_j K_ij d_j  (3x3 blocks K_ij, CSR over the mesh
+ * adjacency, diagonal included). Damping force: - a m_i v_i - b sum_j K_ij v_j (Rayleigh), or
+ * - sum_j D_ij v_j with D built like K from (phi, psi) when the material uses viscosities.
+ */
+#ifndef SQ_LEVEL_H
+#define SQ_LEVEL_H
+
+#include "sim/sim.h"
+
+typedef struct sq_level {
+    const sq_mesh *mesh;   /* rest mesh (borrowed) */
+    int n;                 /* nodes */
+    int nnz;               /* CSR entries = mesh->adj_start[n] */
+    const int *row_start;  /* = mesh->adj_start (n+1) */
+    const int *col;        /* = mesh->adj (nnz) */
+    double *K;             /* stiffness blocks, row-major 3x3 per CSR entry (nnz x 9) */
+    double *D;             /* viscosity blocks (nnz x 9), NULL unless material.use_viscosity */
+    double *lap;           /* scalar Laplacian weights sum_T V (a_i . a_j) per CSR entry (nnz) */
+    double *mass;          /* lumped mass (n), kg */
+    double *vol;           /* nodal volume sum_T V/4 (n), m^3 */
+    double *hbar;          /* mean 1-ring edge length (n), m */
+    unsigned char *fixed;  /* constrained axes per node, bits x=1 y=2 z=4 (n) */
+
+    double *d;             /* displacement (n x 3), m */
+    double *v;             /* velocity (n x 3), m/s */
+    double *f;             /* scratch: total force of the last force pass (n x 3), N */
+
+    double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
+    double bound;          /* stability bound on the step with damping, s */
+    int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
+    double dt;             /* frame_dt / 2^n, s */
+} sq_level;
+
+/* allocate and precompute the operator for mesh with material/op; marks fixed axes from the
+ * constraints; returns -1 + err on failure (e.g. every node fixed is fine, a degenerate tet is not) */
+int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_operator_kind op,
+                  const sq_constraint *cons, int ncons, sq_err *err);
+void sq_level_free(sq_level *L);
+
+/* recompute K (and D), masses and the bound after a material/operator change */
+int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
+
+/* stability bound (s) for the level's operator with damping, and the substep exponent for a
+ * frame period at fraction `step_fraction` of it; -1 + err if more than 2^20 substeps needed */
+int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
+                         sq_err *err);
+
+/* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
+ * NULL), reading d and v of all neighbours (ghost values included) */
+void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
+                     const unsigned char *active);
+
+/* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
+void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
+
+/* Laplacian of the displacement at node i, (1/vol_i) sum_j lap_ij d_j (m^-1) */
+void sq_level_laplacian(const sq_level *L, int i, double out[3]);
+
+#endif
