@@ -1,0 +1,50 @@
+/* lod.h - adaptive levels of detail over a body's non-nested meshes (paper sections 3-4).
+ *
+ * Third stage of the data flow. The hierarchy links each level to the next: every node of
+ * level k+1 has a parent, the nearest node of level k (its Voronoi region), and every node
+ * stores barycentric coordinates in its containing (or nearest) tetrahedron of the parent
+ * mesh and of the child mesh. The adaptive state marks nodes active or ghost per level and
+ * runs the paper's per-level algorithm: pull ghosts from finer levels, integrate active
+ * nodes, push ghosts to finer levels, split/merge on delta_i = hbar_i^2 |Lap(d)_i|.
+ *
+ * sim/body.c owns the levels (sim/level.h) and calls this module when lod.mode is adaptive.
+ */
+#ifndef SQ_LOD_H
+#define SQ_LOD_H
+
+#include "sim/level.h"
+
+/* links between level k and level k+1 */
+typedef struct sq_lod_link {
+    int *parent;          /* for each node of level k+1: nearest node of level k (n_{k+1}) */
+    int *child_start;     /* CSR over level-k nodes: children of p are child[child_start[p]..) (n_k+1) */
+    int *child;           /* level-(k+1) node indices (n_{k+1}) */
+    int *up_tet;          /* for each node of level k+1: containing/nearest tet of level k (n_{k+1}) */
+    double *up_bary;      /* its barycentric coordinates (n_{k+1} x 4) */
+    int *down_tet;        /* for each node of level k: containing/nearest tet of level k+1 (n_k) */
+    double *down_bary;    /* its barycentric coordinates (n_k x 4) */
+} sq_lod_link;
+
+typedef struct sq_hierarchy {
+    int nlevels;
+    const sq_mesh *mesh[SQ_MAX_LEVELS];
+    sq_lod_link link[SQ_MAX_LEVELS - 1]; /* link[k] joins level k and k+1 */
+} sq_hierarchy;
+
+/* build and validate (every fine node has a parent, coordinates sum to 1) */
+int sq_hierarchy_build(sq_hierarchy *h, const sq_mesh *const *meshes, int nlevels, sq_err *err);
+void sq_hierarchy_free(sq_hierarchy *h);
+
+typedef struct sq_lod sq_lod;
+
+/* adaptive state over levels[0..nlevels-1] (borrowed from the body) */
+sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_err *err);
+void sq_lod_destroy(sq_lod *lod);
+int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err);
+/* all nodes back to the coarsest level (state of the levels is reset by the body) */
+void sq_lod_reset(sq_lod *lod);
+const sq_hierarchy *sq_lod_hierarchy(const sq_lod *lod);
+/* active mask of a level (1 = active, 0 = ghost) */
+const unsigned char *sq_lod_active(const sq_lod *lod, int level);
+
+#endif
