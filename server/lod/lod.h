@@ -47,4 +47,18 @@ const sq_hierarchy *sq_lod_hierarchy(const sq_lod *lod);
 /* active mask of a level (1 = active, 0 = ghost) */
 const unsigned char *sq_lod_active(const sq_lod *lod, int level);
 
+/* one adaptive frame of frame_dt: each level steps at its own dt (level->dt), in the paper's
+ * order. Holds are applied to the node itself when it is active, else the same translation
+ * goes to its closest active node (its active ancestor). force[t] receives the feedback
+ * force of tool t (sum over its held nodes of the elastic reaction), ntools entries zeroed
+ * first. Splits are refused when the previous frame's compute time exceeded
+ * def.budget * budget_s (budget_s = 0: no limit). Fills prof (active counts, updates,
+ * splits/merges, stage times). */
+void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], double frame_dt,
+                  const sq_hold *holds, int nholds, int ntools, double (*force)[3],
+                  sq_frame_profile *prof, double budget_s);
+
+/* level active at each node of the finest level (out has n_finest entries) */
+void sq_lod_node_levels(const sq_lod *lod, unsigned char *out);
+
 #endif

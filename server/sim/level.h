@@ -37,6 +37,14 @@ typedef struct sq_level {
     double dt;             /* frame_dt / 2^n, s */
 } sq_level;
 
+/* a tool's hold on one node of the finest loaded level (the rendered surface's mesh):
+ * the node's displacement is prescribed to `target` for this frame (paper section 5) */
+typedef struct sq_hold {
+    int tool;              /* index into the frame's tool array */
+    int node;              /* node of the finest loaded level */
+    double target[3];      /* prescribed displacement, m */
+} sq_hold;
+
 /* allocate and precompute the operator for mesh with material/op; marks fixed axes from the
  * constraints; returns -1 + err on failure (e.g. every node fixed is fine, a degenerate tet is not) */
 int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_operator_kind op,
