@@ -77,7 +77,7 @@ run: deps
 	$(BUILD)/squish serve --host 127.0.0.1 --port $${PORT:-8080} --scenes meshes/scenes --web web
 
 test: deps node-deps
-	@$(MAKE) --no-print-directory squish $(BUILD)/unit_tests $(BUILD)/san/unit_tests
+	@$(MAKE) --no-print-directory -j2 squish $(BUILD)/unit_tests $(BUILD)/san/unit_tests
 	@BUILD=$(BUILD) bash tests/run.sh
 
 bench: deps
