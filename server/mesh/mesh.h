@@ -27,6 +27,8 @@ typedef struct sq_mesh {
     int *adj;            /* neighbour node indices, sorted, including i itself (adj_start[nnodes]) */
     double bbox_min[3], bbox_max[3]; /* rest bounding box */
     char source[256];    /* file it came from, for messages */
+    int *tri_tet;        /* tet owning each boundary triangle (ntris) */
+    struct sq_locator *locator; /* private: point-location grid, built on first sq_mesh_locate */
 } sq_mesh;
 
 /* quality and size figures, as printed by `squish mesh info` */
@@ -79,5 +81,16 @@ int sq_mesh_write_vtk(const sq_mesh *m, const char *path, const double *displace
                       const double *velocity, const int *level, sq_err *err);
 /* Gmsh 2.2 ASCII */
 int sq_mesh_write_msh(const sq_mesh *m, const char *path, sq_err *err);
+/* Medit .mesh ASCII (MeshVersionFormatted 2, 1-based) */
+int sq_mesh_write_medit(const sq_mesh *m, const char *path, sq_err *err);
+/* TetGen: path ends in .node or .ele (or has no extension); writes both NAME.node and NAME.ele
+ * (1-based, no attributes, no markers) */
+int sq_mesh_write_tetgen(const sq_mesh *m, const char *path, sq_err *err);
+/* any of the above, chosen by extension (.vtk, .msh, .mesh, .node/.ele) without point fields */
+int sq_mesh_save(const sq_mesh *m, const char *path, sq_err *err);
+
+/* outward CCW faces of a positively oriented tet: face k (opposite vertex k) is
+ * tets[sq_tet_face[k][0..2]] */
+extern const int sq_tet_face[4][3];
 
 #endif
