@@ -35,6 +35,17 @@ typedef struct sq_hierarchy {
 int sq_hierarchy_build(sq_hierarchy *h, const sq_mesh *const *meshes, int nlevels, sq_err *err);
 void sq_hierarchy_free(sq_hierarchy *h);
 
+/* counts describing link k (levels k and k+1), for reports and tests */
+typedef struct sq_hierarchy_link_stats {
+    int nparents, nchildren;           /* nodes of level k and of level k+1 */
+    int childless;                     /* level-k nodes whose Voronoi region holds no k+1 node */
+    int min_children, max_children;
+    double mean_children;
+    int up_outside, down_outside;      /* nodes outside the other mesh (one negative coordinate) */
+    double up_min_bary, down_min_bary; /* most negative coordinate seen (0 if none) */
+} sq_hierarchy_link_stats;
+void sq_hierarchy_stats(const sq_hierarchy *h, int k, sq_hierarchy_link_stats *st);
+
 typedef struct sq_lod sq_lod;
 
 /* adaptive state over levels[0..nlevels-1] (borrowed from the body) */
@@ -60,5 +71,22 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
 
 /* level active at each node of the finest level (out has n_finest entries) */
 void sq_lod_node_levels(const sq_lod *lod, unsigned char *out);
+
+/* energy (J) of the simulated state: over the active nodes of every level, kinetic
+ * 1/2 m_i |v_i|^2 and elastic 1/2 d_i . (K d)_i (ghost values as neighbours); either output
+ * may be NULL; returns their sum */
+double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic);
+
+/* node updates one frame of the current active sets costs: sum_k active_k 2^n_k */
+long sq_lod_projected_updates(const sq_lod *lod);
+
+/* consistency of the active/ghost tree (level-0 nodes are never coarse ghosts, a node is a
+ * coarse ghost exactly when its parent is not split, the top level never splits); 0 or -1 + err */
+int sq_lod_check(const sq_lod *lod, sq_err *err);
+
+/* bring every ghost value (displacement and velocity) up to date from the active nodes:
+ * pull split nodes from finer levels, then push coarse ghosts from coarser levels. Call after
+ * changing level state outside sq_lod_frame (e.g. setting an initial displacement). */
+void sq_lod_sync(sq_lod *lod);
 
 #endif

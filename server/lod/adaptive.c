@@ -1,0 +1,783 @@
+/* adaptive.c - the paper's adaptive multi-level step (sections 4.2-4.3).
+ *
+ * Every node of every level is in one of three states:
+ *   active        integrated at its level's own step;
+ *   split ghost   its region is simulated finer: value interpolated from its child tet;
+ *   coarse ghost  its region is simulated coarser: value interpolated from its parent tet.
+ * A level-0 node is active unless split; a level-(k+1) node is a coarse ghost exactly when
+ * its parent is not split. Splitting an active node makes it a split ghost and its children
+ * active (they start from their interpolated displacement and velocity); merging does the
+ * reverse when all children are calm.
+ *
+ * A frame runs the finest substep clock (2^nmax ticks); level k is due every 2^(nmax - n_k)
+ * ticks. At a tick, each due level (coarse to fine) integrates its active nodes, then pushes
+ * the new values to the coarse ghosts of the next finer level. At the end of the tick, the
+ * split ghosts of the levels due next are pulled from finer levels (fine to coarse), and each
+ * pair of levels that is synchronized in time adapts (split/merge).
+ */
+#include "lod/lod.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
+
+/* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
+ * the node jumps to its target when the hold starts, with velocity (target - old) / time left,
+ * and is not integrated; its feedback is the mean over its level's substeps of f - m g) */
+typedef struct hold_entry {
+    int level, node;
+    int count;        /* holds mapped to it (0: dead, its node stopped being active) */
+    int pending;      /* target changed, to be applied */
+    double gsum[3];   /* sum of the targets its holds ask of it */
+    double from[3];   /* displacement when the hold (re)started */
+    double t_from;    /* time within the frame the hold (re)started, s */
+    double fsum[3];   /* internal force summed over the substeps it was held, N */
+    int nf;
+} hold_entry;
+
+struct sq_lod {
+    sq_level *lv;
+    int L;                               /* levels */
+    int top;                             /* highest level that may be active */
+    sq_lod_def def;
+    sq_hierarchy h;
+    unsigned char *state[SQ_MAX_LEVELS];
+    unsigned char *active[SQ_MAX_LEVELS]; /* 1 = active (exposed) */
+    unsigned char *mask[SQ_MAX_LEVELS];   /* integrated this frame: active and not held */
+    int nactive[SQ_MAX_LEVELS], nmask[SQ_MAX_LEVELS];
+    int *gf[SQ_MAX_LEVELS], ngf[SQ_MAX_LEVELS]; /* split ghosts */
+    int *gc[SQ_MAX_LEVELS], ngc[SQ_MAX_LEVELS]; /* coarse ghosts */
+    int *slot[SQ_MAX_LEVELS];            /* hold entry of a node, or -1 */
+    unsigned char *fresh[SQ_MAX_LEVELS]; /* split in the current adapt pass (no merge back) */
+    hold_entry *he;
+    int nhe, cap_he;
+    int *hold_entry_of;                  /* entry of each hold of the frame */
+    int cap_holds;
+    double last_time;                    /* compute time of the previous frame, s */
+};
+
+/* ---------------------------------------------------------------- state bookkeeping */
+
+/* recompute the active mask, the ghost lists and the integration mask of level k */
+static void rebuild_level(sq_lod *lod, int k)
+{
+    int n = lod->lv[k].n;
+    int na = 0, nf = 0, nc = 0;
+    for (int i = 0; i < n; i++) {
+        unsigned char s = lod->state[k][i];
+        lod->active[k][i] = (s == ST_ACTIVE);
+        lod->mask[k][i] = (s == ST_ACTIVE);
+        if (s == ST_ACTIVE)
+            na++;
+        else if (s == ST_SPLIT)
+            lod->gf[k][nf++] = i;
+        else
+            lod->gc[k][nc++] = i;
+    }
+    lod->nactive[k] = na;
+    lod->ngf[k] = nf;
+    lod->ngc[k] = nc;
+    /* held nodes are prescribed, not integrated */
+    int nm = na;
+    for (int e = 0; e < lod->nhe; e++)
+        if (lod->he[e].level == k && lod->he[e].count > 0 && lod->mask[k][lod->he[e].node]) {
+            lod->mask[k][lod->he[e].node] = 0;
+            nm--;
+        }
+    lod->nmask[k] = nm;
+}
+
+/* all levels below s split, level s active, finer levels coarse ghosts */
+static void set_uniform_level(sq_lod *lod, int s)
+{
+    for (int k = 0; k < lod->L; k++) {
+        unsigned char st = k < s ? ST_SPLIT : (k == s ? ST_ACTIVE : ST_COARSE);
+        memset(lod->state[k], st, (size_t)lod->lv[k].n);
+    }
+    for (int k = 0; k < lod->L; k++)
+        rebuild_level(lod, k);
+}
+
+/* ---------------------------------------------------------------- ghost interpolation */
+
+/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
+ * axes of the destination stay zero */
+static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
+{
+    const int *tn = src->mesh->tets + 4 * t;
+    double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+    for (int m = 0; m < 4; m++) {
+        const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
+        for (int a = 0; a < 3; a++) {
+            d[a] += b[m] * sd[a];
+            v[a] += b[m] * sv[a];
+        }
+    }
+    unsigned char fx = dst->fixed[i];
+    for (int a = 0; a < 3; a++) {
+        int free_axis = !(fx & (1u << a));
+        dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
+        dst->v[3 * i + a] = free_axis ? v[a] : 0.0;
+    }
+}
+
+/* split ghosts of level k from their child tets in level k+1 */
+static void pull_level(sq_lod *lod, int k)
+{
+    if (k + 1 >= lod->L)
+        return;
+    const sq_lod_link *ln = &lod->h.link[k];
+    sq_level *dst = &lod->lv[k];
+    const sq_level *src = &lod->lv[k + 1];
+    for (int g = 0; g < lod->ngf[k]; g++) {
+        int i = lod->gf[k][g];
+        interp_node(dst, i, src, ln->down_tet[i], ln->down_bary + 4 * i);
+    }
+}
+
+/* coarse ghosts of level k from their parent tets in level k-1 */
+static void push_level(sq_lod *lod, int k)
+{
+    if (k < 1 || k >= lod->L)
+        return;
+    const sq_lod_link *ln = &lod->h.link[k - 1];
+    sq_level *dst = &lod->lv[k];
+    const sq_level *src = &lod->lv[k - 1];
+    for (int g = 0; g < lod->ngc[k]; g++) {
+        int j = lod->gc[k][g];
+        interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
+    }
+}
+
+void sq_lod_sync(sq_lod *lod)
+{
+    for (int k = lod->L - 2; k >= 0; k--)
+        pull_level(lod, k);
+    for (int k = 1; k < lod->L; k++)
+        push_level(lod, k);
+}
+
+/* ---------------------------------------------------------------- creation */
+
+
+/* effective top level of a definition over L levels (max_level beyond the last = every level) */
+static int top_of(const sq_lod_def *def, int L)
+{
+    if (def->max_level >= 0 && def->max_level < L - 1)
+        return def->max_level;
+    return L - 1;
+}
+
+static int check_def(const sq_lod_def *def, int L, sq_err *err)
+{
+    if (isnan(def->split) || def->split < 0)
+        return sq_err_set(err, "lod.split = %g: must be >= 0 (0 forces the finest level, a huge value "
+                          "keeps the coarsest)", def->split);
+    if (!isfinite(def->merge) || def->merge < 0)
+        return sq_err_set(err, "lod.merge = %g: must be a finite value >= 0", def->merge);
+    if (def->split > 0 && !(def->merge < def->split))
+        return sq_err_set(err, "lod.merge = %g must be below lod.split = %g (hysteresis); "
+                          "try merge = split / 8", def->merge, def->split);
+    if (!isfinite(def->budget) || def->budget <= 0 || def->budget > 1)
+        return sq_err_set(err, "lod.budget = %g: must be a fraction of the frame period in (0, 1] "
+                          "(0.95 is usual)", def->budget);
+    if (def->max_node_updates < 0)
+        return sq_err_set(err, "lod.max_node_updates = %ld: must be >= 0 (0 = no cap)",
+                          def->max_node_updates);
+    if (def->level < 0 || def->level > top_of(def, L))
+        return sq_err_set(err, "lod.level = %d: the starting level must be in [0, %d]", def->level,
+                          top_of(def, L));
+    return 0;
+}
+
+/* the starting layout of a definition: forced finest (split 0) starts at the top level */
+static int start_level(const sq_lod *lod)
+{
+    return lod->def.split <= 0 ? lod->top : lod->def.level;
+}
+
+sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_err *err)
+{
+    if (nlevels < 1 || nlevels > SQ_MAX_LEVELS) {
+        sq_err_set(err, "lod: %d levels given, need 1 to %d", nlevels, SQ_MAX_LEVELS);
+        return NULL;
+    }
+    if (check_def(def, nlevels, err))
+        return NULL;
+    const sq_mesh *meshes[SQ_MAX_LEVELS];
+    for (int k = 0; k < nlevels; k++) {
+        meshes[k] = levels[k].mesh;
+        if (!meshes[k] || levels[k].n != meshes[k]->nnodes) {
+            sq_err_set(err, "lod: level %d has no mesh or a node count that does not match it", k);
+            return NULL;
+        }
+    }
+    sq_lod *lod = sq_calloc(1, sizeof(*lod));
+    lod->lv = levels;
+    lod->L = nlevels;
+    lod->def = *def;
+    lod->top = top_of(def, nlevels);
+    if (sq_hierarchy_build(&lod->h, meshes, nlevels, err)) {
+        free(lod);
+        return NULL;
+    }
+    for (int k = 0; k < nlevels; k++) {
+        size_t n = (size_t)levels[k].n;
+        lod->state[k] = sq_calloc(n, 1);
+        lod->active[k] = sq_calloc(n, 1);
+        lod->mask[k] = sq_calloc(n, 1);
+        lod->fresh[k] = sq_calloc(n, 1);
+        lod->gf[k] = sq_malloc(sizeof(int) * n);
+        lod->gc[k] = sq_malloc(sizeof(int) * n);
+        lod->slot[k] = sq_malloc(sizeof(int) * n);
+        for (size_t i = 0; i < n; i++)
+            lod->slot[k][i] = -1;
+    }
+    set_uniform_level(lod, start_level(lod));
+    sq_lod_sync(lod);
+    return lod;
+}
+
+void sq_lod_destroy(sq_lod *lod)
+{
+    if (!lod)
+        return;
+    for (int k = 0; k < lod->L; k++) {
+        free(lod->state[k]);
+        free(lod->active[k]);
+        free(lod->mask[k]);
+        free(lod->fresh[k]);
+        free(lod->gf[k]);
+        free(lod->gc[k]);
+        free(lod->slot[k]);
+    }
+    free(lod->he);
+    free(lod->hold_entry_of);
+    sq_hierarchy_free(&lod->h);
+    free(lod);
+}
+
+int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err)
+{
+    if (check_def(def, lod->L, err))
+        return -1;
+    int old_top = lod->top;
+    int was_forced = lod->def.split <= 0;
+    lod->def = *def;
+    lod->top = top_of(def, lod->L);
+    if (def->split <= 0) {
+        /* forced finest: every region to the top level at once */
+        if (!was_forced || old_top != lod->top) {
+            set_uniform_level(lod, lod->top);
+            sq_lod_sync(lod);
+        }
+    } else if (lod->top < old_top) {
+        /* levels above the new top: merge their regions back down to it */
+        for (int k = lod->top; k < lod->L; k++)
+            for (int i = 0; i < lod->lv[k].n; i++)
+                if (k == lod->top && lod->state[k][i] == ST_SPLIT)
+                    lod->state[k][i] = ST_ACTIVE;
+                else if (k > lod->top)
+                    lod->state[k][i] = ST_COARSE;
+        for (int k = lod->top; k < lod->L; k++)
+            rebuild_level(lod, k);
+        sq_lod_sync(lod);
+    }
+    lod->last_time = 0;
+    return 0;
+}
+
+void sq_lod_reset(sq_lod *lod)
+{
+    set_uniform_level(lod, start_level(lod));
+    lod->last_time = 0;
+    sq_lod_sync(lod);
+}
+
+const sq_hierarchy *sq_lod_hierarchy(const sq_lod *lod)
+{
+    return &lod->h;
+}
+
+const unsigned char *sq_lod_active(const sq_lod *lod, int level)
+{
+    if (level < 0 || level >= lod->L)
+        return NULL;
+    return lod->active[level];
+}
+
+long sq_lod_projected_updates(const sq_lod *lod)
+{
+    long u = 0;
+    for (int k = 0; k < lod->L; k++)
+        u += (long)lod->nactive[k] << lod->lv[k].substeps_log2;
+    return u;
+}
+
+/* ---------------------------------------------------------------- split / merge */
+
+/* delta_i = hbar_i^2 |Lap(d)_i| at node i of level k */
+static double delta_of(const sq_level *L, int i)
+{
+    double lap[3];
+    sq_level_laplacian(L, i, lap);
+    return L->hbar[i] * L->hbar[i] * sqrt(lap[0] * lap[0] + lap[1] * lap[1] + lap[2] * lap[2]);
+}
+
+/* counters of one frame's adaptation */
+typedef struct adapt_out {
+    int splits, merges, refused;
+    int changed[SQ_MAX_LEVELS];
+} adapt_out;
+
+static void merge_node(sq_lod *lod, int k, int p)
+{
+    const sq_lod_link *ln = &lod->h.link[k];
+    lod->state[k][p] = ST_ACTIVE;
+    /* the merged node starts from its interpolated value (pulled from its child tet) */
+    interp_node(&lod->lv[k], p, &lod->lv[k + 1], ln->down_tet[p], ln->down_bary + 4 * p);
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
+        lod->state[k + 1][ln->child[c]] = ST_COARSE;
+    /* children become coarse ghosts and take their parent-tet value at once */
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
+        int j = ln->child[c];
+        interp_node(&lod->lv[k + 1], j, &lod->lv[k], ln->up_tet[j], ln->up_bary + 4 * j);
+    }
+}
+
+/* split/merge between levels k and k+1 (both at the same time); `allow_split` from the
+ * budget; the node-update cap refuses splits that would exceed it */
+static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out)
+{
+    if (k >= lod->top)
+        return;
+    const sq_lod_def *def = &lod->def;
+    const sq_lod_link *ln = &lod->h.link[k];
+    sq_level *Lk = &lod->lv[k], *Lf = &lod->lv[k + 1];
+    int forced = def->split <= 0;
+    long cost_k = 1L << Lk->substeps_log2, cost_f = 1L << Lf->substeps_log2;
+    int changed = 0;
+
+    /* splits: active nodes of level k above the threshold */
+    if (def->split < INFINITY) {
+        for (int i = 0; i < Lk->n; i++) {
+            if (lod->state[k][i] != ST_ACTIVE)
+                continue;
+            if (!forced && !(delta_of(Lk, i) > def->split))
+                continue;
+            int nch = ln->child_start[i + 1] - ln->child_start[i];
+            long extra = nch * cost_f - cost_k;
+            if (!allow_split || (def->max_node_updates > 0 && *projected + extra > def->max_node_updates)) {
+                out->refused = 1;
+                continue;
+            }
+            /* children were coarse ghosts holding their interpolated d and v: they start there */
+            lod->state[k][i] = ST_SPLIT;
+            lod->fresh[k][i] = 1;
+            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
+                lod->state[k + 1][ln->child[c]] = ST_ACTIVE;
+            *projected += extra;
+            out->splits++;
+            changed = 1;
+        }
+    }
+
+    /* merges: split nodes of level k whose children are all active and calm */
+    if (!forced) {
+        for (int p = 0; p < Lk->n; p++) {
+            if (lod->state[k][p] != ST_SPLIT || lod->fresh[k][p])
+                continue;
+            int ok = 1;
+            int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
+            for (int c = c0; c < c1 && ok; c++)
+                if (lod->state[k + 1][ln->child[c]] != ST_ACTIVE)
+                    ok = 0;
+            if (!ok)
+                continue;
+            if (c1 == c0) {
+                /* no child: judge the node on its own (interpolated) field */
+                if (!(delta_of(Lk, p) < def->merge))
+                    continue;
+            } else {
+                for (int c = c0; c < c1 && ok; c++)
+                    if (!(delta_of(Lf, ln->child[c]) < def->merge))
+                        ok = 0;
+                if (!ok)
+                    continue;
+            }
+            merge_node(lod, k, p);
+            *projected -= (long)(c1 - c0) * cost_f - cost_k;
+            out->merges++;
+            changed = 1;
+        }
+    }
+    for (int i = 0; i < Lk->n; i++)
+        lod->fresh[k][i] = 0;
+    if (changed) {
+        out->changed[k] = out->changed[k + 1] = 1;
+    }
+}
+
+/* hard cap: merge the finest mergeable regions until the projected cost fits */
+static void enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
+{
+    long cap = lod->def.max_node_updates;
+    if (cap <= 0 || *projected <= cap)
+        return;
+    for (int k = lod->top - 1; k >= 0 && *projected > cap; k--) {
+        const sq_lod_link *ln = &lod->h.link[k];
+        long cost_k = 1L << lod->lv[k].substeps_log2, cost_f = 1L << lod->lv[k + 1].substeps_log2;
+        for (int p = 0; p < lod->lv[k].n && *projected > cap; p++) {
+            if (lod->state[k][p] != ST_SPLIT)
+                continue;
+            int ok = 1;
+            for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
+                if (lod->state[k + 1][ln->child[c]] != ST_ACTIVE)
+                    ok = 0;
+            if (!ok)
+                continue;
+            merge_node(lod, k, p);
+            *projected -= (long)(ln->child_start[p + 1] - ln->child_start[p]) * cost_f - cost_k;
+            out->merges++;
+            out->changed[k] = out->changed[k + 1] = 1;
+        }
+    }
+}
+
+/* ---------------------------------------------------------------- tool holds */
+
+/* the active node standing for finest node j: itself or its active ancestor; -1 if none */
+static int active_of_finest(const sq_lod *lod, int j, int *level)
+{
+    int k = lod->L - 1, a = j;
+    while (lod->state[k][a] != ST_ACTIVE) {
+        if (k == 0)
+            return -1;
+        a = lod->h.link[k - 1].parent[a];
+        k--;
+    }
+    *level = k;
+    return a;
+}
+
+/* map hold h (at time t_now within the frame) onto its active node; adds to that node's entry */
+static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
+{
+    int F = lod->L - 1, k;
+    int a = active_of_finest(lod, hd->node, &k);
+    if (a < 0) {
+        lod->hold_entry_of[h] = -1;
+        return;
+    }
+    sq_level *Lk = &lod->lv[k];
+    const double *dj = lod->lv[F].d + 3 * hd->node;
+    int e = lod->slot[k][a];
+    if (e < 0) {
+        if (lod->nhe == lod->cap_he) {
+            lod->cap_he = lod->cap_he ? 2 * lod->cap_he : 64;
+            lod->he = sq_realloc(lod->he, sizeof(hold_entry) * (size_t)lod->cap_he);
+        }
+        e = lod->nhe++;
+        hold_entry *E = &lod->he[e];
+        memset(E, 0, sizeof(*E));
+        E->level = k;
+        E->node = a;
+        E->t_from = t_now;
+        memcpy(E->from, Lk->d + 3 * a, sizeof(E->from));
+        lod->slot[k][a] = e;
+        if (lod->mask[k][a]) {
+            lod->mask[k][a] = 0;
+            lod->nmask[k]--;
+        }
+    }
+    hold_entry *E = &lod->he[e];
+    /* the hold node itself takes its target; an ancestor the same translation */
+    for (int c = 0; c < 3; c++)
+        E->gsum[c] += (k == F && a == hd->node) ? hd->target[c]
+                                                : Lk->d[3 * a + c] + (hd->target[c] - dj[c]);
+    E->count++;
+    E->pending = 1;
+    lod->hold_entry_of[h] = e;
+}
+
+/* prescribe the nodes whose targets changed: d = mean target, v = (d - from) / time left */
+static void start_holds(sq_lod *lod, double T)
+{
+    for (int e = 0; e < lod->nhe; e++) {
+        hold_entry *E = &lod->he[e];
+        if (!E->pending || E->count == 0)
+            continue;
+        E->pending = 0;
+        sq_level *Lk = &lod->lv[E->level];
+        double span = T - E->t_from;
+        unsigned char fx = Lk->fixed[E->node];
+        for (int c = 0; c < 3; c++) {
+            if (fx & (1u << c))
+                continue;
+            double goal = E->gsum[c] / E->count;
+            Lk->d[3 * E->node + c] = goal;
+            Lk->v[3 * E->node + c] = span > 0 ? (goal - E->from[c]) / span : 0.0;
+        }
+    }
+}
+
+/* drop the entries whose node stopped being active and map their holds again at t_now */
+static void remap_holds(sq_lod *lod, const sq_hold *holds, int nholds, double t_now)
+{
+    int dead = 0;
+    for (int e = 0; e < lod->nhe; e++) {
+        hold_entry *E = &lod->he[e];
+        if (E->count > 0 && lod->state[E->level][E->node] != ST_ACTIVE) {
+            lod->slot[E->level][E->node] = -1;
+            E->count = 0; /* dead; kept in the table so indices stay valid */
+            dead = 1;
+        }
+    }
+    if (!dead)
+        return;
+    for (int h = 0; h < nholds; h++) {
+        int e = lod->hold_entry_of[h];
+        if (e >= 0 && lod->he[e].count == 0)
+            map_hold(lod, &holds[h], h, t_now);
+    }
+}
+
+static void clear_holds(sq_lod *lod)
+{
+    for (int e = 0; e < lod->nhe; e++)
+        if (lod->slot[lod->he[e].level][lod->he[e].node] == e)
+            lod->slot[lod->he[e].level][lod->he[e].node] = -1;
+    lod->nhe = 0;
+}
+
+/* elastic force -sum_j K_ij d_j on node i of a level */
+static void elastic_force(const sq_level *L, int i, double f[3])
+{
+    f[0] = f[1] = f[2] = 0;
+    for (int s = L->row_start[i]; s < L->row_start[i + 1]; s++) {
+        const double *K = L->K + 9 * s, *dj = L->d + 3 * L->col[s];
+        for (int r = 0; r < 3; r++)
+            f[r] -= K[3 * r] * dj[0] + K[3 * r + 1] * dj[1] + K[3 * r + 2] * dj[2];
+    }
+}
+
+/* ---------------------------------------------------------------- the frame */
+
+void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], double frame_dt,
+                  const sq_hold *holds, int nholds, int ntools, double (*force)[3],
+                  sq_frame_profile *prof, double budget_s)
+{
+    double t_start = sq_now();
+    int L = lod->L, F = L - 1;
+    double t_pull = 0, t_int = 0, t_push = 0, t_adapt = 0;
+    long updates = 0;
+    adapt_out ao;
+    memset(&ao, 0, sizeof(ao));
+    for (int t = 0; t < ntools; t++)
+        force[t][0] = force[t][1] = force[t][2] = 0;
+
+    /* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
+    double prev_time = lod->last_time;
+    int over_budget = budget_s > 0 && prev_time > lod->def.budget * budget_s;
+    long projected = sq_lod_projected_updates(lod);
+
+    /* substep clock of the finest step */
+    int nmax = 0;
+    for (int k = 0; k < L; k++)
+        nmax = SQ_MAX(nmax, lod->lv[k].substeps_log2);
+    long nticks = 1L << nmax;
+    long stride[SQ_MAX_LEVELS];
+    for (int k = 0; k < L; k++)
+        stride[k] = 1L << (nmax - lod->lv[k].substeps_log2);
+    double dtf = frame_dt / (double)nticks;
+
+    /* tool holds onto active nodes */
+    clear_holds(lod);
+    if (nholds > lod->cap_holds) {
+        lod->cap_holds = nholds;
+        lod->hold_entry_of = sq_realloc(lod->hold_entry_of, sizeof(int) * (size_t)nholds);
+    }
+    for (int k = 0; k < L; k++) {
+        lod->nmask[k] = lod->nactive[k];
+        memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].n);
+    }
+    for (int h = 0; h < nholds; h++) {
+        lod->hold_entry_of[h] = -1;
+        if (holds[h].node < 0 || holds[h].node >= lod->lv[F].n || holds[h].tool < 0 ||
+            holds[h].tool >= ntools)
+            continue; /* the body validates holds; ignore any that are out of range */
+        map_hold(lod, &holds[h], h, 0.0);
+    }
+    start_holds(lod, frame_dt);
+
+    for (long t = 0; t < nticks; t++) {
+        /* (2)+(3): integrate each due level coarse to fine, push to the finer ghosts */
+        for (int k = 0; k < L; k++) {
+            if (t % stride[k])
+                continue;
+            double t0 = sq_now();
+            sq_level *Lk = &lod->lv[k];
+            if (lod->nactive[k] > 0) {
+                /* forces on every active node (held ones for their feedback), then integrate
+                 * the free ones */
+                sq_level_forces(Lk, mat, gravity, lod->active[k]);
+                for (int e = 0; e < lod->nhe; e++) {
+                    hold_entry *E = &lod->he[e];
+                    if (E->level != k || E->count == 0)
+                        continue;
+                    int i = E->node;
+                    for (int c = 0; c < 3; c++)
+                        E->fsum[c] += Lk->f[3 * i + c] - Lk->mass[i] * gravity[c];
+                    E->nf++;
+                }
+                if (lod->nmask[k] > 0)
+                    sq_level_integrate(Lk, Lk->dt, lod->mask[k]);
+                updates += lod->nmask[k];
+            }
+            double t1 = sq_now();
+            t_int += t1 - t0;
+            /* push to k+1, and on through finer levels not due at this tick */
+            for (int j = k + 1; j < L; j++) {
+                push_level(lod, j);
+                if (t % stride[j] == 0)
+                    break;
+            }
+            t_push += sq_now() - t1;
+        }
+        /* (1) of the next steps: pull split ghosts of the levels due next, fine to coarse */
+        double t2 = sq_now();
+        long next = t + 1;
+        for (int k = L - 2; k >= 0; k--)
+            if (next % stride[k] == 0 || next == nticks)
+                pull_level(lod, k);
+        double t3 = sq_now();
+        t_pull += t3 - t2;
+        /* (4) split/merge between levels at the same time */
+        int any = 0;
+        for (int k = 0; k + 1 < L; k++) {
+            if (next % stride[k] || next % stride[k + 1])
+                continue;
+            adapt_pair(lod, k, !over_budget, &projected, &ao);
+        }
+        if (next == nticks)
+            enforce_cap(lod, &projected, &ao);
+        for (int k = 0; k < L; k++)
+            if (ao.changed[k]) {
+                rebuild_level(lod, k);
+                ao.changed[k] = 0;
+                any = 1;
+            }
+        /* holds whose node was split or merged move to the node now active there */
+        if (any && nholds > 0) {
+            remap_holds(lod, holds, nholds, (double)next * dtf);
+            start_holds(lod, frame_dt);
+        }
+        t_adapt += sq_now() - t3;
+    }
+
+    /* feedback: mean internal force on the held nodes, shared among the holds mapped there */
+    for (int h = 0; h < nholds; h++) {
+        int e = lod->hold_entry_of[h];
+        if (e < 0 || lod->he[e].count == 0 || lod->he[e].nf == 0)
+            continue;
+        const hold_entry *E = &lod->he[e];
+        for (int c = 0; c < 3; c++)
+            force[holds[h].tool][c] += E->fsum[c] / E->nf / E->count;
+    }
+    clear_holds(lod);
+    for (int k = 0; k < L; k++)
+        if (lod->nmask[k] != lod->nactive[k])
+            rebuild_level(lod, k);
+
+    double t_end = sq_now();
+    lod->last_time = t_end - t_start;
+    if (prof) {
+        prof->t_pull = t_pull;
+        prof->t_integrate = t_int;
+        prof->t_push = t_push;
+        prof->t_adapt = t_adapt;
+        prof->t_total = t_end - t_start;
+        prof->node_updates = updates;
+        for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+            prof->active[k] = k < L ? lod->nactive[k] : 0;
+            prof->substeps[k] = k < L ? 1 << lod->lv[k].substeps_log2 : 0;
+        }
+        prof->splits = ao.splits;
+        prof->merges = ao.merges;
+        prof->splits_refused = over_budget || ao.refused;
+        if (over_budget)
+            snprintf(prof->event, sizeof(prof->event),
+                     "warning: frame compute %.2f ms over %.0f%% of the %.2f ms budget: splitting "
+                     "refused, merging allowed", prev_time * 1e3, lod->def.budget * 100,
+                     budget_s * 1e3);
+        else if (ao.refused)
+            snprintf(prof->event, sizeof(prof->event),
+                     "warning: node-update cap %ld per frame reached: splitting refused",
+                     lod->def.max_node_updates);
+    }
+}
+
+/* ---------------------------------------------------------------- views */
+
+void sq_lod_node_levels(const sq_lod *lod, unsigned char *out)
+{
+    int F = lod->L - 1;
+    for (int j = 0; j < lod->lv[F].n; j++) {
+        int k = 0;
+        out[j] = active_of_finest(lod, j, &k) >= 0 ? (unsigned char)k : 0;
+    }
+}
+
+double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
+{
+    double ek = 0, ee = 0;
+    for (int k = 0; k < lod->L; k++) {
+        const sq_level *Lk = &lod->lv[k];
+        for (int i = 0; i < Lk->n; i++) {
+            if (lod->state[k][i] != ST_ACTIVE)
+                continue;
+            const double *v = Lk->v + 3 * i, *d = Lk->d + 3 * i;
+            ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            double f[3];
+            elastic_force(Lk, i, f);
+            ee -= 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
+        }
+    }
+    if (kinetic)
+        *kinetic = ek;
+    if (elastic)
+        *elastic = ee;
+    return ek + ee;
+}
+
+int sq_lod_check(const sq_lod *lod, sq_err *err)
+{
+    for (int k = 0; k < lod->L; k++) {
+        int na = 0;
+        for (int i = 0; i < lod->lv[k].n; i++) {
+            unsigned char s = lod->state[k][i];
+            if (s > ST_SPLIT)
+                return sq_err_set(err, "lod: level %d node %d has state %d", k, i, s);
+            if (k == 0 && s == ST_COARSE)
+                return sq_err_set(err, "lod: level-0 node %d is a coarse ghost", i);
+            if (k >= lod->top && s == ST_SPLIT)
+                return sq_err_set(err, "lod: node %d of level %d (top %d) is split", i, k, lod->top);
+            if (k > 0) {
+                int p = lod->h.link[k - 1].parent[i];
+                int parent_split = lod->state[k - 1][p] == ST_SPLIT;
+                if (parent_split != (s != ST_COARSE))
+                    return sq_err_set(err, "lod: level %d node %d has state %d but its parent %d has "
+                                      "state %d", k, i, s, p, lod->state[k - 1][p]);
+            }
+            if (lod->active[k][i] != (s == ST_ACTIVE))
+                return sq_err_set(err, "lod: level %d node %d: active mask out of date", k, i);
+            na += s == ST_ACTIVE;
+        }
+        if (na != lod->nactive[k])
+            return sq_err_set(err, "lod: level %d counts %d active nodes, has %d", k, lod->nactive[k], na);
+    }
+    return 0;
+}
