@@ -30,6 +30,8 @@ typedef struct sq_level {
     double *d;             /* displacement (n x 3), m */
     double *v;             /* velocity (n x 3), m/s */
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
+    double *w;             /* scratch: d + b v of the last force pass (n x 3), m */
+    int nfree;             /* nodes with at least one unconstrained axis */
 
     double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
     double bound;          /* stability bound on the step with damping, s */
@@ -67,7 +69,26 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
 /* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
 
-/* Laplacian of the displacement at node i, (1/vol_i) sum_j lap_ij d_j (m^-1) */
+/* Laplacian of the displacement at node i, -(1/vol_i) sum_j lap_ij d_j (m^-1); lap_ij is the
+ * (positive semi-definite) stiffness of -Lap, hence the minus sign */
 void sq_level_laplacian(const sq_level *L, int i, double out[3]);
+
+/* static equilibrium K d = M g with the level's constraints (constrained axes zero), by
+ * Jacobi-preconditioned conjugate gradients to relative residual tol; d (n x 3) receives
+ * the solution; -1 + err if CG breaks down or does not converge in max_iter */
+int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
+                          double *d, int *iterations, sq_err *err);
+
+/* 0.5 d.K d of the level's current displacement (J) */
+double sq_level_elastic_energy(const sq_level *L);
+
+/* engine-internal access to a body's levels (lod, tests, benchmarks): the level if it is
+ * initialised, else NULL */
+sq_level *sq_body_level(sq_body *b, int level);
+/* the level simulated in fixed mode */
+int sq_body_fixed_level(const sq_body *b);
+/* sleep tolerances: calm for `frames` frames (0: never sleep) with rms speed below
+ * ke_speed bbox diagonals per second and sq_body_residual below `residual` (defaults 25, 1e-4, 1e-4) */
+void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual);
 
 #endif

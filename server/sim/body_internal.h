@@ -1,0 +1,59 @@
+/* body_internal.h - the body's private state, shared by sim/body.c and sim/tools.c. */
+#ifndef SQ_BODY_INTERNAL_H
+#define SQ_BODY_INTERNAL_H
+
+#include "sim/level.h"
+
+struct sq_lod;
+
+/* a grab tool's capture: finest surface vertices and their displacement at capture time */
+typedef struct sq_grab {
+    int id;                /* tool id, -1 when free */
+    int n;                 /* captured surface vertices */
+    int *surf;             /* surface vertex indices (n) */
+    double *disp;          /* displacement at capture (n x 3), m */
+    double start[3];       /* tool position at capture, m */
+} sq_grab;
+
+struct sq_body {
+    sq_body_def def;                       /* copy; name points at `name` */
+    char name[64];
+    int nuse;                              /* levels loaded: nlevels capped by max_level + 1 */
+    int fine;                              /* finest loaded level (nuse - 1): the rendered surface */
+    int cur;                               /* fixed mode: the simulated level */
+    sq_level level[SQ_MAX_LEVELS];
+    int ready[SQ_MAX_LEVELS];              /* level initialised */
+    unsigned char *mask[SQ_MAX_LEVELS];    /* integration mask (held nodes 0) (n_k) */
+    int *hold_of[SQ_MAX_LEVELS];           /* scratch: hold index per node or -1 (n_k) */
+    struct sq_lod *lod;                    /* adaptive mode state, else NULL */
+    double diag;                           /* finest rest bounding-box diagonal, m */
+
+    /* finest surface vertex -> fixed level map (valid for map_level) */
+    int map_level;
+    int *surf_tet;                         /* tet of level map_level (nsurf) */
+    double *surf_bary;                     /* its barycentrics (nsurf x 4) */
+    int *surf_near;                        /* nearest level node (nsurf) */
+    unsigned char *node_level;             /* level per finest node (n_fine) */
+
+    /* tools */
+    sq_grab grab[SQ_MAX_TOOLS];
+    sq_hold *holds;                        /* this frame's holds on finest nodes */
+    int cap_holds;
+    sq_hold *khold;                        /* holds mapped to the fixed level */
+    int *kcount;                           /* holds averaged into each khold */
+    int cap_khold;
+
+    /* sleep */
+    int sleeping, calm;
+    int sleep_frames;                      /* calm frames before sleeping (0: never sleep) */
+    double sleep_ke_speed;                 /* rms speed below this many bbox diagonals per second */
+    double sleep_residual;                 /* sq_body_residual-style measure below this */
+};
+
+/* displacement of finest surface vertex s (interpolated from the fixed level when coarser) */
+void sq_body_surface_disp(const sq_body *b, int s, double u[3]);
+
+/* turn the frame's tools into b->holds; tool_nodes[t] = nodes held by tool t; returns nholds */
+int sq_body_tool_holds(sq_body *b, const sq_tool *tools, int ntools, int *tool_nodes);
+
+#endif

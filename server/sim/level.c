@@ -1,0 +1,390 @@
+/* level.c - one level of detail: operator assembly, stability bound, forces, integration.
+ *
+ * The operator is a CSR matrix of 3x3 blocks over the mesh adjacency (diagonal included),
+ * stored contiguously per row so the force pass streams through it once per step.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "sim/level.h"
+
+/* position of column j in row i of the CSR adjacency, or -1 */
+static int csr_find(const int *row_start, const int *col, int i, int j)
+{
+    int lo = row_start[i], hi = row_start[i + 1] - 1;
+    while (lo <= hi) {
+        int mid = (lo + hi) / 2;
+        if (col[mid] == j)
+            return mid;
+        if (col[mid] < j)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return -1;
+}
+
+/* does constraint c select the rest point x? (eps: tolerance in metres) */
+static int constraint_selects(const sq_constraint *c, const double *x, double eps)
+{
+    if (c->kind == SQ_REGION_BOX) {
+        for (int k = 0; k < 3; k++)
+            if (x[k] < c->a[k] - eps || x[k] > c->b[k] + eps)
+                return 0;
+        return 1;
+    }
+    double nn = sqrt(c->b[0] * c->b[0] + c->b[1] * c->b[1] + c->b[2] * c->b[2]);
+    if (nn == 0)
+        return 0;
+    double s = 0;
+    for (int k = 0; k < 3; k++)
+        s += (x[k] - c->a[k]) * c->b[k];
+    return s / nn <= eps;
+}
+
+/* assemble blocks of one operator into out (nnz x 9) with shear-like coefficient s and
+ * volume-like coefficient l (mu, lambda for K; phi, psi for D) */
+static int assemble(const sq_level *L, sq_operator_kind op, double s, double l, double *out,
+                    double *lap, double *mass, double *vol, double density, sq_err *err)
+{
+    const sq_mesh *m = L->mesh;
+    memset(out, 0, sizeof(double) * 9 * (size_t)L->nnz);
+    if (lap)
+        memset(lap, 0, sizeof(double) * (size_t)L->nnz);
+    if (mass) {
+        memset(mass, 0, sizeof(double) * (size_t)L->n);
+        memset(vol, 0, sizeof(double) * (size_t)L->n);
+    }
+    for (int t = 0; t < m->ntets; t++) {
+        double a[4][3];
+        double V = sq_tet_gradients(m, t, a);
+        if (!(V > 0) || !isfinite(V))
+            return sq_err_set(err, "%s: tetrahedron %d has volume %g: the operator needs positively "
+                                   "oriented, non-degenerate tets; repair the mesh", m->source, t, V);
+        const int *tv = m->tets + 4 * t;
+        for (int p = 0; p < 4; p++) {
+            int i = tv[p];
+            if (mass) {
+                mass[i] += density * V / 4;
+                vol[i] += V / 4;
+            }
+            for (int q = 0; q < 4; q++) {
+                int j = tv[q];
+                int e = csr_find(L->row_start, L->col, i, j);
+                if (e < 0)
+                    return sq_err_set(err, "%s: nodes %d and %d share tetrahedron %d but are not "
+                                           "adjacent in the mesh topology; re-finalize the mesh",
+                                      m->source, i, j, t);
+                const double *ai = a[p], *aj = a[q];
+                double dot = ai[0] * aj[0] + ai[1] * aj[1] + ai[2] * aj[2];
+                double *B = out + 9 * (size_t)e;
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++) {
+                        double v = (r == c ? s * dot : 0);
+                        if (op == SQ_OPERATOR_PAPER)
+                            v += (l + s) * ai[r] * aj[c];
+                        else
+                            v += s * aj[r] * ai[c] + l * ai[r] * aj[c];
+                        B[3 * r + c] += V * v;
+                    }
+                if (lap)
+                    lap[e] += V * dot;
+            }
+        }
+    }
+    return 0;
+}
+
+/* Gershgorin bound on the largest eigenvalue of M^-1 A over unconstrained rows */
+static double gershgorin(const sq_level *L, const double *A)
+{
+    double best = 0;
+    for (int i = 0; i < L->n; i++) {
+        for (int r = 0; r < 3; r++) {
+            if (L->fixed[i] & (1u << r))
+                continue;
+            double s = 0;
+            for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+                int j = L->col[e];
+                const double *B = A + 9 * (size_t)e + 3 * r;
+                for (int c = 0; c < 3; c++)
+                    if (!(L->fixed[j] & (1u << c)))
+                        s += fabs(B[c]);
+            }
+            s /= L->mass[i];
+            if (s > best)
+                best = s;
+        }
+    }
+    return best;
+}
+
+int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_operator_kind op,
+                  const sq_constraint *cons, int ncons, sq_err *err)
+{
+    memset(L, 0, sizeof *L);
+    if (!mesh || mesh->nnodes <= 0 || mesh->ntets <= 0 || !mesh->adj_start)
+        return sq_err_set(err, "level mesh is empty or not finalized; load it with sq_mesh_load");
+    L->mesh = mesh;
+    L->n = mesh->nnodes;
+    L->row_start = mesh->adj_start;
+    L->col = mesh->adj;
+    L->nnz = mesh->adj_start[mesh->nnodes];
+    size_t n3 = 3 * (size_t)L->n;
+    L->K = sq_malloc(sizeof(double) * 9 * (size_t)L->nnz);
+    L->lap = sq_malloc(sizeof(double) * (size_t)L->nnz);
+    L->mass = sq_malloc(sizeof(double) * (size_t)L->n);
+    L->vol = sq_malloc(sizeof(double) * (size_t)L->n);
+    L->hbar = sq_calloc((size_t)L->n, sizeof(double));
+    L->fixed = sq_calloc((size_t)L->n, 1);
+    L->d = sq_calloc(n3, sizeof(double));
+    L->v = sq_calloc(n3, sizeof(double));
+    L->f = sq_calloc(n3, sizeof(double));
+    L->w = sq_calloc(n3, sizeof(double));
+
+    /* fixed axes: a tolerance of 1e-9 of the bounding-box diagonal absorbs rounding */
+    double diag = 0;
+    for (int k = 0; k < 3; k++)
+        diag += (mesh->bbox_max[k] - mesh->bbox_min[k]) * (mesh->bbox_max[k] - mesh->bbox_min[k]);
+    double eps = 1e-9 * sqrt(diag);
+    for (int i = 0; i < L->n; i++) {
+        const double *x = mesh->x + 3 * (size_t)i;
+        for (int c = 0; c < ncons; c++)
+            if (constraint_selects(&cons[c], x, eps))
+                L->fixed[i] |= (unsigned char)(cons[c].axes & 7u);
+        if (L->fixed[i] != 7)
+            L->nfree++;
+    }
+
+    /* mean 1-ring edge length */
+    for (int i = 0; i < L->n; i++) {
+        double s = 0;
+        int cnt = 0;
+        for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+            int j = L->col[e];
+            if (j == i)
+                continue;
+            double dx = mesh->x[3 * j] - mesh->x[3 * i], dy = mesh->x[3 * j + 1] - mesh->x[3 * i + 1],
+                   dz = mesh->x[3 * j + 2] - mesh->x[3 * i + 2];
+            s += sqrt(dx * dx + dy * dy + dz * dz);
+            cnt++;
+        }
+        L->hbar[i] = cnt ? s / cnt : 0;
+    }
+
+    if (sq_level_set_material(L, mat, op, err) < 0) {
+        sq_level_free(L);
+        return -1;
+    }
+    return 0;
+}
+
+void sq_level_free(sq_level *L)
+{
+    if (!L)
+        return;
+    free(L->K);
+    free(L->D);
+    free(L->lap);
+    free(L->mass);
+    free(L->vol);
+    free(L->hbar);
+    free(L->fixed);
+    free(L->d);
+    free(L->v);
+    free(L->f);
+    free(L->w);
+    memset(L, 0, sizeof *L);
+}
+
+int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err)
+{
+    if (sq_material_check(mat, err) < 0)
+        return -1;
+    if (op != SQ_OPERATOR_FEM && op != SQ_OPERATOR_PAPER)
+        return sq_err_set(err, "operator %d is unknown: use fem or paper", (int)op);
+    if (assemble(L, op, mat->mu, mat->lambda, L->K, L->lap, L->mass, L->vol, mat->density, err) < 0)
+        return -1;
+    if (mat->use_viscosity) {
+        if (!L->D)
+            L->D = sq_malloc(sizeof(double) * 9 * (size_t)L->nnz);
+        if (assemble(L, op, mat->phi, mat->psi, L->D, NULL, NULL, NULL, 0, err) < 0)
+            return -1;
+    } else {
+        free(L->D);
+        L->D = NULL;
+    }
+    L->omega_max = sqrt(gershgorin(L, L->K));
+    return 0;
+}
+
+int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
+                         sq_err *err)
+{
+    if (!(frame_dt > 0) || !isfinite(frame_dt))
+        return sq_err_set(err, "frame period %g s is out of range: give a frame rate > 0", frame_dt);
+    if (!(step_fraction > 0 && step_fraction <= 1))
+        return sq_err_set(err, "step_fraction %g is out of range: give 0 < step_fraction <= 1", step_fraction);
+    double w = L->omega_max;
+    /* damping rate of the fastest mode: c = a + b w^2 (Rayleigh) or a + lambda_max(M^-1 D) */
+    double c = mat->rayleigh_mass;
+    if (mat->use_viscosity && L->D)
+        c += gershgorin(L, L->D);
+    else
+        c += mat->rayleigh_stiffness * w * w;
+    /* symplectic Euler with damping is stable iff w^2 dt^2 + 2 c dt <= 4, i.e.
+     * dt <= (-c + sqrt(c^2 + 4 w^2)) / w^2 = 4 / (c + sqrt(c^2 + 4 w^2)) (the second form keeps
+     * its digits when c >> w and also covers w = 0) */
+    double bound = (w > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w * w)) : INFINITY;
+    L->bound = bound;
+    int n = 0;
+    while (frame_dt / ldexp(1.0, n) > step_fraction * bound) {
+        n++;
+        if (n > 20) {
+            int need = n;
+            while (frame_dt / ldexp(1.0, need) > step_fraction * bound && need < 1000)
+                need++;
+            return sq_err_set(err, "needs 2^%d substeps per frame at %.4g Hz (bound %.3g s); the "
+                                   "limit is 2^20: lower the stiffness or damping, raise the density, "
+                                   "or use a coarser mesh", need, 1.0 / frame_dt, bound);
+        }
+    }
+    L->substeps_log2 = n;
+    L->dt = frame_dt / ldexp(1.0, n);
+    return 0;
+}
+
+/* f_i = -sum_j A_ij w_j for all rows (the hot loop) */
+static void block_product_all(int n, const int *restrict rs, const int *restrict col,
+                              const double *restrict A, const double *restrict w, double *restrict f)
+{
+    for (int i = 0; i < n; i++) {
+        double f0 = 0, f1 = 0, f2 = 0;
+        for (int e = rs[i]; e < rs[i + 1]; e++) {
+            const double *restrict B = A + 9 * (size_t)e;
+            const double *restrict wj = w + 3 * (size_t)col[e];
+            double w0 = wj[0], w1 = wj[1], w2 = wj[2];
+            f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
+            f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
+            f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
+        }
+        f[3 * i] = -f0;
+        f[3 * i + 1] = -f1;
+        f[3 * i + 2] = -f2;
+    }
+}
+
+/* f_i -= sum_j A_ij w_j for one row */
+static void block_row(const sq_level *L, const double *A, const double *w, int i, double out[3])
+{
+    double f0 = 0, f1 = 0, f2 = 0;
+    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+        const double *B = A + 9 * (size_t)e;
+        const double *wj = w + 3 * (size_t)L->col[e];
+        f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
+        f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
+        f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
+    }
+    out[0] -= f0;
+    out[1] -= f1;
+    out[2] -= f2;
+}
+
+void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
+                     const unsigned char *active)
+{
+    const int n = L->n;
+    const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
+    const double a = mat->rayleigh_mass;
+    const double *restrict d = L->d;
+    const double *restrict v = L->v;
+    const double *restrict mass = L->mass;
+    double *restrict f = L->f;
+    double *restrict w = L->w;
+    const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
+
+    /* argument of the stiffness blocks: d + b v, once per step (all nodes: neighbours read it) */
+    const double *arg = d;
+    if (b != 0) {
+        for (size_t k = 0; k < 3 * (size_t)n; k++)
+            w[k] = d[k] + b * v[k];
+        arg = w;
+    }
+
+    if (!active) {
+        block_product_all(n, L->row_start, L->col, L->K, arg, f);
+        if (L->D && mat->use_viscosity) {
+            for (int i = 0; i < n; i++)
+                block_row(L, L->D, v, i, f + 3 * (size_t)i);
+        }
+        for (int i = 0; i < n; i++) {
+            double m = mass[i];
+            f[3 * i] += m * (g0 - a * v[3 * i]);
+            f[3 * i + 1] += m * (g1 - a * v[3 * i + 1]);
+            f[3 * i + 2] += m * (g2 - a * v[3 * i + 2]);
+        }
+        return;
+    }
+    for (int i = 0; i < n; i++) {
+        if (!active[i])
+            continue;
+        double *fi = f + 3 * (size_t)i;
+        double m = mass[i];
+        fi[0] = m * (g0 - a * v[3 * i]);
+        fi[1] = m * (g1 - a * v[3 * i + 1]);
+        fi[2] = m * (g2 - a * v[3 * i + 2]);
+        block_row(L, L->K, arg, i, fi);
+        if (L->D && mat->use_viscosity)
+            block_row(L, L->D, v, i, fi);
+    }
+}
+
+void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
+{
+    const int n = L->n;
+    double *restrict d = L->d;
+    double *restrict v = L->v;
+    const double *restrict f = L->f;
+    const double *restrict mass = L->mass;
+    const unsigned char *restrict fixed = L->fixed;
+    for (int i = 0; i < n; i++) {
+        if (active && !active[i])
+            continue;
+        double h = dt / mass[i];
+        double v0 = v[3 * i] + h * f[3 * i];
+        double v1 = v[3 * i + 1] + h * f[3 * i + 1];
+        double v2 = v[3 * i + 2] + h * f[3 * i + 2];
+        unsigned fx = fixed[i];
+        if (fx) {
+            if (fx & 1u)
+                v0 = 0;
+            if (fx & 2u)
+                v1 = 0;
+            if (fx & 4u)
+                v2 = 0;
+        }
+        v[3 * i] = v0;
+        v[3 * i + 1] = v1;
+        v[3 * i + 2] = v2;
+        d[3 * i] += dt * v0;
+        d[3 * i + 1] += dt * v1;
+        d[3 * i + 2] += dt * v2;
+    }
+}
+
+void sq_level_laplacian(const sq_level *L, int i, double out[3])
+{
+    double s0 = 0, s1 = 0, s2 = 0;
+    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+        const double *dj = L->d + 3 * (size_t)L->col[e];
+        double w = L->lap[e];
+        s0 += w * dj[0];
+        s1 += w * dj[1];
+        s2 += w * dj[2];
+    }
+    double iv = L->vol[i] > 0 ? -1.0 / L->vol[i] : 0;
+    out[0] = s0 * iv;
+    out[1] = s1 * iv;
+    out[2] = s2 * iv;
+}

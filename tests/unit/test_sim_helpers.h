@@ -1,0 +1,57 @@
+/* test_sim_helpers.h - small helpers shared by the sim and physics unit tests. */
+#ifndef SQ_TEST_SIM_HELPERS_H
+#define SQ_TEST_SIM_HELPERS_H
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "sim/level.h"
+
+/* a box mesh or fail the test (returns NULL) */
+static inline sq_mesh *th_box(int nx, int ny, int nz, double sx, double sy, double sz)
+{
+    sq_err e = {{0}};
+    double size[3] = {sx, sy, sz}, origin[3] = {0, 0, 0};
+    sq_mesh *m = sq_mesh_box(nx, ny, nz, size, origin, &e);
+    if (!m)
+        fprintf(stderr, "sq_mesh_box: %s\n", e.msg);
+    return m;
+}
+
+/* an undamped material with standard Lamé parameters */
+static inline sq_material th_material(double mu, double lambda, double density)
+{
+    sq_material m;
+    memset(&m, 0, sizeof m);
+    m.mu = mu;
+    m.lambda = lambda;
+    m.density = density;
+    return m;
+}
+
+/* elastic force of displacement d on level L into L->f (no gravity, no damping) */
+static inline void th_elastic_force(sq_level *L, const sq_material *mat, const double *d)
+{
+    static const double zero[3] = {0, 0, 0};
+    sq_material m = *mat;
+    m.rayleigh_mass = m.rayleigh_stiffness = 0;
+    m.use_viscosity = 0;
+    memcpy(L->d, d, sizeof(double) * 3 * (size_t)L->n);
+    memset(L->v, 0, sizeof(double) * 3 * (size_t)L->n);
+    sq_level_forces(L, &m, zero, NULL);
+}
+
+/* largest |entry| of the level's K, a scale for force tolerances */
+static inline double th_kmax(const sq_level *L)
+{
+    double s = 0;
+    for (size_t k = 0; k < 9 * (size_t)L->nnz; k++)
+        s = fmax(s, fabs(L->K[k]));
+    return s;
+}
+
+static inline double th_norm3(const double *v) { return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
+
+#endif

@@ -1,0 +1,235 @@
+/* test_sim_operator.c - identities of the two operators (PHYSICS.md section 2) on meshes. */
+#include "sq_test.h"
+#include "test_sim_helpers.h"
+
+/* force tolerance: rounding in a sum of ~15 blocks of size kmax times |d| ~ 1, so 1e-11 kmax
+ * is ~100x above double rounding and far below a real error (which is O(kmax |d|)) */
+#define FTOL(L) (1e-11 * th_kmax(L))
+
+static void check_translation(sq_operator_kind op)
+{
+    sq_mesh *m = th_box(3, 2, 4, 1.0, 0.7, 1.3);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(40000, 100000, 1000);
+    sq_level L;
+    sq_err e = {{0}};
+    CHECK(sq_level_init(&L, m, &mat, op, NULL, 0, &e) == 0);
+    double *d = malloc(sizeof(double) * 3 * m->nnodes);
+    for (int i = 0; i < m->nnodes; i++) {
+        d[3 * i] = 0.3;
+        d[3 * i + 1] = -0.2;
+        d[3 * i + 2] = 0.5;
+    }
+    th_elastic_force(&L, &mat, d);
+    double worst = 0;
+    for (int i = 0; i < m->nnodes; i++)
+        worst = fmax(worst, th_norm3(L.f + 3 * i));
+    CHECK(worst <= FTOL(&L));
+    free(d);
+    sq_level_free(&L);
+    sq_mesh_free(m);
+}
+
+SQ_TEST(sim_operator_translation_is_force_free_fem) { check_translation(SQ_OPERATOR_FEM); }
+SQ_TEST(sim_operator_translation_is_force_free_paper) { check_translation(SQ_OPERATOR_PAPER); }
+
+/* an infinitesimal rotation d = w x x: zero force under fem; under the paper operator zero at
+ * interior nodes and non-zero at (some) free boundary nodes */
+SQ_TEST(sim_operator_rotation_fem_zero_paper_boundary_only)
+{
+    sq_mesh *m = th_box(3, 3, 3, 1, 1, 1);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(40000, 100000, 1000);
+    double w[3] = {1e-3, -2e-3, 1.5e-3};
+    double *d = malloc(sizeof(double) * 3 * m->nnodes);
+    for (int i = 0; i < m->nnodes; i++) {
+        const double *x = m->x + 3 * i;
+        d[3 * i] = w[1] * x[2] - w[2] * x[1];
+        d[3 * i + 1] = w[2] * x[0] - w[0] * x[2];
+        d[3 * i + 2] = w[0] * x[1] - w[1] * x[0];
+    }
+    for (int op = 0; op < 2; op++) {
+        sq_level L;
+        sq_err e = {{0}};
+        CHECK(sq_level_init(&L, m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
+        th_elastic_force(&L, &mat, d);
+        double tol = 1e-3 * FTOL(&L); /* |d| ~ 1e-3 here */
+        double interior = 0, boundary = 0;
+        for (int i = 0; i < m->nnodes; i++) {
+            double f = th_norm3(L.f + 3 * i);
+            if (m->on_boundary[i])
+                boundary = fmax(boundary, f);
+            else
+                interior = fmax(interior, f);
+        }
+        CHECK(interior <= tol);
+        if (op == SQ_OPERATOR_FEM)
+            CHECK(boundary <= tol);
+        else
+            CHECK(boundary > 1e6 * tol); /* clearly non-zero: O(mu |w| h^2) */
+        sq_level_free(&L);
+    }
+    free(d);
+    sq_mesh_free(m);
+}
+
+/* paper - fem = mu sum_T V (a_i a_j^T - a_j a_i^T): vanishes unless both ends are on the boundary */
+SQ_TEST(sim_operator_paper_fem_differ_only_on_boundary_edges)
+{
+    sq_mesh *m = th_box(3, 3, 4, 1, 1, 1.2);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(40000, 100000, 1000);
+    sq_level P, F;
+    sq_err e = {{0}};
+    CHECK(sq_level_init(&P, m, &mat, SQ_OPERATOR_PAPER, NULL, 0, &e) == 0);
+    CHECK(sq_level_init(&F, m, &mat, SQ_OPERATOR_FEM, NULL, 0, &e) == 0);
+    double tol = 1e-12 * th_kmax(&F), inner = 0, outer = 0;
+    for (int i = 0; i < m->nnodes; i++)
+        for (int p = m->adj_start[i]; p < m->adj_start[i + 1]; p++) {
+            int j = m->adj[p];
+            double diff = 0;
+            for (int k = 0; k < 9; k++)
+                diff = fmax(diff, fabs(P.K[9 * p + k] - F.K[9 * p + k]));
+            if (m->on_boundary[i] && m->on_boundary[j])
+                outer = fmax(outer, diff);
+            else
+                inner = fmax(inner, diff);
+        }
+    CHECK(inner <= tol);
+    CHECK(outer > 1e-3 * th_kmax(&F));
+    sq_level_free(&P);
+    sq_level_free(&F);
+    sq_mesh_free(m);
+}
+
+/* K_ji = K_ij^T for both operators; and the diagonal blocks are symmetric positive */
+SQ_TEST(sim_operator_blocks_symmetric)
+{
+    sq_mesh *m = th_box(2, 3, 2, 0.5, 1, 0.8);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(3000, 12000, 900);
+    for (int op = 0; op < 2; op++) {
+        sq_level L;
+        sq_err e = {{0}};
+        CHECK(sq_level_init(&L, m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
+        double worst = 0;
+        for (int i = 0; i < m->nnodes; i++)
+            for (int p = m->adj_start[i]; p < m->adj_start[i + 1]; p++) {
+                int j = m->adj[p], q = -1;
+                for (int t = m->adj_start[j]; t < m->adj_start[j + 1]; t++)
+                    if (m->adj[t] == i)
+                        q = t;
+                CHECK(q >= 0);
+                if (q < 0)
+                    continue;
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        worst = fmax(worst, fabs(L.K[9 * p + 3 * r + c] - L.K[9 * q + 3 * c + r]));
+            }
+        CHECK(worst <= 1e-12 * th_kmax(&L)); /* same sums in another order: rounding only */
+        sq_level_free(&L);
+    }
+    sq_mesh_free(m);
+}
+
+/* patch test: d = G x with a general constant gradient G gives zero force at interior nodes */
+SQ_TEST(sim_operator_patch_test_uniform_strain)
+{
+    sq_mesh *m = th_box(4, 3, 3, 1, 0.9, 0.7);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(40000, 100000, 1000);
+    double G[3][3] = {{1e-3, 2e-4, -3e-4}, {5e-4, -2e-3, 1e-4}, {-4e-4, 3e-4, 1.5e-3}};
+    double *d = malloc(sizeof(double) * 3 * m->nnodes);
+    for (int i = 0; i < m->nnodes; i++)
+        for (int r = 0; r < 3; r++)
+            d[3 * i + r] = G[r][0] * m->x[3 * i] + G[r][1] * m->x[3 * i + 1] + G[r][2] * m->x[3 * i + 2];
+    for (int op = 0; op < 2; op++) {
+        sq_level L;
+        sq_err e = {{0}};
+        CHECK(sq_level_init(&L, m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
+        th_elastic_force(&L, &mat, d);
+        double interior = 0, boundary = 0;
+        for (int i = 0; i < m->nnodes; i++) {
+            double f = th_norm3(L.f + 3 * i);
+            if (m->on_boundary[i])
+                boundary = fmax(boundary, f);
+            else
+                interior = fmax(interior, f);
+        }
+        CHECK(interior <= 1e-3 * FTOL(&L));
+        CHECK(boundary > 1e3 * 1e-3 * FTOL(&L)); /* the traction of the strain shows on the boundary */
+        sq_level_free(&L);
+    }
+    free(d);
+    sq_mesh_free(m);
+}
+
+/* lumped masses add up to rho * volume; nodal volumes to the volume */
+SQ_TEST(sim_level_masses_sum_to_body_mass)
+{
+    sq_mesh *m = th_box(3, 2, 2, 1.5, 1, 0.5);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(1e4, 1e4, 1200);
+    sq_level L;
+    sq_err e = {{0}};
+    CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, NULL, 0, &e) == 0);
+    double M = 0, V = 0;
+    for (int i = 0; i < L.n; i++) {
+        M += L.mass[i];
+        V += L.vol[i];
+    }
+    CHECK_NEAR(V, 0.75, 1e-12);       /* exact up to rounding */
+    CHECK_NEAR(M, 1200 * 0.75, 1e-9);
+    CHECK(L.hbar[0] > 0);
+    sq_level_free(&L);
+    sq_mesh_free(m);
+}
+
+/* constraints: box selects fixed nodes, half-space selects, per-axis rollers set bits */
+SQ_TEST(sim_level_constraints_mark_axes)
+{
+    sq_mesh *m = th_box(2, 2, 2, 1, 1, 1);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    sq_material mat = th_material(1e4, 1e4, 1000);
+    sq_constraint c[2];
+    memset(c, 0, sizeof c);
+    c[0].kind = SQ_REGION_BOX; /* bottom face, all axes */
+    c[0].a[0] = c[0].a[1] = c[0].a[2] = -1;
+    c[0].b[0] = c[0].b[1] = 2;
+    c[0].b[2] = 0;
+    c[0].axes = 7;
+    c[1].kind = SQ_REGION_HALFSPACE; /* x >= 1 face: roller in x (normal -x selects x >= 1) */
+    c[1].a[0] = 1;
+    c[1].b[0] = -1;
+    c[1].axes = 1;
+    sq_level L;
+    sq_err e = {{0}};
+    CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, c, 2, &e) == 0);
+    int nbottom = 0, nroll = 0;
+    for (int i = 0; i < L.n; i++) {
+        const double *x = m->x + 3 * i;
+        unsigned want = (x[2] == 0 ? 7u : 0u) | (x[0] == 1 ? 1u : 0u);
+        CHECK(L.fixed[i] == want);
+        nbottom += x[2] == 0;
+        nroll += x[0] == 1 && x[2] != 0;
+    }
+    CHECK(nbottom == 9);
+    CHECK(nroll == 6);
+    CHECK(L.nfree == 27 - 9);
+    sq_level_free(&L);
+    sq_mesh_free(m);
+}
