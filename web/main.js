@@ -1,0 +1,894 @@
+// main.js - the squish viewer: session handling, frames, heads-up panel, controls, input.
+// Talks protocol v1 (docs/protocol.md) with `squish serve` over /ws.
+
+import { Link } from './net.js';
+import { KIND_TOPOLOGY, KIND_FRAME, KIND_NODES } from './codec.js';
+import { Renderer, hexToRgb } from './render.js';
+import { OrbitCamera, sub, len, normalize, addScaled } from './camera.js';
+import { raycast, rayPlane } from './pick.js';
+
+// the shared palette (web/palette.json); these values are its fallback copy
+const FALLBACK_PALETTE = {
+  level: ['#4e79a7', '#59a14f', '#edc948', '#f28e2b', '#e15759', '#b07aa1'],
+  plain: '#d9a38c', background: '#20242b', floor: '#5b6270', floor_line: '#737b8a', tool: '#c8ccd4',
+};
+
+// our own tool ids (scripted scene tools use small ids from 0)
+const GRAB_ID = 6;
+const PUSH_ID = 7;
+// tool poses are sent at most this often (the server also limits commands per second)
+const TOOL_SEND_MS = 33;
+// stats are polled at this period when the server does not push them
+const STATS_POLL_MS = 500;
+// recent frame checksums kept for comparisons between pages
+const FRAME_LOG = 600;
+
+const $ = (id) => document.getElementById(id);
+const params = new URLSearchParams(location.search);
+
+/** the whole viewer state; also exposed as window.squish for automation (see docs/viewer.md) */
+const app = {
+  status: 'offline',
+  role: params.get('role') === 'view' ? 'view' : 'control',
+  token: params.get('token') || undefined,
+  session: params.get('session') || null,
+  scene: params.get('scene') || null,
+  scenes: [],
+  bodies: new Map(),
+  framesReceived: 0,
+  lastFrame: -1,
+  frameLog: new Map(),
+  stats: null,
+  viewers: null,
+  paused: false,
+  latencyMs: null,
+  lastError: null,
+  problems: [],
+  welcomed: false,
+  opens: 0,
+  joinPending: false,
+  bytesPerSecond: 0,
+  simRate: 0,
+};
+window.squish = app;
+
+const opts = { useLevels: true, wire: false, nodes: false, floor: true };
+const camera = new OrbitCamera();
+let renderer = null;
+let palette = FALLBACK_PALETTE;
+let dirty = true;
+let fitted = false;
+let size = 1;
+let link = null;
+
+// ---------------------------------------------------------------- start-up
+
+async function loadPalette() {
+  try {
+    const r = await fetch('palette.json', { cache: 'no-cache' });
+    if (r.ok) {
+      const p = await r.json();
+      if (Array.isArray(p.level) && p.level.length) return { ...FALLBACK_PALETTE, ...p };
+    }
+  } catch (e) {
+    // the fallback copy holds the same values
+  }
+  return FALLBACK_PALETTE;
+}
+
+async function start() {
+  palette = await loadPalette();
+  document.documentElement.style.setProperty('--bg', palette.background);
+  try {
+    renderer = new Renderer($('view'), palette);
+  } catch (e) {
+    showEvent(e.message, true);
+  }
+  if (params.get('large') === '1') setLarge(true);
+  document.body.classList.toggle('viewer', app.role === 'view');
+  $('role-badge').textContent = app.role === 'view' ? 'viewer (read only)' : 'controller';
+  buildLegend(0, null);
+  wireUi();
+  wireInput();
+  const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  link = new Link(params.get('ws') || `${proto}//${location.host}/ws`);
+  link.onStatus = onLinkStatus;
+  link.onOpen = () => link.send(hello());
+  link.onMessage = onMessage;
+  link.onBinary = onBinary;
+  link.onProblem = (text) => { app.problems.push(text); showEvent(text, true); };
+  link.connect();
+  setInterval(tick, 1000);
+  setInterval(pollStats, STATS_POLL_MS);
+  requestAnimationFrame(frameLoop);
+}
+
+function hello() {
+  const m = { type: 'hello', client: 'squish-web/1', role: app.role };
+  if (app.token) m.token = app.token;
+  return m;
+}
+
+// ---------------------------------------------------------------- connection
+
+function setStatus(state, text) {
+  app.status = state;
+  const el = $('conn');
+  el.textContent = text;
+  el.className = `conn ${state === 'connected' ? 'conn-on' : state === 'offline' ? 'conn-off' : 'conn-wait'}`;
+}
+
+function onLinkStatus(state, detail) {
+  if (state === 'connecting') setStatus('connecting', 'connecting...');
+  else if (state === 'open') setStatus('handshake', 'handshake...');
+  else if (state === 'waiting') {
+    app.welcomed = false;
+    setStatus('offline', `offline - retry in ${(detail / 1000).toFixed(1)} s`);
+    endTool(false);
+  }
+}
+
+/** after welcome: re-join the session if we had one, else open a scene */
+function enterSession() {
+  if (app.session) {
+    app.joinPending = true;
+    link.send({ type: 'join', session: app.session });
+  } else if (app.role === 'control') {
+    openScene(app.scene);
+  } else {
+    showEvent('no session to watch: ask the controller for a share link, or open a scene', true);
+  }
+}
+
+function openScene(name) {
+  const scene = name || (app.scenes[0] && app.scenes[0].name);
+  if (!scene) { showEvent('the server lists no scenes', true); return; }
+  app.scene = scene;
+  app.session = null;
+  link.send({ type: 'open', scene });
+}
+
+// ---------------------------------------------------------------- text messages
+
+function onMessage(m) {
+  switch (m.type) {
+    case 'welcome':
+      app.welcomed = true;
+      link.resetBackoff();
+      setStatus('connected', 'connected');
+      if (Array.isArray(m.scenes)) setScenes(m.scenes);
+      link.send({ type: 'list_scenes' });
+      enterSession();
+      break;
+    case 'scenes':
+      setScenes(m.scenes || []);
+      break;
+    case 'opened':
+    case 'joined':
+      onSession(m);
+      break;
+    case 'stats':
+      onStats(m);
+      break;
+    case 'error':
+      onError(m);
+      break;
+    case 'paused':
+    case 'resumed':
+      setPaused(m.type === 'paused');
+      break;
+    default:
+      onReply(m);
+  }
+}
+
+function setScenes(list) {
+  app.scenes = list.map((s) => (typeof s === 'string' ? { name: s } : s));
+  const sel = $('scene-select');
+  const keep = app.scene || sel.value;
+  sel.replaceChildren(...app.scenes.map((s) => {
+    const o = document.createElement('option');
+    o.value = s.name;
+    o.textContent = s.name;
+    if (s.description) o.title = s.description;
+    return o;
+  }));
+  if (keep && app.scenes.some((s) => s.name === keep)) sel.value = keep;
+}
+
+function onSession(m) {
+  app.joinPending = false;
+  app.session = String(m.session);
+  if (m.scene) app.scene = typeof m.scene === 'string' ? m.scene : m.scene.name;
+  app.opens++;
+  app.paused = !!m.paused;
+  setPaused(app.paused);
+  renderer && renderer.clearBodies();
+  app.bodies.clear();
+  fitted = false;
+  const bodies = m.bodies || [];
+  for (const b of bodies) {
+    app.bodies.set(b.id, { id: b.id, name: b.name || `body ${b.id}`, levels: b.levels || [], info: b,
+      rest: null, tris: null, pos: null, levelArr: null, tools: [], frame: -1 });
+  }
+  const sel = $('body-select');
+  sel.replaceChildren(...bodies.map((b) => {
+    const o = document.createElement('option');
+    o.value = b.id;
+    o.textContent = b.name || `body ${b.id}`;
+    return o;
+  }));
+  fillControls(bodies[0]);
+  buildLegend(Math.max(0, ...bodies.map((b) => (b.levels || []).length)), null);
+  if (app.scene) $('scene-select').value = app.scene;
+  // the address bar and the share link name this session
+  const u = new URL(location.href);
+  u.searchParams.set('session', app.session);
+  if (app.scene) u.searchParams.set('scene', app.scene);
+  history.replaceState(null, '', u);
+  const share = new URL(location.href);
+  share.search = '';
+  share.searchParams.set('session', app.session);
+  share.searchParams.set('role', 'view');
+  $('share-link').value = share.toString();
+  showEvent(`${m.type === 'opened' ? 'opened' : 'joined'} session ${app.session}${app.scene ? ` (${app.scene})` : ''}`);
+  dirty = true;
+}
+
+// fill the setting forms from what the server says about a body (when it says it)
+function fillControls(b) {
+  if (!b) return;
+  const mat = b.material || {};
+  const set = (id, v) => { if (typeof v === 'number' && Number.isFinite(v)) $(id).value = String(+v.toPrecision(6)); };
+  set('in-E', mat.E);
+  set('in-nu', mat.nu);
+  const d = b.damping || mat.damping || {};
+  set('in-damp-mass', d.rayleigh_mass);
+  set('in-damp-stiff', d.rayleigh_stiffness);
+  if (b.operator === 'paper' || b.operator === 'fem') $('in-operator').value = b.operator;
+  const lod = b.lod || {};
+  if (lod.mode === 'adaptive' || lod.mode === 'fixed') $('in-lod-mode').value = lod.mode;
+  set('in-split', lod.split);
+  set('in-merge', lod.merge);
+}
+
+function onError(m) {
+  app.lastError = m;
+  const text = `${m.message || 'refused'}${m.code ? ` [${m.code}]` : ''}`;
+  if (app.joinPending) {
+    // the session is gone (e.g. the server restarted): open the scene again
+    app.joinPending = false;
+    app.session = null;
+    if (app.role === 'control') {
+      showEvent(`session no longer exists (${text}); opening the scene again`);
+      openScene(app.scene);
+    } else {
+      showEvent(`the session you watched has ended (${text})`, true);
+    }
+    return;
+  }
+  const p = pendingSet;
+  if (p && (m.ref === undefined || m.ref === p.ref) && performance.now() - p.t < 5000) {
+    pendingSet = null;
+    clearTimeout(p.timer);
+    const el = $(`err-${p.group}`);
+    el.className = 'err';
+    el.textContent = text;
+    return;
+  }
+  showEvent(text, true);
+}
+
+// a non-error reply: confirms a pending setting
+function onReply(m) {
+  const p = pendingSet;
+  if (p && (m.type === 'set' || m.type === 'set_ok' || m.type === 'ok' || m.type === 'updated' || m.type === 'applied')) {
+    confirmSet(p);
+  }
+  if (m.type === 'reset_done' || m.type === 'reset') showEvent('bodies reset');
+}
+
+// ---------------------------------------------------------------- binary messages
+
+function onBinary(msg) {
+  const h = msg.header;
+  const body = app.bodies.get(h.body);
+  if (!body) return;
+  if (h.kind === KIND_TOPOLOGY) {
+    body.rest = msg.rest;
+    body.tris = msg.tris;
+    body.pos = new Float32Array(msg.rest);
+    body.levelArr = new Uint8Array(msg.rest.length / 3);
+    if (renderer) renderer.setBody(h.body, msg.rest, msg.tris);
+    refit();
+  } else if (h.kind === KIND_FRAME) {
+    if (!body.rest || msg.disp.length !== body.rest.length) return;
+    const pos = body.pos, rest = body.rest, d = msg.disp;
+    let sum = 0;
+    for (let i = 0; i < pos.length; i++) {
+      pos[i] = rest[i] + d[i];
+      sum += d[i] * ((i % 7) + 1);
+    }
+    body.levelArr = msg.levels;
+    body.tools = msg.tools;
+    body.frame = h.frame;
+    body.time = h.time;
+    if (renderer) renderer.updateBody(h.body, pos, msg.levels);
+    app.framesReceived++;
+    app.lastFrame = h.frame;
+    app.simTime = h.time;
+    frameCounter.push(performance.now(), h.frame);
+    if (h.body === firstBodyId()) {
+      app.frameLog.set(h.frame, sum);
+      if (app.frameLog.size > FRAME_LOG) app.frameLog.delete(app.frameLog.keys().next().value);
+    }
+    if (msg.reset) showEvent(`body ${body.name} was reset (numerical blow-up recovered)`, true);
+    measureLatency(msg.tools);
+    updateLegendFromFrame();
+    dirty = true;
+  } else if (h.kind === KIND_NODES) {
+    if (renderer) renderer.setNodes(msg.pos, msg.levels);
+    nodesPending = false;
+    dirty = true;
+  }
+}
+
+function firstBodyId() {
+  const it = app.bodies.keys().next();
+  return it.done ? -1 : it.value;
+}
+
+// camera and floor from the rest bounding box of all bodies
+function refit() {
+  const min = [Infinity, Infinity, Infinity], max = [-Infinity, -Infinity, -Infinity];
+  for (const b of app.bodies.values()) {
+    if (!b.rest) continue;
+    for (let i = 0; i < b.rest.length; i++) {
+      const a = i % 3;
+      if (b.rest[i] < min[a]) min[a] = b.rest[i];
+      if (b.rest[i] > max[a]) max[a] = b.rest[i];
+    }
+  }
+  if (!(min[0] <= max[0])) return;
+  size = Math.max(len(sub(max, min)), 1e-3);
+  app.bounds = { min, max };
+  if (!fitted) { camera.fit(min, max); fitted = true; }
+  if (renderer) renderer.setFloor(min[2] - size * 0.002, (min[0] + max[0]) / 2, (min[1] + max[1]) / 2, size * 1.2);
+  dirty = true;
+}
+
+// ---------------------------------------------------------------- stats and panel
+
+// frame numbers seen in the last second give the simulation rate
+const frameCounter = {
+  samples: [],
+  push(t, f) { this.samples.push([t, f]); while (this.samples.length > 2 && t - this.samples[0][0] > 2000) this.samples.shift(); },
+  rate() {
+    const s = this.samples;
+    if (s.length < 2) return 0;
+    const dt = (s[s.length - 1][0] - s[0][0]) / 1000;
+    return dt > 0 ? (s[s.length - 1][1] - s[0][1]) / dt : 0;
+  },
+};
+
+let lastStatsAt = 0;
+let statsPushed = false;
+let lastBytesIn = 0;
+
+function pollStats() {
+  if (!app.welcomed || !app.session) return;
+  // servers that push stats are not polled
+  if (statsPushed && performance.now() - lastStatsAt < 2000) return;
+  link.send({ type: 'stats' });
+}
+
+function onStats(m) {
+  const now = performance.now();
+  if (now - lastStatsAt < STATS_POLL_MS * 0.6) statsPushed = true;
+  lastStatsAt = now;
+  app.stats = m;
+  const fmt = (v, d = 0) => (typeof v === 'number' && Number.isFinite(v) ? v.toFixed(d) : '-');
+  if (typeof m.budget_used === 'number') {
+    const pct = m.budget_used * 100;
+    $('hud-budget').textContent = `${fmt(pct, 0)} %`;
+    $('hud-budget').className = pct > 95 ? 'bad' : '';
+  }
+  $('hud-misses').textContent = fmt(m.deadline_misses);
+  if (Array.isArray(m.active_nodes)) {
+    $('hud-active').textContent = m.active_nodes.map((n, i) => `L${i}: ${n}`).join('  ');
+    buildLegend(Math.max(m.active_nodes.length, legendLevels), m.active_nodes);
+  }
+  $('hud-updates').textContent = fmt(m.node_updates);
+  if (m.sleeping !== undefined) $('hud-sleeping').textContent = typeof m.sleeping === 'boolean' ? (m.sleeping ? 'yes' : 'no') : fmt(m.sleeping);
+  if (typeof m.paused === 'boolean') setPaused(m.paused);
+  // viewers: the server's own count when it gives one, else the other clients of the session
+  let v = null;
+  if (typeof m.viewers === 'number') v = m.viewers;
+  else if (typeof m.watchers === 'number') v = m.watchers;
+  else if (typeof m.clients === 'number') v = Math.max(0, m.clients - 1);
+  else if (m.clients && typeof m.clients.view === 'number') v = m.clients.view;
+  if (v !== null) {
+    app.viewers = v;
+    $('watchers').textContent = `${v} watching`;
+  }
+  if (Array.isArray(m.feedback) && m.feedback.length) {
+    const f = m.feedback.map((x) => `#${x.tool}: ${len(x.force || [0, 0, 0]).toFixed(2)} N`).join('  ');
+    $('hud-force').textContent = f;
+  }
+  if (m.event) showEvent(m.event);
+}
+
+// once a second: rates measured in the page
+function tick() {
+  if (!link) return;
+  app.bytesPerSecond = link.bytesIn - lastBytesIn;
+  lastBytesIn = link.bytesIn;
+  app.simRate = frameCounter.rate();
+  $('hud-bytes').textContent = app.bytesPerSecond >= 1e6 ? `${(app.bytesPerSecond / 1e6).toFixed(2)} MB/s`
+    : `${(app.bytesPerSecond / 1e3).toFixed(1)} kB/s`;
+  $('hud-rate').textContent = `${app.simRate.toFixed(1)} Hz`;
+  if (app.simTime !== undefined) $('hud-time').textContent = `${app.simTime.toFixed(2)} s`;
+  $('hud-latency').textContent = app.latencyMs === null ? '-' : `${app.latencyMs.toFixed(1)} ms`;
+}
+
+let legendLevels = -1;
+let legendCounts = null;
+
+function buildLegend(nlevels, counts) {
+  const n = Math.max(1, nlevels);
+  legendCounts = counts;
+  const ul = $('legend-list');
+  if (n !== legendLevels || ul.children.length !== n) {
+    legendLevels = n;
+    ul.replaceChildren();
+    for (let i = 0; i < n; i++) {
+      const li = document.createElement('li');
+      const sw = document.createElement('span');
+      sw.className = 'swatch';
+      sw.style.background = palette.level[Math.min(i, palette.level.length - 1)];
+      const name = document.createElement('span');
+      name.textContent = i === 0 ? `level ${i} (coarsest)` : i === n - 1 && n > 1 ? `level ${i} (finest)` : `level ${i}`;
+      const c = document.createElement('span');
+      c.className = 'legend-count';
+      li.append(sw, name, c);
+      ul.append(li);
+    }
+  }
+  if (counts) {
+    for (let i = 0; i < n; i++) {
+      const c = ul.children[i].querySelector('.legend-count');
+      c.textContent = counts[i] !== undefined ? `${counts[i]} nodes` : '';
+    }
+  }
+}
+
+// without server counts, show the share of surface vertices per level
+function updateLegendFromFrame() {
+  if (legendCounts) return;
+  const ul = $('legend-list');
+  const hist = new Array(ul.children.length).fill(0);
+  for (const b of app.bodies.values()) {
+    if (!b.levelArr) continue;
+    for (const l of b.levelArr) if (l < hist.length) hist[l]++;
+  }
+  for (let i = 0; i < hist.length; i++) {
+    ul.children[i].querySelector('.legend-count').textContent = `${hist[i]} surf.`;
+  }
+}
+
+let eventTimer = 0;
+function showEvent(text, bad = false) {
+  const el = $('event');
+  el.textContent = text;
+  el.style.color = bad ? 'var(--bad)' : '';
+  clearTimeout(eventTimer);
+  eventTimer = setTimeout(() => { el.textContent = ''; }, 8000);
+}
+
+// ---------------------------------------------------------------- controls
+
+let pendingSet = null;
+let setSeq = 0;
+
+function confirmSet(p) {
+  if (pendingSet !== p) return;
+  pendingSet = null;
+  clearTimeout(p.timer);
+  const el = $(`err-${p.group}`);
+  el.className = 'ok';
+  el.textContent = 'applied';
+  setTimeout(() => { if (el.textContent === 'applied') el.textContent = ''; }, 2500);
+}
+
+function num(form, name) {
+  const input = form.elements[name];
+  const text = input.value.trim();
+  const v = Number(text);
+  if (text === '' || !Number.isFinite(v)) throw new Error(`${name}: "${text}" is not a number`);
+  return v;
+}
+
+function sendSet(group, fields) {
+  const el = $(`err-${group}`);
+  if (!app.welcomed || !app.session) { el.className = 'err'; el.textContent = 'not connected'; return; }
+  const body = Number($('body-select').value || 0);
+  const ref = `set-${group}-${++setSeq}`;
+  const m = { type: 'set', body, ...fields };
+  el.textContent = '';
+  if (pendingSet) clearTimeout(pendingSet.timer);
+  const p = { group, ref, t: performance.now() };
+  // no refusal within a second and no explicit answer: the server took it
+  p.timer = setTimeout(() => confirmSet(p), 1200);
+  pendingSet = p;
+  link.send(m);
+}
+
+function submitSetting(ev) {
+  ev.preventDefault();
+  const form = ev.currentTarget, group = form.dataset.group;
+  try {
+    if (group === 'material') sendSet(group, { material: { E: num(form, 'E'), nu: num(form, 'nu') } });
+    else if (group === 'damping') {
+      sendSet(group, { damping: { rayleigh_mass: num(form, 'rayleigh_mass'), rayleigh_stiffness: num(form, 'rayleigh_stiffness') } });
+    } else if (group === 'operator') sendSet(group, { operator: form.elements.operator.value });
+    else if (group === 'lod') {
+      sendSet(group, { lod: { mode: form.elements.mode.value, split: num(form, 'split'), merge: num(form, 'merge') } });
+    }
+  } catch (e) {
+    const el = $(`err-${group}`);
+    el.className = 'err';
+    el.textContent = e.message;
+  }
+}
+
+function setPaused(p) {
+  app.paused = p;
+  $('btn-pause').textContent = p ? 'Resume' : 'Pause';
+}
+
+function togglePause() {
+  if (app.role !== 'control' || !app.session) return;
+  const next = !app.paused;
+  if (link.send({ type: next ? 'pause' : 'resume' })) setPaused(next);
+}
+
+function resetBodies() {
+  if (app.role !== 'control' || !app.session) return;
+  link.send({ type: 'reset' });
+}
+
+function setLarge(on) {
+  document.documentElement.classList.toggle('large', on);
+  $('btn-large').setAttribute('aria-pressed', String(on));
+  dirty = true;
+}
+
+function toggleOpt(key, checkbox) {
+  opts[key] = !opts[key];
+  $(checkbox).checked = opts[key];
+  if (key === 'nodes') requestNodes();
+  dirty = true;
+}
+
+let nodesPending = false;
+let nodesAskedAt = 0;
+function requestNodes() {
+  if (!opts.nodes || !app.welcomed || !app.session) return;
+  const now = performance.now();
+  if (nodesPending && now - nodesAskedAt < 2000) return;
+  nodesPending = true;
+  nodesAskedAt = now;
+  link.send({ type: 'nodes', body: Number($('body-select').value || 0) });
+}
+
+function toggleHelp(show) {
+  const h = $('help');
+  const on = show === undefined ? h.classList.contains('hidden') : show;
+  h.classList.toggle('hidden', !on);
+  if (on) $('btn-help-close').focus();
+}
+
+function wireUi() {
+  for (const f of document.querySelectorAll('form.setting')) f.addEventListener('submit', submitSetting);
+  $('btn-open').addEventListener('click', () => {
+    if (app.role !== 'control') {
+      // a viewer that opens a scene becomes the controller of a new session
+      app.role = 'control';
+      document.body.classList.remove('viewer');
+      $('role-badge').textContent = 'controller';
+      app.session = null;
+      app.scene = $('scene-select').value;
+      link.send(hello());
+      return;
+    }
+    openScene($('scene-select').value);
+  });
+  $('btn-pause').addEventListener('click', togglePause);
+  $('btn-reset').addEventListener('click', resetBodies);
+  $('btn-help').addEventListener('click', () => toggleHelp());
+  $('btn-help-close').addEventListener('click', () => toggleHelp(false));
+  $('help').addEventListener('click', (e) => { if (e.target === $('help')) toggleHelp(false); });
+  $('btn-large').addEventListener('click', () => setLarge(!document.documentElement.classList.contains('large')));
+  $('btn-copy').addEventListener('click', async () => {
+    const input = $('share-link');
+    input.select();
+    try { await navigator.clipboard.writeText(input.value); showEvent('share link copied'); } catch (e) { showEvent('select the link and copy it'); }
+  });
+  const bind = (id, key) => $(id).addEventListener('change', () => { opts[key] = $(id).checked; if (key === 'nodes') requestNodes(); dirty = true; });
+  bind('opt-levels', 'useLevels');
+  bind('opt-wire', 'wire');
+  bind('opt-nodes', 'nodes');
+  bind('opt-floor', 'floor');
+  $('body-select').addEventListener('change', () => {
+    const b = app.bodies.get(Number($('body-select').value));
+    if (b) fillControls(b.info);
+  });
+
+  document.addEventListener('keydown', (e) => {
+    const t = e.target;
+    if (t && ((t.tagName === 'INPUT' && t.type !== 'checkbox') || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA')) return;
+    if (e.ctrlKey || e.metaKey || e.altKey) return;
+    switch (e.key) {
+      case '?': toggleHelp(); break;
+      case 'Escape': toggleHelp(false); endTool(true); break;
+      case ' ': e.preventDefault(); togglePause(); break;
+      case 'r': case 'R': resetBodies(); break;
+      case 'l': case 'L': toggleOpt('useLevels', 'opt-levels'); break;
+      case 'w': case 'W': toggleOpt('wire', 'opt-wire'); break;
+      case 'n': case 'N': toggleOpt('nodes', 'opt-nodes'); break;
+      case 'g': case 'G': toggleOpt('floor', 'opt-floor'); break;
+      case 'c': case 'C': if (app.bounds) { camera.fit(app.bounds.min, app.bounds.max); dirty = true; } break;
+      case 'p': case 'P': $('panel').classList.toggle('hidden'); dirty = true; break;
+      case 't': case 'T': setLarge(!document.documentElement.classList.contains('large')); break;
+      default: return;
+    }
+  });
+  window.addEventListener('resize', () => { dirty = true; });
+}
+
+// ---------------------------------------------------------------- tools (poke)
+
+// our tool: {id, shape, pos, radius, plane: {p, n}, sentAt, dirty}
+let tool = null;
+const sentPoses = [];
+
+function pickBody(x, y, w, h) {
+  const ray = camera.ray(x, y, w, h);
+  let best = null;
+  for (const b of app.bodies.values()) {
+    if (!b.pos) continue;
+    const hit = raycast(b.pos, b.tris, ray.origin, ray.dir);
+    if (hit && (!best || hit.t < best.t)) best = { ...hit, body: b.id };
+  }
+  return best ? { hit: best, ray } : { hit: null, ray };
+}
+
+function beginTool(hit, ray, push) {
+  const viewDir = ray.dir;
+  if (push) {
+    // the sphere starts just touching the surface on the viewer's side
+    const r = size * 0.12;
+    const c = addScaled(hit.point, hit.normal, r);
+    tool = { id: PUSH_ID, shape: 'sphere', pos: c, radius: r, plane: { p: c, n: viewDir }, dirty: true };
+  } else {
+    tool = { id: GRAB_ID, shape: 'grab', pos: hit.point, radius: size * 0.08, plane: { p: hit.point, n: viewDir }, dirty: true };
+  }
+  flushTool(true);
+}
+
+function moveTool(x, y, w, h) {
+  if (!tool) return;
+  const ray = camera.ray(x, y, w, h);
+  const p = rayPlane(ray.origin, ray.dir, tool.plane.p, tool.plane.n);
+  if (!p) return;
+  tool.pos = p;
+  tool.dirty = true;
+  dirty = true;
+}
+
+// wheel while pushing: move the sphere along the view direction
+function deepenTool(dy) {
+  if (!tool || tool.shape !== 'sphere') return false;
+  const step = -Math.sign(dy) * size * 0.02;
+  const n = normalize(tool.plane.n);
+  tool.plane.p = addScaled(tool.plane.p, n, -step);
+  tool.pos = addScaled(tool.pos, n, -step);
+  tool.dirty = true;
+  dirty = true;
+  return true;
+}
+
+function toolMessage(active) {
+  const m = { type: 'tool', id: tool.id, shape: tool.shape, pos: tool.pos.map((v) => Math.fround(v)), active };
+  m.radius = tool.radius;
+  return m;
+}
+
+function flushTool(force) {
+  if (!tool || !tool.dirty) return;
+  const now = performance.now();
+  if (!force && now - (tool.sentAt || 0) < TOOL_SEND_MS) return;
+  if (link.send(toolMessage(true))) {
+    tool.sentAt = now;
+    tool.dirty = false;
+    sentPoses.push({ t: now, id: tool.id, pos: tool.pos.map((v) => Math.fround(v)) });
+    if (sentPoses.length > 64) sentPoses.shift();
+  }
+}
+
+function endTool(send) {
+  if (!tool) return;
+  if (send) link.send(toolMessage(false));
+  tool = null;
+  dirty = true;
+}
+
+// tool-to-frame latency: time from sending a pose to the first frame that carries it
+const latencySamples = [];
+function measureLatency(tools) {
+  if (!sentPoses.length) return;
+  for (const t of tools) {
+    for (let i = sentPoses.length - 1; i >= 0; i--) {
+      const s = sentPoses[i];
+      if (s.id !== t.id) continue;
+      const tol = 1e-6 * Math.max(1, size);
+      if (Math.abs(s.pos[0] - t.pos[0]) <= tol && Math.abs(s.pos[1] - t.pos[1]) <= tol && Math.abs(s.pos[2] - t.pos[2]) <= tol) {
+        latencySamples.push(performance.now() - s.t);
+        if (latencySamples.length > 30) latencySamples.shift();
+        app.latencyMs = latencySamples.reduce((a, b) => a + b, 0) / latencySamples.length;
+        sentPoses.splice(0, i + 1);
+        break;
+      }
+    }
+  }
+}
+
+// ---------------------------------------------------------------- pointer input
+
+function wireInput() {
+  const cv = $('view');
+  const pointers = new Map();
+  let mode = null;      // 'orbit' | 'pan' | 'tool' | 'pinch'
+  let last = null;
+  let pinch = null;
+
+  const local = (e) => { const r = cv.getBoundingClientRect(); return [e.clientX - r.left, e.clientY - r.top, r.width, r.height]; };
+
+  cv.addEventListener('contextmenu', (e) => e.preventDefault());
+  cv.addEventListener('pointerdown', (e) => {
+    cv.focus();
+    cv.setPointerCapture(e.pointerId);
+    pointers.set(e.pointerId, local(e));
+    if (pointers.size === 2) {
+      // second finger: the tool lets go, two fingers pinch and pan
+      endTool(true);
+      const [a, b] = [...pointers.values()];
+      pinch = { d: Math.hypot(a[0] - b[0], a[1] - b[1]), mx: (a[0] + b[0]) / 2, my: (a[1] + b[1]) / 2 };
+      mode = 'pinch';
+      return;
+    }
+    if (pointers.size > 2) return;
+    const [x, y, w, h] = local(e);
+    last = [x, y];
+    if (e.button === 2 || e.button === 1 || e.ctrlKey) { mode = 'pan'; return; }
+    if (e.button !== 0) return;
+    if (app.role === 'control' && app.session) {
+      const { hit, ray } = pickBody(x, y, w, h);
+      if (hit) {
+        beginTool(hit, ray, e.shiftKey);
+        mode = 'tool';
+        cv.classList.add('dragging');
+        return;
+      }
+    }
+    mode = 'orbit';
+  });
+  cv.addEventListener('pointermove', (e) => {
+    if (!pointers.has(e.pointerId)) return;
+    const [x, y, w, h] = local(e);
+    pointers.set(e.pointerId, [x, y, w, h]);
+    if (mode === 'pinch' && pointers.size >= 2) {
+      const [a, b] = [...pointers.values()];
+      const d = Math.hypot(a[0] - b[0], a[1] - b[1]), mx = (a[0] + b[0]) / 2, my = (a[1] + b[1]) / 2;
+      if (pinch.d > 0 && d > 0) camera.zoom(pinch.d / d);
+      camera.pan(mx - pinch.mx, my - pinch.my, h);
+      pinch = { d, mx, my };
+      dirty = true;
+      return;
+    }
+    if (!last) return;
+    const dx = x - last[0], dy = y - last[1];
+    last = [x, y];
+    if (mode === 'orbit') { camera.orbit(dx, dy); dirty = true; }
+    else if (mode === 'pan') { camera.pan(dx, dy, h); dirty = true; }
+    else if (mode === 'tool') moveTool(x, y, w, h);
+  });
+  const up = (e) => {
+    if (!pointers.has(e.pointerId)) return;
+    pointers.delete(e.pointerId);
+    if (mode === 'tool') { flushTool(true); endTool(true); }
+    cv.classList.remove('dragging');
+    if (pointers.size === 0) { mode = null; last = null; pinch = null; }
+    else if (mode === 'pinch' && pointers.size === 1) { mode = 'orbit'; last = [...pointers.values()][0].slice(0, 2); }
+  };
+  cv.addEventListener('pointerup', up);
+  cv.addEventListener('pointercancel', up);
+  cv.addEventListener('wheel', (e) => {
+    e.preventDefault();
+    if (deepenTool(e.deltaY)) return;
+    camera.zoom(Math.exp(e.deltaY * 0.0015));
+    dirty = true;
+  }, { passive: false });
+}
+
+// ---------------------------------------------------------------- drawing
+
+// arrow length: grows with the force and saturates, so small and large forces both read
+let peakForce = 0.01;
+function arrowScale(f) {
+  if (!(f > 1e-6)) return 0;
+  peakForce = Math.max(peakForce * 0.999, f);
+  return size * 0.6 * (f / (f + peakForce * 0.5));
+}
+
+function frameLoop() {
+  requestAnimationFrame(frameLoop);
+  flushTool(false);
+  if (opts.nodes && app.lastFrame !== nodesFrame && !nodesPending) { nodesFrame = app.lastFrame; requestNodes(); }
+  if (!renderer || !dirty) return;
+  dirty = false;
+  const [w, h] = renderer.resize();
+  camera.aspect = w / Math.max(h, 1);
+  // centre the picture in the part of the window the side panel leaves free
+  const panel = $('panel');
+  const pr = panel.classList.contains('hidden') ? null : panel.getBoundingClientRect();
+  camera.shiftX = pr && pr.left > w * 0.4 && pr.height > h * 0.5 ? -(w - pr.left) / w : 0;
+  // tools: the server's view of every tool, plus ours while we drag it
+  const tools = [];
+  for (const b of app.bodies.values()) {
+    for (const t of b.tools || []) if (t.active && !tools.some((x) => x.id === t.id)) tools.push({ ...t });
+  }
+  if (tool) {
+    const t = tools.find((x) => x.id === tool.id);
+    if (t) { t.pos = tool.pos; t.own = true; } else tools.push({ id: tool.id, shape: tool.shape, pos: tool.pos, radius: tool.radius, active: true, own: true });
+  }
+  renderer.draw({ vp: camera.viewProj(), eye: camera.eye(), target: camera.target, useLevels: opts.useLevels,
+    wire: opts.wire, nodes: opts.nodes, floor: opts.floor, tools, arrowScale, arrowWidth: size * 0.012,
+    grabMarker: size * 0.015, pointSize: Math.max(3, 4 * (window.devicePixelRatio || 1)) });
+  drawLabels(tools, w, h);
+}
+let nodesFrame = -1;
+
+// force values next to the arrow tips
+function drawLabels(tools, w, h) {
+  const layer = $('labels');
+  const seen = new Set();
+  for (const t of tools) {
+    if (!t.force) continue;
+    const f = len(t.force);
+    const key = `force-${t.id}`;
+    seen.add(key);
+    let el = document.getElementById(key);
+    if (!el) {
+      el = document.createElement('div');
+      el.id = key;
+      el.className = 'force-label';
+      layer.append(el);
+    }
+    const L = arrowScale(f);
+    const tip = L > 0 ? addScaled(t.pos, normalize(t.force), L) : t.pos;
+    const p = camera.project(tip, w, h);
+    if (!p) { el.hidden = true; continue; }
+    el.hidden = false;
+    el.style.left = `${p[0]}px`;
+    el.style.top = `${p[1]}px`;
+    el.textContent = f >= 100 ? `${f.toFixed(0)} N` : f >= 1 ? `${f.toFixed(2)} N` : `${(f * 1000).toFixed(1)} mN`;
+  }
+  for (const el of [...layer.children]) if (!seen.has(el.id)) el.remove();
+}
+
+// colour of a level, for callers that inspect pixels
+app.levelColor = (i) => hexToRgb(palette.level[Math.min(i, palette.level.length - 1)]).map((v) => Math.round(v * 255));
+app.backgroundColor = () => hexToRgb(palette.background).map((v) => Math.round(v * 255));
+
+start();

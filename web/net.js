@@ -1,0 +1,150 @@
+// net.js - the WebSocket link to `squish serve` (/ws): JSON text messages, binary meshes
+// decoded in arrival order, automatic reconnect with exponential backoff.
+
+import { decodeBinary, parseHeader, KIND_FRAME } from './codec.js';
+
+/** reconnect delays grow from BACKOFF_MIN_MS, doubling, up to BACKOFF_MAX_MS */
+export const BACKOFF_MIN_MS = 250;
+export const BACKOFF_MAX_MS = 8000;
+
+/**
+ * A connection that keeps itself open.
+ * Callbacks: onStatus(state, detail) with state 'connecting' | 'open' | 'waiting';
+ * onOpen() after each (re)connect; onMessage(obj) per JSON message; onBinary(msg) per decoded
+ * binary message (in arrival order); onProblem(text) for undecodable input.
+ */
+export class Link {
+  constructor(url) {
+    this.url = url;
+    this.ws = null;
+    this.delay = BACKOFF_MIN_MS;
+    this.timer = 0;
+    this.queue = [];
+    this.draining = false;
+    this.framesSkipped = 0;
+    this.bytesIn = 0;
+    this.bytesOut = 0;
+    this.onStatus = () => {};
+    this.onOpen = () => {};
+    this.onMessage = () => {};
+    this.onBinary = () => {};
+    this.onProblem = () => {};
+    this.closedByUser = false;
+  }
+
+  /** open (or re-open) the socket */
+  connect() {
+    clearTimeout(this.timer);
+    this.onStatus('connecting', this.url);
+    let ws;
+    try {
+      ws = new WebSocket(this.url);
+    } catch (e) {
+      this.onProblem(`cannot open ${this.url}: ${e.message}`);
+      this.scheduleReconnect();
+      return;
+    }
+    ws.binaryType = 'arraybuffer';
+    this.ws = ws;
+    ws.onopen = () => {
+      this.onStatus('open', this.url);
+      this.onOpen();
+    };
+    ws.onmessage = (ev) => this.receive(ev.data);
+    ws.onclose = () => {
+      if (this.ws !== ws) return;
+      this.ws = null;
+      if (!this.closedByUser) this.scheduleReconnect();
+    };
+    // errors are followed by close, which schedules the retry
+    ws.onerror = () => {};
+  }
+
+  /** the socket is open */
+  get isOpen() { return !!this.ws && this.ws.readyState === WebSocket.OPEN; }
+
+  /** the server answered: reset the backoff */
+  resetBackoff() { this.delay = BACKOFF_MIN_MS; }
+
+  scheduleReconnect() {
+    const d = this.delay;
+    this.delay = Math.min(BACKOFF_MAX_MS, this.delay * 2);
+    this.onStatus('waiting', d);
+    this.timer = setTimeout(() => this.connect(), d);
+  }
+
+  /** send a JSON message; false if not connected */
+  send(obj) {
+    if (!this.isOpen) return false;
+    const text = JSON.stringify(obj);
+    this.ws.send(text);
+    this.bytesOut += text.length;
+    return true;
+  }
+
+  receive(data) {
+    if (typeof data === 'string') {
+      this.bytesIn += data.length;
+      let obj;
+      try {
+        obj = JSON.parse(data);
+      } catch (e) {
+        this.onProblem(`server sent text that is not JSON (${e.message})`);
+        return;
+      }
+      this.queue.push({ obj });
+    } else {
+      this.bytesIn += data.byteLength;
+      let header;
+      try {
+        header = parseHeader(data);
+      } catch (e) {
+        this.onProblem(e.message);
+        return;
+      }
+      this.queue.push({ buf: data, header });
+    }
+    if (!this.draining) this.drain();
+  }
+
+  // deliver queued messages in arrival order, one inflate at a time; latest frame wins:
+  // a frame with a newer frame of the same body behind it in the queue is skipped
+  async drain() {
+    this.draining = true;
+    while (this.queue.length) {
+      const item = this.queue.shift();
+      if (item.obj) { this.deliver(this.onMessage, item.obj); continue; }
+      const h = item.header;
+      if (h.kind === KIND_FRAME && this.queue.some((q) => q.header && q.header.kind === KIND_FRAME && q.header.body === h.body)) {
+        this.framesSkipped++;
+        continue;
+      }
+      let msg;
+      try {
+        msg = await decodeBinary(item.buf);
+      } catch (e) {
+        this.onProblem(e.message);
+        continue;
+      }
+      this.deliver(this.onBinary, msg);
+    }
+    this.draining = false;
+  }
+
+  /** call a handler; a handler's exception is reported, never breaks the ordering chain */
+  deliver(fn, arg) {
+    try {
+      fn(arg);
+    } catch (e) {
+      this.onProblem(`viewer error: ${e.message}`);
+      console.warn(e);
+    }
+  }
+
+  /** close for good (no reconnect) */
+  close() {
+    this.closedByUser = true;
+    clearTimeout(this.timer);
+    if (this.ws) this.ws.close();
+  }
+}
