@@ -1,0 +1,457 @@
+/* drawlist.c - build what to draw from a render state: lit triangles with colours (bodies,
+ * floor, tools) and the resolved camera. No OpenGL here. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "render/render.h"
+
+#define PI 3.14159265358979323846
+#define CREASE_COS 0.7071 /* faces meeting at more than 45 degrees keep separate normals */
+#define FLOOR_TILES 12    /* checker tiles per floor side */
+
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static void cross3(const double a[3], const double b[3], double out[3])
+{
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static double normalize3(double v[3])
+{
+    double n = sqrt(dot3(v, v));
+    if (n > 0.0)
+        for (int k = 0; k < 3; k++)
+            v[k] /= n;
+    return n;
+}
+
+static unsigned char to_byte(float c)
+{
+    if (!(c > 0.0f))
+        return 0;
+    if (c >= 1.0f)
+        return 255;
+    return (unsigned char)lrintf(c * 255.0f);
+}
+
+void sq_render_level_rgb(const sq_palette *p, int level, unsigned char rgb[3])
+{
+    if (level < 0)
+        level = 0;
+    if (level >= SQ_MAX_LEVELS)
+        level = SQ_MAX_LEVELS - 1;
+    for (int k = 0; k < 3; k++)
+        rgb[k] = to_byte(p->level[level][k]);
+}
+
+/* make room for nv more vertices and nt more triangles */
+static void reserve(sq_drawlist *dl, int nv, int nt)
+{
+    if (dl->nverts + nv > dl->cap_verts) {
+        int cap = SQ_MAX(dl->nverts + nv, 2 * dl->cap_verts);
+        dl->v = sq_realloc(dl->v, (size_t)cap * sizeof *dl->v);
+        dl->cap_verts = cap;
+    }
+    if (dl->ntris + nt > dl->cap_tris) {
+        int cap = SQ_MAX(dl->ntris + nt, 2 * dl->cap_tris);
+        dl->idx = sq_realloc(dl->idx, (size_t)cap * 3 * sizeof *dl->idx);
+        dl->cap_tris = cap;
+    }
+}
+
+static int push_vertex(sq_drawlist *dl, const double pos[3], const double n[3],
+                       const unsigned char rgb[3])
+{
+    sq_draw_vertex *v = &dl->v[dl->nverts];
+    for (int k = 0; k < 3; k++) {
+        v->pos[k] = (float)pos[k];
+        v->normal[k] = (float)n[k];
+        v->rgba[k] = rgb[k];
+    }
+    v->rgba[3] = 255;
+    return dl->nverts++;
+}
+
+static void push_tri(sq_drawlist *dl, int a, int b, int c)
+{
+    unsigned *t = &dl->idx[3 * dl->ntris++];
+    t[0] = (unsigned)a;
+    t[1] = (unsigned)b;
+    t[2] = (unsigned)c;
+}
+
+/* colour of vertex i of body b */
+static void vertex_rgb(const sq_render_body *b, int i, const sq_render_opts *o, double scale,
+                       unsigned char rgb[3])
+{
+    switch (o->color) {
+    case SQ_COLOR_LEVEL:
+        sq_render_level_rgb(&o->palette, b->level[i], rgb);
+        return;
+    case SQ_COLOR_PLAIN:
+        for (int k = 0; k < 3; k++)
+            rgb[k] = to_byte(o->palette.plain[k]);
+        return;
+    case SQ_COLOR_STRESS: {
+        double d2 = 0.0;
+        for (int k = 0; k < 3; k++) {
+            double d = (double)b->xyz[3 * i + k] - b->rest[3 * i + k];
+            d2 += d * d;
+        }
+        double t = scale > 0.0 ? sqrt(d2) / scale : 0.0;
+        if (!(t >= 0.0))
+            t = 1.0;
+        if (t > 1.0)
+            t = 1.0;
+        const float *lo = t < 0.5 ? o->palette.stress_low : o->palette.stress_mid;
+        const float *hi = t < 0.5 ? o->palette.stress_mid : o->palette.stress_high;
+        float f = (float)(t < 0.5 ? 2.0 * t : 2.0 * t - 1.0);
+        for (int k = 0; k < 3; k++)
+            rgb[k] = to_byte(lo[k] + f * (hi[k] - lo[k]));
+        return;
+    }
+    }
+    rgb[0] = rgb[1] = rgb[2] = 255;
+}
+
+/* largest |displacement| over all bodies (stress auto scale) */
+static double max_displacement(const sq_render_state *s)
+{
+    double m2 = 0.0;
+    for (int bi = 0; bi < s->nbodies; bi++) {
+        const sq_render_body *b = &s->bodies[bi];
+        for (int i = 0; i < b->nverts; i++) {
+            double d2 = 0.0;
+            for (int k = 0; k < 3; k++) {
+                double d = (double)b->xyz[3 * i + k] - b->rest[3 * i + k];
+                d2 += d * d;
+            }
+            if (d2 > m2 && isfinite(d2))
+                m2 = d2;
+        }
+    }
+    return sqrt(m2);
+}
+
+/* a body's surface: three vertices per triangle, normals averaged over the incident
+ * faces within the crease angle (smooth on curved parts, sharp at box edges) */
+static void add_body(sq_drawlist *dl, const sq_render_body *b, const sq_render_opts *o,
+                     double scale)
+{
+    if (b->ntris == 0)
+        return;
+    double *fn = sq_malloc((size_t)b->ntris * 3 * sizeof(double)); /* area-weighted normals */
+    double *fu = sq_malloc((size_t)b->ntris * 3 * sizeof(double)); /* unit normals */
+    unsigned char *ok = sq_malloc((size_t)b->ntris);
+    int *start = sq_calloc((size_t)b->nverts + 1, sizeof(int));
+    int *inc = sq_malloc((size_t)b->ntris * 3 * sizeof(int));
+
+    /* face normals from the current positions; faces with non-finite corners are left out */
+    for (int t = 0; t < b->ntris; t++) {
+        const int *tv = &b->tris[3 * t];
+        double p[3][3];
+        int finite = 1;
+        for (int c = 0; c < 3; c++)
+            for (int k = 0; k < 3; k++) {
+                p[c][k] = b->xyz[3 * tv[c] + k];
+                finite &= isfinite(p[c][k]) != 0;
+            }
+        ok[t] = (unsigned char)finite;
+        double e1[3], e2[3];
+        for (int k = 0; k < 3; k++) {
+            e1[k] = finite ? p[1][k] - p[0][k] : 0.0;
+            e2[k] = finite ? p[2][k] - p[0][k] : 0.0;
+        }
+        cross3(e1, e2, &fn[3 * t]);
+        memcpy(&fu[3 * t], &fn[3 * t], 3 * sizeof(double));
+        normalize3(&fu[3 * t]);
+        if (!finite)
+            dl->skipped_tris++;
+    }
+
+    /* vertex -> incident faces (CSR) */
+    for (int t = 0; t < b->ntris; t++)
+        for (int c = 0; c < 3; c++)
+            start[b->tris[3 * t + c] + 1]++;
+    for (int i = 0; i < b->nverts; i++)
+        start[i + 1] += start[i];
+    int *fill = sq_malloc((size_t)b->nverts * sizeof(int));
+    memcpy(fill, start, (size_t)b->nverts * sizeof(int));
+    for (int t = 0; t < b->ntris; t++)
+        for (int c = 0; c < 3; c++)
+            inc[fill[b->tris[3 * t + c]]++] = t;
+    free(fill);
+
+    reserve(dl, 3 * b->ntris, b->ntris);
+    for (int t = 0; t < b->ntris; t++) {
+        if (!ok[t])
+            continue;
+        int idx[3];
+        for (int c = 0; c < 3; c++) {
+            int vi = b->tris[3 * t + c];
+            double n[3] = {0.0, 0.0, 0.0};
+            for (int j = start[vi]; j < start[vi + 1]; j++) {
+                int u = inc[j];
+                if (ok[u] && dot3(&fu[3 * t], &fu[3 * u]) >= CREASE_COS)
+                    for (int k = 0; k < 3; k++)
+                        n[k] += fn[3 * u + k];
+            }
+            if (normalize3(n) == 0.0)
+                memcpy(n, &fu[3 * t], sizeof n);
+            double pos[3] = {b->xyz[3 * vi], b->xyz[3 * vi + 1], b->xyz[3 * vi + 2]};
+            unsigned char rgb[3];
+            vertex_rgb(b, vi, o, scale, rgb);
+            idx[c] = push_vertex(dl, pos, n, rgb);
+        }
+        push_tri(dl, idx[0], idx[1], idx[2]);
+    }
+    free(fn);
+    free(fu);
+    free(ok);
+    free(start);
+    free(inc);
+}
+
+/* an orthonormal frame (e1, e2, up) with e1 close to +x (or +y when up is near x) */
+static void plane_basis(const double up[3], double e1[3], double e2[3])
+{
+    double a[3] = {1.0, 0.0, 0.0};
+    if (fabs(up[0]) > 0.9) {
+        a[0] = 0.0;
+        a[1] = 1.0;
+    }
+    double d = dot3(a, up);
+    for (int k = 0; k < 3; k++)
+        e1[k] = a[k] - d * up[k];
+    normalize3(e1);
+    cross3(up, e1, e2);
+}
+
+/* a checkered square floor under the bodies, normal = up */
+static void add_floor(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
+                      double diag)
+{
+    double e1[3], e2[3], centre[3];
+    plane_basis(s->up, e1, e2);
+    for (int k = 0; k < 3; k++)
+        centre[k] = 0.5 * (s->bbox_min[k] + s->bbox_max[k]);
+    /* height: lowest bbox corner along up, slightly below so the bodies' bottoms win */
+    double h = INFINITY;
+    for (int c = 0; c < 8; c++) {
+        double p[3] = {c & 1 ? s->bbox_max[0] : s->bbox_min[0],
+                       c & 2 ? s->bbox_max[1] : s->bbox_min[1],
+                       c & 4 ? s->bbox_max[2] : s->bbox_min[2]};
+        h = fmin(h, dot3(p, s->up));
+    }
+    h -= 0.002 * diag;
+    double shift = h - dot3(centre, s->up);
+    for (int k = 0; k < 3; k++)
+        centre[k] += shift * s->up[k];
+    double half = 1.5 * diag, tile = 2.0 * half / FLOOR_TILES;
+    unsigned char c0[3], c1[3];
+    for (int k = 0; k < 3; k++) {
+        c0[k] = to_byte(o->palette.floor[k]);
+        c1[k] = to_byte(o->palette.floor_line[k]);
+    }
+    reserve(dl, 4 * FLOOR_TILES * FLOOR_TILES, 2 * FLOOR_TILES * FLOOR_TILES);
+    for (int i = 0; i < FLOOR_TILES; i++)
+        for (int j = 0; j < FLOOR_TILES; j++) {
+            const unsigned char *rgb = (i + j) % 2 ? c1 : c0;
+            int q[4];
+            for (int c = 0; c < 4; c++) {
+                double a = -half + tile * (i + (c == 1 || c == 2));
+                double b = -half + tile * (j + (c >= 2));
+                double p[3];
+                for (int k = 0; k < 3; k++)
+                    p[k] = centre[k] + a * e1[k] + b * e2[k];
+                q[c] = push_vertex(dl, p, s->up, rgb);
+            }
+            push_tri(dl, q[0], q[1], q[2]);
+            push_tri(dl, q[0], q[2], q[3]);
+        }
+}
+
+/* a UV sphere */
+static void add_sphere(sq_drawlist *dl, const double c[3], double r, const unsigned char rgb[3])
+{
+    enum { NLAT = 12, NLON = 24 };
+    reserve(dl, (NLAT + 1) * (NLON + 1), 2 * NLAT * NLON);
+    int base = dl->nverts;
+    for (int i = 0; i <= NLAT; i++) {
+        double th = PI * i / NLAT;
+        for (int j = 0; j <= NLON; j++) {
+            double ph = 2.0 * PI * j / NLON;
+            double n[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
+            double p[3] = {c[0] + r * n[0], c[1] + r * n[1], c[2] + r * n[2]};
+            push_vertex(dl, p, n, rgb);
+        }
+    }
+    for (int i = 0; i < NLAT; i++)
+        for (int j = 0; j < NLON; j++) {
+            int a = base + i * (NLON + 1) + j, b = a + NLON + 1;
+            push_tri(dl, a, b, b + 1);
+            push_tri(dl, a, b + 1, a + 1);
+        }
+}
+
+/* an axis-aligned box with flat faces */
+static void add_box(sq_drawlist *dl, const double c[3], const double half[3],
+                    const unsigned char rgb[3])
+{
+    reserve(dl, 24, 12);
+    for (int axis = 0; axis < 3; axis++)
+        for (int side = -1; side <= 1; side += 2) {
+            int u = (axis + 1) % 3, v = (axis + 2) % 3;
+            double n[3] = {0.0, 0.0, 0.0};
+            n[axis] = side;
+            int q[4];
+            for (int k = 0; k < 4; k++) {
+                double su = (k == 1 || k == 2) ? 1.0 : -1.0, sv = k >= 2 ? 1.0 : -1.0;
+                if (side < 0)
+                    su = -su; /* keep counter-clockwise from outside */
+                double p[3];
+                p[axis] = c[axis] + side * half[axis];
+                p[u] = c[u] + su * half[u];
+                p[v] = c[v] + sv * half[v];
+                q[k] = push_vertex(dl, p, n, rgb);
+            }
+            push_tri(dl, q[0], q[1], q[2]);
+            push_tri(dl, q[0], q[2], q[3]);
+        }
+}
+
+static void add_tools(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
+                      double diag)
+{
+    for (int i = 0; i < s->ntools; i++) {
+        const sq_tool *t = &s->tools[i];
+        if (!isfinite(t->pos[0]) || !isfinite(t->pos[1]) || !isfinite(t->pos[2]))
+            continue;
+        unsigned char rgb[3];
+        for (int k = 0; k < 3; k++)
+            rgb[k] = to_byte(o->palette.tool[k] * (t->active ? 1.0f : 0.5f));
+        switch (t->shape) {
+        case SQ_TOOL_SPHERE:
+            if (t->radius > 0.0 && isfinite(t->radius))
+                add_sphere(dl, t->pos, t->radius, rgb);
+            break;
+        case SQ_TOOL_BOX:
+            if (t->half[0] > 0.0 && t->half[1] > 0.0 && t->half[2] > 0.0 &&
+                isfinite(t->half[0] + t->half[1] + t->half[2]))
+                add_box(dl, t->pos, t->half, rgb);
+            break;
+        case SQ_TOOL_GRAB: {
+            /* the grab point as a small bead (its capture radius would hide the body) */
+            double r = 0.015 * diag;
+            if (t->radius > 0.0 && isfinite(t->radius))
+                r = fmin(r, 0.5 * t->radius);
+            add_sphere(dl, t->pos, r, rgb);
+            break;
+        }
+        }
+    }
+}
+
+/* resolve the camera: eye, target, up, clip planes */
+static int resolve_camera(sq_drawlist *dl, const sq_render_state *s, const sq_camera *cam,
+                          double aspect, double diag, sq_err *err)
+{
+    double centre[3], e1[3], e2[3];
+    for (int k = 0; k < 3; k++)
+        centre[k] = 0.5 * (s->bbox_min[k] + s->bbox_max[k]);
+    plane_basis(s->up, e1, e2);
+    double fov = cam->fov_deg > 1.0 && cam->fov_deg < 170.0 ? cam->fov_deg : 35.0;
+    dl->fovy_deg = fov;
+    if (cam->eye_target) {
+        memcpy(dl->eye, cam->eye, sizeof dl->eye);
+        memcpy(dl->target, cam->target, sizeof dl->target);
+    } else {
+        double az = cam->az_deg * PI / 180.0, el = cam->el_deg * PI / 180.0;
+        double dir[3];
+        for (int k = 0; k < 3; k++)
+            dir[k] = cos(el) * (sin(az) * e1[k] - cos(az) * e2[k]) + sin(el) * s->up[k];
+        double dist = cam->dist;
+        if (!(dist > 0.0)) {
+            /* fit the bounding sphere in the narrower field of view */
+            double half_v = 0.5 * fov * PI / 180.0;
+            double half = atan(tan(half_v) * fmin(1.0, aspect));
+            dist = 0.5 * diag / sin(half) * 1.05;
+        }
+        memcpy(dl->target, centre, sizeof centre);
+        for (int k = 0; k < 3; k++)
+            dl->eye[k] = centre[k] + dist * dir[k];
+    }
+    double view[3];
+    for (int k = 0; k < 3; k++)
+        view[k] = dl->target[k] - dl->eye[k];
+    double vlen = normalize3(view);
+    if (!(vlen > 0.0) || !isfinite(vlen))
+        return sq_err_set(err, "camera: eye and target coincide or are not finite");
+    /* up: the scene's up unless looking along it */
+    if (fabs(dot3(view, s->up)) > 0.999)
+        memcpy(dl->up, e2, sizeof e2);
+    else
+        memcpy(dl->up, s->up, sizeof dl->up);
+    /* clip planes enclosing the bodies and the floor (radius ~2.2 diag around the centre) */
+    double dc[3];
+    for (int k = 0; k < 3; k++)
+        dc[k] = centre[k] - dl->eye[k];
+    double d = sqrt(dot3(dc, dc)), reach = 2.3 * diag;
+    dl->zfar = d + reach;
+    dl->znear = fmax(d - reach, dl->zfar * 1e-3);
+    return 0;
+}
+
+int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
+                      double aspect, sq_err *err)
+{
+    dl->nverts = 0;
+    dl->ntris = 0;
+    dl->body_tris = 0;
+    dl->skipped_tris = 0;
+    memcpy(dl->background, o->palette.background, sizeof dl->background);
+    if (!(aspect > 0.0) || !isfinite(aspect))
+        return sq_err_set(err, "render: aspect ratio %g must be > 0", aspect);
+
+    /* scene size; a degenerate or empty scene gets a 1 m frame */
+    double ext[3], diag2 = 0.0;
+    for (int k = 0; k < 3; k++) {
+        ext[k] = s->bbox_max[k] - s->bbox_min[k];
+        diag2 += ext[k] * ext[k];
+    }
+    double diag = sqrt(diag2);
+    sq_render_state tmp;
+    if (!(diag > 1e-9) || !isfinite(diag)) {
+        tmp = *s;
+        for (int k = 0; k < 3; k++) {
+            double c = s->nbodies ? 0.5 * (s->bbox_min[k] + s->bbox_max[k]) : 0.0;
+            tmp.bbox_min[k] = c - 0.5;
+            tmp.bbox_max[k] = c + 0.5;
+        }
+        s = &tmp;
+        diag = sqrt(3.0);
+    }
+
+    dl->stress_scale = o->stress_max > 0.0 ? o->stress_max : max_displacement(s);
+    for (int bi = 0; bi < s->nbodies; bi++)
+        add_body(dl, &s->bodies[bi], o, dl->stress_scale);
+    dl->body_tris = dl->ntris;
+    if (o->floor)
+        add_floor(dl, s, o, diag);
+    if (o->tools)
+        add_tools(dl, s, o, diag);
+    return resolve_camera(dl, s, &o->camera, aspect, diag, err);
+}
+
+void sq_drawlist_free(sq_drawlist *dl)
+{
+    free(dl->v);
+    free(dl->idx);
+    memset(dl, 0, sizeof *dl);
+}

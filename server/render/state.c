@@ -1,0 +1,115 @@
+/* state.c - the render state: a self-contained copy of what to draw (bodies' surfaces,
+ * tools, up axis), filled from arrays or captured from a world (capture.c). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "render/render.h"
+
+void sq_render_state_init(sq_render_state *s)
+{
+    memset(s, 0, sizeof *s);
+    s->up[2] = 1.0;
+}
+
+void sq_render_state_free(sq_render_state *s)
+{
+    for (int i = 0; i < SQ_MAX_BODIES; i++) {
+        sq_render_body *b = &s->bodies[i];
+        free(b->xyz);
+        free(b->rest);
+        free(b->level);
+        free(b->tris);
+    }
+    sq_render_state_init(s);
+}
+
+/* grow a body slot's buffers to hold nverts / ntris (contents not kept) */
+static void body_reserve(sq_render_body *b, int nverts, int ntris)
+{
+    if (nverts > b->cap_verts) {
+        free(b->xyz);
+        free(b->rest);
+        free(b->level);
+        b->xyz = sq_malloc((size_t)nverts * 3 * sizeof(float));
+        b->rest = sq_malloc((size_t)nverts * 3 * sizeof(float));
+        b->level = sq_malloc((size_t)nverts);
+        b->cap_verts = nverts;
+    }
+    if (ntris > b->cap_tris) {
+        free(b->tris);
+        b->tris = sq_malloc((size_t)ntris * 3 * sizeof(int));
+        b->cap_tris = ntris;
+    }
+}
+
+int sq_render_state_add_body(sq_render_state *s, int nverts, const float *xyz, const float *rest,
+                             const unsigned char *level, int ntris, const int *tris, sq_err *err)
+{
+    if (s->nbodies >= SQ_MAX_BODIES)
+        return sq_err_set(err, "render state: more than %d bodies", SQ_MAX_BODIES);
+    if (nverts < 0 || ntris < 0 || (nverts > 0 && !xyz) || (ntris > 0 && !tris))
+        return sq_err_set(err, "render state: body %d: bad counts (%d vertices, %d triangles) "
+                          "or missing arrays", s->nbodies, nverts, ntris);
+    const float *r = rest ? rest : xyz;
+    for (int i = 0; i < 3 * nverts; i++)
+        if (!isfinite(r[i]))
+            return sq_err_set(err, "render state: body %d: vertex %d has a non-finite rest "
+                              "position", s->nbodies, i / 3);
+    for (int i = 0; i < 3 * ntris; i++)
+        if (tris[i] < 0 || tris[i] >= nverts)
+            return sq_err_set(err, "render state: body %d: triangle %d uses vertex %d, outside "
+                              "[0, %d)", s->nbodies, i / 3, tris[i], nverts);
+
+    sq_render_body *b = &s->bodies[s->nbodies];
+    body_reserve(b, nverts, ntris);
+    b->nverts = nverts;
+    b->ntris = ntris;
+    if (nverts > 0) {
+        memcpy(b->xyz, xyz, (size_t)nverts * 3 * sizeof(float));
+        memcpy(b->rest, r, (size_t)nverts * 3 * sizeof(float));
+        if (level)
+            memcpy(b->level, level, (size_t)nverts);
+        else
+            memset(b->level, 0, (size_t)nverts);
+    }
+    if (ntris > 0)
+        memcpy(b->tris, tris, (size_t)ntris * 3 * sizeof(int));
+
+    /* the rest bounding box of all bodies (started by the first vertex of any body) */
+    int have_box = 0;
+    for (int j = 0; j < s->nbodies; j++)
+        have_box |= s->bodies[j].nverts > 0;
+    for (int i = 0; i < nverts; i++)
+        for (int k = 0; k < 3; k++) {
+            double v = r[3 * i + k];
+            int first = !have_box && i == 0;
+            if (first || v < s->bbox_min[k])
+                s->bbox_min[k] = v;
+            if (first || v > s->bbox_max[k])
+                s->bbox_max[k] = v;
+        }
+    s->nbodies++;
+    return 0;
+}
+
+int sq_render_state_add_tool(sq_render_state *s, const sq_tool *t, sq_err *err)
+{
+    if (s->ntools >= SQ_MAX_TOOLS)
+        return sq_err_set(err, "render state: more than %d tools", SQ_MAX_TOOLS);
+    s->tools[s->ntools++] = *t;
+    return 0;
+}
+
+void sq_render_state_set_gravity(sq_render_state *s, const double g[3])
+{
+    double n = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+    if (!(n > 1e-12) || !isfinite(n)) {
+        s->up[0] = 0.0;
+        s->up[1] = 0.0;
+        s->up[2] = 1.0;
+        return;
+    }
+    for (int k = 0; k < 3; k++)
+        s->up[k] = -g[k] / n;
+}
