@@ -49,6 +49,9 @@ typedef struct sq_scene {
     sq_tool_script tools[SQ_MAX_TOOLS];
     int nprobes;
     sq_probe probes[SQ_MAX_PROBES];
+    double duration;       /* default run length of `squish run`, s (key "duration", default 2) */
+    int nlisted[SQ_MAX_BODIES];                   /* levels listed in the file per body */
+    int level_index[SQ_MAX_BODIES][SQ_MAX_LEVELS]; /* listed index of each loaded level */
 } sq_scene;
 
 /* load and validate a scene file; unknown keys and wrong types are errors naming the JSON
@@ -59,6 +62,11 @@ sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *lab
 /* the embedded default scene: the paper's 1 m cube (section 2.6) */
 sq_scene *sq_scene_default(sq_err *err);
 void sq_scene_free(sq_scene *s);
+
+/* pose of a scripted tool at simulated time t: position interpolated linearly between the
+ * keyframes around t (held before the first and after the last); active taken from the last
+ * keyframe at or before t (inactive before the first keyframe) */
+void sq_tool_script_pose(const sq_tool_script *s, double t, sq_tool *out);
 
 /* world: one running instance of a scene */
 typedef struct sq_world {
@@ -74,6 +82,7 @@ typedef struct sq_world {
     sq_frame_profile profile[SQ_MAX_BODIES];
     long deadline_misses;
     long resets;
+    double last_frame_s;     /* wall-clock compute time of the last frame, s */
 } sq_world;
 
 sq_world *sq_world_create(const sq_scene *scene, sq_err *err);

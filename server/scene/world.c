@@ -1,0 +1,168 @@
+/* world.c - one running instance of a scene: bodies, tool poses, frame clock, profiles.
+ *
+ * Deterministic: with budget_s == 0 nothing depends on wall-clock time, so the same scene
+ * stepped the same number of frames gives bit-identical body states.
+ */
+#include "scene/scene.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* simulated time of frame k, computed from the count (no accumulated rounding) */
+static double frame_time(const sq_world *w, long k)
+{
+    return (double)k / w->scene->frame_rate;
+}
+
+/* scripted tools take their pose at time t; live tools keep theirs */
+static void pose_scripted_tools(sq_world *w, double t)
+{
+    for (int i = 0; i < w->ntools; i++) {
+        if (!w->tool_scripted[i])
+            continue;
+        for (int j = 0; j < w->scene->ntools; j++)
+            if (w->scene->tools[j].tool.id == w->tools[i].id)
+                sq_tool_script_pose(&w->scene->tools[j], t, &w->tools[i]);
+    }
+}
+
+/* the scene's tool table at t = 0 */
+static void restore_tools(sq_world *w)
+{
+    w->ntools = w->scene->ntools;
+    for (int i = 0; i < w->ntools; i++) {
+        w->tool_scripted[i] = 1;
+        sq_tool_script_pose(&w->scene->tools[i], 0, &w->tools[i]);
+    }
+    memset(w->feedback, 0, sizeof w->feedback);
+}
+
+sq_world *sq_world_create(const sq_scene *scene, sq_err *err)
+{
+    if (!scene) {
+        sq_err_set(err, "no scene given; load one with sq_scene_load or sq_scene_default");
+        return NULL;
+    }
+    sq_world *w = sq_calloc(1, sizeof *w);
+    w->scene = scene;
+    for (int b = 0; b < scene->nbodies; b++) {
+        sq_err e = {{0}};
+        w->bodies[b] = sq_body_create(&scene->bodies[b], &e);
+        if (!w->bodies[b]) {
+            sq_err_set(err, "%s: bodies[%d] (\"%s\"): %s", scene->path, b, scene->body_names[b], e.msg);
+            sq_world_destroy(w);
+            return NULL;
+        }
+        w->nbodies = b + 1;
+    }
+    restore_tools(w);
+    return w;
+}
+
+void sq_world_destroy(sq_world *w)
+{
+    if (!w)
+        return;
+    for (int b = 0; b < w->nbodies; b++)
+        sq_body_destroy(w->bodies[b]);
+    free(w);
+}
+
+void sq_world_reset(sq_world *w)
+{
+    for (int b = 0; b < w->nbodies; b++)
+        sq_body_reset(w->bodies[b]);
+    w->frame = 0;
+    w->time = 0;
+    w->deadline_misses = 0;
+    w->resets = 0;
+    w->last_frame_s = 0;
+    memset(w->profile, 0, sizeof w->profile);
+    restore_tools(w);
+}
+
+void sq_world_step(sq_world *w, double budget_s)
+{
+    double t0 = sq_now();
+    long next = w->frame + 1;
+    double t = frame_time(w, next);
+    pose_scripted_tools(w, t);
+
+    /* each body gets an equal share of the compute budget for its splitting decisions */
+    double share = budget_s > 0 ? budget_s / w->nbodies : 0;
+    for (int b = 0; b < w->nbodies; b++) {
+        sq_frame_profile *prof = &w->profile[b];
+        memset(prof, 0, sizeof *prof);
+        sq_body_frame(w->bodies[b], w->tools, w->ntools, w->feedback[b], prof, share);
+        if (prof->reset)
+            w->resets++;
+    }
+    w->frame = next;
+    w->time = t;
+    w->last_frame_s = sq_now() - t0;
+    if (budget_s > 0 && w->last_frame_s > budget_s)
+        w->deadline_misses++;
+}
+
+static int tool_valid(const sq_tool *t, sq_err *err)
+{
+    if (t->id < 0)
+        return sq_err_set(err, "tool id %d is negative; use an id >= 0", t->id);
+    if (t->shape != SQ_TOOL_SPHERE && t->shape != SQ_TOOL_BOX && t->shape != SQ_TOOL_GRAB)
+        return sq_err_set(err, "tool %d: shape %d is unknown; use sphere (0), box (1) or grab (2)", t->id,
+                          (int)t->shape);
+    for (int i = 0; i < 3; i++)
+        if (!isfinite(t->pos[i]) || fabs(t->pos[i]) > 1e6)
+            return sq_err_set(err, "tool %d: position component %c = %g is not a finite coordinate "
+                                   "below 1e6 m; send a position near the bodies",
+                              t->id, "xyz"[i], t->pos[i]);
+    if (t->shape == SQ_TOOL_BOX) {
+        for (int i = 0; i < 3; i++)
+            if (!(t->half[i] > 0) || !isfinite(t->half[i]))
+                return sq_err_set(err, "tool %d: box half extent %c = %g; use a finite value > 0 (m)", t->id,
+                                  "xyz"[i], t->half[i]);
+    } else if (!(t->radius > 0) || !isfinite(t->radius)) {
+        return sq_err_set(err, "tool %d: radius %g; use a finite radius > 0 (m)", t->id, t->radius);
+    }
+    return 0;
+}
+
+int sq_world_set_tool(sq_world *w, const sq_tool *t, sq_err *err)
+{
+    if (tool_valid(t, err))
+        return -1;
+    for (int i = 0; i < w->ntools; i++)
+        if (w->tools[i].id == t->id) {
+            w->tools[i] = *t;
+            w->tool_scripted[i] = 0;
+            return 0;
+        }
+    if (w->ntools >= SQ_MAX_TOOLS)
+        return sq_err_set(err, "tool %d: the world already has %d tools, the maximum; reuse an id", t->id,
+                          SQ_MAX_TOOLS);
+    w->tools[w->ntools] = *t;
+    w->tool_scripted[w->ntools] = 0;
+    memset(w->feedback, 0, sizeof w->feedback);
+    w->ntools++;
+    return 0;
+}
+
+int sq_world_probe(const sq_world *w, int probe, double u[3])
+{
+    if (probe < 0 || probe >= w->scene->nprobes)
+        return -1;
+    const sq_probe *p = &w->scene->probes[probe];
+    if (p->body < 0 || p->body >= w->nbodies)
+        return -1;
+    return sq_body_probe(w->bodies[p->body], p->point, u);
+}
+
+int sq_world_find_body(const sq_world *w, const char *name)
+{
+    for (int b = 0; b < w->nbodies; b++)
+        if (!strcmp(w->scene->body_names[b], name))
+            return b;
+    return -1;
+}
