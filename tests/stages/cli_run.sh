@@ -1,0 +1,112 @@
+#!/usr/bin/env bash
+# cli_run: the real `squish run` on small scenes: byte-identical outputs across runs, CSV
+# columns, step-bound report, --until-rest, --default, bad scenes and usage errors.
+# Last line: "cli_run: N passed, N failed".
+set -u
+cd "$(dirname "$0")/../.."
+SQUISH=${SQUISH:-$PWD/build/squish}
+DATA=$PWD/tests/data/scenes
+TMP=$(mktemp -d /tmp/squish-cli-run-XXXXXX)
+trap 'rm -rf "$TMP"' EXIT
+pass=0
+fail=0
+
+ok() { pass=$((pass + 1)); echo "  ok   $1"; }
+bad() { fail=$((fail + 1)); echo "  FAIL $1"; }
+check() { # check NAME COMMAND...: passes when the command succeeds
+    local name=$1
+    shift
+    if "$@"; then ok "$name"; else bad "$name"; fi
+}
+
+if [ ! -x "$SQUISH" ]; then
+    echo "cli_run: $SQUISH is missing; build it with make squish"
+    echo "cli_run: 0 passed, 1 failed"
+    exit 1
+fi
+
+# two runs of the same scene: probes.csv and final.vtk byte-identical
+"$SQUISH" run "$DATA/small-cube.json" --frames 30 --out "$TMP/a" >"$TMP/a.log" 2>&1
+rc_a=$?
+"$SQUISH" run "$DATA/small-cube.json" --frames 30 --out "$TMP/b" >"$TMP/b.log" 2>&1
+rc_b=$?
+check "run exits 0" [ "$rc_a" = 0 -a "$rc_b" = 0 ]
+check "probes.csv byte-identical across runs" cmp -s "$TMP/a/probes.csv" "$TMP/b/probes.csv"
+check "final.vtk byte-identical across runs" cmp -s "$TMP/a/final.vtk" "$TMP/b/final.vtk"
+# stats.csv: only the wall_ms column (4th) may differ
+check "stats.csv identical except wall_ms" \
+    cmp -s <(cut -d, -f1-3,5- "$TMP/a/stats.csv") <(cut -d, -f1-3,5- "$TMP/b/stats.csv")
+
+# CSV columns and row counts: 31 frames (0..30) x 2 probes + header; 30 stat rows + header
+check "probes.csv header" [ "$(head -n 1 "$TMP/a/probes.csv")" = "frame,time,probe,ux,uy,uz" ]
+check "probes.csv rows" [ "$(wc -l <"$TMP/a/probes.csv")" = 63 ]
+check "probes.csv number format" \
+    bash -c "tail -n +2 '$TMP/a/probes.csv' | grep -Evq '^[0-9]+,[-0-9.e+]+,(corner|top),-?[0-9]\.[0-9]{9}e[-+][0-9]{2},-?[0-9]\.[0-9]{9}e[-+][0-9]{2},-?[0-9]\.[0-9]{9}e[-+][0-9]{2}$' && exit 1 || exit 0"
+check "stats.csv header" \
+    bash -c "head -n 1 '$TMP/a/stats.csv' | grep -q '^frame,time,node_updates,wall_ms,active_l0,splits,merges,resets,kinetic_energy$'"
+check "stats.csv rows" [ "$(wc -l <"$TMP/a/stats.csv")" = 31 ]
+check "final.vtk is legacy VTK" bash -c "head -n 1 '$TMP/a/final.vtk' | grep -q '^# vtk DataFile Version'"
+# the corner sags under gravity by frame 30 (uz < 0)
+check "corner sags" bash -c "grep '^30,.*,corner,' '$TMP/a/probes.csv' | cut -d, -f6 | grep -q '^-'"
+# the step bound and substeps are reported at start
+check "step bound reported" grep -Eq 'level 0 \(64 nodes\): bound [0-9.e+-]+ s, [0-9]+ substeps/frame, dt [0-9.e+-]+ s' "$TMP/a.log"
+check "summary printed" grep -q '^done: 30 frames' "$TMP/a.log"
+
+# --seconds: 0.1 s at 50 Hz = 5 frames
+"$SQUISH" run "$DATA/small-cube.json" --seconds 0.1 --out "$TMP/s" >/dev/null 2>&1
+check "--seconds 0.1 gives 5 frames" [ "$(wc -l <"$TMP/s/stats.csv")" = 6 ]
+
+# default length: the scene's duration (0.4 s = 20 frames)
+"$SQUISH" run "$DATA/small-cube.json" --out "$TMP/d" >/dev/null 2>&1
+check "default length is the scene's duration" [ "$(wc -l <"$TMP/d/stats.csv")" = 21 ]
+
+# --until-rest stops before the cap, after the last keyframe (0.3 s), nearly at rest
+"$SQUISH" run "$DATA/small-cube.json" --until-rest --out "$TMP/r" >"$TMP/r.log" 2>&1
+rc=$?
+n=$(grep -oE '^at rest at frame [0-9]+' "$TMP/r.log" | grep -oE '[0-9]+$')
+check "--until-rest exits 0 and reaches rest" [ "$rc" = 0 -a -n "$n" ]
+check "--until-rest stops after the last keyframe and before the cap" [ "${n:-0}" -gt 15 -a "${n:-99999}" -lt 3000 ]
+# at rest the corner moves less than 1e-5 m over the last frame
+check "--until-rest final state is still" bash -c "
+    tail -n 4 '$TMP/r/probes.csv' | grep ',corner,' | cut -d, -f6 | paste -sd' ' |
+    awk '{ d = \$1 - \$2; if (d < 0) d = -d; exit !(NF == 2 && d < 1e-5) }'"
+# a cap too small: not at rest, says so, still writes the outputs
+"$SQUISH" run "$DATA/small-cube.json" --until-rest --max-frames 3 --out "$TMP/c" >"$TMP/c.log" 2>&1
+check "--until-rest cap reported" grep -q 'not at rest after the cap of 3 frames' "$TMP/c.log"
+check "--until-rest cap still writes final.vtk" [ -s "$TMP/c/final.vtk" ]
+
+# the embedded default scene works from any directory
+(cd "$TMP" && "$SQUISH" run --default --frames 5 --out def >def.log 2>&1)
+check "--default runs from any directory" [ -s "$TMP/def/final.vtk" -a "$(wc -l <"$TMP/def/probes.csv")" = 7 ]
+check "--default probes the corner" grep -q '^5,.*,corner,' "$TMP/def/probes.csv"
+
+# a bad scene: exit 1, error names the file, the JSON path and the fix
+sed 's/"lambda": 100000, "mu": 40000/"E": 1e5, "nu": 0.7/' "$DATA/small-cube.json" >"$TMP/bad-nu.json"
+cp "$DATA/cube_3.msh" "$TMP/"
+"$SQUISH" run "$TMP/bad-nu.json" --out "$TMP/x" >"$TMP/x.log" 2>&1
+rc=$?
+check "bad scene exits 1" [ "$rc" = 1 ]
+check "bad scene error names path and fix" \
+    grep -q 'bad-nu.json: bodies\[0\].material.nu: 0.7 is out of range; use 0 <= nu < 0.5' "$TMP/x.log"
+"$SQUISH" run "$DATA/bad-level-path.json" --out "$TMP/x" >"$TMP/y.log" 2>&1
+rc=$?
+check "missing mesh exits 1 naming levels[0]" \
+    bash -c "[ $rc = 1 ] && grep -q 'bodies\[0\].levels\[0\]: mesh file \"no-such-mesh.msh\"' '$TMP/y.log'"
+"$SQUISH" run "$TMP/no-such-scene.json" >"$TMP/z.log" 2>&1
+rc=$?
+check "missing scene exits 1 naming the file" bash -c "[ $rc = 1 ] && grep -q 'no-such-scene.json' '$TMP/z.log'"
+
+# usage errors exit 2
+"$SQUISH" run >/dev/null 2>&1
+check "no scene: exit 2" [ $? = 2 ]
+"$SQUISH" run "$DATA/small-cube.json" --frames abc >/dev/null 2>&1
+check "bad --frames: exit 2" [ $? = 2 ]
+"$SQUISH" run "$DATA/small-cube.json" --frames 3 --until-rest >/dev/null 2>&1
+check "exclusive modes: exit 2" [ $? = 2 ]
+"$SQUISH" run "$DATA/small-cube.json" --bogus >"$TMP/u.log" 2>&1
+check "unknown option: exit 2 and named" bash -c "[ $? = 2 ] && grep -q \"unknown option '--bogus'\" '$TMP/u.log'"
+"$SQUISH" run --help >/dev/null 2>&1
+check "--help exits 0" [ $? = 0 ]
+
+echo "cli_run: $pass passed, $fail failed"
+[ "$fail" = 0 ]
