@@ -142,6 +142,7 @@ static int read_count(rd *r, long long *v, const char *what, int min_bytes)
     if (read_long(r, v, what) < 0)
         return -1;
     long long room = (long long)(r->len - r->pos) / min_bytes + 1;
+    /* loose on purpose: a merely truncated file is caught, with its line, while reading */
     if (*v < 0 || *v > INT_MAX / 4 || *v > room) {
         char t[160];
         snprintf(t, sizeof t, "%lld, but only %zu bytes follow: the header is wrong or the file truncated",
@@ -331,7 +332,7 @@ static int expect_end(rd *r, const char *end)
 static int msh_nodes_22(rd *r, build *b)
 {
     long long n;
-    if (read_count(r, &n, "node count", 8) < 0)
+    if (read_count(r, &n, "node count", 2) < 0)
         return -1;
     build_reserve_nodes(b, n);
     for (long long i = 0; i < n; i++) {
@@ -342,7 +343,7 @@ static int msh_nodes_22(rd *r, build *b)
         if (read_long(r, &tag, "node number") < 0)
             return -1;
         double *x = b->x + 3 * (size_t)b->nn;
-        if (read_double(r, &x[0], "x") < 0 || read_double(r, &x[1], "y") < 0 || read_double(r, &x[2], "z") < 0)
+        if (read_double(r, &x[0], "coordinate x") < 0 || read_double(r, &x[1], "coordinate y") < 0 || read_double(r, &x[2], "coordinate z") < 0)
             return -1;
         b->ntag[b->nn] = tag;
         b->nline[b->nn++] = line;
@@ -353,7 +354,7 @@ static int msh_nodes_22(rd *r, build *b)
 static int msh_elements_22(rd *r, build *b)
 {
     long long n;
-    if (read_count(r, &n, "element count", 8) < 0)
+    if (read_count(r, &n, "element count", 2) < 0)
         return -1;
     for (long long e = 0; e < n; e++) {
         long long id;
@@ -391,7 +392,7 @@ static int msh_elements_22(rd *r, build *b)
 static int msh_nodes_41(rd *r, build *b)
 {
     long long nblocks, n, mintag, maxtag;
-    if (read_count(r, &nblocks, "node block count", 8) < 0 || read_count(r, &n, "node count", 8) < 0 ||
+    if (read_count(r, &nblocks, "node block count", 2) < 0 || read_count(r, &n, "node count", 2) < 0 ||
         read_long(r, &mintag, "min node tag") < 0 || read_long(r, &maxtag, "max node tag") < 0)
         return -1;
     build_reserve_nodes(b, n);
@@ -400,7 +401,7 @@ static int msh_nodes_41(rd *r, build *b)
         int dim, ent, param;
         long long cnt;
         if (read_int(r, &dim, "entity dimension") < 0 || read_int(r, &ent, "entity tag") < 0 ||
-            read_int(r, &param, "parametric flag") < 0 || read_count(r, &cnt, "nodes in block", 8) < 0)
+            read_int(r, &param, "parametric flag") < 0 || read_count(r, &cnt, "nodes in block", 2) < 0)
             return -1;
         if (total + cnt > n)
             return fail(r, "node blocks hold more nodes than the header's %s%s", "count", "");
@@ -417,8 +418,8 @@ static int msh_nodes_41(rd *r, build *b)
             double *x = b->x + 3 * (size_t)(first + i);
             skip_ws(r);
             b->nline[first + i] = r->line;
-            if (read_double(r, &x[0], "x") < 0 || read_double(r, &x[1], "y") < 0 ||
-                read_double(r, &x[2], "z") < 0)
+            if (read_double(r, &x[0], "coordinate x") < 0 || read_double(r, &x[1], "coordinate y") < 0 ||
+                read_double(r, &x[2], "coordinate z") < 0)
                 return -1;
             for (int k = 0; k < npar; k++) {
                 double u;
@@ -436,7 +437,7 @@ static int msh_nodes_41(rd *r, build *b)
 static int msh_elements_41(rd *r, build *b)
 {
     long long nblocks, n, mintag, maxtag;
-    if (read_count(r, &nblocks, "element block count", 8) < 0 || read_count(r, &n, "element count", 8) < 0 ||
+    if (read_count(r, &nblocks, "element block count", 2) < 0 || read_count(r, &n, "element count", 2) < 0 ||
         read_long(r, &mintag, "min element tag") < 0 || read_long(r, &maxtag, "max element tag") < 0)
         return -1;
     long long total = 0;
@@ -444,7 +445,7 @@ static int msh_elements_41(rd *r, build *b)
         int dim, ent, type;
         long long cnt;
         if (read_int(r, &dim, "entity dimension") < 0 || read_int(r, &ent, "entity tag") < 0 ||
-            read_int(r, &type, "element type") < 0 || read_count(r, &cnt, "elements in block", 4) < 0)
+            read_int(r, &type, "element type") < 0 || read_count(r, &cnt, "elements in block", 2) < 0)
             return -1;
         skip_line(r);
         for (long long e = 0; e < cnt; e++) {
@@ -575,7 +576,7 @@ static sq_mesh *read_tetgen(const char *path, sq_err *err)
     rd r = {npath, buf, len, 0, 1, '#', err};
     long long nn;
     int dim, nattr, nmark;
-    if (read_count(&r, &nn, "point count", 8) < 0 || read_int(&r, &dim, "dimension") < 0 ||
+    if (read_count(&r, &nn, "point count", 2) < 0 || read_int(&r, &dim, "dimension") < 0 ||
         read_int(&r, &nattr, "attribute count") < 0 || read_int(&r, &nmark, "boundary marker flag") < 0)
         goto bad;
     if (dim != 3) {
@@ -592,8 +593,8 @@ static sq_mesh *read_tetgen(const char *path, sq_err *err)
         int line = r.line;
         long long id;
         double *x = b.x + 3 * (size_t)b.nn;
-        if (read_long(&r, &id, "point number") < 0 || read_double(&r, &x[0], "x") < 0 ||
-            read_double(&r, &x[1], "y") < 0 || read_double(&r, &x[2], "z") < 0)
+        if (read_long(&r, &id, "point number") < 0 || read_double(&r, &x[0], "coordinate x") < 0 ||
+            read_double(&r, &x[1], "coordinate y") < 0 || read_double(&r, &x[2], "coordinate z") < 0)
             goto bad;
         for (int k = 0; k < nattr; k++) {
             double a;
@@ -619,7 +620,7 @@ static sq_mesh *read_tetgen(const char *path, sq_err *err)
     rd re = {epath, buf, len, 0, 1, '#', err};
     long long nt;
     int npt, nreg;
-    if (read_count(&re, &nt, "tetrahedron count", 8) < 0 || read_int(&re, &npt, "nodes per tetrahedron") < 0 ||
+    if (read_count(&re, &nt, "tetrahedron count", 2) < 0 || read_int(&re, &npt, "nodes per tetrahedron") < 0 ||
         read_int(&re, &nreg, "region attribute flag") < 0)
         goto bad_e;
     if (npt != 4 && npt != 10) {
@@ -708,7 +709,7 @@ static sq_mesh *read_medit(rd *r)
                 goto bad;
             }
             have_v = 1;
-            if (read_count(r, &n, "vertex count", 8) < 0)
+            if (read_count(r, &n, "vertex count", 2) < 0)
                 goto bad;
             build_reserve_nodes(&b, n);
             for (long long i = 0; i < n; i++) {
@@ -716,8 +717,8 @@ static sq_mesh *read_medit(rd *r)
                 int line = r->line;
                 double *x = b.x + 3 * (size_t)b.nn;
                 long long ref;
-                if (read_double(r, &x[0], "x") < 0 || read_double(r, &x[1], "y") < 0 ||
-                    read_double(r, &x[2], "z") < 0 || read_long(r, &ref, "vertex reference") < 0)
+                if (read_double(r, &x[0], "coordinate x") < 0 || read_double(r, &x[1], "coordinate y") < 0 ||
+                    read_double(r, &x[2], "coordinate z") < 0 || read_long(r, &ref, "vertex reference") < 0)
                     goto bad;
                 b.ntag[b.nn] = b.nn + 1;
                 b.nline[b.nn++] = line;
@@ -725,7 +726,7 @@ static sq_mesh *read_medit(rd *r)
         } else if (!strcasecmp(tok, "Tetrahedra")) {
             long long n;
             have_t = 1;
-            if (read_count(r, &n, "tetrahedron count", 10) < 0)
+            if (read_count(r, &n, "tetrahedron count", 2) < 0)
                 goto bad;
             for (long long t = 0; t < n; t++) {
                 skip_ws(r);
@@ -752,7 +753,7 @@ static sq_mesh *read_medit(rd *r)
                 continue;
             }
             long long n;
-            if (read_count(r, &n, tok, 2 * w) < 0)
+            if (read_count(r, &n, tok, 2) < 0)
                 goto bad;
             for (long long i = 0; i < n * w; i++) {
                 double d;

@@ -84,17 +84,19 @@ static void where_node(const sq_mesh *m, const char *node_file, const int *line,
 {
     const char *src = node_file ? node_file : m->source;
     if (line)
-        snprintf(buf, n, "%s:%d: node %d", src, line[i], i);
+        snprintf(buf, n, "%s:%d: node", src, line[i]);
     else
         snprintf(buf, n, "%s: node %d", src, i);
 }
 
+/* from a file the line says which tet; from arrays the index and nodes do */
 static void where_tet(const sq_mesh *m, const int *line, int t, char *buf, size_t n)
 {
+    const int *v = m->tets + 4 * (size_t)t;
     if (line)
-        snprintf(buf, n, "%s:%d: tet %d", m->source, line[t], t);
+        snprintf(buf, n, "%s:%d: tetrahedron", m->source, line[t]);
     else
-        snprintf(buf, n, "%s: tet %d", m->source, t);
+        snprintf(buf, n, "%s: tet %d (nodes %d %d %d %d)", m->source, t, v[0], v[1], v[2], v[3]);
 }
 
 int sq_mesh_validate(sq_mesh *m, const char *node_file, const int *node_line, const int *tet_line, sq_err *err)
@@ -140,8 +142,8 @@ int sq_mesh_validate(sq_mesh *m, const char *node_file, const int *node_line, co
         double lmax = sqrt(lmax2);
         if (!(fabs(vol) > SQ_DEGENERATE_RATIO * lmax * lmax * lmax) || lmax == 0) {
             where_tet(m, tet_line, t, w, sizeof w);
-            return sq_err_set(err, "%s (nodes %d %d %d %d): degenerate, volume %.3g for longest "
-                              "edge %.3g; remove it or remesh", w, v[0], v[1], v[2], v[3], vol, lmax);
+            return sq_err_set(err, "%s: degenerate, volume %.3g for longest edge %.3g; remove it or "
+                              "remesh", w, vol, lmax);
         }
         if (vol > 0) {
             if (first_pos < 0)
@@ -156,12 +158,10 @@ int sq_mesh_validate(sq_mesh *m, const char *node_file, const int *node_line, co
     if (npos && nneg) {
         /* the minority is the wrong one */
         int bad = npos >= nneg ? first_neg : first_pos;
-        const int *v = m->tets + 4 * (size_t)bad;
         where_tet(m, tet_line, bad, w, sizeof w);
-        return sq_err_set(err, "%s (nodes %d %d %d %d): inverted (volume %.3g) while %d of %d tets "
-                          "have the other orientation; swap two of its nodes or remesh",
-                          w, v[0], v[1], v[2], v[3], sq_tet_volume(m, bad), npos >= nneg ? npos : nneg,
-                          m->ntets);
+        return sq_err_set(err, "%s: inverted (volume %.3g) while %d of %d tets have the other "
+                          "orientation; swap two of its nodes or remesh", w, sq_tet_volume(m, bad),
+                          npos >= nneg ? npos : nneg, m->ntets);
     }
     if (nneg) {
         for (int t = 0; t < m->ntets; t++) {

@@ -1,0 +1,234 @@
+/* test_mesh_io.c - mesh readers and writers: round trips, real Gmsh files, broken files. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh/mesh.h"
+#include "sq_test.h"
+
+static sq_mesh *load_data(const char *name, sq_err *err)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/mesh/%s", sq_test_data(), name);
+    return sq_mesh_load(path, err);
+}
+
+static double volume_of(const sq_mesh *m)
+{
+    sq_mesh_info in;
+    sq_mesh_measure(m, &in);
+    return in.volume;
+}
+
+/* write m with the writer for ext, read back, compare */
+static void roundtrip(const sq_mesh *m, const char *ext)
+{
+    char path[1024];
+    sq_err err = {0};
+    snprintf(path, sizeof path, "%s/rt_%p%s", sq_test_tmpdir(), (const void *)m, ext);
+    CHECK(sq_mesh_save(m, path, &err) == 0);
+    sq_mesh *r = sq_mesh_load(path, &err);
+    CHECK(r != NULL);
+    if (!r) {
+        printf("    %s: %s\n", ext, err.msg);
+        return;
+    }
+    CHECK(r->nnodes == m->nnodes);
+    CHECK(r->ntets == m->ntets);
+    CHECK(r->ntris == m->ntris);
+    /* writers print the shortest exact decimal: coordinates come back bit for bit */
+    int same = r->nnodes == m->nnodes;
+    for (int i = 0; same && i < 3 * m->nnodes; i++)
+        same = r->x[i] == m->x[i];
+    CHECK(same);
+    same = r->ntets == m->ntets;
+    for (int i = 0; same && i < 4 * m->ntets; i++)
+        same = r->tets[i] == m->tets[i];
+    CHECK(same);
+    CHECK_NEAR(volume_of(r), volume_of(m), 1e-14);
+    sq_mesh_free(r);
+}
+
+SQ_TEST(mesh_io_roundtrip_all_formats)
+{
+    sq_err err = {0};
+    const double size[3] = {0.3, 0.7, 1.1}, origin[3] = {-0.1, 1.0 / 3, 2e-7};
+    sq_mesh *m = sq_mesh_box(3, 2, 4, size, origin, &err);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    roundtrip(m, ".msh");
+    roundtrip(m, ".mesh");
+    roundtrip(m, ".node");
+    roundtrip(m, ".ele");
+    sq_mesh_free(m);
+    /* a real Gmsh mesh too */
+    m = load_data("cube_h05_v41.msh", &err);
+    CHECK(m != NULL);
+    if (m) {
+        roundtrip(m, ".msh");
+        roundtrip(m, ".mesh");
+        roundtrip(m, ".node");
+        sq_mesh_free(m);
+    }
+}
+
+/* the same cube written by Gmsh as 2.2, 4.1 and Medit, by hand as TetGen and with sparse
+ * shuffled node tags: all read to the same 14 nodes, 24 tets, unit volume */
+SQ_TEST(mesh_io_gmsh_medit_tetgen_same_cube)
+{
+    const char *files[] = {"cube_h1.msh", "cube_h1_v41.msh", "cube_h1.mesh", "cube_tetgen.node",
+                           "cube_tetgen.ele", "sparse_tags.msh", "all_negative.msh"};
+    sq_mesh *ref = NULL;
+    for (size_t f = 0; f < SQ_COUNTOF(files); f++) {
+        sq_err err = {0};
+        sq_mesh *m = load_data(files[f], &err);
+        CHECK(m != NULL);
+        if (!m) {
+            printf("    %s: %s\n", files[f], err.msg);
+            continue;
+        }
+        CHECK(m->nnodes == 14);
+        CHECK(m->ntets == 24);
+        CHECK(m->ntris == 24);
+        /* exact cube: volume and area are sums of dyadic values (1e-14) */
+        CHECK_NEAR(volume_of(m), 1.0, 1e-14);
+        for (int t = 0; t < m->ntets; t++)
+            CHECK(sq_tet_volume(m, t) > 0);
+        if (!ref) {
+            ref = m;
+            continue;
+        }
+        /* same node coordinates as a set: compare the sums of x, x^2 */
+        double s1 = 0, s2 = 0, r1 = 0, r2 = 0;
+        for (int i = 0; i < 3 * m->nnodes; i++) {
+            s1 += m->x[i];
+            s2 += m->x[i] * m->x[i] * (1 + i % 3);
+            r1 += ref->x[i];
+            r2 += ref->x[i] * ref->x[i] * (1 + i % 3);
+        }
+        CHECK_NEAR(s1, r1, 1e-12);
+        CHECK_NEAR(s2, r2, 1e-12);
+        sq_mesh_free(m);
+    }
+    sq_mesh_free(ref);
+}
+
+/* each broken file: the message names file, line and problem */
+SQ_TEST(mesh_io_broken_files)
+{
+    static const struct {
+        const char *file, *where, *what;
+    } cases[] = {
+        {"truncated.msh", "truncated.msh:13:", "the file is truncated"},
+        {"truncated_elements.msh", "truncated_elements.msh:83:", "fewer than 4 nodes"},
+        {"truncated.mesh", "truncated.mesh:81:", "the file is truncated"},
+        {"bad_index.msh", "bad_index.msh:26:", "refers to node 99"},
+        {"bad_ref.ele", "bad_ref.ele:12:", "refers to node 0"},
+        {"nan_coord.msh", "nan_coord.msh:10:", "coordinate y is not finite"},
+        {"bad_number.msh", "bad_number.msh:8:", "expected a number for coordinate x, found '0.5x'"},
+        {"inverted.msh", "inverted.msh:28:", "inverted"},
+        {"degenerate.msh", "degenerate.msh:47:", "degenerate"},
+        {"unreferenced.msh", "unreferenced.msh:20:", "not used by any tetrahedron"},
+        {"no_tets.msh", "no_tets.msh", "no tetrahedra"},
+        {"huge_count.msh", "huge_count.msh:5:", "impossible node count: 1000000000000"},
+        {"binary.msh", "binary.msh:2:", "binary .msh is not supported"},
+        {"does_not_exist.msh", "does_not_exist.msh", "cannot open"},
+        {"cube.geo", "cube.geo", "unknown mesh format"},
+    };
+    for (size_t i = 0; i < SQ_COUNTOF(cases); i++) {
+        sq_err err = {0};
+        sq_mesh *m = load_data(cases[i].file, &err);
+        CHECK(m == NULL);
+        sq_mesh_free(m);
+        CHECK_CONTAINS(err.msg, cases[i].where);
+        CHECK_CONTAINS(err.msg, cases[i].what);
+    }
+}
+
+/* every prefix of a valid file either loads or fails with a message: never a crash */
+SQ_TEST(mesh_io_every_truncation)
+{
+    const char *files[] = {"cube_h1.msh", "cube_h1_v41.msh", "cube_h1.mesh"};
+    for (size_t f = 0; f < SQ_COUNTOF(files); f++) {
+        char src[1024], dst[1024];
+        snprintf(src, sizeof src, "%s/mesh/%s", sq_test_data(), files[f]);
+        snprintf(dst, sizeof dst, "%s/cut_%s", sq_test_tmpdir(), files[f]);
+        sq_err err = {0};
+        size_t len;
+        char *buf = sq_read_file(src, &len, 1 << 20, &err);
+        CHECK(buf != NULL);
+        if (!buf)
+            continue;
+        int bad = 0, loaded = 0;
+        /* every 7th cut keeps the test fast under ASan */
+        for (size_t cut = 0; cut < len; cut += 7) {
+            FILE *o = fopen(dst, "wb");
+            fwrite(buf, 1, cut, o);
+            fclose(o);
+            err.msg[0] = 0;
+            sq_mesh *m = sq_mesh_load(dst, &err);
+            if (m) {
+                loaded++;
+                sq_mesh_free(m);
+            } else if (!strstr(err.msg, dst)) {
+                bad++;
+            }
+        }
+        CHECK(bad == 0);
+        /* only cuts in the trailing end markers may still load */
+        CHECK(loaded <= 4);
+        free(buf);
+    }
+}
+
+SQ_TEST(mesh_io_vtk_deterministic_with_fields)
+{
+    sq_err err = {0};
+    sq_mesh *m = sq_mesh_box(2, 1, 1, NULL, NULL, &err);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    double *d = calloc(3 * (size_t)m->nnodes, sizeof *d), *v = calloc(3 * (size_t)m->nnodes, sizeof *v);
+    int *lev = calloc((size_t)m->nnodes, sizeof *lev);
+    for (int i = 0; i < m->nnodes; i++) {
+        d[3 * i + 2] = -0.001 * i;
+        v[3 * i] = i == 0 ? -0.0 : 1.0 / 3 * i;
+        lev[i] = i % 3;
+    }
+    char p1[1024], p2[1024];
+    snprintf(p1, sizeof p1, "%s/a.vtk", sq_test_tmpdir());
+    snprintf(p2, sizeof p2, "%s/b.vtk", sq_test_tmpdir());
+    CHECK(sq_mesh_write_vtk(m, p1, d, v, lev, &err) == 0);
+    CHECK(sq_mesh_write_vtk(m, p2, d, v, lev, &err) == 0);
+    size_t n1, n2;
+    char *a = sq_read_file(p1, &n1, 1 << 20, &err), *b = sq_read_file(p2, &n2, 1 << 20, &err);
+    CHECK(a && b && n1 == n2 && !memcmp(a, b, n1));
+    if (a) {
+        CHECK_CONTAINS(a, "# vtk DataFile Version 3.0\n");
+        CHECK_CONTAINS(a, "DATASET UNSTRUCTURED_GRID\nPOINTS 12 double\n");
+        CHECK_CONTAINS(a, "CELLS 12 60\n4 ");
+        CHECK_CONTAINS(a, "CELL_TYPES 12\n10\n");
+        CHECK_CONTAINS(a, "POINT_DATA 12\nVECTORS displacement double\n0 0 0\n0 0 -0.001\n");
+        CHECK_CONTAINS(a, "VECTORS velocity double\n0 0 0\n0.333333333 0 0\n");
+        CHECK_CONTAINS(a, "SCALARS level int 1\nLOOKUP_TABLE default\n0\n1\n2\n0\n");
+        /* -0 prints as 0 */
+        CHECK(!strstr(a, "-0 "));
+    }
+    free(a);
+    free(b);
+    /* without fields there is no POINT_DATA */
+    CHECK(sq_mesh_write_vtk(m, p1, NULL, NULL, NULL, &err) == 0);
+    a = sq_read_file(p1, &n1, 1 << 20, &err);
+    CHECK(a && !strstr(a, "POINT_DATA"));
+    free(a);
+    /* an unwritable path names the file */
+    CHECK(sq_mesh_write_vtk(m, "/nonexistent-dir/x.vtk", NULL, NULL, NULL, &err) < 0);
+    CHECK_CONTAINS(err.msg, "/nonexistent-dir/x.vtk: cannot write");
+    CHECK(sq_mesh_save(m, "x.obj", &err) < 0);
+    CHECK_CONTAINS(err.msg, "unknown output format");
+    free(d);
+    free(v);
+    free(lev);
+    sq_mesh_free(m);
+}
