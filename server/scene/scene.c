@@ -679,6 +679,10 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
         join_index(p, sizeof p, lp, k);
         if (!m)
             return fail(c, p, "%s; fix or regenerate the mesh file", e.msg);
+        /* build the mesh's point-location grid now: a loaded scene is then read-only and
+         * can be shared by worlds on several threads */
+        double bary[4];
+        sq_mesh_locate(m, m->x, bary);
         s->meshes[bi][def->nlevels] = m;
         s->level_index[bi][def->nlevels] = k;
         def->levels[def->nlevels] = m;
@@ -1096,6 +1100,8 @@ sq_scene *sq_scene_default(sq_err *err)
             sq_scene_free(s);
             return NULL;
         }
+        double bary[4];
+        sq_mesh_locate(s->meshes[0][k], s->meshes[0][k]->x, bary);
         s->level_index[0][k] = k;
         def->levels[k] = s->meshes[0][k];
     }

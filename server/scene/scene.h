@@ -1,7 +1,8 @@
 /* scene.h - JSON scene files and the running world (bodies, tools, probes).
  *
  * A scene (sq_scene) is the parsed, validated file with its meshes loaded: immutable and
- * shareable between sessions. A world (sq_world) is one running instance of a scene: its
+ * shareable between sessions (every mesh, its point-location grid included, is fully built
+ * at load, so worlds on several threads may read one scene). The format is in docs/scenes.md. A world (sq_world) is one running instance of a scene: its
  * bodies' state, tool poses, frame counter. The server holds one world per session; the
  * batch command line holds one.
  */
