@@ -211,10 +211,10 @@ static void sort3(int *a, int *b, int *c)
     if (*a > *b) { t = *a; *a = *b; *b = t; }
 }
 
-/* sort a small bucket: insertion sort, qsort when large */
+/* sort a small set of faces: insertion sort, qsort when large */
 static void sort_faces(face_rec *f, int n)
 {
-    if (n > 32) {
+    if (n > 64) {
         qsort(f, (size_t)n, sizeof *f, face_cmp);
         return;
     }
@@ -288,105 +288,132 @@ int sq_mesh_finalize(sq_mesh *m, sq_err *err)
                 m->bbox_max[c] = v;
         }
 
-    /* faces bucketed by their smallest node (counting sort), then sorted per bucket */
-    size_t nf = 4 * (size_t)nt;
+    /* node -> tets incidence (CSR) */
     int *start = sq_calloc((size_t)n + 1, sizeof *start);
-    for (int t = 0; t < nt; t++)
-        for (int k = 0; k < 4; k++) {
-            const int *f = sq_tet_face[k];
-            const int *v = m->tets + 4 * (size_t)t;
-            int a = v[f[0]], b = v[f[1]], c = v[f[2]];
-            sort3(&a, &b, &c);
-            start[a + 1]++;
-        }
+    for (size_t k = 0; k < 4 * (size_t)nt; k++)
+        start[m->tets[k] + 1]++;
     for (int i = 0; i < n; i++)
         start[i + 1] += start[i];
-    face_rec *faces = sq_malloc(nf * sizeof *faces);
+    int *inc = sq_malloc((4 * (size_t)nt + 1) * sizeof *inc);
     int *fill = sq_malloc(((size_t)n + 1) * sizeof *fill);
     memcpy(fill, start, ((size_t)n + 1) * sizeof *fill);
     for (int t = 0; t < nt; t++)
-        for (int k = 0; k < 4; k++) {
-            const int *f = sq_tet_face[k];
-            const int *v = m->tets + 4 * (size_t)t;
-            int a = v[f[0]], b = v[f[1]], c = v[f[2]];
-            sort3(&a, &b, &c);
-            face_rec *r = &faces[fill[a]++];
-            r->b = b;
-            r->c = c;
-            r->tet = t;
-            r->local = k;
-        }
+        for (int k = 0; k < 4; k++)
+            inc[fill[m->tets[4 * (size_t)t + k]]++] = t;
     free(fill);
-    /* boundary faces are those that appear exactly once; more than twice is an error */
-    int nb = 0, cap = 1024;
-    int *btet = sq_malloc((size_t)cap * 2 * sizeof *btet);
+
+    /* per node a: the faces whose smallest node is a come from a's tets; sort them and
+     * match equal ones (O(n) overall, no global face array). The same pass gathers the
+     * adjacency: the distinct vertices of a's tets, found with a marker array. */
+    unsigned char *mask = sq_calloc((size_t)(nt ? nt : 1), 1); /* boundary faces per tet */
+    int *mark = sq_malloc((size_t)(n ? n : 1) * sizeof *mark);
+    for (int i = 0; i < n; i++)
+        mark[i] = -1;
+    m->adj_start = sq_malloc(((size_t)n + 1) * sizeof *m->adj_start);
+    size_t acap = 16 * (size_t)n + 16, an = 0;
+    m->adj = sq_malloc(acap * sizeof *m->adj);
+    int fcap = 256;
+    face_rec *fr = sq_malloc((size_t)fcap * sizeof *fr);
+    int nb = 0;
     for (int a = 0; a < n; a++) {
-        face_rec *f = faces + start[a];
-        int cnt = start[a + 1] - start[a];
-        sort_faces(f, cnt);
-        for (int i = 0; i < cnt;) {
-            int j = i + 1;
-            while (j < cnt && f[j].b == f[i].b && f[j].c == f[i].c)
-                j++;
-            if (j - i > 2) {
-                sq_err_set(err, "%s: face (nodes %d %d %d) shared by %d tets (tets %d, %d, %d): "
-                           "overlapping or duplicate elements; remesh", m->source, a, f[i].b,
-                           f[i].c, j - i, f[i].tet, f[i + 1].tet, f[i + 2].tet);
-                free(btet);
-                free(faces);
-                free(start);
-                return -1;
+        int deg = start[a + 1] - start[a], nfa = 0;
+        if (3 * deg > fcap) {
+            fcap = 3 * deg;
+            fr = sq_realloc(fr, (size_t)fcap * sizeof *fr);
+        }
+        /* adjacency row */
+        size_t row = an;
+        if (an + 4 * (size_t)deg + 1 > acap) {
+            while (an + 4 * (size_t)deg + 1 > acap)
+                acap *= 2;
+            m->adj = sq_realloc(m->adj, acap * sizeof *m->adj);
+        }
+        m->adj_start[a] = (int)an;
+        mark[a] = a;
+        m->adj[an++] = a;
+        for (int e = start[a]; e < start[a + 1]; e++) {
+            int t = inc[e];
+            const int *v = m->tets + 4 * (size_t)t;
+            for (int k = 0; k < 4; k++) {
+                if (mark[v[k]] != a) {
+                    mark[v[k]] = a;
+                    m->adj[an++] = v[k];
+                }
+                const int *f = sq_tet_face[k];
+                int x = v[f[0]], y = v[f[1]], z = v[f[2]];
+                sort3(&x, &y, &z);
+                if (x != a)
+                    continue;
+                fr[nfa].b = y;
+                fr[nfa].c = z;
+                fr[nfa].tet = t;
+                fr[nfa].local = k;
+                nfa++;
             }
-            if (j - i == 2 && f[i].tet == f[i + 1].tet) {
-                sq_err_set(err, "%s: tet %d repeats a face; remesh", m->source, f[i].tet);
-                free(btet);
-                free(faces);
+        }
+        sort_ints(m->adj + row, (int)(an - row));
+        if (an > INT_MAX) {
+            free(fr);
+            free(mark);
+            free(mask);
+            free(inc);
+            free(start);
+            return sq_err_set(err, "%s: too many node neighbours for 32-bit indices; use a smaller mesh",
+                              m->source);
+        }
+        sort_faces(fr, nfa);
+        for (int i = 0; i < nfa;) {
+            int j = i + 1;
+            while (j < nfa && fr[j].b == fr[i].b && fr[j].c == fr[i].c)
+                j++;
+            const char *bad = NULL;
+            if (j - i > 2)
+                bad = "shared by more than two tets: overlapping or duplicate elements";
+            else if (j - i == 2 && fr[i].tet == fr[i + 1].tet)
+                bad = "repeated inside one tet";
+            if (bad) {
+                sq_err_set(err, "%s: face (nodes %d %d %d) of tet %d %s; remesh", m->source, a, fr[i].b,
+                           fr[i].c, fr[i].tet, bad);
+                free(fr);
+                free(mark);
+                free(mask);
+                free(inc);
                 free(start);
                 return -1;
             }
             if (j - i == 1) {
-                if (nb == cap) {
-                    cap *= 2;
-                    btet = sq_realloc(btet, (size_t)cap * 2 * sizeof *btet);
-                }
-                btet[2 * nb] = f[i].tet;
-                btet[2 * nb + 1] = f[i].local;
+                mask[fr[i].tet] |= (unsigned char)(1u << fr[i].local);
                 nb++;
             }
             i = j;
         }
     }
-    free(faces);
-    /* boundary faces in a deterministic order: by tet, then local face */
-    {
-        unsigned char *mask = sq_calloc((size_t)nt, 1);
-        for (int i = 0; i < nb; i++)
-            mask[btet[2 * i]] |= (unsigned char)(1u << btet[2 * i + 1]);
-        int p = 0;
-        for (int t = 0; t < nt; t++)
-            for (int k = 0; k < 4; k++)
-                if (mask[t] & (1u << k)) {
-                    btet[2 * p] = t;
-                    btet[2 * p + 1] = k;
-                    p++;
-                }
-        free(mask);
-    }
+    m->adj_start[n] = (int)an;
+    m->adj = sq_realloc(m->adj, (an ? an : 1) * sizeof *m->adj);
+    free(fr);
+    free(mark);
+    free(inc);
+    free(start);
+
+    /* boundary triangles in a deterministic order: by tet, then local face */
     m->ntris = nb;
     m->tris = sq_malloc((size_t)(nb ? nb : 1) * 3 * sizeof *m->tris);
     m->tri_tet = sq_malloc((size_t)(nb ? nb : 1) * sizeof *m->tri_tet);
-    m->on_boundary = sq_calloc((size_t)n, 1);
-    for (int i = 0; i < nb; i++) {
-        const int *v = m->tets + 4 * (size_t)btet[2 * i];
-        const int *f = sq_tet_face[btet[2 * i + 1]];
-        for (int k = 0; k < 3; k++) {
-            m->tris[3 * i + k] = v[f[k]];
-            m->on_boundary[v[f[k]]] = 1;
-        }
-        m->tri_tet[i] = btet[2 * i];
-    }
-    free(btet);
-    m->surf_of_node = sq_malloc((size_t)n * sizeof *m->surf_of_node);
+    m->on_boundary = sq_calloc((size_t)(n ? n : 1), 1);
+    int p = 0;
+    for (int t = 0; t < nt; t++)
+        for (int k = 0; k < 4; k++)
+            if (mask[t] & (1u << k)) {
+                const int *v = m->tets + 4 * (size_t)t;
+                const int *f = sq_tet_face[k];
+                for (int q = 0; q < 3; q++) {
+                    m->tris[3 * p + q] = v[f[q]];
+                    m->on_boundary[v[f[q]]] = 1;
+                }
+                m->tri_tet[p++] = t;
+            }
+    free(mask);
+    m->surf_of_node = sq_malloc((size_t)(n ? n : 1) * sizeof *m->surf_of_node);
     m->nsurf = 0;
     for (int i = 0; i < n; i++)
         m->surf_of_node[i] = m->on_boundary[i] ? m->nsurf++ : -1;
@@ -397,58 +424,6 @@ int sq_mesh_finalize(sq_mesh *m, sq_err *err)
     m->surf_tris = sq_malloc((size_t)(nb ? nb : 1) * 3 * sizeof *m->surf_tris);
     for (int i = 0; i < 3 * nb; i++)
         m->surf_tris[i] = m->surf_of_node[m->tris[i]];
-
-    /* adjacency: node -> tets incidence, then the sorted unique vertex set of each node's tets */
-    memset(start, 0, ((size_t)n + 1) * sizeof *start);
-    for (size_t k = 0; k < 4 * (size_t)nt; k++)
-        start[m->tets[k] + 1]++;
-    for (int i = 0; i < n; i++)
-        start[i + 1] += start[i];
-    int *inc = sq_malloc((4 * (size_t)nt + 1) * sizeof *inc);
-    fill = sq_malloc(((size_t)n + 1) * sizeof *fill);
-    memcpy(fill, start, ((size_t)n + 1) * sizeof *fill);
-    for (int t = 0; t < nt; t++)
-        for (int k = 0; k < 4; k++)
-            inc[fill[m->tets[4 * (size_t)t + k]]++] = t;
-    free(fill);
-    m->adj_start = sq_malloc(((size_t)n + 1) * sizeof *m->adj_start);
-    size_t acap = 16 * (size_t)n + 16, an = 0;
-    m->adj = sq_malloc(acap * sizeof *m->adj);
-    int scap = 256;
-    int *scratch = sq_malloc((size_t)scap * sizeof *scratch);
-    for (int i = 0; i < n; i++) {
-        int deg = start[i + 1] - start[i], ns = 0;
-        if (4 * deg + 1 > scap) {
-            scap = 4 * deg + 1;
-            scratch = sq_realloc(scratch, (size_t)scap * sizeof *scratch);
-        }
-        scratch[ns++] = i;
-        for (int e = start[i]; e < start[i + 1]; e++)
-            for (int k = 0; k < 4; k++)
-                scratch[ns++] = m->tets[4 * (size_t)inc[e] + k];
-        sort_ints(scratch, ns);
-        m->adj_start[i] = (int)an;
-        if (an + (size_t)ns > acap) {
-            while (an + (size_t)ns > acap)
-                acap *= 2;
-            m->adj = sq_realloc(m->adj, acap * sizeof *m->adj);
-        }
-        for (int k = 0; k < ns; k++)
-            if (k == 0 || scratch[k] != scratch[k - 1])
-                m->adj[an++] = scratch[k];
-        if (an > INT_MAX) {
-            free(scratch);
-            free(inc);
-            free(start);
-            return sq_err_set(err, "%s: too many node neighbours for 32-bit indices; use a smaller mesh",
-                              m->source);
-        }
-    }
-    m->adj_start[n] = (int)an;
-    m->adj = sq_realloc(m->adj, (an ? an : 1) * sizeof *m->adj);
-    free(scratch);
-    free(inc);
-    free(start);
     return 0;
 }
 
