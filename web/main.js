@@ -85,8 +85,7 @@ async function start() {
     showEvent(e.message, true);
   }
   if (params.get('large') === '1') setLarge(true);
-  document.body.classList.toggle('viewer', app.role === 'view');
-  $('role-badge').textContent = app.role === 'view' ? 'viewer (read only)' : 'controller';
+  setRole(app.role);
   buildLegend(0, null);
   wireUi();
   wireInput();
@@ -132,7 +131,7 @@ function onLinkStatus(state, detail) {
 function enterSession() {
   if (app.session) {
     app.joinPending = true;
-    link.send({ type: 'join', session: app.session });
+    link.send({ type: 'join', session: Number(app.session), role: app.role, ref: 'join' });
   } else if (app.role === 'control') {
     openScene(app.scene);
   } else {
@@ -145,7 +144,7 @@ function openScene(name) {
   if (!scene) { showEvent('the server lists no scenes', true); return; }
   app.scene = scene;
   app.session = null;
-  link.send({ type: 'open', scene });
+  link.send({ type: 'open', scene, ref: 'open' });
 }
 
 // ---------------------------------------------------------------- text messages
@@ -173,12 +172,14 @@ function onMessage(m) {
     case 'error':
       onError(m);
       break;
-    case 'paused':
-    case 'resumed':
-      setPaused(m.type === 'paused');
+    case 'ack':
+      onAck(m);
+      break;
+    case 'event':
+      onEvent(m);
       break;
     default:
-      onReply(m);
+      break;
   }
 }
 
@@ -203,6 +204,9 @@ function onSession(m) {
   app.opens++;
   app.paused = !!m.paused;
   setPaused(app.paused);
+  if (m.role === 'view' || m.role === 'control') setRole(m.role);
+  if (m.demoted) showEvent('this session already has a controller: you watch it', true);
+  link.send({ type: 'subscribe', stats: true, stats_hz: 4 });
   renderer && renderer.clearBodies();
   app.bodies.clear();
   fitted = false;
@@ -219,6 +223,7 @@ function onSession(m) {
     return o;
   }));
   fillControls(bodies[0]);
+  nodesPending = false;
   buildLegend(Math.max(0, ...bodies.map((b) => (b.levels || []).length)), null);
   if (app.scene) $('scene-select').value = app.scene;
   // the address bar and the share link name this session
@@ -238,15 +243,16 @@ function onSession(m) {
 // fill the setting forms from what the server says about a body (when it says it)
 function fillControls(b) {
   if (!b) return;
-  const mat = b.material || {};
+  const st = b.settings || b;
+  const mat = st.material || {};
   const set = (id, v) => { if (typeof v === 'number' && Number.isFinite(v)) $(id).value = String(+v.toPrecision(6)); };
   set('in-E', mat.E);
   set('in-nu', mat.nu);
-  const d = b.damping || mat.damping || {};
-  set('in-damp-mass', d.rayleigh_mass);
-  set('in-damp-stiff', d.rayleigh_stiffness);
-  if (b.operator === 'paper' || b.operator === 'fem') $('in-operator').value = b.operator;
-  const lod = b.lod || {};
+  const d = st.damping || {};
+  set('in-damp-mass', d.mass);
+  set('in-damp-stiff', d.stiffness);
+  if (st.operator === 'paper' || st.operator === 'fem') $('in-operator').value = st.operator;
+  const lod = st.lod || {};
   if (lod.mode === 'adaptive' || lod.mode === 'fixed') $('in-lod-mode').value = lod.mode;
   set('in-split', lod.split);
   set('in-merge', lod.merge);
@@ -255,7 +261,7 @@ function fillControls(b) {
 function onError(m) {
   app.lastError = m;
   const text = `${m.message || 'refused'}${m.code ? ` [${m.code}]` : ''}`;
-  if (app.joinPending) {
+  if (app.joinPending && (m.ref === 'join' || m.request === 'join')) {
     // the session is gone (e.g. the server restarted): open the scene again
     app.joinPending = false;
     app.session = null;
@@ -268,7 +274,7 @@ function onError(m) {
     return;
   }
   const p = pendingSet;
-  if (p && (m.ref === undefined || m.ref === p.ref) && performance.now() - p.t < 5000) {
+  if (p && m.ref === p.ref) {
     pendingSet = null;
     clearTimeout(p.timer);
     const el = $(`err-${p.group}`);
@@ -279,13 +285,36 @@ function onError(m) {
   showEvent(text, true);
 }
 
-// a non-error reply: confirms a pending setting
-function onReply(m) {
-  const p = pendingSet;
-  if (p && (m.type === 'set' || m.type === 'set_ok' || m.type === 'ok' || m.type === 'updated' || m.type === 'applied')) {
-    confirmSet(p);
+// an ack confirms a request; a set's ack carries the settings now in force
+function onAck(m) {
+  if (m.request === 'set') {
+    const p = pendingSet;
+    if (p && m.ref === p.ref) confirmSet(p);
+    for (const b of m.bodies || []) {
+      const body = app.bodies.get(b.id);
+      if (body && b.settings) body.info.settings = b.settings;
+    }
+    const cur = app.bodies.get(Number($('body-select').value || 0));
+    if (cur) fillControls(cur.info);
+  } else if (m.request === 'pause' || m.request === 'resume') {
+    setPaused(m.request === 'pause');
+  } else if (m.request === 'reset') {
+    showEvent('bodies reset to rest');
   }
-  if (m.type === 'reset_done' || m.type === 'reset') showEvent('bodies reset');
+}
+
+// pushed events: blow-up resets, control hand-over, session end, server shutdown
+function onEvent(m) {
+  if (m.kind === 'reset') showEvent(`body ${m.body} was reset: ${m.message || 'numerical blow-up'}`, true);
+  else if (m.kind === 'control') { setRole('control'); showEvent('you now control this session'); }
+  else if (m.kind === 'session_end') showEvent(`session ended: ${m.reason || ''}`, true);
+  else if (m.kind === 'shutdown') showEvent('the server is stopping; reconnecting when it is back', true);
+}
+
+function setRole(role) {
+  app.role = role;
+  document.body.classList.toggle('viewer', role === 'view');
+  $('role-badge').textContent = role === 'view' ? 'viewer (read only)' : 'controller';
 }
 
 // ---------------------------------------------------------------- binary messages
@@ -372,20 +401,17 @@ const frameCounter = {
 };
 
 let lastStatsAt = 0;
-let statsPushed = false;
 let lastBytesIn = 0;
 
+// stats are pushed (subscribe); ask for them only when the pushes stop
 function pollStats() {
   if (!app.welcomed || !app.session) return;
-  // servers that push stats are not polled
-  if (statsPushed && performance.now() - lastStatsAt < 2000) return;
+  if (performance.now() - lastStatsAt < 3 * STATS_POLL_MS) return;
   link.send({ type: 'stats' });
 }
 
 function onStats(m) {
-  const now = performance.now();
-  if (now - lastStatsAt < STATS_POLL_MS * 0.6) statsPushed = true;
-  lastStatsAt = now;
+  lastStatsAt = performance.now();
   app.stats = m;
   const fmt = (v, d = 0) => (typeof v === 'number' && Number.isFinite(v) ? v.toFixed(d) : '-');
   if (typeof m.budget_used === 'number') {
@@ -404,18 +430,16 @@ function onStats(m) {
   // viewers: the server's own count when it gives one, else the other clients of the session
   let v = null;
   if (typeof m.viewers === 'number') v = m.viewers;
-  else if (typeof m.watchers === 'number') v = m.watchers;
   else if (typeof m.clients === 'number') v = Math.max(0, m.clients - 1);
-  else if (m.clients && typeof m.clients.view === 'number') v = m.clients.view;
   if (v !== null) {
     app.viewers = v;
-    $('watchers').textContent = `${v} watching`;
+    $('watchers').textContent = `${v} ${v === 1 ? 'viewer' : 'viewers'} watching`;
   }
   if (Array.isArray(m.feedback) && m.feedback.length) {
     const f = m.feedback.map((x) => `#${x.tool}: ${len(x.force || [0, 0, 0]).toFixed(2)} N`).join('  ');
     $('hud-force').textContent = f;
   }
-  if (m.event) showEvent(m.event);
+  if (typeof m.skipped === 'number') app.skipped = m.skipped;
 }
 
 // once a second: rates measured in the page
@@ -513,12 +537,17 @@ function sendSet(group, fields) {
   if (!app.welcomed || !app.session) { el.className = 'err'; el.textContent = 'not connected'; return; }
   const body = Number($('body-select').value || 0);
   const ref = `set-${group}-${++setSeq}`;
-  const m = { type: 'set', body, ...fields };
+  const m = { type: 'set', body, ...fields, ref };
   el.textContent = '';
   if (pendingSet) clearTimeout(pendingSet.timer);
   const p = { group, ref, t: performance.now() };
-  // no refusal within a second and no explicit answer: the server took it
-  p.timer = setTimeout(() => confirmSet(p), 1200);
+  // every request is answered (ack or error); say so if the answer does not come
+  p.timer = setTimeout(() => {
+    if (pendingSet !== p) return;
+    pendingSet = null;
+    el.className = 'err';
+    el.textContent = 'no answer from the server';
+  }, 5000);
   pendingSet = p;
   link.send(m);
 }
@@ -529,7 +558,7 @@ function submitSetting(ev) {
   try {
     if (group === 'material') sendSet(group, { material: { E: num(form, 'E'), nu: num(form, 'nu') } });
     else if (group === 'damping') {
-      sendSet(group, { damping: { rayleigh_mass: num(form, 'rayleigh_mass'), rayleigh_stiffness: num(form, 'rayleigh_stiffness') } });
+      sendSet(group, { damping: { mass: num(form, 'mass'), stiffness: num(form, 'stiffness') } });
     } else if (group === 'operator') sendSet(group, { operator: form.elements.operator.value });
     else if (group === 'lod') {
       sendSet(group, { lod: { mode: form.elements.mode.value, split: num(form, 'split'), merge: num(form, 'merge') } });
@@ -549,7 +578,7 @@ function setPaused(p) {
 function togglePause() {
   if (app.role !== 'control' || !app.session) return;
   const next = !app.paused;
-  if (link.send({ type: next ? 'pause' : 'resume' })) setPaused(next);
+  link.send({ type: next ? 'pause' : 'resume' });
 }
 
 function resetBodies() {
@@ -592,13 +621,8 @@ function wireUi() {
   for (const f of document.querySelectorAll('form.setting')) f.addEventListener('submit', submitSetting);
   $('btn-open').addEventListener('click', () => {
     if (app.role !== 'control') {
-      // a viewer that opens a scene becomes the controller of a new session
-      app.role = 'control';
-      document.body.classList.remove('viewer');
-      $('role-badge').textContent = 'controller';
-      app.session = null;
-      app.scene = $('scene-select').value;
-      link.send(hello());
+      // a viewer that opens a scene becomes the controller of a new session (a new page)
+      location.search = `?scene=${encodeURIComponent($('scene-select').value)}`;
       return;
     }
     openScene($('scene-select').value);
@@ -887,6 +911,28 @@ function drawLabels(tools, w, h) {
   for (const el of [...layer.children]) if (!seen.has(el.id)) el.remove();
 }
 
+// screen position (CSS pixels in the canvas) of a world point, for automated clients
+app.screenPoint = (p) => {
+  const c = $('view');
+  return camera.project(p, c.clientWidth, c.clientHeight);
+};
+// largest surface displacement of any body in the last frame (m)
+app.maxDisplacement = () => {
+  let m = 0;
+  for (const b of app.bodies.values()) {
+    if (!b.pos) continue;
+    for (let i = 0; i < b.pos.length; i += 3) {
+      m = Math.max(m, Math.hypot(b.pos[i] - b.rest[i], b.pos[i + 1] - b.rest[i + 1], b.pos[i + 2] - b.rest[i + 2]));
+    }
+  }
+  return m;
+};
+// surface vertices per active level over all bodies (last frame)
+app.levelHistogram = () => {
+  const hist = [0, 0, 0, 0, 0, 0];
+  for (const b of app.bodies.values()) if (b.levelArr) for (const l of b.levelArr) hist[Math.min(l, 5)]++;
+  return hist;
+};
 // colour of a level, for callers that inspect pixels
 app.levelColor = (i) => hexToRgb(palette.level[Math.min(i, palette.level.length - 1)]).map((v) => Math.round(v * 255));
 app.backgroundColor = () => hexToRgb(palette.background).map((v) => Math.round(v * 255));

@@ -64,6 +64,8 @@ void main() {
   outColor = uUseLevels == 1 ? vec4(uLevelColors[clamp(vLevel, 0, 5)], uColor.a) : uColor;
 }`;
 
+// force arrows: cyan, a hue no level colour has
+const ARROW_COLOR = [0.25, 0.82, 0.88, 1];
 const IDENTITY = new Float32Array([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]);
 
 /** '#rrggbb' -> [r, g, b] in 0..1 */
@@ -373,22 +375,11 @@ export class Renderer {
     }
     gl.disable(gl.POLYGON_OFFSET_FILL);
 
-    // opaque tools and force arrows
+    // grab markers
     gl.uniform1i(lit.u.uUseLevels, 0);
     const toolRgb = hexToRgb(this.palette.tool);
     for (const tool of opts.tools) {
       if (!tool.active && !tool.own) continue;
-      if (tool.force && opts.arrowScale) {
-        const f = len(tool.force);
-        const L = opts.arrowScale(f);
-        if (L > 0) {
-          const w = opts.arrowWidth;
-          gl.uniformMatrix4fv(lit.u.uModel, false, alignZ(tool.pos, tool.force, w, w, L));
-          gl.uniform4fv(lit.u.uColor, [0.93, 0.79, 0.28, 1]);
-          gl.bindVertexArray(this.arrow.vao);
-          gl.drawElements(gl.TRIANGLES, this.arrow.count, gl.UNSIGNED_INT, 0);
-        }
-      }
       if (tool.shape === 'grab') {
         const r = opts.grabMarker;
         gl.uniformMatrix4fv(lit.u.uModel, false, translateScale(tool.pos, r, r, r));
@@ -461,6 +452,19 @@ export class Renderer {
     }
     gl.depthMask(true);
     gl.disable(gl.BLEND);
+
+    // force arrows on top of everything: the reaction often points into the body
+    gl.clear(gl.DEPTH_BUFFER_BIT);
+    gl.uniform4fv(lit.u.uColor, ARROW_COLOR);
+    for (const tool of opts.tools) {
+      if (!tool.active || !tool.force || !opts.arrowScale) continue;
+      const L = opts.arrowScale(len(tool.force));
+      if (!(L > 0)) continue;
+      const w = opts.arrowWidth;
+      gl.uniformMatrix4fv(lit.u.uModel, false, alignZ(tool.pos, tool.force, w, w, L));
+      gl.bindVertexArray(this.arrow.vao);
+      gl.drawElements(gl.TRIANGLES, this.arrow.count, gl.UNSIGNED_INT, 0);
+    }
     gl.bindVertexArray(null);
   }
 }

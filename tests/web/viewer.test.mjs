@@ -1,0 +1,227 @@
+// viewer.test.mjs - the web viewer in real headless chromium against the real `squish serve`.
+// Run by tests/stages/web.sh (node --test); SQUISH names the server binary.
+
+import { describe, it, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import {
+  startServer, launchBrowser, openViewer, waitFrames, state, pixelStats, snapPixels, pixelChange,
+  topFacePoint, dragFrom, docShot,
+} from './helpers.mjs';
+
+// the body fills a good part of a 1280x800 view after the automatic camera fit
+const MIN_BODY_FRACTION = 0.04;
+// a level colour counts as present above this fraction of the canvas (a few hundred pixels)
+const MIN_LEVEL_FRACTION = 0.0005;
+
+describe('web viewer', () => {
+  let server, browser;
+
+  before(async () => {
+    server = await startServer();
+    browser = await launchBrowser();
+  });
+  after(async () => {
+    if (browser) await browser.close();
+    if (server) await server.stop();
+  });
+
+  it('loads with no console errors and shows the body in level colours', async () => {
+    const page = await openViewer(browser, server.url);
+    try {
+      await page.waitForFunction(() => window.squish.bounds && window.squish.status === 'connected');
+      await waitFrames(page, 5);
+      const st = await state(page);
+      assert.equal(st.role, 'control');
+      assert.ok(st.session, 'a session was opened');
+      const px = await pixelStats(page);
+      assert.ok(px.nonBackground > MIN_BODY_FRACTION, `body and floor cover ${px.nonBackground} of the canvas`);
+      // at rest every surface vertex has some level; that level's colour must be on screen
+      const lvl = st.hist.findIndex((n) => n > 0);
+      assert.ok(lvl >= 0, 'frames carry per-vertex levels');
+      assert.ok(px.level[lvl] > MIN_LEVEL_FRACTION, `level ${lvl} colour covers ${px.level[lvl]} of the canvas`);
+      // the legend lists the body's levels with their palette colours
+      const legend = await page.locator('#legend-list li').count();
+      assert.ok(legend >= 1);
+      await docShot(page, 'viewer_default.png');
+      // plain shading: level colours leave the picture
+      await page.locator('#view').focus();
+      await page.keyboard.press('l');
+      await page.waitForTimeout(200);
+      const plain = await pixelStats(page);
+      assert.ok(plain.level[lvl] < px.level[lvl] * 0.2, `plain shading still shows level colour (${plain.level[lvl]})`);
+      await page.keyboard.press('l');
+      assert.deepEqual(page.problems, [], 'no console errors');
+    } finally {
+      await page.close();
+    }
+  });
+
+  it('a drag deforms the body, and a viewer of the share link sees the same frames', async () => {
+    const ctl = await openViewer(browser, server.url);
+    let viewer;
+    try {
+      await ctl.waitForFunction(() => window.squish.bounds);
+      await waitFrames(ctl, 5);
+      const shareLink = await ctl.locator('#share-link').inputValue();
+      assert.match(shareLink, /[?&]session=\d+/);
+      assert.match(shareLink, /[?&]role=view/);
+      viewer = await openViewer(browser, shareLink);
+      const vs = await state(viewer);
+      const cs = await state(ctl);
+      assert.equal(vs.role, 'view');
+      assert.equal(vs.session, cs.session, 'the viewer joined the controller\'s session');
+      // the controller sees one viewer (stats are pushed a few times per second)
+      await ctl.waitForFunction(() => window.squish.viewers === 1, null, { timeout: 5000 });
+      await ctl.waitForFunction(() => /1 viewer/.test(document.getElementById('watchers').textContent));
+
+      const rest = await state(ctl);
+      await snapPixels(ctl, 'rest');
+      const p = await topFacePoint(ctl);
+      assert.ok(p, 'the top face is in view');
+      // pull the top face upwards by 15% of the view height and hold it
+      await dragFrom(ctl, p[0], p[1], 0, -120);
+      await waitFrames(ctl, 20);
+      const pulled = await state(ctl);
+      const size = Math.hypot(...[0, 1, 2].map((a) => rest.bounds.max[a] - rest.bounds.min[a]));
+      // the grab moves the surface by a visible amount: at least 2% of the body's diagonal
+      assert.ok(pulled.maxDisp > rest.maxDisp + 0.02 * size,
+        `surface moved ${pulled.maxDisp} m (at rest ${rest.maxDisp} m, body ${size} m)`);
+      const changed = await pixelChange(ctl, 'rest');
+      assert.ok(changed > 0.005, `rendered pixels changed on ${changed} of the canvas`);
+      // the force arrow carries its value in N
+      await ctl.waitForFunction(() => [...document.querySelectorAll('.force-label')].some((e) => /N$/.test(e.textContent)));
+      await docShot(ctl, 'viewer_poke.png');
+
+      // the viewer got the very same frames: equal checksums for every frame number both saw
+      await waitFrames(viewer, 10);
+      const cmp = await Promise.all([ctl, viewer].map((pg) => pg.evaluate(() => [...window.squish.frameLog.entries()])));
+      const cMap = new Map(cmp[0]);
+      const common = cmp[1].filter(([f]) => cMap.has(f));
+      assert.ok(common.length >= 5, `only ${common.length} frames in common`);
+      for (const [f, sum] of common) assert.equal(sum, cMap.get(f), `frame ${f} differs between controller and viewer`);
+      const vPulled = await state(viewer);
+      assert.ok(vPulled.maxDisp > rest.maxDisp + 0.02 * size, `viewer sees ${vPulled.maxDisp} m`);
+      await ctl.mouse.up();
+
+      // a viewer cannot poke: its drags orbit the camera, no tool is sent
+      const before = await viewer.evaluate(() => window.squish.framesReceived);
+      const vp = await topFacePoint(viewer);
+      await dragFrom(viewer, vp[0], vp[1], 40, 0, { steps: 4 });
+      await viewer.mouse.up();
+      await waitFrames(viewer, 3);
+      assert.ok((await viewer.evaluate(() => window.squish.framesReceived)) > before);
+      assert.deepEqual(ctl.problems, [], 'controller console clean');
+      assert.deepEqual(viewer.problems, [], 'viewer console clean');
+    } finally {
+      await ctl.mouse.up().catch(() => {});
+      if (viewer) await viewer.close();
+      await ctl.close();
+    }
+  });
+
+  it('Shift+drag pushes with a sphere tool that the frames carry', async () => {
+    const page = await openViewer(browser, server.url);
+    try {
+      await page.waitForFunction(() => window.squish.bounds);
+      await waitFrames(page, 5);
+      const p = await topFacePoint(page);
+      await dragFrom(page, p[0], p[1], 0, 60, { shift: true, steps: 6 });
+      await page.waitForFunction(() => [...window.squish.bodies.values()].some(
+        (b) => (b.tools || []).some((t) => t.shape === 'sphere' && t.active)), null, { timeout: 5000 });
+      await page.mouse.up();
+      // released: the tool goes inactive in later frames
+      await page.waitForFunction(() => ![...window.squish.bodies.values()].some(
+        (b) => (b.tools || []).some((t) => t.shape === 'sphere' && t.active)), null, { timeout: 5000 });
+      assert.deepEqual(page.problems, []);
+    } finally {
+      await page.close();
+    }
+  });
+
+  it('a refused setting shows the server\'s reason next to the control', async () => {
+    const page = await openViewer(browser, server.url);
+    try {
+      await page.fill('#in-nu', '0.7');
+      await page.locator('#form-material button[type=submit]').click();
+      const err = page.locator('#err-material');
+      await err.waitFor({ state: 'visible', timeout: 5000 });
+      await page.waitForFunction(() => document.getElementById('err-material').textContent.length > 0);
+      const text = await err.textContent();
+      const last = await page.evaluate(() => window.squish.lastError);
+      assert.ok(last && last.code, 'the server answered with an error');
+      assert.ok(text.includes(last.message), `shown "${text}" is the server's message "${last.message}"`);
+      assert.match(text, /nu/);
+      // an accepted value clears the error and is confirmed
+      await page.fill('#in-nu', '0.3');
+      await page.locator('#form-material button[type=submit]').click();
+      await page.waitForFunction(() => document.getElementById('err-material').textContent === 'applied', null, { timeout: 5000 });
+      // other screens: the panel, the help overlay and large text
+      await docShot(page.locator('#panel'), 'viewer_panel.png');
+      await page.locator('#view').focus();
+      await page.keyboard.press('?');
+      assert.ok(await page.locator('#help').isVisible());
+      await page.keyboard.press('Escape');
+      assert.ok(!(await page.locator('#help').isVisible()));
+      const small = await page.evaluate(() => parseFloat(getComputedStyle(document.documentElement).fontSize));
+      await page.keyboard.press('t');
+      const large = await page.evaluate(() => parseFloat(getComputedStyle(document.documentElement).fontSize));
+      assert.ok(large > small * 1.3, `large text ${large}px against ${small}px`);
+      assert.deepEqual(page.problems, []);
+    } finally {
+      await page.close();
+    }
+  });
+
+  it('pause stops the frames and resume restarts them', async () => {
+    const page = await openViewer(browser, server.url);
+    try {
+      await page.locator('#btn-pause').click();
+      await page.waitForFunction(() => document.getElementById('btn-pause').textContent === 'Resume');
+      await page.waitForTimeout(300);
+      const f1 = await page.evaluate(() => window.squish.lastFrame);
+      await page.waitForTimeout(500);
+      const f2 = await page.evaluate(() => window.squish.lastFrame);
+      assert.equal(f2, f1, 'no new frame while paused');
+      await page.locator('#btn-pause').click();
+      await waitFrames(page, 3);
+      assert.ok((await page.evaluate(() => window.squish.lastFrame)) > f2);
+    } finally {
+      await page.close();
+    }
+  });
+});
+
+describe('web viewer reconnects', () => {
+  let server, browser;
+  before(async () => { browser = await launchBrowser(); });
+  after(async () => {
+    if (browser) await browser.close();
+    if (server) await server.stop();
+  });
+
+  it('comes back by itself when the server restarts', async () => {
+    server = await startServer();
+    const port = server.port;
+    const page = await openViewer(browser, server.url);
+    try {
+      const s1 = await state(page);
+      await server.stop();
+      await page.waitForFunction(() => window.squish.status === 'offline', null, { timeout: 5000 });
+      assert.match(await page.locator('#conn').textContent(), /offline/);
+      server = await startServer(port);
+      // the backoff is at most a few seconds at this point
+      await page.waitForFunction(() => window.squish.status === 'connected', null, { timeout: 15000 });
+      await waitFrames(page, 5);
+      const s2 = await state(page);
+      assert.ok(s2.opens > s1.opens, 'the scene was opened again');
+      assert.ok(s2.session, 'in a session again');
+      // the address bar names the new session, so a reload re-joins it
+      assert.ok(page.url().includes(`session=${s2.session}`));
+      // problems during the outage are expected network errors only
+      const unexpected = page.problems.filter((p) => !/WebSocket|ERR_CONNECTION_REFUSED|net::/.test(p));
+      assert.deepEqual(unexpected, []);
+    } finally {
+      await page.close();
+    }
+  });
+});
