@@ -1,12 +1,264 @@
-/* cmd_bench.c - squish bench (not yet built). */
+/* cmd_bench.c - squish bench: speed of the fixed-resolution step, and the measured
+ * difference between the two operators (static solutions of the cube and a clamped beam).
+ *
+ *   squish bench [step] [--sizes 1k,10k,100k,1M] [--seconds T] [--op fem|paper|both]
+ *   squish bench operators
+ */
+#include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
 
 #include "app/commands.h"
+#include "sim/level.h"
+
+/* memory bandwidth of one core on the reference machine (docs/benchmarks.md), bytes/s */
+#define SQ_BENCH_BANDWIDTH 20e9
+
+static int usage(FILE *f)
+{
+    fprintf(f, "usage: squish bench [step] [--sizes LIST] [--seconds T] [--op fem|paper|both]\n"
+               "       squish bench operators\n"
+               "  step       node-steps per second of the fixed-resolution step on box meshes\n"
+               "             (LIST: node counts such as 1k,10k,100k,1M; default all four)\n"
+               "  operators  static corner/tip deflection of the paper cube and a clamped beam,\n"
+               "             paper vs fem operator\n");
+    return f == stdout ? 0 : 2;
+}
+
+/* cells per side of a cube box mesh with about `nodes` nodes */
+static int cells_for(double nodes)
+{
+    int c = (int)lround(cbrt(nodes)) - 1;
+    return c < 1 ? 1 : c;
+}
+
+/* bytes one node-step moves at least once from memory: the blocks (72 B) and column index (4 B)
+ * of each CSR entry, the row start, and per node d, v read and written, w = d + b v written
+ * and read, f written and read, mass (twice) and the fixed byte */
+static double bytes_per_node_step(const sq_level *L)
+{
+    double per_entry = 9 * sizeof(double) + sizeof(int);
+    double per_node = sizeof(int) + 2 * 24 + 2 * 24 + 2 * 24 + 2 * 24 + 2 * 8 + 1;
+    return per_entry * L->nnz / L->n + per_node;
+}
+
+static int bench_step(const char *sizes, double seconds, int op_mask)
+{
+    double want[16];
+    int nsizes = 0;
+    char buf[256];
+    snprintf(buf, sizeof buf, "%s", sizes);
+    for (char *tok = strtok(buf, ","); tok && nsizes < 16; tok = strtok(NULL, ",")) {
+        char *end;
+        double v = strtod(tok, &end);
+        if (*end == 'k' || *end == 'K')
+            v *= 1e3, end++;
+        else if (*end == 'M' || *end == 'm')
+            v *= 1e6, end++;
+        if (*end || !(v >= 8) || v > 2e7) {
+            fprintf(stderr, "squish bench step: size '%s' is not a node count between 8 and 2e7 "
+                            "(write e.g. 10k or 1M)\n", tok);
+            return 2;
+        }
+        want[nsizes++] = v;
+    }
+    printf("# fixed-resolution step: forces + symplectic Euler, all nodes, box meshes (6 tets per cell),\n"
+           "# bottom face fixed, gravity, Rayleigh damping (a = 0.5/s, b = 1e-3 s), one thread.\n"
+           "# bound = %.0f GB/s / bytes per node-step\n", SQ_BENCH_BANDWIDTH / 1e9);
+    printf("%-9s %9s %10s %6s %10s %12s %11s %10s %8s\n", "operator", "nodes", "csr", "steps", "seconds",
+           "Mnode-steps/s", "B/node-step", "bound M/s", "of bound");
+    for (int s = 0; s < nsizes; s++) {
+        int c = cells_for(want[s]);
+        double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
+        sq_err err = {{0}};
+        sq_mesh *m = sq_mesh_box(c, c, c, size, origin, &err);
+        if (!m) {
+            fprintf(stderr, "squish bench step: %s\n", err.msg);
+            return 1;
+        }
+        for (int op = 0; op < 2; op++) {
+            if (!(op_mask & (1 << op)))
+                continue;
+            sq_body_def def = sq_body_def_default();
+            sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-3}, 7};
+            double g[3] = {0, 0, -9.81};
+            sq_level L;
+            if (sq_level_init(&L, m, &def.material, (sq_operator_kind)op, &fixed, 1, &err) < 0 ||
+                sq_level_choose_step(&L, &def.material, def.frame_dt, def.step_fraction, &err) < 0) {
+                fprintf(stderr, "squish bench step: %s\n", err.msg);
+                sq_mesh_free(m);
+                return 1;
+            }
+            /* warm up, then time batches of steps until `seconds` have passed */
+            char label[64];
+            snprintf(label, sizeof label, "bench step %s %d nodes", op ? "paper" : "fem", m->nnodes);
+            sq_progress pr;
+            sq_progress_begin(&pr, label, seconds);
+            sq_level_forces(&L, &def.material, g, NULL);
+            sq_level_integrate(&L, L.dt, NULL);
+            long steps = 0;
+            int batch = SQ_MAX(1, (int)(2e6 / m->nnodes));
+            double t0 = sq_now(), t = 0;
+            while (t < seconds) {
+                for (int k = 0; k < batch; k++) {
+                    sq_level_forces(&L, &def.material, g, NULL);
+                    sq_level_integrate(&L, L.dt, NULL);
+                }
+                steps += batch;
+                t = sq_now() - t0;
+                sq_progress_update(&pr, t);
+            }
+            sq_progress_end(&pr);
+            double rate = (double)m->nnodes * steps / t;
+            double bps = bytes_per_node_step(&L);
+            double bound = SQ_BENCH_BANDWIDTH / bps;
+            printf("%-9s %9d %10d %6ld %10.3f %12.2f %11.0f %10.2f %7.0f%%\n", op ? "paper" : "fem", m->nnodes,
+                   L.nnz, steps, t, rate / 1e6, bps, bound / 1e6, 100 * rate / bound);
+            fflush(stdout);
+            sq_level_free(&L);
+        }
+        sq_mesh_free(m);
+    }
+    return 0;
+}
+
+/* static deflection (z) of one node under both operators */
+static int static_pair(const sq_mesh *m, const sq_material *mat, const sq_constraint *cons, int ncons,
+                       int node, double out[2], int iters[2])
+{
+    double g[3] = {0, 0, -9.81};
+    for (int op = 0; op < 2; op++) {
+        sq_level L;
+        sq_err err = {{0}};
+        if (sq_level_init(&L, m, mat, (sq_operator_kind)op, cons, ncons, &err) < 0) {
+            fprintf(stderr, "squish bench operators: %s\n", err.msg);
+            return -1;
+        }
+        double *d = sq_malloc(sizeof(double) * 3 * (size_t)m->nnodes);
+        int rc = sq_level_static_solve(&L, g, 1e-10, 20000, d, &iters[op], &err);
+        if (rc < 0)
+            fprintf(stderr, "squish bench operators: %s\n", err.msg);
+        out[op] = d[3 * node + 2];
+        free(d);
+        sq_level_free(&L);
+        if (rc < 0)
+            return -1;
+    }
+    return 0;
+}
+
+/* node nearest to p */
+static int node_at(const sq_mesh *m, double x, double y, double z)
+{
+    int best = 0;
+    double bd = INFINITY;
+    for (int i = 0; i < m->nnodes; i++) {
+        double dx = m->x[3 * i] - x, dy = m->x[3 * i + 1] - y, dz = m->x[3 * i + 2] - z;
+        double d = dx * dx + dy * dy + dz * dz;
+        if (d < bd)
+            bd = d, best = i;
+    }
+    return best;
+}
+
+static int bench_operators(void)
+{
+    sq_material mat;
+    memset(&mat, 0, sizeof mat);
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    printf("# static solutions (CG to 1e-10) under gravity 9.81 m/s^2, material mu=40 kPa, lambda=100 kPa,\n"
+           "# rho=1000 kg/m^3; box meshes with 6 tets per cell\n");
+    printf("%-34s %8s %14s %14s %10s\n", "case", "nodes", "paper uz (m)", "fem uz (m)", "paper/fem");
+    /* the paper's cube: 1 m, bottom face fixed; corner (1,1,1) */
+    int cube_n[] = {3, 5, 7, 10};
+    for (size_t k = 0; k < SQ_COUNTOF(cube_n); k++) {
+        int c = cube_n[k];
+        double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
+        sq_err err = {{0}};
+        sq_mesh *m = sq_mesh_box(c, c, c, size, origin, &err);
+        if (!m)
+            return 1;
+        sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
+        double u[2];
+        int it[2];
+        if (static_pair(m, &mat, &fixed, 1, node_at(m, 1, 1, 1), u, it) < 0)
+            return 1;
+        char name[64];
+        snprintf(name, sizeof name, "cube 1 m, corner, %d^3 cells", c);
+        printf("%-34s %8d %14.6e %14.6e %10.3f\n", name, m->nnodes, u[1], u[0], u[1] / u[0]);
+        sq_mesh_free(m);
+    }
+    /* a clamped beam 1 x 0.1 x 0.1 m, clamped at x = 0, tip (1, 0.05, 0.05) */
+    int beam_n[] = {10, 20, 40};
+    for (size_t k = 0; k < SQ_COUNTOF(beam_n); k++) {
+        int c = beam_n[k], t = SQ_MAX(1, c / 10);
+        double size[3] = {1, 0.1, 0.1}, origin[3] = {0, 0, 0};
+        sq_err err = {{0}};
+        sq_mesh *m = sq_mesh_box(c, t, t, size, origin, &err);
+        if (!m)
+            return 1;
+        sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {1e-6, 2, 2}, 7};
+        double u[2];
+        int it[2];
+        if (static_pair(m, &mat, &fixed, 1, node_at(m, 1, 0.05, 0.05), u, it) < 0)
+            return 1;
+        char name[64];
+        snprintf(name, sizeof name, "beam 1x0.1x0.1 m, tip, %dx%dx%d", c, t, t);
+        printf("%-34s %8d %14.6e %14.6e %10.4f\n", name, m->nnodes, u[1], u[0], u[1] / u[0]);
+        sq_mesh_free(m);
+    }
+    /* Euler-Bernoulli cantilever under its own weight: w = q L^4 / (8 E I), q = rho g A */
+    double E, nu;
+    sq_material_E_nu(&mat, &E, &nu);
+    double A = 0.01, I = 0.1 * 0.1 * 0.1 * 0.1 / 12;
+    printf("# beam theory (Euler-Bernoulli, E=%.4g Pa): tip deflection %.6e m\n", E,
+           -1000 * 9.81 * A / (8 * E * I));
+    return 0;
+}
 
 int sq_cmd_bench(int argc, char **argv)
 {
-    (void)argc;
-    (void)argv;
-    fprintf(stderr, "squish bench: not available in this build yet\n");
-    return 2;
+    const char *what = "all", *sizes = "1k,10k,100k,1M";
+    double seconds = 1.0;
+    int op_mask = 3;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h"))
+            return usage(stdout);
+        else if (!strcmp(argv[i], "step") || !strcmp(argv[i], "operators") || !strcmp(argv[i], "all"))
+            what = argv[i];
+        else if (!strcmp(argv[i], "--sizes") && i + 1 < argc)
+            sizes = argv[++i];
+        else if (!strcmp(argv[i], "--seconds") && i + 1 < argc) {
+            char *end;
+            seconds = strtod(argv[++i], &end);
+            if (*end || !(seconds > 0) || seconds > 3600) {
+                fprintf(stderr, "squish bench: --seconds '%s' must be a number in (0, 3600]\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(argv[i], "--op") && i + 1 < argc) {
+            i++;
+            if (!strcmp(argv[i], "fem"))
+                op_mask = 1;
+            else if (!strcmp(argv[i], "paper"))
+                op_mask = 2;
+            else if (!strcmp(argv[i], "both"))
+                op_mask = 3;
+            else {
+                fprintf(stderr, "squish bench: --op '%s' must be fem, paper or both\n", argv[i]);
+                return 2;
+            }
+        } else {
+            fprintf(stderr, "squish bench: unknown argument '%s'\n", argv[i]);
+            return usage(stderr);
+        }
+    }
+    int rc = 0;
+    if (!strcmp(what, "step") || !strcmp(what, "all"))
+        rc = bench_step(sizes, seconds, op_mask);
+    if (rc == 0 && (!strcmp(what, "operators") || !strcmp(what, "all")))
+        rc = bench_operators();
+    return rc;
 }

@@ -195,6 +195,9 @@ void sq_level_free(sq_level *L)
     free(L->v);
     free(L->f);
     free(L->w);
+    free(L->up_start);
+    free(L->up_col);
+    free(L->Kup);
     memset(L, 0, sizeof *L);
 }
 
@@ -215,6 +218,27 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
         free(L->D);
         L->D = NULL;
     }
+    /* upper-half copy for the fast force pass */
+    if (!L->up_start) {
+        L->up_start = sq_malloc(sizeof(int) * ((size_t)L->n + 1));
+        int h = 0;
+        for (int i = 0; i < L->n; i++)
+            for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++)
+                h += L->col[e] > i;
+        L->up_col = sq_malloc(sizeof(int) * (size_t)(h ? h : 1));
+        L->Kup = sq_malloc(sizeof(double) * 9 * (size_t)(h ? h : 1));
+    }
+    int h = 0;
+    for (int i = 0; i < L->n; i++) {
+        L->up_start[i] = h;
+        for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++)
+            if (L->col[e] > i) {
+                L->up_col[h] = L->col[e];
+                memcpy(L->Kup + 9 * (size_t)h, L->K + 9 * (size_t)e, 9 * sizeof(double));
+                h++;
+            }
+    }
+    L->up_start[L->n] = h;
     L->omega_max = sqrt(gershgorin(L, L->K));
     return 0;
 }
@@ -255,23 +279,37 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
     return 0;
 }
 
-/* f_i = -sum_j A_ij w_j for all rows (the hot loop) */
-static void block_product_all(int n, const int *restrict rs, const int *restrict col,
-                              const double *restrict A, const double *restrict w, double *restrict f)
+/* the hot loop: f_i = -sum_j K_ij w_j + m_i (g - a v_i) for all nodes, from the upper half.
+ * With K_ii = -sum_{j != i} K_ij: f_i = sum_{j != i} K_ij (w_i - w_j), and each edge block
+ * serves both ends (K_ji = K_ij^T). When row i is done, every contribution to f_i (from rows
+ * k < i and from row i) is in, so the gravity and mass-damping terms are added right there.
+ * A translation gives exactly zero force (differences are exactly zero). */
+static void forces_all(int n, const int *restrict us, const int *restrict uc, const double *restrict A,
+                       const double *restrict w, const double *restrict v, const double *restrict mass,
+                       double a, const double g[3], double *restrict f)
 {
+    const double g0 = g[0], g1 = g[1], g2 = g[2];
+    memset(f, 0, sizeof(double) * 3 * (size_t)n);
     for (int i = 0; i < n; i++) {
-        double f0 = 0, f1 = 0, f2 = 0;
-        for (int e = rs[i]; e < rs[i + 1]; e++) {
+        const double wi0 = w[3 * i], wi1 = w[3 * i + 1], wi2 = w[3 * i + 2];
+        double f0 = f[3 * i], f1 = f[3 * i + 1], f2 = f[3 * i + 2];
+        for (int e = us[i]; e < us[i + 1]; e++) {
             const double *restrict B = A + 9 * (size_t)e;
-            const double *restrict wj = w + 3 * (size_t)col[e];
-            double w0 = wj[0], w1 = wj[1], w2 = wj[2];
-            f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
-            f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
-            f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
+            double *restrict fj = f + 3 * (size_t)uc[e];
+            const double *restrict wj = w + 3 * (size_t)uc[e];
+            const double d0 = wi0 - wj[0], d1 = wi1 - wj[1], d2 = wi2 - wj[2];
+            /* explicit fma: -std=c11 turns off contraction of a * b + c */
+            f0 += fma(B[0], d0, fma(B[1], d1, B[2] * d2));
+            f1 += fma(B[3], d0, fma(B[4], d1, B[5] * d2));
+            f2 += fma(B[6], d0, fma(B[7], d1, B[8] * d2));
+            fj[0] -= fma(B[0], d0, fma(B[3], d1, B[6] * d2));
+            fj[1] -= fma(B[1], d0, fma(B[4], d1, B[7] * d2));
+            fj[2] -= fma(B[2], d0, fma(B[5], d1, B[8] * d2));
         }
-        f[3 * i] = -f0;
-        f[3 * i + 1] = -f1;
-        f[3 * i + 2] = -f2;
+        const double m = mass[i];
+        f[3 * i] = f0 + m * (g0 - a * v[3 * i]);
+        f[3 * i + 1] = f1 + m * (g1 - a * v[3 * i + 1]);
+        f[3 * i + 2] = f2 + m * (g2 - a * v[3 * i + 2]);
     }
 }
 
@@ -313,17 +351,10 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
     }
 
     if (!active) {
-        block_product_all(n, L->row_start, L->col, L->K, arg, f);
-        if (L->D && mat->use_viscosity) {
+        forces_all(n, L->up_start, L->up_col, L->Kup, arg, v, mass, a, gravity, f);
+        if (L->D && mat->use_viscosity)
             for (int i = 0; i < n; i++)
                 block_row(L, L->D, v, i, f + 3 * (size_t)i);
-        }
-        for (int i = 0; i < n; i++) {
-            double m = mass[i];
-            f[3 * i] += m * (g0 - a * v[3 * i]);
-            f[3 * i + 1] += m * (g1 - a * v[3 * i + 1]);
-            f[3 * i + 2] += m * (g2 - a * v[3 * i + 2]);
-        }
         return;
     }
     for (int i = 0; i < n; i++) {

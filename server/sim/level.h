@@ -32,6 +32,11 @@ typedef struct sq_level {
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
     double *w;             /* scratch: d + b v of the last force pass (n x 3), m */
     int nfree;             /* nodes with at least one unconstrained axis */
+    /* the strict upper half of K (j > i) for the all-nodes force pass: K_ji = K_ij^T and
+     * K_ii = -sum_{j != i} K_ij, so f = -K d needs only these blocks, applied to d_j - d_i */
+    int *up_start;         /* CSR rows (n+1) */
+    int *up_col;           /* columns j > i (up_start[n]) */
+    double *Kup;           /* blocks (up_start[n] x 9) */
 
     double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
     double bound;          /* stability bound on the step with damping, s */
