@@ -1,0 +1,1054 @@
+/* server.c - the libwebsockets service: HTTP files, /ws, clients, sessions, limits.
+ *
+ * One lws service thread does all I/O. Sessions run on their own threads (session.c) and
+ * hand frames over through their outbox plus lws_cancel_service(); this thread distributes
+ * them: a realtime frame goes into a one-slot-per-body mailbox of each client (a newer frame
+ * replaces an unsent one: the client skips it, counted), everything else into the client's
+ * bounded FIFO. Writes happen only in SERVER_WRITEABLE, one message per callback.
+ */
+#include "net/session.h"
+
+#include <cJSON.h>
+#include <dirent.h>
+#include <libwebsockets.h>
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+_Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
+
+#define FIFO_MAX 4096            /* queued messages per client before it is dropped */
+#define SLOT_BITS 10             /* session id = generation << SLOT_BITS | slot */
+#define TICK_US 50000            /* housekeeping period (stats pushes, grace), us */
+
+struct server;
+struct srec;
+
+/* one WebSocket connection (lws thread only) */
+typedef struct client {
+    uint64_t serial;
+    struct lws *wsi;
+    struct server *srv;
+    int greeted, token_ok;
+    sq_role role;
+    char name[SQ_NET_NAME_MAX];
+    struct srec *sess;               /* session, or NULL */
+    int ready;                       /* topology sent: receives frames */
+    int pending;                     /* waiting for the session to start */
+    sq_request pending_req;          /* the open/join to answer */
+    int demoted;
+    int sub_frames, sub_stats;
+    double stats_hz, next_stats;
+    sq_blob *stats_queued;           /* a stats push not yet written */
+    double tokens, last_refill;      /* rate limit */
+    char *rx;                        /* message being assembled */
+    size_t rx_len, rx_cap;
+    int rx_oversize, rx_binary;
+    sq_blob *slot[SQ_MAX_BODIES];    /* newest unsent realtime frame per body */
+    sq_blob **fifo;                  /* ring of queued messages */
+    int fhead, fcount, fcap;
+    long skipped;
+    int closing;
+} client;
+
+/* the server's record of a session (lws thread only, except s) */
+typedef struct srec {
+    sq_session *s;                   /* NULL: free slot */
+    uint32_t gen;
+    int scene;
+    client **members;
+    int nmembers, cap;
+    uint64_t controller;             /* serial of the controller, 0 = none */
+    double empty_since;
+    uint64_t bytes_sent;
+} srec;
+
+typedef struct server {
+    const sq_serve_options *opt;
+    struct lws_context *ctx;
+    struct lws_vhost *vhost;
+    int nscenes;
+    sq_scene **scenes;
+    char (*names)[SQ_NET_NAME_MAX];
+    srec *slots;
+    int nslots;
+    uint64_t next_serial;
+    lws_sorted_usec_list_t sul;
+    int stopping;
+} server;
+
+static volatile sig_atomic_t interrupted;
+static server *the_server; /* for the tick callback, which gets only the sul */
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    interrupted = 1;
+}
+
+static void wake(void *arg)
+{
+    server *srv = arg;
+    if (srv->ctx)
+        lws_cancel_service(srv->ctx);
+}
+
+/* ---------------------------------------------------------------- sending */
+
+static void fifo_push(client *c, sq_blob *b)
+{
+    if (c->closing) {
+        sq_blob_unref(b);
+        return;
+    }
+    if (c->fcount >= FIFO_MAX) {
+        /* a client that stops reading while asking for more: drop it */
+        lwsl_warn("squish: client %llu does not read; closing it\n", (unsigned long long)c->serial);
+        sq_blob_unref(b);
+        c->closing = 1;
+        lws_callback_on_writable(c->wsi);
+        return;
+    }
+    if (c->fcount == c->fcap) {
+        int ncap = c->fcap ? 2 * c->fcap : 16;
+        sq_blob **n = sq_malloc(sizeof *n * (size_t)ncap);
+        for (int i = 0; i < c->fcount; i++)
+            n[i] = c->fifo[(c->fhead + i) % c->fcap];
+        free(c->fifo);
+        c->fifo = n;
+        c->fhead = 0;
+        c->fcap = ncap;
+    }
+    c->fifo[(c->fhead + c->fcount) % c->fcap] = b;
+    c->fcount++;
+    lws_callback_on_writable(c->wsi);
+}
+
+static void send_json(client *c, cJSON *o)
+{
+    fifo_push(c, sq_reply_blob(o));
+}
+
+static void send_error(client *c, const sq_request *req, const char *code, const char *msg)
+{
+    fifo_push(c, sq_error_blob(code, msg, req));
+}
+
+/* a realtime frame: latest wins */
+static void slot_put(client *c, int body, sq_blob *b)
+{
+    if (body < 0 || body >= SQ_MAX_BODIES || c->closing) {
+        sq_blob_unref(b);
+        return;
+    }
+    if (c->slot[body]) {
+        sq_blob_unref(c->slot[body]);
+        c->skipped++;
+    }
+    c->slot[body] = b;
+    lws_callback_on_writable(c->wsi);
+}
+
+static void clear_slots(client *c)
+{
+    for (int b = 0; b < SQ_MAX_BODIES; b++) {
+        sq_blob_unref(c->slot[b]);
+        c->slot[b] = NULL;
+    }
+}
+
+/* write one queued message; -1 closes the connection */
+static int write_one(client *c)
+{
+    if (c->closing)
+        return -1;
+    sq_blob *b = NULL;
+    if (c->fcount) {
+        b = c->fifo[c->fhead];
+        c->fhead = (c->fhead + 1) % c->fcap;
+        c->fcount--;
+    } else {
+        /* the body whose frame is oldest goes first */
+        int best = -1;
+        for (int i = 0; i < SQ_MAX_BODIES; i++)
+            if (c->slot[i] && best < 0)
+                best = i;
+        if (best >= 0) {
+            b = c->slot[best];
+            c->slot[best] = NULL;
+        }
+    }
+    if (!b)
+        return 0;
+    if (b == c->stats_queued)
+        c->stats_queued = NULL;
+    int n = lws_write(c->wsi, b->msg, b->len, b->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
+    if (c->sess)
+        c->sess->bytes_sent += b->len;
+    size_t len = b->len;
+    sq_blob_unref(b);
+    if (n < (int)len)
+        return -1;
+    int more = c->fcount > 0;
+    for (int i = 0; i < SQ_MAX_BODIES && !more; i++)
+        more = c->slot[i] != NULL;
+    if (more)
+        lws_callback_on_writable(c->wsi);
+    return 0;
+}
+
+/* ---------------------------------------------------------------- sessions */
+
+static srec *find_session(server *srv, uint32_t id)
+{
+    uint32_t idx = id & ((1u << SLOT_BITS) - 1), gen = id >> SLOT_BITS;
+    if (idx >= (uint32_t)srv->nslots)
+        return NULL;
+    srec *r = &srv->slots[idx];
+    return (r->s && r->gen == gen && gen) ? r : NULL;
+}
+
+static int live_sessions(const server *srv)
+{
+    int n = 0;
+    for (int i = 0; i < srv->nslots; i++)
+        n += srv->slots[i].s != NULL;
+    return n;
+}
+
+static void end_session(server *srv, srec *r)
+{
+    if (!r->s)
+        return;
+    if (srv->opt->verbose)
+        fprintf(stderr, "squish serve: session %u ends\n", r->s->id);
+    for (int i = 0; i < r->nmembers; i++) {
+        client *c = r->members[i];
+        c->sess = NULL;
+        c->ready = c->pending = 0;
+        clear_slots(c);
+    }
+    free(r->members);
+    r->members = NULL;
+    r->nmembers = r->cap = 0;
+    sq_session_stop(r->s);
+    r->s = NULL;
+    r->controller = 0;
+}
+
+static void leave_session(client *c)
+{
+    srec *r = c->sess;
+    if (!r)
+        return;
+    for (int i = 0; i < r->nmembers; i++)
+        if (r->members[i] == c) {
+            r->members[i] = r->members[--r->nmembers];
+            break;
+        }
+    if (r->controller == c->serial)
+        r->controller = 0;
+    if (r->nmembers == 0)
+        r->empty_since = sq_now();
+    c->sess = NULL;
+    c->ready = c->pending = c->demoted = 0;
+    clear_slots(c);
+}
+
+/* add c to r with the requested role; returns 0 or -1 after an error reply */
+static int add_member(client *c, srec *r, sq_role role)
+{
+    if (r->nmembers >= c->srv->opt->max_clients) {
+        char m[160];
+        snprintf(m, sizeof m, "session %u already has %d clients (--max-clients); open another "
+                 "session", r->s->id, r->nmembers);
+        send_error(c, &c->pending_req, "session_full", m);
+        return -1;
+    }
+    if (r->nmembers == r->cap) {
+        r->cap = r->cap ? 2 * r->cap : 8;
+        r->members = sq_realloc(r->members, sizeof *r->members * (size_t)r->cap);
+    }
+    r->members[r->nmembers++] = c;
+    c->sess = r;
+    c->demoted = 0;
+    if (role == SQ_ROLE_CONTROL) {
+        if (!r->controller)
+            r->controller = c->serial;
+        else
+            c->demoted = 1;
+    }
+    c->sub_frames = 1;
+    return 0;
+}
+
+/* topology, then opened/joined, then the newest frames */
+static void send_session_info(client *c)
+{
+    srec *r = c->sess;
+    sq_session *s = r->s;
+    const sq_request *req = &c->pending_req;
+    cJSON *o = sq_reply_new(req->type == SQ_REQ_OPEN ? "opened" : "joined", req);
+    pthread_mutex_lock(&s->mu);
+    for (int b = 0; b < s->nbodies; b++)
+        fifo_push(c, sq_blob_ref(s->topology[b]));
+    cJSON_AddNumberToObject(o, "session", s->id);
+    cJSON_AddStringToObject(o, "scene", s->scene_name);
+    cJSON_AddStringToObject(o, "role", r->controller == c->serial ? "control" : "view");
+    cJSON_AddBoolToObject(o, "demoted", c->demoted);
+    cJSON_AddNumberToObject(o, "frame", (double)s->snap.frame);
+    cJSON_AddNumberToObject(o, "time", s->snap.time);
+    cJSON_AddNumberToObject(o, "frame_rate", 1.0 / s->period);
+    cJSON_AddBoolToObject(o, "lockstep", s->lockstep);
+    cJSON_AddBoolToObject(o, "paused", s->snap.paused);
+    cJSON *bodies = cJSON_Parse(s->bodies_json ? s->bodies_json : "[]");
+    cJSON_AddItemToObject(o, "bodies", bodies ? bodies : cJSON_CreateArray());
+    cJSON_AddItemToObject(o, "tools", sq_tools_json(s->snap.tools, s->snap.ntools));
+    sq_blob *last[SQ_MAX_BODIES] = {0};
+    for (int b = 0; b < s->nbodies; b++)
+        last[b] = sq_blob_ref(s->last_frame[b]);
+    pthread_mutex_unlock(&s->mu);
+    send_json(c, o);
+    c->pending = 0;
+    c->ready = 1;
+    for (int b = 0; b < SQ_MAX_BODIES; b++)
+        if (last[b]) {
+            if (c->sub_frames)
+                slot_put(c, b, last[b]);
+            else
+                sq_blob_unref(last[b]);
+        }
+}
+
+/* distribute one session's outbox */
+static void drain_session(server *srv, srec *r)
+{
+    int n;
+    sq_out *outs = sq_session_take_outbox(r->s, &n);
+    int failed = 0;
+    for (int i = 0; i < n; i++) {
+        sq_out *o = &outs[i];
+        switch (o->kind) {
+        case SQ_OUT_READY:
+            for (int k = 0; k < r->nmembers; k++)
+                if (r->members[k]->pending)
+                    send_session_info(r->members[k]);
+            break;
+        case SQ_OUT_FAILED:
+            failed = 1;
+            for (int k = 0; k < r->nmembers; k++)
+                send_error(r->members[k], &r->members[k]->pending_req, "scene_failed",
+                           r->s->fail_msg);
+            break;
+        case SQ_OUT_FRAME:
+            for (int k = 0; k < r->nmembers; k++)
+                if (r->members[k]->ready && r->members[k]->sub_frames)
+                    slot_put(r->members[k], o->body, sq_blob_ref(o->blob));
+            break;
+        case SQ_OUT_STEP_FRAME:
+            for (int k = 0; k < r->nmembers; k++)
+                if (r->members[k]->ready && r->members[k]->sub_frames)
+                    fifo_push(r->members[k], sq_blob_ref(o->blob));
+            break;
+        case SQ_OUT_TEXT:
+        case SQ_OUT_BINARY:
+            for (int k = 0; k < r->nmembers; k++)
+                if (r->members[k]->ready && (!o->client || o->client == r->members[k]->serial))
+                    fifo_push(r->members[k], sq_blob_ref(o->blob));
+            break;
+        }
+        sq_blob_unref(o->blob);
+    }
+    free(outs);
+    if (failed)
+        end_session(srv, r);
+}
+
+/* ---------------------------------------------------------------- requests */
+
+static cJSON *stats_json(server *srv, srec *r, client *c, const sq_request *req)
+{
+    sq_session *s = r->s;
+    cJSON *o = sq_reply_new("stats", req);
+    pthread_mutex_lock(&s->mu);
+    const sq_snapshot *p = &s->snap;
+    cJSON_AddNumberToObject(o, "session", s->id);
+    cJSON_AddNumberToObject(o, "frame", (double)p->frame);
+    cJSON_AddNumberToObject(o, "time", p->time);
+    cJSON_AddNumberToObject(o, "frame_rate", 1.0 / s->period);
+    cJSON_AddBoolToObject(o, "paused", p->paused);
+    cJSON_AddNumberToObject(o, "budget_used", p->budget_used);
+    cJSON_AddNumberToObject(o, "frame_ms", 1e3 * p->frame_s);
+    cJSON_AddNumberToObject(o, "deadline_misses", (double)p->deadline_misses);
+    cJSON_AddNumberToObject(o, "resets", (double)p->resets);
+    int maxl = 0, sleeping = 0;
+    double updates = 0;
+    for (int b = 0; b < p->nbodies; b++) {
+        maxl = SQ_MAX(maxl, p->nlevels[b]);
+        sleeping += p->sleeping[b] != 0;
+        updates += (double)p->node_updates[b];
+    }
+    double act[SQ_MAX_LEVELS] = {0};
+    for (int b = 0; b < p->nbodies; b++)
+        for (int l = 0; l < maxl; l++)
+            act[l] += p->active[b][l];
+    cJSON_AddItemToObject(o, "active_nodes", cJSON_CreateDoubleArray(act, maxl));
+    cJSON_AddNumberToObject(o, "node_updates", updates);
+    cJSON_AddNumberToObject(o, "sleeping", sleeping);
+    cJSON *fb = cJSON_AddArrayToObject(o, "feedback");
+    for (int b = 0; b < p->nbodies; b++)
+        for (int t = 0; t < p->ntools; t++) {
+            cJSON *e = cJSON_CreateObject();
+            cJSON_AddNumberToObject(e, "tool", p->tools[t].id);
+            cJSON_AddNumberToObject(e, "body", b);
+            cJSON_AddItemToObject(e, "force", cJSON_CreateDoubleArray(p->feedback[b][t].force, 3));
+            cJSON_AddNumberToObject(e, "nodes", p->feedback[b][t].nnodes);
+            cJSON_AddItemToArray(fb, e);
+        }
+    cJSON_AddItemToObject(o, "tools", sq_tools_json(p->tools, p->ntools));
+    cJSON *ba = cJSON_AddArrayToObject(o, "bodies");
+    for (int b = 0; b < p->nbodies; b++) {
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddNumberToObject(e, "id", b);
+        cJSON_AddItemToObject(e, "active_nodes", cJSON_CreateIntArray(p->active[b], p->nlevels[b]));
+        cJSON_AddNumberToObject(e, "node_updates", (double)p->node_updates[b]);
+        cJSON_AddItemToObject(e, "substeps", cJSON_CreateIntArray(p->substeps[b], p->nlevels[b]));
+        cJSON_AddBoolToObject(e, "sleeping", p->sleeping[b]);
+        cJSON_AddNumberToObject(e, "splits", p->splits[b]);
+        cJSON_AddNumberToObject(e, "merges", p->merges[b]);
+        cJSON_AddItemToArray(ba, e);
+    }
+    pthread_mutex_unlock(&s->mu);
+    (void)srv;
+    cJSON_AddNumberToObject(o, "clients", r->nmembers);
+    cJSON_AddNumberToObject(o, "viewers", r->nmembers - (r->controller ? 1 : 0));
+    cJSON_AddBoolToObject(o, "controller", r->controller != 0);
+    cJSON_AddNumberToObject(o, "bytes_sent", (double)r->bytes_sent);
+    cJSON_AddNumberToObject(o, "skipped", (double)c->skipped);
+    return o;
+}
+
+static cJSON *welcome_json(server *srv, client *c, const sq_request *req)
+{
+    const sq_serve_options *opt = srv->opt;
+    cJSON *o = sq_reply_new("welcome", req);
+    cJSON_AddNumberToObject(o, "version", SQ_PROTOCOL_VERSION);
+    cJSON_AddStringToObject(o, "server", SQ_SERVER_NAME);
+    cJSON_AddStringToObject(o, "role", c->role == SQ_ROLE_CONTROL ? "control" : "view");
+    cJSON *sc = cJSON_AddArrayToObject(o, "scenes");
+    for (int i = 0; i < srv->nscenes; i++)
+        cJSON_AddItemToArray(sc, cJSON_CreateString(srv->names[i]));
+    cJSON_AddBoolToObject(o, "lockstep", opt->lockstep);
+    cJSON *l = cJSON_AddObjectToObject(o, "limits");
+    cJSON_AddNumberToObject(l, "max_sessions", opt->max_sessions);
+    cJSON_AddNumberToObject(l, "max_clients", opt->max_clients);
+    cJSON_AddNumberToObject(l, "max_message", opt->max_message);
+    cJSON_AddNumberToObject(l, "rate", opt->rate);
+    cJSON_AddNumberToObject(l, "grace", opt->grace);
+    cJSON_AddNumberToObject(l, "max_step", SQ_NET_MAX_STEP);
+    return o;
+}
+
+static cJSON *scenes_json(server *srv, const sq_request *req)
+{
+    cJSON *o = sq_reply_new("scenes", req);
+    cJSON *a = cJSON_AddArrayToObject(o, "scenes");
+    for (int i = 0; i < srv->nscenes; i++) {
+        const sq_scene *sc = srv->scenes[i];
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddStringToObject(e, "name", srv->names[i]);
+        cJSON_AddStringToObject(e, "description", sc->description);
+        cJSON *b = cJSON_AddArrayToObject(e, "bodies");
+        cJSON *lv = cJSON_AddArrayToObject(e, "levels");
+        for (int k = 0; k < sc->nbodies; k++) {
+            cJSON_AddItemToArray(b, cJSON_CreateString(sc->body_names[k]));
+            cJSON_AddItemToArray(lv, cJSON_CreateNumber(sc->bodies[k].nlevels));
+        }
+        cJSON_AddNumberToObject(e, "frame_rate", sc->frame_rate);
+        cJSON_AddItemToArray(a, e);
+    }
+    return o;
+}
+
+static int token_matches(const server *srv, const char *t)
+{
+    const char *want = srv->opt->token;
+    if (!want)
+        return 1;
+    size_t a = strlen(want), b = strlen(t);
+    unsigned diff = (unsigned)(a != b);
+    for (size_t i = 0; i < a; i++)
+        diff |= (unsigned)(want[i] ^ (i < b ? t[i] : 0));
+    return diff == 0;
+}
+
+static void do_open_or_join(client *c, const sq_request *req)
+{
+    server *srv = c->srv;
+    char m[240];
+    if (srv->stopping) {
+        send_error(c, req, "shutting_down", "the server is stopping; reconnect later");
+        return;
+    }
+    srec *r = NULL;
+    sq_role role = c->role;
+    if (req->type == SQ_REQ_OPEN) {
+        int sc = -1;
+        for (int i = 0; i < srv->nscenes; i++)
+            if (!strcmp(srv->names[i], req->open.scene))
+                sc = i;
+        if (sc < 0) {
+            snprintf(m, sizeof m, "open.scene: no scene \"%.60s\"; list_scenes gives the names",
+                     req->open.scene);
+            send_error(c, req, "unknown_scene", m);
+            return;
+        }
+        /* a free slot (the one the client leaves may be reused) */
+        leave_session(c);
+        int idx = -1;
+        if (live_sessions(srv) < srv->opt->max_sessions)
+            for (int i = 0; i < srv->nslots && idx < 0; i++)
+                if (!srv->slots[i].s)
+                    idx = i;
+        if (idx < 0) {
+            snprintf(m, sizeof m, "%d sessions are running (--max-sessions); join one or retry "
+                     "later", live_sessions(srv));
+            send_error(c, req, "server_full", m);
+            return;
+        }
+        r = &srv->slots[idx];
+        r->gen = (r->gen + 1) & ((1u << (32 - SLOT_BITS)) - 1);
+        if (!r->gen)
+            r->gen = 1;
+        r->scene = sc;
+        r->controller = 0;
+        r->bytes_sent = 0;
+        r->empty_since = 0;
+        uint32_t id = r->gen << SLOT_BITS | (uint32_t)idx;
+        r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep, wake, srv);
+        if (srv->opt->verbose)
+            fprintf(stderr, "squish serve: session %u opened (scene %s)\n", id, srv->names[sc]);
+    } else {
+        r = find_session(srv, req->join.session);
+        if (!r) {
+            snprintf(m, sizeof m, "join.session: no session %u (it ended, or never existed); open "
+                     "a scene instead", req->join.session);
+            send_error(c, req, "unknown_session", m);
+            return;
+        }
+        if (req->join.has_role)
+            role = req->join.role;
+        if (role == SQ_ROLE_CONTROL && !c->token_ok) {
+            send_error(c, req, "bad_token", "join.role: control needs the server's token; send it "
+                       "in hello.token or join as \"view\"");
+            return;
+        }
+        if (c->sess == r) {
+            /* already here: answer again with the current state */
+            c->pending_req = *req;
+            send_session_info(c);
+            return;
+        }
+        leave_session(c);
+    }
+    c->pending_req = *req;
+    if (add_member(c, r, role)) {
+        if (r->nmembers == 0 && !r->empty_since)
+            r->empty_since = sq_now();
+        return;
+    }
+    c->pending = 1;
+    pthread_mutex_lock(&r->s->mu);
+    int state = r->s->state;
+    pthread_mutex_unlock(&r->s->mu);
+    if (state == SQ_SESSION_READY)
+        send_session_info(c);
+    /* STARTING: answered when the session posts READY; FAILED: by its FAILED item */
+}
+
+static void handle_request(client *c, const char *text, size_t len)
+{
+    server *srv = c->srv;
+    const sq_serve_options *opt = srv->opt;
+    sq_request req;
+    sq_net_error err;
+
+    /* rate limit: token bucket of `rate` tokens per second, burst `rate` */
+    double now = sq_now();
+    c->tokens = fmin(opt->rate, c->tokens + (now - c->last_refill) * opt->rate);
+    c->last_refill = now;
+    if (c->tokens < 1) {
+        char m[160];
+        if (sq_request_decode(text, len, (size_t)opt->max_message, &req, &err))
+            memset(&req, 0, sizeof req);
+        snprintf(m, sizeof m, "more than %g requests per second (--rate); slow down", opt->rate);
+        send_error(c, &req, "rate_limited", m);
+        return;
+    }
+    c->tokens -= 1;
+
+    if (sq_request_decode(text, len, (size_t)opt->max_message, &req, &err)) {
+        send_error(c, &req, err.code, err.message);
+        return;
+    }
+    srec *r = c->sess;
+    sq_client_ctx ctx = {
+        .greeted = c->greeted,
+        .in_session = r != NULL && c->ready,
+        .is_controller = r && r->controller == c->serial,
+        .lockstep = opt->lockstep,
+        .max_tools = SQ_MAX_TOOLS,
+    };
+    int ids[SQ_MAX_TOOLS];
+    if (r && c->ready) {
+        pthread_mutex_lock(&r->s->mu);
+        ctx.nbodies = r->s->nbodies;
+        ctx.ntools = r->s->ntool_ids;
+        memcpy(ids, r->s->tool_ids, sizeof ids);
+        pthread_mutex_unlock(&r->s->mu);
+        ctx.tool_ids = ids;
+    }
+    if (sq_request_check(&req, &ctx, &err)) {
+        send_error(c, &req, err.code, err.message);
+        return;
+    }
+
+    switch (req.type) {
+    case SQ_REQ_HELLO:
+        if (req.hello.role == SQ_ROLE_CONTROL && opt->token &&
+            (!req.hello.has_token || !token_matches(srv, req.hello.token))) {
+            send_error(c, &req, "bad_token", req.hello.has_token
+                       ? "hello.token: wrong token for role control; ask the server's operator"
+                       : "hello.token: the server needs a token for role control; send it or use "
+                         "role \"view\"");
+            return;
+        }
+        c->greeted = 1;
+        c->role = req.hello.role;
+        c->token_ok = !opt->token || (req.hello.has_token && token_matches(srv, req.hello.token));
+        snprintf(c->name, sizeof c->name, "%s", req.hello.client);
+        send_json(c, welcome_json(srv, c, &req));
+        break;
+    case SQ_REQ_LIST_SCENES:
+        send_json(c, scenes_json(srv, &req));
+        break;
+    case SQ_REQ_OPEN:
+    case SQ_REQ_JOIN:
+        do_open_or_join(c, &req);
+        break;
+    case SQ_REQ_LEAVE: {
+        cJSON *o = sq_reply_new("left", &req);
+        cJSON_AddNumberToObject(o, "session", r->s->id);
+        leave_session(c);
+        send_json(c, o);
+        break;
+    }
+    case SQ_REQ_STATS:
+        send_json(c, stats_json(srv, r, c, &req));
+        break;
+    case SQ_REQ_SUBSCRIBE: {
+        if (req.subscribe.stats >= 0)
+            c->sub_stats = req.subscribe.stats;
+        if (req.subscribe.frames >= 0) {
+            c->sub_frames = req.subscribe.frames;
+            if (!c->sub_frames)
+                clear_slots(c);
+        }
+        if (req.subscribe.has_hz)
+            c->stats_hz = req.subscribe.stats_hz;
+        c->next_stats = 0;
+        cJSON *o = sq_reply_new("ack", &req);
+        cJSON_AddStringToObject(o, "request", "subscribe");
+        cJSON_AddNumberToObject(o, "frame", r ? (double)r->s->snap.frame : 0);
+        send_json(c, o);
+        break;
+    }
+    case SQ_REQ_PING: {
+        cJSON *o = sq_reply_new("pong", &req);
+        cJSON_AddNumberToObject(o, "t", req.ping.t);
+        cJSON_AddNumberToObject(o, "server_time", now);
+        send_json(c, o);
+        break;
+    }
+    default:
+        /* tool, set, pause, resume, reset, step, nodes: applied by the session thread */
+        sq_session_push_job(r->s, c->serial, &req);
+        break;
+    }
+}
+
+/* ---------------------------------------------------------------- housekeeping */
+
+static void tick(lws_sorted_usec_list_t *sul)
+{
+    server *srv = the_server;
+    double now = sq_now();
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s)
+            continue;
+        drain_session(srv, r);
+        if (!r->s)
+            continue;
+        if (r->nmembers == 0) {
+            if (!r->empty_since)
+                r->empty_since = now;
+            if (now - r->empty_since >= srv->opt->grace) {
+                end_session(srv, r);
+                continue;
+            }
+        }
+        for (int k = 0; k < r->nmembers; k++) {
+            client *c = r->members[k];
+            if (!c->ready || !c->sub_stats || c->stats_queued || now < c->next_stats)
+                continue;
+            c->next_stats = now + 1.0 / (c->stats_hz > 0 ? c->stats_hz : 4);
+            sq_blob *b = sq_reply_blob(stats_json(srv, r, c, NULL));
+            c->stats_queued = b;
+            fifo_push(c, b);
+        }
+    }
+    lws_sul_schedule(srv->ctx, 0, sul, tick, TICK_US);
+}
+
+/* ---------------------------------------------------------------- lws callback */
+
+static int http_reply(struct lws *wsi, unsigned status, const char *type, const void *body,
+                      size_t len)
+{
+    unsigned char buf[LWS_PRE + 512], *start = buf + LWS_PRE, *p = start, *end = buf + sizeof buf;
+    if (lws_add_http_common_headers(wsi, status, type, (lws_filepos_t)len, &p, end) ||
+        lws_finalize_write_http_header(wsi, start, &p, end))
+        return -1;
+    unsigned char *out = sq_malloc(LWS_PRE + len + 1);
+    memcpy(out + LWS_PRE, body, len);
+    int n = lws_write(wsi, out + LWS_PRE, len, LWS_WRITE_HTTP_FINAL);
+    free(out);
+    if (n < (int)len)
+        return -1;
+    return lws_http_transaction_completed(wsi) ? -1 : 0;
+}
+
+static int origin_allowed(server *srv, struct lws *wsi)
+{
+    if (!srv->opt->norigins)
+        return 1;
+    char origin[256] = "";
+    if (lws_hdr_copy(wsi, origin, sizeof origin, WSI_TOKEN_ORIGIN) <= 0)
+        return 0;
+    for (int i = 0; i < srv->opt->norigins; i++)
+        if (!strcmp(origin, srv->opt->origins[i]))
+            return 1;
+    return 0;
+}
+
+static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in,
+                    size_t len)
+{
+    server *srv = the_server;
+    client **pc = user, *c = pc ? *pc : NULL;
+
+    switch (reason) {
+    case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
+        char uri[64] = "";
+        lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI);
+        if (strcmp(uri, "/ws")) {
+            lwsl_notice("squish: WebSocket upgrade on %s refused (the endpoint is /ws)\n", uri);
+            return 1;
+        }
+        if (!origin_allowed(srv, wsi)) {
+            lwsl_notice("squish: WebSocket upgrade refused: Origin not in --origin list\n");
+            return 1;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_ESTABLISHED:
+        c = sq_calloc(1, sizeof *c);
+        c->serial = ++srv->next_serial;
+        c->wsi = wsi;
+        c->srv = srv;
+        c->role = SQ_ROLE_CONTROL;
+        c->tokens = srv->opt->rate;
+        c->last_refill = sq_now();
+        c->stats_hz = 4;
+        c->sub_frames = 1;
+        *pc = c;
+        if (srv->stopping)
+            return -1;
+        return 0;
+
+    case LWS_CALLBACK_RECEIVE: {
+        if (!c)
+            return -1;
+        if (lws_is_first_fragment(wsi)) {
+            c->rx_len = 0;
+            c->rx_oversize = 0;
+            c->rx_binary = lws_frame_is_binary(wsi);
+        }
+        size_t max = (size_t)srv->opt->max_message;
+        if (!c->rx_oversize) {
+            if (c->rx_len + len > max) {
+                c->rx_oversize = 1;
+            } else {
+                if (c->rx_len + len + 1 > c->rx_cap) {
+                    c->rx_cap = SQ_MAX(c->rx_len + len + 1, 2 * c->rx_cap);
+                    c->rx = sq_realloc(c->rx, c->rx_cap);
+                }
+                memcpy(c->rx + c->rx_len, in, len);
+                c->rx_len += len;
+            }
+        }
+        if (!lws_is_final_fragment(wsi) || lws_remaining_packet_payload(wsi))
+            return 0;
+        if (c->rx_binary) {
+            send_error(c, NULL, "bad_json", "binary messages are not accepted; send JSON text");
+        } else if (c->rx_oversize) {
+            char m[160];
+            snprintf(m, sizeof m, "text message larger than %zu bytes (--max-message) dropped; "
+                     "send smaller messages", max);
+            send_error(c, NULL, "too_large", m);
+        } else {
+            handle_request(c, c->rx, c->rx_len);
+        }
+        c->rx_len = 0;
+        if (c->rx_cap > 65536) { /* do not keep a large buffer around */
+            free(c->rx);
+            c->rx = NULL;
+            c->rx_cap = 0;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_SERVER_WRITEABLE:
+        return c ? write_one(c) : 0;
+
+    case LWS_CALLBACK_CLOSED:
+        if (c) {
+            leave_session(c);
+            for (int i = 0; i < c->fcount; i++)
+                sq_blob_unref(c->fifo[(c->fhead + i) % c->fcap]);
+            free(c->fifo);
+            free(c->rx);
+            free(c);
+            *pc = NULL;
+        }
+        return 0;
+
+    case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
+        if (srv)
+            for (int i = 0; i < srv->nslots; i++)
+                if (srv->slots[i].s)
+                    drain_session(srv, &srv->slots[i]);
+        return 0;
+
+    case LWS_CALLBACK_HTTP: {
+        const char *path = in ? (const char *)in : "";
+        if (!strcmp(path, "/healthz") || !strcmp(path, "") || !strcmp(path, "/"))
+            return http_reply(wsi, HTTP_STATUS_OK, "text/plain", "ok\n", 3);
+        return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", "not found\n", 10);
+    }
+    default:
+        break;
+    }
+    return lws_callback_http_dummy(wsi, reason, user, in, len);
+}
+
+/* ---------------------------------------------------------------- setup */
+
+sq_serve_options sq_serve_options_default(void)
+{
+    sq_serve_options o;
+    memset(&o, 0, sizeof o);
+    o.host = "127.0.0.1";
+    o.port = 8080;
+    o.max_sessions = 16;
+    o.max_clients = 256;
+    o.max_message = 65536;
+    o.rate = 200;
+    o.grace = 30;
+    return o;
+}
+
+static int has_suffix(const char *s, const char *suf)
+{
+    size_t a = strlen(s), b = strlen(suf);
+    return a >= b && !strcmp(s + a - b, suf);
+}
+
+static int cmp_str(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+/* load every *.json of dir (sorted); bad files are reported and skipped */
+static void load_scenes(server *srv, const char *dir)
+{
+    DIR *d = opendir(dir);
+    if (!d) {
+        fprintf(stderr, "squish serve: cannot read scene directory %s; serving the default scene\n",
+                dir);
+        return;
+    }
+    char **files = NULL;
+    int n = 0;
+    struct dirent *e;
+    while ((e = readdir(d)))
+        if (e->d_name[0] != '.' && has_suffix(e->d_name, ".json")) {
+            files = sq_realloc(files, sizeof *files * (size_t)(n + 1));
+            files[n++] = sq_strdup(e->d_name);
+        }
+    closedir(d);
+    if (n)
+        qsort(files, (size_t)n, sizeof *files, cmp_str);
+    for (int i = 0; i < n; i++) {
+        char path[1024];
+        snprintf(path, sizeof path, "%s/%s", dir, files[i]);
+        sq_err err = {{0}};
+        sq_scene *sc = sq_scene_load(path, &err);
+        if (!sc) {
+            fprintf(stderr, "squish serve: skipping scene %s\n", err.msg);
+        } else {
+            srv->scenes = sq_realloc(srv->scenes, sizeof *srv->scenes * (size_t)(srv->nscenes + 1));
+            srv->names = sq_realloc(srv->names, sizeof *srv->names * (size_t)(srv->nscenes + 1));
+            srv->scenes[srv->nscenes] = sc;
+            size_t len = strlen(files[i]) - 5;
+            if (len >= SQ_NET_NAME_MAX)
+                len = SQ_NET_NAME_MAX - 1;
+            memcpy(srv->names[srv->nscenes], files[i], len);
+            srv->names[srv->nscenes][len] = 0;
+            srv->nscenes++;
+        }
+        free(files[i]);
+    }
+    free(files);
+}
+
+static const struct lws_protocol_vhost_options mime_json = {NULL, NULL, ".map", "application/json"};
+static const struct lws_protocol_vhost_options mime_wasm = {&mime_json, NULL, ".wasm", "application/wasm"};
+static const struct lws_protocol_vhost_options mime_mjs = {&mime_wasm, NULL, ".mjs", "text/javascript"};
+
+int sq_serve(const sq_serve_options *opt, sq_err *err)
+{
+    server srv;
+    int rc = 0;
+    memset(&srv, 0, sizeof srv);
+    srv.opt = opt;
+    the_server = &srv;
+    if (opt->max_sessions < 1 || opt->max_sessions > (1 << SLOT_BITS))
+        return sq_err_set(err, "--max-sessions %d: use 1..%d", opt->max_sessions, 1 << SLOT_BITS);
+
+    if (opt->scenes_dir)
+        load_scenes(&srv, opt->scenes_dir);
+    if (srv.nscenes == 0) {
+        sq_scene *sc = sq_scene_default(err);
+        if (!sc)
+            return sq_err_prefix(err, "default scene");
+        srv.scenes = sq_malloc(sizeof *srv.scenes);
+        srv.names = sq_malloc(sizeof *srv.names);
+        srv.scenes[0] = sc;
+        snprintf(srv.names[0], sizeof srv.names[0], "default");
+        srv.nscenes = 1;
+    }
+    srv.nslots = opt->max_sessions;
+    srv.slots = sq_calloc((size_t)srv.nslots, sizeof *srv.slots);
+
+    static struct lws_protocols protocols[2];
+    memset(protocols, 0, sizeof protocols);
+    protocols[0].name = "squish";
+    protocols[0].callback = callback;
+    protocols[0].per_session_data_size = sizeof(client *);
+    protocols[0].rx_buffer_size = 16384;
+
+    struct lws_http_mount health, files;
+    memset(&health, 0, sizeof health);
+    memset(&files, 0, sizeof files);
+    health.mountpoint = "/healthz";
+    health.mountpoint_len = (unsigned char)strlen(health.mountpoint);
+    health.origin = "squish";
+    health.origin_protocol = LWSMPRO_CALLBACK;
+    files.mountpoint = "/";
+    files.mountpoint_len = 1;
+    files.origin = opt->web_dir;
+    files.def = "index.html";
+    files.origin_protocol = LWSMPRO_FILE;
+    files.extra_mimetypes = &mime_mjs;
+    if (opt->web_dir)
+        health.mount_next = &files;
+
+    struct lws_context_creation_info info;
+    memset(&info, 0, sizeof info);
+    info.port = opt->port;
+    info.iface = opt->host;
+    info.protocols = protocols;
+    info.mounts = &health;
+    info.options = LWS_SERVER_OPTION_HTTP_HEADERS_SECURITY_BEST_PRACTICES_ENFORCE |
+                   LWS_SERVER_OPTION_DISABLE_IPV6;
+    lws_set_log_level(opt->verbose ? (LLL_ERR | LLL_WARN | LLL_NOTICE) : (LLL_ERR | LLL_WARN), NULL);
+
+    srv.ctx = lws_create_context(&info);
+    if (!srv.ctx) {
+        sq_err_set(err, "cannot listen on %s:%d (port in use, or the address is not local?); "
+                   "choose another --port or --host", opt->host, opt->port);
+        goto fail;
+    }
+    srv.vhost = lws_get_vhost_by_name(srv.ctx, "default");
+    int port = srv.vhost ? lws_get_vhost_listen_port(srv.vhost) : opt->port;
+    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; %d scene%s:", opt->host, port,
+           srv.nscenes, srv.nscenes == 1 ? "" : "s");
+    for (int i = 0; i < srv.nscenes; i++)
+        printf(" %s", srv.names[i]);
+    printf(")%s\n", opt->lockstep ? " lockstep" : "");
+    fflush(stdout);
+
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    lws_sul_schedule(srv.ctx, 0, &srv.sul, tick, TICK_US);
+    while (!interrupted)
+        if (lws_service(srv.ctx, 0) < 0)
+            break;
+
+    /* clean shutdown: tell the clients, flush for a moment, then close everything */
+    srv.stopping = 1;
+    for (int i = 0; i < srv.nslots; i++) {
+        srec *r = &srv.slots[i];
+        for (int k = 0; r->s && k < r->nmembers; k++) {
+            cJSON *e = sq_reply_new("event", NULL);
+            cJSON_AddStringToObject(e, "kind", "shutdown");
+            cJSON_AddNumberToObject(e, "session", r->s->id);
+            cJSON_AddStringToObject(e, "message", "the server is stopping");
+            send_json(r->members[k], e);
+        }
+    }
+    double until = sq_now() + 0.3;
+    while (sq_now() < until) {
+        lws_service(srv.ctx, 0);
+        int busy = 0;
+        for (int i = 0; i < srv.nslots; i++)
+            for (int k = 0; srv.slots[i].s && k < srv.slots[i].nmembers; k++)
+                busy |= srv.slots[i].members[k]->fcount > 0;
+        if (!busy)
+            break;
+    }
+    lws_context_destroy(srv.ctx);
+    srv.ctx = NULL;
+    for (int i = 0; i < srv.nslots; i++)
+        end_session(&srv, &srv.slots[i]);
+    fprintf(stderr, "squish serve: stopped\n");
+    goto done;
+fail:
+    rc = -1;
+done:
+    for (int i = 0; i < srv.nscenes; i++)
+        sq_scene_free(srv.scenes[i]);
+    free(srv.scenes);
+    free(srv.names);
+    free(srv.slots);
+    the_server = NULL;
+    return rc;
+}

@@ -1,0 +1,127 @@
+/* session.h - one running scene instance of the server and its simulation thread.
+ *
+ * Internal to server/net. A session owns a world (sq_world) stepped by its own thread on a
+ * real-time frame clock (or only on `step` in lockstep mode). The lws service thread and the
+ * session thread meet only in the fields marked "shared", under `mu`:
+ *   lws thread -> session: jobs (decoded requests of the session's clients)
+ *   session -> lws thread: outbox items (frames, replies, events), then lws_cancel_service()
+ * Realtime frames in the outbox are "latest wins": a newer frame of a body replaces an
+ * unsent one, so the simulation never waits for the network.
+ */
+#ifndef SQ_NET_SESSION_H
+#define SQ_NET_SESSION_H
+
+#include <pthread.h>
+
+#include "net/net.h"
+#include "scene/scene.h"
+
+/* a request handed to the session thread, with the client it came from */
+typedef struct sq_job {
+    uint64_t client;         /* client serial, for the reply */
+    sq_request req;
+} sq_job;
+
+typedef enum sq_out_kind {
+    SQ_OUT_TEXT = 0,         /* text (client 0: every member) */
+    SQ_OUT_BINARY,           /* binary to one client, in order (nodes) */
+    SQ_OUT_FRAME,            /* realtime frame of `body` for every member: latest wins */
+    SQ_OUT_STEP_FRAME,       /* lockstep frame for every member: never dropped */
+    SQ_OUT_READY,            /* the world exists: topology and info are set */
+    SQ_OUT_FAILED            /* the world could not be created: fail_msg */
+} sq_out_kind;
+
+typedef struct sq_out {
+    sq_out_kind kind;
+    uint64_t client;         /* 0 = every member */
+    int body;
+    sq_blob *blob;           /* owned reference (NULL for READY/FAILED) */
+} sq_out;
+
+/* what clients see of a session's last frame (copied under mu) */
+typedef struct sq_snapshot {
+    long frame;
+    double time;
+    int paused;
+    double frame_s;                  /* compute time of the last frame, s */
+    double budget_used;              /* frame_s / period */
+    long deadline_misses, resets;
+    int nbodies;
+    int nlevels[SQ_MAX_BODIES];
+    int active[SQ_MAX_BODIES][SQ_MAX_LEVELS];
+    int substeps[SQ_MAX_BODIES][SQ_MAX_LEVELS];
+    long node_updates[SQ_MAX_BODIES];
+    int sleeping[SQ_MAX_BODIES], splits[SQ_MAX_BODIES], merges[SQ_MAX_BODIES];
+    int ntools;
+    sq_tool tools[SQ_MAX_TOOLS];
+    sq_tool_feedback feedback[SQ_MAX_BODIES][SQ_MAX_TOOLS];
+} sq_snapshot;
+
+typedef enum sq_session_state {
+    SQ_SESSION_STARTING = 0,
+    SQ_SESSION_READY,
+    SQ_SESSION_FAILED
+} sq_session_state;
+
+typedef struct sq_session {
+    /* fixed at creation */
+    uint32_t id;                     /* handle: generation << 10 | slot index */
+    const sq_scene *scene;
+    char scene_name[SQ_NET_NAME_MAX];
+    double period;                   /* frame period, s */
+    int lockstep;
+    void (*wake)(void *);            /* wakes the lws thread (lws_cancel_service) */
+    void *wake_arg;
+
+    /* shared, under mu */
+    pthread_mutex_t mu;
+    pthread_cond_t cv;
+    sq_job *jobs;
+    int njobs, cap_jobs;
+    sq_out *outs;
+    int nouts, cap_outs;
+    int state;                       /* sq_session_state */
+    int stop;
+    char fail_msg[512];
+    int nbodies;
+    sq_blob *topology[SQ_MAX_BODIES];
+    sq_blob *last_frame[SQ_MAX_BODIES]; /* newest frame per body, for clients that join */
+    char *bodies_json;               /* "bodies" of opened/joined, rebuilt after set */
+    sq_snapshot snap;
+    int ntool_ids;
+    int tool_ids[SQ_MAX_TOOLS];      /* ids of the world's tools, for request checks */
+
+    /* session thread only */
+    pthread_t thread;
+    int thread_started;
+    sq_world *world;
+    sq_codec codec[SQ_MAX_BODIES];
+    float *cur;                      /* scratch surface positions */
+    unsigned char *lev;              /* scratch levels */
+    int paused;
+    long deadline_misses;
+} sq_session;
+
+/* create and start a session's thread for scene; the world is built on that thread, which
+ * then posts SQ_OUT_READY or SQ_OUT_FAILED */
+sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
+                             void (*wake)(void *), void *wake_arg);
+/* stop the thread, free everything (pending outbox blobs included) */
+void sq_session_stop(sq_session *s);
+/* queue a request for the session thread (lws thread) */
+void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req);
+/* take every outbox item (lws thread); *n items, caller frees the array and blob refs */
+sq_out *sq_session_take_outbox(sq_session *s, int *n);
+
+/* JSON helpers shared with server.c */
+struct cJSON;
+/* a reply object {"type": type} with the request's ref copied */
+struct cJSON *sq_reply_new(const char *type, const sq_request *req);
+/* print and free a JSON object into a text blob */
+sq_blob *sq_reply_blob(struct cJSON *o);
+/* an error reply */
+sq_blob *sq_error_blob(const char *code, const char *message, const sq_request *req);
+/* the tools array of a snapshot */
+struct cJSON *sq_tools_json(const sq_tool *tools, int ntools);
+
+#endif
