@@ -80,6 +80,12 @@ check "--until-rest cap still writes final.vtk" [ -s "$TMP/c/final.vtk" ]
 check "--default runs from any directory" [ -s "$TMP/def/final.vtk" -a "$(wc -l <"$TMP/def/probes.csv")" = 7 ]
 check "--default probes the corner" grep -q '^5,.*,corner,' "$TMP/def/probes.csv"
 
+# several bodies: one VTK per body besides final.vtk, probes of both
+"$SQUISH" run "$DATA/two-cubes.json" --out "$TMP/two" >/dev/null 2>&1
+check "two bodies: final_<name>.vtk per body" [ -s "$TMP/two/final.vtk" -a -s "$TMP/two/final_fem.vtk" -a -s "$TMP/two/final_paper.vtk" ]
+check "two bodies: final.vtk is the first body" cmp -s "$TMP/two/final.vtk" "$TMP/two/final_fem.vtk"
+check "two bodies: probes of both" bash -c "grep -q '^10,.*,fem-corner,' '$TMP/two/probes.csv' && grep -q '^10,.*,paper-corner,' '$TMP/two/probes.csv'"
+
 # a bad scene: exit 1, error names the file, the JSON path and the fix
 sed 's/"lambda": 100000, "mu": 40000/"E": 1e5, "nu": 0.7/' "$DATA/small-cube.json" >"$TMP/bad-nu.json"
 cp "$DATA/cube_3.msh" "$TMP/"

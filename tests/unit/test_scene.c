@@ -438,6 +438,10 @@ SQ_TEST(world_steps_clock_tools_and_probe)
     CHECK_NEAR(w->tools[0].pos[2], 1.15, 1e-12);
     CHECK(w->tools[0].active == 1);
     CHECK(w->deadline_misses == 0);
+    /* the sphere (bottom at z = 0.85) presses the top face: the body pushes it up */
+    CHECK(w->feedback[0][0].id == 1 && w->feedback[0][0].nnodes > 0);
+    CHECK(w->feedback[0][0].force[2] > 0);
+    CHECK(w->profile[0].node_updates > 0);
     /* gravity sags the free corner (uz < 0); it moved by more than 1e-5 m after 0.2 s */
     double u[3];
     CHECK(sq_world_probe(w, 0, u) == 0);
@@ -538,6 +542,40 @@ SQ_TEST(world_create_reports_body_errors_with_scene_path)
     sq_world *w = sq_world_create(s, &e);
     CHECK(w == NULL);
     CHECK_CONTAINS(e.msg, "t.json: bodies[0] (\"cube\")");
+    sq_world_destroy(w);
+    sq_scene_free(s);
+}
+
+SQ_TEST(world_two_bodies_probe_each)
+{
+    sq_err e;
+    /* the same cube twice, one per operator; probes name their body */
+    sq_scene *s = parse("{\"bodies\": [{\"name\": \"fem\", \"levels\": [\"a.msh\"], " MAT ","
+                        "  \"fixed\": [{\"box\": [[-1,-1,-1],[2,2,0.001]]}]},"
+                        " {\"name\": \"paper\", \"levels\": [\"a.msh\"], " MAT ", \"operator\": \"paper\","
+                        "  \"fixed\": [{\"box\": [[-1,-1,-1],[2,2,0.001]]}]}],"
+                        " \"probes\": [{\"name\": \"f\", \"body\": \"fem\", \"point\": [1,1,1]},"
+                        "              {\"name\": \"p\", \"body\": \"paper\", \"point\": [1,1,1]}]}",
+                        &e);
+    CHECK(s != NULL);
+    if (!s) {
+        printf("    %s\n", e.msg);
+        return;
+    }
+    CHECK(s->probes[0].body == 0 && s->probes[1].body == 1);
+    sq_world *w = sq_world_create(s, &e);
+    CHECK(w && w->nbodies == 2);
+    if (w) {
+        for (int i = 0; i < 10; i++)
+            sq_world_step(w, 0);
+        CHECK(sq_world_find_body(w, "paper") == 1);
+        double uf[3], up[3];
+        CHECK(sq_world_probe(w, 0, uf) == 0 && sq_world_probe(w, 1, up) == 0);
+        /* both sag; the operators differ on the free boundary, so the corners differ */
+        CHECK(uf[2] < 0 && up[2] < 0);
+        CHECK(uf[2] != up[2]);
+        CHECK(w->profile[0].node_updates > 0 && w->profile[1].node_updates > 0);
+    }
     sq_world_destroy(w);
     sq_scene_free(s);
 }
