@@ -50,6 +50,7 @@ struct sq_lod {
     int nactive[SQ_MAX_LEVELS], nmask[SQ_MAX_LEVELS];
     int *gf[SQ_MAX_LEVELS], ngf[SQ_MAX_LEVELS]; /* split ghosts */
     int *gc[SQ_MAX_LEVELS], ngc[SQ_MAX_LEVELS]; /* coarse ghosts */
+    double *clap[SQ_MAX_LEVELS];         /* criterion Laplacian weights per CSR entry (nnz) */
     int *slot[SQ_MAX_LEVELS];            /* hold entry of a node, or -1 */
     unsigned char *fresh[SQ_MAX_LEVELS]; /* split in the current adapt pass (no merge back) */
     hold_entry *he;
@@ -160,6 +161,94 @@ void sq_lod_sync(sq_lod *lod)
         push_level(lod, k);
 }
 
+/* ---------------------------------------------------------------- criterion operator */
+
+static int cmp_tri(const void *pa, const void *pb)
+{
+    const int *a = pa, *b = pb;
+    for (int c = 0; c < 3; c++)
+        if (a[c] != b[c])
+            return a[c] < b[c] ? -1 : 1;
+    return 0;
+}
+
+static void sort3(int *t)
+{
+    int a;
+    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
+    if (t[1] > t[2]) { a = t[1]; t[1] = t[2]; t[2] = a; }
+    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
+}
+
+/* position of column j in CSR row i of the mesh adjacency (sorted), or -1 */
+static int adj_find(const sq_mesh *m, int i, int j)
+{
+    int lo = m->adj_start[i], hi = m->adj_start[i + 1] - 1;
+    while (lo <= hi) {
+        int mid = (lo + hi) / 2;
+        if (m->adj[mid] == j)
+            return mid;
+        if (m->adj[mid] < j)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return -1;
+}
+
+/* weights w_ij (CSR of the mesh adjacency) with Lap(d)_i = -(1/vol_i) sum_j w_ij d_j.
+ * Interior rows are the lumped FEM Laplacian sum_T V a_i . a_j. On boundary rows that
+ * operator also holds the boundary flux (a linear field gets a Laplacian of order
+ * |grad d| / h there, which would split every surface node of a body that merely sags),
+ * so the flux of the tet's own gradient through the node's boundary faces is removed:
+ * for the face opposite q of tet T, A n = -3 V a_q, and each of its three nodes i gets
+ * (A/3) (grad d . n) = -V sum_m (a_m . a_q) d_m. A linear field then has zero Laplacian at
+ * every node, and the criterion measures only curvature, as the paper intends. */
+static double *criterion_weights(const sq_mesh *m)
+{
+    int nnz = m->adj_start[m->nnodes];
+    double *w = sq_calloc((size_t)SQ_MAX(nnz, 1), sizeof(double));
+    int *keys = sq_malloc(sizeof(int) * 3 * (size_t)SQ_MAX(m->ntris, 1));
+    for (int t = 0; t < m->ntris; t++) {
+        memcpy(keys + 3 * t, m->tris + 3 * t, 3 * sizeof(int));
+        sort3(keys + 3 * t);
+    }
+    qsort(keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri);
+    for (int t = 0; t < m->ntets; t++) {
+        const int *tn = m->tets + 4 * t;
+        double a[4][3];
+        double V = fabs(sq_tet_gradients(m, t, a));
+        for (int i = 0; i < 4; i++)
+            for (int j = 0; j < 4; j++) {
+                int s = adj_find(m, tn[i], tn[j]);
+                if (s >= 0)
+                    w[s] += V * (a[i][0] * a[j][0] + a[i][1] * a[j][1] + a[i][2] * a[j][2]);
+            }
+        for (int q = 0; q < 4; q++) {
+            int face[3], nf = 0;
+            for (int i = 0; i < 4; i++)
+                if (i != q)
+                    face[nf++] = tn[i];
+            if (!m->on_boundary[face[0]] || !m->on_boundary[face[1]] || !m->on_boundary[face[2]])
+                continue;
+            sort3(face);
+            if (!bsearch(face, keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri))
+                continue;
+            for (int i = 0; i < 4; i++) {
+                if (i == q)
+                    continue;
+                for (int mm = 0; mm < 4; mm++) {
+                    int s = adj_find(m, tn[i], tn[mm]);
+                    if (s >= 0)
+                        w[s] += V * (a[mm][0] * a[q][0] + a[mm][1] * a[q][1] + a[mm][2] * a[q][2]);
+                }
+            }
+        }
+    }
+    free(keys);
+    return w;
+}
+
 /* ---------------------------------------------------------------- creation */
 
 
@@ -233,6 +322,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->gf[k] = sq_malloc(sizeof(int) * n);
         lod->gc[k] = sq_malloc(sizeof(int) * n);
         lod->slot[k] = sq_malloc(sizeof(int) * n);
+        lod->clap[k] = criterion_weights(levels[k].mesh);
         for (size_t i = 0; i < n; i++)
             lod->slot[k][i] = -1;
     }
@@ -253,6 +343,7 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->gf[k]);
         free(lod->gc[k]);
         free(lod->slot[k]);
+        free(lod->clap[k]);
     }
     free(lod->he);
     free(lod->hold_entry_of);
@@ -319,12 +410,27 @@ long sq_lod_projected_updates(const sq_lod *lod)
 
 /* ---------------------------------------------------------------- split / merge */
 
-/* delta_i = hbar_i^2 |Lap(d)_i| at node i of level k */
-static double delta_of(const sq_level *L, int i)
+/* delta_i = hbar_i^2 |Lap(d)_i| at node i of level k (boundary-corrected Laplacian) */
+static double delta_at(const sq_lod *lod, int k, int i)
 {
-    double lap[3];
-    sq_level_laplacian(L, i, lap);
-    return L->hbar[i] * L->hbar[i] * sqrt(lap[0] * lap[0] + lap[1] * lap[1] + lap[2] * lap[2]);
+    const sq_level *L = &lod->lv[k];
+    const double *w = lod->clap[k];
+    double s[3] = {0, 0, 0};
+    for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++) {
+        const double *dj = L->d + 3 * L->col[q];
+        s[0] += w[q] * dj[0];
+        s[1] += w[q] * dj[1];
+        s[2] += w[q] * dj[2];
+    }
+    double h2 = L->hbar[i] * L->hbar[i];
+    return h2 / L->vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+}
+
+double sq_lod_delta(const sq_lod *lod, int level, int node)
+{
+    if (level < 0 || level >= lod->L || node < 0 || node >= lod->lv[level].n)
+        return 0;
+    return delta_at(lod, level, node);
 }
 
 /* counters of one frame's adaptation */
@@ -366,7 +472,7 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
         for (int i = 0; i < Lk->n; i++) {
             if (lod->state[k][i] != ST_ACTIVE)
                 continue;
-            if (!forced && !(delta_of(Lk, i) > def->split))
+            if (!forced && !(delta_at(lod, k, i) > def->split))
                 continue;
             int nch = ln->child_start[i + 1] - ln->child_start[i];
             long extra = nch * cost_f - cost_k;
@@ -399,11 +505,11 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
                 continue;
             if (c1 == c0) {
                 /* no child: judge the node on its own (interpolated) field */
-                if (!(delta_of(Lk, p) < def->merge))
+                if (!(delta_at(lod, k, p) < def->merge))
                     continue;
             } else {
                 for (int c = c0; c < c1 && ok; c++)
-                    if (!(delta_of(Lf, ln->child[c]) < def->merge))
+                    if (!(delta_at(lod, k + 1, ln->child[c]) < def->merge))
                         ok = 0;
                 if (!ok)
                     continue;
@@ -623,7 +729,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             if (lod->nactive[k] > 0) {
                 /* forces on every active node (held ones for their feedback), then integrate
                  * the free ones */
-                sq_level_forces(Lk, mat, gravity, lod->active[k]);
+                sq_level_forces(Lk, mat, gravity, lod->nactive[k] == Lk->n ? NULL : lod->active[k]);
                 for (int e = 0; e < lod->nhe; e++) {
                     hold_entry *E = &lod->he[e];
                     if (E->level != k || E->count == 0)
@@ -634,7 +740,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                     E->nf++;
                 }
                 if (lod->nmask[k] > 0)
-                    sq_level_integrate(Lk, Lk->dt, lod->mask[k]);
+                    sq_level_integrate(Lk, Lk->dt, lod->nmask[k] == Lk->n ? NULL : lod->mask[k]);
                 updates += lod->nmask[k];
             }
             double t1 = sq_now();
@@ -718,6 +824,27 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                      "warning: node-update cap %ld per frame reached: splitting refused",
                      lod->def.max_node_updates);
     }
+}
+
+int sq_lod_adapt(sq_lod *lod, int allow_split, int *splits, int *merges)
+{
+    adapt_out ao;
+    memset(&ao, 0, sizeof(ao));
+    long projected = sq_lod_projected_updates(lod);
+    for (int k = lod->L - 2; k >= 0; k--)
+        pull_level(lod, k);
+    for (int k = 0; k + 1 < lod->L; k++)
+        adapt_pair(lod, k, allow_split, &projected, &ao);
+    enforce_cap(lod, &projected, &ao);
+    for (int k = 0; k < lod->L; k++)
+        if (ao.changed[k])
+            rebuild_level(lod, k);
+    sq_lod_sync(lod);
+    if (splits)
+        *splits = ao.splits;
+    if (merges)
+        *merges = ao.merges;
+    return ao.refused;
 }
 
 /* ---------------------------------------------------------------- views */

@@ -80,6 +80,16 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic);
 /* node updates one frame of the current active sets costs: sum_k active_k 2^n_k */
 long sq_lod_projected_updates(const sq_lod *lod);
 
+/* the split/merge criterion delta = hbar^2 |Lap(d)| at a node of a level, from the level's
+ * current values. The Laplacian is the lumped FEM one with the boundary flux of the local
+ * gradient removed on surface nodes, so any linear field gives 0 everywhere (m). */
+double sq_lod_delta(const sq_lod *lod, int level, int node);
+
+/* one split/merge pass over every pair of levels at the current state (all levels at the same
+ * time), as sq_lod_frame does at its synchronisation points, then ghosts brought up to date;
+ * returns 1 if a split was refused (allow_split 0 or the node-update cap), else 0 */
+int sq_lod_adapt(sq_lod *lod, int allow_split, int *splits, int *merges);
+
 /* consistency of the active/ghost tree (level-0 nodes are never coarse ghosts, a node is a
  * coarse ghost exactly when its parent is not split, the top level never splits); 0 or -1 + err */
 int sq_lod_check(const sq_lod *lod, sq_err *err);
