@@ -579,3 +579,56 @@ SQ_TEST(world_two_bodies_probe_each)
     sq_world_destroy(w);
     sq_scene_free(s);
 }
+
+SQ_TEST(scene_mutated_text_never_crashes)
+{
+    /* a valid scene with every section, mutated byte by byte with a fixed-seed generator:
+     * every parse either succeeds or returns an error message naming the label */
+    const char *base =
+        "{\"name\": \"m\", \"gravity\": [0, 0, -9.81], \"frame_rate\": 50, \"bodies\": [{\"name\": \"cube\","
+        " \"levels\": [\"a.msh\", \"b.msh\"], \"material\": {\"E\": 1e5, \"nu\": 0.3, \"density\": 1000,"
+        " \"damping\": {\"rayleigh_mass\": 0.5}}, \"operator\": \"fem\","
+        " \"fixed\": [{\"box\": [[-1, -1, -1], [2, 2, 0.001]], \"axes\": \"xyz\"}],"
+        " \"lod\": {\"mode\": \"adaptive\", \"split\": 0.01, \"merge\": 0.005}}],"
+        " \"tools\": [{\"id\": 1, \"shape\": \"sphere\", \"radius\": 0.2, \"keyframes\": ["
+        " {\"t\": 0, \"pos\": [0.5, 0.5, 1.3]}, {\"t\": 1, \"pos\": [0.5, 0.5, 1.1], \"active\": false}]}],"
+        " \"probes\": [{\"name\": \"c\", \"body\": \"cube\", \"point\": [1, 1, 1]}]}";
+    static const char alphabet[] = "{}[]\":,0123456789.-e aznxyE\\";
+    size_t n = strlen(base);
+    char *buf = malloc(n + 8);
+    unsigned long long x = 12345;
+    int ok = 0, errors = 0;
+    sq_err e;
+    sq_scene *s0 = parse(base, &e);
+    CHECK(s0 != NULL); /* the unmutated text is valid */
+    sq_scene_free(s0);
+    for (int iter = 0; iter < 400; iter++) {
+        memcpy(buf, base, n + 1);
+        int nmut = 1 + iter % 3;
+        for (int k = 0; k < nmut; k++) {
+            x = x * 6364136223846793005ULL + 1442695040888963407ULL;
+            size_t pos = (size_t)(x >> 33) % n;
+            int op = (int)((x >> 20) % 3);
+            char c = alphabet[(x >> 8) % (sizeof alphabet - 1)];
+            if (op == 0)
+                buf[pos] = c;                                   /* replace */
+            else if (op == 1)
+                memmove(buf + pos, buf + pos + 1, n - pos);     /* delete */
+            else
+                buf[pos] = 0;                                   /* truncate */
+        }
+        sq_scene *s = parse(buf, &e);
+        if (s) {
+            ok++;
+            sq_scene_free(s);
+        } else {
+            errors++;
+            if (strncmp(e.msg, "t.json: ", 8) != 0) {
+                printf("    unlabelled error for mutation %d: %s\n", iter, e.msg);
+                CHECK(strncmp(e.msg, "t.json: ", 8) == 0);
+            }
+        }
+    }
+    CHECK(ok + errors == 400 && errors > 200);
+    free(buf);
+}
