@@ -41,3 +41,21 @@ int sq_render_state_png(const sq_render_state *s, int width, int height, const s
     sq_drawlist_free(&dl);
     return rc;
 }
+
+int sq_render_world_png(const sq_world *w, int width, int height, const sq_render_opts *o,
+                        unsigned char **png, size_t *len, sq_err *err)
+{
+    *png = NULL;
+    *len = 0;
+    if (width < SQ_RENDER_MIN_SIZE || height < SQ_RENDER_MIN_SIZE || width > SQ_SNAPSHOT_MAX_SIZE ||
+        height > SQ_SNAPSHOT_MAX_SIZE)
+        return sq_err_set(err, "snapshot: size %dx%d: each side must be in [%d, %d] pixels",
+                          width, height, SQ_RENDER_MIN_SIZE, SQ_SNAPSHOT_MAX_SIZE);
+    sq_render_state s;
+    sq_render_state_init(&s);
+    int rc = sq_render_state_capture(&s, w, err);
+    if (rc == 0)
+        rc = sq_render_state_png(&s, width, height, o, png, len, err);
+    sq_render_state_free(&s);
+    return rc;
+}

@@ -113,3 +113,48 @@ void sq_render_state_set_gravity(sq_render_state *s, const double g[3])
     for (int k = 0; k < 3; k++)
         s->up[k] = -g[k] / n;
 }
+
+int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err)
+{
+    s->nbodies = 0;
+    s->ntools = 0;
+    if (w->nbodies > SQ_MAX_BODIES)
+        return sq_err_set(err, "render capture: world has %d bodies, more than %d", w->nbodies,
+                          SQ_MAX_BODIES);
+    int have_box = 0;
+    for (int bi = 0; bi < w->nbodies; bi++) {
+        const sq_body *body = w->bodies[bi];
+        const sq_mesh *m = sq_body_surface_mesh(body);
+        sq_render_body *b = &s->bodies[bi];
+        body_reserve(b, m->nsurf, m->ntris);
+        b->nverts = m->nsurf;
+        b->ntris = m->ntris;
+        sq_body_surface_state(body, b->xyz, b->level);
+        for (int i = 0; i < m->nsurf; i++)
+            for (int k = 0; k < 3; k++) {
+                double v = m->x[3 * m->surf_nodes[i] + k];
+                b->rest[3 * i + k] = (float)v;
+                if (!have_box || v < s->bbox_min[k])
+                    s->bbox_min[k] = v;
+                if (!have_box || v > s->bbox_max[k])
+                    s->bbox_max[k] = v;
+                have_box |= k == 2;
+            }
+        memcpy(b->tris, m->surf_tris, (size_t)m->ntris * 3 * sizeof(int));
+        s->nbodies++;
+    }
+    if (!have_box)
+        for (int k = 0; k < 3; k++)
+            s->bbox_min[k] = s->bbox_max[k] = 0.0;
+    s->ntools = SQ_MIN(w->ntools, SQ_MAX_TOOLS);
+    memcpy(s->tools, w->tools, (size_t)s->ntools * sizeof(sq_tool));
+    if (w->scene)
+        sq_render_state_set_gravity(s, w->scene->gravity);
+    else if (w->nbodies > 0)
+        sq_render_state_set_gravity(s, sq_body_get_def(w->bodies[0])->gravity);
+    else
+        s->up[0] = s->up[1] = 0.0, s->up[2] = 1.0;
+    s->frame = w->frame;
+    s->time = w->time;
+    return 0;
+}

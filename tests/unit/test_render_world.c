@@ -1,0 +1,165 @@
+/* test_render_world.c - capturing a world's bodies and tools into a render state, and (outside
+ * the sanitizer build) rendering an adaptive cube poked by a sphere: the finer level's colour
+ * appears where the body was poked. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "render/render.h"
+#include "sq_test.h"
+
+/* a two-level adaptive cube [0,1]^3 (4^3 and 8^3 cells), bottom fixed, no gravity, poked for
+ * `frames` frames by a sphere pressing 5 cm into the middle of the top face; w gets the body
+ * and the tool. Measured with these values: about 170 of the 386 surface vertices split to
+ * level 1 after 10 frames (0 without the poke), so the checks below have wide margins. */
+static int poked_world(sq_world *w, sq_mesh **coarse, sq_mesh **fine, int frames)
+{
+    sq_err e = {{0}};
+    double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
+    *coarse = sq_mesh_box(4, 4, 4, size, origin, &e);
+    *fine = sq_mesh_box(8, 8, 8, size, origin, &e);
+    if (!*coarse || !*fine)
+        return -1;
+    sq_body_def def = sq_body_def_default();
+    def.name = "cube";
+    def.nlevels = 2;
+    def.levels[0] = *coarse;
+    def.levels[1] = *fine;
+    sq_material_from_E_nu(&def.material, 1e5, 0.3, &e);
+    def.material.density = 1000;
+    def.material.rayleigh_mass = 2;
+    def.nconstraints = 1;
+    def.constraints[0].kind = SQ_REGION_BOX;
+    def.constraints[0].a[0] = def.constraints[0].a[1] = def.constraints[0].a[2] = -1;
+    def.constraints[0].b[0] = def.constraints[0].b[1] = 2;
+    def.constraints[0].b[2] = 1e-3;
+    def.constraints[0].axes = 7;
+    def.lod.mode = SQ_LOD_ADAPTIVE;
+    def.lod.level = 0;
+    def.lod.split = 0.01; /* m, on delta = hbar^2 |Lap d| */
+    def.lod.merge = 0.005;
+    def.lod.max_level = 1;
+    memset(w, 0, sizeof *w);
+    w->bodies[0] = sq_body_create(&def, &e);
+    if (!w->bodies[0]) {
+        fprintf(stderr, "sq_body_create: %s\n", e.msg);
+        return -1;
+    }
+    w->nbodies = 1;
+    w->ntools = 1;
+    w->tools[0] = (sq_tool){.id = 7, .shape = SQ_TOOL_SPHERE, .active = 1,
+                            .pos = {0.5, 0.5, 1.05}, .radius = 0.1};
+    for (int f = 0; f < frames; f++) {
+        sq_body_frame(w->bodies[0], w->tools, w->ntools, NULL, NULL, 0);
+        w->frame++;
+        w->time += def.frame_dt;
+    }
+    return 0;
+}
+
+static void free_world(sq_world *w, sq_mesh *coarse, sq_mesh *fine)
+{
+    if (w->nbodies)
+        sq_body_destroy(w->bodies[0]);
+    sq_mesh_free(coarse);
+    sq_mesh_free(fine);
+}
+
+SQ_TEST(render_capture_world_poke_levels)
+{
+    sq_world w;
+    sq_mesh *c = NULL, *f = NULL;
+    CHECK(poked_world(&w, &c, &f, 10) == 0);
+    if (!w.nbodies) {
+        free_world(&w, c, f);
+        return;
+    }
+    sq_render_state s;
+    sq_render_state_init(&s);
+    sq_err e = {{0}};
+    CHECK(sq_render_state_capture(&s, &w, &e) == 0);
+    CHECK(s.nbodies == 1 && s.ntools == 1 && s.tools[0].id == 7);
+    CHECK(s.frame == 10);
+    /* the rendered surface is the fine level's boundary; no gravity: up is +z */
+    CHECK(s.bodies[0].nverts == f->nsurf && s.bodies[0].ntris == f->ntris);
+    CHECK_NEAR(s.up[2], 1.0, 1e-12);
+    CHECK_NEAR(s.bbox_max[2], 1.0, 1e-6);
+    /* the top centre is pushed down by the sphere (to about 1.05 - 0.1 = 0.95) */
+    const sq_render_body *b = &s.bodies[0];
+    int top = -1, nfine = 0;
+    for (int i = 0; i < b->nverts; i++) {
+        if (fabsf(b->rest[3 * i] - 0.5f) < 1e-6f && fabsf(b->rest[3 * i + 1] - 0.5f) < 1e-6f &&
+            b->rest[3 * i + 2] == 1.0f)
+            top = i;
+        nfine += b->level[i] == 1;
+    }
+    CHECK(top >= 0);
+    if (top >= 0)
+        CHECK(b->xyz[3 * top + 2] < 0.97f);
+    /* adaptive: the poked region runs at level 1, the bottom stays at level 0 */
+    CHECK(nfine > 0 && nfine < b->nverts);
+    CHECK(top < 0 || b->level[top] == 1);
+
+    /* a second capture reuses the buffers and gives the same state */
+    float *xyz = b->xyz;
+    CHECK(sq_render_state_capture(&s, &w, &e) == 0);
+    CHECK(s.bodies[0].xyz == xyz && s.nbodies == 1);
+    sq_render_state_free(&s);
+    free_world(&w, c, f);
+}
+
+#if !defined(__SANITIZE_ADDRESS__)
+/* pixels that are a lit version of c (see test_render.c for the tolerance) */
+static int count_lit(const unsigned char *rgb, int n, const unsigned char c[3])
+{
+    int count = 0;
+    for (int i = 0; i < n; i++) {
+        const unsigned char *p = &rgb[3 * i];
+        double k = (double)(p[0] + p[1] + p[2]) / (c[0] + c[1] + c[2]);
+        if (k < 0.25 || k > 1.4)
+            continue;
+        int ok = 1;
+        for (int j = 0; j < 3; j++)
+            ok &= fabs(p[j] - k * c[j]) <= 14.0;
+        count += ok;
+    }
+    return count;
+}
+
+SQ_TEST(render_world_png_poke_shows_both_levels)
+{
+    sq_world w;
+    sq_mesh *c = NULL, *f = NULL;
+    CHECK(poked_world(&w, &c, &f, 10) == 0);
+    if (!w.nbodies) {
+        free_world(&w, c, f);
+        return;
+    }
+    sq_render_opts o = sq_render_opts_default();
+    o.camera.el_deg = 45; /* see the poked top face */
+    unsigned char *png = NULL, *png2 = NULL, *rgb = NULL;
+    size_t len = 0, len2 = 0;
+    sq_err e = {{0}};
+    CHECK(sq_render_world_png(&w, 200, 150, &o, &png, &len, &e) == 0);
+    CHECK(sq_render_world_png(&w, 200, 150, &o, &png2, &len2, &e) == 0);
+    CHECK(len == len2 && png && png2 && !memcmp(png, png2, len));
+    int iw = 0, ih = 0;
+    CHECK(sq_png_decode(png, len, &rgb, &iw, &ih, &e) == 0);
+    CHECK(iw == 200 && ih == 150);
+    if (rgb) {
+        unsigned char c0[3], c1[3];
+        sq_render_level_rgb(&o.palette, 0, c0);
+        sq_render_level_rgb(&o.palette, 1, c1);
+        int n0 = count_lit(rgb, iw * ih, c0), n1 = count_lit(rgb, iw * ih, c1);
+        CHECK(n0 > iw * ih / 100);
+        CHECK(n1 > iw * ih / 100);
+    }
+    /* the snapshot limit is 2048 per side */
+    CHECK(sq_render_world_png(&w, 2049, 100, &o, &png2, &len2, &e) == -1);
+    CHECK_CONTAINS(e.msg, "2048");
+    free(rgb);
+    free(png);
+    free(png2);
+    free_world(&w, c, f);
+}
+#endif
