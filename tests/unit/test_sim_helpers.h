@@ -9,6 +9,9 @@
 
 #include "sim/level.h"
 
+/* max that propagates NaN (fmax would drop it and let a broken state pass) */
+static inline double th_max(double a, double b) { return (a > b || isnan(a)) ? a : b; }
+
 /* a box mesh or fail the test (returns NULL) */
 static inline sq_mesh *th_box(int nx, int ny, int nz, double sx, double sy, double sz)
 {
@@ -48,7 +51,7 @@ static inline double th_kmax(const sq_level *L)
 {
     double s = 0;
     for (size_t k = 0; k < 9 * (size_t)L->nnz; k++)
-        s = fmax(s, fabs(L->K[k]));
+        s = th_max(s, fabs(L->K[k]));
     return s;
 }
 

@@ -25,7 +25,7 @@ static void check_translation(sq_operator_kind op)
     th_elastic_force(&L, &mat, d);
     double worst = 0;
     for (int i = 0; i < m->nnodes; i++)
-        worst = fmax(worst, th_norm3(L.f + 3 * i));
+        worst = th_max(worst, th_norm3(L.f + 3 * i));
     CHECK(worst <= FTOL(&L));
     free(d);
     sq_level_free(&L);
@@ -62,9 +62,9 @@ SQ_TEST(sim_operator_rotation_fem_zero_paper_boundary_only)
         for (int i = 0; i < m->nnodes; i++) {
             double f = th_norm3(L.f + 3 * i);
             if (m->on_boundary[i])
-                boundary = fmax(boundary, f);
+                boundary = th_max(boundary, f);
             else
-                interior = fmax(interior, f);
+                interior = th_max(interior, f);
         }
         CHECK(interior <= tol);
         if (op == SQ_OPERATOR_FEM)
@@ -95,11 +95,11 @@ SQ_TEST(sim_operator_paper_fem_differ_only_on_boundary_edges)
             int j = m->adj[p];
             double diff = 0;
             for (int k = 0; k < 9; k++)
-                diff = fmax(diff, fabs(P.K[9 * p + k] - F.K[9 * p + k]));
+                diff = th_max(diff, fabs(P.K[9 * p + k] - F.K[9 * p + k]));
             if (m->on_boundary[i] && m->on_boundary[j])
-                outer = fmax(outer, diff);
+                outer = th_max(outer, diff);
             else
-                inner = fmax(inner, diff);
+                inner = th_max(inner, diff);
         }
     CHECK(inner <= tol);
     CHECK(outer > 1e-3 * th_kmax(&F));
@@ -132,7 +132,7 @@ SQ_TEST(sim_operator_blocks_symmetric)
                     continue;
                 for (int r = 0; r < 3; r++)
                     for (int c = 0; c < 3; c++)
-                        worst = fmax(worst, fabs(L.K[9 * p + 3 * r + c] - L.K[9 * q + 3 * c + r]));
+                        worst = th_max(worst, fabs(L.K[9 * p + 3 * r + c] - L.K[9 * q + 3 * c + r]));
             }
         CHECK(worst <= 1e-12 * th_kmax(&L)); /* same sums in another order: rounding only */
         sq_level_free(&L);
@@ -162,9 +162,9 @@ SQ_TEST(sim_operator_patch_test_uniform_strain)
         for (int i = 0; i < m->nnodes; i++) {
             double f = th_norm3(L.f + 3 * i);
             if (m->on_boundary[i])
-                boundary = fmax(boundary, f);
+                boundary = th_max(boundary, f);
             else
-                interior = fmax(interior, f);
+                interior = th_max(interior, f);
         }
         CHECK(interior <= 1e-3 * FTOL(&L));
         CHECK(boundary > 1e3 * 1e-3 * FTOL(&L)); /* the traction of the strain shows on the boundary */
