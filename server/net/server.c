@@ -313,12 +313,15 @@ static void send_session_info(client *c)
     send_json(c, o);
     c->pending = 0;
     c->ready = 1;
+    /* the newest frames; in lockstep mode in order with the stepped ones */
     for (int b = 0; b < SQ_MAX_BODIES; b++)
         if (last[b]) {
-            if (c->sub_frames)
-                slot_put(c, b, last[b]);
-            else
+            if (!c->sub_frames)
                 sq_blob_unref(last[b]);
+            else if (c->srv->opt->lockstep)
+                fifo_push(c, last[b]);
+            else
+                slot_put(c, b, last[b]);
         }
 }
 

@@ -248,8 +248,9 @@ static void snapshot_locked(sq_session *s, double frame_s)
         s->tool_ids[i] = w->tools[i].id;
 }
 
-/* encode the current state of every body and post it */
-static void publish(sq_session *s, sq_out_kind kind, double frame_s)
+/* encode the current state of every body and post it (kind < 0: only keep it as the newest
+ * frame, for clients that join) */
+static void publish(sq_session *s, int kind, double frame_s)
 {
     sq_world *w = s->world;
     sq_blob *frames[SQ_MAX_BODIES];
@@ -263,7 +264,10 @@ static void publish(sq_session *s, sq_out_kind kind, double frame_s)
     for (int b = 0; b < w->nbodies; b++) {
         sq_blob_unref(s->last_frame[b]);
         s->last_frame[b] = sq_blob_ref(frames[b]);
-        post_locked(s, kind, 0, b, frames[b]);
+        if (kind >= 0)
+            post_locked(s, (sq_out_kind)kind, 0, b, frames[b]);
+        else
+            sq_blob_unref(frames[b]);
         if (w->profile[b].reset) {
             cJSON *e = sq_reply_new("event", NULL);
             cJSON_AddStringToObject(e, "kind", "reset");
@@ -537,7 +541,7 @@ static int setup(sq_session *s)
     s->state = SQ_SESSION_READY;
     post_locked(s, SQ_OUT_READY, 0, 0, NULL);
     pthread_mutex_unlock(&s->mu);
-    publish(s, SQ_OUT_FRAME, 0); /* frame 0: the rest state */
+    publish(s, -1, 0); /* frame 0, sent to every client with opened/joined */
     s->wake(s->wake_arg);
     return 0;
 }
@@ -593,8 +597,8 @@ static void *session_main(void *arg)
         double frame_start = next;
         if (!s->lockstep && !s->paused)
             step_frame(s, SQ_OUT_FRAME);
-        else if (changed)
-            publish(s, s->lockstep ? SQ_OUT_STEP_FRAME : SQ_OUT_FRAME, -1);
+        else if (changed && !s->lockstep)
+            publish(s, SQ_OUT_FRAME, -1); /* paused: show tool moves, resets, settings */
         s->wake(s->wake_arg);
 
         if (!s->lockstep) {

@@ -1,0 +1,53 @@
+// harness.mjs - start the real `squish serve` binary ($SQUISH) on a free loopback port for a test.
+import { spawn } from 'node:child_process';
+import { readFileSync } from 'node:fs';
+import path from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+export const ROOT = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '../..');
+export const SQUISH = process.env.SQUISH || path.join(ROOT, 'build/squish');
+
+/**
+ * Start a server with extra flags; resolves with { url (ws), http, port, proc, pid, stop }.
+ * Port 0 lets the kernel pick a free port; the server prints the one it got.
+ */
+export function startServer(args = [], { env = {} } = {}) {
+  const proc = spawn(SQUISH, ['serve', '--host', '127.0.0.1', '--port', '0', ...args], {
+    env: { ...process.env, ...env }, stdio: ['ignore', 'pipe', 'pipe'],
+  });
+  let out = '', err = '';
+  proc.stderr.on('data', d => { err += d; });
+  return new Promise((resolve, reject) => {
+    const timer = setTimeout(() => { proc.kill('SIGKILL'); reject(new Error(`server did not start: ${err}`)); }, 15000);
+    proc.on('exit', code => { clearTimeout(timer); reject(new Error(`server exited with ${code}: ${err}`)); });
+    proc.stdout.on('data', d => {
+      out += d;
+      const m = out.match(/listening on http:\/\/127\.0\.0\.1:(\d+)\//);
+      if (!m) return;
+      clearTimeout(timer);
+      proc.removeAllListeners('exit');
+      const port = Number(m[1]);
+      const exited = new Promise(res => proc.on('exit', (code, signal) => res({ code, signal })));
+      resolve({
+        port, proc, pid: proc.pid,
+        url: `ws://127.0.0.1:${port}/ws`,
+        http: `http://127.0.0.1:${port}`,
+        stderr: () => err,
+        exited,
+        /** stop with a signal; resolves with { code, signal } */
+        async stop(signal = 'SIGTERM') {
+          if (proc.exitCode === null && proc.signalCode === null) proc.kill(signal);
+          return exited;
+        },
+      });
+    });
+  });
+}
+
+/** resident memory of a process in KiB (/proc/PID/status VmRSS) */
+export function rssKiB(pid) {
+  const m = readFileSync(`/proc/${pid}/status`, 'utf8').match(/VmRSS:\s+(\d+)\s+kB/);
+  return m ? Number(m[1]) : NaN;
+}
+
+export const sleep = ms => new Promise(r => setTimeout(r, ms));
