@@ -552,7 +552,7 @@ static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
 
 static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
 {
-    static const char *const keys[] = {"name", "levels", "material", "operator", "fixed", "lod",
+    static const char *const keys[] = {"name", "levels", "offset", "material", "operator", "fixed", "lod",
                                        "step_fraction", NULL};
     if (!cJSON_IsObject(obj))
         return fail(c, path, "expected an object, got %s; see docs/scenes.md", type_name(obj));
@@ -666,6 +666,16 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
     def->frame_dt = 1.0 / s->frame_rate;
     memcpy(def->gravity, s->gravity, sizeof def->gravity);
 
+    /* offset: translate the meshes at load (regions, probes and tools are in world space) */
+    double offset[3] = {0, 0, 0};
+    if (get_vec3(c, obj, path, "offset", offset, NULL))
+        return -1;
+    if (fabs(offset[0]) > 1e6 || fabs(offset[1]) > 1e6 || fabs(offset[2]) > 1e6) {
+        join(p, sizeof p, path, "offset");
+        return fail(c, p, "[%g, %g, %g] is out of range; use components below 1e6 m", offset[0], offset[1],
+                    offset[2]);
+    }
+
     /* load only the levels the body needs: fixed -> the simulated level alone,
      * adaptive -> levels 0..max_level */
     int first = def->lod.mode == SQ_LOD_FIXED ? def->lod.level : 0;
@@ -679,6 +689,15 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
         join_index(p, sizeof p, lp, k);
         if (!m)
             return fail(c, p, "%s; fix or regenerate the mesh file", e.msg);
+        if (offset[0] != 0 || offset[1] != 0 || offset[2] != 0) {
+            for (int v = 0; v < m->nnodes; v++)
+                for (int a = 0; a < 3; a++)
+                    m->x[3 * v + a] += offset[a];
+            for (int a = 0; a < 3; a++) {
+                m->bbox_min[a] += offset[a];
+                m->bbox_max[a] += offset[a];
+            }
+        }
         /* build the mesh's point-location grid now: a loaded scene is then read-only and
          * can be shared by worlds on several threads */
         double bary[4];

@@ -138,6 +138,7 @@ static const struct {
     {SCENE("{" BODY_KEYS ", \"lod\": {\"budget\": 1.5}}"), "t.json: bodies[0].lod.budget: 1.5 is out of range"},
     {SCENE("{" BODY_KEYS ", \"lod\": {\"max_node_updates\": -3}}"), "t.json: bodies[0].lod.max_node_updates"},
     {SCENE("{" BODY_KEYS ", \"lod\": {\"levels\": 2}}"), "t.json: bodies[0].lod.levels: unknown key"},
+    {SCENE("{" BODY_KEYS ", \"offset\": [0, 1]}"), "t.json: bodies[0].offset: expected an array of 3 numbers"},
     {SCENE("{" BODY_KEYS ", \"step_fraction\": 2}"), "t.json: bodies[0].step_fraction: 2 is out of range"},
     {SCENE("{\"levels\": [\"b.msh\", \"a.msh\"], " MAT ", \"lod\": {\"mode\": \"adaptive\"}}"),
      "t.json: bodies[0].levels[1]: 27 nodes, not more than the previous level's 64"},
@@ -553,9 +554,9 @@ SQ_TEST(world_two_bodies_probe_each)
     sq_scene *s = parse("{\"bodies\": [{\"name\": \"fem\", \"levels\": [\"a.msh\"], " MAT ","
                         "  \"fixed\": [{\"box\": [[-1,-1,-1],[2,2,0.001]]}]},"
                         " {\"name\": \"paper\", \"levels\": [\"a.msh\"], " MAT ", \"operator\": \"paper\","
-                        "  \"fixed\": [{\"box\": [[-1,-1,-1],[2,2,0.001]]}]}],"
+                        "  \"offset\": [0, 2, 0], \"fixed\": [{\"box\": [[-1,1.5,-1],[2,3.5,0.001]]}]}],"
                         " \"probes\": [{\"name\": \"f\", \"body\": \"fem\", \"point\": [1,1,1]},"
-                        "              {\"name\": \"p\", \"body\": \"paper\", \"point\": [1,1,1]}]}",
+                        "              {\"name\": \"p\", \"body\": \"paper\", \"point\": [1,3,1]}]}",
                         &e);
     CHECK(s != NULL);
     if (!s) {
@@ -563,6 +564,9 @@ SQ_TEST(world_two_bodies_probe_each)
         return;
     }
     CHECK(s->probes[0].body == 0 && s->probes[1].body == 1);
+    /* the second body is moved 2 m along y: its mesh, regions and probe live there */
+    CHECK(s->bodies[1].levels[0]->bbox_min[1] == 2 && s->bodies[1].levels[0]->bbox_max[1] == 3);
+    CHECK(s->bodies[0].levels[0]->bbox_min[1] == 0);
     sq_world *w = sq_world_create(s, &e);
     CHECK(w && w->nbodies == 2);
     if (w) {
