@@ -127,8 +127,9 @@ int sq_render_state_add_tool(sq_render_state *s, const sq_tool *t, sq_err *err);
 void sq_render_state_set_gravity(sq_render_state *s, const double g[3]);
 
 /* copy a world's bodies (finest surface, current positions and levels), tools, gravity and
- * frame into s, reusing s's buffers. Call under the lock that guards the world; then render
- * from s on any thread. */
+ * frame into s, reusing s's buffers. Levels are numbered as in the scene file's `levels`
+ * list (scene->level_index), so a fixed body at listed level 2 shows level 2's colour.
+ * Call under the lock that guards the world; then render from s on any thread. */
 int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err);
 
 /* ---- step 2: draw list ---- */
