@@ -232,3 +232,58 @@ SQ_TEST(mesh_io_vtk_deterministic_with_fields)
     free(lev);
     sq_mesh_free(m);
 }
+
+/* the shipped level-of-detail families: every level loads and validates, has the shape's
+ * volume, and the mean edge length roughly halves per level */
+SQ_TEST(mesh_shipped_meshes)
+{
+    static const struct {
+        const char *shape;
+        double volume;  /* exact volume of the shape (0: unknown, compare with the finest) */
+        double tol[4];  /* relative volume tolerance per level */
+    } shapes[] = {
+        /* boxes are meshed exactly: roundoff only */
+        {"cube", 1.0, {1e-12, 1e-12, 1e-12, 1e-12}},
+        {"beam", 0.01, {1e-12, 1e-12, 1e-12, 1e-12}},
+        /* an inscribed polyhedron loses volume ~ (h/R)^2: 10% at h = R/2, 0.5% at h = R/16 */
+        {"sphere", 4.0 / 3.0 * M_PI * 0.125, {0.10, 0.03, 0.01, 0.005}},
+        /* no closed form: within the same bounds of the finest level */
+        {"organ", 0, {0.12, 0.05, 0.02, 1e-12}},
+    };
+    for (size_t s = 0; s < SQ_COUNTOF(shapes); s++) {
+        sq_mesh_info info[4];
+        int ok = 1;
+        for (int k = 0; k < 4; k++) {
+            char path[1024];
+            snprintf(path, sizeof path, "%s/../../meshes/%s/%s_l%d.msh", sq_test_data(), shapes[s].shape,
+                     shapes[s].shape, k);
+            sq_err err = {0};
+            sq_mesh *m = sq_mesh_load(path, &err);
+            CHECK(m != NULL);
+            if (!m) {
+                printf("    %s\n", err.msg);
+                ok = 0;
+                break;
+            }
+            sq_mesh_measure(m, &info[k]);
+            /* real time: the finest level stays at most ~15k nodes */
+            CHECK(m->nnodes <= 15000);
+            CHECK(info[k].volume > 0);
+            CHECK(info[k].dihedral_min_deg > 5);
+            sq_mesh_free(m);
+        }
+        if (!ok)
+            continue;
+        double ref = shapes[s].volume > 0 ? shapes[s].volume : info[3].volume;
+        for (int k = 0; k < 4; k++) {
+            CHECK_NEAR(info[k].volume / ref, 1.0, shapes[s].tol[k]);
+            if (k > 0) {
+                /* mean edge ratio between levels: 0.5 in the bulk, more where the coarse level
+                 * is all surface */
+                double r = info[k].edge_mean / info[k - 1].edge_mean;
+                CHECK(r > 0.4 && r < 0.75);
+                CHECK(info[k].nnodes > 2 * info[k - 1].nnodes);
+            }
+        }
+    }
+}
