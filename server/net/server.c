@@ -14,6 +14,7 @@
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
+#include <sys/socket.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -22,6 +23,8 @@ _Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
 #define FIFO_MAX 4096            /* queued messages per client before it is dropped */
 #define SLOT_BITS 10             /* session id = generation << SLOT_BITS | slot */
 #define TICK_US 50000            /* housekeeping period (stats pushes, grace), us */
+#define SNDBUF_BYTES (128 << 10) /* kernel send buffer per client: bounds how stale a slow
+                                    client's frames get (the kernel doubles it) */
 
 struct server;
 struct srec;
@@ -778,6 +781,13 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         c->stats_hz = 4;
         c->sub_frames = 1;
         *pc = c;
+        {
+            /* a fixed send buffer: a slow reader fills it quickly, and from then on the
+             * latest-wins slots decide what it gets, instead of megabytes of old frames */
+            int fd = (int)lws_get_socket_fd(wsi), sz = SNDBUF_BYTES;
+            if (fd >= 0)
+                setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &sz, sizeof sz);
+        }
         if (srv->stopping)
             return -1;
         return 0;

@@ -51,3 +51,23 @@ export function rssKiB(pid) {
 }
 
 export const sleep = ms => new Promise(r => setTimeout(r, ms));
+
+/**
+ * Write a scene directory with a box body of n cells per side (mesh made by `squish mesh box`),
+ * bottom fixed, gravity on; returns the directory. Used where the default cube is too small.
+ */
+export async function makeBoxScene(dir, name, n, { frameRate = 50 } = {}) {
+  const { mkdirSync, writeFileSync } = await import('node:fs');
+  const { execFileSync } = await import('node:child_process');
+  mkdirSync(dir, { recursive: true });
+  execFileSync(SQUISH, ['mesh', 'box', String(n), String(n), String(n), '--out', path.join(dir, `${name}.msh`)]);
+  writeFileSync(path.join(dir, `${name}.json`), JSON.stringify({
+    name, description: `${n}^3-cell box (net tests)`, gravity: [0, 0, -9.81], frame_rate: frameRate,
+    bodies: [{
+      name: 'box', levels: [`${name}.msh`],
+      material: { lambda: 100000, mu: 40000, density: 1000, damping: { rayleigh_mass: 2.0, rayleigh_stiffness: 0.0 } },
+      fixed: [{ box: [[-1, -1, -1], [2, 2, 0.001]] }],
+    }],
+  }));
+  return dir;
+}
