@@ -299,8 +299,8 @@ int sq_cmd_run(int argc, char **argv)
             if (pr->event[0] || pr->reset) {
                 if (prog.enabled)
                     fputc('\n', stderr);
-                printf("frame %ld (t = %.4f s): body %s: %s%s\n", w->frame, w->time, scene->body_names[b],
-                       pr->reset ? "blow-up, body reset to rest" : "", pr->event[0] ? pr->event : "");
+                printf("frame %ld (t = %.4f s): body %s: %s\n", w->frame, w->time, scene->body_names[b],
+                       pr->event[0] ? pr->event : "blow-up: body reset to rest");
                 fflush(stdout);
             }
         }
