@@ -89,5 +89,9 @@ meshes:
 	@command -v gmsh >/dev/null || { echo "installing gmsh"; apt-get install -y -q gmsh; }
 	bash meshes/generate.sh
 
+# fuzz the request decoder longer than `make test` does (FUZZ_SECONDS, default 600)
+fuzz: deps
+	FUZZ_SECONDS=$${FUZZ_SECONDS:-600} SQUISH=$(BUILD)/squish bash tests/stages/fuzz.sh
+
 clean:
 	rm -rf $(BUILD)
