@@ -3,6 +3,7 @@
  *
  *   squish bench [step] [--sizes 1k,10k,100k,1M] [--seconds T] [--op fem|paper|both]
  *   squish bench operators
+ *   squish bench cube [--meshes DIR] [--seconds T] [--out FILE]
  */
 #include <math.h>
 #include <stdio.h>
@@ -19,10 +20,14 @@ static int usage(FILE *f)
 {
     fprintf(f, "usage: squish bench [step] [--sizes LIST] [--seconds T] [--op fem|paper|both]\n"
                "       squish bench operators\n"
+               "       squish bench cube [--meshes DIR] [--seconds T] [--out FILE]\n"
                "  step       node-steps per second of the fixed-resolution step on box meshes\n"
                "             (LIST: node counts such as 1k,10k,100k,1M; default all four)\n"
                "  operators  static corner/tip deflection of the paper cube and a clamped beam,\n"
-               "             paper vs fem operator\n");
+               "             paper vs fem operator\n"
+               "  cube       the paper's section 2.6: corner (1,1,1) vertical displacement over time of\n"
+               "             the 1 m cube (bottom fixed, gravity) at three resolutions (DIR/cube_l1..l3.msh,\n"
+               "             default meshes/cube), both operators; CSV on stdout or FILE\n");
     return f == stdout ? 0 : 2;
 }
 
@@ -219,21 +224,102 @@ static int bench_operators(void)
     return 0;
 }
 
+/* the paper's cube: corner displacement curves at three resolutions, both operators */
+static int bench_cube(const char *dir, double seconds, const char *out)
+{
+    enum { NRES = 3 };
+    sq_mesh *mesh[NRES];
+    sq_body *body[2][NRES];
+    FILE *f = out ? fopen(out, "w") : stdout;
+    if (!f) {
+        fprintf(stderr, "squish bench cube: cannot write '%s'; check the directory exists\n", out);
+        return 1;
+    }
+    for (int r = 0; r < NRES; r++) {
+        char path[1024];
+        snprintf(path, sizeof path, "%s/cube_l%d.msh", dir, r + 1);
+        sq_err err = {{0}};
+        mesh[r] = sq_mesh_load(path, &err);
+        if (!mesh[r]) {
+            fprintf(stderr, "squish bench cube: %s\n", err.msg);
+            return 1;
+        }
+        for (int op = 0; op < 2; op++) {
+            sq_body_def def = sq_body_def_default();
+            def.name = "cube";
+            def.nlevels = 1;
+            def.levels[0] = mesh[r];
+            def.op = (sq_operator_kind)op;
+            def.gravity[2] = -9.81;
+            def.nconstraints = 1;
+            def.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
+            body[op][r] = sq_body_create(&def, &err);
+            if (!body[op][r]) {
+                fprintf(stderr, "squish bench cube: %s\n", err.msg);
+                return 1;
+            }
+            sq_body_set_sleep(body[op][r], 0, 0, 0);
+        }
+    }
+    fprintf(f, "# paper section 2.6: 1 m cube, bottom face fixed, gravity 9.81, mu=40 kPa, lambda=100 kPa,\n"
+               "# rho=1000, Rayleigh a=0.5/s b=1e-3 s, 50 Hz; corner (1,1,1) u_z in m\n");
+    fprintf(f, "time");
+    for (int op = 0; op < 2; op++)
+        for (int r = 0; r < NRES; r++)
+            fprintf(f, ",%s_%dnodes", op ? "paper" : "fem", mesh[r]->nnodes);
+    fprintf(f, "\n");
+    int frames = (int)lround(seconds * 50);
+    double corner[3] = {1, 1, 1};
+    sq_progress pr;
+    sq_progress_begin(&pr, "bench cube", frames);
+    for (int fr = 0; fr <= frames; fr++) {
+        fprintf(f, "%.3f", fr / 50.0);
+        for (int op = 0; op < 2; op++)
+            for (int r = 0; r < NRES; r++) {
+                double u[3] = {0, 0, 0};
+                sq_body_probe(body[op][r], corner, u);
+                fprintf(f, ",%.6e", u[2]);
+            }
+        fprintf(f, "\n");
+        for (int op = 0; op < 2; op++)
+            for (int r = 0; r < NRES; r++)
+                sq_body_frame(body[op][r], NULL, 0, NULL, NULL, 0);
+        sq_progress_update(&pr, fr);
+    }
+    sq_progress_end(&pr);
+    for (int r = 0; r < NRES; r++) {
+        sq_body_destroy(body[0][r]);
+        sq_body_destroy(body[1][r]);
+        sq_mesh_free(mesh[r]);
+    }
+    if (out)
+        fclose(f);
+    return 0;
+}
+
 int sq_cmd_bench(int argc, char **argv)
 {
+    const char *meshdir = "meshes/cube", *out = NULL;
+    int seconds_given = 0;
     const char *what = "all", *sizes = "1k,10k,100k,1M";
     double seconds = 1.0;
     int op_mask = 3;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h"))
             return usage(stdout);
-        else if (!strcmp(argv[i], "step") || !strcmp(argv[i], "operators") || !strcmp(argv[i], "all"))
+        else if (!strcmp(argv[i], "step") || !strcmp(argv[i], "operators") || !strcmp(argv[i], "all") ||
+                 !strcmp(argv[i], "cube"))
             what = argv[i];
         else if (!strcmp(argv[i], "--sizes") && i + 1 < argc)
             sizes = argv[++i];
+        else if (!strcmp(argv[i], "--meshes") && i + 1 < argc)
+            meshdir = argv[++i];
+        else if (!strcmp(argv[i], "--out") && i + 1 < argc)
+            out = argv[++i];
         else if (!strcmp(argv[i], "--seconds") && i + 1 < argc) {
             char *end;
             seconds = strtod(argv[++i], &end);
+            seconds_given = 1;
             if (*end || !(seconds > 0) || seconds > 3600) {
                 fprintf(stderr, "squish bench: --seconds '%s' must be a number in (0, 3600]\n", argv[i]);
                 return 2;
@@ -256,6 +342,8 @@ int sq_cmd_bench(int argc, char **argv)
         }
     }
     int rc = 0;
+    if (!strcmp(what, "cube"))
+        return bench_cube(meshdir, seconds_given ? seconds : 4.0, out);
     if (!strcmp(what, "step") || !strcmp(what, "all"))
         rc = bench_step(sizes, seconds, op_mask);
     if (rc == 0 && (!strcmp(what, "operators") || !strcmp(what, "all")))
