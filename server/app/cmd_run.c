@@ -3,8 +3,8 @@
  *   squish run SCENE.json [--frames N | --seconds T | --until-rest] [--out DIR]
  *   squish run --default ...
  *
- * Writes DIR/probes.csv (frame,time,probe,ux,uy,uz), DIR/stats.csv (per frame profile) and
- * DIR/final.vtk. probes.csv and final.vtk are byte-identical for the same input; only the
+ * Writes DIR/probes.csv (frame,time,probe,ux,uy,uz), DIR/stats.csv (per frame profile),
+ * DIR/tools.csv (tool poses and feedback forces) and DIR/final.vtk. probes.csv and final.vtk are byte-identical for the same input; only the
  * wall-time column of stats.csv changes between runs. Exit codes: 0 done, 1 bad scene or
  * output error, 2 usage.
  */
@@ -36,7 +36,7 @@ static void usage(FILE *f)
             "                      residual force below --rest-residual (default %g of the weight),\n"
             "                      at most --max-frames frames (default %ld)\n"
             "  --out DIR           output directory (default ./squish-out): probes.csv, stats.csv,\n"
-            "                      final.vtk\n",
+            "                      tools.csv, final.vtk\n",
             REST_KE_PER_KG, REST_RESIDUAL, REST_MAX_FRAMES);
 }
 
@@ -149,6 +149,19 @@ static void write_probe_rows(FILE *f, const sq_world *w)
     }
 }
 
+/* one row per tool and body: the pose used this frame and the body's reaction on it */
+static void write_tool_rows(FILE *f, const sq_world *w)
+{
+    for (int t = 0; t < w->ntools; t++)
+        for (int b = 0; b < w->nbodies; b++) {
+            const sq_tool *tl = &w->tools[t];
+            const sq_tool_feedback *fb = &w->feedback[b][t];
+            fprintf(f, "%ld,%.9e,%d,%s,%d,%.9e,%.9e,%.9e,%.9e,%.9e,%.9e,%d\n", w->frame, w->time, tl->id,
+                    w->scene->body_names[b], tl->active, tl->pos[0], tl->pos[1], tl->pos[2], fb->force[0],
+                    fb->force[1], fb->force[2], fb->nnodes);
+        }
+}
+
 int sq_cmd_run(int argc, char **argv)
 {
     const char *scene_path = NULL, *out = "squish-out";
@@ -244,8 +257,8 @@ int sq_cmd_run(int argc, char **argv)
     fflush(stdout);
 
     int rc = 0;
-    char ppath[1100], spath[1100];
-    FILE *fp = NULL, *fs = NULL;
+    char ppath[1100], spath[1100], tpath[1100];
+    FILE *fp = NULL, *fs = NULL, *ft = NULL;
     if (mkdir_p(out)) {
         fprintf(stderr, "squish run: cannot create output directory %s: %s; choose another --out\n", out,
                 strerror(errno));
@@ -254,7 +267,8 @@ int sq_cmd_run(int argc, char **argv)
     }
     fp = open_out(out, "probes.csv", ppath, sizeof ppath);
     fs = open_out(out, "stats.csv", spath, sizeof spath);
-    if (!fp || !fs) {
+    ft = open_out(out, "tools.csv", tpath, sizeof tpath);
+    if (!fp || !fs || !ft) {
         rc = 1;
         goto done;
     }
@@ -264,6 +278,7 @@ int sq_cmd_run(int argc, char **argv)
     for (int b = 0; b < w->nbodies; b++)
         maxl = SQ_MAX(maxl, sq_body_nlevels(w->bodies[b]));
     fprintf(fp, "frame,time,probe,ux,uy,uz\n");
+    fprintf(ft, "frame,time,tool,body,active,x,y,z,fx,fy,fz,nodes\n");
     fprintf(fs, "frame,time,node_updates,wall_ms");
     for (int k = 0; k < maxl; k++)
         fprintf(fs, ",active_l%d", k);
@@ -310,6 +325,7 @@ int sq_cmd_run(int argc, char **argv)
             fprintf(fs, ",%d", active[k]);
         fprintf(fs, ",%d,%d,%d,%.9e\n", splits, merges, resets, ke);
         write_probe_rows(fp, w);
+        write_tool_rows(ft, w);
         sq_progress_update(&prog, (double)w->frame);
 
         /* rest: every body calm (or asleep), after the last scripted keyframe */
@@ -381,11 +397,15 @@ int sq_cmd_run(int argc, char **argv)
         if (sq_world_probe(w, p, u) == 0)
             printf("probe %s: u = (%.6g, %.6g, %.6g) m\n", scene->probes[p].name, u[0], u[1], u[2]);
     }
-    printf("wrote %s/probes.csv, %s/stats.csv, %s/final.vtk\n", out, out, out);
+    printf("wrote %s/probes.csv, %s/stats.csv, %s/tools.csv, %s/final.vtk\n", out, out, out, out);
 
 done:
     if (fp && fclose(fp)) {
         fprintf(stderr, "squish run: writing %s failed: %s\n", ppath, strerror(errno));
+        rc = 1;
+    }
+    if (ft && fclose(ft)) {
+        fprintf(stderr, "squish run: writing %s failed: %s\n", tpath, strerror(errno));
         rc = 1;
     }
     if (fs && fclose(fs)) {

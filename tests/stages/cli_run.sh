@@ -33,6 +33,7 @@ rc_b=$?
 check "run exits 0" [ "$rc_a" = 0 -a "$rc_b" = 0 ]
 check "probes.csv byte-identical across runs" cmp -s "$TMP/a/probes.csv" "$TMP/b/probes.csv"
 check "final.vtk byte-identical across runs" cmp -s "$TMP/a/final.vtk" "$TMP/b/final.vtk"
+check "tools.csv byte-identical across runs" cmp -s "$TMP/a/tools.csv" "$TMP/b/tools.csv"
 # stats.csv: only the wall_ms column (4th) may differ
 check "stats.csv identical except wall_ms" \
     cmp -s <(cut -d, -f1-3,5- "$TMP/a/stats.csv") <(cut -d, -f1-3,5- "$TMP/b/stats.csv")
@@ -46,6 +47,11 @@ check "stats.csv header" \
     bash -c "head -n 1 '$TMP/a/stats.csv' | grep -q '^frame,time,node_updates,wall_ms,active_l0,splits,merges,resets,kinetic_energy$'"
 check "stats.csv rows" [ "$(wc -l <"$TMP/a/stats.csv")" = 31 ]
 check "final.vtk is legacy VTK" bash -c "head -n 1 '$TMP/a/final.vtk' | grep -q '^# vtk DataFile Version'"
+# tools.csv: one row per frame (one tool, one body); the sphere presses at t = 0.2 s (frame 10):
+# it constrains nodes and the body pushes it up (fz > 0); released from frame 15 on (inactive)
+check "tools.csv header and rows" bash -c "[ \"\$(head -n 1 '$TMP/a/tools.csv')\" = 'frame,time,tool,body,active,x,y,z,fx,fy,fz,nodes' ] && [ \$(wc -l <'$TMP/a/tools.csv') = 31 ]"
+check "tool feedback while pressing" bash -c "grep '^10,' '$TMP/a/tools.csv' | awk -F, '{ exit !(\$5 == 1 && \$11 > 0 && \$12 > 0) }'"
+check "tool released" bash -c "grep '^16,' '$TMP/a/tools.csv' | awk -F, '{ exit !(\$5 == 0 && \$12 == 0) }'"
 # the corner sags under gravity by frame 30 (uz < 0)
 check "corner sags" bash -c "grep '^30,.*,corner,' '$TMP/a/probes.csv' | cut -d, -f6 | grep -q '^-'"
 # the step bound and substeps are reported at start
