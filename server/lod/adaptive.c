@@ -51,6 +51,18 @@ struct sq_lod {
     int *gf[SQ_MAX_LEVELS], ngf[SQ_MAX_LEVELS]; /* split ghosts */
     int *gc[SQ_MAX_LEVELS], ngc[SQ_MAX_LEVELS]; /* coarse ghosts */
     double *clap[SQ_MAX_LEVELS];         /* criterion Laplacian weights per CSR entry (nnz) */
+    /* coupling: the ring of ghosts next to active nodes, and the reactions handed back */
+    unsigned char *ins[SQ_MAX_LEVELS];   /* 1 if active or in the ring (the set S_k) */
+    int *ring[SQ_MAX_LEVELS], nring[SQ_MAX_LEVELS];
+    int due[SQ_MAX_LEVELS];              /* level steps at the current tick */
+    /* each ring ghost as a combination of active nodes (level, node, weight) */
+    int *fs_start[SQ_MAX_LEVELS];        /* (nring + 1) */
+    int *fs_level[SQ_MAX_LEVELS], *fs_node[SQ_MAX_LEVELS];
+    double *fs_w[SQ_MAX_LEVELS];
+    int fs_cap[SQ_MAX_LEVELS];
+    /* values at the start of each level's last step, for values between its steps */
+    double *dprev[SQ_MAX_LEVELS], *vprev[SQ_MAX_LEVELS];
+    long step_t0[SQ_MAX_LEVELS], step_len[SQ_MAX_LEVELS];
     int *slot[SQ_MAX_LEVELS];            /* hold entry of a node, or -1 */
     unsigned char *fresh[SQ_MAX_LEVELS]; /* split in the current adapt pass (no merge back) */
     hold_entry *he;
@@ -81,6 +93,21 @@ static void rebuild_level(sq_lod *lod, int k)
     lod->nactive[k] = na;
     lod->ngf[k] = nf;
     lod->ngc[k] = nc;
+    /* the ring: ghosts with an active neighbour */
+    const sq_level *Lk = &lod->lv[k];
+    int nr = 0;
+    for (int i = 0; i < n; i++) {
+        lod->ins[k][i] = lod->active[k][i];
+        if (lod->active[k][i] || na == 0)
+            continue;
+        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
+            if (lod->active[k][Lk->col[q]]) {
+                lod->ins[k][i] = 1;
+                lod->ring[k][nr++] = i;
+                break;
+            }
+    }
+    lod->nring[k] = nr;
     /* held nodes are prescribed, not integrated */
     int nm = na;
     for (int e = 0; e < lod->nhe; e++)
@@ -153,12 +180,33 @@ static void push_level(sq_lod *lod, int k)
     }
 }
 
-void sq_lod_sync(sq_lod *lod)
+static void build_sources(sq_lod *lod);
+static void eval_ring(sq_lod *lod, int k, long t);
+
+/* every ghost value from the active nodes: split ghosts pulled fine to coarse, coarse ghosts
+ * pushed coarse to fine (the rendered finest level included), then the ring ghosts as their
+ * exact combinations of active nodes */
+static void cascade(sq_lod *lod)
 {
     for (int k = lod->L - 2; k >= 0; k--)
         pull_level(lod, k);
     for (int k = 1; k < lod->L; k++)
         push_level(lod, k);
+    for (int k = 0; k < lod->L; k++)
+        eval_ring(lod, k, lod->step_t0[k] + lod->step_len[k]);
+}
+
+void sq_lod_sync(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        lod->step_t0[k] = -1;
+        lod->step_len[k] = 1;
+        size_t n3 = 3 * (size_t)lod->lv[k].n;
+        memcpy(lod->dprev[k], lod->lv[k].d, n3 * sizeof(double));
+        memcpy(lod->vprev[k], lod->lv[k].v, n3 * sizeof(double));
+    }
+    build_sources(lod);
+    cascade(lod);
 }
 
 /* ---------------------------------------------------------------- criterion operator */
@@ -323,6 +371,11 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->gc[k] = sq_malloc(sizeof(int) * n);
         lod->slot[k] = sq_malloc(sizeof(int) * n);
         lod->clap[k] = criterion_weights(levels[k].mesh);
+        lod->ins[k] = sq_calloc(n, 1);
+        lod->ring[k] = sq_malloc(sizeof(int) * n);
+        lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
+        lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
+        lod->fs_start[k] = sq_calloc(n + 1, sizeof(int));
         for (size_t i = 0; i < n; i++)
             lod->slot[k][i] = -1;
     }
@@ -344,6 +397,14 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->gc[k]);
         free(lod->slot[k]);
         free(lod->clap[k]);
+        free(lod->ins[k]);
+        free(lod->ring[k]);
+        free(lod->dprev[k]);
+        free(lod->vprev[k]);
+        free(lod->fs_start[k]);
+        free(lod->fs_level[k]);
+        free(lod->fs_node[k]);
+        free(lod->fs_w[k]);
     }
     free(lod->he);
     free(lod->hold_entry_of);
@@ -447,6 +508,8 @@ static void merge_node(sq_lod *lod, int k, int p)
     interp_node(&lod->lv[k], p, &lod->lv[k + 1], ln->down_tet[p], ln->down_bary + 4 * p);
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
         lod->state[k + 1][ln->child[c]] = ST_COARSE;
+    memcpy(lod->dprev[k] + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
+    memcpy(lod->vprev[k] + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
     /* children become coarse ghosts and take their parent-tet value at once */
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
         int j = ln->child[c];
@@ -480,11 +543,16 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
                 out->refused = 1;
                 continue;
             }
-            /* children were coarse ghosts holding their interpolated d and v: they start there */
+            /* children start from their interpolated d and v (parent tet, values now) */
             lod->state[k][i] = ST_SPLIT;
             lod->fresh[k][i] = 1;
-            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
-                lod->state[k + 1][ln->child[c]] = ST_ACTIVE;
+            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
+                int j = ln->child[c];
+                lod->state[k + 1][j] = ST_ACTIVE;
+                interp_node(Lf, j, Lk, ln->up_tet[j], ln->up_bary + 4 * j);
+                memcpy(lod->dprev[k + 1] + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
+                memcpy(lod->vprev[k + 1] + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
+            }
             *projected += extra;
             out->splits++;
             changed = 1;
@@ -626,6 +694,8 @@ static void start_holds(sq_lod *lod, double T)
             double goal = E->gsum[c] / E->count;
             Lk->d[3 * E->node + c] = goal;
             Lk->v[3 * E->node + c] = span > 0 ? (goal - E->from[c]) / span : 0.0;
+            lod->dprev[E->level][3 * E->node + c] = Lk->d[3 * E->node + c];
+            lod->vprev[E->level][3 * E->node + c] = Lk->v[3 * E->node + c];
         }
     }
 }
@@ -659,14 +729,220 @@ static void clear_holds(sq_lod *lod)
     lod->nhe = 0;
 }
 
-/* elastic force -sum_j K_ij d_j on node i of a level */
-static void elastic_force(const sq_level *L, int i, double f[3])
+/* ---------------------------------------------------------------- coupling
+ *
+ * The paper couples levels through ghost values only: an active node feels its ghost
+ * neighbours, and nothing feels the reaction. That operator is not symmetric: measured on
+ * an undamped cube with half of it refined, the energy of the paper's scheme grows (x60 in
+ * 4 s), and with a little damping a released poke never comes back to rest, so regions never
+ * merge. Here the simulated system is the gradient of one energy,
+ *     E = sum_k 1/2 x_k^T K_k[S_k, S_k] x_k,   S_k = active nodes of level k and their ghost ring,
+ * where each ring ghost is a fixed linear combination of active nodes: its interpolation in
+ * the next coarser (coarse ghost) or finer (split ghost) mesh, expanded through ghost sources
+ * up to SOURCE_DEPTH hops, sources that are still ghosts dropped and the weights renormalised
+ * to sum 1 (so a translation stays force-free). Ghost values are evaluated from those active
+ * nodes, and the force -(K x)_j on a ring ghost (restricted to S_k) is handed back to the
+ * same active nodes with the same weights: the transpose of the interpolation. Active rows
+ * are full rows, so a uniform state (every region at one level) is exactly the fixed-level
+ * operator. Levels step at their own rates: a finer level reads coarser sources linearly in
+ * time over the coarser step; forces handed to a finer level are held for the giving level's
+ * step; forces handed to a coarser level are sampled at that level's own step. */
+
+#define SOURCE_DEPTH 3
+
+typedef struct src_item {
+    int level, node;
+    double w;
+} src_item;
+
+static int cmp_src(const void *pa, const void *pb)
 {
-    f[0] = f[1] = f[2] = 0;
-    for (int s = L->row_start[i]; s < L->row_start[i + 1]; s++) {
-        const double *K = L->K + 9 * s, *dj = L->d + 3 * L->col[s];
+    const src_item *a = pa, *b = pb;
+    if (a->level != b->level)
+        return a->level < b->level ? -1 : 1;
+    return (a->node > b->node) - (a->node < b->node);
+}
+
+/* expand ghost j of level `lev` (weight w) into active sources */
+static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_item **buf, int *n,
+                   int *cap)
+{
+    unsigned char st = lod->state[lev][j];
+    if (st == ST_ACTIVE) {
+        if (*n == *cap) {
+            *cap = *cap ? 2 * *cap : 256;
+            *buf = sq_realloc(*buf, sizeof(src_item) * (size_t)*cap);
+        }
+        (*buf)[(*n)++] = (src_item){lev, j, w};
+        return;
+    }
+    if (depth >= SOURCE_DEPTH)
+        return;
+    int m, t;
+    const double *b;
+    if (st == ST_COARSE) {
+        if (lev == 0)
+            return;
+        m = lev - 1;
+        t = lod->h.link[m].up_tet[j];
+        b = lod->h.link[m].up_bary + 4 * j;
+    } else {
+        if (lev + 1 >= lod->L)
+            return;
+        m = lev + 1;
+        t = lod->h.link[lev].down_tet[j];
+        b = lod->h.link[lev].down_bary + 4 * j;
+    }
+    const int *tn = lod->lv[m].mesh->tets + 4 * t;
+    for (int q = 0; q < 4; q++)
+        if (b[q] != 0)
+            expand(lod, m, tn[q], w * b[q], depth + 1, buf, n, cap);
+}
+
+/* the active sources of every ring ghost of every level */
+static void build_sources(sq_lod *lod)
+{
+    src_item *buf = NULL;
+    int cap = 0;
+    for (int k = 0; k < lod->L; k++) {
+        int total = 0;
+        lod->fs_start[k][0] = 0;
+        for (int r = 0; r < lod->nring[k]; r++) {
+            int n = 0;
+            expand(lod, k, lod->ring[k][r], 1.0, 0, &buf, &n, &cap);
+            qsort(buf, (size_t)n, sizeof(src_item), cmp_src);
+            /* merge duplicates, renormalise */
+            int u = 0;
+            double sum = 0;
+            for (int i = 0; i < n; i++) {
+                if (u > 0 && buf[u - 1].level == buf[i].level && buf[u - 1].node == buf[i].node)
+                    buf[u - 1].w += buf[i].w;
+                else
+                    buf[u++] = buf[i];
+                sum += buf[i].w;
+            }
+            if (!(fabs(sum) > 1e-3))
+                u = 0; /* no active source: the ghost keeps its value and takes no force */
+            if (total + u > lod->fs_cap[k]) {
+                lod->fs_cap[k] = SQ_MAX(2 * lod->fs_cap[k], total + u + 1024);
+                lod->fs_level[k] = sq_realloc(lod->fs_level[k], sizeof(int) * (size_t)lod->fs_cap[k]);
+                lod->fs_node[k] = sq_realloc(lod->fs_node[k], sizeof(int) * (size_t)lod->fs_cap[k]);
+                lod->fs_w[k] = sq_realloc(lod->fs_w[k], sizeof(double) * (size_t)lod->fs_cap[k]);
+            }
+            for (int i = 0; i < u; i++) {
+                lod->fs_level[k][total + i] = buf[i].level;
+                lod->fs_node[k][total + i] = buf[i].node;
+                lod->fs_w[k][total + i] = buf[i].w / sum;
+            }
+            total += u;
+            lod->fs_start[k][r + 1] = total;
+        }
+    }
+    free(buf);
+}
+
+/* the ring ghosts of level k at tick t: sources of a level between two of its steps are
+ * taken linearly in time over that step */
+static void eval_ring(sq_lod *lod, int k, long t)
+{
+    sq_level *Lk = &lod->lv[k];
+    double fr[SQ_MAX_LEVELS];
+    for (int m = 0; m < lod->L; m++) {
+        double f = (double)(t - lod->step_t0[m]) / (double)lod->step_len[m];
+        fr[m] = f < 0 ? 0 : (f > 1 ? 1 : f);
+    }
+    for (int r = 0; r < lod->nring[k]; r++) {
+        int j = lod->ring[k][r];
+        int a = lod->fs_start[k][r], b = lod->fs_start[k][r + 1];
+        if (a == b)
+            continue;
+        double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+        for (int q = a; q < b; q++) {
+            int m = lod->fs_level[k][q], s = lod->fs_node[k][q];
+            double w = lod->fs_w[k][q], f = fr[m];
+            const double *d1 = lod->lv[m].d + 3 * s, *v1 = lod->lv[m].v + 3 * s;
+            const double *d0 = lod->dprev[m] + 3 * s, *v0 = lod->vprev[m] + 3 * s;
+            for (int c = 0; c < 3; c++) {
+                d[c] += w * (d0[c] + f * (d1[c] - d0[c]));
+                v[c] += w * (v0[c] + f * (v1[c] - v0[c]));
+            }
+        }
+        unsigned char fx = Lk->fixed[j];
+        for (int c = 0; c < 3; c++) {
+            int free_axis = !(fx & (1u << c));
+            Lk->d[3 * j + c] = free_axis ? d[c] : 0.0;
+            Lk->v[3 * j + c] = free_axis ? v[c] : 0.0;
+        }
+    }
+}
+
+/* force on ring ghost j of level k restricted to S_k, -(K w)_j - (D v)_j, with the active
+ * nodes of level k taken at fraction fr of its current step (1 = their current values) */
+static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int j, double fr, double g[3])
+{
+    const sq_level *L = &lod->lv[k];
+    const unsigned char *in = lod->ins[k], *act = lod->active[k];
+    double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
+    g[0] = g[1] = g[2] = 0;
+    for (int q = L->row_start[j]; q < L->row_start[j + 1]; q++) {
+        int l = L->col[q];
+        if (!in[l])
+            continue;
+        double dl[3], vl[3];
+        for (int c = 0; c < 3; c++) {
+            dl[c] = L->d[3 * l + c];
+            vl[c] = L->v[3 * l + c];
+            if (fr < 1 && act[l]) {
+                double d0 = lod->dprev[k][3 * l + c], v0 = lod->vprev[k][3 * l + c];
+                dl[c] = d0 + fr * (dl[c] - d0);
+                vl[c] = v0 + fr * (vl[c] - v0);
+            }
+        }
+        const double *K = L->K + 9 * q;
+        double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
         for (int r = 0; r < 3; r++)
-            f[r] -= K[3 * r] * dj[0] + K[3 * r + 1] * dj[1] + K[3 * r + 2] * dj[2];
+            g[r] -= K[3 * r] * w[0] + K[3 * r + 1] * w[1] + K[3 * r + 2] * w[2];
+        if (L->D && mat->use_viscosity) {
+            const double *D = L->D + 9 * q;
+            for (int r = 0; r < 3; r++)
+                g[r] -= D[3 * r] * vl[0] + D[3 * r + 1] * vl[1] + D[3 * r + 2] * vl[2];
+        }
+    }
+}
+
+/* the ring reactions of level k at tick t go back to their active sources, into the force of
+ * the levels that step at this tick. A level between two of its steps (a coarser one) still
+ * hands its reactions to the finer levels stepping now, from its values at this tick: those
+ * reactions depend on the finer nodes themselves, so they must follow them step by step.
+ * Reactions for a coarser level are sampled at its own steps. */
+static void couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
+{
+    const sq_level *Lk = &lod->lv[k];
+    double fr = (double)(t - lod->step_t0[k]) / (double)lod->step_len[k];
+    fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
+    for (int r = 0; r < lod->nring[k]; r++) {
+        int j = lod->ring[k][r];
+        int a = lod->fs_start[k][r], b = lod->fs_start[k][r + 1];
+        int any = 0;
+        for (int q = a; q < b && !any; q++)
+            any = lod->due[lod->fs_level[k][q]];
+        if (!any)
+            continue;
+        double g[3];
+        ring_force(lod, mat, k, j, fr, g);
+        unsigned char fx = Lk->fixed[j];
+        for (int c = 0; c < 3; c++)
+            if (fx & (1u << c))
+                g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
+        for (int q = a; q < b; q++) {
+            int m = lod->fs_level[k][q];
+            if (!lod->due[m])
+                continue;
+            double w = lod->fs_w[k][q], *dst = lod->lv[m].f + 3 * lod->fs_node[k][q];
+            dst[0] += w * g[0];
+            dst[1] += w * g[1];
+            dst[2] += w * g[2];
+        }
     }
 }
 
@@ -719,53 +995,69 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
     start_holds(lod, frame_dt);
 
+    for (int k = 0; k < L; k++) {
+        lod->step_t0[k] = -stride[k]; /* the previous frame's last step ended at tick 0 */
+        lod->step_len[k] = stride[k];
+    }
     for (long t = 0; t < nticks; t++) {
-        /* (2)+(3): integrate each due level coarse to fine, push to the finer ghosts */
+        /* (1) ghost values of every due level at this tick (ring ghosts from the active
+         * nodes, finest simulated level included) */
+        double t0 = sq_now();
         for (int k = 0; k < L; k++) {
-            if (t % stride[k])
-                continue;
-            double t0 = sq_now();
-            sq_level *Lk = &lod->lv[k];
-            if (lod->nactive[k] > 0) {
-                /* forces on every active node (held ones for their feedback), then integrate
-                 * the free ones */
-                sq_level_forces(Lk, mat, gravity, lod->nactive[k] == Lk->n ? NULL : lod->active[k]);
-                for (int e = 0; e < lod->nhe; e++) {
-                    hold_entry *E = &lod->he[e];
-                    if (E->level != k || E->count == 0)
-                        continue;
-                    int i = E->node;
-                    for (int c = 0; c < 3; c++)
-                        E->fsum[c] += Lk->f[3 * i + c] - Lk->mass[i] * gravity[c];
-                    E->nf++;
-                }
-                if (lod->nmask[k] > 0)
-                    sq_level_integrate(Lk, Lk->dt, lod->nmask[k] == Lk->n ? NULL : lod->mask[k]);
-                updates += lod->nmask[k];
-            }
-            double t1 = sq_now();
-            t_int += t1 - t0;
-            /* push to k+1, and on through finer levels not due at this tick */
-            for (int j = k + 1; j < L; j++) {
-                push_level(lod, j);
-                if (t % stride[j] == 0)
-                    break;
-            }
-            t_push += sq_now() - t1;
+            lod->due[k] = t % stride[k] == 0;
+            if (lod->due[k] && lod->nactive[k] > 0)
+                eval_ring(lod, k, t);
         }
-        /* (1) of the next steps: pull split ghosts of the levels due next, fine to coarse */
+        double t1 = sq_now();
+        t_pull += t1 - t0;
+        /* (2) forces of every due level from the state at this tick, the coupling reactions
+         * between levels, then integration of the free active nodes */
+        for (int k = 0; k < L; k++)
+            if (lod->due[k] && lod->nactive[k] > 0)
+                sq_level_forces(&lod->lv[k], mat, gravity,
+                                lod->nactive[k] == lod->lv[k].n ? NULL : lod->active[k]);
+        for (int k = 0; k < L; k++)
+            if (lod->nactive[k] > 0 && lod->nring[k] > 0) {
+                if (!lod->due[k])
+                    eval_ring(lod, k, t);
+                couple_out(lod, mat, k, t);
+            }
+        for (int k = 0; k < L; k++) {
+            if (!lod->due[k])
+                continue;
+            sq_level *Lk = &lod->lv[k];
+            lod->step_t0[k] = t;
+            if (lod->nactive[k] == 0)
+                continue;
+            /* feedback of the held nodes */
+            for (int e = 0; e < lod->nhe; e++) {
+                hold_entry *E = &lod->he[e];
+                if (E->level != k || E->count == 0)
+                    continue;
+                int i = E->node;
+                for (int c = 0; c < 3; c++)
+                    E->fsum[c] += Lk->f[3 * i + c] - Lk->mass[i] * gravity[c];
+                E->nf++;
+            }
+            /* finer levels read this level between its steps */
+            if (k + 1 < L) {
+                memcpy(lod->dprev[k], Lk->d, sizeof(double) * 3 * (size_t)Lk->n);
+                memcpy(lod->vprev[k], Lk->v, sizeof(double) * 3 * (size_t)Lk->n);
+            }
+            if (lod->nmask[k] > 0)
+                sq_level_integrate(Lk, Lk->dt, lod->nmask[k] == Lk->n ? NULL : lod->mask[k]);
+            updates += lod->nmask[k];
+        }
         double t2 = sq_now();
+        t_int += t2 - t1;
+        /* (4) split/merge between levels at the same time, on fresh ring values */
         long next = t + 1;
-        for (int k = L - 2; k >= 0; k--)
-            if (next % stride[k] == 0 || next == nticks)
-                pull_level(lod, k);
-        double t3 = sq_now();
-        t_pull += t3 - t2;
-        /* (4) split/merge between levels at the same time */
         int any = 0;
         for (int k = 0; k + 1 < L; k++) {
-            if (next % stride[k] || next % stride[k + 1])
+            if (next % stride[k] || next % stride[k + 1] || k >= lod->top)
                 continue;
+            eval_ring(lod, k, next);
+            eval_ring(lod, k + 1, next);
             adapt_pair(lod, k, !over_budget, &projected, &ao);
         }
         if (next == nticks)
@@ -776,13 +1068,21 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                 ao.changed[k] = 0;
                 any = 1;
             }
-        /* holds whose node was split or merged move to the node now active there */
-        if (any && nholds > 0) {
-            remap_holds(lod, holds, nholds, (double)next * dtf);
-            start_holds(lod, frame_dt);
+        if (any) {
+            build_sources(lod);
+            /* holds whose node was split or merged move to the node now active there */
+            if (nholds > 0) {
+                remap_holds(lod, holds, nholds, (double)next * dtf);
+                start_holds(lod, frame_dt);
+            }
         }
-        t_adapt += sq_now() - t3;
+        t_adapt += sq_now() - t2;
     }
+    /* (3) every ghost from the active nodes at the end of the frame: the rendered finest
+     * level, probes and the next frame start from consistent values */
+    double t3 = sq_now();
+    cascade(lod);
+    t_push += sq_now() - t3;
 
     /* feedback: mean internal force on the held nodes, shared among the holds mapped there */
     for (int h = 0; h < nholds; h++) {
@@ -863,13 +1163,22 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
     double ek = 0, ee = 0;
     for (int k = 0; k < lod->L; k++) {
         const sq_level *Lk = &lod->lv[k];
+        /* 1/2 x^T K[S,S] x over S_k = active nodes and their ghost ring */
         for (int i = 0; i < Lk->n; i++) {
-            if (lod->state[k][i] != ST_ACTIVE)
+            if (!lod->ins[k][i])
                 continue;
             const double *v = Lk->v + 3 * i, *d = Lk->d + 3 * i;
-            ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-            double f[3];
-            elastic_force(Lk, i, f);
+            if (lod->state[k][i] == ST_ACTIVE)
+                ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            double f[3] = {0, 0, 0};
+            for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
+                int l = Lk->col[q];
+                if (!lod->ins[k][l])
+                    continue;
+                const double *K = Lk->K + 9 * q, *dl = Lk->d + 3 * l;
+                for (int r = 0; r < 3; r++)
+                    f[r] -= K[3 * r] * dl[0] + K[3 * r + 1] * dl[1] + K[3 * r + 2] * dl[2];
+            }
             ee -= 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
         }
     }
