@@ -91,12 +91,12 @@ static void look_at(const double eye[3], const double target[3], const double up
 /* lights are fixed in eye space: a key light from the upper left, a weak fill from the right */
 static void setup_lights(void)
 {
-    static const GLfloat ambient[4] = {0.24f, 0.24f, 0.24f, 1.0f};
-    static const GLfloat key_pos[4] = {-0.35f, 0.65f, 0.67f, 0.0f};
-    static const GLfloat key_diffuse[4] = {0.72f, 0.72f, 0.72f, 1.0f};
+    static const GLfloat ambient[4] = {0.30f, 0.30f, 0.30f, 1.0f};
+    static const GLfloat key_pos[4] = {-0.30f, 0.50f, 0.81f, 0.0f};
+    static const GLfloat key_diffuse[4] = {0.68f, 0.68f, 0.68f, 1.0f};
     static const GLfloat key_specular[4] = {0.25f, 0.25f, 0.25f, 1.0f};
-    static const GLfloat fill_pos[4] = {0.6f, -0.1f, 0.4f, 0.0f};
-    static const GLfloat fill_diffuse[4] = {0.22f, 0.22f, 0.24f, 1.0f};
+    static const GLfloat fill_pos[4] = {0.75f, -0.05f, 0.45f, 0.0f};
+    static const GLfloat fill_diffuse[4] = {0.30f, 0.30f, 0.32f, 1.0f};
     static const GLfloat black[4] = {0.0f, 0.0f, 0.0f, 1.0f};
     static const GLfloat mat_specular[4] = {0.18f, 0.18f, 0.18f, 1.0f};
 

@@ -73,10 +73,11 @@ int sq_png_encode(const unsigned char *rgb, int width, int height, unsigned char
     png_set_write_fn(p, out, write_cb, flush_cb);
     png_set_IHDR(p, info, (png_uint_32)width, (png_uint_32)height, 8, PNG_COLOR_TYPE_RGB,
                  PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-    /* fast settings: rendered images are mostly flat colour, so SUB/UP filters at level 3
-     * compress nearly as well as the defaults at a fraction of the time */
+    /* fast settings: rendered images are mostly flat colour; measured on an 800x600 render,
+     * no filter at level 3 takes ~1/3 of the time of libpng's defaults (level 6, adaptive
+     * filters) for files ~40% larger (87 kB instead of 62 kB) */
     png_set_compression_level(p, 3);
-    png_set_filter(p, PNG_FILTER_TYPE_BASE, PNG_FILTER_SUB | PNG_FILTER_UP);
+    png_set_filter(p, PNG_FILTER_TYPE_BASE, PNG_FILTER_NONE);
     rows = sq_malloc((size_t)height * sizeof *rows);
     for (int y = 0; y < height; y++)
         rows[y] = (png_bytep)(rgb + (size_t)y * width * 3);

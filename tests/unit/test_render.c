@@ -311,8 +311,9 @@ SQ_TEST(render_png_roundtrip)
 }
 
 #if !defined(__SANITIZE_ADDRESS__)
-/* pixels whose colour is a lit version of c: pixel ~ k c for one k in [0.25, 1.4]
- * (white lights scale the base colour; +-14 per channel absorbs rounding and specular) */
+/* pixels whose colour is a lit version of c: pixel ~ k c for one k in [0.25, 1.4], within
+ * max(4, 14 k) per channel (white lights scale the base colour; the tolerance absorbs rounding
+ * and specular, and shrinks with k so that dark greys do not match every hue) */
 static int count_lit(const unsigned char *rgb, int n, const unsigned char c[3])
 {
     int count = 0;
@@ -323,7 +324,7 @@ static int count_lit(const unsigned char *rgb, int n, const unsigned char c[3])
             continue;
         int ok = 1;
         for (int j = 0; j < 3; j++)
-            ok &= fabs(p[j] - k * c[j]) <= 14.0;
+            ok &= fabs(p[j] - k * c[j]) <= fmax(4.0, 14.0 * k);
         count += ok;
     }
     return count;

@@ -120,7 +120,7 @@ static int count_lit(const unsigned char *rgb, int n, const unsigned char c[3])
             continue;
         int ok = 1;
         for (int j = 0; j < 3; j++)
-            ok &= fabs(p[j] - k * c[j]) <= 14.0;
+            ok &= fabs(p[j] - k * c[j]) <= fmax(4.0, 14.0 * k);
         count += ok;
     }
     return count;
