@@ -64,6 +64,12 @@ sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *lab
 sq_scene *sq_scene_default(sq_err *err);
 void sq_scene_free(sq_scene *s);
 
+/* what only the engine can check (every node fixed, a step bound needing more than 2^20
+ * substeps, an adaptive hierarchy that cannot be built): creates each body once and frees
+ * it; 0, or -1 + err prefixed "<scene path>: bodies[i] ("name")". Costs one operator
+ * precomputation per body; sq_world_create reports the same errors. */
+int sq_scene_check(const sq_scene *s, sq_err *err);
+
 /* pose of a scripted tool at simulated time t: position interpolated linearly between the
  * keyframes around t (held before the first and after the last); active taken from the last
  * keyframe at or before t (inactive before the first keyframe) */

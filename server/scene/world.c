@@ -39,6 +39,18 @@ static void restore_tools(sq_world *w)
     memset(w->feedback, 0, sizeof w->feedback);
 }
 
+int sq_scene_check(const sq_scene *s, sq_err *err)
+{
+    for (int b = 0; b < s->nbodies; b++) {
+        sq_err e = {{0}};
+        sq_body *body = sq_body_create(&s->bodies[b], &e);
+        if (!body)
+            return sq_err_set(err, "%s: bodies[%d] (\"%s\"): %s", s->path, b, s->body_names[b], e.msg);
+        sq_body_destroy(body);
+    }
+    return 0;
+}
+
 sq_world *sq_world_create(const sq_scene *scene, sq_err *err)
 {
     if (!scene) {

@@ -544,6 +544,20 @@ SQ_TEST(world_create_reports_body_errors_with_scene_path)
     CHECK(w == NULL);
     CHECK_CONTAINS(e.msg, "t.json: bodies[0] (\"cube\")");
     sq_world_destroy(w);
+    memset(&e, 0, sizeof e);
+    CHECK(sq_scene_check(s, &e) == -1);
+    CHECK_CONTAINS(e.msg, "t.json: bodies[0] (\"cube\")");
+    sq_scene_free(s);
+
+    /* nearly incompressible: lambda overflows the material check, named by path */
+    s = parse(SCENE("{\"levels\": [\"a.msh\"], \"material\": {\"E\": 1e308, \"nu\": 0.49}}"), &e);
+    CHECK(s == NULL);
+    CHECK_CONTAINS(e.msg, "t.json: bodies[0].material");
+    sq_scene_free(s);
+
+    /* a valid scene passes the engine check */
+    s = parse(SCENE(BODY), &e);
+    CHECK(s && sq_scene_check(s, &e) == 0);
     sq_scene_free(s);
 }
 
