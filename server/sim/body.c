@@ -547,14 +547,13 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     int nsub = 1 << L->substeps_log2;
     double inv = 1.0 / nsub;
     for (int s = 0; s < nsub; s++) {
-        sq_level_forces(L, mat, g, NULL);
+        sq_level_step(L, mat, g, L->dt, nk ? mask : NULL); /* L->f: forces before the update */
         for (int h = 0; h < nk; h++) {
             int i = b->khold[h].node, t = b->khold[h].tool;
             if (force && t >= 0 && t < ntools)
                 for (int c = 0; c < 3; c++)
                     force[t][c] += inv * (L->f[3 * i + c] - L->mass[i] * g[c]);
         }
-        sq_level_integrate(L, L->dt, nk ? mask : NULL);
     }
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;

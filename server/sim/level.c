@@ -142,6 +142,7 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     L->v = sq_calloc(n3, sizeof(double));
     L->f = sq_calloc(n3, sizeof(double));
     L->w = sq_calloc(n3, sizeof(double));
+    L->acc = sq_calloc(n3, sizeof(double));
 
     /* fixed axes: a tolerance of 1e-9 of the bounding-box diagonal absorbs rounding */
     double diag = 0;
@@ -195,6 +196,7 @@ void sq_level_free(sq_level *L)
     free(L->v);
     free(L->f);
     free(L->w);
+    free(L->acc);
     free(L->up_start);
     free(L->up_col);
     free(L->Kup);
@@ -279,38 +281,115 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
     return 0;
 }
 
-/* the hot loop: f_i = -sum_j K_ij w_j + m_i (g - a v_i) for all nodes, from the upper half.
+/* the hot loop: f_i = -sum_j K_ij w_j + m_i (g - a v_i), w = d + b v, for all nodes, from the
+ * upper half of K, optionally fused with the symplectic Euler update (dt > 0).
  * With K_ii = -sum_{j != i} K_ij: f_i = sum_{j != i} K_ij (w_i - w_j), and each edge block
- * serves both ends (K_ji = K_ij^T). When row i is done, every contribution to f_i (from rows
- * k < i and from row i) is in, so the gravity and mass-damping terms are added right there.
- * A translation gives exactly zero force (differences are exactly zero). */
-static void forces_all(int n, const int *restrict us, const int *restrict uc, const double *restrict A,
-                       const double *restrict w, const double *restrict v, const double *restrict mass,
-                       double a, const double g[3], double *restrict f)
+ * serves both ends (K_ji = K_ij^T): row i adds its part to f_i and scatters -K_ij^T (w_i - w_j)
+ * into the accumulator of every j > i. When row i ends, every contribution to f_i is in (rows
+ * k < i scattered theirs before), and no later row reads node i again (row k reads only
+ * nodes >= k), so node i can be integrated right there: one pass over memory per step.
+ * The accumulator is cleared as it is consumed, so it is all zeros between calls.
+ * A translation gives exactly zero force (the differences are exactly zero). */
+static inline __attribute__((always_inline)) void
+forces_pass(sq_level *L, const int damp, const double b, const double a, const double g[3], const double dt,
+            const unsigned char *restrict mask)
 {
+    const int n = L->n;
+    const int *restrict us = L->up_start;
+    const int *restrict uc = L->up_col;
+    const double *restrict A = L->Kup;
+    const double *restrict mass = L->mass;
+    const unsigned char *restrict fixed = L->fixed;
+    double *restrict d = L->d;
+    double *restrict v = L->v;
+    double *restrict f = L->f;
+    double *restrict acc = L->acc;
     const double g0 = g[0], g1 = g[1], g2 = g[2];
-    memset(f, 0, sizeof(double) * 3 * (size_t)n);
     for (int i = 0; i < n; i++) {
-        const double wi0 = w[3 * i], wi1 = w[3 * i + 1], wi2 = w[3 * i + 2];
-        double f0 = f[3 * i], f1 = f[3 * i + 1], f2 = f[3 * i + 2];
+        double wi0 = d[3 * i], wi1 = d[3 * i + 1], wi2 = d[3 * i + 2];
+        if (damp) {
+            wi0 += b * v[3 * i];
+            wi1 += b * v[3 * i + 1];
+            wi2 += b * v[3 * i + 2];
+        }
+        double f0 = acc[3 * i], f1 = acc[3 * i + 1], f2 = acc[3 * i + 2];
+        acc[3 * i] = acc[3 * i + 1] = acc[3 * i + 2] = 0;
         for (int e = us[i]; e < us[i + 1]; e++) {
             const double *restrict B = A + 9 * (size_t)e;
-            double *restrict fj = f + 3 * (size_t)uc[e];
-            const double *restrict wj = w + 3 * (size_t)uc[e];
-            const double d0 = wi0 - wj[0], d1 = wi1 - wj[1], d2 = wi2 - wj[2];
+            const size_t j = 3 * (size_t)uc[e];
+            double d0 = wi0 - d[j], d1 = wi1 - d[j + 1], d2 = wi2 - d[j + 2];
+            if (damp) {
+                d0 -= b * v[j];
+                d1 -= b * v[j + 1];
+                d2 -= b * v[j + 2];
+            }
             /* explicit fma: -std=c11 turns off contraction of a * b + c */
             f0 += fma(B[0], d0, fma(B[1], d1, B[2] * d2));
             f1 += fma(B[3], d0, fma(B[4], d1, B[5] * d2));
             f2 += fma(B[6], d0, fma(B[7], d1, B[8] * d2));
-            fj[0] -= fma(B[0], d0, fma(B[3], d1, B[6] * d2));
-            fj[1] -= fma(B[1], d0, fma(B[4], d1, B[7] * d2));
-            fj[2] -= fma(B[2], d0, fma(B[5], d1, B[8] * d2));
+            acc[j] -= fma(B[0], d0, fma(B[3], d1, B[6] * d2));
+            acc[j + 1] -= fma(B[1], d0, fma(B[4], d1, B[7] * d2));
+            acc[j + 2] -= fma(B[2], d0, fma(B[5], d1, B[8] * d2));
         }
         const double m = mass[i];
-        f[3 * i] = f0 + m * (g0 - a * v[3 * i]);
-        f[3 * i + 1] = f1 + m * (g1 - a * v[3 * i + 1]);
-        f[3 * i + 2] = f2 + m * (g2 - a * v[3 * i + 2]);
+        f0 += m * (g0 - a * v[3 * i]);
+        f1 += m * (g1 - a * v[3 * i + 1]);
+        f2 += m * (g2 - a * v[3 * i + 2]);
+        f[3 * i] = f0;
+        f[3 * i + 1] = f1;
+        f[3 * i + 2] = f2;
+        if (dt > 0 && (!mask || mask[i])) {
+            const double h = dt / m;
+            double v0 = v[3 * i] + h * f0, v1 = v[3 * i + 1] + h * f1, v2 = v[3 * i + 2] + h * f2;
+            const unsigned fx = fixed[i];
+            if (fx) {
+                if (fx & 1u)
+                    v0 = 0;
+                if (fx & 2u)
+                    v1 = 0;
+                if (fx & 4u)
+                    v2 = 0;
+            }
+            v[3 * i] = v0;
+            v[3 * i + 1] = v1;
+            v[3 * i + 2] = v2;
+            d[3 * i] += dt * v0;
+            d[3 * i + 1] += dt * v1;
+            d[3 * i + 2] += dt * v2;
+        }
     }
+}
+
+/* the two specialisations (with and without stiffness damping) */
+static void forces_pass_damped(sq_level *L, double b, double a, const double g[3], double dt,
+                               const unsigned char *mask)
+{
+    forces_pass(L, 1, b, a, g, dt, mask);
+}
+
+static void forces_pass_plain(sq_level *L, double a, const double g[3], double dt, const unsigned char *mask)
+{
+    forces_pass(L, 0, 0, a, g, dt, mask);
+}
+
+static void forces_all(sq_level *L, double b, double a, const double g[3], double dt, const unsigned char *mask)
+{
+    if (b != 0)
+        forces_pass_damped(L, b, a, g, dt, mask);
+    else
+        forces_pass_plain(L, a, g, dt, mask);
+}
+
+void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+                   const unsigned char *mask)
+{
+    if (mat->use_viscosity && L->D) {
+        /* the viscosity blocks are applied row by row: two passes */
+        sq_level_forces(L, mat, gravity, NULL);
+        sq_level_integrate(L, dt, mask);
+        return;
+    }
+    forces_all(L, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt, mask);
 }
 
 /* f_i -= sum_j A_ij w_j for one row */
@@ -342,20 +421,19 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
     double *restrict w = L->w;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
-    /* argument of the stiffness blocks: d + b v, once per step (all nodes: neighbours read it) */
+    if (!active) {
+        forces_all(L, b, a, gravity, 0, NULL);
+        if (L->D && mat->use_viscosity)
+            for (int i = 0; i < n; i++)
+                block_row(L, L->D, v, i, f + 3 * (size_t)i);
+        return;
+    }
+    /* masked: argument of the stiffness blocks d + b v, once per call (neighbours read it) */
     const double *arg = d;
     if (b != 0) {
         for (size_t k = 0; k < 3 * (size_t)n; k++)
             w[k] = d[k] + b * v[k];
         arg = w;
-    }
-
-    if (!active) {
-        forces_all(n, L->up_start, L->up_col, L->Kup, arg, v, mass, a, gravity, f);
-        if (L->D && mat->use_viscosity)
-            for (int i = 0; i < n; i++)
-                block_row(L, L->D, v, i, f + 3 * (size_t)i);
-        return;
     }
     for (int i = 0; i < n; i++) {
         if (!active[i])

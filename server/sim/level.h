@@ -30,7 +30,8 @@ typedef struct sq_level {
     double *d;             /* displacement (n x 3), m */
     double *v;             /* velocity (n x 3), m/s */
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
-    double *w;             /* scratch: d + b v of the last force pass (n x 3), m */
+    double *w;             /* scratch: d + b v of the last masked force pass (n x 3), m */
+    double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
     int nfree;             /* nodes with at least one unconstrained axis */
     /* the strict upper half of K (j > i) for the all-nodes force pass: K_ji = K_ij^T and
      * K_ii = -sum_{j != i} K_ij, so f = -K d needs only these blocks, applied to d_j - d_i */
@@ -73,6 +74,12 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
 
 /* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
+
+/* one step of all nodes in a single pass: sq_level_forces(L, mat, gravity, NULL) followed by
+ * sq_level_integrate(L, dt, mask) (same values), fused so the operator is streamed once; nodes
+ * with mask[i] == 0 (mask may be NULL) get their force in L->f but are not integrated */
+void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+                   const unsigned char *mask);
 
 /* Laplacian of the displacement at node i, -(1/vol_i) sum_j lap_ij d_j (m^-1); lap_ij is the
  * (positive semi-definite) stiffness of -Lap, hence the minus sign */
