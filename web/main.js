@@ -81,6 +81,7 @@ async function start() {
   document.documentElement.style.setProperty('--bg', palette.background);
   try {
     renderer = new Renderer($('view'), palette);
+    app.softwareGl = renderer.software;
   } catch (e) {
     showEvent(e.message, true);
   }
@@ -139,8 +140,12 @@ function enterSession() {
   }
 }
 
+// without a scene in the address: the paper's cube when the server has it, else the first
+const PREFERRED_SCENES = ['paper-cube', 'default'];
+
 function openScene(name) {
-  const scene = name || (app.scenes[0] && app.scenes[0].name);
+  const pref = PREFERRED_SCENES.find((n) => app.scenes.some((s) => s.name === n));
+  const scene = name || pref || (app.scenes[0] && app.scenes[0].name);
   if (!scene) { showEvent('the server lists no scenes', true); return; }
   app.scene = scene;
   app.session = null;
@@ -224,6 +229,12 @@ function onSession(m) {
   }));
   fillControls(bodies[0]);
   nodesPending = false;
+  for (const [id, topo] of pendingTopology) {
+    const b = app.bodies.get(id);
+    if (b) applyTopology(b, topo);
+  }
+  pendingTopology = new Map();
+  refit();
   buildLegend(Math.max(0, ...bodies.map((b) => (b.levels || []).length)), null);
   if (app.scene) $('scene-select').value = app.scene;
   // the address bar and the share link name this session
@@ -319,18 +330,26 @@ function setRole(role) {
 
 // ---------------------------------------------------------------- binary messages
 
+// topology messages come before `opened`/`joined`: kept here until the session is known
+let pendingTopology = new Map();
+
+function applyTopology(body, msg) {
+  body.rest = msg.rest;
+  body.tris = msg.tris;
+  body.pos = new Float32Array(msg.rest);
+  body.levelArr = new Uint8Array(msg.rest.length / 3);
+  if (renderer) renderer.setBody(body.id, msg.rest, msg.tris);
+}
+
 function onBinary(msg) {
   const h = msg.header;
+  if (h.kind === KIND_TOPOLOGY) {
+    pendingTopology.set(h.body, msg);
+    return;
+  }
   const body = app.bodies.get(h.body);
   if (!body) return;
-  if (h.kind === KIND_TOPOLOGY) {
-    body.rest = msg.rest;
-    body.tris = msg.tris;
-    body.pos = new Float32Array(msg.rest);
-    body.levelArr = new Uint8Array(msg.rest.length / 3);
-    if (renderer) renderer.setBody(h.body, msg.rest, msg.tris);
-    refit();
-  } else if (h.kind === KIND_FRAME) {
+  if (h.kind === KIND_FRAME) {
     if (!body.rest || msg.disp.length !== body.rest.length) return;
     const pos = body.pos, rest = body.rest, d = msg.disp;
     let sum = 0;
@@ -353,6 +372,10 @@ function onBinary(msg) {
     }
     if (msg.reset) showEvent(`body ${body.name} was reset (numerical blow-up recovered)`, true);
     measureLatency(msg.tools);
+    if (tool && tool.waitCapture && msg.tools.some((t) => t.id === tool.id && t.active)) {
+      tool.waitCapture = false;
+      if (tool.dirty) scheduleFlush();
+    }
     updateLegendFromFrame();
     dirty = true;
   } else if (h.kind === KIND_NODES) {
@@ -388,10 +411,10 @@ function refit() {
 
 // ---------------------------------------------------------------- stats and panel
 
-// frame numbers seen in the last second give the simulation rate
+// frame numbers seen in the last 4 s give the simulation rate
 const frameCounter = {
   samples: [],
-  push(t, f) { this.samples.push([t, f]); while (this.samples.length > 2 && t - this.samples[0][0] > 2000) this.samples.shift(); },
+  push(t, f) { this.samples.push([t, f]); while (this.samples.length > 2 && t - this.samples[0][0] > 4000) this.samples.shift(); },
   rate() {
     const s = this.samples;
     if (s.length < 2) return 0;
@@ -696,6 +719,9 @@ function beginTool(hit, ray, push) {
     tool = { id: PUSH_ID, shape: 'sphere', pos: c, radius: r, plane: { p: c, n: viewDir }, dirty: true };
   } else {
     tool = { id: GRAB_ID, shape: 'grab', pos: hit.point, radius: size * 0.08, plane: { p: hit.point, n: viewDir }, dirty: true };
+    // the server captures the nodes around the grab's pose in the first frame it is active:
+    // moves wait until a frame shows the grab active, so the capture happens where we pressed
+    tool.waitCapture = true;
   }
   flushTool(true);
 }
@@ -708,6 +734,16 @@ function moveTool(x, y, w, h) {
   tool.pos = p;
   tool.dirty = true;
   dirty = true;
+  scheduleFlush();
+}
+
+// tool poses go out from input events (not from the drawing loop, which a slow GPU delays),
+// at most one per TOOL_SEND_MS
+let flushTimer = 0;
+function scheduleFlush() {
+  if (flushTimer || !tool) return;
+  const wait = Math.max(0, TOOL_SEND_MS - (performance.now() - (tool.sentAt || 0)));
+  flushTimer = setTimeout(() => { flushTimer = 0; flushTool(false); if (tool && tool.dirty && !tool.waitCapture) scheduleFlush(); }, wait);
 }
 
 // wheel while pushing: move the sphere along the view direction
@@ -719,6 +755,7 @@ function deepenTool(dy) {
   tool.pos = addScaled(tool.pos, n, -step);
   tool.dirty = true;
   dirty = true;
+  scheduleFlush();
   return true;
 }
 
@@ -731,7 +768,7 @@ function toolMessage(active) {
 function flushTool(force) {
   if (!tool || !tool.dirty) return;
   const now = performance.now();
-  if (!force && now - (tool.sentAt || 0) < TOOL_SEND_MS) return;
+  if (!force && (tool.waitCapture || now - (tool.sentAt || 0) < TOOL_SEND_MS)) return;
   if (link.send(toolMessage(true))) {
     tool.sentAt = now;
     tool.dirty = false;
@@ -861,6 +898,7 @@ function frameLoop() {
   if (opts.nodes && app.lastFrame !== nodesFrame && !nodesPending) { nodesFrame = app.lastFrame; requestNodes(); }
   if (!renderer || !dirty) return;
   dirty = false;
+  const t0 = performance.now();
   const [w, h] = renderer.resize();
   camera.aspect = w / Math.max(h, 1);
   // centre the picture in the part of the window the side panel leaves free
@@ -880,6 +918,8 @@ function frameLoop() {
     wire: opts.wire, nodes: opts.nodes, floor: opts.floor, tools, arrowScale, arrowWidth: size * 0.012,
     grabMarker: size * 0.015, pointSize: Math.max(3, 4 * (window.devicePixelRatio || 1)) });
   drawLabels(tools, w, h);
+  const dt = performance.now() - t0;
+  app.drawMs = app.drawMs === undefined ? dt : app.drawMs * 0.9 + dt * 0.1;
 }
 let nodesFrame = -1;
 

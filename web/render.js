@@ -156,11 +156,39 @@ function arrowMesh(n) {
   return { pos: new Float32Array(pos), normal: new Float32Array(nrm), idx: new Uint32Array(idx) };
 }
 
+const SOFTWARE_GL = /SwiftShader|llvmpipe|softpipe|Software|Basic Render/i;
+
+/** true if the context renders on the CPU (no GPU): then the viewer draws less */
+export function isSoftwareGl(gl) {
+  const ext = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = ext ? gl.getParameter(ext.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+  return SOFTWARE_GL.test(String(name));
+}
+
+/**
+ * a WebGL2 context for the canvas: multisampled on a GPU; on a software rasteriser the canvas
+ * is replaced by a fresh one without multisampling (4x the fill cost on a CPU).
+ * returns {canvas, gl, software}
+ */
+export function createContext(canvas) {
+  const attrs = { antialias: true, preserveDrawingBuffer: true };
+  let gl = canvas.getContext('webgl2', attrs);
+  if (!gl) throw new Error('this browser has no WebGL2: use a current Chrome, Firefox or Safari');
+  const software = isSoftwareGl(gl);
+  if (software) {
+    const fresh = canvas.cloneNode(false);
+    canvas.replaceWith(fresh);
+    canvas = fresh;
+    gl = canvas.getContext('webgl2', { ...attrs, antialias: false });
+  }
+  return { canvas, gl, software };
+}
+
 /** the WebGL2 renderer of one canvas */
 export class Renderer {
-  constructor(canvas, palette) {
-    const gl = canvas.getContext('webgl2', { antialias: true, preserveDrawingBuffer: true });
-    if (!gl) throw new Error('this browser has no WebGL2: use a current Chrome, Firefox or Safari');
+  constructor(canvasIn, palette) {
+    const { canvas, gl, software } = createContext(canvasIn);
+    this.software = software;
     this.gl = gl;
     this.canvas = canvas;
     this.lit = this.program(LIT_VS, LIT_FS);
@@ -331,7 +359,7 @@ export class Renderer {
 
   /** resize the drawing buffer to the canvas' CSS size; returns [w, h] in CSS pixels */
   resize() {
-    const c = this.canvas, dpr = Math.min(window.devicePixelRatio || 1, 2);
+    const c = this.canvas, dpr = this.software ? 1 : Math.min(window.devicePixelRatio || 1, 2);
     const w = c.clientWidth, h = c.clientHeight;
     const bw = Math.max(1, Math.round(w * dpr)), bh = Math.max(1, Math.round(h * dpr));
     if (c.width !== bw || c.height !== bh) { c.width = bw; c.height = bh; }

@@ -15,6 +15,8 @@ export const ROOT = path.resolve(path.dirname(fileURLToPath(import.meta.url)), '
 export const SQUISH = process.env.SQUISH || path.join(ROOT, 'build/squish');
 /** Debian's chromium */
 export const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
+/** scenes of the browser tests (an adaptive cube) */
+export const TEST_SCENES = path.join(ROOT, 'tests/web/scenes');
 /** where the suite keeps its screenshots for the docs */
 export const IMG_DIR = path.join(ROOT, 'docs/img');
 
@@ -46,15 +48,17 @@ function httpGet(url) {
 }
 
 /**
- * start `squish serve` with the shipped scenes and web/ on port (a free one if not given);
+ * start `squish serve` with web/ and the shipped scenes (or opts.scenes, a directory) on port
+ * (a free one if not given);
  * resolves when /healthz answers. Returns {port, url, proc, log(), stop()}.
  */
-export async function startServer(port) {
+export async function startServer(port, { scenes } = {}) {
   if (!fs.existsSync(SQUISH)) throw new Error(`server binary ${SQUISH} not found: build it with "make squish" or set SQUISH`);
   port = port || await freePort();
   const args = ['serve', '--host', '127.0.0.1', '--port', String(port), '--web', path.join(ROOT, 'web')];
-  const scenes = path.join(ROOT, 'meshes/scenes');
-  if (fs.existsSync(scenes)) args.push('--scenes', scenes);
+  // the shipped scenes when there are some, else the built-in default scene
+  const dir = scenes || path.join(ROOT, 'meshes/scenes');
+  if (fs.existsSync(dir)) args.push('--scenes', dir);
   const proc = spawn(SQUISH, args, { cwd: ROOT, stdio: ['ignore', 'pipe', 'pipe'] });
   let out = '';
   proc.stdout.on('data', (d) => { out += d; });
@@ -110,7 +114,7 @@ export async function openViewer(browser, url, { minFrames = 3, viewport = { wid
 }
 
 /** wait until the page has received n more frames than now (or n in total if from0) */
-export async function waitFrames(page, n, timeout = 15000) {
+export async function waitFrames(page, n, timeout = 30000) {
   const start = await page.evaluate(() => (window.squish ? window.squish.framesReceived : 0));
   await page.waitForFunction((want) => window.squish && window.squish.framesReceived >= want,
     start + n, { timeout, polling: 50 });
