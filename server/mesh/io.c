@@ -178,6 +178,14 @@ static int pair_cmp(const void *pa, const void *pb)
     return tag_cmp(&((const tagpair *)pa)->tag, &((const tagpair *)pb)->tag);
 }
 
+static void tagmap_free(tagmap *tm)
+{
+    free(tm->tag);
+    free(tm->index);
+    tm->tag = NULL;
+    tm->index = NULL;
+}
+
 /* build the map from tags[i] = tag of node i; error on duplicates */
 static int tagmap_build(tagmap *tm, const long long *tags, const int *lines, int n, rd *r)
 {
@@ -198,6 +206,7 @@ static int tagmap_build(tagmap *tm, const long long *tags, const int *lines, int
             sq_err_set(r->err, "%s:%d: node number %lld defined twice (also at line %d); node numbers "
                        "must be unique", r->path, l2, p[i].tag, l1);
             free(p);
+            tagmap_free(tm);
             return -1;
         }
         tm->tag[i] = p[i].tag;
@@ -222,11 +231,6 @@ static int tagmap_find(const tagmap *tm, long long tag)
     return -1;
 }
 
-static void tagmap_free(tagmap *tm)
-{
-    free(tm->tag);
-    free(tm->index);
-}
 
 /* ---- the growing result of a reader ---- */
 
@@ -237,6 +241,7 @@ typedef struct build {
     int *nline;
     long long *ttag; /* node tags per tet (4 per tet) */
     int *tline;
+    long long ho_tets; /* skipped higher-order tets (Gmsh types 11, 29, 30, 31) */
 } build;
 
 static void build_free(build *b)
@@ -274,6 +279,12 @@ static void build_add_tet(build *b, const long long v[4], int line)
 static sq_mesh *build_finish(build *b, rd *r, const char *node_file)
 {
     tagmap tm = {0};
+    if (b->nt == 0 && b->ho_tets > 0) {
+        sq_err_set(r->err, "%s: only higher-order tetrahedra (%lld of them); save a first-order mesh "
+                   "(gmsh -order 1) with 4-node tets", r->path, b->ho_tets);
+        build_free(b);
+        return NULL;
+    }
     if (tagmap_build(&tm, b->ntag, b->nline, b->nn, r) < 0) {
         build_free(b);
         return NULL;
@@ -367,6 +378,7 @@ static int msh_elements_22(rd *r, build *b)
         if (r->line != line)
             return fail(r, "element line ended early%s%s; each element is one line", "", "");
         if (type != 4) {
+            b->ho_tets += type == 11 || (type >= 29 && type <= 31);
             skip_line(r);
             continue;
         }
@@ -453,6 +465,7 @@ static int msh_elements_41(rd *r, build *b)
             if (r->pos >= r->len)
                 return fail(r, "unexpected end of file in an element block%s%s; the file is truncated", "", "");
             if (type != 4) {
+                b->ho_tets += type == 11 || (type >= 29 && type <= 31);
                 skip_line(r);
                 continue;
             }

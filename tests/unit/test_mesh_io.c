@@ -78,7 +78,8 @@ SQ_TEST(mesh_io_roundtrip_all_formats)
 SQ_TEST(mesh_io_gmsh_medit_tetgen_same_cube)
 {
     const char *files[] = {"cube_h1.msh", "cube_h1_v41.msh", "cube_h1.mesh", "cube_tetgen.node",
-                           "cube_tetgen.ele", "sparse_tags.msh", "all_negative.msh"};
+                           "cube_tetgen.ele", "sparse_tags.msh", "all_negative.msh",
+                           "cube_h1_v41_param.msh"};
     sq_mesh *ref = NULL;
     for (size_t f = 0; f < SQ_COUNTOF(files); f++) {
         sq_err err = {0};
@@ -135,6 +136,7 @@ SQ_TEST(mesh_io_broken_files)
         {"binary.msh", "binary.msh:2:", "binary .msh is not supported"},
         {"does_not_exist.msh", "does_not_exist.msh", "cannot open"},
         {"cube.geo", "cube.geo", "unknown mesh format"},
+        {"cube_order2.msh", "cube_order2.msh", "only higher-order tetrahedra (24 of them)"},
     };
     for (size_t i = 0; i < SQ_COUNTOF(cases); i++) {
         sq_err err = {0};
@@ -285,5 +287,69 @@ SQ_TEST(mesh_shipped_meshes)
                 CHECK(info[k].nnodes > 2 * info[k - 1].nnodes);
             }
         }
+    }
+}
+
+/* random byte edits of valid files (deterministic): each either loads a valid mesh or fails
+ * with a message naming the file; under ASan this also shows no out-of-bounds access */
+SQ_TEST(mesh_io_mutated_files)
+{
+    const char *files[] = {"cube_h1.msh", "cube_h1_v41.msh", "cube_h1.mesh", "cube_tetgen.ele"};
+    static const char junk[] = "0123456789 \n-.e$#xX9";
+    unsigned s = 2024;
+    for (size_t f = 0; f < SQ_COUNTOF(files); f++) {
+        char src[1024], dst[1024];
+        snprintf(src, sizeof src, "%s/mesh/%s", sq_test_data(), files[f]);
+        const char *ext = strrchr(files[f], '.');
+        snprintf(dst, sizeof dst, "%s/mut%s", sq_test_tmpdir(), ext);
+        if (!strcmp(ext, ".ele")) {
+            /* the .node beside it stays valid */
+            char nsrc[1024], ndst[1024];
+            snprintf(nsrc, sizeof nsrc, "%s/mesh/cube_tetgen.node", sq_test_data());
+            snprintf(ndst, sizeof ndst, "%s/mut.node", sq_test_tmpdir());
+            sq_err e2 = {0};
+            size_t nl;
+            char *nb = sq_read_file(nsrc, &nl, 1 << 20, &e2);
+            FILE *o = fopen(ndst, "wb");
+            fwrite(nb, 1, nl, o);
+            fclose(o);
+            free(nb);
+        }
+        sq_err err = {0};
+        size_t len;
+        char *buf = sq_read_file(src, &len, 1 << 20, &err);
+        CHECK(buf != NULL);
+        if (!buf)
+            continue;
+        char *mut = malloc(len + 1);
+        int bad = 0;
+        for (int trial = 0; trial < 150; trial++) {
+            memcpy(mut, buf, len);
+            int edits = 1 + trial % 3;
+            for (int e = 0; e < edits; e++) {
+                s = s * 1103515245u + 12345u;
+                size_t at = (s >> 8) % len;
+                s = s * 1103515245u + 12345u;
+                mut[at] = junk[(s >> 8) % (sizeof junk - 1)];
+            }
+            FILE *o = fopen(dst, "wb");
+            fwrite(mut, 1, len, o);
+            fclose(o);
+            err.msg[0] = 0;
+            sq_mesh *m = sq_mesh_load(dst, &err);
+            if (m) {
+                /* whatever loaded is a valid mesh */
+                for (int t = 0; t < m->ntets; t++)
+                    if (!(sq_tet_volume(m, t) > 0))
+                        bad++;
+                sq_mesh_free(m);
+            } else if (!strstr(err.msg, "/mut.")) {
+                bad++;
+                printf("    unnamed error: %s\n", err.msg);
+            }
+        }
+        CHECK(bad == 0);
+        free(mut);
+        free(buf);
     }
 }
