@@ -494,7 +494,7 @@ function buildLegend(nlevels, counts) {
       sw.className = 'swatch';
       sw.style.background = palette.level[Math.min(i, palette.level.length - 1)];
       const name = document.createElement('span');
-      name.textContent = i === 0 ? `level ${i} (coarsest)` : i === n - 1 && n > 1 ? `level ${i} (finest)` : `level ${i}`;
+      name.textContent = n === 1 ? `level ${i} (one level loaded)` : i === 0 ? `level ${i} (coarsest)` : i === n - 1 ? `level ${i} (finest)` : `level ${i}`;
       const c = document.createElement('span');
       c.className = 'legend-count';
       li.append(sw, name, c);

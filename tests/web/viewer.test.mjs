@@ -212,6 +212,34 @@ describe('web viewer reconnects', () => {
     if (server) await server.stop();
   });
 
+  it('re-joins its session after the connection drops while the server runs', async () => {
+    server = await startServer();
+    const page = await (await browser.newContext({ viewport: { width: 1024, height: 700 } })).newPage();
+    // the page's WebSocket goes through a pass-through route we can cut
+    const routes = [];
+    await page.routeWebSocket(/\/ws$/, (ws) => {
+      ws.connectToServer();
+      routes.push(ws);
+    });
+    try {
+      await page.goto(server.url);
+      await waitFrames(page, 5);
+      const s1 = await state(page);
+      await routes[routes.length - 1].close();
+      await page.waitForFunction(() => window.squish.status !== 'connected', null, { timeout: 15000 });
+      await page.waitForFunction(() => window.squish.status === 'connected', null, { timeout: 30000 });
+      await waitFrames(page, 5);
+      const s2 = await state(page);
+      assert.ok(routes.length >= 2, 'a second connection was made');
+      assert.equal(s2.session, s1.session, 'same session');
+      assert.equal(s2.opens, s1.opens + 1, 'joined once more');
+      assert.equal(s2.role, 'control', 'the controller got its session back');
+    } finally {
+      await page.context().close();
+      await server.stop();
+    }
+  });
+
   it('comes back by itself when the server restarts', async () => {
     server = await startServer();
     const port = server.port;
