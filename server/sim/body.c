@@ -187,8 +187,8 @@ static int check_def(const sq_body_def *def, sq_err *err)
         if (!def->levels[k] || def->levels[k]->nnodes <= 0 || !def->levels[k]->surf_nodes)
             return sq_err_set(err, "level %d has no mesh (or an empty one): load every listed level", k);
     if (!(def->frame_dt > 0) || !isfinite(def->frame_dt) || def->frame_dt > 10)
-        return sq_err_set(err, "frame period %g s is out of range: give a frame rate between 0.1 and "
-                               "any finite number of Hz", def->frame_dt);
+        return sq_err_set(err, "frame period %g s is out of range: give a frame rate of at least 0.1 Hz "
+                               "(frame_dt in (0, 10] s)", def->frame_dt);
     if (!(def->step_fraction > 0 && def->step_fraction <= 1))
         return sq_err_set(err, "step_fraction %g is out of range: give 0 < step_fraction <= 1 (0.9 is usual)",
                           def->step_fraction);
@@ -574,7 +574,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     if (!prof)
         prof = &local;
     memset(prof, 0, sizeof *prof);
-    if (ntools < 0)
+    if (ntools < 0 || !tools)
         ntools = 0;
     if (ntools > SQ_MAX_TOOLS)
         ntools = SQ_MAX_TOOLS;
