@@ -60,6 +60,23 @@ struct sq_lod {
     int *fs_level[SQ_MAX_LEVELS], *fs_node[SQ_MAX_LEVELS];
     double *fs_w[SQ_MAX_LEVELS];
     int fs_cap[SQ_MAX_LEVELS];
+    /* ring rows of the energy: blocks summed over the tets that touch an active node only
+     * (a ring row cut to S_k would pin the ring to zero displacement); aligned with the
+     * mesh adjacency row of each ring ghost */
+    int *node_tet_start[SQ_MAX_LEVELS], *node_tet[SQ_MAX_LEVELS];
+    int *rk_off[SQ_MAX_LEVELS];          /* (nring + 1) offsets in blocks */
+    double *rk[SQ_MAX_LEVELS], *rd[SQ_MAX_LEVELS];
+    int rk_cap[SQ_MAX_LEVELS], rd_cap[SQ_MAX_LEVELS];
+    int rk_dirty[SQ_MAX_LEVELS];
+    /* frontier: active nodes with a ghost neighbour; their tets with a ghost corner count
+     * half (the other level covers the same band), a correction to their full rows */
+    int *front[SQ_MAX_LEVELS], nfront[SQ_MAX_LEVELS];
+    int *fk_off[SQ_MAX_LEVELS];
+    double *fk[SQ_MAX_LEVELS], *fd[SQ_MAX_LEVELS];
+    int fk_cap[SQ_MAX_LEVELS], fd_cap[SQ_MAX_LEVELS];
+    int have_mat;
+    sq_material mat;                     /* material the ring blocks were built for */
+    sq_operator_kind op;
     /* values at the start of each level's last step, for values between its steps */
     double *dprev[SQ_MAX_LEVELS], *vprev[SQ_MAX_LEVELS];
     long step_t0[SQ_MAX_LEVELS], step_len[SQ_MAX_LEVELS];
@@ -108,6 +125,18 @@ static void rebuild_level(sq_lod *lod, int k)
             }
     }
     lod->nring[k] = nr;
+    int nfr = 0;
+    for (int i = 0; i < n && na < n; i++) {
+        if (!lod->active[k][i])
+            continue;
+        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
+            if (!lod->active[k][Lk->col[q]]) {
+                lod->front[k][nfr++] = i;
+                break;
+            }
+    }
+    lod->nfront[k] = nfr;
+    lod->rk_dirty[k] = 1;
     /* held nodes are prescribed, not integrated */
     int nm = na;
     for (int e = 0; e < lod->nhe; e++)
@@ -181,6 +210,7 @@ static void push_level(sq_lod *lod, int k)
 }
 
 static void build_sources(sq_lod *lod);
+static void update_ring_blocks(sq_lod *lod, const sq_material *mat);
 static void eval_ring(sq_lod *lod, int k, long t);
 
 /* every ghost value from the active nodes: split ghosts pulled fine to coarse, coarse ghosts
@@ -206,6 +236,7 @@ void sq_lod_sync(sq_lod *lod)
         memcpy(lod->vprev[k], lod->lv[k].v, n3 * sizeof(double));
     }
     build_sources(lod);
+    update_ring_blocks(lod, NULL);
     cascade(lod);
 }
 
@@ -297,6 +328,196 @@ static double *criterion_weights(const sq_mesh *m)
     return w;
 }
 
+/* ---------------------------------------------------------------- ring blocks */
+
+/* weight of a tet with both active and ghost corners in its level's energy: the band where
+ * two levels meet is covered by the mixed tets of both, so each counts half */
+#define MIXED_WEIGHT 0.5
+
+/* tets around each node (CSR) */
+static void node_tets(const sq_mesh *m, int **start, int **list)
+{
+    int *st = sq_calloc((size_t)m->nnodes + 1, sizeof(int));
+    for (int t = 0; t < 4 * m->ntets; t++)
+        st[m->tets[t] + 1]++;
+    for (int i = 0; i < m->nnodes; i++)
+        st[i + 1] += st[i];
+    int *fill = sq_malloc(sizeof(int) * (size_t)SQ_MAX(m->nnodes, 1));
+    memcpy(fill, st, sizeof(int) * (size_t)m->nnodes);
+    int *ls = sq_malloc(sizeof(int) * 4 * (size_t)m->ntets);
+    for (int t = 0; t < m->ntets; t++)
+        for (int q = 0; q < 4; q++)
+            ls[fill[m->tets[4 * t + q]]++] = t;
+    free(fill);
+    *start = st;
+    *list = ls;
+}
+
+/* block (i, j) of one tet's operator (sim/level.c, PHYSICS.md section 2) with shear-like
+ * coefficient s and volume-like l, added to B */
+static void add_block(sq_operator_kind op, double V, const double *ai, const double *aj, double s,
+                      double l, double *B)
+{
+    double dot = ai[0] * aj[0] + ai[1] * aj[1] + ai[2] * aj[2];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double v = (r == c ? s * dot : 0);
+            if (op == SQ_OPERATOR_PAPER)
+                v += (l + s) * ai[r] * aj[c];
+            else
+                v += s * aj[r] * ai[c] + l * ai[r] * aj[c];
+            B[3 * r + c] += V * v;
+        }
+}
+
+/* which operator the level's K was built with: rebuild one row both ways, keep the closer */
+static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
+{
+    const sq_level *L = &lod->lv[0];
+    const sq_mesh *m = L->mesh;
+    /* a boundary node: the two operators differ there */
+    int i = 0;
+    while (i < m->nnodes && !m->on_boundary[i])
+        i++;
+    if (i == m->nnodes)
+        return SQ_OPERATOR_FEM;
+    int n = L->row_start[i + 1] - L->row_start[i];
+    double *row[2];
+    double err[2] = {0, 0};
+    for (int o = 0; o < 2; o++) {
+        row[o] = sq_calloc(9 * (size_t)n, sizeof(double));
+        for (int c = lod->node_tet_start[0][i]; c < lod->node_tet_start[0][i + 1]; c++) {
+            int t = lod->node_tet[0][c];
+            double a[4][3];
+            double V = sq_tet_gradients(m, t, a);
+            int p = 0;
+            while (m->tets[4 * t + p] != i)
+                p++;
+            for (int q = 0; q < 4; q++) {
+                int e = adj_find(m, i, m->tets[4 * t + q]) - L->row_start[i];
+                add_block((sq_operator_kind)o, V, a[p], a[q], mat->mu, mat->lambda, row[o] + 9 * e);
+            }
+        }
+        for (int e = 0; e < 9 * n; e++)
+            err[o] += fabs(row[o][e] - L->K[9 * L->row_start[i] + e]);
+        free(row[o]);
+    }
+    return err[SQ_OPERATOR_PAPER] < err[SQ_OPERATOR_FEM] ? SQ_OPERATOR_PAPER : SQ_OPERATOR_FEM;
+}
+
+/* blocks of node list nodes[0..nn) of level k (aligned with their adjacency rows), summed
+ * over their tets that touch an active node and have a ghost corner, times weight */
+static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off, double **bk, int *bk_cap,
+                         double **bd, int *bd_cap, double weight)
+{
+    const sq_level *L = &lod->lv[k];
+    const sq_mesh *m = L->mesh;
+    const sq_material *mat = &lod->mat;
+    const unsigned char *act = lod->active[k];
+    int visc = mat->use_viscosity && L->D;
+    int total = 0;
+    for (int r = 0; r < nn; r++) {
+        off[r] = total;
+        total += L->row_start[nodes[r] + 1] - L->row_start[nodes[r]];
+    }
+    off[nn] = total;
+    if (total > *bk_cap) {
+        *bk_cap = SQ_MAX(total, 2 * *bk_cap);
+        *bk = sq_realloc(*bk, sizeof(double) * 9 * (size_t)*bk_cap);
+    }
+    memset(*bk, 0, sizeof(double) * 9 * (size_t)total);
+    if (visc) {
+        if (total > *bd_cap) {
+            *bd_cap = SQ_MAX(total, 2 * *bd_cap);
+            *bd = sq_realloc(*bd, sizeof(double) * 9 * (size_t)*bd_cap);
+        }
+        memset(*bd, 0, sizeof(double) * 9 * (size_t)total);
+    }
+    for (int r = 0; r < nn; r++) {
+        int j = nodes[r];
+        double *B = *bk + 9 * (size_t)off[r];
+        double *Bd = visc ? *bd + 9 * (size_t)off[r] : NULL;
+        for (int c = lod->node_tet_start[k][j]; c < lod->node_tet_start[k][j + 1]; c++) {
+            int t = lod->node_tet[k][c];
+            const int *tv = m->tets + 4 * t;
+            int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
+            if (na == 0 || na == 4)
+                continue;
+            double a[4][3];
+            double V = weight * sq_tet_gradients(m, t, a);
+            int p = 0;
+            while (tv[p] != j)
+                p++;
+            for (int q = 0; q < 4; q++) {
+                int e = adj_find(m, j, tv[q]) - L->row_start[j];
+                add_block(lod->op, V, a[p], a[q], mat->mu, mat->lambda, B + 9 * e);
+                if (Bd)
+                    add_block(lod->op, V, a[p], a[q], mat->phi, mat->psi, Bd + 9 * e);
+            }
+        }
+    }
+}
+
+/* ring rows (half of the mixed tets) and frontier corrections (the other half of the mixed
+ * tets, given back) of level k */
+static void build_ring_blocks(sq_lod *lod, int k)
+{
+    build_blocks(lod, k, lod->ring[k], lod->nring[k], lod->rk_off[k], &lod->rk[k], &lod->rk_cap[k],
+                 &lod->rd[k], &lod->rd_cap[k], MIXED_WEIGHT);
+    build_blocks(lod, k, lod->front[k], lod->nfront[k], lod->fk_off[k], &lod->fk[k], &lod->fk_cap[k],
+                 &lod->fd[k], &lod->fd_cap[k], 1.0 - MIXED_WEIGHT);
+    lod->rk_dirty[k] = 0;
+}
+
+/* frontier correction of level k after its full-row forces: f_i += (1 - w) sum over mixed
+ * tets of K^T (d + b v) (+ D^T v) */
+static void front_correct(sq_lod *lod, const sq_material *mat, int k)
+{
+    sq_level *L = &lod->lv[k];
+    double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
+    int visc = mat->use_viscosity && lod->fd[k];
+    for (int r = 0; r < lod->nfront[k]; r++) {
+        int i = lod->front[k][r];
+        const double *B = lod->fk[k] + 9 * (size_t)lod->fk_off[k][r];
+        const double *Bd = visc ? lod->fd[k] + 9 * (size_t)lod->fk_off[k][r] : NULL;
+        double *fi = L->f + 3 * i;
+        for (int q = L->row_start[i], e = 0; q < L->row_start[i + 1]; q++, e++) {
+            int l = L->col[q];
+            const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
+            double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
+            for (int rr = 0; rr < 3; rr++)
+                fi[rr] += K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
+            if (Bd) {
+                const double *D = Bd + 9 * e;
+                for (int rr = 0; rr < 3; rr++)
+                    fi[rr] += D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
+            }
+        }
+    }
+}
+
+/* ring blocks up to date for material mat (NULL: the last one seen) */
+static void update_ring_blocks(sq_lod *lod, const sq_material *mat)
+{
+    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0)) {
+        lod->mat = *mat;
+        lod->have_mat = 1;
+        lod->op = infer_op(lod, mat);
+        for (int k = 0; k < lod->L; k++)
+            lod->rk_dirty[k] = 1;
+    }
+    if (!lod->have_mat)
+        return;
+    for (int k = 0; k < lod->L; k++)
+        if (lod->rk_dirty[k])
+            build_ring_blocks(lod, k);
+}
+
+void sq_lod_set_material(sq_lod *lod, const sq_material *mat)
+{
+    update_ring_blocks(lod, mat);
+}
+
 /* ---------------------------------------------------------------- creation */
 
 
@@ -376,6 +597,10 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->fs_start[k] = sq_calloc(n + 1, sizeof(int));
+        lod->rk_off[k] = sq_calloc(n + 1, sizeof(int));
+        lod->front[k] = sq_malloc(sizeof(int) * n);
+        lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
+        node_tets(levels[k].mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
         for (size_t i = 0; i < n; i++)
             lod->slot[k][i] = -1;
     }
@@ -402,6 +627,15 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->dprev[k]);
         free(lod->vprev[k]);
         free(lod->fs_start[k]);
+        free(lod->rk_off[k]);
+        free(lod->front[k]);
+        free(lod->fk_off[k]);
+        free(lod->fk[k]);
+        free(lod->fd[k]);
+        free(lod->rk[k]);
+        free(lod->rd[k]);
+        free(lod->node_tet_start[k]);
+        free(lod->node_tet[k]);
         free(lod->fs_level[k]);
         free(lod->fs_node[k]);
         free(lod->fs_w[k]);
@@ -876,18 +1110,21 @@ static void eval_ring(sq_lod *lod, int k, long t)
     }
 }
 
-/* force on ring ghost j of level k restricted to S_k, -(K w)_j - (D v)_j, with the active
- * nodes of level k taken at fraction fr of its current step (1 = their current values) */
-static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int j, double fr, double g[3])
+/* force on ring ghost r (node j) of level k from the tets touching active nodes, -(K w)_j -
+ * (D v)_j, with the active nodes of level k taken at fraction fr of its current step */
+static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, double fr, double g[3])
 {
     const sq_level *L = &lod->lv[k];
-    const unsigned char *in = lod->ins[k], *act = lod->active[k];
+    const unsigned char *act = lod->active[k];
+    int j = lod->ring[k][r];
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
+    const double *B = lod->rk[k] + 9 * (size_t)lod->rk_off[k][r];
+    const double *Bd = mat->use_viscosity && lod->rd[k] ? lod->rd[k] + 9 * (size_t)lod->rk_off[k][r] : NULL;
     g[0] = g[1] = g[2] = 0;
-    for (int q = L->row_start[j]; q < L->row_start[j + 1]; q++) {
+    for (int q = L->row_start[j], e = 0; q < L->row_start[j + 1]; q++, e++) {
         int l = L->col[q];
-        if (!in[l])
-            continue;
+        if (!lod->ins[k][l])
+            continue; /* no tet touching an active node joins j and l: the block is zero */
         double dl[3], vl[3];
         for (int c = 0; c < 3; c++) {
             dl[c] = L->d[3 * l + c];
@@ -898,14 +1135,14 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int j, 
                 vl[c] = v0 + fr * (vl[c] - v0);
             }
         }
-        const double *K = L->K + 9 * q;
+        const double *K = B + 9 * e;
         double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
-        for (int r = 0; r < 3; r++)
-            g[r] -= K[3 * r] * w[0] + K[3 * r + 1] * w[1] + K[3 * r + 2] * w[2];
-        if (L->D && mat->use_viscosity) {
-            const double *D = L->D + 9 * q;
-            for (int r = 0; r < 3; r++)
-                g[r] -= D[3 * r] * vl[0] + D[3 * r + 1] * vl[1] + D[3 * r + 2] * vl[2];
+        for (int rr = 0; rr < 3; rr++)
+            g[rr] -= K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
+        if (Bd) {
+            const double *D = Bd + 9 * e;
+            for (int rr = 0; rr < 3; rr++)
+                g[rr] -= D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
         }
     }
 }
@@ -929,7 +1166,7 @@ static void couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
         if (!any)
             continue;
         double g[3];
-        ring_force(lod, mat, k, j, fr, g);
+        ring_force(lod, mat, k, r, fr, g);
         unsigned char fx = Lk->fixed[j];
         for (int c = 0; c < 3; c++)
             if (fx & (1u << c))
@@ -995,6 +1232,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
     start_holds(lod, frame_dt);
 
+    update_ring_blocks(lod, mat);
     for (int k = 0; k < L; k++) {
         lod->step_t0[k] = -stride[k]; /* the previous frame's last step ended at tick 0 */
         lod->step_len[k] = stride[k];
@@ -1013,9 +1251,11 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         /* (2) forces of every due level from the state at this tick, the coupling reactions
          * between levels, then integration of the free active nodes */
         for (int k = 0; k < L; k++)
-            if (lod->due[k] && lod->nactive[k] > 0)
+            if (lod->due[k] && lod->nactive[k] > 0) {
                 sq_level_forces(&lod->lv[k], mat, gravity,
                                 lod->nactive[k] == lod->lv[k].n ? NULL : lod->active[k]);
+                front_correct(lod, mat, k);
+            }
         for (int k = 0; k < L; k++)
             if (lod->nactive[k] > 0 && lod->nring[k] > 0) {
                 if (!lod->due[k])
@@ -1070,6 +1310,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             }
         if (any) {
             build_sources(lod);
+            update_ring_blocks(lod, mat);
             /* holds whose node was split or merged move to the node now active there */
             if (nholds > 0) {
                 remap_holds(lod, holds, nholds, (double)next * dtf);
@@ -1095,8 +1336,10 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
     clear_holds(lod);
     for (int k = 0; k < L; k++)
-        if (lod->nmask[k] != lod->nactive[k])
-            rebuild_level(lod, k);
+        if (lod->nmask[k] != lod->nactive[k]) {
+            memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].n);
+            lod->nmask[k] = lod->nactive[k];
+        }
 
     double t_end = sq_now();
     lod->last_time = t_end - t_start;
@@ -1163,23 +1406,44 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
     double ek = 0, ee = 0;
     for (int k = 0; k < lod->L; k++) {
         const sq_level *Lk = &lod->lv[k];
-        /* 1/2 x^T K[S,S] x over S_k = active nodes and their ghost ring */
+        /* sum over the tets touching active nodes of their weighted elastic energy: full
+         * rows on active nodes less the frontier correction, ring rows from the ring blocks */
         for (int i = 0; i < Lk->n; i++) {
-            if (!lod->ins[k][i])
+            if (lod->state[k][i] != ST_ACTIVE)
                 continue;
             const double *v = Lk->v + 3 * i, *d = Lk->d + 3 * i;
-            if (lod->state[k][i] == ST_ACTIVE)
-                ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             double f[3] = {0, 0, 0};
             for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
-                int l = Lk->col[q];
-                if (!lod->ins[k][l])
-                    continue;
-                const double *K = Lk->K + 9 * q, *dl = Lk->d + 3 * l;
+                const double *K = Lk->K + 9 * q, *dl = Lk->d + 3 * Lk->col[q];
                 for (int r = 0; r < 3; r++)
-                    f[r] -= K[3 * r] * dl[0] + K[3 * r + 1] * dl[1] + K[3 * r + 2] * dl[2];
+                    f[r] += K[3 * r] * dl[0] + K[3 * r + 1] * dl[1] + K[3 * r + 2] * dl[2];
+            }
+            ee += 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
+        }
+        if (!lod->have_mat || lod->rk_dirty[k])
+            continue;
+        for (int r = 0; r < lod->nfront[k]; r++) {
+            int i = lod->front[k][r];
+            const double *B = lod->fk[k] + 9 * (size_t)lod->fk_off[k][r], *d = Lk->d + 3 * i;
+            double f[3] = {0, 0, 0};
+            for (int q = Lk->row_start[i], e = 0; q < Lk->row_start[i + 1]; q++, e++) {
+                const double *K = B + 9 * e, *dl = Lk->d + 3 * Lk->col[q];
+                for (int rr = 0; rr < 3; rr++)
+                    f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
             ee -= 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
+        }
+        for (int r = 0; r < lod->nring[k]; r++) {
+            int j = lod->ring[k][r];
+            const double *B = lod->rk[k] + 9 * (size_t)lod->rk_off[k][r], *d = Lk->d + 3 * j;
+            double f[3] = {0, 0, 0};
+            for (int q = Lk->row_start[j], e = 0; q < Lk->row_start[j + 1]; q++, e++) {
+                const double *K = B + 9 * e, *dl = Lk->d + 3 * Lk->col[q];
+                for (int rr = 0; rr < 3; rr++)
+                    f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
+            }
+            ee += 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
         }
     }
     if (kinetic)

@@ -72,9 +72,14 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
 /* level active at each node of the finest level (out has n_finest entries) */
 void sq_lod_node_levels(const sq_lod *lod, unsigned char *out);
 
-/* energy (J) of the simulated state: over the active nodes of every level, kinetic
- * 1/2 m_i |v_i|^2 and elastic 1/2 d_i . (K d)_i (ghost values as neighbours); either output
- * may be NULL; returns their sum */
+/* the material the next frames use (sq_lod_frame passes it too): lets sq_lod_energy and
+ * sq_lod_sync account for the level coupling before the first frame */
+void sq_lod_set_material(sq_lod *lod, const sq_material *mat);
+
+/* energy (J) of the simulated state, the quantity the adaptive frame conserves without
+ * damping: kinetic 1/2 m_i |v_i|^2 over the active nodes of every level, and elastic energy
+ * of every tet touching an active node (ghost corners at their interpolated values); either
+ * output may be NULL; returns their sum */
 double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic);
 
 /* node updates one frame of the current active sets costs: sum_k active_k 2^n_k */
