@@ -956,6 +956,8 @@ app.screenPoint = (p) => {
   const c = $('view');
   return camera.project(p, c.clientWidth, c.clientHeight);
 };
+// the camera (orbit angles az/el in radians, dist in m, target)
+app.camera = camera;
 // largest surface displacement of any body in the last frame (m)
 app.maxDisplacement = () => {
   let m = 0;

@@ -151,6 +151,33 @@ describe('web viewer', () => {
     }
   });
 
+  it('touch: two fingers pinch to zoom, one finger on empty space orbits', async () => {
+    const ctx = await browser.newContext({ viewport: { width: 900, height: 600 }, hasTouch: true });
+    const page = await ctx.newPage();
+    try {
+      await page.goto(server.url);
+      await waitFrames(page, 3);
+      const cdp = await ctx.newCDPSession(page);
+      const touch = (type, points) => cdp.send('Input.dispatchTouchEvent', { type, touchPoints: points.map(([x, y], id) => ({ x, y, id })) });
+      const cam = () => page.evaluate(() => ({ dist: window.squish.camera.dist, az: window.squish.camera.az }));
+      const c0 = await cam();
+      // one finger in the empty top-left corner drags sideways: the camera turns
+      await touch('touchStart', [[40, 80]]);
+      for (let i = 1; i <= 5; i++) await touch('touchMove', [[40 + 30 * i, 80]]);
+      await touch('touchEnd', []);
+      const c1 = await cam();
+      assert.ok(Math.abs(c1.az - c0.az) > 0.3, `orbit: azimuth ${c0.az} -> ${c1.az}`);
+      // fingers 100 px apart move to 300 px apart: zoom in by about 3x
+      await touch('touchStart', [[250, 300], [350, 300]]);
+      for (let i = 1; i <= 5; i++) await touch('touchMove', [[250 - 20 * i, 300], [350 + 20 * i, 300]]);
+      await touch('touchEnd', []);
+      const c2 = await cam();
+      assert.ok(c2.dist < c1.dist * 0.6, `pinch: distance ${c1.dist} -> ${c2.dist}`);
+    } finally {
+      await ctx.close();
+    }
+  });
+
   it('a refused setting shows the server\'s reason next to the control', async () => {
     const page = await openViewer(browser, server.url);
     try {
