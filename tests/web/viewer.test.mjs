@@ -59,7 +59,7 @@ describe('web viewer', () => {
     }
   });
 
-  it('a drag deforms the body, and a viewer of the share link sees the same frames', async () => {
+  it('a drag deforms the body, and a viewer of the share link sees the same frames', async (t) => {
     const ctl = await openViewer(browser, adaptive.url);
     let viewer;
     try {
@@ -114,6 +114,11 @@ describe('web viewer', () => {
       for (const [f, sum] of common) assert.equal(sum, cMap.get(f), `frame ${f} differs between controller and viewer`);
       const vPulled = await state(viewer);
       assert.ok(vPulled.maxDisp > rest.maxDisp + 0.02 * size, `viewer sees ${vPulled.maxDisp} m`);
+      // what the page measured while poking (headless software rendering: slower than a GPU)
+      const m = await ctl.evaluate(() => ({ lat: window.squish.latencyMs, rate: window.squish.simRate,
+        bps: window.squish.bytesPerSecond, draw: window.squish.drawMs }));
+      t.diagnostic(`tool-to-frame latency ${m.lat && m.lat.toFixed(1)} ms, sim rate ${m.rate.toFixed(1)} Hz, ` +
+        `${(m.bps / 1000).toFixed(1)} kB/s received, draw ${m.draw && m.draw.toFixed(2)} ms (JS side)`);
       await ctl.mouse.up();
 
       // a viewer cannot poke: its drags orbit the camera, no tool is sent
