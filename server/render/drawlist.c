@@ -378,10 +378,26 @@ static int resolve_camera(sq_drawlist *dl, const sq_render_state *s, const sq_ca
             dir[k] = cos(el) * (sin(az) * e1[k] - cos(az) * e2[k]) + sin(el) * s->up[k];
         double dist = cam->dist;
         if (!(dist > 0.0)) {
-            /* fit the bounding sphere in the narrower field of view */
-            double half_v = 0.5 * fov * PI / 180.0;
-            double half = atan(tan(half_v) * fmin(1.0, aspect));
-            dist = 0.5 * diag / sin(half) * 1.05;
+            /* fit the 8 bbox corners: corner c at (x, y) across the view and z towards the
+             * eye needs dist >= z + |x| / tan_h and z + |y| / tan_v; 12% margin */
+            double tv = 0.88 * tan(0.5 * fov * PI / 180.0), th = tv * aspect;
+            double right[3], upv[3], back[3];
+            for (int k = 0; k < 3; k++)
+                back[k] = dir[k];
+            cross3(s->up, back, right);
+            if (normalize3(right) == 0.0)
+                memcpy(right, e1, sizeof right);
+            cross3(back, right, upv);
+            dist = 0.0;
+            for (int c = 0; c < 8; c++) {
+                double p[3] = {(c & 1 ? s->bbox_max[0] : s->bbox_min[0]) - centre[0],
+                               (c & 2 ? s->bbox_max[1] : s->bbox_min[1]) - centre[1],
+                               (c & 4 ? s->bbox_max[2] : s->bbox_min[2]) - centre[2]};
+                double z = dot3(p, back);
+                dist = fmax(dist, z + fabs(dot3(p, right)) / th);
+                dist = fmax(dist, z + fabs(dot3(p, upv)) / tv);
+            }
+            dist = fmax(dist, 0.6 * diag); /* never inside the bodies */
         }
         memcpy(dl->target, centre, sizeof centre);
         for (int k = 0; k < 3; k++)
