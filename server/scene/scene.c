@@ -285,10 +285,10 @@ static int parse_material(pctx *c, const cJSON *obj, const char *path, sq_materi
     if (check_keys(c, obj, path, keys))
         return -1;
     double E = 0, nu = 0, lambda = 0, mu = 0, density = DEF_DENSITY;
-    int hE, hnu, hl, hmu, hd;
+    int hE, hnu, hl, hmu;
     if (get_number(c, obj, path, "E", &E, &hE) || get_number(c, obj, path, "nu", &nu, &hnu) ||
         get_number(c, obj, path, "lambda", &lambda, &hl) || get_number(c, obj, path, "mu", &mu, &hmu) ||
-        get_number(c, obj, path, "density", &density, &hd))
+        get_number(c, obj, path, "density", &density, NULL))
         return -1;
     /* damping defaults are the engine's (sq_body_def_default) */
     const sq_material dm = sq_body_def_default().material;
@@ -343,8 +343,8 @@ static int parse_material(pctx *c, const cJSON *obj, const char *path, sq_materi
         join(dp, sizeof dp, path, "damping");
         if (check_keys(c, d, dp, dkeys))
             return -1;
-        int ha, hb, hphi, hpsi;
-        if (get_number(c, d, dp, "rayleigh_mass", &m->rayleigh_mass, &ha) ||
+        int hb, hphi, hpsi;
+        if (get_number(c, d, dp, "rayleigh_mass", &m->rayleigh_mass, NULL) ||
             get_number(c, d, dp, "rayleigh_stiffness", &m->rayleigh_stiffness, &hb) ||
             get_number(c, d, dp, "phi", &m->phi, &hphi) || get_number(c, d, dp, "psi", &m->psi, &hpsi))
             return -1;
@@ -358,7 +358,6 @@ static int parse_material(pctx *c, const cJSON *obj, const char *path, sq_materi
         m->use_viscosity = hphi || hpsi;
         if (m->use_viscosity)
             m->rayleigh_stiffness = 0;
-        (void)ha;
     }
     sq_err e = {{0}};
     if (sq_material_check(m, &e))
