@@ -650,3 +650,34 @@ SQ_TEST(scene_mutated_text_never_crashes)
     CHECK(ok + errors == 400 && errors > 200);
     free(buf);
 }
+
+SQ_TEST(world_adaptive_split_extremes_reach_the_engine)
+{
+    /* "inf" never splits: only level 0 is active; 0 splits everything to the finest level */
+    const char *fmt = "{\"bodies\": [{\"name\": \"cube\", \"levels\": [\"a.msh\", \"b.msh\"], " MAT ","
+                      " \"fixed\": [{\"box\": [[-1,-1,-1],[2,2,0.001]]}],"
+                      " \"lod\": {\"mode\": \"adaptive\", \"split\": %s}}]}";
+    for (int k = 0; k < 2; k++) {
+        char json[512];
+        snprintf(json, sizeof json, fmt, k == 0 ? "\"inf\"" : "0");
+        sq_err e;
+        sq_scene *s = parse(json, &e);
+        CHECK(s != NULL);
+        sq_world *w = s ? sq_world_create(s, &e) : NULL;
+        CHECK(w != NULL);
+        if (!w) {
+            printf("    %s\n", e.msg);
+            sq_scene_free(s);
+            continue;
+        }
+        for (int i = 0; i < 5; i++)
+            sq_world_step(w, 0);
+        const sq_frame_profile *p = &w->profile[0];
+        if (k == 0)
+            CHECK(p->active[0] == 27 && p->active[1] == 0);
+        else
+            CHECK(p->active[1] == 64);
+        sq_world_destroy(w);
+        sq_scene_free(s);
+    }
+}
