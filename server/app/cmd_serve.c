@@ -21,6 +21,8 @@ static void usage(FILE *f)
             "  --max-message BYTES largest text message accepted (default 65536)\n"
             "  --rate N            requests per second per client (default 200)\n"
             "  --grace SECONDS     how long an empty session is kept (default 30)\n"
+            "  --precision REL     frame quantisation floor as a fraction of a body's size\n"
+            "                      (default 1e-3: 1.7 mm on a 1 m cube; smaller = finer, more bytes)\n"
             "  --lockstep          no real-time clock: sessions advance only on 'step'\n"
             "  --verbose           log sessions and connections\n"
             "Protocol: docs/protocol.md. Stops cleanly on SIGINT/SIGTERM.\n");
@@ -103,6 +105,8 @@ int sq_cmd_serve(int argc, char **argv)
                 *slash = 0;
             rc = num_arg(a, buf, 1, 1e6, &rate);
             o.rate = rate;
+        } else if (!strcmp(a, "--precision")) {
+            rc = num_arg(a, v, 1e-7, 0.01, &o.precision);
         } else if (!strcmp(a, "--grace")) {
             rc = num_arg(a, v, 0, 86400, &o.grace);
         } else {

@@ -96,7 +96,7 @@ void sq_codec_init(sq_codec *c, int nsurf, const float *rest_xyz)
     c->level = sq_calloc((size_t)(nsurf > 0 ? nsurf : 1), 1);
     if (nsurf > 0)
         memcpy(c->rest, rest_xyz, sizeof(float) * 3 * (size_t)nsurf);
-    /* precision floor: 1e-4 of the rest bounding-box diagonal */
+    /* precision floor: a fraction of the rest bounding-box diagonal */
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int i = 0; i < nsurf; i++)
         for (int k = 0; k < 3; k++) {
@@ -106,7 +106,8 @@ void sq_codec_init(sq_codec *c, int nsurf, const float *rest_xyz)
     double diag2 = 0;
     for (int k = 0; k < 3 && nsurf > 0; k++)
         diag2 += (double)(hi[k] - lo[k]) * (hi[k] - lo[k]);
-    c->precision = (float)(1e-4 * sqrt(diag2));
+    c->diagonal = (float)sqrt(diag2);
+    c->precision = (float)(SQ_CODEC_PRECISION * sqrt(diag2));
 }
 
 void sq_codec_free(sq_codec *c)

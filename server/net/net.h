@@ -196,8 +196,12 @@ typedef struct sq_codec {
     size_t raw_cap;
     unsigned char *z;        /* scratch compressed */
     size_t z_cap;
-    float precision;         /* minimum quantisation step, m */
+    float precision;         /* minimum quantisation step, m (SQ_CODEC_PRECISION x diagonal) */
+    float diagonal;          /* rest bounding-box diagonal, m */
 } sq_codec;
+
+/* default precision floor of frames, relative to the rest bounding-box diagonal */
+#define SQ_CODEC_PRECISION 1e-3
 
 /* set up a codec for a surface of nsurf vertices with rest positions xyz (nsurf x 3) */
 void sq_codec_init(sq_codec *c, int nsurf, const float *rest_xyz);
@@ -239,6 +243,7 @@ typedef struct sq_serve_options {
     int max_message;         /* bytes of a text message, 65536 */
     double rate;             /* requests per second per client, 200 */
     double grace;            /* seconds an empty session lives, 30 */
+    double precision;        /* frame quantisation floor / body diagonal, SQ_CODEC_PRECISION */
     int lockstep;            /* 0 */
     int verbose;
 } sq_serve_options;

@@ -533,7 +533,8 @@ static void do_open_or_join(client *c, const sq_request *req)
         r->bytes_sent = 0;
         r->empty_since = 0;
         uint32_t id = r->gen << SLOT_BITS | (uint32_t)idx;
-        r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep, wake, srv);
+        r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep,
+                                srv->opt->precision, wake, srv);
         if (srv->opt->verbose)
             fprintf(stderr, "squish serve: session %u opened (scene %s)\n", id, srv->names[sc]);
     } else {
@@ -880,6 +881,7 @@ sq_serve_options sq_serve_options_default(void)
     o.max_message = 65536;
     o.rate = 200;
     o.grace = 30;
+    o.precision = SQ_CODEC_PRECISION;
     return o;
 }
 

@@ -243,9 +243,32 @@ static void snapshot_locked(sq_session *s, double frame_s)
     }
     p->ntools = w->ntools;
     memcpy(p->tools, w->tools, sizeof p->tools);
+}
+
+/* the tool ids requests are checked against: the world's tools plus those of tool jobs not
+ * yet applied (caller holds mu) */
+static void sync_tool_ids_locked(sq_session *s)
+{
+    const sq_world *w = s->world;
     s->ntool_ids = w->ntools;
     for (int i = 0; i < w->ntools; i++)
         s->tool_ids[i] = w->tools[i].id;
+    for (int j = 0; j < s->njobs && s->ntool_ids < SQ_MAX_TOOLS; j++) {
+        if (s->jobs[j].req.type != SQ_REQ_TOOL)
+            continue;
+        int known = 0;
+        for (int i = 0; i < s->ntool_ids; i++)
+            known |= s->tool_ids[i] == s->jobs[j].req.tool.id;
+        if (!known)
+            s->tool_ids[s->ntool_ids++] = s->jobs[j].req.tool.id;
+    }
+}
+
+static void sync_tool_ids(sq_session *s)
+{
+    pthread_mutex_lock(&s->mu);
+    sync_tool_ids_locked(s);
+    pthread_mutex_unlock(&s->mu);
 }
 
 /* encode the current state of every body and post it (kind < 0: only keep it as the newest
@@ -316,6 +339,7 @@ static void do_tool(sq_session *s, const sq_job *j)
             snprintf(msg, sizeof msg, "tool.id: %d is not a tool of this session; a new tool needs "
                      "shape and pos", r->tool.id);
             reply_error(s, j->client, r, "unknown_tool", msg);
+            sync_tool_ids(s);
             return;
         }
         memset(&t, 0, sizeof t);
@@ -335,8 +359,10 @@ static void do_tool(sq_session *s, const sq_job *j)
     if (sq_world_set_tool(w, &t, &err)) {
         reply_error(s, j->client, r, w->ntools >= SQ_MAX_TOOLS ? "too_many_tools" : "refused",
                     err.msg);
+        sync_tool_ids(s);
         return;
     }
+    sync_tool_ids(s); /* before the ack, so that the next update of this id passes */
     reply(s, j->client, ack("tool", r, w->frame + 1));
 }
 
@@ -481,6 +507,7 @@ static int do_job(sq_session *s, const sq_job *j)
             sq_world_reset(w);
         else
             sq_body_reset(w->bodies[r->reset.body]);
+        sync_tool_ids(s);
         reply(s, j->client, ack("reset", r, w->frame));
         return 1;
     case SQ_REQ_STEP: {
@@ -525,6 +552,7 @@ static int setup(sq_session *s)
             for (int k = 0; k < 3; k++)
                 rest[3 * i + k] = (float)m->x[3 * m->surf_nodes[i] + k];
         sq_codec_init(&s->codec[b], m->nsurf, rest);
+        s->codec[b].precision = (float)(s->precision * s->codec[b].diagonal);
         free(rest);
         topo[b] = sq_encode_topology(&s->codec[b], (uint32_t)b, 0, 0.0, m->surf_tris, m->ntris);
         maxs = SQ_MAX(maxs, m->nsurf);
@@ -538,6 +566,7 @@ static int setup(sq_session *s)
         s->topology[b] = topo[b];
     s->bodies_json = bj;
     snapshot_locked(s, 0);
+    sync_tool_ids_locked(s);
     s->state = SQ_SESSION_READY;
     post_locked(s, SQ_OUT_READY, 0, 0, NULL);
     pthread_mutex_unlock(&s->mu);
@@ -620,7 +649,7 @@ static void *session_main(void *arg)
 }
 
 sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
-                             void (*wake)(void *), void *wake_arg)
+                             double precision, void (*wake)(void *), void *wake_arg)
 {
     sq_session *s = sq_calloc(1, sizeof *s);
     s->id = id;
@@ -628,6 +657,7 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t i
     snprintf(s->scene_name, sizeof s->scene_name, "%s", name);
     s->period = 1.0 / (scene->frame_rate > 0 ? scene->frame_rate : 50.0);
     s->lockstep = lockstep;
+    s->precision = precision > 0 ? precision : SQ_CODEC_PRECISION;
     s->wake = wake;
     s->wake_arg = wake_arg;
     pthread_mutex_init(&s->mu, NULL);

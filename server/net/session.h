@@ -70,6 +70,7 @@ typedef struct sq_session {
     char scene_name[SQ_NET_NAME_MAX];
     double period;                   /* frame period, s */
     int lockstep;
+    double precision;                /* quantisation floor / body diagonal */
     void (*wake)(void *);            /* wakes the lws thread (lws_cancel_service) */
     void *wake_arg;
 
@@ -105,7 +106,7 @@ typedef struct sq_session {
 /* create and start a session's thread for scene; the world is built on that thread, which
  * then posts SQ_OUT_READY or SQ_OUT_FAILED */
 sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
-                             void (*wake)(void *), void *wake_arg);
+                             double precision, void (*wake)(void *), void *wake_arg);
 /* stop the thread, free everything (pending outbox blobs included) */
 void sq_session_stop(sq_session *s);
 /* queue a request for the session thread (lws thread) */

@@ -35,9 +35,13 @@ export function startServer(args = [], { env = {} } = {}) {
         stderr: () => err,
         exited,
         /** stop with a signal; resolves with { code, signal } */
-        async stop(signal = 'SIGTERM') {
+        async stop(signal = 'SIGTERM', graceMs = 5000) {
           if (proc.exitCode === null && proc.signalCode === null) proc.kill(signal);
-          return exited;
+          // never leave a server behind: kill it if it does not stop in time
+          const timer = setTimeout(() => proc.kill('SIGKILL'), graceMs);
+          const r = await exited;
+          clearTimeout(timer);
+          return r;
         },
       });
     });
