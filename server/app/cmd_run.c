@@ -75,7 +75,13 @@ static int mkdir_p(const char *dir)
     if (mkdir(buf, 0777) && errno != EEXIST)
         return -1;
     struct stat st;
-    return stat(buf, &st) == 0 && S_ISDIR(st.st_mode) ? 0 : -1;
+    if (stat(buf, &st) != 0)
+        return -1;
+    if (!S_ISDIR(st.st_mode)) {
+        errno = ENOTDIR;
+        return -1;
+    }
+    return 0;
 }
 
 static FILE *open_out(const char *dir, const char *name, char *path, size_t n)

@@ -130,6 +130,12 @@ check "missing mesh exits 1 naming levels[0]" \
 rc=$?
 check "missing scene exits 1 naming the file" bash -c "[ $rc = 1 ] && grep -q 'no-such-scene.json' '$TMP/z.log'"
 
+# an output path that is a file: exit 1, named
+touch "$TMP/afile"
+"$SQUISH" run "$DATA/small-cube.json" --frames 1 --out "$TMP/afile" >"$TMP/o.log" 2>&1
+rc=$?
+check "--out on a file: exit 1, named" bash -c "[ $rc = 1 ] && grep -q 'cannot create output directory .*afile: Not a directory' '$TMP/o.log'"
+
 # usage errors exit 2
 "$SQUISH" run >/dev/null 2>&1
 check "no scene: exit 2" [ $? = 2 ]
