@@ -219,6 +219,20 @@ SQ_TEST(mesh_io_vtk_deterministic_with_fields)
     }
     free(a);
     free(b);
+    /* VTK's own reader (ParaView's) reads it: counts, tet cells, the three arrays */
+    char cmd[2200], out[1024] = "";
+    snprintf(cmd, sizeof cmd, "/usr/bin/python3 %s/mesh/vtk_read.py %s 2>&1", sq_test_data(), p1);
+    FILE *pp = popen(cmd, "r");
+    CHECK(pp != NULL);
+    if (pp) {
+        size_t got = fread(out, 1, sizeof out - 1, pp);
+        out[got] = 0;
+        CHECK(pclose(pp) == 0);
+        CHECK_CONTAINS(out, "points 12 cells 12 type 10 error 0\n");
+        CHECK_CONTAINS(out, "displacement 3 0 0 -0.001\n");
+        CHECK_CONTAINS(out, "velocity 3 0.333333333 0 0\n");
+        CHECK_CONTAINS(out, "level 1 1\n");
+    }
     /* without fields there is no POINT_DATA */
     CHECK(sq_mesh_write_vtk(m, p1, NULL, NULL, NULL, &err) == 0);
     a = sq_read_file(p1, &n1, 1 << 20, &err);
