@@ -284,6 +284,16 @@ function onError(m) {
     }
     return;
   }
+  if (m.request === 'open' && m.code === 'unknown_scene' && app.role === 'control') {
+    // a scene named in the address that the server does not have: open its default instead
+    const failed = app.scene;
+    app.scene = null;
+    const fallback = PREFERRED_SCENES.find((n) => n !== failed && app.scenes.some((s) => s.name === n)) ||
+      (app.scenes.find((s) => s.name !== failed) || {}).name;
+    showEvent(`${text}; opening ${fallback || 'nothing'} instead`, true);
+    if (fallback) openScene(fallback);
+    return;
+  }
   const p = pendingSet;
   if (p && m.ref === p.ref) {
     pendingSet = null;
@@ -439,7 +449,7 @@ function onStats(m) {
   const fmt = (v, d = 0) => (typeof v === 'number' && Number.isFinite(v) ? v.toFixed(d) : '-');
   if (typeof m.budget_used === 'number') {
     const pct = m.budget_used * 100;
-    $('hud-budget').textContent = `${fmt(pct, 0)} %`;
+    $('hud-budget').textContent = typeof m.frame_ms === 'number' ? `${fmt(pct, 0)} % (${fmt(m.frame_ms, 1)} ms)` : `${fmt(pct, 0)} %`;
     $('hud-budget').className = pct > 95 ? 'bad' : '';
   }
   $('hud-misses').textContent = fmt(m.deadline_misses);
@@ -494,7 +504,7 @@ function buildLegend(nlevels, counts) {
       sw.className = 'swatch';
       sw.style.background = palette.level[Math.min(i, palette.level.length - 1)];
       const name = document.createElement('span');
-      name.textContent = n === 1 ? `level ${i} (one level loaded)` : i === 0 ? `level ${i} (coarsest)` : i === n - 1 ? `level ${i} (finest)` : `level ${i}`;
+      name.textContent = n === 1 ? `level ${i} (only level)` : i === 0 ? `level ${i} (coarsest)` : i === n - 1 ? `level ${i} (finest)` : `level ${i}`;
       const c = document.createElement('span');
       c.className = 'legend-count';
       li.append(sw, name, c);
