@@ -56,6 +56,23 @@ typedef struct client {
     int closing;
 } client;
 
+/* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
+typedef struct conn {
+    client *c;
+    uint64_t snap_id;                /* HTTP: the snapshot this connection waits for */
+} conn;
+
+/* a snapshot request waiting for its PNG (lws thread only) */
+typedef struct snap_wait {
+    uint64_t id;
+    struct lws *wsi;                 /* NULL once the HTTP connection closed */
+    sq_snap_job *result;             /* set when rendered */
+    struct snap_wait *next;
+} snap_wait;
+
+#define SNAP_MIN_INTERVAL 0.25       /* s between snapshots of one session */
+#define SNAP_MAX_WAITING 8           /* snapshot requests waiting, server-wide */
+
 /* the server's record of a session (lws thread only, except s) */
 typedef struct srec {
     sq_session *s;                   /* NULL: free slot */
@@ -66,6 +83,7 @@ typedef struct srec {
     uint64_t controller;             /* serial of the controller, 0 = none */
     double empty_since;
     uint64_t bytes_sent;
+    double last_snapshot;            /* when the last snapshot was asked for */
 } srec;
 
 typedef struct server {
@@ -80,6 +98,10 @@ typedef struct server {
     uint64_t next_serial;
     lws_sorted_usec_list_t sul;
     int stopping;
+    sq_snapshotter *snapshotter;
+    snap_wait *waits;
+    int nwaits;
+    uint64_t next_snap;
 } server;
 
 static volatile sig_atomic_t interrupted;
@@ -535,6 +557,8 @@ static void do_open_or_join(client *c, const sq_request *req)
         uint32_t id = r->gen << SLOT_BITS | (uint32_t)idx;
         r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep,
                                 srv->opt->precision, wake, srv);
+        r->s->snapshotter = srv->snapshotter;
+        r->last_snapshot = 0;
         if (srv->opt->verbose)
             fprintf(stderr, "squish serve: session %u opened (scene %s)\n", id, srv->names[sc]);
     } else {
@@ -738,6 +762,111 @@ static int http_reply(struct lws *wsi, unsigned status, const char *type, const 
     return lws_http_transaction_completed(wsi) ? -1 : 0;
 }
 
+/* GET /snapshot.png?session=ID[&size=WxH]: validate, rate-limit, hand to the session */
+static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
+{
+    char buf[128], msg[400];
+    const char *v = lws_get_urlarg_by_name(wsi, "session=", buf, sizeof buf);
+    char *end = NULL;
+    unsigned long id = v ? strtoul(v, &end, 10) : 0;
+    srec *r = (v && end && !*end && end != v) ? find_session(srv, (uint32_t)id) : NULL;
+    if (!r) {
+        snprintf(msg, sizeof msg, "no session %.40s; use /snapshot.png?session=ID with the id of "
+                 "'opened'\n", v ? v : "(missing)");
+        return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", msg, strlen(msg));
+    }
+    if (!srv->snapshotter) {
+        snprintf(msg, sizeof msg, "snapshots are not available in this server\n");
+        return http_reply(wsi, 503, "text/plain", msg, strlen(msg));
+    }
+    int width = 800, height = 600;
+    const char *sz = lws_get_urlarg_by_name(wsi, "size=", buf, sizeof buf);
+    if (sz) {
+        sq_err err = {{0}};
+        if (sq_render_parse_size(sz, SQ_SNAPSHOT_MAX_SIZE, &width, &height, &err)) {
+            snprintf(msg, sizeof msg, "size: %.300s\n", err.msg);
+            return http_reply(wsi, HTTP_STATUS_BAD_REQUEST, "text/plain", msg, strlen(msg));
+        }
+    }
+    double now = sq_now();
+    if (now - r->last_snapshot < SNAP_MIN_INTERVAL || srv->nwaits >= SNAP_MAX_WAITING) {
+        snprintf(msg, sizeof msg, "too many snapshots: at most one per %.2f s per session; retry "
+                 "later\n", SNAP_MIN_INTERVAL);
+        return http_reply(wsi, 429, "text/plain", msg, strlen(msg));
+    }
+    r->last_snapshot = now;
+    snap_wait *w = sq_calloc(1, sizeof *w);
+    w->id = ++srv->next_snap;
+    w->wsi = wsi;
+    w->next = srv->waits;
+    srv->waits = w;
+    srv->nwaits++;
+    pss->snap_id = w->id;
+    sq_snap_job *j = sq_calloc(1, sizeof *j);
+    j->id = w->id;
+    j->width = width;
+    j->height = height;
+    sq_session_push_snapshot(r->s, j);
+    return 0; /* answered from HTTP_WRITEABLE when the PNG is ready */
+}
+
+/* rendered snapshots: wake their HTTP connections */
+static void snapshot_results(server *srv)
+{
+    if (!srv->snapshotter)
+        return;
+    for (sq_snap_job *j = sq_snapshotter_take(srv->snapshotter), *n; j; j = n) {
+        n = j->next;
+        j->next = NULL;
+        snap_wait *w = srv->waits;
+        while (w && w->id != j->id)
+            w = w->next;
+        if (w && w->wsi && !w->result) {
+            w->result = j;
+            lws_callback_on_writable(w->wsi);
+        } else {
+            sq_snap_job_free(j);
+        }
+    }
+    /* forget waits whose connection closed */
+    for (snap_wait **p = &srv->waits; *p;) {
+        if (!(*p)->wsi) {
+            snap_wait *d = *p;
+            *p = d->next;
+            sq_snap_job_free(d->result);
+            free(d);
+            srv->nwaits--;
+        } else {
+            p = &(*p)->next;
+        }
+    }
+}
+
+static int snapshot_write(server *srv, struct lws *wsi, conn *pss)
+{
+    snap_wait **p = &srv->waits;
+    while (*p && (*p)->id != pss->snap_id)
+        p = &(*p)->next;
+    if (!*p || !(*p)->result)
+        return 0;
+    snap_wait *w = *p;
+    *p = w->next;
+    srv->nwaits--;
+    pss->snap_id = 0;
+    sq_snap_job *j = w->result;
+    free(w);
+    int rc;
+    if (j->png) {
+        rc = http_reply(wsi, HTTP_STATUS_OK, "image/png", j->png, j->png_len);
+    } else {
+        char msg[300];
+        snprintf(msg, sizeof msg, "snapshot failed: %.250s\n", j->error);
+        rc = http_reply(wsi, HTTP_STATUS_INTERNAL_SERVER_ERROR, "text/plain", msg, strlen(msg));
+    }
+    sq_snap_job_free(j);
+    return rc;
+}
+
 static int origin_allowed(server *srv, struct lws *wsi)
 {
     if (!srv->opt->norigins)
@@ -755,7 +884,8 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
                     size_t len)
 {
     server *srv = the_server;
-    client **pc = user, *c = pc ? *pc : NULL;
+    conn *pss = user;
+    client *c = pss ? pss->c : NULL;
 
     switch (reason) {
     case LWS_CALLBACK_FILTER_PROTOCOL_CONNECTION: {
@@ -781,7 +911,7 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         c->last_refill = sq_now();
         c->stats_hz = 4;
         c->sub_frames = 1;
-        *pc = c;
+        pss->c = c;
         {
             /* a fixed send buffer: a slow reader fills it quickly, and from then on the
              * latest-wins slots decide what it gets, instead of megabytes of old frames */
@@ -845,20 +975,37 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
             free(c->fifo);
             free(c->rx);
             free(c);
-            *pc = NULL;
+            pss->c = NULL;
         }
         return 0;
 
+    case LWS_CALLBACK_CLOSED_HTTP:
+        if (pss && pss->snap_id)
+            for (snap_wait *w = srv->waits; w; w = w->next)
+                if (w->id == pss->snap_id)
+                    w->wsi = NULL;
+        break;
+
+    case LWS_CALLBACK_HTTP_WRITEABLE:
+        if (pss && pss->snap_id)
+            return snapshot_write(srv, wsi, pss);
+        break;
+
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
-        if (srv)
+        if (srv) {
             for (int i = 0; i < srv->nslots; i++)
                 if (srv->slots[i].s)
                     drain_session(srv, &srv->slots[i]);
+            snapshot_results(srv);
+        }
         return 0;
 
     case LWS_CALLBACK_HTTP: {
-        const char *path = in ? (const char *)in : "";
-        if (!strcmp(path, "/healthz") || !strcmp(path, "") || !strcmp(path, "/"))
+        char uri[128] = "";
+        lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI);
+        if (!strcmp(uri, "/snapshot.png"))
+            return snapshot_request(srv, wsi, pss);
+        if (!strcmp(uri, "/healthz"))
             return http_reply(wsi, HTTP_STATUS_OK, "text/plain", "ok\n", 3);
         return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", "not found\n", 10);
     }
@@ -972,7 +1119,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     memset(protocols, 0, sizeof protocols);
     protocols[0].name = "squish";
     protocols[0].callback = callback;
-    protocols[0].per_session_data_size = sizeof(client *);
+    protocols[0].per_session_data_size = sizeof(conn);
     protocols[0].rx_buffer_size = 16384;
 
     struct lws_http_mount health, files;
@@ -988,8 +1135,15 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     files.def = "index.html";
     files.origin_protocol = LWSMPRO_FILE;
     files.extra_mimetypes = &mime_mjs;
+    struct lws_http_mount snap;
+    memset(&snap, 0, sizeof snap);
+    snap.mountpoint = "/snapshot.png";
+    snap.mountpoint_len = (unsigned char)strlen(snap.mountpoint);
+    snap.origin = "squish";
+    snap.origin_protocol = LWSMPRO_CALLBACK;
+    health.mount_next = &snap;
     if (opt->web_dir)
-        health.mount_next = &files;
+        snap.mount_next = &files;
 
     struct lws_context_creation_info info;
     memset(&info, 0, sizeof info);
@@ -1001,6 +1155,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
                    LWS_SERVER_OPTION_DISABLE_IPV6;
     lws_set_log_level(opt->verbose ? (LLL_ERR | LLL_WARN | LLL_NOTICE) : (LLL_ERR | LLL_WARN), NULL);
 
+    srv.snapshotter = sq_snapshotter_start(wake, &srv);
     srv.ctx = lws_create_context(&info);
     if (!srv.ctx) {
         sq_err_set(err, "cannot listen on %s:%d (port in use, or the address is not local?); "
@@ -1059,6 +1214,12 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
 fail:
     rc = -1;
 done:
+    sq_snapshotter_stop(srv.snapshotter);
+    for (snap_wait *w = srv.waits, *n; w; w = n) {
+        n = w->next;
+        sq_snap_job_free(w->result);
+        free(w);
+    }
     for (int i = 0; i < srv.nscenes; i++)
         sq_scene_free(srv.scenes[i]);
     free(srv.scenes);

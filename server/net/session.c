@@ -189,6 +189,7 @@ void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req)
     }
     s->jobs[s->njobs].client = client;
     s->jobs[s->njobs].req = *req;
+    s->jobs[s->njobs].snap = NULL;
     s->njobs++;
     /* a new tool id is known at once, so that a quick update of it passes the checks */
     if (req->type == SQ_REQ_TOOL && s->ntool_ids < SQ_MAX_TOOLS) {
@@ -198,6 +199,20 @@ void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req)
         if (!known)
             s->tool_ids[s->ntool_ids++] = req->tool.id;
     }
+    pthread_cond_signal(&s->cv);
+    pthread_mutex_unlock(&s->mu);
+}
+
+void sq_session_push_snapshot(sq_session *s, sq_snap_job *j)
+{
+    pthread_mutex_lock(&s->mu);
+    if (s->njobs == s->cap_jobs) {
+        s->cap_jobs = s->cap_jobs ? 2 * s->cap_jobs : 16;
+        s->jobs = sq_realloc(s->jobs, sizeof *s->jobs * (size_t)s->cap_jobs);
+    }
+    memset(&s->jobs[s->njobs], 0, sizeof s->jobs[s->njobs]);
+    s->jobs[s->njobs].snap = j;
+    s->njobs++;
     pthread_cond_signal(&s->cv);
     pthread_mutex_unlock(&s->mu);
 }
@@ -483,6 +498,21 @@ static int do_job(sq_session *s, const sq_job *j)
 {
     const sq_request *r = &j->req;
     sq_world *w = s->world;
+    if (j->snap) {
+        /* a cheap copy of what to draw; the worker renders it off this thread */
+        sq_snap_job *sj = j->snap;
+        sq_err err = {{0}};
+        sj->state = sq_calloc(1, sizeof *sj->state);
+        sq_render_state_init(sj->state);
+        if (sq_render_state_capture(sj->state, w, &err)) {
+            sq_render_state_free(sj->state);
+            free(sj->state);
+            sj->state = NULL;
+            snprintf(sj->error, sizeof sj->error, "capture: %.200s", err.msg);
+        }
+        sq_snapshotter_submit(s->snapshotter, sj);
+        return 0;
+    }
     /* a client's view of the bodies may be stale: check ids again here */
     int body = r->type == SQ_REQ_SET ? r->set.body : r->type == SQ_REQ_RESET ? r->reset.body
              : r->type == SQ_REQ_NODES ? r->nodes.body : -1;
@@ -689,6 +719,15 @@ void sq_session_stop(sq_session *s)
     for (int i = 0; i < s->nouts; i++)
         sq_blob_unref(s->outs[i].blob);
     free(s->outs);
+    /* snapshot requests still queued get an answer */
+    for (int i = 0; i < s->njobs; i++)
+        if (s->jobs[i].snap) {
+            snprintf(s->jobs[i].snap->error, sizeof s->jobs[i].snap->error, "the session ended");
+            if (s->snapshotter)
+                sq_snapshotter_submit(s->snapshotter, s->jobs[i].snap);
+            else
+                sq_snap_job_free(s->jobs[i].snap);
+        }
     free(s->jobs);
     for (int b = 0; b < SQ_MAX_BODIES; b++) {
         sq_blob_unref(s->topology[b]);

@@ -14,12 +14,14 @@
 #include <pthread.h>
 
 #include "net/net.h"
+#include "net/snapshot.h"
 #include "scene/scene.h"
 
 /* a request handed to the session thread, with the client it came from */
 typedef struct sq_job {
     uint64_t client;         /* client serial, for the reply */
     sq_request req;
+    sq_snap_job *snap;       /* internal: capture the world for a snapshot (req unused) */
 } sq_job;
 
 typedef enum sq_out_kind {
@@ -73,6 +75,7 @@ typedef struct sq_session {
     double precision;                /* quantisation floor / body diagonal */
     void (*wake)(void *);            /* wakes the lws thread (lws_cancel_service) */
     void *wake_arg;
+    sq_snapshotter *snapshotter;     /* set by the server right after start (may be NULL) */
 
     /* shared, under mu */
     pthread_mutex_t mu;
@@ -111,6 +114,9 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t i
 void sq_session_stop(sq_session *s);
 /* queue a request for the session thread (lws thread) */
 void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req);
+/* queue a snapshot capture: the session thread captures its world into j->state at its
+ * next frame and submits j to s->snapshotter */
+void sq_session_push_snapshot(sq_session *s, sq_snap_job *j);
 /* take every outbox item (lws thread); *n items, caller frees the array and blob refs */
 sq_out *sq_session_take_outbox(sq_session *s, int *n);
 

@@ -206,3 +206,29 @@ test('an empty session ends after the grace period', async () => {
 test('decodeBinary rejects a truncated message', () => {
   assert.throws(() => decodeBinary(Buffer.alloc(10)));
 });
+
+test('GET /snapshot.png renders the session off the simulation thread; bad requests named', async () => {
+  const c = await connect();
+  const o = await c.open('default');
+  await c.tool({ id: 1, shape: 'grab', pos: [0.5, 0.5, 1.0], radius: 0.2 });
+  await c.tool({ id: 1, pos: [0.5, 0.5, 1.2] });
+  const r = await fetch(`${srv.http}/snapshot.png?session=${o.session}&size=320x240`);
+  assert.equal(r.status, 200);
+  assert.equal(r.headers.get('content-type'), 'image/png');
+  const png = Buffer.from(await r.arrayBuffer());
+  assert.equal(png.toString('latin1', 1, 4), 'PNG');
+  assert.equal(png.readUInt32BE(16), 320); // IHDR width
+  assert.equal(png.readUInt32BE(20), 240); // IHDR height
+  // asked again at once: rate-limited
+  const again = await fetch(`${srv.http}/snapshot.png?session=${o.session}&size=320x240`);
+  assert.equal(again.status, 429);
+  assert.equal((await fetch(`${srv.http}/snapshot.png?session=77`)).status, 404);
+  await sleep(300);
+  const bad = await fetch(`${srv.http}/snapshot.png?session=${o.session}&size=5x5`);
+  assert.equal(bad.status, 400);
+  assert.match(await bad.text(), /size/);
+  // frames kept flowing meanwhile
+  const f0 = (await c.stats()).frame;
+  await c.waitFor(f => f.frame > f0, 3000, 'frame');
+  await c.close();
+});
