@@ -282,6 +282,17 @@ SQ_TEST(mesh_shipped_meshes)
                 break;
             }
             sq_mesh_measure(m, &info[k]);
+            /* closed outward surface: (1/3) sum x.n A over boundary triangles = volume (1e-9 rel:
+             * roundoff over up to ~8k triangles) */
+            double dv = 0;
+            for (int t = 0; t < m->ntris; t++) {
+                const double *a = m->x + 3 * m->tris[3 * t], *b = m->x + 3 * m->tris[3 * t + 1],
+                             *c = m->x + 3 * m->tris[3 * t + 2];
+                double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, w[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+                double n2[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+                dv += (a[0] * n2[0] + a[1] * n2[1] + a[2] * n2[2]) / 6;
+            }
+            CHECK_NEAR(dv / info[k].volume, 1.0, 1e-9);
             /* real time: the finest level stays at most ~15k nodes */
             CHECK(m->nnodes <= 15000);
             CHECK(info[k].volume > 0);
@@ -366,4 +377,72 @@ SQ_TEST(mesh_io_mutated_files)
         free(mut);
         free(buf);
     }
+}
+
+/* locate on a real unstructured mesh: points inside the sphere are found in a tet that
+ * contains them; points outside get the tet under the nearest surface point */
+SQ_TEST(mesh_locate_sphere)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/../../meshes/sphere/sphere_l2.msh", sq_test_data());
+    sq_err err = {0};
+    sq_mesh *m = sq_mesh_load(path, &err);
+    CHECK(m != NULL);
+    if (!m)
+        return;
+    unsigned s = 99;
+    int bad_in = 0, bad_out = 0, nin = 0, nout = 0;
+    for (int q = 0; q < 4000; q++) {
+        double p[3], r2 = 0, b[4];
+        for (int c = 0; c < 3; c++) {
+            s = s * 1103515245u + 12345u;
+            p[c] = 1.4 * (((s >> 8) & 0xffff) / 65536.0 - 0.5);
+            r2 += p[c] * p[c];
+        }
+        int t = sq_mesh_locate(m, p, b);
+        if (t < 0) {
+            bad_in++;
+            continue;
+        }
+        double mn = 1, x[3] = {0, 0, 0};
+        for (int k = 0; k < 4; k++) {
+            mn = b[k] < mn ? b[k] : mn;
+            for (int c = 0; c < 3; c++)
+                x[c] += b[k] * m->x[3 * m->tets[4 * t + k] + c];
+        }
+        /* the barycentric coordinates always reproduce p (1e-12: roundoff) */
+        for (int c = 0; c < 3; c++)
+            if (fabs(x[c] - p[c]) > 1e-12)
+                bad_in++;
+        /* well inside the inscribed polyhedron (r < 0.45 < its inradius) must be contained */
+        if (sqrt(r2) < 0.45) {
+            nin++;
+            if (mn < -1e-12)
+                bad_in++;
+        } else if (sqrt(r2) > 0.5) {
+            /* outside the sphere: not contained, and the tet touches the boundary */
+            nout++;
+            int on = 0;
+            for (int k = 0; k < 4; k++)
+                on |= m->on_boundary[m->tets[4 * t + k]];
+            if (mn >= 0 || !on)
+                bad_out++;
+        }
+    }
+    CHECK(nin > 400 && nout > 400);
+    CHECK(bad_in == 0);
+    CHECK(bad_out == 0);
+    /* every node is located in a tet that has it as a vertex or contains it */
+    int bad_node = 0;
+    for (int i = 0; i < m->nnodes; i += 7) {
+        double b[4];
+        int t = sq_mesh_locate(m, m->x + 3 * i, b);
+        double mn = 1;
+        for (int k = 0; k < 4; k++)
+            mn = b[k] < mn ? b[k] : mn;
+        if (t < 0 || mn < -1e-12)
+            bad_node++;
+    }
+    CHECK(bad_node == 0);
+    sq_mesh_free(m);
 }
