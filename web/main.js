@@ -434,6 +434,7 @@ const frameCounter = {
 };
 
 let lastStatsAt = 0;
+const boxSizes = new Map();
 let lastBytesIn = 0;
 
 // stats are pushed (subscribe); ask for them only when the pushes stop
@@ -473,6 +474,8 @@ function onStats(m) {
     $('hud-force').textContent = f;
   }
   if (typeof m.skipped === 'number') app.skipped = m.skipped;
+  // box extents are only in stats (frames carry a radius)
+  if (Array.isArray(m.tools)) for (const t of m.tools) if (Array.isArray(t.size)) boxSizes.set(t.id, t.size);
 }
 
 // once a second: rates measured in the page
@@ -918,7 +921,11 @@ function frameLoop() {
   // tools: the server's view of every tool, plus ours while we drag it
   const tools = [];
   for (const b of app.bodies.values()) {
-    for (const t of b.tools || []) if (t.active && !tools.some((x) => x.id === t.id)) tools.push({ ...t });
+    for (const t of b.tools || []) {
+      if (!t.active || tools.some((x) => x.id === t.id)) continue;
+      const size = boxSizes.get(t.id);
+      tools.push({ ...t, half: size ? size.map((v) => v / 2) : undefined });
+    }
   }
   if (tool) {
     const t = tools.find((x) => x.id === tool.id);
