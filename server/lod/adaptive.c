@@ -425,13 +425,15 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
         *bk_cap = SQ_MAX(total, 2 * *bk_cap);
         *bk = sq_realloc(*bk, sizeof(double) * 9 * (size_t)*bk_cap);
     }
-    memset(*bk, 0, sizeof(double) * 9 * (size_t)total);
+    if (total > 0)
+        memset(*bk, 0, sizeof(double) * 9 * (size_t)total);
     if (visc) {
         if (total > *bd_cap) {
             *bd_cap = SQ_MAX(total, 2 * *bd_cap);
             *bd = sq_realloc(*bd, sizeof(double) * 9 * (size_t)*bd_cap);
         }
-        memset(*bd, 0, sizeof(double) * 9 * (size_t)total);
+        if (total > 0)
+            memset(*bd, 0, sizeof(double) * 9 * (size_t)total);
     }
     for (int r = 0; r < nn; r++) {
         int j = nodes[r];
@@ -1044,7 +1046,8 @@ static void build_sources(sq_lod *lod)
         for (int r = 0; r < lod->nring[k]; r++) {
             int n = 0;
             expand(lod, k, lod->ring[k][r], 1.0, 0, &buf, &n, &cap);
-            qsort(buf, (size_t)n, sizeof(src_item), cmp_src);
+            if (n > 1)
+                qsort(buf, (size_t)n, sizeof(src_item), cmp_src);
             /* merge duplicates, renormalise */
             int u = 0;
             double sum = 0;

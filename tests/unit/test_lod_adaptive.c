@@ -245,3 +245,194 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
         sq_level_free(&lv[k]);
     free_meshes(m, 2);
 }
+
+/* ------------------------------------------------------------------ tool feedback */
+
+/* at rest, without gravity, the tool's feedback (the internal force on the held nodes)
+ * balances the support reactions (the force on the fixed nodes, all levels): the adaptive
+ * operator is translation invariant across levels, so internal forces sum to zero */
+static void feedback_balance(double split, double merge, int want_mixed)
+{
+    sq_mesh *m[2] = {lh_cube(4, 0, 1, 1), lh_cube(8, 0.1, 1, 2)};
+    if (!m[0] || !m[1]) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 2);
+    def.gravity[2] = 0;
+    def.material.rayleigh_mass = 20; /* about critical: at rest within the run */
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, split, merge);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    CHECK(b != NULL);
+    if (!b) {
+        fprintf(stderr, "%s\n", e.msg);
+        free_meshes(m, 2);
+        return;
+    }
+    sq_tool t = lh_sphere(0.5, 0.5, 1.2, 0.3, 1); /* 0.1 m into the top face */
+    sq_tool_feedback fb;
+    sq_frame_profile prof;
+    for (int f = 0; f < 300; f++)
+        sq_body_frame(b, &t, 1, &fb, &prof, 0);
+    CHECK(fb.nnodes >= 1);
+    double R[3] = {0, 0, 0};
+    for (int k = 0; k < 2; k++) {
+        const sq_level *L = sq_body_level(b, k);
+        const unsigned char *act = sq_lod_active(b->lod, k);
+        for (int i = 0; i < L->n; i++)
+            if (act[i] && L->fixed[i] == 7)
+                for (int c = 0; c < 3; c++)
+                    R[c] += L->f[3 * i + c];
+    }
+    double sum[3] = {fb.force[0] + R[0], fb.force[1] + R[1], fb.force[2] + R[2]};
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "feedback (split %g): tool %.5g N, supports %.5g N, sum %.3g N, active %d %d\n",
+                split, fb.force[2], R[2], lh_norm3(sum), prof.active[0], prof.active[1]);
+    CHECK(fb.force[2] > 100); /* the body pushes back on the tool */
+    if (want_mixed)
+        CHECK(prof.active[0] > 0 && prof.active[1] > 0);
+    /* 6 s at about critical damping leaves ~e^-60 of the motion: 1e-6 of the tool force is
+     * rounding */
+    CHECK(lh_norm3(sum) <= 1e-6 * fabs(fb.force[2]));
+    sq_body_destroy(b);
+    free_meshes(m, 2);
+}
+
+SQ_TEST(lod_tool_feedback_balances_supports_forced_finest)
+{
+    feedback_balance(0, 0, 0);
+}
+
+SQ_TEST(lod_tool_feedback_balances_supports_mixed_levels)
+{
+    /* a patch under the tool that stays clear of the fixed bottom (a ghost on the support
+     * would carry part of the reaction, reported by no active node) */
+    feedback_balance(0.05, 0.00625, 1);
+}
+
+/* ------------------------------------------------------------------ frame budget */
+
+/* a frame over budget forbids splitting on the next frame (merges allowed) and says so */
+SQ_TEST(lod_budget_refuses_splits_and_warns)
+{
+    sq_mesh *m[3];
+    if (!poke_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    CHECK(b != NULL);
+    if (!b) {
+        free_meshes(m, 3);
+        return;
+    }
+    /* a 1 ns budget: every frame after the first is over it, whatever the machine */
+    sq_frame_profile prof;
+    int splits_late = 0, refused = 0, warned = 0;
+    for (int f = 0; f < 60; f++) {
+        sq_tool tool = poke_tool(f * def.frame_dt);
+        sq_body_frame(b, &tool, 1, NULL, &prof, 1e-9);
+        if (f >= 1) {
+            splits_late += prof.splits;
+            refused += prof.splits_refused;
+            warned += strstr(prof.event, "warning") != NULL && strstr(prof.event, "splitting refused") != NULL;
+        }
+    }
+    CHECK(splits_late == 0);
+    CHECK(refused == 59);
+    CHECK(warned == 59);
+    CHECK(prof.active[0] >= m[0]->nnodes - 1); /* stayed (almost) coarse under the poke */
+    sq_body_destroy(b);
+    free_meshes(m, 3);
+}
+
+/* the node-update cap: a poke that needs more stays under the cap in >= 99% of frames, with
+ * splits refused while at the cap */
+SQ_TEST(lod_node_update_cap_holds)
+{
+    sq_mesh *m[3];
+    if (!poke_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    long peak[2] = {0, 0};
+    int over[2] = {0, 0}, refused[2] = {0, 0}, frames = 120;
+    long cap = 1500;
+    for (int run = 0; run < 2; run++) {
+        sq_body_def def = lh_cube_def(m, 3);
+        def.gravity[2] = 0;
+        def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+        def.lod.max_node_updates = run ? cap : 0;
+        sq_err e = {{0}};
+        sq_body *b = sq_body_create(&def, &e);
+        CHECK(b != NULL);
+        if (!b)
+            break;
+        sq_frame_profile prof;
+        for (int f = 0; f < frames; f++) {
+            sq_tool tool = poke_tool(f * def.frame_dt);
+            sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+            peak[run] = SQ_MAX(peak[run], prof.node_updates);
+            over[run] += prof.node_updates > cap;
+            refused[run] += prof.splits_refused;
+            CHECK(sq_lod_check(b->lod, &e) == 0);
+        }
+        sq_body_destroy(b);
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "cap %ld: uncapped peak %ld (%d frames over), capped peak %ld (%d over, %d "
+                "refusals)\n", cap, peak[0], over[0], peak[1], over[1], refused[1]);
+    CHECK(over[0] > 10);             /* the poke does need more than the cap */
+    CHECK(over[1] * 100 <= frames);  /* >= 99% of the frames within the cap */
+    CHECK(refused[1] > 0 && refused[0] == 0);
+    free_meshes(m, 3);
+}
+
+/* ------------------------------------------------------------------ sleep */
+
+SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)
+{
+    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
+    if (!m[0] || !m[1]) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 2);
+    def.gravity[2] = 0; /* at rest from the start */
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    CHECK(b != NULL);
+    if (!b) {
+        free_meshes(m, 2);
+        return;
+    }
+    sq_frame_profile prof;
+    int slept = -1;
+    for (int f = 0; f < 200 && slept < 0; f++) {
+        sq_body_frame(b, NULL, 0, NULL, &prof, 0);
+        if (sq_body_is_sleeping(b))
+            slept = f;
+    }
+    CHECK(slept >= 0);
+    long asleep_updates = 0;
+    for (int f = 0; f < 10; f++) {
+        sq_body_frame(b, NULL, 0, NULL, &prof, 0);
+        asleep_updates += prof.node_updates;
+        CHECK(prof.sleeping == 1);
+    }
+    CHECK(asleep_updates == 0);
+    /* a touch wakes it: the adaptive frame runs again */
+    sq_tool t = lh_sphere(0.5, 0.5, 1.15, 0.2, 1);
+    sq_body_frame(b, &t, 1, NULL, &prof, 0);
+    CHECK(prof.sleeping == 0);
+    CHECK(prof.node_updates > 0);
+    CHECK(!sq_body_is_sleeping(b));
+    sq_body_destroy(b);
+    free_meshes(m, 2);
+}

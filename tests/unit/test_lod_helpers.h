@@ -100,6 +100,8 @@ static inline sq_body_def lh_cube_def(sq_mesh **m, int nlevels)
     return def;
 }
 
+static inline double lh_norm3(const double *v) { return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
+
 static inline sq_tool lh_sphere(double x, double y, double z, double r, int active)
 {
     sq_tool t;
