@@ -115,7 +115,7 @@ function setStatus(state, text) {
   app.status = state;
   const el = $('conn');
   el.textContent = text;
-  el.className = `conn ${state === 'connected' ? 'conn-on' : state === 'offline' ? 'conn-off' : 'conn-wait'}`;
+  el.className = `conn ${state === 'connected' ? 'conn-on' : state === 'offline' || state === 'refused' ? 'conn-off' : 'conn-wait'}`;
 }
 
 function onLinkStatus(state, detail) {
@@ -158,6 +158,7 @@ function onMessage(m) {
   switch (m.type) {
     case 'welcome':
       app.welcomed = true;
+      if (m.role === 'view' || m.role === 'control') setRole(m.role);
       link.resetBackoff();
       setStatus('connected', 'connected');
       if (Array.isArray(m.scenes)) setScenes(m.scenes);
@@ -282,6 +283,13 @@ function onError(m) {
     } else {
       showEvent(`the session you watched has ended (${text})`, true);
     }
+    return;
+  }
+  if (m.request === 'hello' || m.code === 'bad_token') {
+    setStatus('refused', 'refused');
+    showEvent(m.code === 'bad_token'
+      ? `${text}: this server needs a control token; add ?token=... to the address, or watch a session with its share link`
+      : text, true);
     return;
   }
   if (m.request === 'open' && m.code === 'unknown_scene' && app.role === 'control') {

@@ -49,16 +49,17 @@ function httpGet(url) {
 
 /**
  * start `squish serve` with web/ and the shipped scenes (or opts.scenes, a directory) on port
- * (a free one if not given);
+ * (a free one if not given), plus opts.args;
  * resolves when /healthz answers. Returns {port, url, proc, log(), stop()}.
  */
-export async function startServer(port, { scenes } = {}) {
+export async function startServer(port, { scenes, args: extra = [] } = {}) {
   if (!fs.existsSync(SQUISH)) throw new Error(`server binary ${SQUISH} not found: build it with "make squish" or set SQUISH`);
   port = port || await freePort();
   const args = ['serve', '--host', '127.0.0.1', '--port', String(port), '--web', path.join(ROOT, 'web')];
   // the shipped scenes when there are some, else the built-in default scene
   const dir = scenes || path.join(ROOT, 'meshes/scenes');
   if (fs.existsSync(dir)) args.push('--scenes', dir);
+  args.push(...extra);
   const proc = spawn(SQUISH, args, { cwd: ROOT, stdio: ['ignore', 'pipe', 'pipe'] });
   let out = '';
   proc.stdout.on('data', (d) => { out += d; });

@@ -299,3 +299,29 @@ describe('web viewer reconnects', () => {
     }
   });
 });
+
+describe('web viewer with a control token', () => {
+  let server, browser;
+  before(async () => {
+    server = await startServer(0, { args: ['--token', 'class-42'] });
+    browser = await launchBrowser();
+  });
+  after(async () => {
+    if (browser) await browser.close();
+    if (server) await server.stop();
+  });
+
+  it('says a token is needed, and controls with ?token=', async () => {
+    const page = await openViewer(browser, server.url, { minFrames: 0 });
+    try {
+      await page.waitForFunction(() => window.squish.status === 'refused', null, { timeout: 15000 });
+      assert.match(await page.locator('#event').textContent(), /token/);
+      await page.goto(`${server.url}?token=class-42`);
+      await waitFrames(page, 3);
+      assert.equal((await state(page)).role, 'control');
+      assert.deepEqual(page.problems, []);
+    } finally {
+      await page.close();
+    }
+  });
+});
