@@ -9,6 +9,11 @@
 
 #include "sim/level.h"
 
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#define SQ_LEVEL_AVX2 1
+#endif
+
 /* position of column j in row i of the CSR adjacency, or -1 */
 static int csr_find(const int *row_start, const int *col, int i, int j)
 {
@@ -138,11 +143,12 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     L->vol = sq_malloc(sizeof(double) * (size_t)L->n);
     L->hbar = sq_calloc((size_t)L->n, sizeof(double));
     L->fixed = sq_calloc((size_t)L->n, 1);
-    L->d = sq_calloc(n3, sizeof(double));
-    L->v = sq_calloc(n3, sizeof(double));
+    /* one spare double after d, v and acc: the vector force pass loads 4 lanes per node */
+    L->d = sq_calloc(n3 + 1, sizeof(double));
+    L->v = sq_calloc(n3 + 1, sizeof(double));
     L->f = sq_calloc(n3, sizeof(double));
     L->w = sq_calloc(n3, sizeof(double));
-    L->acc = sq_calloc(n3, sizeof(double));
+    L->acc = sq_calloc(n3 + 1, sizeof(double));
 
     /* fixed axes: a tolerance of 1e-9 of the bounding-box diagonal absorbs rounding */
     double diag = 0;
@@ -228,7 +234,7 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
             for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++)
                 h += L->col[e] > i;
         L->up_col = sq_malloc(sizeof(int) * (size_t)(h ? h : 1));
-        L->Kup = sq_malloc(sizeof(double) * 9 * (size_t)(h ? h : 1));
+        L->Kup = sq_calloc(9 * (size_t)h + 4, sizeof(double)); /* + 4: 4-lane loads of the last block */
     }
     int h = 0;
     for (int i = 0; i < L->n; i++) {
@@ -314,6 +320,41 @@ forces_pass(sq_level *L, const int damp, const double b, const double a, const d
         }
         double f0 = acc[3 * i], f1 = acc[3 * i + 1], f2 = acc[3 * i + 2];
         acc[3 * i] = acc[3 * i + 1] = acc[3 * i + 2] = 0;
+#ifdef SQ_LEVEL_AVX2
+        /* 4-lane form (lane 3 unused): the rows of B times the difference, accumulated lane by
+         * lane and summed at the end (K delta), and the rows scaled by its components (K^T
+         * delta) for the neighbour; lane 3 of the neighbour's accumulator is never stored */
+        {
+            const __m256d wi = _mm256_setr_pd(wi0, wi1, wi2, 0);
+            const __m256d bb = _mm256_set1_pd(b);
+            __m256d s0 = _mm256_setzero_pd(), s1 = _mm256_setzero_pd(), s2 = _mm256_setzero_pd();
+            for (int e = us[i]; e < us[i + 1]; e++) {
+                const double *B = A + 9 * (size_t)e;
+                const size_t j = 3 * (size_t)uc[e];
+                __m256d wj = _mm256_loadu_pd(d + j);
+                if (damp)
+                    wj = _mm256_fmadd_pd(bb, _mm256_loadu_pd(v + j), wj);
+                const __m256d dl = _mm256_sub_pd(wi, wj);
+                const __m256d r0 = _mm256_loadu_pd(B), r1 = _mm256_loadu_pd(B + 3), r2 = _mm256_loadu_pd(B + 6);
+                s0 = _mm256_fmadd_pd(r0, dl, s0);
+                s1 = _mm256_fmadd_pd(r1, dl, s1);
+                s2 = _mm256_fmadd_pd(r2, dl, s2);
+                __m256d t = _mm256_mul_pd(r0, _mm256_permute4x64_pd(dl, 0x00));
+                t = _mm256_fmadd_pd(r1, _mm256_permute4x64_pd(dl, 0x55), t);
+                t = _mm256_fmadd_pd(r2, _mm256_permute4x64_pd(dl, 0xAA), t);
+                const __m256d aj = _mm256_sub_pd(_mm256_loadu_pd(acc + j), t);
+                _mm_storeu_pd(acc + j, _mm256_castpd256_pd128(aj));
+                _mm_store_sd(acc + j + 2, _mm256_extractf128_pd(aj, 1));
+            }
+            double l0[4], l1[4], l2[4];
+            _mm256_storeu_pd(l0, s0);
+            _mm256_storeu_pd(l1, s1);
+            _mm256_storeu_pd(l2, s2);
+            f0 += l0[0] + l0[1] + l0[2];
+            f1 += l1[0] + l1[1] + l1[2];
+            f2 += l2[0] + l2[1] + l2[2];
+        }
+#else
         for (int e = us[i]; e < us[i + 1]; e++) {
             const double *restrict B = A + 9 * (size_t)e;
             const size_t j = 3 * (size_t)uc[e];
@@ -331,6 +372,7 @@ forces_pass(sq_level *L, const int damp, const double b, const double a, const d
             acc[j + 1] -= fma(B[1], d0, fma(B[4], d1, B[7] * d2));
             acc[j + 2] -= fma(B[2], d0, fma(B[5], d1, B[8] * d2));
         }
+#endif
         const double m = mass[i];
         f0 += m * (g0 - a * v[3 * i]);
         f1 += m * (g1 - a * v[3 * i + 1]);
