@@ -2,6 +2,7 @@
  * sanitizer build, which must not create OSMesa contexts: they leak 16 bytes by design)
  * real OSMesa renders of a raw-array body. */
 #include <math.h>
+#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -379,6 +380,47 @@ SQ_TEST(render_osmesa_box_levels_size_and_determinism)
     }
     free(rgb);
     free(png1);
+    sq_render_state_free(&s);
+    free_box(&b);
+}
+
+/* one render on its own thread (the server renders snapshots off the simulation thread) */
+typedef struct render_job {
+    const sq_render_state *s;
+    unsigned char *png;
+    size_t len;
+    int rc;
+} render_job;
+
+static void *render_thread(void *arg)
+{
+    render_job *j = arg;
+    sq_err e = {{0}};
+    j->rc = sq_render_state_png(j->s, 96, 64, NULL, &j->png, &j->len, &e);
+    return NULL;
+}
+
+SQ_TEST(render_osmesa_threads_give_identical_images)
+{
+    test_box b = make_box(4);
+    sq_render_state s;
+    box_state(&s, &b);
+    render_job jobs[3];
+    pthread_t th[3];
+    for (int i = 0; i < 3; i++) {
+        jobs[i] = (render_job){.s = &s};
+        CHECK(pthread_create(&th[i], NULL, render_thread, &jobs[i]) == 0);
+    }
+    for (int i = 0; i < 3; i++)
+        pthread_join(th[i], NULL);
+    for (int i = 0; i < 3; i++) {
+        CHECK(jobs[i].rc == 0 && jobs[i].png != NULL);
+        CHECK(jobs[i].len == jobs[0].len);
+        if (jobs[i].png && jobs[0].png && jobs[i].len == jobs[0].len)
+            CHECK(!memcmp(jobs[i].png, jobs[0].png, jobs[0].len));
+    }
+    for (int i = 0; i < 3; i++)
+        free(jobs[i].png);
     sq_render_state_free(&s);
     free_box(&b);
 }
