@@ -1012,6 +1012,13 @@ sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *lab
         fail(&c, "", "no text to parse");
         return NULL;
     }
+    const char *q = json;
+    while (*q == ' ' || *q == '\t' || *q == '\n' || *q == '\r')
+        q++;
+    if (!*q) {
+        fail(&c, "", "empty; a scene is a JSON object {\"name\": ..., \"bodies\": [...]} (see docs/scenes.md)");
+        return NULL;
+    }
     const char *end = NULL;
     cJSON *root = cJSON_ParseWithOpts(json, &end, 1);
     if (!root) {
@@ -1023,7 +1030,7 @@ sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *lab
         char near[24];
         size_t k = 0;
         for (; k < sizeof near - 1 && at[k] && at[k] != '\n'; k++)
-            near[k] = at[k];
+            near[k] = at[k] >= 32 && at[k] < 127 ? at[k] : '?';
         near[k] = 0;
         fail(&c, "", "line %d, column %d: invalid JSON near '%s'; check for a missing comma, quote or "
                      "bracket (comments and trailing commas are not JSON)", line, col, near);
@@ -1043,6 +1050,11 @@ sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *lab
 
 sq_scene *sq_scene_load(const char *path, sq_err *err)
 {
+    struct stat st;
+    if (stat(path, &st) == 0 && S_ISDIR(st.st_mode)) {
+        sq_err_set(err, "%s: is a directory; give a scene file such as meshes/scenes/paper-cube.json", path);
+        return NULL;
+    }
     sq_err e = {{0}};
     char *text = sq_read_file(path, NULL, MAX_SCENE_BYTES, &e);
     if (!text) {

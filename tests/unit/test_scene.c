@@ -60,6 +60,8 @@ static const struct {
     {"{\"bodies\": [", "t.json: line 1, column 13: invalid JSON"},
     {"{\"bodies\": []} x", "invalid JSON"},
     {"[]", "t.json: the top level is an array"},
+    {" \n ", "t.json: empty; a scene is a JSON object"},
+    {"\x7f\x01{", "t.json: line 1, column 1: invalid JSON near '??{'"},
     {"{\"bodies\": []}", "t.json: bodies: 0 bodies; give 1 to 8"},
     {"{\"name\": \"x\"}", "t.json: bodies: missing"},
     {"{\"bodyz\": [], \"bodies\": [" BODY "]}", "t.json: bodyz: unknown key"},
@@ -397,6 +399,8 @@ SQ_TEST(scene_load_file_and_missing_file)
     sq_scene_free(s);
     CHECK(sq_scene_load("/nonexistent/scene.json", &e) == NULL);
     CHECK_CONTAINS(e.msg, "/nonexistent/scene.json");
+    CHECK(sq_scene_load(sq_test_data(), &e) == NULL);
+    CHECK_CONTAINS(e.msg, "is a directory");
     /* a scene file whose mesh path is wrong names the file, the key and the resolved path */
     snprintf(path, sizeof path, "%s/scenes/bad-level-path.json", sq_test_data());
     CHECK(sq_scene_load(path, &e) == NULL);
