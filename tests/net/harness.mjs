@@ -12,8 +12,10 @@ export const SQUISH = process.env.SQUISH || path.join(ROOT, 'build/squish');
  * Port 0 lets the kernel pick a free port; the server prints the one it got.
  */
 export function startServer(args = [], { env = {} } = {}) {
+  // for sanitizer builds: OSMesa's own allocations are not ours
+  const lsan = `suppressions=${path.join(ROOT, 'tests/net/lsan.supp')}`;
   const proc = spawn(SQUISH, ['serve', '--host', '127.0.0.1', '--port', '0', ...args], {
-    env: { ...process.env, ...env }, stdio: ['ignore', 'pipe', 'pipe'],
+    env: { LSAN_OPTIONS: lsan, ...process.env, ...env }, stdio: ['ignore', 'pipe', 'pipe'],
   });
   let out = '', err = '';
   proc.stderr.on('data', d => { err += d; });
@@ -41,6 +43,9 @@ export function startServer(args = [], { env = {} } = {}) {
           const timer = setTimeout(() => proc.kill('SIGKILL'), graceMs);
           const r = await exited;
           clearTimeout(timer);
+          // a server built with sanitizers reports memory errors on stderr: fail the test
+          const bad = err.match(/(ERROR: (Address|Leak)Sanitizer|runtime error:).*/);
+          if (bad) throw new Error(`server sanitizer report: ${bad[0]}\n${err.slice(0, 4000)}`);
           return r;
         },
       });
