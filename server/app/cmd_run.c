@@ -10,6 +10,7 @@
  */
 #include <errno.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -40,11 +41,15 @@ static void usage(FILE *f)
             REST_KE_PER_KG, REST_RESIDUAL, REST_MAX_FRAMES);
 }
 
-static int usage_error(const char *fmt, const char *arg)
+static int usage_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static int usage_error(const char *fmt, ...)
 {
+    va_list ap;
+    va_start(ap, fmt);
     fprintf(stderr, "squish run: ");
-    fprintf(stderr, fmt, arg);
+    vfprintf(stderr, fmt, ap);
     fprintf(stderr, "\nrun 'squish run --help' for the options\n");
+    va_end(ap);
     return 2;
 }
 
@@ -225,11 +230,11 @@ int sq_cmd_run(int argc, char **argv)
         }
     }
     if (!scene_path && !use_default)
-        return usage_error("%sno scene given; pass SCENE.json or --default", "");
+        return usage_error("no scene given; pass SCENE.json or --default");
     if (scene_path && use_default)
-        return usage_error("%sgive either SCENE.json or --default, not both", "");
+        return usage_error("give either SCENE.json or --default, not both");
     if (nmodes > 1)
-        return usage_error("%s--frames, --seconds and --until-rest exclude each other; give one", "");
+        return usage_error("--frames, --seconds and --until-rest exclude each other; give one");
 
     /* scene and world */
     sq_err err = {{0}};
