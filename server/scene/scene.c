@@ -614,8 +614,10 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
     char op[16] = "fem";
     const cJSON *opi = get(obj, "operator");
     join(p, sizeof p, path, "operator");
-    if (opi && (!cJSON_IsString(opi) || strlen(opi->valuestring) >= sizeof op))
+    if (opi && !cJSON_IsString(opi))
         return fail(c, p, "expected \"fem\" or \"paper\", got %s; see docs/scenes.md", type_name(opi));
+    if (opi && strlen(opi->valuestring) >= sizeof op)
+        return fail(c, p, "\"%.40s\" is not an operator; use \"fem\" or \"paper\"", opi->valuestring);
     if (opi)
         snprintf(op, sizeof op, "%s", opi->valuestring);
     if (!strcmp(op, "fem"))
