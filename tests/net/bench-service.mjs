@@ -80,6 +80,10 @@ try {
   {
     const ctl = await SquishClient.connect(srv.url);
     const o = await ctl.open('box30hz');
+    // baseline: the same session and poking without viewers (misses caused by the machine)
+    const b0 = await ctl.stats();
+    await poke(ctl, SECONDS * 500);
+    const b1 = await ctl.stats();
     const viewers = [];
     for (let i = 0; i < VIEWERS; i += 50)
       viewers.push(...await Promise.all(Array.from({ length: Math.min(50, VIEWERS - i) }, () =>
@@ -97,6 +101,8 @@ try {
     results.viewers = {
       viewers: s1.viewers, seconds: SECONDS, frame_rate: o.frame_rate, frames_simulated: frames,
       deadline_misses: s1.deadline_misses - s0.deadline_misses,
+      baseline_no_viewers: { seconds: SECONDS / 2, frames_simulated: b1.frame - b0.frame,
+        deadline_misses: b1.deadline_misses - b0.deadline_misses },
       frames_per_viewer_min: Math.min(...counts), frames_per_viewer_mean: +(counts.reduce((a, b) => a + b, 0) / counts.length).toFixed(1),
       skipped_first10: skipped, budget_used_last: +s1.budget_used.toFixed(3),
       server_bytes_per_s: Math.round((s1.bytes_sent - s0.bytes_sent) / SECONDS),
@@ -106,6 +112,8 @@ try {
 } finally {
   await srv.stop();
 }
+results.load_average = os.loadavg().map(x => +x.toFixed(2));
+results.cpus = os.cpus().length;
 console.log(JSON.stringify(results, null, 2));
 const out = arg('--json', null);
 if (out) writeFileSync(out, JSON.stringify(results, null, 2));
