@@ -680,7 +680,13 @@ function wireUi() {
   $('btn-copy').addEventListener('click', async () => {
     const input = $('share-link');
     input.select();
-    try { await navigator.clipboard.writeText(input.value); showEvent('share link copied'); } catch (e) { showEvent('select the link and copy it'); }
+    // the clipboard API needs a secure context (https or localhost); else the older command
+    try {
+      await navigator.clipboard.writeText(input.value);
+      showEvent('share link copied');
+    } catch (e) {
+      showEvent(document.execCommand('copy') ? 'share link copied' : 'the link is selected: copy it with Ctrl+C');
+    }
   });
   const bind = (id, key) => $(id).addEventListener('change', () => { opts[key] = $(id).checked; if (key === 'nodes') requestNodes(); dirty = true; });
   bind('opt-levels', 'useLevels');

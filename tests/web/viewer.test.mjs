@@ -184,7 +184,8 @@ describe('web viewer', () => {
   });
 
   it('a refused setting shows the server\'s reason next to the control', async () => {
-    const page = await openViewer(browser, server.url);
+    // a tall window, so the panel screenshot shows the whole panel
+    const page = await openViewer(browser, server.url, { viewport: { width: 1280, height: 1280 } });
     try {
       await page.fill('#in-nu', '0.7');
       await page.locator('#form-material button[type=submit]').click();
