@@ -36,6 +36,8 @@ static void usage(FILE *f)
             "                      kinetic energy per kg below --rest-ke (default %g J/kg) and\n"
             "                      residual force below --rest-residual (default %g of the weight),\n"
             "                      at most --max-frames frames (default %ld)\n"
+            "  --realtime          give each frame the frame period as compute budget, as the server\n"
+            "                      does (splits refused when over; outputs no longer deterministic)\n"
             "  --out DIR           output directory (default ./squish-out): probes.csv, stats.csv,\n"
             "                      tools.csv, final.vtk\n",
             REST_KE_PER_KG, REST_RESIDUAL, REST_MAX_FRAMES);
@@ -176,7 +178,7 @@ static void write_tool_rows(FILE *f, const sq_world *w)
 int sq_cmd_run(int argc, char **argv)
 {
     const char *scene_path = NULL, *out = "squish-out";
-    int use_default = 0, until_rest = 0, nmodes = 0;
+    int use_default = 0, until_rest = 0, nmodes = 0, realtime = 0;
     long frames = -1, max_frames = REST_MAX_FRAMES;
     double seconds = -1, rest_ke = REST_KE_PER_KG, rest_res = REST_RESIDUAL;
 
@@ -190,6 +192,8 @@ int sq_cmd_run(int argc, char **argv)
             return 0;
         } else if (!strcmp(a, "--default")) {
             use_default = 1;
+        } else if (!strcmp(a, "--realtime")) {
+            realtime = 1;
         } else if (!strcmp(a, "--until-rest")) {
             until_rest = 1;
             nmodes++;
@@ -259,7 +263,12 @@ int sq_cmd_run(int argc, char **argv)
     if (nframes < 0)
         nframes = 0;
 
+    /* batch runs have no compute budget (deterministic); --realtime gives the frame period */
+    double budget = realtime ? 1.0 / scene->frame_rate : 0;
     print_setup(scene, w);
+    if (realtime)
+        printf("realtime: compute budget %.4g s per frame (splits refused above it; output not deterministic)\n",
+               budget);
     if (until_rest)
         printf("run: until rest (kinetic energy < %g J/kg, residual < %g), at most %ld frames (%g s)\n", rest_ke,
                rest_res, nframes, nframes / scene->frame_rate);
@@ -293,7 +302,7 @@ int sq_cmd_run(int argc, char **argv)
     fprintf(fs, "frame,time,node_updates,wall_ms");
     for (int k = 0; k < maxl; k++)
         fprintf(fs, ",active_l%d", k);
-    fprintf(fs, ",splits,merges,resets,kinetic_energy\n");
+    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,missed\n");
     write_probe_rows(fp, w);
 
     double mass[SQ_MAX_BODIES];
@@ -309,9 +318,10 @@ int sq_cmd_run(int argc, char **argv)
     int at_rest = 0;
     double rest_ke_seen = 0, rest_res_seen = 0;
     while (w->frame < nframes) {
-        sq_world_step(w, 0);
+        long missed0 = w->deadline_misses;
+        sq_world_step(w, budget);
         long nu = 0;
-        int active[SQ_MAX_LEVELS] = {0}, splits = 0, merges = 0, resets = 0;
+        int active[SQ_MAX_LEVELS] = {0}, splits = 0, merges = 0, resets = 0, refused = 0;
         double ke = 0;
         for (int b = 0; b < w->nbodies; b++) {
             const sq_frame_profile *pr = &w->profile[b];
@@ -319,6 +329,7 @@ int sq_cmd_run(int argc, char **argv)
             for (int k = 0; k < SQ_MAX_LEVELS; k++)
                 active[k] += pr->active[k];
             splits += pr->splits;
+            refused += pr->splits_refused;
             merges += pr->merges;
             resets += pr->reset;
             ke += sq_body_kinetic_energy(w->bodies[b]);
@@ -334,7 +345,7 @@ int sq_cmd_run(int argc, char **argv)
         fprintf(fs, "%ld,%.9e,%ld,%.3f", w->frame, w->time, nu, 1000.0 * w->last_frame_s);
         for (int k = 0; k < maxl; k++)
             fprintf(fs, ",%d", active[k]);
-        fprintf(fs, ",%d,%d,%d,%.9e\n", splits, merges, resets, ke);
+        fprintf(fs, ",%d,%d,%d,%.9e,%d,%ld\n", splits, merges, resets, ke, refused, w->deadline_misses - missed0);
         write_probe_rows(fp, w);
         write_tool_rows(ft, w);
         sq_progress_update(&prog, (double)w->frame);
@@ -395,6 +406,9 @@ int sq_cmd_run(int argc, char **argv)
            "(%.3g node-steps/s), %ld resets\n",
            w->frame, w->time, wall, wall > 0 ? w->time / wall : 0, updates, wall > 0 ? updates / wall : 0,
            w->resets);
+    if (realtime)
+        printf("realtime: %ld of %ld frames over the %.4g s period (%.2f%%)\n", w->deadline_misses, w->frame, budget,
+               w->frame > 0 ? 100.0 * (double)w->deadline_misses / (double)w->frame : 0.0);
     if (until_rest) {
         if (at_rest)
             printf("at rest at frame %ld (t = %.4g s)\n", w->frame, w->time);

@@ -44,7 +44,7 @@ check "probes.csv rows" [ "$(wc -l <"$TMP/a/probes.csv")" = 63 ]
 check "probes.csv number format" \
     bash -c "tail -n +2 '$TMP/a/probes.csv' | grep -Evq '^[0-9]+,[-0-9.e+]+,(corner|top),-?[0-9]\.[0-9]{9}e[-+][0-9]{2},-?[0-9]\.[0-9]{9}e[-+][0-9]{2},-?[0-9]\.[0-9]{9}e[-+][0-9]{2}$' && exit 1 || exit 0"
 check "stats.csv header" \
-    bash -c "head -n 1 '$TMP/a/stats.csv' | grep -q '^frame,time,node_updates,wall_ms,active_l0,splits,merges,resets,kinetic_energy$'"
+    bash -c "head -n 1 '$TMP/a/stats.csv' | grep -q '^frame,time,node_updates,wall_ms,active_l0,splits,merges,resets,kinetic_energy,refused,missed$'"
 check "stats.csv rows" [ "$(wc -l <"$TMP/a/stats.csv")" = 31 ]
 check "final.vtk is legacy VTK" bash -c "head -n 1 '$TMP/a/final.vtk' | grep -q '^# vtk DataFile Version'"
 # tools.csv: one row per frame (one tool, one body); the sphere presses at t = 0.2 s (frame 10):
@@ -80,6 +80,11 @@ check "--until-rest final state is still" bash -c "
 "$SQUISH" run "$DATA/small-cube.json" --until-rest --max-frames 3 --out "$TMP/c" >"$TMP/c.log" 2>&1
 check "--until-rest cap reported" grep -q 'not at rest after the cap of 3 frames' "$TMP/c.log"
 check "--until-rest cap still writes final.vtk" [ -s "$TMP/c/final.vtk" ]
+
+# --realtime: the frame period as budget; misses counted in the summary and the missed column
+"$SQUISH" run "$DATA/small-cube.json" --realtime --out "$TMP/rt" >"$TMP/rt.log" 2>&1
+check "--realtime reports misses" bash -c "grep -Eq '^realtime: [0-9]+ of 20 frames over the 0.02 s period' '$TMP/rt.log' &&
+    [ \$(awk -F, 'NR > 1 { m += \$NF } END { print m + 0 }' '$TMP/rt/stats.csv') = \$(grep -oE '^realtime: [0-9]+' '$TMP/rt.log' | grep -oE '[0-9]+') ]"
 
 # the embedded default scene works from any directory
 (cd "$TMP" && "$SQUISH" run --default --frames 5 --out def >def.log 2>&1)
