@@ -58,6 +58,7 @@ let renderer = null;
 let palette = FALLBACK_PALETTE;
 let dirty = true;
 let fitted = false;
+let fittedScene = null;
 let size = 1;
 let link = null;
 
@@ -215,7 +216,9 @@ function onSession(m) {
   link.send({ type: 'subscribe', stats: true, stats_hz: 4 });
   renderer && renderer.clearBodies();
   app.bodies.clear();
-  fitted = false;
+  // a re-join of the same scene (after a reconnect) keeps the user's camera
+  if (app.scene !== fittedScene) fitted = false;
+  fittedScene = app.scene;
   const bodies = m.bodies || [];
   for (const b of bodies) {
     app.bodies.set(b.id, { id: b.id, name: b.name || `body ${b.id}`, levels: b.levels || [], info: b,
@@ -302,9 +305,9 @@ function onError(m) {
     if (fallback) openScene(fallback);
     return;
   }
-  const p = pendingSet;
-  if (p && m.ref === p.ref) {
-    pendingSet = null;
+  const p = pendingSets.get(m.ref);
+  if (p) {
+    pendingSets.delete(p.ref);
     clearTimeout(p.timer);
     const el = $(`err-${p.group}`);
     el.className = 'err';
@@ -317,8 +320,8 @@ function onError(m) {
 // an ack confirms a request; a set's ack carries the settings now in force
 function onAck(m) {
   if (m.request === 'set') {
-    const p = pendingSet;
-    if (p && m.ref === p.ref) confirmSet(p);
+    const p = pendingSets.get(m.ref);
+    if (p) confirmSet(p);
     for (const b of m.bodies || []) {
       const body = app.bodies.get(b.id);
       if (body && b.settings) body.info.settings = b.settings;
@@ -555,12 +558,12 @@ function showEvent(text, bad = false) {
 
 // ---------------------------------------------------------------- controls
 
-let pendingSet = null;
+// settings sent and not yet answered, by request ref
+const pendingSets = new Map();
 let setSeq = 0;
 
 function confirmSet(p) {
-  if (pendingSet !== p) return;
-  pendingSet = null;
+  if (!pendingSets.delete(p.ref)) return;
   clearTimeout(p.timer);
   const el = $(`err-${p.group}`);
   el.className = 'ok';
@@ -583,16 +586,14 @@ function sendSet(group, fields) {
   const ref = `set-${group}-${++setSeq}`;
   const m = { type: 'set', body, ...fields, ref };
   el.textContent = '';
-  if (pendingSet) clearTimeout(pendingSet.timer);
   const p = { group, ref, t: performance.now() };
   // every request is answered (ack or error); say so if the answer does not come
   p.timer = setTimeout(() => {
-    if (pendingSet !== p) return;
-    pendingSet = null;
+    if (!pendingSets.delete(ref)) return;
     el.className = 'err';
     el.textContent = 'no answer from the server';
   }, 5000);
-  pendingSet = p;
+  pendingSets.set(ref, p);
   link.send(m);
 }
 
