@@ -104,8 +104,7 @@ typedef struct server {
     uint64_t next_snap;
 } server;
 
-static volatile sig_atomic_t interrupted;
-static server *the_server; /* for the tick callback, which gets only the sul */
+static volatile sig_atomic_t interrupted; /* set by SIGINT/SIGTERM */
 
 static void on_signal(int sig)
 {
@@ -714,7 +713,7 @@ static void handle_request(client *c, const char *text, size_t len)
 
 static void tick(lws_sorted_usec_list_t *sul)
 {
-    server *srv = the_server;
+    server *srv = lws_container_of(sul, server, sul);
     double now = sq_now();
     for (int i = 0; i < srv->nslots; i++) {
         srec *r = &srv->slots[i];
@@ -883,7 +882,7 @@ static int origin_allowed(server *srv, struct lws *wsi)
 static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, void *in,
                     size_t len)
 {
-    server *srv = the_server;
+    server *srv = lws_context_user(lws_get_context(wsi));
     conn *pss = user;
     client *c = pss ? pss->c : NULL;
 
@@ -1096,7 +1095,6 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     int rc = 0;
     memset(&srv, 0, sizeof srv);
     srv.opt = opt;
-    the_server = &srv;
     if (opt->max_sessions < 1 || opt->max_sessions > (1 << SLOT_BITS))
         return sq_err_set(err, "--max-sessions %d: use 1..%d", opt->max_sessions, 1 << SLOT_BITS);
 
@@ -1150,6 +1148,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     info.port = opt->port;
     info.iface = opt->host;
     info.protocols = protocols;
+    info.user = &srv; /* the callbacks find the server with lws_context_user() */
     info.mounts = &health;
     info.options = LWS_SERVER_OPTION_HTTP_HEADERS_SECURITY_BEST_PRACTICES_ENFORCE |
                    LWS_SERVER_OPTION_DISABLE_IPV6;
@@ -1205,10 +1204,14 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
         if (!busy)
             break;
     }
-    lws_context_destroy(srv.ctx);
-    srv.ctx = NULL;
+    /* the simulation and render threads stop first, so that nothing wakes the context
+     * while it is destroyed; then the connections close */
     for (int i = 0; i < srv.nslots; i++)
         end_session(&srv, &srv.slots[i]);
+    sq_snapshotter_stop(srv.snapshotter);
+    srv.snapshotter = NULL;
+    lws_context_destroy(srv.ctx);
+    srv.ctx = NULL;
     fprintf(stderr, "squish serve: stopped\n");
     goto done;
 fail:
@@ -1225,6 +1228,5 @@ done:
     free(srv.scenes);
     free(srv.names);
     free(srv.slots);
-    the_server = NULL;
     return rc;
 }
