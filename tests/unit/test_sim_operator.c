@@ -314,3 +314,75 @@ SQ_TEST(sim_level_masked_forces_match_fast_pass)
     sq_level_free(&L);
     sq_mesh_free(m);
 }
+
+/* the identities on the shipped (unstructured, Gmsh) meshes: translation and rotation under
+ * both operators, symmetry, and paper = fem away from boundary edges */
+SQ_TEST(sim_operator_identities_on_shipped_meshes)
+{
+    const char *names[] = {"cube/cube_l1.msh", "sphere/sphere_l1.msh", "organ/organ_l1.msh", "beam/beam_l1.msh"};
+    sq_material mat = th_material(40000, 100000, 1000);
+    for (size_t k = 0; k < sizeof names / sizeof names[0]; k++) {
+        char path[1024];
+        sq_err e = {{0}};
+        snprintf(path, sizeof path, "%s/../../meshes/%s", sq_test_data(), names[k]);
+        sq_mesh *m = sq_mesh_load(path, &e);
+        CHECK(m != NULL);
+        if (!m) {
+            fprintf(stderr, "    %s\n", e.msg);
+            continue;
+        }
+        double *dt = malloc(sizeof(double) * 3 * m->nnodes), *dr = malloc(sizeof(double) * 3 * m->nnodes);
+        const double w[3] = {1e-3, 2e-3, -1e-3};
+        for (int i = 0; i < m->nnodes; i++) {
+            const double *x = m->x + 3 * i;
+            dt[3 * i] = 0.01, dt[3 * i + 1] = -0.02, dt[3 * i + 2] = 0.03;
+            dr[3 * i] = w[1] * x[2] - w[2] * x[1];
+            dr[3 * i + 1] = w[2] * x[0] - w[0] * x[2];
+            dr[3 * i + 2] = w[0] * x[1] - w[1] * x[0];
+        }
+        sq_level L[2];
+        for (int op = 0; op < 2; op++) {
+            CHECK(sq_level_init(&L[op], m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
+            double tol = 1e-11 * th_kmax(&L[op]) * 0.03; /* |d| <= 0.03 m here */
+            th_elastic_force(&L[op], &mat, dt);
+            double ft = 0, fi = 0, fb = 0;
+            for (int i = 0; i < m->nnodes; i++)
+                ft = th_max(ft, th_norm3(L[op].f + 3 * i));
+            th_elastic_force(&L[op], &mat, dr);
+            for (int i = 0; i < m->nnodes; i++) {
+                double f = th_norm3(L[op].f + 3 * i);
+                if (m->on_boundary[i])
+                    fb = th_max(fb, f);
+                else
+                    fi = th_max(fi, f);
+            }
+            CHECK(ft <= tol);
+            CHECK(fi <= tol);
+            if (op == SQ_OPERATOR_FEM)
+                CHECK(fb <= tol);
+            else
+                CHECK(fb > 1e3 * tol);
+        }
+        /* paper - fem only on boundary edges; both symmetric */
+        double inner = 0, asym = 0;
+        for (int i = 0; i < m->nnodes; i++)
+            for (int p = m->adj_start[i]; p < m->adj_start[i + 1]; p++) {
+                int j = m->adj[p];
+                if (!(m->on_boundary[i] && m->on_boundary[j]))
+                    for (int c = 0; c < 9; c++)
+                        inner = th_max(inner, fabs(L[0].K[9 * p + c] - L[1].K[9 * p + c]));
+                for (int q = m->adj_start[j]; q < m->adj_start[j + 1]; q++)
+                    if (m->adj[q] == i)
+                        for (int r = 0; r < 3; r++)
+                            for (int c = 0; c < 3; c++)
+                                asym = th_max(asym, fabs(L[0].K[9 * p + 3 * r + c] - L[0].K[9 * q + 3 * c + r]));
+            }
+        CHECK(inner <= 1e-12 * th_kmax(&L[0]));
+        CHECK(asym <= 1e-12 * th_kmax(&L[0]));
+        sq_level_free(&L[0]);
+        sq_level_free(&L[1]);
+        free(dt);
+        free(dr);
+        sq_mesh_free(m);
+    }
+}
