@@ -10,7 +10,7 @@
 #include "render/render.h"
 
 #define PI 3.14159265358979323846
-#define OSMESA_MAX_SIDE 16384 /* llvmpipe's largest framebuffer side */
+#define FB_MAX_SIDE 8192 /* largest framebuffer side (8192^2 RGBA = 256 MB, twice with Mesa's copy) */
 
 struct sq_renderer {
     OSMesaContext ctx;
@@ -26,10 +26,11 @@ sq_renderer *sq_renderer_create(int width, int height, int supersample, sq_err *
         sq_err_set(err, "render: supersample %d must be 1 to 4", supersample);
         return NULL;
     }
-    if (width < 1 || height < 1 || (long)width * supersample > OSMESA_MAX_SIDE ||
-        (long)height * supersample > OSMESA_MAX_SIDE) {
-        sq_err_set(err, "render: image %dx%d at supersample %d is outside 1..%d pixels per side",
-                   width, height, supersample, OSMESA_MAX_SIDE);
+    if (width < 1 || height < 1 || (long)width * supersample > FB_MAX_SIDE ||
+        (long)height * supersample > FB_MAX_SIDE) {
+        sq_err_set(err, "render: image %dx%d at supersample %d needs a %ldx%ld framebuffer, above "
+                   "%d per side; lower the supersampling or the size", width, height, supersample,
+                   (long)width * supersample, (long)height * supersample, FB_MAX_SIDE);
         return NULL;
     }
     sq_renderer *r = sq_calloc(1, sizeof *r);
