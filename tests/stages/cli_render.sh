@@ -100,6 +100,9 @@ check "PNG signature" bash -c "head -c 8 '$TMP/a/frame_00002.png' | od -An -tx1 
 check "IHDR says 320x240" bash -c "[ \"\$(od -An -tu1 -j16 -N8 '$TMP/a/frame_00002.png' | tr -s ' ' | sed 's/^ //')\" = '0 0 1 64 0 0 0 240' ]"
 check "decoded size 320x240" [ "$(stats "$TMP/a/frame_00002.png" | cut -d' ' -f1-2)" = "320 240" ]
 check "byte-identical across runs" bash -c "for f in '$TMP'/a/*.png; do cmp -s \"\$f\" '$TMP/b/'\$(basename \"\$f\") || exit 1; done"
+# llvmpipe's thread count does not change a pixel
+LP_NUM_THREADS=1 "$SQUISH" render --default --frames 4 --every 2 --size 320x240 --out "$TMP/t" >/dev/null 2>&1
+check "identical with LP_NUM_THREADS=1" cmp -s "$TMP/a/frame_00002.png" "$TMP/t/frame_00002.png"
 check "images change as the cube sags" bash -c "! cmp -s '$TMP/a/frame_00000.png' '$TMP/a/frame_00002.png'"
 nonbg=$(field "$TMP/a/frame_00002.png" 3)
 check "not blank (non-background $nonbg > 0.3)" gt "$nonbg" 0.3
