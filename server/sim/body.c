@@ -775,10 +775,12 @@ double sq_body_residual(const sq_body *b)
     size_t n3 = 3 * (size_t)L.n;
     L.f = sq_malloc(sizeof(double) * n3);
     L.w = sq_malloc(sizeof(double) * n3);
+    L.acc = sq_calloc(n3 + 1, sizeof(double)); /* own accumulator: the body's is left untouched */
     sq_level_forces(&L, &b->def.material, b->def.gravity, NULL);
     double r = level_residual(&L, b->def.gravity, NULL);
     free(L.f);
     free(L.w);
+    free(L.acc);
     return r;
 }
 
