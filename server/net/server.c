@@ -691,7 +691,13 @@ static void handle_request(client *c, const char *text, size_t len)
         c->next_stats = 0;
         cJSON *o = sq_reply_new("ack", &req);
         cJSON_AddStringToObject(o, "request", "subscribe");
-        cJSON_AddNumberToObject(o, "frame", r ? (double)r->s->snap.frame : 0);
+        long frame = 0;
+        if (r) {
+            pthread_mutex_lock(&r->s->mu);
+            frame = r->s->snap.frame;
+            pthread_mutex_unlock(&r->s->mu);
+        }
+        cJSON_AddNumberToObject(o, "frame", (double)frame);
         send_json(c, o);
         break;
     }

@@ -200,6 +200,12 @@ test('an empty session ends after the grace period', async () => {
   await c.leave();
   await sleep(1600); // --grace 1 plus housekeeping ticks
   await assert.rejects(c.join(o.session), e => e.code === 'unknown_session');
+  // a new session may reuse the slot; the old id stays invalid (its generation is gone)
+  const o2 = await c.open('default');
+  assert.notEqual(o2.session, o.session);
+  const other = await connect();
+  await assert.rejects(other.join(o.session), e => e.code === 'unknown_session');
+  await other.close();
   await c.close();
 });
 
