@@ -434,6 +434,24 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
     forces_all(L, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt, mask);
 }
 
+/* f_i -= sum_j A_ij (d_j + b v_j) for one row */
+static void block_row_damped(const sq_level *L, const double *A, const double *d, const double *v, double b,
+                             int i, double out[3])
+{
+    double f0 = 0, f1 = 0, f2 = 0;
+    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+        const double *B = A + 9 * (size_t)e;
+        const size_t j = 3 * (size_t)L->col[e];
+        const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
+        f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
+        f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
+        f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
+    }
+    out[0] -= f0;
+    out[1] -= f1;
+    out[2] -= f2;
+}
+
 /* f_i -= sum_j A_ij w_j for one row */
 static void block_row(const sq_level *L, const double *A, const double *w, int i, double out[3])
 {
@@ -460,7 +478,6 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
     const double *restrict v = L->v;
     const double *restrict mass = L->mass;
     double *restrict f = L->f;
-    double *restrict w = L->w;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
     if (!active) {
@@ -470,13 +487,8 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
                 block_row(L, L->D, v, i, f + 3 * (size_t)i);
         return;
     }
-    /* masked: argument of the stiffness blocks d + b v, once per call (neighbours read it) */
-    const double *arg = d;
-    if (b != 0) {
-        for (size_t k = 0; k < 3 * (size_t)n; k++)
-            w[k] = d[k] + b * v[k];
-        arg = w;
-    }
+    /* masked: full rows of K for the active nodes only; d + b v formed per neighbour, so the
+     * cost follows the active nodes, not the level's size */
     for (int i = 0; i < n; i++) {
         if (!active[i])
             continue;
@@ -485,7 +497,10 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
         fi[0] = m * (g0 - a * v[3 * i]);
         fi[1] = m * (g1 - a * v[3 * i + 1]);
         fi[2] = m * (g2 - a * v[3 * i + 2]);
-        block_row(L, L->K, arg, i, fi);
+        if (b != 0)
+            block_row_damped(L, L->K, d, v, b, i, fi);
+        else
+            block_row(L, L->K, d, i, fi);
         if (L->D && mat->use_viscosity)
             block_row(L, L->D, v, i, fi);
     }

@@ -30,7 +30,7 @@ typedef struct sq_level {
     double *d;             /* displacement (n x 3), m */
     double *v;             /* velocity (n x 3), m/s */
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
-    double *w;             /* scratch: d + b v of the last masked force pass (n x 3), m */
+    double *w;             /* scratch (n x 3); unused by the passes, which form d + b v on the fly */
     double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
     int nfree;             /* nodes with at least one unconstrained axis */
     /* the strict upper half of K (j > i) for the all-nodes force pass: K_ji = K_ij^T and
