@@ -55,6 +55,18 @@ static int num_arg(const char *flag, const char *v, double lo, double hi, double
     return 0;
 }
 
+/* flags that take a value */
+static int is_value_flag(const char *a)
+{
+    static const char *const flags[] = {"--host", "--port", "--scenes", "--web", "--token", "--origin",
+                                        "--max-sessions", "--max-clients", "--max-message", "--rate",
+                                        "--grace", "--precision", NULL};
+    for (int i = 0; flags[i]; i++)
+        if (!strcmp(a, flags[i]))
+            return 1;
+    return 0;
+}
+
 int sq_cmd_serve(int argc, char **argv)
 {
     sq_serve_options o = sq_serve_options_default();
@@ -71,8 +83,11 @@ int sq_cmd_serve(int argc, char **argv)
         } else if (!strcmp(a, "--verbose")) {
             o.verbose = 1;
             used = 0;
+        } else if (!is_value_flag(a)) {
+            fprintf(stderr, "squish serve: unknown option '%s'; see squish serve --help\n", a);
+            return 2;
         } else if (!v) {
-            fprintf(stderr, "squish serve: %s needs a value (or is unknown); see --help\n", a);
+            fprintf(stderr, "squish serve: %s needs a value; see squish serve --help\n", a);
             return 2;
         } else if (!strcmp(a, "--host")) {
             o.host = v;

@@ -1104,6 +1104,13 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     if (opt->max_sessions < 1 || opt->max_sessions > (1 << SLOT_BITS))
         return sq_err_set(err, "--max-sessions %d: use 1..%d", opt->max_sessions, 1 << SLOT_BITS);
 
+    if (opt->web_dir) {
+        DIR *d = opendir(opt->web_dir);
+        if (!d)
+            return sq_err_set(err, "--web %s: not a readable directory; give the viewer's "
+                              "directory (web/ in the repository)", opt->web_dir);
+        closedir(d);
+    }
     if (opt->scenes_dir)
         load_scenes(&srv, opt->scenes_dir);
     if (srv.nscenes == 0) {
