@@ -154,3 +154,28 @@ for (const sig of ['SIGTERM', 'SIGINT']) {
     assert.match(srv.stderr(), /stopped/);
   });
 }
+
+test('every shipped scene (meshes/scenes) opens and streams frames matching its topology', async (t) => {
+  const { existsSync } = await import('node:fs');
+  const { ROOT } = await import('./harness.mjs');
+  const dir = path.join(ROOT, 'meshes/scenes');
+  if (!existsSync(dir)) { t.skip('no meshes/scenes'); return; }
+  const srv = await startServer(['--scenes', dir, '--grace', '0']);
+  try {
+    const c = await SquishClient.connect(srv.url);
+    const scenes = await c.listScenes();
+    assert.ok(scenes.length >= 1);
+    for (const s of scenes) {
+      const o = await c.open(s.name);
+      assert.equal(o.bodies.length, s.bodies.length, s.name);
+      for (const b of o.bodies) {
+        const f = await c.waitFor(f => f.body === b.id, 10000, 'frame');
+        assert.equal(f.header.count0, b.surface.vertices, `${s.name} body ${b.id}`);
+        assert.ok(f.positions.every(Number.isFinite), `${s.name} body ${b.id} finite`);
+      }
+    }
+    await c.close();
+  } finally {
+    await srv.stop();
+  }
+});
