@@ -1,18 +1,34 @@
-/* cmd_tradeoff.c - squish tradeoff and squish sweep (not yet built). */
+/* cmd_tradeoff.c - squish tradeoff: the speed/accuracy trade of a scene (issue 7).
+ *
+ *   squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K]
+ *   squish tradeoff --bench [...]          (bench_scenes.c)
+ *
+ * Runs the scene, with its scripted tools, under a grid of settings: every fixed level, the
+ * adaptive method at several split thresholds, both operators, several step fractions of the
+ * stability bound. The reference is the finest level, fem operator, step fraction 0.25.
+ * Every variant is compared with it at the same points: the rest positions of the reference's
+ * surface vertices (displacement interpolated in the variant's simulated level, so coarse
+ * levels are compared where the user sees them) and the scene's probes, every frame.
+ *
+ * Writes DIR/tradeoff.csv, DIR/tradeoff.png (gnuplot: RMS surface error against node updates
+ * per simulated second, Pareto front marked) and DIR/summary.txt (the adaptive speed-up at
+ * equal error). Exit 0 done, 1 bad scene or output error, 2 usage.
+ */
+#include <cJSON.h>
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
 #include <sys/stat.h>
 
 #include "app/commands.h"
 #include "app/tradeoff.h"
+#include "scene/scene.h"
+#include "sim/level.h"
 
-int sq_cmd_tradeoff(int argc, char **argv)
-{
-    (void)argc;
-    (void)argv;
-    fprintf(stderr, "squish tradeoff: not available in this build yet\n");
-    return 2;
-}
+#define TO_MAX_VARIANTS 32
+#define TO_MAX_SAMPLES 4000 /* surface points compared per body (evenly strided) */
 
 int sq_tradeoff_mkdir(const char *dir)
 {
@@ -36,4 +52,681 @@ int sq_tradeoff_mkdir(const char *dir)
         return -1;
     }
     return 0;
+}
+
+/* one setting of the grid */
+typedef struct to_variant {
+    char name[48];
+    const char *kind;      /* reference, fixed, adaptive, step, operator */
+    int adaptive;
+    int level;             /* fixed: listed level index */
+    double split;          /* adaptive: threshold (m); INFINITY = never split */
+    sq_operator_kind op;
+    double fraction;
+} to_variant;
+
+typedef struct to_result {
+    int ok;
+    char error[300];
+    long frames;
+    double sim_s;
+    double updates;        /* node updates in total */
+    double wall;           /* s inside sq_world_step */
+    double sum_sq;         /* sum over frames and samples of |u - u_ref|^2 */
+    long count;
+    double max_err, probe_err, final_rms, final_max;
+    double rms, ups, wps;  /* RMS error (m), node updates and wall seconds per simulated second */
+    int substeps_finest;   /* substeps per frame at the variant's finest simulated level, body 0 */
+    long resets;
+    int pareto;
+} to_result;
+
+/* comparison points of one body: rest positions and, per variant, their location */
+typedef struct to_samples {
+    int n;
+    double *x;             /* n x 3 */
+    int *tet;              /* n */
+    double *bary;          /* n x 4 */
+} to_samples;
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+            "usage: squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K]\n"
+            "       squish tradeoff --bench [--scenes DIR] [--frames N]\n"
+            "\n"
+            "  Runs the scene (its scripted tools included) under a grid of settings and measures\n"
+            "  error against a reference (finest level, fem operator, step fraction 0.25) and cost.\n"
+            "  --out DIR    output directory (default squish-tradeoff): tradeoff.csv, tradeoff.png,\n"
+            "               summary.txt\n"
+            "  --frames N   frames per run (default: the scene's duration)\n"
+            "  --quick      a smaller grid (fixed levels, three thresholds, paper at the finest)\n"
+            "  --finest K   listed level index used as the finest (default: each body's max_level)\n"
+            "  --bench      frame-budget headroom of the shipped scenes and 1 vs 2 threads\n");
+}
+
+static int usage_error(const char *msg, const char *arg)
+{
+    fprintf(stderr, "squish tradeoff: %s%s%s\nrun 'squish tradeoff --help' for the options\n", msg,
+            arg ? " " : "", arg ? arg : "");
+    return 2;
+}
+
+/* ---- scene variants through the scene's own JSON ------------------------------------------ */
+
+static void set_item(cJSON *obj, const char *key, cJSON *val)
+{
+    if (cJSON_GetObjectItemCaseSensitive(obj, key))
+        cJSON_ReplaceItemInObjectCaseSensitive(obj, key, val);
+    else
+        cJSON_AddItemToObject(obj, key, val);
+}
+
+/* the finest listed level each body uses: its lod.max_level, or the last listed level */
+static int body_finest(const cJSON *body, int override)
+{
+    const cJSON *levels = cJSON_GetObjectItemCaseSensitive(body, "levels");
+    int n = cJSON_IsArray(levels) ? cJSON_GetArraySize(levels) : 1;
+    if (override >= 0)
+        return SQ_MIN(override, n - 1);
+    const cJSON *lod = cJSON_GetObjectItemCaseSensitive(body, "lod");
+    const cJSON *ml = lod ? cJSON_GetObjectItemCaseSensitive(lod, "max_level") : NULL;
+    if (cJSON_IsNumber(ml) && ml->valuedouble >= 0 && ml->valuedouble < n)
+        return (int)ml->valuedouble;
+    return n - 1;
+}
+
+/* scene text of a variant: every body gets the variant's lod, operator and step fraction */
+static char *variant_text(cJSON *root, const to_variant *v, int finest_override)
+{
+    cJSON *bodies = cJSON_GetObjectItemCaseSensitive(root, "bodies");
+    cJSON *body;
+    cJSON_ArrayForEach(body, bodies)
+    {
+        int fin = body_finest(body, finest_override);
+        cJSON *lod = cJSON_CreateObject();
+        cJSON_AddStringToObject(lod, "mode", v->adaptive ? "adaptive" : "fixed");
+        cJSON_AddNumberToObject(lod, "max_level", fin);
+        cJSON_AddNumberToObject(lod, "level", v->adaptive ? 0 : SQ_MIN(v->level, fin));
+        if (v->adaptive) {
+            if (isinf(v->split)) {
+                cJSON_AddStringToObject(lod, "split", "inf");
+            } else {
+                cJSON_AddNumberToObject(lod, "split", v->split);
+                cJSON_AddNumberToObject(lod, "merge", 0.4 * v->split);
+            }
+        }
+        set_item(body, "lod", lod);
+        set_item(body, "operator", cJSON_CreateString(v->op == SQ_OPERATOR_PAPER ? "paper" : "fem"));
+        set_item(body, "step_fraction", cJSON_CreateNumber(v->fraction));
+    }
+    return cJSON_PrintUnformatted(root);
+}
+
+/* the scene's split threshold of body 0 (default 0.005 m) */
+static double scene_split(const cJSON *root)
+{
+    const cJSON *b0 = cJSON_GetArrayItem(cJSON_GetObjectItemCaseSensitive(root, "bodies"), 0);
+    const cJSON *lod = b0 ? cJSON_GetObjectItemCaseSensitive(b0, "lod") : NULL;
+    const cJSON *sp = lod ? cJSON_GetObjectItemCaseSensitive(lod, "split") : NULL;
+    return cJSON_IsNumber(sp) && sp->valuedouble > 0 ? sp->valuedouble : 0.005;
+}
+
+static int build_grid(to_variant *v, int finest, double s0, int quick)
+{
+    int n = 0;
+    /* the reference first */
+    v[n++] = (to_variant){"reference", "reference", 0, finest, 0, SQ_OPERATOR_FEM, 0.25};
+    for (int k = 0; k <= finest; k++) {
+        v[n] = (to_variant){"", "fixed", 0, k, 0, SQ_OPERATOR_FEM, 0.9};
+        snprintf(v[n].name, sizeof v[n].name, "fixed L%d", k);
+        n++;
+    }
+    static const double full_f[] = {0, 0.1, 0.3, 1, 3, 10, INFINITY};
+    static const double quick_f[] = {0.3, 1, 3};
+    const double *f = quick ? quick_f : full_f;
+    int nf = quick ? (int)SQ_COUNTOF(quick_f) : (int)SQ_COUNTOF(full_f);
+    if (finest > 0)
+        for (int i = 0; i < nf; i++) {
+            double s = isinf(f[i]) ? INFINITY : f[i] * s0;
+            v[n] = (to_variant){"", "adaptive", 1, 0, s, SQ_OPERATOR_FEM, 0.9};
+            if (isinf(s))
+                snprintf(v[n].name, sizeof v[n].name, "adaptive split inf");
+            else
+                snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g", s);
+            n++;
+        }
+    v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.5};
+    snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.5", finest);
+    n++;
+    if (!quick && finest > 0) {
+        v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.25};
+        snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.25", s0);
+        n++;
+        v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.5};
+        snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.5", s0);
+        n++;
+    }
+    v[n] = (to_variant){"", "operator", 0, finest, 0, SQ_OPERATOR_PAPER, 0.9};
+    snprintf(v[n].name, sizeof v[n].name, "paper fixed L%d", finest);
+    n++;
+    if (!quick && finest > 0) {
+        v[n] = (to_variant){"", "operator", 1, 0, s0, SQ_OPERATOR_PAPER, 0.9};
+        snprintf(v[n].name, sizeof v[n].name, "paper adaptive split %.3g", s0);
+        n++;
+        v[n] = (to_variant){"", "operator", 0, 0, 0, SQ_OPERATOR_PAPER, 0.9};
+        snprintf(v[n].name, sizeof v[n].name, "paper fixed L0");
+        n++;
+    }
+    return n;
+}
+
+/* ---- sampling ------------------------------------------------------------------------------ */
+
+/* the level a body simulates whose values are the most detailed (fixed: its only level;
+ * adaptive: the finest, which holds active or ghost values everywhere) */
+static int sampled_level(const sq_body *b)
+{
+    return sq_body_get_def(b)->lod.mode == SQ_LOD_ADAPTIVE ? sq_body_nlevels(b) - 1 : sq_body_fixed_level(b);
+}
+
+static void samples_init(to_samples *s, const sq_body *ref)
+{
+    const sq_mesh *m = sq_body_surface_mesh(ref);
+    int stride = (m->nsurf + TO_MAX_SAMPLES - 1) / TO_MAX_SAMPLES;
+    s->n = (m->nsurf + stride - 1) / stride;
+    s->x = sq_malloc(sizeof(double) * 3 * (size_t)s->n);
+    s->tet = sq_malloc(sizeof(int) * (size_t)s->n);
+    s->bary = sq_malloc(sizeof(double) * 4 * (size_t)s->n);
+    for (int i = 0; i < s->n; i++)
+        memcpy(s->x + 3 * i, m->x + 3 * (size_t)m->surf_nodes[i * stride], sizeof(double) * 3);
+}
+
+/* locate the samples in the body's sampled level (nearest tet when outside it) */
+static void samples_locate(to_samples *s, const sq_body *b)
+{
+    const sq_mesh *m = sq_body_mesh(b, sampled_level(b));
+    for (int i = 0; i < s->n; i++) {
+        s->tet[i] = sq_mesh_locate(m, s->x + 3 * i, s->bary + 4 * i);
+        if (s->tet[i] < 0) {
+            s->tet[i] = 0;
+            s->bary[4 * i] = 1;
+            s->bary[4 * i + 1] = s->bary[4 * i + 2] = s->bary[4 * i + 3] = 0;
+        }
+    }
+}
+
+/* displacement at every sample (n x 3) */
+static void samples_eval(const to_samples *s, const sq_body *b, double *u)
+{
+    int k = sampled_level(b);
+    const sq_mesh *m = sq_body_mesh(b, k);
+    const double *d = sq_body_displacement(b, k);
+    for (int i = 0; i < s->n; i++) {
+        const int *tv = m->tets + 4 * (size_t)s->tet[i];
+        const double *w = s->bary + 4 * i;
+        for (int c = 0; c < 3; c++)
+            u[3 * i + c] = w[0] * d[3 * tv[0] + c] + w[1] * d[3 * tv[1] + c] + w[2] * d[3 * tv[2] + c] +
+                           w[3] * d[3 * tv[3] + c];
+    }
+}
+
+static void samples_free(to_samples *s)
+{
+    free(s->x);
+    free(s->tet);
+    free(s->bary);
+}
+
+/* ---- the runs ------------------------------------------------------------------------------- */
+
+typedef struct to_ref {
+    int nbodies, nprobes, ntotal;      /* ntotal: samples over all bodies */
+    to_samples smp[SQ_MAX_BODIES];
+    long nframes;
+    double *u;                         /* nframes x ntotal x 3 */
+    double *probe;                     /* nframes x nprobes x 3 */
+    double rms_ref, max_ref;           /* RMS and max |u_ref| over frames and samples */
+} to_ref;
+
+/* run one variant; ref->u is recorded when record != 0, else errors are measured against it */
+static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result *r, sq_progress *prog,
+                       double *prog_done)
+{
+    sq_err err = {{0}};
+    sq_world *w = sq_world_create(scene, &err);
+    if (!w) {
+        snprintf(r->error, sizeof r->error, "%.290s", err.msg);
+        return -1;
+    }
+    if (record) {
+        ref->nbodies = w->nbodies;
+        ref->nprobes = scene->nprobes;
+        ref->ntotal = 0;
+        for (int b = 0; b < w->nbodies; b++) {
+            samples_init(&ref->smp[b], w->bodies[b]);
+            ref->ntotal += ref->smp[b].n;
+        }
+        ref->u = sq_malloc(sizeof(double) * 3 * (size_t)ref->ntotal * (size_t)(ref->nframes + 1));
+        ref->probe = sq_malloc(sizeof(double) * 3 * (size_t)(ref->nprobes + 1) * (size_t)(ref->nframes + 1));
+    }
+    for (int b = 0; b < w->nbodies; b++)
+        samples_locate(&ref->smp[b], w->bodies[b]);
+    {
+        const sq_body *b0 = w->bodies[0];
+        int k = sampled_level(b0);
+        double dt = sq_body_level_dt(b0, k);
+        r->substeps_finest = dt > 0 ? (int)lround(sq_body_get_def(b0)->frame_dt / dt) : 0;
+    }
+    double *u = sq_malloc(sizeof(double) * 3 * (size_t)ref->ntotal);
+    double sum_ref = 0;
+    long cnt_ref = 0;
+    for (long f = 1; f <= ref->nframes; f++) {
+        double t0 = sq_now();
+        sq_world_step(w, 0);
+        r->wall += sq_now() - t0;
+        for (int b = 0; b < w->nbodies; b++)
+            r->updates += (double)w->profile[b].node_updates;
+        /* surface samples */
+        double *ur = ref->u + 3 * (size_t)ref->ntotal * (size_t)f;
+        int off = 0;
+        for (int b = 0; b < w->nbodies; b++) {
+            samples_eval(&ref->smp[b], w->bodies[b], (record ? ur : u) + 3 * off);
+            off += ref->smp[b].n;
+        }
+        double fs = 0, fm = 0;
+        for (int i = 0; i < ref->ntotal; i++) {
+            double e2 = 0;
+            for (int c = 0; c < 3; c++) {
+                double a = record ? ur[3 * i + c] : u[3 * i + c] - ur[3 * i + c];
+                e2 += a * a;
+            }
+            if (!isfinite(e2))
+                e2 = INFINITY;
+            fs += e2;
+            fm = fmax(fm, sqrt(e2));
+        }
+        if (record) {
+            sum_ref += fs;
+            cnt_ref += ref->ntotal;
+            ref->max_ref = fmax(ref->max_ref, fm);
+        } else {
+            r->sum_sq += fs;
+            r->count += ref->ntotal;
+            r->max_err = fmax(r->max_err, fm);
+            if (f == ref->nframes) {
+                r->final_rms = sqrt(fs / SQ_MAX(1, ref->ntotal));
+                r->final_max = fm;
+            }
+        }
+        /* probes */
+        double *pr = ref->probe + 3 * (size_t)ref->nprobes * (size_t)f;
+        for (int p = 0; p < ref->nprobes; p++) {
+            double up[3];
+            if (sq_world_probe(w, p, up) != 0)
+                up[0] = up[1] = up[2] = NAN;
+            if (record) {
+                memcpy(pr + 3 * p, up, sizeof up);
+            } else if (isfinite(pr[3 * p])) {
+                double e = sqrt((up[0] - pr[3 * p]) * (up[0] - pr[3 * p]) + (up[1] - pr[3 * p + 1]) * (up[1] - pr[3 * p + 1]) +
+                                (up[2] - pr[3 * p + 2]) * (up[2] - pr[3 * p + 2]));
+                r->probe_err = isfinite(e) ? fmax(r->probe_err, e) : INFINITY;
+            }
+        }
+        *prog_done += 1;
+        sq_progress_update(prog, *prog_done);
+    }
+    if (record) {
+        ref->rms_ref = cnt_ref ? sqrt(sum_ref / cnt_ref) : 0;
+    }
+    r->frames = ref->nframes;
+    r->sim_s = w->time;
+    r->resets = w->resets;
+    r->rms = r->count ? sqrt(r->sum_sq / r->count) : 0;
+    r->ups = r->sim_s > 0 ? r->updates / r->sim_s : 0;
+    r->wps = r->sim_s > 0 ? r->wall / r->sim_s : 0;
+    r->ok = 1;
+    free(u);
+    sq_world_destroy(w);
+    return 0;
+}
+
+/* the cheapest fixed-level cost reaching RMS error e: a fixed level with error <= e, or the
+ * log-log interpolation between consecutive levels k, k+1 whose errors bracket e; -1 when no
+ * fixed level is that accurate */
+static double fixed_cost_at(const to_variant *v, const to_result *r, int n, double e, int wall)
+{
+    double best = -1;
+    for (int i = 0; i < n; i++) {
+        if (strcmp(v[i].kind, "fixed") || !r[i].ok)
+            continue;
+        double ci = wall ? r[i].wps : r[i].ups;
+        if (r[i].rms <= e && (best < 0 || ci < best))
+            best = ci;
+        for (int j = 0; j < n; j++) {
+            if (strcmp(v[j].kind, "fixed") || !r[j].ok || v[j].level != v[i].level + 1)
+                continue;
+            double ei = r[i].rms, ej = r[j].rms, cj = wall ? r[j].wps : r[j].ups;
+            if (!(e < ei && e >= ej) || !(ej > 0))
+                continue;
+            double t = log(ei / e) / log(ei / ej);
+            double c = exp(log(ci) + t * (log(cj) - log(ci)));
+            if (best < 0 || c < best)
+                best = c;
+        }
+    }
+    return best;
+}
+
+/* ---- output -------------------------------------------------------------------------------- */
+
+static int write_plot(const char *dir, const char *scene_name, const to_variant *v, const to_result *r, int n)
+{
+    char dat[1100], gp[1100], png[1100];
+    snprintf(dat, sizeof dat, "%s/tradeoff_plot.dat", dir);
+    snprintf(gp, sizeof gp, "%s/tradeoff.gp", dir);
+    snprintf(png, sizeof png, "%s/tradeoff.png", dir);
+    FILE *f = fopen(dat, "w");
+    if (!f)
+        return -1;
+    /* blocks: 0 fixed, 1 adaptive, 2 step, 3 paper (model difference), 4 Pareto front (sorted) */
+    static const char *kinds[] = {"fixed", "adaptive", "step", "operator"};
+    for (int k = 0; k < 4; k++) {
+        fprintf(f, "# %s\n", kinds[k]);
+        for (int i = 0; i < n; i++)
+            if (r[i].ok && !strcmp(v[i].kind, kinds[k]) && r[i].rms > 0)
+                fprintf(f, "%.6e %.6e \"%s\"\n", r[i].ups, r[i].rms, v[i].name);
+        fprintf(f, "\n\n");
+    }
+    fprintf(f, "# pareto\n");
+    int idx[TO_MAX_VARIANTS], np = 0;
+    for (int i = 0; i < n; i++)
+        if (r[i].pareto && r[i].rms > 0)
+            idx[np++] = i;
+    for (int a = 0; a < np; a++)
+        for (int b = a + 1; b < np; b++)
+            if (r[idx[b]].ups < r[idx[a]].ups) {
+                int t = idx[a];
+                idx[a] = idx[b];
+                idx[b] = t;
+            }
+    for (int a = 0; a < np; a++)
+        fprintf(f, "%.6e %.6e\n", r[idx[a]].ups, r[idx[a]].rms);
+    fprintf(f, "\n\n");
+    fclose(f);
+    f = fopen(gp, "w");
+    if (!f)
+        return -1;
+    fprintf(f,
+            "set terminal pngcairo size 1000,700 font 'sans,10'\n"
+            "set output '%s'\n"
+            "set title \"%s: RMS surface error vs cost (reference: finest level, fem, step 0.25 x bound)\"\n"
+            "set logscale xy\n"
+            "set xlabel 'node updates per simulated second'\n"
+            "set ylabel 'RMS surface displacement error (m)'\n"
+            "set grid\n"
+            "set key outside right\n"
+            "plot '%s' index 4 with linespoints lw 2 lc rgb '#888888' pt 0 title 'Pareto front (fem)', \\\n"
+            "     '' index 0 with points pt 7 ps 1.5 lc rgb '#1f77b4' title 'fixed level', \\\n"
+            "     '' index 1 with points pt 9 ps 1.5 lc rgb '#d62728' title 'adaptive', \\\n"
+            "     '' index 2 with points pt 5 ps 1.3 lc rgb '#2ca02c' title 'step fraction', \\\n"
+            "     '' index 3 with points pt 13 ps 1.3 lc rgb '#9467bd' title 'paper operator (model difference)', \\\n"
+            "     '' index 0 using 1:2:3 with labels offset 1,0.7 left font ',8' notitle, \\\n"
+            "     '' index 1 using 1:2:3 with labels offset 1,-0.7 left font ',8' tc rgb '#d62728' notitle, \\\n"
+            "     '' index 2 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#2ca02c' notitle, \\\n"
+            "     '' index 3 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#9467bd' notitle\n",
+            png, scene_name, dat);
+    fclose(f);
+    char cmd[2400];
+    snprintf(cmd, sizeof cmd, "gnuplot '%s' 2>&1", gp);
+    FILE *p = popen(cmd, "r");
+    if (!p)
+        return -1;
+    char line[512];
+    while (fgets(line, sizeof line, p))
+        fprintf(stderr, "gnuplot: %s", line);
+    int rc = pclose(p);
+    if (rc != 0) {
+        fprintf(stderr, "squish tradeoff: gnuplot failed (status %d) on %s; install it with 'make deps' "
+                        "(package gnuplot-nox); the CSV is complete without the plot\n", rc, gp);
+        return -1;
+    }
+    return 0;
+}
+
+/* ---- the command ---------------------------------------------------------------------------- */
+
+int sq_cmd_tradeoff(int argc, char **argv)
+{
+    const char *scene_path = NULL, *out = "squish-tradeoff";
+    long frames = -1;
+    int quick = 0, finest_override = -1;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+            usage(stdout);
+            return 0;
+        } else if (!strcmp(a, "--bench")) {
+            return sq_bench_scenes(argc - i, argv + i);
+        } else if (!strcmp(a, "--quick")) {
+            quick = 1;
+        } else if (!strcmp(a, "--out")) {
+            if (i + 1 >= argc || !argv[i + 1][0])
+                return usage_error("--out needs a directory", NULL);
+            out = argv[++i];
+        } else if (!strcmp(a, "--frames") || !strcmp(a, "--finest")) {
+            char *end = NULL;
+            long v = i + 1 < argc ? strtol(argv[i + 1], &end, 10) : -1;
+            if (i + 1 >= argc || *end || v < (a[2] == 'f' && a[3] == 'r' ? 1 : 0) || v > 1000000)
+                return usage_error(!strcmp(a, "--frames") ? "--frames needs a whole number of frames (1 to 1e6)"
+                                                          : "--finest needs a level index (0 to 5)",
+                                   NULL);
+            if (!strcmp(a, "--frames"))
+                frames = v;
+            else
+                finest_override = (int)v;
+            i++;
+        } else if (a[0] == '-') {
+            return usage_error("unknown option", a);
+        } else if (scene_path) {
+            return usage_error("more than one scene given; run one at a time:", a);
+        } else {
+            scene_path = a;
+        }
+    }
+    if (!scene_path)
+        return usage_error("no scene given; pass SCENE.json", NULL);
+
+    /* the scene: loaded once as given (validates it), and as JSON for the variants */
+    sq_err err = {{0}};
+    sq_scene *base = sq_scene_load(scene_path, &err);
+    if (!base) {
+        fprintf(stderr, "squish tradeoff: %s\n", err.msg);
+        return 1;
+    }
+    char *text = sq_read_file(scene_path, NULL, 1 << 24, &err);
+    cJSON *root = text ? cJSON_Parse(text) : NULL;
+    free(text);
+    if (!root) {
+        fprintf(stderr, "squish tradeoff: %s: cannot re-read the scene\n", scene_path);
+        sq_scene_free(base);
+        return 1;
+    }
+    char dir[512];
+    snprintf(dir, sizeof dir, "%s", scene_path);
+    char *slash = strrchr(dir, '/');
+    if (slash)
+        *(slash == dir ? slash + 1 : slash) = 0;
+    else
+        snprintf(dir, sizeof dir, ".");
+    int finest = 0;
+    {
+        cJSON *body;
+        cJSON_ArrayForEach(body, cJSON_GetObjectItemCaseSensitive(root, "bodies"))
+        finest = SQ_MAX(finest, body_finest(body, finest_override));
+    }
+    double s0 = scene_split(root);
+    long nframes = frames > 0 ? frames : (long)ceil(base->duration * base->frame_rate - 1e-9);
+    char scene_name[64];
+    snprintf(scene_name, sizeof scene_name, "%s", base->name);
+    double frame_rate = base->frame_rate;
+    sq_scene_free(base);
+
+    to_variant v[TO_MAX_VARIANTS];
+    static to_result r[TO_MAX_VARIANTS];
+    memset(r, 0, sizeof r);
+    int n = build_grid(v, finest, s0, quick);
+    if (sq_tradeoff_mkdir(out)) {
+        fprintf(stderr, "squish tradeoff: cannot create output directory %s: %s; choose another --out\n", out,
+                strerror(errno));
+        cJSON_Delete(root);
+        return 1;
+    }
+    printf("tradeoff %s: %d settings x %ld frames (%.3g s simulated each); reference: fixed L%d, fem, step 0.25 "
+           "x bound; adaptive thresholds around the scene's split %.3g m\n",
+           scene_name, n, nframes, nframes / frame_rate, finest, s0);
+    fflush(stdout);
+
+    to_ref ref;
+    memset(&ref, 0, sizeof ref);
+    ref.nframes = nframes;
+    sq_progress prog;
+    sq_progress_begin(&prog, "squish tradeoff", (double)n * nframes);
+    double done = 0;
+    int rc = 0;
+    for (int i = 0; i < n; i++) {
+        char *vt = variant_text(root, &v[i], finest_override);
+        char label[600];
+        snprintf(label, sizeof label, "%s [%s]", scene_path, v[i].name);
+        sq_scene *s = sq_scene_parse(vt, dir, label, &err);
+        cJSON_free(vt);
+        if (!s) {
+            snprintf(r[i].error, sizeof r[i].error, "%.290s", err.msg);
+        } else {
+            run_variant(s, &ref, i == 0, &r[i], &prog, &done);
+            sq_scene_free(s);
+        }
+        if (!r[i].ok) {
+            done += nframes;
+            if (i == 0) {
+                sq_progress_end(&prog);
+                fprintf(stderr, "squish tradeoff: the reference run failed: %s\n", r[i].error);
+                rc = 1;
+                goto out;
+            }
+        }
+    }
+    sq_progress_end(&prog);
+
+    /* the Pareto front over the fem settings (the paper operator is a different model) */
+    for (int i = 0; i < n; i++) {
+        if (!r[i].ok || v[i].op != SQ_OPERATOR_FEM)
+            continue;
+        int dominated = 0;
+        for (int j = 0; j < n && !dominated; j++)
+            if (j != i && r[j].ok && v[j].op == SQ_OPERATOR_FEM && r[j].ups <= r[i].ups && r[j].rms <= r[i].rms &&
+                (r[j].ups < r[i].ups || r[j].rms < r[i].rms))
+                dominated = 1;
+        r[i].pareto = !dominated;
+    }
+
+    /* CSV */
+    {
+        char path[1100];
+        snprintf(path, sizeof path, "%s/tradeoff.csv", out);
+        FILE *f = fopen(path, "w");
+        if (!f) {
+            fprintf(stderr, "squish tradeoff: cannot write %s: %s\n", path, strerror(errno));
+            rc = 1;
+            goto out;
+        }
+        fprintf(f, "setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,"
+                   "node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,rms_rel,probe_err_m,final_rms_m,"
+                   "final_max_m,resets,pareto,error\n");
+        for (int i = 0; i < n; i++) {
+            fprintf(f, "\"%s\",%s,%s,%s,%d,%.6g,%.3g,%d,%ld,%.6g,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%ld,%d,\"%s\"\n",
+                    v[i].name, v[i].kind, v[i].op == SQ_OPERATOR_PAPER ? "paper" : "fem",
+                    v[i].adaptive ? "adaptive" : "fixed", v[i].adaptive ? -1 : v[i].level, v[i].adaptive ? v[i].split : 0,
+                    v[i].fraction, r[i].substeps_finest, r[i].frames, r[i].sim_s, r[i].ups, r[i].wps, r[i].rms,
+                    r[i].max_err, ref.rms_ref > 0 ? r[i].rms / ref.rms_ref : 0, r[i].probe_err, r[i].final_rms,
+                    r[i].final_max, r[i].resets, r[i].pareto, r[i].error);
+        }
+        if (fclose(f)) {
+            fprintf(stderr, "squish tradeoff: writing %s failed: %s\n", path, strerror(errno));
+            rc = 1;
+        }
+    }
+
+    /* table and the headline */
+    {
+        char path[1100];
+        snprintf(path, sizeof path, "%s/summary.txt", out);
+        FILE *sf = fopen(path, "w");
+        FILE *outs[2] = {stdout, sf};
+        for (int o = 0; o < 2; o++) {
+            FILE *f = outs[o];
+            if (!f)
+                continue;
+            fprintf(f, "scene %s, %ld frames; reference RMS |u| %.3g m, max |u| %.3g m\n", scene_name, nframes,
+                    ref.rms_ref, ref.max_ref);
+            fprintf(f, "%-32s %8s %12s %10s %10s %10s %10s %10s %7s %s\n", "setting", "substeps", "updates/s",
+                    "wall/s", "rms err m", "rel", "max err m", "probe m", "pareto", "");
+            for (int i = 0; i < n; i++) {
+                if (!r[i].ok) {
+                    fprintf(f, "%-32s refused: %s\n", v[i].name, r[i].error);
+                    continue;
+                }
+                fprintf(f, "%-32s %8d %12.4g %10.3g %10.3g %10.3g %10.3g %10.3g %7s %s\n", v[i].name,
+                        r[i].substeps_finest, r[i].ups, r[i].wps, r[i].rms, ref.rms_ref > 0 ? r[i].rms / ref.rms_ref : 0,
+                        r[i].max_err, r[i].probe_err, r[i].pareto ? "*" : "",
+                        v[i].op == SQ_OPERATOR_PAPER ? "(model difference, not discretisation error)"
+                                                     : r[i].resets ? "(resets!)" : "");
+            }
+            /* the headline: adaptive settings against the fixed levels at equal RMS error */
+            int fine = -1;
+            for (int i = 0; i < n; i++)
+                if (!strcmp(v[i].kind, "fixed") && v[i].level == finest && r[i].ok)
+                    fine = i;
+            fprintf(f, "\nadaptive speed-up at equal error (equal error: the fixed-level cost at the adaptive run's RMS "
+                       "surface error, interpolated log-log between the two fixed levels that bracket it):\n");
+            double best = 0;
+            int besti = -1;
+            for (int i = 0; i < n; i++) {
+                if (strcmp(v[i].kind, "adaptive") || !r[i].ok)
+                    continue;
+                double cu = fixed_cost_at(v, r, n, r[i].rms, 0), cw = fixed_cost_at(v, r, n, r[i].rms, 1);
+                char su[64] = "below the finest level's error", sw[64] = "";
+                if (cu > 0) {
+                    snprintf(su, sizeof su, "x%.2f in node updates", cu / r[i].ups);
+                    snprintf(sw, sizeof sw, ", x%.2f in wall time", cw > 0 ? cw / r[i].wps : 0);
+                    if (cu / r[i].ups > best) {
+                        best = cu / r[i].ups;
+                        besti = i;
+                    }
+                }
+                fprintf(f, "  %-28s rms %.3g m: %s%s", v[i].name, r[i].rms, su, sw);
+                if (fine >= 0)
+                    fprintf(f, "; vs fixed L%d (rms %.3g m): x%.2f updates, x%.2f wall", finest, r[fine].rms,
+                            r[fine].ups / r[i].ups, r[fine].wps / r[i].wps);
+                fprintf(f, "\n");
+            }
+            if (besti >= 0)
+                fprintf(f, "headline: %s is x%.2f cheaper in node updates than a fixed mesh of the same RMS error\n",
+                        v[besti].name, best);
+        }
+        if (sf && fclose(sf))
+            rc = 1;
+    }
+    if (write_plot(out, scene_name, v, r, n) == 0)
+        printf("wrote %s/tradeoff.csv, %s/tradeoff.png, %s/summary.txt\n", out, out, out);
+    else
+        rc = 1;
+
+out:
+    for (int b = 0; b < ref.nbodies; b++)
+        samples_free(&ref.smp[b]);
+    free(ref.u);
+    free(ref.probe);
+    cJSON_Delete(root);
+    return rc;
 }
