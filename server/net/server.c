@@ -21,6 +21,7 @@
 _Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
 
 #define FIFO_MAX 4096            /* queued messages per client before it is dropped */
+#define FIFO_MAX_BYTES (32u << 20) /* queued bytes per client before it is dropped */
 #define SLOT_BITS 10             /* session id = generation << SLOT_BITS | slot */
 #define TICK_US 50000            /* housekeeping period (stats pushes, grace), us */
 #define SNDBUF_BYTES (128 << 10) /* kernel send buffer per client: bounds how stale a slow
@@ -52,6 +53,7 @@ typedef struct client {
     sq_blob *slot[SQ_MAX_BODIES];    /* newest unsent realtime frame per body */
     sq_blob **fifo;                  /* ring of queued messages */
     int fhead, fcount, fcap;
+    size_t fbytes;                   /* bytes queued in the ring */
     long skipped;
     int closing;
 } client;
@@ -127,7 +129,7 @@ static void fifo_push(client *c, sq_blob *b)
         sq_blob_unref(b);
         return;
     }
-    if (c->fcount >= FIFO_MAX) {
+    if (c->fcount >= FIFO_MAX || c->fbytes + b->len > FIFO_MAX_BYTES) {
         /* a client that stops reading while asking for more: drop it */
         lwsl_warn("squish: client %llu does not read; closing it\n", (unsigned long long)c->serial);
         sq_blob_unref(b);
@@ -147,6 +149,7 @@ static void fifo_push(client *c, sq_blob *b)
     }
     c->fifo[(c->fhead + c->fcount) % c->fcap] = b;
     c->fcount++;
+    c->fbytes += b->len;
     lws_callback_on_writable(c->wsi);
 }
 
@@ -193,6 +196,7 @@ static int write_one(client *c)
         b = c->fifo[c->fhead];
         c->fhead = (c->fhead + 1) % c->fcap;
         c->fcount--;
+        c->fbytes -= b->len;
     } else {
         /* the body whose frame is oldest goes first */
         int best = -1;

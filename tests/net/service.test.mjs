@@ -179,3 +179,31 @@ test('every shipped scene (meshes/scenes) opens and streams frames matching its 
     await srv.stop();
   }
 });
+
+test('a client that asks without reading cannot grow server memory', async () => {
+  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-net-')), 'box20', 20);
+  const srv = await startServer(['--scenes', dir, '--rate', '2000']);
+  try {
+    const c = await SquishClient.connect(srv.url, { decode: false });
+    await c.open('box20');
+    await c.request({ type: 'nodes', body: 0 });
+    const rss0 = rssKiB(srv.pid);
+    c.ws._socket.pause();
+    // 1500 `nodes` replies of ~20 KB each: the server either stops reading this client (its
+    // output is stuck) or drops it when its queue passes 32 MiB; it never queues them all
+    for (let i = 0; i < 1500; i++) {
+      c.sendRaw(JSON.stringify({ type: 'nodes', body: 0 }));
+      if (i % 100 === 99) await sleep(50);
+    }
+    await sleep(2000);
+    const rss1 = rssKiB(srv.pid);
+    assert.ok(rss1 - rss0 < 40 * 1024, `server RSS grew by ${rss1 - rss0} KiB`);
+    // the server goes on serving others
+    const d = await SquishClient.connect(srv.url);
+    assert.equal((await d.ping(3)).t, 3);
+    await d.close();
+    c.ws.terminate();
+  } finally {
+    await srv.stop();
+  }
+});
