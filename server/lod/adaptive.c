@@ -64,6 +64,7 @@ struct sq_lod {
      * (a ring row cut to S_k would pin the ring to zero displacement); aligned with the
      * mesh adjacency row of each ring ghost */
     int *node_tet_start[SQ_MAX_LEVELS], *node_tet[SQ_MAX_LEVELS];
+    double *tet_geom[SQ_MAX_LEVELS];     /* per tet: volume and the 4 basis gradients (13) */
     int *rk_off[SQ_MAX_LEVELS];          /* (nring + 1) offsets in blocks */
     double *rk[SQ_MAX_LEVELS], *rd[SQ_MAX_LEVELS];
     int rk_cap[SQ_MAX_LEVELS], rd_cap[SQ_MAX_LEVELS];
@@ -445,16 +446,16 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
             int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
             if (na == 0 || na == 4)
                 continue;
-            double a[4][3];
-            double V = weight * sq_tet_gradients(m, t, a);
+            const double *g = lod->tet_geom[k] + 13 * (size_t)t;
+            double V = weight * g[0];
             int p = 0;
             while (tv[p] != j)
                 p++;
             for (int q = 0; q < 4; q++) {
                 int e = adj_find(m, j, tv[q]) - L->row_start[j];
-                add_block(lod->op, V, a[p], a[q], mat->mu, mat->lambda, B + 9 * e);
+                add_block(lod->op, V, g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, B + 9 * e);
                 if (Bd)
-                    add_block(lod->op, V, a[p], a[q], mat->phi, mat->psi, Bd + 9 * e);
+                    add_block(lod->op, V, g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi, Bd + 9 * e);
             }
         }
     }
@@ -603,6 +604,14 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->front[k] = sq_malloc(sizeof(int) * n);
         lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
         node_tets(levels[k].mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
+        const sq_mesh *mk = levels[k].mesh;
+        lod->tet_geom[k] = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
+        for (int t = 0; t < mk->ntets; t++) {
+            double a[4][3];
+            double *g = lod->tet_geom[k] + 13 * (size_t)t;
+            g[0] = sq_tet_gradients(mk, t, a);
+            memcpy(g + 1, a, sizeof(a));
+        }
         for (size_t i = 0; i < n; i++)
             lod->slot[k][i] = -1;
     }
@@ -638,6 +647,7 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->rd[k]);
         free(lod->node_tet_start[k]);
         free(lod->node_tet[k]);
+        free(lod->tet_geom[k]);
         free(lod->fs_level[k]);
         free(lod->fs_node[k]);
         free(lod->fs_w[k]);
@@ -936,27 +946,6 @@ static void start_holds(sq_lod *lod, double T)
     }
 }
 
-/* drop the entries whose node stopped being active and map their holds again at t_now */
-static void remap_holds(sq_lod *lod, const sq_hold *holds, int nholds, double t_now)
-{
-    int dead = 0;
-    for (int e = 0; e < lod->nhe; e++) {
-        hold_entry *E = &lod->he[e];
-        if (E->count > 0 && lod->state[E->level][E->node] != ST_ACTIVE) {
-            lod->slot[E->level][E->node] = -1;
-            E->count = 0; /* dead; kept in the table so indices stay valid */
-            dead = 1;
-        }
-    }
-    if (!dead)
-        return;
-    for (int h = 0; h < nholds; h++) {
-        int e = lod->hold_entry_of[h];
-        if (e >= 0 && lod->he[e].count == 0)
-            map_hold(lod, &holds[h], h, t_now);
-    }
-}
-
 static void clear_holds(sq_lod *lod)
 {
     for (int e = 0; e < lod->nhe; e++)
@@ -984,7 +973,7 @@ static void clear_holds(sq_lod *lod)
  * time over the coarser step; forces handed to a finer level are held for the giving level's
  * step; forces handed to a coarser level are sampled at that level's own step. */
 
-#define SOURCE_DEPTH 3
+#define SOURCE_DEPTH 2
 
 typedef struct src_item {
     int level, node;
@@ -1046,8 +1035,15 @@ static void build_sources(sq_lod *lod)
         for (int r = 0; r < lod->nring[k]; r++) {
             int n = 0;
             expand(lod, k, lod->ring[k][r], 1.0, 0, &buf, &n, &cap);
-            if (n > 1)
-                qsort(buf, (size_t)n, sizeof(src_item), cmp_src);
+            for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
+                src_item x = buf[i];
+                int q = i - 1;
+                while (q >= 0 && cmp_src(&buf[q], &x) > 0) {
+                    buf[q + 1] = buf[q];
+                    q--;
+                }
+                buf[q + 1] = x;
+            }
             /* merge duplicates, renormalise */
             int u = 0;
             double sum = 0;
@@ -1214,7 +1210,6 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     long stride[SQ_MAX_LEVELS];
     for (int k = 0; k < L; k++)
         stride[k] = 1L << (nmax - lod->lv[k].substeps_log2);
-    double dtf = frame_dt / (double)nticks;
 
     /* tool holds onto active nodes */
     clear_holds(lod);
@@ -1293,18 +1288,18 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         }
         double t2 = sq_now();
         t_int += t2 - t1;
-        /* (4) split/merge between levels at the same time, on fresh ring values */
+        /* (4) split/merge at the end of the frame, when every level is at the same time
+         * (see docs/lod.md: a region changes level at most once per frame, and the coupling
+         * is rebuilt once), on fresh ring values */
         long next = t + 1;
         int any = 0;
-        for (int k = 0; k + 1 < L; k++) {
-            if (next % stride[k] || next % stride[k + 1] || k >= lod->top)
-                continue;
-            eval_ring(lod, k, next);
-            eval_ring(lod, k + 1, next);
-            adapt_pair(lod, k, !over_budget, &projected, &ao);
-        }
-        if (next == nticks)
+        if (next == nticks) {
+            for (int k = 0; k < L; k++)
+                eval_ring(lod, k, next);
+            for (int k = 0; k + 1 < L && k < lod->top; k++)
+                adapt_pair(lod, k, !over_budget, &projected, &ao);
             enforce_cap(lod, &projected, &ao);
+        }
         for (int k = 0; k < L; k++)
             if (ao.changed[k]) {
                 rebuild_level(lod, k);
@@ -1312,13 +1307,9 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                 any = 1;
             }
         if (any) {
+            /* (holds are mapped again onto the new active nodes at the next frame) */
             build_sources(lod);
             update_ring_blocks(lod, mat);
-            /* holds whose node was split or merged move to the node now active there */
-            if (nholds > 0) {
-                remap_holds(lod, holds, nholds, (double)next * dtf);
-                start_holds(lod, frame_dt);
-            }
         }
         t_adapt += sq_now() - t2;
     }

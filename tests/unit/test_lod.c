@@ -204,3 +204,59 @@ SQ_TEST(lod_forced_finest_and_coarsest_match_fixed_runs)
     for (int k = 0; k < 3; k++)
         sq_mesh_free(m[k]);
 }
+
+/* ------------------------------------------------------------------ shipped meshes */
+
+/* the shipped Gmsh families (independent, non-nested meshes of each shape) */
+static void shipped_hierarchy(const char *shape, int brute_force)
+{
+    sq_mesh *m[4] = {NULL, NULL, NULL, NULL};
+    sq_err e = {{0}};
+    int ok = 1;
+    for (int k = 0; k < 4; k++) {
+        char path[1024];
+        snprintf(path, sizeof path, "%s/../../meshes/%s/%s_l%d.msh", sq_test_data(), shape, shape, k);
+        m[k] = sq_mesh_load(path, &e);
+        if (!m[k]) {
+            fprintf(stderr, "%s\n", e.msg);
+            ok = 0;
+        }
+    }
+    CHECK(ok);
+    if (ok) {
+        sq_hierarchy h;
+        const sq_mesh *mm[4] = {m[0], m[1], m[2], m[3]};
+        CHECK(sq_hierarchy_build(&h, mm, 4, &e) == 0);
+        for (int k = 0; k < 3; k++) {
+            if (brute_force || k < 2)
+                check_link(&h, k);
+            sq_hierarchy_link_stats st;
+            sq_hierarchy_stats(&h, k, &st);
+            if (getenv("SQ_LOD_VERBOSE"))
+                fprintf(stderr, "%s link %d: %d -> %d nodes, children %d..%d (mean %.1f), %d childless, "
+                        "%d fine nodes outside level %d (min coordinate %.3f), %d coarse outside level %d\n",
+                        shape, k, st.nparents, st.nchildren, st.min_children, st.max_children,
+                        st.mean_children, st.childless, st.up_outside, k, st.up_min_bary,
+                        st.down_outside, k + 1);
+            /* halving edges: about 4-8 children per parent on average */
+            CHECK(st.mean_children > 2.5 && st.mean_children < 10);
+            /* the coarser surface cuts corners of the finer one: some nodes are outside, and
+             * their one negative coordinate stays modest */
+            CHECK(st.up_min_bary > -1.0);
+            CHECK(st.down_min_bary > -1.0);
+        }
+        sq_hierarchy_free(&h);
+    }
+    for (int k = 0; k < 4; k++)
+        sq_mesh_free(m[k]);
+}
+
+SQ_TEST(lod_hierarchy_shipped_cube)
+{
+    shipped_hierarchy("cube", 1);
+}
+
+SQ_TEST(lod_hierarchy_shipped_organ)
+{
+    shipped_hierarchy("organ", 0); /* brute-force nearest on the two coarser links */
+}
