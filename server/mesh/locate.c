@@ -4,16 +4,18 @@
 #include "mesh/mesh_internal.h"
 
 #include <float.h>
+#include <limits.h>
+#include <stdint.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 
-/* a uniform grid of items binned by centroid; an item's points lie within `reach` of it */
+/* a uniform grid; each item (tet or triangle) is listed in every cell its bounding box
+ * overlaps, so the cell of a point lists every item that can contain it */
 typedef struct grid {
     int dim[3];
     double lo[3], cell[3];
-    double reach;
     int *start; /* CSR over cells (ncells + 1) */
     int *item;
 } grid;
@@ -49,69 +51,90 @@ static int cell_coord(const grid *g, int c, double v)
     return (int)f;
 }
 
-/* bin n items of nv vertices each (indices into x) by centroid */
-static void grid_build(grid *g, const sq_mesh *m, const int *items, int n, int nv)
+/* cell range of an item's bounding box */
+static void item_cells(const grid *g, const sq_mesh *m, const int *v, int nv, int lo[3], int hi[3])
 {
-    double ext[3], vol = 1;
+    for (int c = 0; c < 3; c++) {
+        double mn = m->x[3 * (size_t)v[0] + c], mx = mn;
+        for (int k = 1; k < nv; k++) {
+            double x = m->x[3 * (size_t)v[k] + c];
+            mn = x < mn ? x : mn;
+            mx = x > mx ? x : mx;
+        }
+        lo[c] = cell_coord(g, c, mn);
+        hi[c] = cell_coord(g, c, mx);
+    }
+}
+
+/* bin n items of nv vertices each (indices into x) by bounding box */
+static void grid_build(grid *g, const sq_mesh *m, const int *items, int n, int nv, double scale,
+                       double max_per_item)
+{
+    /* cell edge: half the mean item edge, so a cell lists few items; grown while the
+     * listing would exceed 24 entries per item (or 16M cells) */
+    double esum = 0;
+    for (int e = 0; e < n; e++) {
+        const int *v = items + (size_t)nv * e;
+        const double *a = m->x + 3 * (size_t)v[0], *b = m->x + 3 * (size_t)v[1];
+        esum += sqrt((a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) + (a[2] - b[2]) * (a[2] - b[2]));
+    }
+    double ext[3];
     for (int c = 0; c < 3; c++) {
         ext[c] = m->bbox_max[c] - m->bbox_min[c];
         if (!(ext[c] > 0))
             ext[c] = 1e-30;
-        vol *= ext[c];
     }
-    /* about one item per cell, at most ~4M cells */
-    double target = n < 4000000 ? n : 4000000;
-    if (target < 1)
-        target = 1;
-    double h = cbrt(vol / target);
-    long total = 1;
-    for (int c = 0; c < 3; c++) {
-        double d = ext[c] / h;
-        g->dim[c] = d < 1 ? 1 : d > 1024 ? 1024 : (int)d;
-        g->lo[c] = m->bbox_min[c];
-        g->cell[c] = ext[c] / g->dim[c];
-        total *= g->dim[c];
-    }
-    g->start = calloc((size_t)total + 1, sizeof *g->start);
-    g->item = malloc(((size_t)n + 1) * sizeof *g->item);
-    int *cellof = malloc(((size_t)n + 1) * sizeof *cellof);
-    if (!g->start || !g->item || !cellof) {
-        free(cellof);
-        sq_malloc((size_t)-1 / 2); /* reports out of memory and aborts */
-    }
-    g->reach = 0;
-    for (int e = 0; e < n; e++) {
-        const int *v = items + (size_t)nv * e;
-        double cen[3] = {0, 0, 0};
-        for (int k = 0; k < nv; k++)
-            for (int c = 0; c < 3; c++)
-                cen[c] += m->x[3 * (size_t)v[k] + c] / nv;
-        for (int k = 0; k < nv; k++) {
-            double d2 = 0;
-            for (int c = 0; c < 3; c++) {
-                double d = m->x[3 * (size_t)v[k] + c] - cen[c];
-                d2 += d * d;
-            }
-            if (d2 > g->reach * g->reach)
-                g->reach = sqrt(d2);
+    double h = n ? scale * esum / n : 0;
+    if (!(h > 0))
+        h = cbrt(ext[0] * ext[1] * ext[2]);
+    size_t total;
+    for (;;) {
+        total = 1;
+        for (int c = 0; c < 3; c++) {
+            double d = ceil(ext[c] / h);
+            g->dim[c] = d < 1 ? 1 : d > 4096 ? 4096 : (int)d;
+            g->lo[c] = m->bbox_min[c];
+            g->cell[c] = ext[c] / g->dim[c];
+            total *= (size_t)g->dim[c];
         }
-        int ci[3];
-        for (int c = 0; c < 3; c++)
-            ci[c] = cell_coord(g, c, cen[c]);
-        cellof[e] = (ci[2] * g->dim[1] + ci[1]) * g->dim[0] + ci[0];
-        g->start[cellof[e] + 1]++;
+        double entries = 0;
+        if (total <= 16000000)
+            for (int e = 0; e < n; e++) {
+                int lo[3], hi[3];
+                item_cells(g, m, items + (size_t)nv * e, nv, lo, hi);
+                entries += (double)(hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1);
+            }
+        if (total <= 16000000 && entries <= max_per_item * n + 64)
+            break;
+        h *= 1.26;
     }
-    g->reach *= 1 + 1e-9;
-    for (long c = 0; c < total; c++)
+    g->start = sq_calloc(total + 1, sizeof *g->start);
+    size_t entries = 0;
+    for (int e = 0; e < n; e++) {
+        int lo[3], hi[3];
+        item_cells(g, m, items + (size_t)nv * e, nv, lo, hi);
+        for (int k = lo[2]; k <= hi[2]; k++)
+            for (int j = lo[1]; j <= hi[1]; j++)
+                for (int i = lo[0]; i <= hi[0]; i++)
+                    g->start[((size_t)k * g->dim[1] + j) * g->dim[0] + i + 1]++;
+        entries += (size_t)(hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1);
+    }
+    if (entries > INT_MAX)
+        sq_malloc(SIZE_MAX); /* too large for int offsets: reported as out of memory */
+    for (size_t c = 0; c < total; c++)
         g->start[c + 1] += g->start[c];
-    int *fill = malloc((size_t)total * sizeof *fill);
-    if (!fill)
-        sq_malloc((size_t)-1 / 2);
-    memcpy(fill, g->start, (size_t)total * sizeof *fill);
-    for (int e = 0; e < n; e++)
-        g->item[fill[cellof[e]]++] = e;
+    g->item = sq_malloc((entries + 1) * sizeof *g->item);
+    int *fill = sq_malloc(total * sizeof *fill);
+    memcpy(fill, g->start, total * sizeof *fill);
+    for (int e = 0; e < n; e++) {
+        int lo[3], hi[3];
+        item_cells(g, m, items + (size_t)nv * e, nv, lo, hi);
+        for (int k = lo[2]; k <= hi[2]; k++)
+            for (int j = lo[1]; j <= hi[1]; j++)
+                for (int i = lo[0]; i <= hi[0]; i++)
+                    g->item[fill[((size_t)k * g->dim[1] + j) * g->dim[0] + i]++] = e;
+    }
     free(fill);
-    free(cellof);
 }
 
 static struct sq_locator *get_locator(const sq_mesh *m)
@@ -123,8 +146,10 @@ static struct sq_locator *get_locator(const sq_mesh *m)
     loc = m->locator;
     if (!loc) {
         loc = sq_calloc(1, sizeof *loc);
-        grid_build(&loc->tets, m, m->tets, m->ntets, 4);
-        grid_build(&loc->tris, m, m->tris, m->ntris, 3);
+        /* tets: small cells, few candidates per point; triangles: larger cells, since
+         * the search for the nearest one walks over mostly empty cells */
+        grid_build(&loc->tets, m, m->tets, m->ntets, 4, 0.5, 8);
+        grid_build(&loc->tris, m, m->tris, m->ntris, 3, 2.0, 8);
         /* the locator is a cache: building it does not change the mesh's meaning */
         __atomic_store_n(&((sq_mesh *)m)->locator, loc, __ATOMIC_RELEASE);
     }
@@ -214,12 +239,6 @@ int sq_mesh_locate(const sq_mesh *m, const double p[3], double bary[4])
         return -1;
     struct sq_locator *loc = get_locator(m);
     const grid *g = &loc->tets;
-    /* inside: the containing tet's centroid is within reach of p */
-    int lo[3], hi[3];
-    for (int c = 0; c < 3; c++) {
-        lo[c] = cell_coord(g, c, p[c] - g->reach);
-        hi[c] = cell_coord(g, c, p[c] + g->reach);
-    }
     int best = -1;
     double best_min = -DBL_MAX, b[4];
     /* a tiny tolerance for points on shared faces, relative to barycentric scale */
@@ -229,22 +248,35 @@ int sq_mesh_locate(const sq_mesh *m, const double p[3], double bary[4])
         if (p[c] < m->bbox_min[c] - 1e-12 * (1 + fabs(p[c])) || p[c] > m->bbox_max[c] + 1e-12 * (1 + fabs(p[c])))
             inside_possible = 0;
     if (inside_possible) {
-        for (int k = lo[2]; k <= hi[2]; k++)
-            for (int j = lo[1]; j <= hi[1]; j++)
-                for (int i = lo[0]; i <= hi[0]; i++) {
-                    int cell = (k * g->dim[1] + j) * g->dim[0] + i;
-                    for (int e = g->start[cell]; e < g->start[cell + 1]; e++) {
-                        int t = g->item[e];
-                        double mn = tet_bary(m, t, p, b);
-                        if (mn > best_min) {
-                            best_min = mn;
-                            best = t;
-                            memcpy(bary, b, sizeof b);
-                            if (mn >= 0)
-                                return t;
-                        }
-                    }
+        /* inside: p's cell lists every tet whose bounding box holds p */
+        int cell = (cell_coord(g, 2, p[2]) * g->dim[1] + cell_coord(g, 1, p[1])) * g->dim[0] +
+                   cell_coord(g, 0, p[0]);
+        for (int e = g->start[cell]; e < g->start[cell + 1]; e++) {
+            int t = g->item[e];
+            /* cheap rejection by the tet's bounding box (with a relative margin) */
+            const int *v = m->tets + 4 * (size_t)t;
+            int out = 0;
+            for (int c = 0; c < 3 && !out; c++) {
+                double lo = m->x[3 * (size_t)v[0] + c], hi = lo;
+                for (int k = 1; k < 4; k++) {
+                    double x = m->x[3 * (size_t)v[k] + c];
+                    lo = x < lo ? x : lo;
+                    hi = x > hi ? x : hi;
                 }
+                double margin = 1e-9 * (hi - lo);
+                out = p[c] < lo - margin || p[c] > hi + margin;
+            }
+            if (out)
+                continue;
+            double mn = tet_bary(m, t, p, b);
+            if (mn > best_min) {
+                best_min = mn;
+                best = t;
+                memcpy(bary, b, sizeof b);
+                if (mn >= 0)
+                    return t;
+            }
+        }
         if (best >= 0 && best_min >= -tol)
             return best;
     }
@@ -253,13 +285,10 @@ int sq_mesh_locate(const sq_mesh *m, const double p[3], double bary[4])
     if (m->ntris <= 0)
         return best;
     int ci[3], maxr = 0;
-    double hmin = DBL_MAX;
     for (int c = 0; c < 3; c++) {
         ci[c] = cell_coord(gt, c, p[c]);
         if (gt->dim[c] > maxr)
             maxr = gt->dim[c];
-        if (gt->cell[c] < hmin)
-            hmin = gt->cell[c];
     }
     double best_d2 = DBL_MAX;
     int best_tri = -1;
@@ -270,11 +299,10 @@ int sq_mesh_locate(const sq_mesh *m, const double p[3], double bary[4])
             for (int j = ci[1] - r; j <= ci[1] + r; j++) {
                 if (j < 0 || j >= gt->dim[1])
                     continue;
-                for (int i = ci[0] - r; i <= ci[0] + r; i++) {
+                /* only the shell at Chebyshev distance r: inner rows jump from the first to the last i */
+                int inner = abs(j - ci[1]) != r && abs(k - ci[2]) != r;
+                for (int i = ci[0] - r; i <= ci[0] + r; i += (inner && r > 0 && i == ci[0] - r) ? 2 * r : 1) {
                     if (i < 0 || i >= gt->dim[0])
-                        continue;
-                    /* only the shell at Chebyshev distance r */
-                    if (abs(i - ci[0]) != r && abs(j - ci[1]) != r && abs(k - ci[2]) != r)
                         continue;
                     int cell = (k * gt->dim[1] + j) * gt->dim[0] + i;
                     for (int e = gt->start[cell]; e < gt->start[cell + 1]; e++) {
@@ -290,8 +318,26 @@ int sq_mesh_locate(const sq_mesh *m, const double p[3], double bary[4])
                 }
             }
         }
-        /* cells beyond this shell are at least r*hmin away; their triangles reach - less */
-        double bound = r * hmin - gt->reach;
+        /* unvisited cells lie beyond a face of the visited block that is not the grid's
+         * edge; a triangle nearer than that face is listed in a visited cell */
+        double bound = DBL_MAX;
+        int more = 0;
+        for (int c = 0; c < 3; c++) {
+            if (ci[c] - r > 0) {
+                double face = gt->lo[c] + (ci[c] - r) * gt->cell[c];
+                double d = p[c] - face;
+                bound = d < bound ? d : bound;
+                more = 1;
+            }
+            if (ci[c] + r < gt->dim[c] - 1) {
+                double face = gt->lo[c] + (ci[c] + r + 1) * gt->cell[c];
+                double d = face - p[c];
+                bound = d < bound ? d : bound;
+                more = 1;
+            }
+        }
+        if (!more)
+            break;
         if (best_tri >= 0 && bound > 0 && bound * bound >= best_d2)
             break;
     }
