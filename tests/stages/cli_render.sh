@@ -146,7 +146,7 @@ cat >"$TMP/poke.json" <<'EOF'
   ]
 }
 EOF
-"$SQUISH" render "$TMP/poke.json" --frames 5 --every 5 --size 320x240 --camera 30,40 --out "$TMP/p" >"$TMP/p.log" 2>&1
+"$SQUISH" render "$TMP/poke.json" --frames 8 --every 8 --size 320x240 --camera 30,40 --out "$TMP/p" >"$TMP/p.log" 2>&1
 check "render of the poke scene exits 0" [ $? = 0 ]
 read -r _ _ _ p0 p1 _ <<<"$(stats "$TMP/p/frame_00000.png")"
 check "before the poke: all level 0 ($p0 > 0.08, level 1 $p1 < 0.002)" bash -c "awk -v a=$p0 -v b=$p1 'BEGIN{exit !(a > 0.08 && b < 0.002)}'"
