@@ -40,9 +40,16 @@ sq_blob *sq_reply_blob(cJSON *o)
 
 sq_blob *sq_error_blob(const char *code, const char *message, const sq_request *req)
 {
+    /* messages quote client input, possibly cut in the middle of a UTF-8 sequence or not
+     * UTF-8 at all: keep them ASCII so the text frame is always valid UTF-8 */
+    char clean[512];
+    size_t n = 0;
+    for (const unsigned char *p = (const unsigned char *)message; *p && n < sizeof clean - 1; p++)
+        clean[n++] = *p < 0x80 ? (char)*p : '?';
+    clean[n] = 0;
     cJSON *o = sq_reply_new("error", req);
     cJSON_AddStringToObject(o, "code", code);
-    cJSON_AddStringToObject(o, "message", message);
+    cJSON_AddStringToObject(o, "message", clean);
     if (req && req->type != SQ_REQ_NONE)
         cJSON_AddStringToObject(o, "request", sq_req_name(req->type));
     return sq_reply_blob(o);

@@ -9,10 +9,10 @@ let srv;
 before(async () => { srv = await startServer(['--max-message', '4096', '--rate', '50', '--token', 'sesame']); });
 after(async () => { await srv.stop(); });
 
-/** send raw text, return the next error reply */
+/** send raw text (a string, or a Buffer sent as a text frame), return the next error reply */
 async function rawError(c, text) {
   const e = c.waitFor(m => m.type === 'error', 5000);
-  c.sendRaw(text);
+  c.sendRaw(text, { binary: false });
   return e;
 }
 
@@ -78,8 +78,18 @@ test('malformed input of every kind: coded error, connection open, session uncha
   let e = await rawError(c, big);
   assert.equal(e.code, 'too_large');
   // binary from the client
-  e = await rawError(c, Buffer.from([1, 2, 3]));
+  const bin = c.waitFor(m => m.type === 'error', 5000);
+  c.sendRaw(Buffer.from([1, 2, 3]), { binary: true });
+  e = await bin;
   assert.equal(e.code, 'bad_json');
+  assert.match(e.message, /binary/);
+  // non-ASCII input quoted in a message (cut after 37 bytes, inside a UTF-8 sequence): the
+  // error stays valid UTF-8, so the client keeps its connection
+  e = await rawError(c, JSON.stringify({ type: 'tool', id: 'x' + 'é'.repeat(30) }));
+  assert.equal(e.code, 'bad_field');
+  // a text frame that is not UTF-8 at all
+  e = await rawError(c, Buffer.concat([Buffer.from('{"type":"open","scene":"'), Buffer.from([0xff, 0xfe]), Buffer.from('"}')]));
+  assert.equal(e.code, 'unknown_scene');
 
   // still connected, same session, nothing changed
   const pong = await c.ping(1);
