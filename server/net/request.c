@@ -490,6 +490,39 @@ static int decode_simple(const cJSON *o, sq_request *r, sq_net_error *err)
     }
 }
 
+/* offset of the first byte that is not part of valid UTF-8 (RFC 3629: no overlong forms, no
+ * surrogates, at most U+10FFFF), or len when all is valid */
+static size_t utf8_check(const unsigned char *s, size_t len)
+{
+    size_t i = 0;
+    while (i < len) {
+        unsigned c = s[i];
+        size_t n;
+        unsigned min;
+        if (c < 0x80) {
+            i++;
+            continue;
+        } else if ((c & 0xE0) == 0xC0) {
+            n = 1, min = 0x80, c &= 0x1F;
+        } else if ((c & 0xF0) == 0xE0) {
+            n = 2, min = 0x800, c &= 0x0F;
+        } else if ((c & 0xF8) == 0xF0) {
+            n = 3, min = 0x10000, c &= 0x07;
+        } else {
+            return i;
+        }
+        for (size_t k = 1; k <= n; k++) {
+            if (i + k >= len || (s[i + k] & 0xC0) != 0x80)
+                return i;
+            c = (c << 6) | (s[i + k] & 0x3F);
+        }
+        if (c < min || c > 0x10FFFF || (c >= 0xD800 && c <= 0xDFFF))
+            return i;
+        i += n + 1;
+    }
+    return len;
+}
+
 int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *req,
                       sq_net_error *err)
 {
@@ -501,6 +534,9 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
                     "send smaller messages", len, max_len);
     if (!text)
         return fail(err, "bad_json", "empty message; send a JSON object with a \"type\"");
+    size_t bad = utf8_check((const unsigned char *)text, len);
+    if (bad < len)
+        return fail(err, "bad_json", "text is not valid UTF-8 at byte %zu; send UTF-8 JSON", bad);
 
     const char *end = NULL;
     cJSON *root = cJSON_ParseWithLengthOpts(text, len, &end, 0);

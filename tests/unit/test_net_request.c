@@ -121,8 +121,23 @@ SQ_TEST(net_request_bad_inputs)
     expect_code("{\"type\":\"pause\",\"now\":true}", "bad_field");
     expect_code("{\"type\":\"ping\",\"ref\":{}}", "bad_field");
     expect_code("{\"type\":\"subscribe\",\"stats_hz\":100}", "out_of_range");
+    /* text that is not UTF-8: a lone continuation byte, a cut sequence, an overlong form,
+     * a surrogate */
+    expect_code("{\"type\":\"open\",\"scene\":\"\x80\"}", "bad_json");
+    expect_code("{\"type\":\"open\",\"scene\":\"\xc3\"}", "bad_json");
+    expect_code("{\"type\":\"open\",\"scene\":\"\xc0\xaf\"}", "bad_json");
+    expect_code("{\"type\":\"open\",\"scene\":\"\xed\xa0\x80\"}", "bad_json");
     /* control characters in strings are refused */
     expect_code("{\"type\":\"open\",\"scene\":\"a\\u0001b\"}", "out_of_range");
+}
+
+SQ_TEST(net_request_utf8_accepted)
+{
+    sq_request r;
+    sq_net_error e;
+    /* 2-, 3- and 4-byte sequences */
+    CHECK(dec("{\"type\":\"open\",\"scene\":\"\xc3\xa9\xe2\x82\xac\xf0\x9f\x98\x80\"}", &r, &e) == 0);
+    CHECK(!strcmp(r.open.scene, "\xc3\xa9\xe2\x82\xac\xf0\x9f\x98\x80"));
 }
 
 SQ_TEST(net_request_ref_survives_errors)
