@@ -198,7 +198,7 @@ static int write_one(client *c)
         c->fcount--;
         c->fbytes -= b->len;
     } else {
-        /* the body whose frame is oldest goes first */
+        /* then the newest frame of each body, in body order */
         int best = -1;
         for (int i = 0; i < SQ_MAX_BODIES; i++)
             if (c->slot[i] && best < 0)
