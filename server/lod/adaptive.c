@@ -66,6 +66,7 @@ struct sq_lod {
     int *node_tet_start[SQ_MAX_LEVELS], *node_tet[SQ_MAX_LEVELS];
     double *tet_geom[SQ_MAX_LEVELS];     /* per tet: volume and the 4 basis gradients (13) */
     int *rk_off[SQ_MAX_LEVELS];          /* (nring + 1) offsets in blocks */
+    int *rk_col[SQ_MAX_LEVELS], *fk_col[SQ_MAX_LEVELS]; /* column (node) of each block */
     double *rk[SQ_MAX_LEVELS], *rd[SQ_MAX_LEVELS];
     int rk_cap[SQ_MAX_LEVELS], rd_cap[SQ_MAX_LEVELS];
     int rk_dirty[SQ_MAX_LEVELS];
@@ -408,8 +409,8 @@ static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
 
 /* blocks of node list nodes[0..nn) of level k (aligned with their adjacency rows), summed
  * over their tets that touch an active node and have a ghost corner, times weight */
-static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off, double **bk, int *bk_cap,
-                         double **bd, int *bd_cap, double weight)
+static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off, int **cols, double **bk,
+                         int *bk_cap, double **bd, int *bd_cap, double weight)
 {
     const sq_level *L = &lod->lv[k];
     const sq_mesh *m = L->mesh;
@@ -459,15 +460,36 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
             }
         }
     }
+    /* keep the non-zero blocks only, with their column */
+    int *col = sq_realloc(*cols, sizeof(int) * (size_t)SQ_MAX(total, 1));
+    *cols = col;
+    int w = 0;
+    for (int r = 0; r < nn; r++) {
+        int j = nodes[r], start = off[r];
+        off[r] = w;
+        for (int q = L->row_start[j], e = 0; q < L->row_start[j + 1]; q++, e++) {
+            const double *B = *bk + 9 * (size_t)(start + e);
+            int nz = 0;
+            for (int c = 0; c < 9 && !nz; c++)
+                nz = B[c] != 0 || (visc && (*bd)[9 * (size_t)(start + e) + c] != 0);
+            if (!nz)
+                continue;
+            memmove(*bk + 9 * (size_t)w, B, 9 * sizeof(double));
+            if (visc)
+                memmove(*bd + 9 * (size_t)w, *bd + 9 * (size_t)(start + e), 9 * sizeof(double));
+            col[w++] = L->col[q];
+        }
+    }
+    off[nn] = w;
 }
 
 /* ring rows (half of the mixed tets) and frontier corrections (the other half of the mixed
  * tets, given back) of level k */
 static void build_ring_blocks(sq_lod *lod, int k)
 {
-    build_blocks(lod, k, lod->ring[k], lod->nring[k], lod->rk_off[k], &lod->rk[k], &lod->rk_cap[k],
+    build_blocks(lod, k, lod->ring[k], lod->nring[k], lod->rk_off[k], &lod->rk_col[k], &lod->rk[k], &lod->rk_cap[k],
                  &lod->rd[k], &lod->rd_cap[k], MIXED_WEIGHT);
-    build_blocks(lod, k, lod->front[k], lod->nfront[k], lod->fk_off[k], &lod->fk[k], &lod->fk_cap[k],
+    build_blocks(lod, k, lod->front[k], lod->nfront[k], lod->fk_off[k], &lod->fk_col[k], &lod->fk[k], &lod->fk_cap[k],
                  &lod->fd[k], &lod->fd_cap[k], 1.0 - MIXED_WEIGHT);
     lod->rk_dirty[k] = 0;
 }
@@ -481,11 +503,11 @@ static void front_correct(sq_lod *lod, const sq_material *mat, int k)
     int visc = mat->use_viscosity && lod->fd[k];
     for (int r = 0; r < lod->nfront[k]; r++) {
         int i = lod->front[k][r];
-        const double *B = lod->fk[k] + 9 * (size_t)lod->fk_off[k][r];
-        const double *Bd = visc ? lod->fd[k] + 9 * (size_t)lod->fk_off[k][r] : NULL;
+        const double *B = lod->fk[k];
+        const double *Bd = visc ? lod->fd[k] : NULL;
         double *fi = L->f + 3 * i;
-        for (int q = L->row_start[i], e = 0; q < L->row_start[i + 1]; q++, e++) {
-            int l = L->col[q];
+        for (int e = lod->fk_off[k][r]; e < lod->fk_off[k][r + 1]; e++) {
+            int l = lod->fk_col[k][e];
             const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
             double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
             for (int rr = 0; rr < 3; rr++)
@@ -639,6 +661,8 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->vprev[k]);
         free(lod->fs_start[k]);
         free(lod->rk_off[k]);
+        free(lod->rk_col[k]);
+        free(lod->fk_col[k]);
         free(lod->front[k]);
         free(lod->fk_off[k]);
         free(lod->fk[k]);
@@ -1115,31 +1139,28 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
 {
     const sq_level *L = &lod->lv[k];
     const unsigned char *act = lod->active[k];
-    int j = lod->ring[k][r];
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    const double *B = lod->rk[k] + 9 * (size_t)lod->rk_off[k][r];
-    const double *Bd = mat->use_viscosity && lod->rd[k] ? lod->rd[k] + 9 * (size_t)lod->rk_off[k][r] : NULL;
+    const double *Bd = mat->use_viscosity ? lod->rd[k] : NULL;
     g[0] = g[1] = g[2] = 0;
-    for (int q = L->row_start[j], e = 0; q < L->row_start[j + 1]; q++, e++) {
-        int l = L->col[q];
-        if (!lod->ins[k][l])
-            continue; /* no tet touching an active node joins j and l: the block is zero */
+    for (int e = lod->rk_off[k][r]; e < lod->rk_off[k][r + 1]; e++) {
+        int l = lod->rk_col[k][e];
         double dl[3], vl[3];
         for (int c = 0; c < 3; c++) {
             dl[c] = L->d[3 * l + c];
             vl[c] = L->v[3 * l + c];
-            if (fr < 1 && act[l]) {
+        }
+        if (fr < 1 && act[l])
+            for (int c = 0; c < 3; c++) {
                 double d0 = lod->dprev[k][3 * l + c], v0 = lod->vprev[k][3 * l + c];
                 dl[c] = d0 + fr * (dl[c] - d0);
                 vl[c] = v0 + fr * (vl[c] - v0);
             }
-        }
-        const double *K = B + 9 * e;
+        const double *K = lod->rk[k] + 9 * (size_t)e;
         double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
         for (int rr = 0; rr < 3; rr++)
             g[rr] -= K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
         if (Bd) {
-            const double *D = Bd + 9 * e;
+            const double *D = Bd + 9 * (size_t)e;
             for (int rr = 0; rr < 3; rr++)
                 g[rr] -= D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
         }
@@ -1250,8 +1271,11 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
          * between levels, then integration of the free active nodes */
         for (int k = 0; k < L; k++)
             if (lod->due[k] && lod->nactive[k] > 0) {
+                /* the all-nodes force pass is vectorised and several times faster per
+                 * node than the masked one: use it once a quarter of the level is active
+                 * (ghost rows get forces nobody reads) */
                 sq_level_forces(&lod->lv[k], mat, gravity,
-                                lod->nactive[k] == lod->lv[k].n ? NULL : lod->active[k]);
+                                4 * lod->nactive[k] >= lod->lv[k].n ? NULL : lod->active[k]);
                 front_correct(lod, mat, k);
             }
         for (int k = 0; k < L; k++)
@@ -1419,10 +1443,10 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
             continue;
         for (int r = 0; r < lod->nfront[k]; r++) {
             int i = lod->front[k][r];
-            const double *B = lod->fk[k] + 9 * (size_t)lod->fk_off[k][r], *d = Lk->d + 3 * i;
+            const double *d = Lk->d + 3 * i;
             double f[3] = {0, 0, 0};
-            for (int q = Lk->row_start[i], e = 0; q < Lk->row_start[i + 1]; q++, e++) {
-                const double *K = B + 9 * e, *dl = Lk->d + 3 * Lk->col[q];
+            for (int e = lod->fk_off[k][r]; e < lod->fk_off[k][r + 1]; e++) {
+                const double *K = lod->fk[k] + 9 * (size_t)e, *dl = Lk->d + 3 * lod->fk_col[k][e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
@@ -1430,10 +1454,10 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
         }
         for (int r = 0; r < lod->nring[k]; r++) {
             int j = lod->ring[k][r];
-            const double *B = lod->rk[k] + 9 * (size_t)lod->rk_off[k][r], *d = Lk->d + 3 * j;
+            const double *d = Lk->d + 3 * j;
             double f[3] = {0, 0, 0};
-            for (int q = Lk->row_start[j], e = 0; q < Lk->row_start[j + 1]; q++, e++) {
-                const double *K = B + 9 * e, *dl = Lk->d + 3 * Lk->col[q];
+            for (int e = lod->rk_off[k][r]; e < lod->rk_off[k][r + 1]; e++) {
+                const double *K = lod->rk[k] + 9 * (size_t)e, *dl = Lk->d + 3 * lod->rk_col[k][e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
