@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# tradeoff: the real `squish sweep --quick` (stability at the extremes: every accepted case
+# stable, refusals named, above-bound steps adjusted into substeps) and a short real
+# `squish tradeoff` on the shipped cube-poke scene (CSV columns and rows, Pareto front, PNG),
+# plus usage errors. Last line: "tradeoff: N passed, N failed".
+set -u
+cd "$(dirname "$0")/../.."
+SQUISH=${SQUISH:-$PWD/build/squish}
+TMP=$(mktemp -d /tmp/squish-tradeoff-XXXXXX)
+trap 'rm -rf "$TMP"' EXIT
+pass=0
+fail=0
+
+ok() { pass=$((pass + 1)); echo "  ok   $1"; }
+bad() { fail=$((fail + 1)); echo "  FAIL $1"; }
+check() { # check NAME COMMAND...: passes when the command succeeds
+    local name=$1
+    shift
+    if "$@"; then ok "$name"; else bad "$name"; fi
+}
+
+if [ ! -x "$SQUISH" ]; then
+    echo "tradeoff: $SQUISH is missing; build it with make squish"
+    echo "tradeoff: 0 passed, 1 failed"
+    exit 1
+fi
+
+# ---- the sweep (quick: about a minute on 2 shared cores)
+"$SQUISH" sweep --quick --out "$TMP/sweep" >"$TMP/sweep.log" 2>&1
+rc=$?
+check "sweep exits 0 (no accepted case failed)" [ "$rc" = 0 ]
+csv=$TMP/sweep/sweep.csv
+check "sweep.csv header" bash -c "head -n 1 '$csv' | grep -q '^group,case,status,failed,substeps,bound_s,dt_s,'"
+check "sweep.csv has every group" bash -c "for g in young poisson density damping step tool mesh long; do grep -q \"^\$g,\" '$csv' || exit 1; done"
+check "sweep.csv at least 50 cases" [ "$(tail -n +2 "$csv" | wc -l)" -ge 50 ]
+check "no UNSTABLE row" bash -c "! grep -q ',UNSTABLE,' '$csv'"
+check "no accepted case failed (column 4)" bash -c "! tail -n +2 '$csv' | awk -F, '\$4 != 0' | grep -q ."
+check "E 1e9 Pa accepted and stable" bash -c "grep -E '^young,\"E = 1e\\+09 Pa \\(nu 0.3\\)\",stable,' '$csv' | grep -q ."
+check "nu 0.499 accepted and stable" bash -c "grep -E '^poisson,\"nu = 0.499 \\(E 1e5 Pa\\)\",stable,' '$csv' | grep -q ."
+check "step_fraction 2 refused with its reason" bash -c "grep -E '^step,\"step_fraction = 2\",refused,' '$csv' | grep -q 'out of range'"
+check "frame period 2x bound adjusted into 4 substeps" \
+    bash -c "grep -E '^step,\"frame period = 2 x bound\",adjusted, stable,0,4,' '$csv' | grep -q ."
+check "test-only: 2x the bound blows up" bash -c "grep -E '^step,\"level at 2 x bound \\(test-only\\)\",blows up' '$csv' | grep -q ."
+check "test-only: 1x the bound stays bounded" \
+    bash -c "grep -E '^step,\"level at 1 x bound \\(test-only\\)\",stays bounded' '$csv' | grep -q ."
+check "degenerate sliver refused by the mesh check" \
+    bash -c "grep -E '^mesh,\"sliver, flatness 1e-10\",refused,' '$csv' | grep -q degenerate"
+check "1e-8 sliver accepted with many substeps" \
+    bash -c "grep -E '^mesh,\"sliver, flatness 1e-08\",stable,0,' '$csv' | awk -F, '\$6 >= 1024' | grep -q ."
+check "long run stable" bash -c "grep -E '^long,' '$csv' | grep -q ',stable,0,'"
+check "sweep.md table" bash -c "grep -q '^| group | case | result |' '$TMP/sweep/sweep.md'"
+check "locking.csv: 0.4999 locks more than 0.3" \
+    bash -c "awk -F, '\$2 == 20 && \$1 == 0.3 {a = \$7} \$2 == 20 && \$1 == 0.4999 {b = \$7} END {exit !(a > 0 && b > 0 && b < a / 5)}' '$TMP/sweep/locking.csv'"
+check "locking.csv: substeps grow with nu" \
+    bash -c "awk -F, '\$2 == 20 && \$1 == 0.3 {a = \$8} \$2 == 20 && \$1 == 0.499 {b = \$8} END {exit !(b >= 16 * a)}' '$TMP/sweep/locking.csv'"
+
+# ---- a short tradeoff on the shipped cube-poke scene (the tool touches from frame ~26)
+"$SQUISH" tradeoff meshes/scenes/cube-poke.json --quick --frames 75 --out "$TMP/to" >"$TMP/to.log" 2>&1
+rc=$?
+check "tradeoff exits 0" [ "$rc" = 0 ]
+tcsv=$TMP/to/tradeoff.csv
+check "tradeoff.csv header" bash -c "head -n 1 '$tcsv' | grep -q '^setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,'"
+check "tradeoff.csv rows (quick grid: 9 settings)" [ "$(tail -n +2 "$tcsv" | wc -l)" = 9 ]
+check "reference has zero error" bash -c "grep '^\"reference\",reference,' '$tcsv' | awk -F, '\$13 == 0 && \$14 == 0' | grep -q ."
+check "fixed levels cost more when finer" \
+    bash -c "awk -F, '/^\"fixed L[0-9]\",fixed,/ {c[\$5] = \$11} END {exit !(c[0] < c[1] && c[1] < c[2])}' '$tcsv'"
+check "coarsest level has a non-zero error" bash -c "grep '^\"fixed L0\",' '$tcsv' | awk -F, '\$13 > 0' | grep -q ."
+check "adaptive runs cost fewer node updates than the finest level" \
+    bash -c "awk -F, '/^\"fixed L2\",fixed,/ {f = \$11} /,adaptive,fem,adaptive,/ {if (\$11 >= f) bad = 1; n++} END {exit !(n == 3 && !bad)}' '$tcsv'"
+check "Pareto front marked" bash -c "tail -n +2 '$tcsv' | awk -F, '\$20 == 1' | grep -q ."
+check "no resets in any setting" bash -c "tail -n +2 '$tcsv' | awk -F, '\$19 != 0' | grep -vq . "
+check "tradeoff.png is a PNG" bash -c "head -c 8 '$TMP/to/tradeoff.png' | od -An -tx1 | tr -d ' \n' | grep -q '^89504e470d0a1a0a'"
+check "tradeoff.png not tiny" [ "$(stat -c %s "$TMP/to/tradeoff.png")" -gt 10000 ]
+check "summary names the headline" grep -q '^headline: ' "$TMP/to/summary.txt"
+
+# ---- usage and bad input
+"$SQUISH" tradeoff >"$TMP/u1.log" 2>&1
+check "tradeoff without a scene: exit 2" [ $? = 2 ]
+"$SQUISH" tradeoff meshes/scenes/cube-poke.json --frames zero >"$TMP/u2.log" 2>&1
+check "tradeoff bad --frames: exit 2, named" bash -c "[ $? = 2 ] && grep -q -- '--frames needs' '$TMP/u2.log'"
+"$SQUISH" tradeoff "$TMP/missing.json" >"$TMP/u3.log" 2>&1
+check "tradeoff missing scene: exit 1, names the file" bash -c "[ $? = 1 ] && grep -q 'missing.json' '$TMP/u3.log'"
+"$SQUISH" sweep --bogus >"$TMP/u4.log" 2>&1
+check "sweep unknown option: exit 2" [ $? = 2 ]
+
+echo "tradeoff: $pass passed, $fail failed"
+[ "$fail" = 0 ]
