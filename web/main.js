@@ -83,6 +83,11 @@ async function start() {
   try {
     renderer = new Renderer($('view'), palette);
     app.softwareGl = renderer.software;
+    // for machines without a GPU: fewer pixels (scale) or fewer pictures per second (fps)
+    const scale = Number(params.get('scale'));
+    if (scale > 0 && scale <= 4) renderer.pixelScale = scale;
+    const fps = Number(params.get('fps'));
+    if (fps >= 1) maxFps = fps;
   } catch (e) {
     showEvent(e.message, true);
   }
@@ -93,6 +98,7 @@ async function start() {
   wireInput();
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
   link = new Link(params.get('ws') || `${proto}//${location.host}/ws`);
+  app.link = link;
   link.onStatus = onLinkStatus;
   link.onOpen = () => link.send(hello());
   link.onMessage = onMessage;
@@ -382,7 +388,8 @@ function onBinary(msg) {
     body.tools = msg.tools;
     body.frame = h.frame;
     body.time = h.time;
-    if (renderer) renderer.updateBody(h.body, pos, msg.levels);
+    // uploaded when the next picture is drawn: frames may come faster than the GPU draws
+    body.gpuDirty = true;
     app.framesReceived++;
     app.lastFrame = h.frame;
     app.simTime = h.time;
@@ -925,8 +932,13 @@ function frameLoop() {
   flushTool(false);
   if (opts.nodes && app.lastFrame !== nodesFrame && !nodesPending) { nodesFrame = app.lastFrame; requestNodes(); }
   if (!renderer || !dirty) return;
-  dirty = false;
   const t0 = performance.now();
+  if (maxFps && t0 - lastDrawAt < 1000 / maxFps - 2) return;
+  lastDrawAt = t0;
+  dirty = false;
+  for (const b of app.bodies.values()) {
+    if (b.gpuDirty && b.pos) { renderer.updateBody(b.id, b.pos, b.levelArr); b.gpuDirty = false; }
+  }
   const [w, h] = renderer.resize();
   camera.aspect = w / Math.max(h, 1);
   // centre the picture in the part of the window the side panel leaves free
@@ -954,6 +966,8 @@ function frameLoop() {
   app.drawMs = app.drawMs === undefined ? dt : app.drawMs * 0.9 + dt * 0.1;
 }
 let nodesFrame = -1;
+let maxFps = 0;
+let lastDrawAt = 0;
 
 // force values next to the arrow tips
 function drawLabels(tools, w, h) {

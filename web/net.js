@@ -30,6 +30,45 @@ export class Link {
     this.onBinary = () => {};
     this.onProblem = () => {};
     this.closedByUser = false;
+    this.worker = null;
+    this.jobs = new Map();
+    this.jobSeq = 0;
+    this.startWorker();
+  }
+
+  // binary messages are inflated in a worker when the browser allows it, else here
+  startWorker() {
+    try {
+      this.worker = new Worker(new URL('./decoder.worker.js', import.meta.url), { type: 'module' });
+    } catch (e) {
+      this.worker = null;
+      return;
+    }
+    this.worker.onmessage = (ev) => {
+      const job = this.jobs.get(ev.data.id);
+      if (!job) return;
+      this.jobs.delete(ev.data.id);
+      if (ev.data.error) job.reject(new Error(ev.data.error));
+      else job.resolve(ev.data.msg);
+    };
+    this.worker.onerror = () => {
+      // no worker after all (e.g. blocked): fail the waiting jobs over to the main thread
+      const w = this.worker;
+      this.worker = null;
+      if (w) w.terminate();
+      for (const job of this.jobs.values()) decodeBinary(job.buf).then(job.resolve, job.reject);
+      this.jobs.clear();
+    };
+  }
+
+  decode(buf) {
+    if (!this.worker) return decodeBinary(buf);
+    return new Promise((resolve, reject) => {
+      const id = ++this.jobSeq;
+      // keep a copy for the fallback: the original is transferred to the worker
+      this.jobs.set(id, { resolve, reject, buf: buf.slice(0) });
+      this.worker.postMessage({ id, buf }, [buf]);
+    });
   }
 
   /** open (or re-open) the socket */
@@ -102,7 +141,7 @@ export class Link {
         this.onProblem(e.message);
         return;
       }
-      this.queue.push({ buf: data, header });
+      this.queue.push({ buf: data, header, at: performance.now() });
     }
     if (!this.draining) this.drain();
   }
@@ -121,11 +160,14 @@ export class Link {
       }
       let msg;
       try {
-        msg = await decodeBinary(item.buf);
+        msg = await this.decode(item.buf);
       } catch (e) {
         this.onProblem(e.message);
         continue;
       }
+      // time from arrival to delivery (waiting in the queue plus inflating), averaged
+      const d = performance.now() - item.at;
+      this.decodeMs = this.decodeMs === undefined ? d : this.decodeMs * 0.9 + d * 0.1;
       this.deliver(this.onBinary, msg);
     }
     this.draining = false;

@@ -170,8 +170,8 @@ export function isSoftwareGl(gl) {
  * is replaced by a fresh one without multisampling (4x the fill cost on a CPU).
  * returns {canvas, gl, software}
  */
-export function createContext(canvas) {
-  const attrs = { antialias: true, preserveDrawingBuffer: true };
+export function createContext(canvas, preserve = true) {
+  const attrs = { antialias: true, preserveDrawingBuffer: preserve };
   let gl = canvas.getContext('webgl2', attrs);
   if (!gl) throw new Error('this browser has no WebGL2: use a current Chrome, Firefox or Safari');
   const software = isSoftwareGl(gl);
@@ -186,8 +186,8 @@ export function createContext(canvas) {
 
 /** the WebGL2 renderer of one canvas */
 export class Renderer {
-  constructor(canvasIn, palette) {
-    const { canvas, gl, software } = createContext(canvasIn);
+  constructor(canvasIn, palette, preserve = true) {
+    const { canvas, gl, software } = createContext(canvasIn, preserve);
     this.software = software;
     this.gl = gl;
     this.canvas = canvas;
@@ -359,7 +359,7 @@ export class Renderer {
 
   /** resize the drawing buffer to the canvas' CSS size; returns [w, h] in CSS pixels */
   resize() {
-    const c = this.canvas, dpr = this.software ? 1 : Math.min(window.devicePixelRatio || 1, 2);
+    const c = this.canvas, dpr = this.pixelScale || (this.software ? 1 : Math.min(window.devicePixelRatio || 1, 2));
     const w = c.clientWidth, h = c.clientHeight;
     const bw = Math.max(1, Math.round(w * dpr)), bh = Math.max(1, Math.round(h * dpr));
     if (c.width !== bw || c.height !== bh) { c.width = bw; c.height = bh; }
