@@ -35,6 +35,7 @@ describe('web viewer', () => {
       await waitFrames(page, 5);
       const st = await state(page);
       assert.equal(st.role, 'control');
+      assert.ok(await page.evaluate(() => !!window.squish.link.worker), 'binary messages are decoded in a worker');
       assert.ok(st.session, 'a session was opened');
       const px = await pixelStats(page);
       assert.ok(px.nonBackground > MIN_BODY_FRACTION, `body and floor cover ${px.nonBackground} of the canvas`);
