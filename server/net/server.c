@@ -413,6 +413,7 @@ static cJSON *stats_json(server *srv, srec *r, client *c, const sq_request *req)
     cJSON_AddNumberToObject(o, "budget_used", p->budget_used);
     cJSON_AddNumberToObject(o, "frame_ms", 1e3 * p->frame_s);
     cJSON_AddNumberToObject(o, "deadline_misses", (double)p->deadline_misses);
+    cJSON_AddNumberToObject(o, "overruns", (double)p->overruns);
     cJSON_AddNumberToObject(o, "resets", (double)p->resets);
     int maxl = 0, sleeping = 0;
     double updates = 0;

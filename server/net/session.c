@@ -250,6 +250,7 @@ static void snapshot_locked(sq_session *s, double frame_s)
         p->budget_used = frame_s / s->period;
     }
     p->deadline_misses = s->deadline_misses;
+    p->overruns = w->deadline_misses;
     p->resets = w->resets;
     p->nbodies = w->nbodies;
     for (int b = 0; b < w->nbodies; b++) {

@@ -48,6 +48,7 @@ typedef struct sq_snapshot {
     double frame_s;                  /* compute time of the last frame, s */
     double budget_used;              /* frame_s / period */
     long deadline_misses, resets;
+    long overruns;                   /* frames whose compute alone exceeded the period */
     int nbodies;
     int nlevels[SQ_MAX_BODIES];
     int active[SQ_MAX_BODIES][SQ_MAX_LEVELS];

@@ -101,8 +101,9 @@ try {
     results.viewers = {
       viewers: s1.viewers, seconds: SECONDS, frame_rate: o.frame_rate, frames_simulated: frames,
       deadline_misses: s1.deadline_misses - s0.deadline_misses,
+      overruns: s1.overruns - s0.overruns,
       baseline_no_viewers: { seconds: SECONDS / 2, frames_simulated: b1.frame - b0.frame,
-        deadline_misses: b1.deadline_misses - b0.deadline_misses },
+        deadline_misses: b1.deadline_misses - b0.deadline_misses, overruns: b1.overruns - b0.overruns },
       frames_per_viewer_min: Math.min(...counts), frames_per_viewer_mean: +(counts.reduce((a, b) => a + b, 0) / counts.length).toFixed(1),
       skipped_first10: skipped, budget_used_last: +s1.budget_used.toFixed(3),
       server_bytes_per_s: Math.round((s1.bytes_sent - s0.bytes_sent) / SECONDS),

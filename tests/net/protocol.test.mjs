@@ -79,7 +79,7 @@ test('tool (grab), frames carry the tool and its feedback force, stats shows it'
   await sleep(200);
   const s = await c.stats();
   assert.equal(s.type, 'stats');
-  for (const k of ['frame', 'time', 'budget_used', 'deadline_misses', 'active_nodes', 'node_updates',
+  for (const k of ['frame', 'time', 'budget_used', 'deadline_misses', 'overruns', 'active_nodes', 'node_updates',
     'sleeping', 'feedback', 'clients', 'viewers', 'bytes_sent', 'skipped', 'tools', 'bodies'])
     assert.ok(k in s, `stats.${k}`);
   const fb = s.feedback.find(e => e.tool === 3);
