@@ -992,7 +992,7 @@ function drawLabels(tools, w, h) {
     el.hidden = false;
     el.style.left = `${p[0]}px`;
     el.style.top = `${p[1]}px`;
-    el.textContent = f >= 100 ? `${f.toFixed(0)} N` : f >= 1 ? `${f.toFixed(2)} N` : `${(f * 1000).toFixed(1)} mN`;
+    el.textContent = `${f >= 100 ? f.toFixed(0) : f >= 1 ? f.toFixed(2) : f.toPrecision(3)} N`;
   }
   for (const el of [...layer.children]) if (!seen.has(el.id)) el.remove();
 }
