@@ -1,12 +1,175 @@
-/* bench_scenes.c - scene benchmarks (placeholder until filled in). */
+/* bench_scenes.c - scene benchmarks: frame-budget headroom of the shipped scenes, and the
+ * throughput of 1 vs 2 threads running independent worlds (the server's session model).
+ *
+ *   squish tradeoff --bench [--scenes DIR] [--frames N] [--threads-scene NAME]
+ *
+ * Per scene: wall time of every sq_world_step with the live budget (the frame period, as the
+ * server runs it: adaptive bodies stop splitting when a frame takes too long), its median, 95th percentile and maximum against the
+ * frame period, and the headroom 1 - p95 / period. Meant to be wired into `squish bench` too
+ * (sq_bench_scenes takes the arguments after the subcommand name).
+ */
+#include <dirent.h>
+#include <math.h>
+#include <pthread.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
 
 #include "app/tradeoff.h"
+#include "scene/scene.h"
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static int cmp_str(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+typedef struct bench_job {
+    const sq_scene *scene;
+    long frames;
+    double wall;
+    int ok;
+} bench_job;
+
+/* run one world of the scene for job->frames frames */
+static void *run_world(void *arg)
+{
+    bench_job *j = arg;
+    sq_err err = {{0}};
+    sq_world *w = sq_world_create(j->scene, &err);
+    if (!w)
+        return NULL;
+    double t0 = sq_now();
+    for (long f = 0; f < j->frames; f++)
+        sq_world_step(w, 0);
+    j->wall = sq_now() - t0;
+    j->ok = 1;
+    sq_world_destroy(w);
+    return NULL;
+}
+
+/* 1 vs 2 threads: two independent worlds of the scene, one after the other on this thread,
+ * then at the same time on two threads; prints the throughput ratio */
+static void bench_threads(const char *path, long frames)
+{
+    sq_err err = {{0}};
+    sq_scene *s = sq_scene_load(path, &err);
+    if (!s) {
+        fprintf(stderr, "squish tradeoff --bench: %s\n", err.msg);
+        return;
+    }
+    bench_job a = {s, frames, 0, 0}, b = {s, frames, 0, 0};
+    double t0 = sq_now();
+    run_world(&a);
+    run_world(&b);
+    double seq = sq_now() - t0;
+    bench_job c = {s, frames, 0, 0}, d = {s, frames, 0, 0};
+    pthread_t th;
+    t0 = sq_now();
+    int spawned = pthread_create(&th, NULL, run_world, &c) == 0;
+    run_world(&d);
+    if (spawned)
+        pthread_join(th, NULL);
+    double par = sq_now() - t0;
+    if (a.ok && b.ok && c.ok && d.ok && spawned)
+        printf("\n1 vs 2 threads (%s, two independent worlds x %ld frames): 1 thread %.3f s, 2 threads %.3f s: "
+               "x%.2f throughput\n",
+               s->name, frames, seq, par, seq / par);
+    else
+        printf("\n1 vs 2 threads: could not run two worlds of %s\n", s->name);
+    sq_scene_free(s);
+}
 
 int sq_bench_scenes(int argc, char **argv)
 {
-    (void)argc;
-    (void)argv;
-    fprintf(stderr, "squish tradeoff --bench: not available yet\n");
-    return 2;
+    const char *dir = "meshes/scenes", *thread_scene = "organ";
+    long frames = 0;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--scenes") && i + 1 < argc) {
+            dir = argv[++i];
+        } else if (!strcmp(argv[i], "--frames") && i + 1 < argc) {
+            char *end;
+            frames = strtol(argv[++i], &end, 10);
+            if (*end || frames < 1 || frames > 100000) {
+                fprintf(stderr, "squish tradeoff --bench: --frames needs a whole number 1..100000\n");
+                return 2;
+            }
+        } else if (!strcmp(argv[i], "--threads-scene") && i + 1 < argc) {
+            thread_scene = argv[++i];
+        } else {
+            fprintf(stderr, "squish tradeoff --bench: unknown argument '%s'; options: --scenes DIR, --frames N, "
+                            "--threads-scene NAME\n", argv[i]);
+            return 2;
+        }
+    }
+    DIR *d = opendir(dir);
+    if (!d) {
+        fprintf(stderr, "squish tradeoff --bench: cannot open scene directory %s; pass --scenes DIR\n", dir);
+        return 1;
+    }
+    char *names[64];
+    int n = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) && n < 64) {
+        size_t len = strlen(e->d_name);
+        if (len > 5 && !strcmp(e->d_name + len - 5, ".json"))
+            names[n++] = sq_strdup(e->d_name);
+    }
+    closedir(d);
+    qsort(names, (size_t)n, sizeof *names, cmp_str);
+    printf("# frame-budget headroom: wall time per frame (sq_world_step with the live budget = the frame\n"
+           "# period, so adaptive bodies stop splitting above lod.budget of it), one thread\n");
+    printf("%-14s %7s %8s %9s %9s %9s %9s %9s %7s\n", "scene", "frames", "nodes", "period ms", "p50 ms",
+           "p95 ms", "max ms", "headroom", "misses");
+    char thread_path[1024] = "";
+    for (int k = 0; k < n; k++) {
+        char path[1024];
+        snprintf(path, sizeof path, "%s/%s", dir, names[k]);
+        sq_err err = {{0}};
+        sq_scene *s = sq_scene_load(path, &err);
+        if (!s) {
+            printf("%-14s refused: %s\n", names[k], err.msg);
+            continue;
+        }
+        if (!strcmp(s->name, thread_scene))
+            snprintf(thread_path, sizeof thread_path, "%s", path);
+        sq_world *w = sq_world_create(s, &err);
+        if (!w) {
+            printf("%-14s refused: %s\n", s->name, err.msg);
+            sq_scene_free(s);
+            continue;
+        }
+        long nf = frames > 0 ? frames : (long)ceil(s->duration * s->frame_rate - 1e-9);
+        double *t = sq_malloc(sizeof(double) * (size_t)(nf > 0 ? nf : 1));
+        long nodes = 0;
+        for (int b = 0; b < w->nbodies; b++)
+            nodes += sq_body_surface_mesh(w->bodies[b])->nnodes;
+        double period = 1.0 / s->frame_rate;
+        for (long f = 0; f < nf; f++) {
+            double t0 = sq_now();
+            sq_world_step(w, period); /* live budget: splits stop above lod.budget x period */
+            t[f] = sq_now() - t0;
+        }
+        qsort(t, (size_t)nf, sizeof *t, cmp_double);
+        long misses = 0;
+        for (long f = 0; f < nf; f++)
+            misses += t[f] > period;
+        double p50 = nf ? t[nf / 2] : 0, p95 = nf ? t[(long)(0.95 * (nf - 1))] : 0, mx = nf ? t[nf - 1] : 0;
+        printf("%-14s %7ld %8ld %9.1f %9.2f %9.2f %9.2f %8.0f%% %7ld\n", s->name, nf, nodes, 1e3 * period, 1e3 * p50,
+               1e3 * p95, 1e3 * mx, 100 * (1 - p95 / period), misses);
+        free(t);
+        sq_world_destroy(w);
+        sq_scene_free(s);
+    }
+    printf("# nodes: finest loaded level of every body; headroom = 1 - p95 / period (negative: frames late)\n");
+    if (thread_path[0])
+        bench_threads(thread_path, frames > 0 ? SQ_MIN(frames, 100L) : 100L);
+    for (int k = 0; k < n; k++)
+        free(names[k]);
+    return 0;
 }
