@@ -89,18 +89,42 @@ static int fail(rd *r, const char *fmt, const char *what, const char *tok)
     return sq_err_set(r->err, "%s:%d: %s", r->path, r->line, msg);
 }
 
-static int read_long(rd *r, long long *v, const char *what)
+/* does a token end at position p (whitespace, end of file or a comment)? */
+static int tok_end(const rd *r, size_t p)
+{
+    if (p >= r->len)
+        return 1;
+    char c = r->buf[p];
+    return isspace((unsigned char)c) || c == 0 || (r->comment && c == r->comment);
+}
+
+/* the bad token at the current position, for a message */
+static int bad_token(rd *r, const char *fmt, const char *what)
 {
     char tok[64];
+    next_tok(r, tok, sizeof tok);
+    return fail(r, fmt, what, tok);
+}
+
+/* integers are parsed in place (the loaders' hot path); anything odd is a message */
+static int read_long(rd *r, long long *v, const char *what)
+{
     *v = 0;
-    if (!next_tok(r, tok, sizeof tok))
+    skip_ws(r);
+    if (r->pos >= r->len)
         return fail(r, "unexpected end of file while reading %s%s; the file is truncated", what, "");
-    char *end;
-    errno = 0;
-    long long x = strtoll(tok, &end, 10);
-    if (*end || end == tok || errno)
-        return fail(r, "expected an integer for %s, found '%s'", what, tok);
-    *v = x;
+    size_t p = r->pos;
+    int neg = 0;
+    if (r->buf[p] == '-' || r->buf[p] == '+')
+        neg = r->buf[p++] == '-';
+    size_t d0 = p;
+    unsigned long long x = 0;
+    while (p < r->len && r->buf[p] >= '0' && r->buf[p] <= '9' && p - d0 < 19)
+        x = 10 * x + (unsigned long long)(r->buf[p++] - '0');
+    if (p == d0 || !tok_end(r, p))
+        return bad_token(r, "expected an integer for %s, found '%s'", what);
+    r->pos = p;
+    *v = neg ? -(long long)x : (long long)x;
     return 0;
 }
 
@@ -121,16 +145,22 @@ static int read_int(rd *r, int *v, const char *what)
 
 static int read_double(rd *r, double *v, const char *what)
 {
-    char tok[128];
     *v = 0;
-    if (!next_tok(r, tok, sizeof tok))
+    skip_ws(r);
+    if (r->pos >= r->len)
         return fail(r, "unexpected end of file while reading %s%s; the file is truncated", what, "");
+    /* the buffer is NUL-terminated, so strtod stops inside it */
     char *end;
-    double x = strtod(tok, &end);
-    if (*end || end == tok)
-        return fail(r, "expected a number for %s, found '%s'", what, tok);
-    if (!isfinite(x))
+    double x = strtod(r->buf + r->pos, &end);
+    size_t p = (size_t)(end - r->buf);
+    if (p == r->pos || !tok_end(r, p))
+        return bad_token(r, "expected a number for %s, found '%s'", what);
+    if (!isfinite(x)) {
+        char tok[64];
+        next_tok(r, tok, sizeof tok);
         return fail(r, "%s is not finite ('%s'); fix the coordinates", what, tok);
+    }
+    r->pos = p;
     *v = x;
     return 0;
 }
@@ -158,6 +188,9 @@ typedef struct tagmap {
     long long *tag;
     int *index;
     int n;
+    long long dense_lo; /* when tags are dense: index of tag t is dense[t - dense_lo] */
+    long long dense_n;
+    int *dense;
 } tagmap;
 
 static int tag_cmp(const void *pa, const void *pb)
@@ -182,8 +215,10 @@ static void tagmap_free(tagmap *tm)
 {
     free(tm->tag);
     free(tm->index);
+    free(tm->dense);
     tm->tag = NULL;
     tm->index = NULL;
+    tm->dense = NULL;
 }
 
 /* build the map from tags[i] = tag of node i; error on duplicates */
@@ -213,11 +248,27 @@ static int tagmap_build(tagmap *tm, const long long *tags, const int *lines, int
         tm->index[i] = p[i].index;
     }
     free(p);
+    /* dense tags (the usual case): a direct table instead of a binary search */
+    unsigned long long span = n > 0 ? (unsigned long long)tm->tag[n - 1] - (unsigned long long)tm->tag[0] : 0;
+    if (n > 0 && span < 4ULL * (unsigned long long)n + 16) {
+        tm->dense_lo = tm->tag[0];
+        tm->dense_n = (long long)span + 1;
+        tm->dense = sq_malloc((size_t)tm->dense_n * sizeof *tm->dense);
+        for (long long k = 0; k < tm->dense_n; k++)
+            tm->dense[k] = -1;
+        for (int i = 0; i < n; i++)
+            tm->dense[tm->tag[i] - tm->dense_lo] = tm->index[i];
+    }
     return 0;
 }
 
 static int tagmap_find(const tagmap *tm, long long tag)
 {
+    if (tm->dense) {
+        /* unsigned compare also rejects tags below the range (no overflow for any tag) */
+        unsigned long long k = (unsigned long long)tag - (unsigned long long)tm->dense_lo;
+        return k < (unsigned long long)tm->dense_n ? tm->dense[k] : -1;
+    }
     int lo = 0, hi = tm->n - 1;
     while (lo <= hi) {
         int mid = lo + (hi - lo) / 2;
