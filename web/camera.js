@@ -112,7 +112,8 @@ export class OrbitCamera {
     this.el = 0.45;
     this.fovy = (40 * Math.PI) / 180;
     this.aspect = 1;
-    this.shiftX = 0; // horizontal shift of the picture in NDC units (to clear a side panel)
+    this.shiftX = 0; // shift of the picture in NDC units (to clear a side or bottom panel)
+    this.shiftY = 0;
   }
 
   /** eye position in world space */
@@ -127,6 +128,7 @@ export class OrbitCamera {
   proj() {
     const m = perspective(this.fovy, this.aspect, this.dist * 0.01, this.dist * 100);
     m[8] = -this.shiftX;
+    m[9] = -this.shiftY;
     return m;
   }
   viewProj() { return mul(this.proj(), this.view()); }

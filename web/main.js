@@ -666,7 +666,7 @@ function toggleHelp(show) {
   const h = $('help');
   const on = show === undefined ? h.classList.contains('hidden') : show;
   h.classList.toggle('hidden', !on);
-  if (on) $('btn-help-close').focus();
+  if (on) $('help-card').focus();
 }
 
 function wireUi() {
@@ -945,6 +945,8 @@ function frameLoop() {
   const panel = $('panel');
   const pr = panel.classList.contains('hidden') ? null : panel.getBoundingClientRect();
   camera.shiftX = pr && pr.left > w * 0.4 && pr.height > h * 0.5 ? -(w - pr.left) / w : 0;
+  // a bottom sheet (narrow screens): centre in the part above it
+  camera.shiftY = pr && pr.top > h * 0.4 && pr.width > w * 0.8 ? 1 - pr.top / h : 0;
   // tools: the server's view of every tool, plus ours while we drag it
   const tools = [];
   for (const b of app.bodies.values()) {
