@@ -97,7 +97,8 @@ const NOISE = [/GL Driver Message/i, /GPU stall/i, /swiftshader/i, /WebGL.*fallb
 
 /**
  * open the viewer in a new page; collects console errors and uncaught exceptions in
- * page.problems. Waits until `minFrames` frames were received.
+ * page.problems and the types of the requests it sends in page.sent. Waits until `minFrames`
+ * frames were received.
  */
 export async function openViewer(browser, url, { minFrames = 3, viewport = { width: 1280, height: 800 } } = {}) {
   const page = await browser.newPage({ viewport });
@@ -108,6 +109,12 @@ export async function openViewer(browser, url, { minFrames = 3, viewport = { wid
     }
   });
   page.on('pageerror', (e) => page.problems.push(`uncaught: ${e.message}`));
+  // the types of the JSON requests the page sends, in order
+  page.sent = [];
+  page.on('websocket', (ws) => ws.on('framesent', (f) => {
+    if (typeof f.payload !== 'string') return;
+    try { page.sent.push(JSON.parse(f.payload).type); } catch (e) { page.sent.push('(not JSON)'); }
+  }));
   page.on('requestfailed', (r) => page.problems.push(`request failed: ${r.url()} ${r.failure() && r.failure().errorText}`));
   await page.goto(url);
   if (minFrames > 0) await waitFrames(page, minFrames);

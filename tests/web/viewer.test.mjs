@@ -122,13 +122,15 @@ describe('web viewer', () => {
         `${(m.bps / 1000).toFixed(1)} kB/s received, draw ${m.draw && m.draw.toFixed(2)} ms (JS side)`);
       await ctl.mouse.up();
 
-      // a viewer cannot poke: its drags orbit the camera, no tool is sent
-      const before = await viewer.evaluate(() => window.squish.framesReceived);
+      // a viewer cannot poke: its drags on the body orbit its own camera, no tool is sent
+      assert.ok(ctl.sent.includes('tool'), 'the controller sent tool poses');
+      const az0 = await viewer.evaluate(() => window.squish.camera.az);
       const vp = await topFacePoint(viewer);
-      await dragFrom(viewer, vp[0], vp[1], 40, 0, { steps: 4 });
+      await dragFrom(viewer, vp[0], vp[1], 60, 0, { steps: 4 });
       await viewer.mouse.up();
       await waitFrames(viewer, 3);
-      assert.ok((await viewer.evaluate(() => window.squish.framesReceived)) > before);
+      assert.ok(!viewer.sent.includes('tool'), `the viewer sent: ${viewer.sent.join(', ')}`);
+      assert.notEqual(await viewer.evaluate(() => window.squish.camera.az), az0, 'the viewer\'s camera turned');
       assert.deepEqual(ctl.problems, [], 'controller console clean');
       assert.deepEqual(viewer.problems, [], 'viewer console clean');
     } finally {
