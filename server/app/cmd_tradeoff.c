@@ -199,6 +199,13 @@ static int build_grid(to_variant *v, int finest, double s0, int quick)
     v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.5};
     snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.5", finest);
     n++;
+    if (!quick) {
+        /* finer than the reference: its error is the floor below which differences are noise
+         * (tool contact sets change with the step) */
+        v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.1};
+        snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.1", finest);
+        n++;
+    }
     if (!quick && finest > 0) {
         v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.25};
         snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.25", s0);

@@ -221,7 +221,7 @@ static void run_above_bound(sq_body *b, const sw_case *c, sw_result *r)
     int blew = !isfinite(dmax) || dmax > 100 * (sag + d0);
     snprintf(r->status, sizeof r->status, "%s", blew ? "blows up (test-only)" : "stays bounded (test-only)");
     snprintf(r->note, sizeof r->note,
-             "test-only: level stepped directly at %.3g x its bound (%.3g s) for %d steps: max |d| %.3g m "
+             "test-only: level stepped directly at %.3g x its bound (%.3g s) for %d steps: largest displacement %.3g m "
              "(static sag ~%.2g m)%s",
              c->above_bound, L->bound, s < steps ? s + 1 : steps, dmax, sag,
              blew ? "; the body never does this: it cuts the frame into substeps below the bound" : "");
@@ -687,10 +687,10 @@ int sq_cmd_sweep(int argc, char **argv)
         csv_text(f, r->note);
         fputc('\n', f);
         char el[32] = "", ea[32] = "";
-        if (r->frames > 0) {
+        if (r->frames > 0 && isfinite(r->e_load))
             snprintf(el, sizeof el, "%.3g", r->e_load);
+        if (r->frames > 0 && isfinite(r->e_late))
             snprintf(ea, sizeof ea, "%.3g", r->e_late);
-        }
         fprintf(md, "| %s | %s | %s%s%s | %d | %.3g | %.3g | %s | %s | %.2f | %s |\n", cs[i].group, cs[i].name,
                 r->failed ? "**" : "", r->status, r->failed ? "**" : "", r->substeps, r->bound, r->max_disp, el, ea,
                 r->wall, r->note);
