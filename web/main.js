@@ -220,6 +220,14 @@ function onSession(m) {
   if (m.role === 'view' || m.role === 'control') setRole(m.role);
   if (m.demoted) showEvent('this session already has a controller: you watch it', true);
   link.send({ type: 'subscribe', stats: true, stats_hz: 4 });
+  // a tool of ours left active by a dropped connection is released
+  if (app.role === 'control' && Array.isArray(m.tools)) {
+    for (const t of m.tools) {
+      if ((t.id === GRAB_ID || t.id === PUSH_ID) && t.active && !(tool && tool.id === t.id)) {
+        link.send({ type: 'tool', id: t.id, active: false });
+      }
+    }
+  }
   renderer && renderer.clearBodies();
   app.bodies.clear();
   // a re-join of the same scene (after a reconnect) keeps the user's camera
@@ -502,8 +510,11 @@ function tick() {
   app.bytesPerSecond = link.bytesIn - lastBytesIn;
   lastBytesIn = link.bytesIn;
   app.simRate = frameCounter.rate();
-  $('hud-bytes').textContent = app.bytesPerSecond >= 1e6 ? `${(app.bytesPerSecond / 1e6).toFixed(2)} MB/s`
+  const rate = app.bytesPerSecond >= 1e6 ? `${(app.bytesPerSecond / 1e6).toFixed(2)} MB/s`
     : `${(app.bytesPerSecond / 1e3).toFixed(1)} kB/s`;
+  // frames skipped because this page read slower than the simulation (server and page side)
+  const skipped = (app.skipped || 0) + link.framesSkipped;
+  $('hud-bytes').textContent = skipped ? `${rate} (${skipped} frames skipped)` : rate;
   $('hud-rate').textContent = `${app.simRate.toFixed(1)} Hz`;
   if (app.simTime !== undefined) $('hud-time').textContent = `${app.simTime.toFixed(2)} s`;
   $('hud-latency').textContent = app.latencyMs === null ? '-' : `${app.latencyMs.toFixed(1)} ms`;

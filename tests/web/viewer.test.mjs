@@ -261,6 +261,11 @@ describe('web viewer reconnects', () => {
       await page.goto(server.url);
       await waitFrames(page, 5);
       const s1 = await state(page);
+      // hold a grab while the connection drops
+      const p = await topFacePoint(page);
+      await dragFrom(page, p[0], p[1], 0, -30, { steps: 3 });
+      const grabActive = () => [...window.squish.bodies.values()].some((b) => (b.tools || []).some((t) => t.shape === 'grab' && t.active));
+      await page.waitForFunction(grabActive, null, { timeout: 15000 });
       await routes[routes.length - 1].close();
       await page.waitForFunction(() => window.squish.status !== 'connected', null, { timeout: 15000 });
       await page.waitForFunction(() => window.squish.status === 'connected', null, { timeout: 30000 });
@@ -270,6 +275,9 @@ describe('web viewer reconnects', () => {
       assert.equal(s2.session, s1.session, 'same session');
       assert.equal(s2.opens, s1.opens + 1, 'joined once more');
       assert.equal(s2.role, 'control', 'the controller got its session back');
+      // the grab left behind by the drop was released after the re-join
+      await page.waitForFunction((f) => !(() => [...window.squish.bodies.values()].some((b) => (b.tools || []).some((t) => t.shape === 'grab' && t.active)))(), null, { timeout: 15000 });
+      await page.mouse.up();
     } finally {
       await page.context().close();
       await server.stop();
