@@ -66,12 +66,13 @@ static void item_cells(const grid *g, const sq_mesh *m, const int *v, int nv, in
     }
 }
 
-/* bin n items of nv vertices each (indices into x) by bounding box */
+/* bin n items of nv vertices each (indices into x) by bounding box; cells start at scale times
+ * the mean item edge */
 static void grid_build(grid *g, const sq_mesh *m, const int *items, int n, int nv, double scale,
                        double max_per_item)
 {
-    /* cell edge: half the mean item edge, so a cell lists few items; grown while the
-     * listing would exceed 24 entries per item (or 16M cells) */
+    /* small cells list few items per cell, but list each item in more cells: the cell edge
+     * grows while the listing would exceed max_per_item entries per item (or 16M cells) */
     double esum = 0;
     for (int e = 0; e < n; e++) {
         const int *v = items + (size_t)nv * e;
