@@ -238,3 +238,34 @@ test('GET /snapshot.png renders the session off the simulation thread; bad reque
   await c.waitFor(f => f.frame > f0, 3000, 'frame');
   await c.close();
 });
+
+test('HTTP files of --web with the right MIME types; index.html at /; no escape from the root', async () => {
+  const { mkdtempSync, writeFileSync } = await import('node:fs');
+  const os = await import('node:os');
+  const path = await import('node:path');
+  const dir = mkdtempSync(path.join(os.tmpdir(), 'squish-web-'));
+  const types = { html: 'text/html', js: 'text/javascript', mjs: 'text/javascript', css: 'text/css',
+    json: 'application/json', png: 'image/png', svg: 'image/svg+xml', wasm: 'application/wasm' };
+  for (const ext of Object.keys(types)) writeFileSync(path.join(dir, `f.${ext}`), 'x');
+  writeFileSync(path.join(dir, 'index.html'), '<!doctype html><title>t</title>');
+  const s2 = await startServer(['--web', dir]);
+  try {
+    for (const [ext, type] of Object.entries(types)) {
+      const r = await fetch(`${s2.http}/f.${ext}`);
+      assert.equal(r.status, 200, ext);
+      assert.equal(r.headers.get('content-type'), type, ext);
+    }
+    const idx = await fetch(`${s2.http}/`);
+    assert.equal(idx.status, 200);
+    assert.match(await idx.text(), /<title>t<\/title>/);
+    // the viewer's scripts must be files: the security headers forbid inline scripts
+    assert.match(idx.headers.get('content-security-policy') || '', /script-src 'self'/);
+    const esc = await fetch(`${s2.http}/%2e%2e/%2e%2e/etc/passwd`);
+    assert.notEqual(esc.status, 200);
+    // the WebSocket endpoint still works beside the files
+    const c = await SquishClient.connect(s2.url);
+    await c.close();
+  } finally {
+    await s2.stop();
+  }
+});
