@@ -6,6 +6,11 @@ set -euo pipefail
 cd "$(dirname "$0")"
 command -v gmsh >/dev/null || { echo "generate.sh: gmsh not found; install it (apt-get install gmsh)" >&2; exit 1; }
 
+# HXT's output depends on memory addresses: with address randomisation off (setarch -R) the
+# same Gmsh build gives the same file every run
+run=(gmsh)
+if setarch -R true 2>/dev/null; then run=(setarch -R gmsh); fi
+
 # shape and its level-0 edge length
 declare -A H0=([cube]=0.5 [sphere]=0.25 [beam]=0.1 [organ]=0.045)
 shapes=("$@")
@@ -20,7 +25,7 @@ for s in "${shapes[@]}"; do
         done_n=$((done_n + 1))
         printf '[%2d/%d] %-22s h = %-9s ' "$done_n" "$total" "$out" "$h"
         start=$(date +%s.%N)
-        log=$(gmsh "$s/$s.geo" -3 -setnumber h "$h" -format msh22 -o "$out" 2>&1) || {
+        log=$("${run[@]}" "$s/$s.geo" -3 -setnumber h "$h" -format msh22 -o "$out" 2>&1) || {
             echo "FAILED"; echo "$log" | grep -E 'Error' >&2; exit 1; }
         nodes=$(echo "$log" | grep -oE '[0-9]+ nodes' | tail -n 1)
         printf '%-12s %.1f s\n' "$nodes" "$(echo "$(date +%s.%N) - $start" | bc)"

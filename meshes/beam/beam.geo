@@ -11,7 +11,7 @@ Mesh.MeshSizeFromCurvature = 0;
 Mesh.MeshSizeExtendFromBoundary = 0;
 Mesh.Optimize = 1;
 Mesh.Algorithm3D = 10;   // HXT: better dihedral angles than the default Delaunay here
-General.NumThreads = 1;  // reproducible output
+General.NumThreads = 1;  // one thread (generate.sh also turns off address randomisation)
 Mesh.SaveAll = 0;
 // save only the tetrahedra
 Physical Volume("body", 1) = Volume{:};
