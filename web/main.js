@@ -416,6 +416,7 @@ function onBinary(msg) {
     dirty = true;
   } else if (h.kind === KIND_NODES) {
     if (renderer) renderer.setNodes(msg.pos, msg.levels);
+    app.nodesShown = msg.levels.length;
     nodesPending = false;
     dirty = true;
   }

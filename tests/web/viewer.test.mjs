@@ -54,6 +54,17 @@ describe('web viewer', () => {
       const plain = await pixelStats(page);
       assert.ok(plain.level[lvl] < px.level[lvl] * 0.2, `plain shading still shows level colour (${plain.level[lvl]})`);
       await page.keyboard.press('l');
+      // wireframe draws the triangle edges over the body: pixels change
+      await snapPixels(page, 'shaded');
+      await page.keyboard.press('w');
+      await page.waitForTimeout(300);
+      assert.ok(await pixelChange(page, 'shaded') > 0.005, 'wireframe visible');
+      await page.keyboard.press('w');
+      // active-node points come from `nodes` requests
+      await page.keyboard.press('n');
+      await page.waitForFunction(() => window.squish.nodesShown > 0, null, { timeout: 15000 });
+      assert.ok(page.sent.includes('nodes'));
+      await page.keyboard.press('n');
       assert.deepEqual(page.problems, [], 'no console errors');
     } finally {
       await page.close();
