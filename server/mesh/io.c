@@ -612,6 +612,15 @@ bad:
 
 /* ---- TetGen ---- */
 
+/* a missing half of the pair: say that both files are needed */
+static void tetgen_pair_hint(sq_err *err)
+{
+    if (err) {
+        size_t n = strlen(err->msg);
+        snprintf(err->msg + n, sizeof err->msg - n, "; a TetGen mesh needs both NAME.node and NAME.ele");
+    }
+}
+
 static sq_mesh *read_tetgen(const char *path, sq_err *err)
 {
     /* NAME.node and NAME.ele from either name (or NAME alone) */
@@ -634,7 +643,7 @@ static sq_mesh *read_tetgen(const char *path, sq_err *err)
     size_t len;
     char *buf = sq_read_file(npath, &len, SQ_MESH_MAX_FILE, err);
     if (!buf) {
-        sq_err_prefix(err, "TetGen mesh needs NAME.node and NAME.ele");
+        tetgen_pair_hint(err);
         return NULL;
     }
     rd r = {npath, buf, len, 0, 1, '#', err};
@@ -677,7 +686,7 @@ static sq_mesh *read_tetgen(const char *path, sq_err *err)
 
     buf = sq_read_file(epath, &len, SQ_MESH_MAX_FILE, err);
     if (!buf) {
-        sq_err_prefix(err, "TetGen mesh needs NAME.node and NAME.ele");
+        tetgen_pair_hint(err);
         build_free(&b);
         return NULL;
     }

@@ -136,6 +136,9 @@ SQ_TEST(mesh_io_broken_files)
         {"binary.msh", "binary.msh:2:", "binary .msh is not supported"},
         {"does_not_exist.msh", "does_not_exist.msh", "cannot open"},
         {"cube.geo", "cube.geo", "unknown mesh format"},
+        {"truncated_v41.msh", "truncated_v41.msh:170:", "the file is truncated"},
+        {"lonely.node", "lonely.ele: cannot open", "needs both NAME.node and NAME.ele"},
+        {"unknown_keyword.mesh", "unknown_keyword.mesh:6:", "unknown keyword 'BogusSection'"},
         {"cube_order2.msh", "cube_order2.msh", "only higher-order tetrahedra (24 of them)"},
     };
     for (size_t i = 0; i < SQ_COUNTOF(cases); i++) {
