@@ -549,7 +549,8 @@ static int do_job(sq_session *s, const sq_job *j)
         reply(s, j->client, ack("reset", r, w->frame));
         return 1;
     case SQ_REQ_STEP: {
-        for (int i = 0; i < r->step.frames; i++)
+        /* a long step ends early when the server stops */
+        for (int i = 0; i < r->step.frames && !__atomic_load_n(&s->stop, __ATOMIC_RELAXED); i++)
             step_frame(s, SQ_OUT_STEP_FRAME);
         cJSON *o = sq_reply_new("stepped", r);
         cJSON_AddNumberToObject(o, "frame", (double)w->frame);
@@ -719,7 +720,7 @@ void sq_session_stop(sq_session *s)
     if (!s)
         return;
     pthread_mutex_lock(&s->mu);
-    s->stop = 1;
+    __atomic_store_n(&s->stop, 1, __ATOMIC_RELAXED);
     pthread_cond_broadcast(&s->cv);
     pthread_mutex_unlock(&s->mu);
     if (s->thread_started)
