@@ -22,7 +22,7 @@ SAN_OBJ  := $(LIB_SRC:%.c=$(BUILD)/san/%.o) $(TEST_SRC:%.c=$(BUILD)/san/%.o)
 
 # Debian packages the build, the tests and the benchmarks need
 APT_PKGS := build-essential pkg-config libwebsockets-dev libcjson-dev zlib1g-dev libosmesa6-dev \
-            libpng-dev clang libclang-rt-14-dev gnuplot-nox nodejs npm chromium hyperfine \
+            libpng-dev clang libclang-rt-14-dev gnuplot-nox chromium hyperfine \
             python3-vtk9
 
 .PHONY: all squish deps run test unit asan bench meshes fuzz clean node-deps
@@ -52,6 +52,8 @@ $(BUILD)/san/%.o: %.c
 # install missing Debian packages (quick no-op when all are present)
 deps:
 	@missing=""; for p in $(APT_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	command -v node >/dev/null 2>&1 || missing="$$missing nodejs"; \
+	command -v npm >/dev/null 2>&1 || missing="$$missing npm"; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing Debian packages:$$missing"; \
 	  if [ "$$(id -u)" != 0 ]; then echo "error: installing needs root; run as root or: sudo apt-get install$$missing" >&2; exit 1; fi; \
