@@ -278,8 +278,12 @@ static void leave_session(client *c)
         }
     if (r->controller == c->serial)
         r->controller = 0;
-    if (r->nmembers == 0)
+    if (r->nmembers == 0) {
+        /* nobody watches: the session keeps its state but stops stepping until someone
+         * joins again or the grace period ends it */
         r->empty_since = sq_now();
+        __atomic_store_n(&r->s->idle, 1, __ATOMIC_RELAXED);
+    }
     c->sess = NULL;
     c->ready = c->pending = c->demoted = 0;
     clear_slots(c);
@@ -300,6 +304,7 @@ static int add_member(client *c, srec *r, sq_role role)
         r->members = sq_realloc(r->members, sizeof *r->members * (size_t)r->cap);
     }
     r->members[r->nmembers++] = c;
+    __atomic_store_n(&r->s->idle, 0, __ATOMIC_RELAXED);
     c->sess = r;
     c->demoted = 0;
     if (role == SQ_ROLE_CONTROL) {

@@ -663,7 +663,8 @@ static void *session_main(void *arg)
         for (int i = 0; i < n; i++)
             changed |= do_job(s, &jobs[i]);
         double frame_start = next;
-        if (!s->lockstep && !s->paused)
+        int idle = __atomic_load_n(&s->idle, __ATOMIC_RELAXED);
+        if (!s->lockstep && !s->paused && !idle)
             step_frame(s, SQ_OUT_FRAME);
         else if (changed && !s->lockstep)
             publish(s, SQ_OUT_FRAME, -1); /* paused: show tool moves, resets, settings */
@@ -675,7 +676,7 @@ static void *session_main(void *arg)
             double end = sq_now();
             next = frame_start + s->period;
             if (end > next) {
-                if (!s->paused)
+                if (!s->paused && !idle)
                     s->deadline_misses++;
                 next = end + s->period;
             }

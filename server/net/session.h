@@ -77,6 +77,7 @@ typedef struct sq_session {
     void (*wake)(void *);            /* wakes the lws thread (lws_cancel_service) */
     void *wake_arg;
     sq_snapshotter *snapshotter;     /* set by the server right after start (may be NULL) */
+    int idle;                        /* atomic: no client is connected; the clock waits */
 
     /* shared, under mu */
     pthread_mutex_t mu;

@@ -269,3 +269,17 @@ test('HTTP files of --web with the right MIME types; index.html at /; no escape 
     await s2.stop();
   }
 });
+
+test('an empty session stops stepping and goes on where it was when someone joins', async () => {
+  const c = await connect();
+  const o = await c.open('default');
+  await sleep(200);
+  const before = (await c.stats()).frame;
+  await c.leave();
+  await sleep(400); // 20 frames at 50 Hz if it kept stepping; --grace 1 keeps it alive
+  const j = await c.join(o.session);
+  assert.ok(j.frame - before <= 3, `frame ${before} -> ${j.frame} while empty`);
+  await sleep(200);
+  assert.ok((await c.stats()).frame > j.frame, 'steps again with a client');
+  await c.close();
+});
