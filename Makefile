@@ -86,6 +86,8 @@ test: deps node-deps
 bench: deps
 	@$(MAKE) --no-print-directory squish
 	$(BUILD)/squish bench
+	$(BUILD)/squish tradeoff --bench
+	$(BUILD)/squish tradeoff meshes/scenes/cube-poke.json --quick --out $(BUILD)/bench-tradeoff
 
 # regenerate the shipped level-of-detail meshes (needs gmsh; not part of `make test`)
 meshes:
