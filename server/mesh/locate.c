@@ -309,8 +309,18 @@ int sq_mesh_locate(const sq_mesh *m, const double p[3], double bary[4])
                     for (int e = gt->start[cell]; e < gt->start[cell + 1]; e++) {
                         int tr = gt->item[e];
                         const int *v = m->tris + 3 * (size_t)tr;
-                        double d2 = tri_dist2(p, m->x + 3 * (size_t)v[0], m->x + 3 * (size_t)v[1],
-                                              m->x + 3 * (size_t)v[2]);
+                        const double *a = m->x + 3 * (size_t)v[0], *bb = m->x + 3 * (size_t)v[1],
+                                     *cc = m->x + 3 * (size_t)v[2];
+                        /* skip unless the triangle's bounding box is nearer than the best */
+                        double box2 = 0;
+                        for (int c = 0; c < 3; c++) {
+                            double lo = SQ_MIN(a[c], SQ_MIN(bb[c], cc[c])), hi = SQ_MAX(a[c], SQ_MAX(bb[c], cc[c]));
+                            double d = p[c] < lo ? lo - p[c] : p[c] > hi ? p[c] - hi : 0;
+                            box2 += d * d;
+                        }
+                        if (box2 >= best_d2)
+                            continue;
+                        double d2 = tri_dist2(p, a, bb, cc);
                         if (d2 < best_d2) {
                             best_d2 = d2;
                             best_tri = tr;
