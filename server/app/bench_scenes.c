@@ -42,7 +42,7 @@ static int cmp_str(const void *a, const void *b)
 typedef struct bench_job {
     const sq_scene *scene;
     long frames;
-    double wall;
+    double wall, cpu;      /* wall and thread CPU seconds of the run */
     int ok;
 } bench_job;
 
@@ -54,10 +54,11 @@ static void *run_world(void *arg)
     sq_world *w = sq_world_create(j->scene, &err);
     if (!w)
         return NULL;
-    double t0 = sq_now();
+    double t0 = sq_now(), c0 = thread_cpu();
     for (long f = 0; f < j->frames; f++)
         sq_world_step(w, 0);
     j->wall = sq_now() - t0;
+    j->cpu = thread_cpu() - c0;
     j->ok = 1;
     sq_world_destroy(w);
     return NULL;
@@ -73,12 +74,12 @@ static void bench_threads(const char *path, long frames)
         fprintf(stderr, "squish tradeoff --bench: %s\n", err.msg);
         return;
     }
-    bench_job a = {s, frames, 0, 0}, b = {s, frames, 0, 0};
+    bench_job a = {s, frames, 0, 0, 0}, b = {s, frames, 0, 0, 0};
     double t0 = sq_now();
     run_world(&a);
     run_world(&b);
     double seq = sq_now() - t0;
-    bench_job c = {s, frames, 0, 0}, d = {s, frames, 0, 0};
+    bench_job c = {s, frames, 0, 0, 0}, d = {s, frames, 0, 0, 0};
     pthread_t th;
     t0 = sq_now();
     int spawned = pthread_create(&th, NULL, run_world, &c) == 0;
@@ -88,8 +89,10 @@ static void bench_threads(const char *path, long frames)
     double par = sq_now() - t0;
     if (a.ok && b.ok && c.ok && d.ok && spawned)
         printf("\n1 vs 2 threads (%s, two independent worlds x %ld frames): 1 thread %.3f s, 2 threads %.3f s: "
-               "x%.2f throughput\n",
-               s->name, frames, seq, par, seq / par);
+               "x%.2f throughput\n"
+               "  CPU seconds per world: %.3f, %.3f alone; %.3f, %.3f side by side: x%.2f (1 = the threads do not\n"
+               "  slow each other; on an idle 2-core machine the throughput would be about 2 / that)\n",
+               s->name, frames, seq, par, seq / par, a.cpu, b.cpu, c.cpu, d.cpu, (c.cpu + d.cpu) / (a.cpu + b.cpu));
     else
         printf("\n1 vs 2 threads: could not run two worlds of %s\n", s->name);
     sq_scene_free(s);
