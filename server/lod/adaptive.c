@@ -82,6 +82,13 @@ struct sq_lod {
     /* values at the start of each level's last step, for values between its steps */
     double *dprev[SQ_MAX_LEVELS], *vprev[SQ_MAX_LEVELS];
     long step_t0[SQ_MAX_LEVELS], step_len[SQ_MAX_LEVELS];
+    /* extra substep exponent per level: coupling forces from other levels stiffen the nodes
+     * near an interface beyond the level's own bound (see coupling_bound) */
+    int extra[SQ_MAX_LEVELS];
+    double *rowk[SQ_MAX_LEVELS];         /* own Gershgorin row sums (n) */
+    double *cpl[SQ_MAX_LEVELS];          /* coupling row sums (n) */
+    int *ring_index[SQ_MAX_LEVELS];      /* ring position of a node, or -1 (n) */
+    const double *k_seen;                /* level 0's K when the blocks were built */
     int *slot[SQ_MAX_LEVELS];            /* hold entry of a node, or -1 */
     unsigned char *fresh[SQ_MAX_LEVELS]; /* split in the current adapt pass (no merge back) */
     hold_entry *he;
@@ -92,6 +99,12 @@ struct sq_lod {
 };
 
 /* ---------------------------------------------------------------- state bookkeeping */
+
+/* substep exponent a level runs at in the adaptive frame */
+static int sub_log2(const sq_lod *lod, int k)
+{
+    return lod->lv[k].substeps_log2 + lod->extra[k];
+}
 
 /* recompute the active mask, the ghost lists and the integration mask of level k */
 static void rebuild_level(sq_lod *lod, int k)
@@ -116,12 +129,14 @@ static void rebuild_level(sq_lod *lod, int k)
     const sq_level *Lk = &lod->lv[k];
     int nr = 0;
     for (int i = 0; i < n; i++) {
+        lod->ring_index[k][i] = -1;
         lod->ins[k][i] = lod->active[k][i];
         if (lod->active[k][i] || na == 0)
             continue;
         for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
             if (lod->active[k][Lk->col[q]]) {
                 lod->ins[k][i] = 1;
+                lod->ring_index[k][i] = nr;
                 lod->ring[k][nr++] = i;
                 break;
             }
@@ -522,20 +537,104 @@ static void front_correct(sq_lod *lod, const sq_material *mat, int k)
 }
 
 /* ring blocks up to date for material mat (NULL: the last one seen) */
+/* largest absolute row sum of a 3x3 block */
+static double block_norm(const double *B)
+{
+    double m = 0;
+    for (int r = 0; r < 3; r++)
+        m = fmax(m, fabs(B[3 * r]) + fabs(B[3 * r + 1]) + fabs(B[3 * r + 2]));
+    return m;
+}
+
+/* Gershgorin row sums of each level's own operator (material dependent) */
+static void own_rows(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        const sq_level *L = &lod->lv[k];
+        if (!lod->rowk[k])
+            lod->rowk[k] = sq_malloc(sizeof(double) * (size_t)L->n);
+        for (int i = 0; i < L->n; i++) {
+            double s = 0;
+            for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++)
+                s += block_norm(L->K + 9 * (size_t)q);
+            lod->rowk[k][i] = s;
+        }
+    }
+}
+
+/* the coupling hands a ring ghost's stiffness to its sources: near an interface a node can
+ * be stiffer than anything in its own level (a coarse tet acting on a light fine node through
+ * the interpolation). Bound the coupled operator row by row (Gershgorin on W^T B W plus the
+ * own row) and give each level the extra substeps that keep its step within the same fraction
+ * of the bound its own step was chosen at. */
+static void coupling_bound(sq_lod *lod)
+{
+    int L = lod->L;
+    for (int k = 0; k < L; k++) {
+        if (!lod->cpl[k])
+            lod->cpl[k] = sq_malloc(sizeof(double) * (size_t)lod->lv[k].n);
+        memset(lod->cpl[k], 0, sizeof(double) * (size_t)lod->lv[k].n);
+    }
+    for (int m = 0; m < L; m++) {
+        for (int r = 0; r < lod->nring[m]; r++) {
+            int a = lod->fs_start[m][r], b = lod->fs_start[m][r + 1];
+            if (a == b)
+                continue;
+            double R = 0;
+            for (int e = lod->rk_off[m][r]; e < lod->rk_off[m][r + 1]; e++) {
+                int l = lod->rk_col[m][e];
+                double scale = 1;
+                if (!lod->active[m][l]) {
+                    int rl = lod->ring_index[m][l];
+                    scale = 0;
+                    if (rl >= 0)
+                        for (int q = lod->fs_start[m][rl]; q < lod->fs_start[m][rl + 1]; q++)
+                            scale += fabs(lod->fs_w[m][q]);
+                }
+                R += block_norm(lod->rk[m] + 9 * (size_t)e) * scale;
+            }
+            for (int q = a; q < b; q++)
+                lod->cpl[lod->fs_level[m][q]][lod->fs_node[m][q]] += fabs(lod->fs_w[m][q]) * R;
+        }
+    }
+    for (int k = 0; k < L; k++) {
+        const sq_level *Lk = &lod->lv[k];
+        double own = 0, coupled = 0;
+        for (int i = 0; i < Lk->n; i++) {
+            if (Lk->fixed[i] == 7)
+                continue;
+            own = fmax(own, lod->rowk[k][i] / Lk->mass[i]);
+            if (lod->active[k][i])
+                coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
+        }
+        int extra = 0;
+        if (own > 0 && coupled > own)
+            extra = (int)ceil(0.5 * log2(coupled / own) - 1e-12);
+        lod->extra[k] = SQ_MIN(SQ_MAX(extra, 0), 6);
+    }
+}
+
 static void update_ring_blocks(sq_lod *lod, const sq_material *mat)
 {
-    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0)) {
+    int changed = 0;
+    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].K != lod->k_seen)) {
         lod->mat = *mat;
         lod->have_mat = 1;
+        lod->k_seen = lod->lv[0].K;
         lod->op = infer_op(lod, mat);
+        own_rows(lod);
         for (int k = 0; k < lod->L; k++)
             lod->rk_dirty[k] = 1;
     }
     if (!lod->have_mat)
         return;
     for (int k = 0; k < lod->L; k++)
-        if (lod->rk_dirty[k])
+        if (lod->rk_dirty[k]) {
             build_ring_blocks(lod, k);
+            changed = 1;
+        }
+    if (changed)
+        coupling_bound(lod);
 }
 
 void sq_lod_set_material(sq_lod *lod, const sq_material *mat)
@@ -623,6 +722,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->fs_start[k] = sq_calloc(n + 1, sizeof(int));
         lod->rk_off[k] = sq_calloc(n + 1, sizeof(int));
+        lod->ring_index[k] = sq_malloc(sizeof(int) * n);
         lod->front[k] = sq_malloc(sizeof(int) * n);
         lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
         node_tets(levels[k].mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
@@ -661,6 +761,9 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->vprev[k]);
         free(lod->fs_start[k]);
         free(lod->rk_off[k]);
+        free(lod->ring_index[k]);
+        free(lod->rowk[k]);
+        free(lod->cpl[k]);
         free(lod->rk_col[k]);
         free(lod->fk_col[k]);
         free(lod->front[k]);
@@ -735,7 +838,7 @@ long sq_lod_projected_updates(const sq_lod *lod)
 {
     long u = 0;
     for (int k = 0; k < lod->L; k++)
-        u += (long)lod->nactive[k] << lod->lv[k].substeps_log2;
+        u += (long)lod->nactive[k] << sub_log2(lod, k);
     return u;
 }
 
@@ -797,7 +900,7 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
     const sq_lod_link *ln = &lod->h.link[k];
     sq_level *Lk = &lod->lv[k], *Lf = &lod->lv[k + 1];
     int forced = def->split <= 0;
-    long cost_k = 1L << Lk->substeps_log2, cost_f = 1L << Lf->substeps_log2;
+    long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
     int changed = 0;
 
     /* splits: active nodes of level k above the threshold */
@@ -873,7 +976,7 @@ static void enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
         return;
     for (int k = lod->top - 1; k >= 0 && *projected > cap; k--) {
         const sq_lod_link *ln = &lod->h.link[k];
-        long cost_k = 1L << lod->lv[k].substeps_log2, cost_f = 1L << lod->lv[k + 1].substeps_log2;
+        long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
         for (int p = 0; p < lod->lv[k].n && *projected > cap; p++) {
             if (lod->state[k][p] != ST_SPLIT)
                 continue;
@@ -1221,16 +1324,28 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     /* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
     double prev_time = lod->last_time;
     int over_budget = budget_s > 0 && prev_time > lod->def.budget * budget_s;
+    /* coupling blocks and the substeps they need (which may push the cost over the cap:
+     * merge first then), then the substep clock of the finest step */
+    update_ring_blocks(lod, mat);
     long projected = sq_lod_projected_updates(lod);
-
-    /* substep clock of the finest step */
+    if (lod->def.max_node_updates > 0 && projected > lod->def.max_node_updates) {
+        enforce_cap(lod, &projected, &ao);
+        for (int k = 0; k < L; k++)
+            if (ao.changed[k]) {
+                rebuild_level(lod, k);
+                ao.changed[k] = 0;
+            }
+        build_sources(lod);
+        update_ring_blocks(lod, mat);
+        projected = sq_lod_projected_updates(lod);
+    }
     int nmax = 0;
     for (int k = 0; k < L; k++)
-        nmax = SQ_MAX(nmax, lod->lv[k].substeps_log2);
+        nmax = SQ_MAX(nmax, sub_log2(lod, k));
     long nticks = 1L << nmax;
     long stride[SQ_MAX_LEVELS];
     for (int k = 0; k < L; k++)
-        stride[k] = 1L << (nmax - lod->lv[k].substeps_log2);
+        stride[k] = 1L << (nmax - sub_log2(lod, k));
 
     /* tool holds onto active nodes */
     clear_holds(lod);
@@ -1251,7 +1366,6 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
     start_holds(lod, frame_dt);
 
-    update_ring_blocks(lod, mat);
     for (int k = 0; k < L; k++) {
         lod->step_t0[k] = -stride[k]; /* the previous frame's last step ended at tick 0 */
         lod->step_len[k] = stride[k];
@@ -1307,7 +1421,8 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                 memcpy(lod->vprev[k], Lk->v, sizeof(double) * 3 * (size_t)Lk->n);
             }
             if (lod->nmask[k] > 0)
-                sq_level_integrate(Lk, Lk->dt, lod->nmask[k] == Lk->n ? NULL : lod->mask[k]);
+                sq_level_integrate(Lk, lod->extra[k] ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt,
+                                   lod->nmask[k] == Lk->n ? NULL : lod->mask[k]);
             updates += lod->nmask[k];
         }
         double t2 = sq_now();
@@ -1370,7 +1485,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         prof->node_updates = updates;
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
             prof->active[k] = k < L ? lod->nactive[k] : 0;
-            prof->substeps[k] = k < L ? 1 << lod->lv[k].substeps_log2 : 0;
+            prof->substeps[k] = k < L ? 1 << sub_log2(lod, k) : 0;
         }
         prof->splits = ao.splits;
         prof->merges = ao.merges;

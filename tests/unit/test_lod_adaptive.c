@@ -202,7 +202,7 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
     mat.density = 1000;
     sq_level lv[2];
     CHECK(make_levels(lv, m, 2, &mat));
-    sq_lod_def adapt = lh_lod(SQ_LOD_ADAPTIVE, 0.004, 0.001), frozen = adapt;
+    sq_lod_def adapt = lh_lod(SQ_LOD_ADAPTIVE, 0.004, 0.002), frozen = adapt;
     frozen.split = INFINITY;
     frozen.merge = 0;
     sq_err e = {{0}};
