@@ -83,11 +83,18 @@ test: deps node-deps
 	@$(MAKE) --no-print-directory -j2 squish $(BUILD)/unit_tests $(BUILD)/san/unit_tests
 	@BUILD=$(BUILD) bash tests/run.sh
 
-bench: deps
+bench: deps node-deps
 	@$(MAKE) --no-print-directory squish
+	@echo "=== step and operators"
 	$(BUILD)/squish bench
+	@echo "=== scenes: frame-budget headroom, threads"
 	$(BUILD)/squish tradeoff --bench
+	@echo "=== speed against accuracy (quick grid)"
 	$(BUILD)/squish tradeoff meshes/scenes/cube-poke.json --quick --out $(BUILD)/bench-tradeoff
+	@echo "=== headless render, 800x600 organ"
+	$(BUILD)/squish render meshes/scenes/organ.json --bench
+	@echo "=== service: bytes per vertex, tool-to-frame latency, 200 viewers"
+	SQUISH=$(BUILD)/squish node tests/net/bench-service.mjs --seconds 10
 
 # regenerate the shipped level-of-detail meshes (needs gmsh; not part of `make test`)
 meshes:
