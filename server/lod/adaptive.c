@@ -1318,7 +1318,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     long updates = 0;
     adapt_out ao;
     memset(&ao, 0, sizeof(ao));
-    for (int t = 0; t < ntools; t++)
+    for (int t = 0; force && t < ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
 
     /* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
@@ -1459,7 +1459,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     t_push += sq_now() - t3;
 
     /* feedback: mean internal force on the held nodes, shared among the holds mapped there */
-    for (int h = 0; h < nholds; h++) {
+    for (int h = 0; force && h < nholds; h++) {
         int e = lod->hold_entry_of[h];
         if (e < 0 || lod->he[e].count == 0 || lod->he[e].nf == 0)
             continue;
