@@ -735,6 +735,11 @@ int sq_cmd_tradeoff(int argc, char **argv)
             else
                 fprintf(f, "headline: no adaptive setting (0 < split < inf) reaches a fixed mesh's error at a lower "
                            "node-update cost on this scene\n");
+            for (int i = 0; i < n; i++)
+                if (r[i].ok && r[i].resets)
+                    fprintf(f, "warning: %s tripped the blow-up detector %ld time%s (body reset to rest); its "
+                               "errors include the resets: run that setting with 'squish run' to see the frames\n",
+                            v[i].name, r[i].resets, r[i].resets == 1 ? "" : "s");
         }
         if (sf && fclose(sf))
             rc = 1;
