@@ -314,6 +314,14 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
             samples_init(&ref->smp[b], w->bodies[b]);
             ref->ntotal += ref->smp[b].n;
         }
+        double bytes = 24.0 * ref->ntotal * (double)(ref->nframes + 1);
+        if (bytes > 4e9) {
+            snprintf(r->error, sizeof r->error,
+                     "storing the reference (%d surface points x %ld frames) needs %.1f GB; give fewer --frames "
+                     "(at most %.0f)", ref->ntotal, ref->nframes, bytes / 1e9, 4e9 / (24.0 * ref->ntotal));
+            sq_world_destroy(w);
+            return -1;
+        }
         ref->u = sq_malloc(sizeof(double) * 3 * (size_t)ref->ntotal * (size_t)(ref->nframes + 1));
         ref->probe = sq_malloc(sizeof(double) * 3 * (size_t)(ref->nprobes + 1) * (size_t)(ref->nframes + 1));
     }
