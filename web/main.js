@@ -93,7 +93,7 @@ async function start() {
   }
   if (params.get('large') === '1') setLarge(true);
   setRole(app.role);
-  buildLegend(0, null);
+  buildLegend([0], 1, null);
   wireUi();
   wireInput();
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
@@ -253,7 +253,14 @@ function onSession(m) {
   }
   pendingTopology = new Map();
   refit();
-  buildLegend(Math.max(0, ...bodies.map((b) => (b.levels || []).length)), null);
+  // the loaded levels, by their number in the scene file (as in frames and stats)
+  const shown = new Set();
+  let listed = 1;
+  for (const b of bodies) {
+    (b.levels || []).forEach((l, k) => shown.add(Number.isInteger(l.index) ? l.index : k));
+    listed = Math.max(listed, Number.isInteger(b.listed_levels) ? b.listed_levels : (b.levels || []).length);
+  }
+  buildLegend(shown.size ? [...shown].sort((a, b) => a - b) : [0], listed, null);
   if (app.scene) $('scene-select').value = app.scene;
   // the address bar and the share link name this session
   const u = new URL(location.href);
@@ -408,10 +415,6 @@ function onBinary(msg) {
     }
     if (msg.reset) showEvent(`body ${body.name} was reset (numerical blow-up recovered)`, true);
     measureLatency(msg.tools);
-    if (tool && tool.waitCapture && msg.tools.some((t) => t.id === tool.id && t.active)) {
-      tool.waitCapture = false;
-      if (tool.dirty) scheduleFlush();
-    }
     updateLegendFromFrame();
     dirty = true;
   } else if (h.kind === KIND_NODES) {
@@ -482,8 +485,12 @@ function onStats(m) {
   }
   $('hud-misses').textContent = fmt(m.deadline_misses);
   if (Array.isArray(m.active_nodes)) {
-    $('hud-active').textContent = m.active_nodes.map((n, i) => `L${i}: ${n}`).join('  ');
-    buildLegend(Math.max(m.active_nodes.length, legendLevels), m.active_nodes);
+    // indexed by listed level: zeros for levels no body loaded are left out
+    const shown = legendShown.slice();
+    m.active_nodes.forEach((n, i) => { if (n > 0 && !shown.includes(i)) shown.push(i); });
+    shown.sort((a, b) => a - b);
+    $('hud-active').textContent = shown.map((i) => `L${i}: ${m.active_nodes[i] || 0}`).join('  ');
+    buildLegend(shown, Math.max(legendListed, m.active_nodes.length), m.active_nodes);
   }
   $('hud-updates').textContent = fmt(m.node_updates);
   if (m.sleeping !== undefined) $('hud-sleeping').textContent = typeof m.sleeping === 'boolean' ? (m.sleeping ? 'yes' : 'no') : fmt(m.sleeping);
@@ -521,23 +528,28 @@ function tick() {
   $('hud-latency').textContent = app.latencyMs === null ? '-' : `${app.latencyMs.toFixed(1)} ms`;
 }
 
-let legendLevels = -1;
+let legendShown = [0];   // level numbers (as listed in the scene file) in the legend
+let legendListed = 1;    // levels the scene file lists
 let legendCounts = null;
 
-function buildLegend(nlevels, counts) {
-  const n = Math.max(1, nlevels);
+// one legend row per loaded level, named and coloured by its number in the scene file
+function buildLegend(shown, nlisted, counts) {
   legendCounts = counts;
   const ul = $('legend-list');
-  if (n !== legendLevels || ul.children.length !== n) {
-    legendLevels = n;
+  if (shown.join() !== legendShown.join() || nlisted !== legendListed || ul.children.length !== shown.length) {
+    legendShown = shown.slice();
+    legendListed = nlisted;
     ul.replaceChildren();
-    for (let i = 0; i < n; i++) {
+    for (const i of shown) {
       const li = document.createElement('li');
+      li.dataset.level = String(i);
       const sw = document.createElement('span');
       sw.className = 'swatch';
       sw.style.background = palette.level[Math.min(i, palette.level.length - 1)];
       const name = document.createElement('span');
-      name.textContent = n === 1 ? `level ${i} (only level)` : i === 0 ? `level ${i} (coarsest)` : i === n - 1 ? `level ${i} (finest)` : `level ${i}`;
+      name.className = 'legend-name';
+      const tag = nlisted <= 1 ? ' (only level)' : i === 0 ? ' (coarsest)' : i === nlisted - 1 ? ' (finest)' : '';
+      name.textContent = `level ${i}${tag}`;
       const c = document.createElement('span');
       c.className = 'legend-count';
       li.append(sw, name, c);
@@ -545,9 +557,9 @@ function buildLegend(nlevels, counts) {
     }
   }
   if (counts) {
-    for (let i = 0; i < n; i++) {
-      const c = ul.children[i].querySelector('.legend-count');
-      c.textContent = counts[i] !== undefined ? `${counts[i]} nodes` : '';
+    for (const li of ul.children) {
+      const n = counts[Number(li.dataset.level)];
+      li.querySelector('.legend-count').textContent = n !== undefined ? `${n} nodes` : '';
     }
   }
 }
@@ -556,13 +568,13 @@ function buildLegend(nlevels, counts) {
 function updateLegendFromFrame() {
   if (legendCounts) return;
   const ul = $('legend-list');
-  const hist = new Array(ul.children.length).fill(0);
+  const hist = new Array(256).fill(0);
   for (const b of app.bodies.values()) {
     if (!b.levelArr) continue;
-    for (const l of b.levelArr) if (l < hist.length) hist[l]++;
+    for (const l of b.levelArr) hist[l]++;
   }
-  for (let i = 0; i < hist.length; i++) {
-    ul.children[i].querySelector('.legend-count').textContent = `${hist[i]} surf.`;
+  for (const li of ul.children) {
+    li.querySelector('.legend-count').textContent = `${hist[Number(li.dataset.level)]} surf.`;
   }
 }
 
@@ -766,9 +778,8 @@ function beginTool(hit, ray, push) {
     tool = { id: PUSH_ID, shape: 'sphere', pos: c, radius: r, plane: { p: c, n: viewDir }, dirty: true };
   } else {
     tool = { id: GRAB_ID, shape: 'grab', pos: hit.point, radius: size * 0.08, plane: { p: hit.point, n: viewDir }, dirty: true };
-    // the server captures the nodes around the grab's pose in the first frame it is active:
-    // moves wait until a frame shows the grab active, so the capture happens where we pressed
-    tool.waitCapture = true;
+    // the server captures the nodes around the pose of this activating message, so moves
+    // may follow at once (they do not shift the capture)
   }
   flushTool(true);
 }
@@ -790,7 +801,7 @@ let flushTimer = 0;
 function scheduleFlush() {
   if (flushTimer || !tool) return;
   const wait = Math.max(0, TOOL_SEND_MS - (performance.now() - (tool.sentAt || 0)));
-  flushTimer = setTimeout(() => { flushTimer = 0; flushTool(false); if (tool && tool.dirty && !tool.waitCapture) scheduleFlush(); }, wait);
+  flushTimer = setTimeout(() => { flushTimer = 0; flushTool(false); if (tool && tool.dirty) scheduleFlush(); }, wait);
 }
 
 // wheel while pushing: move the sphere along the view direction
@@ -815,7 +826,7 @@ function toolMessage(active) {
 function flushTool(force) {
   if (!tool || !tool.dirty) return;
   const now = performance.now();
-  if (!force && (tool.waitCapture || now - (tool.sentAt || 0) < TOOL_SEND_MS)) return;
+  if (!force && now - (tool.sentAt || 0) < TOOL_SEND_MS) return;
   if (link.send(toolMessage(true))) {
     tool.sentAt = now;
     tool.dirty = false;

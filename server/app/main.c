@@ -9,13 +9,15 @@ static const struct {
     int (*fn)(int, char **);
     const char *help;
 } commands[] = {
-    {"mesh", sq_cmd_mesh, "mesh info FILE | mesh box NX NY NZ [--size X Y Z] --out FILE | mesh convert IN OUT"},
-    {"run", sq_cmd_run, "run SCENE.json [--frames N | --seconds T | --until-rest] [--out DIR]"},
-    {"serve", sq_cmd_serve, "serve [--host 127.0.0.1] [--port 8080] [--scenes DIR] [--web DIR] ..."},
-    {"render", sq_cmd_render, "render SCENE.json [--frames N] [--every K] [--size WxH] [--color level|plain|stress] --out DIR"},
-    {"bench", sq_cmd_bench, "bench [step|...]"},
-    {"tradeoff", sq_cmd_tradeoff, "tradeoff SCENE.json [--out DIR]"},
-    {"sweep", sq_cmd_sweep, "sweep [--out DIR]  (stability at the extremes)"},
+    /* one line per command: every option named here is one the command takes (its own
+     * --help lists them all); tests/stages/cli_help.sh checks it */
+    {"mesh", sq_cmd_mesh, "mesh info FILE | mesh box NX NY NZ [--size X Y Z] [--origin X Y Z] --out FILE | mesh convert IN OUT"},
+    {"run", sq_cmd_run, "run SCENE.json|--default [--frames N | --seconds T | --until-rest] [--realtime] [--out DIR]"},
+    {"serve", sq_cmd_serve, "serve [--host 127.0.0.1] [--port 8080] [--scenes DIR] [--web DIR] [--token T] [--lockstep] ..."},
+    {"render", sq_cmd_render, "render SCENE.json|--default [--frames N] [--every K] [--size WxH] [--color level|plain|stress] [--camera AZ,EL[,DIST]] --out DIR"},
+    {"bench", sq_cmd_bench, "bench [step|operators|cube] [--sizes LIST] [--seconds T] [--op fem|paper|both]"},
+    {"tradeoff", sq_cmd_tradeoff, "tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K] | tradeoff --bench"},
+    {"sweep", sq_cmd_sweep, "sweep [--out DIR] [--quick] [--verbose]  (stability at the extremes)"},
 };
 
 static void usage(FILE *f)

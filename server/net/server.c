@@ -56,6 +56,8 @@ typedef struct client {
     size_t fbytes;                   /* bytes queued in the ring */
     long skipped;
     int closing;
+    int tool_ids[SQ_MAX_TOOLS];      /* tools this client set as controller of its session */
+    int ntool_ids;
 } client;
 
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
@@ -266,6 +268,22 @@ static void end_session(server *srv, srec *r)
     r->controller = 0;
 }
 
+/* a departing controller's tools go inactive: a tool job per tool it set, answered to its
+ * own serial (no member has it any more, so the acks go nowhere) */
+static void release_tools(client *c, srec *r)
+{
+    for (int i = 0; i < c->ntool_ids; i++) {
+        sq_request q;
+        memset(&q, 0, sizeof q);
+        q.type = SQ_REQ_TOOL;
+        q.tool.id = c->tool_ids[i];
+        q.tool.has_active = 1;
+        q.tool.active = 0;
+        sq_session_push_job(r->s, c->serial, &q);
+    }
+    c->ntool_ids = 0;
+}
+
 static void leave_session(client *c)
 {
     srec *r = c->sess;
@@ -276,8 +294,11 @@ static void leave_session(client *c)
             r->members[i] = r->members[--r->nmembers];
             break;
         }
-    if (r->controller == c->serial)
+    if (r->controller == c->serial) {
         r->controller = 0;
+        release_tools(c, r);
+    }
+    c->ntool_ids = 0;
     if (r->nmembers == 0) {
         /* nobody watches: the session keeps its state but stops stepping until someone
          * joins again or the grace period ends it */
@@ -420,17 +441,29 @@ static cJSON *stats_json(server *srv, srec *r, client *c, const sq_request *req)
     cJSON_AddNumberToObject(o, "deadline_misses", (double)p->deadline_misses);
     cJSON_AddNumberToObject(o, "overruns", (double)p->overruns);
     cJSON_AddNumberToObject(o, "resets", (double)p->resets);
+    /* per-level arrays are indexed by the level's number in the scene file (as the level
+     * bytes of frames): zeros for levels a body did not load */
     int maxl = 0, sleeping = 0;
+    int bact[SQ_MAX_BODIES][SQ_MAX_LEVELS] = {{0}}, bsub[SQ_MAX_BODIES][SQ_MAX_LEVELS] = {{0}};
+    int blen[SQ_MAX_BODIES] = {0};
     double updates = 0;
     for (int b = 0; b < p->nbodies; b++) {
-        maxl = SQ_MAX(maxl, p->nlevels[b]);
+        for (int k = 0; k < p->nlevels[b]; k++) {
+            int li = s->scene ? s->scene->level_index[b][k] : k;
+            if (li < 0 || li >= SQ_MAX_LEVELS)
+                continue;
+            bact[b][li] = p->active[b][k];
+            bsub[b][li] = p->substeps[b][k];
+            blen[b] = SQ_MAX(blen[b], li + 1);
+        }
+        maxl = SQ_MAX(maxl, blen[b]);
         sleeping += p->sleeping[b] != 0;
         updates += (double)p->node_updates[b];
     }
     double act[SQ_MAX_LEVELS] = {0};
     for (int b = 0; b < p->nbodies; b++)
         for (int l = 0; l < maxl; l++)
-            act[l] += p->active[b][l];
+            act[l] += bact[b][l];
     cJSON_AddItemToObject(o, "active_nodes", cJSON_CreateDoubleArray(act, maxl));
     cJSON_AddNumberToObject(o, "node_updates", updates);
     cJSON_AddNumberToObject(o, "sleeping", sleeping);
@@ -449,9 +482,9 @@ static cJSON *stats_json(server *srv, srec *r, client *c, const sq_request *req)
     for (int b = 0; b < p->nbodies; b++) {
         cJSON *e = cJSON_CreateObject();
         cJSON_AddNumberToObject(e, "id", b);
-        cJSON_AddItemToObject(e, "active_nodes", cJSON_CreateIntArray(p->active[b], p->nlevels[b]));
+        cJSON_AddItemToObject(e, "active_nodes", cJSON_CreateIntArray(bact[b], blen[b]));
         cJSON_AddNumberToObject(e, "node_updates", (double)p->node_updates[b]);
-        cJSON_AddItemToObject(e, "substeps", cJSON_CreateIntArray(p->substeps[b], p->nlevels[b]));
+        cJSON_AddItemToObject(e, "substeps", cJSON_CreateIntArray(bsub[b], blen[b]));
         cJSON_AddBoolToObject(e, "sleeping", p->sleeping[b]);
         cJSON_AddNumberToObject(e, "splits", p->splits[b]);
         cJSON_AddNumberToObject(e, "merges", p->merges[b]);
@@ -720,6 +753,14 @@ static void handle_request(client *c, const char *text, size_t len)
     }
     default:
         /* tool, set, pause, resume, reset, step, nodes: applied by the session thread */
+        if (req.type == SQ_REQ_TOOL) {
+            /* remembered, to be released when this controller leaves */
+            int known = 0;
+            for (int i = 0; i < c->ntool_ids; i++)
+                known |= c->tool_ids[i] == req.tool.id;
+            if (!known && c->ntool_ids < SQ_MAX_TOOLS)
+                c->tool_ids[c->ntool_ids++] = req.tool.id;
+        }
         sq_session_push_job(r->s, c->serial, &req);
         break;
     }

@@ -131,6 +131,8 @@ static char *bodies_json(const sq_session *s)
         for (int k = 0; k < sq_body_nlevels(b); k++) {
             const sq_mesh *m = sq_body_mesh(b, k);
             cJSON *e = cJSON_CreateObject();
+            /* the level's number in the scene file: the one frames, stats and renders use */
+            cJSON_AddNumberToObject(e, "index", sq_world_listed_level(w, i, k));
             cJSON_AddNumberToObject(e, "nodes", m->nnodes);
             cJSON_AddNumberToObject(e, "tets", m->ntets);
             cJSON_AddNumberToObject(e, "dt", sq_body_level_dt(b, k));
@@ -140,6 +142,7 @@ static char *bodies_json(const sq_session *s)
         cJSON *sf = cJSON_AddObjectToObject(o, "surface");
         cJSON_AddNumberToObject(sf, "vertices", sm->nsurf);
         cJSON_AddNumberToObject(sf, "triangles", sm->ntris);
+        cJSON_AddNumberToObject(o, "listed_levels", s->scene->nlisted[i]);
         cJSON_AddItemToObject(o, "settings", settings_json(b));
         cJSON_AddItemToArray(a, o);
     }
@@ -302,7 +305,7 @@ static void publish(sq_session *s, int kind, double frame_s)
     sq_blob *frames[SQ_MAX_BODIES];
     for (int b = 0; b < w->nbodies; b++) {
         unsigned flags = w->profile[b].reset ? SQ_MSG_FLAG_RESET : 0;
-        sq_body_surface_state(w->bodies[b], s->cur, s->lev);
+        sq_world_surface_state(w, b, s->cur, s->lev); /* levels numbered as listed */
         frames[b] = sq_encode_frame(&s->codec[b], (uint32_t)b, (uint32_t)w->frame, w->time, flags,
                                     s->cur, s->lev, w->tools, w->feedback[b], w->ntools);
     }
@@ -486,7 +489,7 @@ static void do_nodes(sq_session *s, const sq_job *j)
     for (int i = 0; i < m->nnodes; i++) {
         for (int k = 0; k < 3; k++)
             xyz[3 * i + k] = (float)(m->x[3 * i + k] + (u ? u[3 * i + k] : 0));
-        lev[i] = nlev ? nlev[i] : (unsigned char)L;
+        lev[i] = (unsigned char)sq_world_listed_level(w, r->nodes.body, nlev ? nlev[i] : L);
     }
     sq_blob *blob = sq_encode_nodes((uint32_t)r->nodes.body, (uint32_t)w->frame, w->time, xyz, lev,
                                     m->nnodes);
@@ -496,7 +499,7 @@ static void do_nodes(sq_session *s, const sq_job *j)
     cJSON *o = sq_reply_new("nodes", r);
     cJSON_AddNumberToObject(o, "body", r->nodes.body);
     cJSON_AddNumberToObject(o, "count", m->nnodes);
-    cJSON_AddNumberToObject(o, "level", L);
+    cJSON_AddNumberToObject(o, "level", sq_world_listed_level(w, r->nodes.body, L));
     cJSON_AddNumberToObject(o, "frame", (double)w->frame);
     reply(s, j->client, o);
 }

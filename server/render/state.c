@@ -129,14 +129,8 @@ int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err)
         body_reserve(b, m->nsurf, m->ntris);
         b->nverts = m->nsurf;
         b->ntris = m->ntris;
-        sq_body_surface_state(body, b->xyz, b->level);
         /* levels as numbered in the scene file (a fixed body loads only its listed level) */
-        if (w->scene) {
-            const sq_body_def *def = sq_body_get_def(body);
-            for (int i = 0; i < m->nsurf; i++)
-                if (b->level[i] < def->nlevels)
-                    b->level[i] = (unsigned char)w->scene->level_index[bi][b->level[i]];
-        }
+        sq_world_surface_state(w, bi, b->xyz, b->level);
         for (int i = 0; i < m->nsurf; i++)
             for (int k = 0; k < 3; k++) {
                 double v = m->x[3 * m->surf_nodes[i] + k];

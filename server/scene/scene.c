@@ -1163,9 +1163,24 @@ void sq_scene_free(sq_scene *s)
     free(s);
 }
 
+/* an active scripted tool's activation point: the pose of the first keyframe of the run of
+ * active keyframes that ends at keyframe cur */
+static void script_origin(const sq_tool_script *s, int cur, sq_tool *out)
+{
+    out->has_origin = 0;
+    if (!out->active || cur < 0)
+        return;
+    int j = cur;
+    while (j > 0 && s->keys[j - 1].active)
+        j--;
+    memcpy(out->origin, s->keys[j].pos, sizeof out->origin);
+    out->has_origin = 1;
+}
+
 void sq_tool_script_pose(const sq_tool_script *s, double t, sq_tool *out)
 {
     *out = s->tool;
+    out->has_origin = 0;
     if (s->nkeys <= 0) {
         out->active = 0;
         return;
@@ -1175,11 +1190,13 @@ void sq_tool_script_pose(const sq_tool_script *s, double t, sq_tool *out)
     if (t <= k[0].t) {
         memcpy(out->pos, k[0].pos, sizeof out->pos);
         out->active = t >= k[0].t ? k[0].active : 0;
+        script_origin(s, 0, out);
         return;
     }
     if (t >= k[n - 1].t) {
         memcpy(out->pos, k[n - 1].pos, sizeof out->pos);
         out->active = k[n - 1].active;
+        script_origin(s, n - 1, out);
         return;
     }
     /* k[i].t <= t < k[i+1].t */
@@ -1195,4 +1212,5 @@ void sq_tool_script_pose(const sq_tool_script *s, double t, sq_tool *out)
     for (int i = 0; i < 3; i++)
         out->pos[i] = k[lo].pos[i] + a * (k[hi].pos[i] - k[lo].pos[i]);
     out->active = k[lo].active;
+    script_origin(s, lo, out);
 }

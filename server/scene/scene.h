@@ -72,7 +72,8 @@ int sq_scene_check(const sq_scene *s, sq_err *err);
 
 /* pose of a scripted tool at simulated time t: position interpolated linearly between the
  * keyframes around t (held before the first and after the last); active taken from the last
- * keyframe at or before t (inactive before the first keyframe) */
+ * keyframe at or before t (inactive before the first keyframe); while active, origin is the
+ * position of the keyframe that activated it (sq_tool.origin) */
 void sq_tool_script_pose(const sq_tool_script *s, double t, sq_tool *out);
 
 /* world: one running instance of a scene */
@@ -100,10 +101,20 @@ void sq_world_reset(sq_world *w);
  * (0 = unlimited, e.g. batch runs) */
 void sq_world_step(sq_world *w, double budget_s);
 /* set or add a live tool pose by id (replaces a scripted one with the same id); -1 + err
- * if the table is full or values are invalid */
+ * if the table is full or values are invalid. t->origin is ignored: an inactive -> active
+ * change (or a new active tool) takes origin = pos, so a grab captures where it was
+ * activated even if pos moves before the next frame; an active tool keeps its origin. */
 int sq_world_set_tool(sq_world *w, const sq_tool *t, sq_err *err);
 /* probe displacement u[3]; -1 if the probe point is outside the body */
 int sq_world_probe(const sq_world *w, int probe, double u[3]);
 int sq_world_find_body(const sq_world *w, const char *name);
+/* body's current surface positions (nsurf x 3, see sq_body_surface_mesh) and the level
+ * active at each vertex numbered as listed in the scene file (a fixed body loads only its
+ * simulated level, which is then not level 0 of the body): the one level number every
+ * output uses (frames, renders, stats) */
+void sq_world_surface_state(const sq_world *w, int body, float *xyz, unsigned char *level);
+/* listed index (scene file numbering) of the body's loaded level k; k itself without a
+ * scene or out of range */
+int sq_world_listed_level(const sq_world *w, int body, int k);
 
 #endif

@@ -141,13 +141,32 @@ static int tool_valid(const sq_tool *t, sq_err *err)
     return 0;
 }
 
+/* the activation point of nt replacing old (NULL for a new tool): set on an inactive ->
+ * active change (or a change of shape), kept while it stays active, cleared when inactive */
+static void tool_origin(sq_tool *nt, const sq_tool *old)
+{
+    if (!nt->active) {
+        nt->has_origin = 0;
+        return;
+    }
+    if (old && old->active && old->shape == nt->shape) {
+        memcpy(nt->origin, old->origin, sizeof nt->origin);
+        nt->has_origin = old->has_origin;
+        return;
+    }
+    memcpy(nt->origin, nt->pos, sizeof nt->origin);
+    nt->has_origin = 1;
+}
+
 int sq_world_set_tool(sq_world *w, const sq_tool *t, sq_err *err)
 {
     if (tool_valid(t, err))
         return -1;
     for (int i = 0; i < w->ntools; i++)
         if (w->tools[i].id == t->id) {
-            w->tools[i] = *t;
+            sq_tool nt = *t;
+            tool_origin(&nt, &w->tools[i]);
+            w->tools[i] = nt;
             w->tool_scripted[i] = 0;
             return 0;
         }
@@ -155,6 +174,7 @@ int sq_world_set_tool(sq_world *w, const sq_tool *t, sq_err *err)
         return sq_err_set(err, "tool %d: the world already has %d tools, the maximum; reuse an id", t->id,
                           SQ_MAX_TOOLS);
     w->tools[w->ntools] = *t;
+    tool_origin(&w->tools[w->ntools], NULL);
     w->tool_scripted[w->ntools] = 0;
     memset(w->feedback, 0, sizeof w->feedback);
     w->ntools++;
@@ -177,4 +197,28 @@ int sq_world_find_body(const sq_world *w, const char *name)
         if (!strcmp(w->scene->body_names[b], name))
             return b;
     return -1;
+}
+
+int sq_world_listed_level(const sq_world *w, int body, int k)
+{
+    if (!w->scene || body < 0 || body >= w->nbodies || k < 0 || k >= sq_body_nlevels(w->bodies[body]))
+        return k;
+    return w->scene->level_index[body][k];
+}
+
+void sq_world_surface_state(const sq_world *w, int body, float *xyz, unsigned char *level)
+{
+    const sq_body *b = w->bodies[body];
+    sq_body_surface_state(b, xyz, level);
+    if (!level || !w->scene)
+        return;
+    /* loaded index -> listed index (identity when every listed level is loaded) */
+    int nl = sq_body_nlevels(b), n = sq_body_surface_mesh(b)->nsurf;
+    unsigned char map[256];
+    for (int k = 0; k < 256; k++)
+        map[k] = (unsigned char)k;
+    for (int k = 0; k < nl; k++)
+        map[k] = (unsigned char)w->scene->level_index[body][k];
+    for (int i = 0; i < n; i++)
+        level[i] = map[level[i]];
 }

@@ -84,6 +84,12 @@ typedef struct sq_tool {
     double pos[3];     /* world position (sphere/box centre, grab point) */
     double radius;     /* sphere radius; grab: capture radius around pos at activation */
     double half[3];    /* box half extents */
+    /* grab: where it was activated (set by the world on an inactive -> active change, or
+     * from the activating keyframe); capture happens around origin and the held nodes
+     * follow pos - origin. has_origin == 0 (e.g. a zeroed tool): capture around pos in
+     * the first frame the tool is active. A changed origin while active re-captures. */
+    double origin[3];
+    int has_origin;
 } sq_tool;
 
 typedef struct sq_tool_feedback {

@@ -2,8 +2,9 @@
  *
  * sphere / box push: a surface vertex whose current position lies inside the shape is moved
  * to the nearest point of the shape's surface. grab: on activation the surface vertices within
- * `radius` of pos are captured (or, if none, the nearest one within 3 radius); each frame their
- * target displacement is the captured one plus (pos - start); released when the tool goes
+ * `radius` of its activation point (sq_tool.origin, else pos) are captured (or, if none, the
+ * nearest one within 3 radius); each frame their target displacement is the captured one plus
+ * (pos - start), start being that point; released when the tool goes
  * inactive or disappears from the frame's tool list.
  */
 #include <math.h>
@@ -32,9 +33,10 @@ static sq_grab *find_grab(sq_body *b, int id)
     return NULL;
 }
 
-/* capture surface vertices for a grab tool at pos */
+/* capture surface vertices for a grab tool around its origin (or pos without one) */
 static sq_grab *capture(sq_body *b, const sq_tool *tool)
 {
+    const double *at = tool->has_origin ? tool->origin : tool->pos;
     sq_grab *g = find_grab(b, -1);
     if (!g)
         return NULL;
@@ -51,7 +53,7 @@ static sq_grab *capture(sq_body *b, const sq_tool *tool)
         sq_body_surface_disp(b, s, u);
         const double *x = fm->x + 3 * (size_t)fm->surf_nodes[s];
         for (int c = 0; c < 3; c++)
-            d2 += (x[c] + u[c] - tool->pos[c]) * (x[c] + u[c] - tool->pos[c]);
+            d2 += (x[c] + u[c] - at[c]) * (x[c] + u[c] - at[c]);
         if (d2 < best) {
             best = d2;
             nearest = s;
@@ -75,7 +77,7 @@ static sq_grab *capture(sq_body *b, const sq_tool *tool)
         g->n = 1;
     }
     g->id = tool->id;
-    memcpy(g->start, tool->pos, sizeof g->start);
+    memcpy(g->start, at, sizeof g->start);
     return g;
 }
 
@@ -105,6 +107,11 @@ int sq_body_tool_holds(sq_body *b, const sq_tool *tools, int ntools, int *tool_n
         }
         if (tool->shape == SQ_TOOL_GRAB) {
             sq_grab *g = find_grab(b, tool->id);
+            /* released and grabbed again elsewhere between two frames: a new capture */
+            if (g && tool->has_origin && memcmp(g->start, tool->origin, sizeof g->start) != 0) {
+                g->id = -1;
+                g = NULL;
+            }
             if (!g)
                 g = capture(b, tool);
             if (g)

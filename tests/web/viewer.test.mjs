@@ -46,6 +46,12 @@ describe('web viewer', () => {
       // the legend lists the body's levels with their palette colours
       const legend = await page.locator('#legend-list li').count();
       assert.ok(legend >= 1);
+      // the shipped paper-cube lists four levels and simulates level 2 alone: frames, colours
+      // and legend all number it 2, as renders do (not 0, its index among the loaded levels)
+      assert.equal(await page.evaluate(() => window.squish.scene), 'paper-cube', 'the viewer opens paper-cube first');
+      assert.equal(lvl, 2, `paper-cube frames carry level ${lvl}`);
+      assert.equal(legend, 1);
+      assert.match(await page.locator('#legend-list li').first().innerText(), /level 2\b/);
       await docShot(page, 'viewer_default.png');
       // plain shading: level colours leave the picture
       await page.locator('#view').focus();

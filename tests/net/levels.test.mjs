@@ -1,0 +1,48 @@
+// levels.test.mjs - one level numbering everywhere: a body's levels are numbered as its scene
+// file lists them, in frames, nodes, opened/joined and stats, whatever levels it loaded.
+import { test, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import path from 'node:path';
+import { SquishClient } from './client.mjs';
+import { startServer, ROOT } from './harness.mjs';
+
+let srv;
+before(async () => { srv = await startServer(['--scenes', path.join(ROOT, 'meshes/scenes'), '--grace', '0']); });
+after(async () => { await srv.stop(); });
+
+test('paper-cube (4 levels listed, fixed at level 2, only that one loaded) says level 2 everywhere', async () => {
+  const c = await SquishClient.connect(srv.url);
+  const o = await c.open('paper-cube');
+  const b = o.bodies[0];
+  assert.equal(b.listed_levels, 4);
+  assert.equal(b.levels.length, 1, 'a fixed body loads its simulated level alone');
+  assert.equal(b.levels[0].index, 2);
+  // every surface vertex of every frame carries level byte 2 (not the loaded index 0)
+  const f = await c.waitFor(g => g.body === 0, 5000, 'frame');
+  assert.equal(f.levels.length, b.surface.vertices);
+  assert.ok(f.levels.every(l => l === 2), `levels seen: ${[...new Set(f.levels)]}`);
+  // stats: active nodes indexed by listed level, zeros for the levels not loaded
+  const s = await c.stats();
+  assert.equal(s.active_nodes.length, 3);
+  assert.deepEqual(s.active_nodes.slice(0, 2), [0, 0]);
+  assert.equal(s.active_nodes[2], b.levels[0].nodes);
+  assert.deepEqual(s.bodies[0].active_nodes, s.active_nodes);
+  assert.equal(s.bodies[0].substeps.length, 3);
+  assert.ok(s.bodies[0].substeps[2] >= 1 && s.bodies[0].substeps[0] === 0);
+  // nodes: the simulated level's nodes, all level 2
+  const { reply, nodes } = await c.nodes(0);
+  assert.equal(reply.level, 2);
+  assert.equal(reply.count, b.levels[0].nodes);
+  assert.ok(nodes.levels.every(l => l === 2));
+  await c.close();
+});
+
+test('an adaptive body with every level loaded keeps indices 0..n-1', async () => {
+  const c = await SquishClient.connect(srv.url);
+  const o = await c.open('cube-poke');
+  const b = o.bodies[0];
+  assert.deepEqual(b.levels.map(l => l.index), b.levels.map((_, k) => k));
+  const f = await c.waitFor(g => g.body === 0, 5000, 'frame');
+  assert.ok(f.levels.every(l => l < b.levels.length));
+  await c.close();
+});
