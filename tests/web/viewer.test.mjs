@@ -348,7 +348,8 @@ describe('web viewer with a control token', () => {
       await page.goto(`${server.url}?token=class-42`);
       await waitFrames(page, 3);
       assert.equal((await state(page)).role, 'control');
-      assert.deepEqual(page.problems, []);
+      // the navigation may cut a module fetch of the refused page short: not a problem
+      assert.deepEqual(page.problems.filter((p) => !/net::ERR_ABORTED/.test(p)), []);
     } finally {
       await page.close();
     }
