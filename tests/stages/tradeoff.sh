@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# tradeoff: the real `squish sweep --quick` (stability at the extremes: every accepted case
+# tradeoff: the real `squish sweep` (stability at the extremes: every accepted case
 # stable, refusals named, above-bound steps adjusted into substeps) and a short real
 # `squish tradeoff` on the shipped cube-poke scene (CSV columns and rows, Pareto front, PNG),
 # plus usage errors. Last line: "tradeoff: N passed, N failed".
@@ -25,8 +25,8 @@ if [ ! -x "$SQUISH" ]; then
     exit 1
 fi
 
-# ---- the sweep (quick: about a minute on 2 shared cores)
-"$SQUISH" sweep --quick --out "$TMP/sweep" >"$TMP/sweep.log" 2>&1
+# ---- the full sweep (about a minute of CPU)
+"$SQUISH" sweep --out "$TMP/sweep" >"$TMP/sweep.log" 2>&1
 rc=$?
 check "sweep exits 0 (no accepted case failed)" [ "$rc" = 0 ]
 csv=$TMP/sweep/sweep.csv
