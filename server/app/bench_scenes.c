@@ -18,6 +18,7 @@
 
 #include "app/tradeoff.h"
 #include "scene/scene.h"
+#include "sim/level.h"
 
 /* CPU time of the calling thread, s: unlike wall time it does not count the time other
  * processes hold the core, so it shows what a frame costs on an idle machine */
@@ -98,10 +99,97 @@ static void bench_threads(const char *path, long frames)
     sq_scene_free(s);
 }
 
+/* ---- does a second thread add memory bandwidth to a step-like pass? -------------------------
+ * y = K x over the full CSR blocks of a large level (rows independent, so they split between
+ * threads with no reduction): the same bytes per row as the engine's force pass before its
+ * upper-half form. Timed with 1 and 2 threads, best of several passes. */
+typedef struct spmv_job {
+    const sq_level *L;
+    const double *x;
+    double *y;
+    int r0, r1, reps;
+} spmv_job;
+
+static void *spmv_rows(void *arg)
+{
+    spmv_job *j = arg;
+    const sq_level *L = j->L;
+    for (int rep = 0; rep < j->reps; rep++)
+        for (int i = j->r0; i < j->r1; i++) {
+            double a0 = 0, a1 = 0, a2 = 0;
+            for (int p = L->row_start[i]; p < L->row_start[i + 1]; p++) {
+                const double *B = L->K + 9 * (size_t)p, *xj = j->x + 3 * (size_t)L->col[p];
+                a0 += B[0] * xj[0] + B[1] * xj[1] + B[2] * xj[2];
+                a1 += B[3] * xj[0] + B[4] * xj[1] + B[5] * xj[2];
+                a2 += B[6] * xj[0] + B[7] * xj[1] + B[8] * xj[2];
+            }
+            j->y[3 * i] = a0;
+            j->y[3 * i + 1] = a1;
+            j->y[3 * i + 2] = a2;
+        }
+    return NULL;
+}
+
+static void bench_spmv_threads(int cells)
+{
+    double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
+    sq_err err = {{0}};
+    sq_mesh *m = sq_mesh_box(cells, cells, cells, size, origin, &err);
+    if (!m) {
+        fprintf(stderr, "squish tradeoff --bench: %s\n", err.msg);
+        return;
+    }
+    sq_material mat;
+    memset(&mat, 0, sizeof mat);
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    sq_level L;
+    if (sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, NULL, 0, &err) < 0) {
+        fprintf(stderr, "squish tradeoff --bench: %s\n", err.msg);
+        sq_mesh_free(m);
+        return;
+    }
+    double *x = sq_malloc(sizeof(double) * 3 * (size_t)L.n), *y = sq_malloc(sizeof(double) * 3 * (size_t)L.n);
+    for (int i = 0; i < 3 * L.n; i++)
+        x[i] = 1e-3 * ((i * 7919) % 1000);
+    double bytes = (9.0 * 8 + 4) * L.nnz + (4 + 24 + 24) * (double)L.n; /* blocks, cols, rows, x once, y */
+    double best[3] = {INFINITY, INFINITY, INFINITY};
+    for (int trial = 0; trial < 5; trial++)
+        for (int nt = 1; nt <= 2; nt++) {
+            spmv_job j[2] = {{&L, x, y, 0, L.n, 1}, {&L, x, y, 0, 0, 1}};
+            if (nt == 2) {
+                j[0].r1 = L.n / 2;
+                j[1].r0 = L.n / 2;
+                j[1].r1 = L.n;
+            }
+            pthread_t th;
+            double t0 = sq_now();
+            int spawned = nt == 2 && pthread_create(&th, NULL, spmv_rows, &j[1]) == 0;
+            spmv_rows(&j[0]);
+            if (nt == 2 && !spawned)
+                spmv_rows(&j[1]);
+            if (spawned)
+                pthread_join(th, NULL);
+            double t = sq_now() - t0;
+            if (t < best[nt])
+                best[nt] = t;
+        }
+    printf("\nK x on a %d-node box (full CSR blocks, %.0f MB per pass, rows split between threads):\n"
+           "  1 thread %.2f ms (%.1f GB/s), 2 threads %.2f ms (%.1f GB/s): x%.2f (best of 5)\n",
+           L.n, bytes / 1e6, 1e3 * best[1], bytes / best[1] / 1e9, 1e3 * best[2], bytes / best[2] / 1e9,
+           best[1] / best[2]);
+    free(x);
+    free(y);
+    sq_level_free(&L);
+    sq_mesh_free(m);
+}
+
 int sq_bench_scenes(int argc, char **argv)
 {
     const char *dir = "meshes/scenes", *thread_scene = "organ";
     long frames = 0;
+    int spmv_cells = 79; /* 80^3 = 512,000 nodes, ~330 MB of blocks */
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--scenes") && i + 1 < argc) {
             dir = argv[++i];
@@ -112,11 +200,19 @@ int sq_bench_scenes(int argc, char **argv)
                 fprintf(stderr, "squish tradeoff --bench: --frames needs a whole number 1..100000\n");
                 return 2;
             }
+        } else if (!strcmp(argv[i], "--spmv-cells") && i + 1 < argc) {
+            char *end;
+            long c = strtol(argv[++i], &end, 10);
+            if (*end || c < 1 || c > 150) {
+                fprintf(stderr, "squish tradeoff --bench: --spmv-cells needs 1..150 (cells per side of the box)\n");
+                return 2;
+            }
+            spmv_cells = (int)c;
         } else if (!strcmp(argv[i], "--threads-scene") && i + 1 < argc) {
             thread_scene = argv[++i];
         } else {
             fprintf(stderr, "squish tradeoff --bench: unknown argument '%s'; options: --scenes DIR, --frames N, "
-                            "--threads-scene NAME\n", argv[i]);
+                            "--threads-scene NAME, --spmv-cells C\n", argv[i]);
             return 2;
         }
     }
@@ -188,6 +284,7 @@ int sq_bench_scenes(int argc, char **argv)
            "# cpu p95 / cpu room: the same from the thread's CPU time (what an idle core would take)\n");
     if (thread_path[0])
         bench_threads(thread_path, frames > 0 ? SQ_MIN(frames, 100L) : 100L);
+    bench_spmv_threads(spmv_cells);
     for (int k = 0; k < n; k++)
         free(names[k]);
     return 0;
