@@ -83,9 +83,10 @@ cJSON *sq_tools_json(const sq_tool *tools, int ntools)
     return a;
 }
 
-/* settings of a body, as in docs/protocol.md */
-static cJSON *settings_json(const sq_body *b)
+/* settings of body bi, as in docs/protocol.md; levels numbered as listed in the scene file */
+static cJSON *settings_json(const sq_world *w, int bi)
 {
+    const sq_body *b = w->bodies[bi];
     const sq_body_def *d = sq_body_get_def(b);
     double E = 0, nu = 0;
     sq_material_E_nu(&d->material, &E, &nu);
@@ -102,14 +103,15 @@ static cJSON *settings_json(const sq_body *b)
     cJSON_AddStringToObject(o, "operator", d->op == SQ_OPERATOR_PAPER ? "paper" : "fem");
     cJSON *l = cJSON_AddObjectToObject(o, "lod");
     cJSON_AddStringToObject(l, "mode", d->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed");
-    cJSON_AddNumberToObject(l, "level", d->lod.level);
+    cJSON_AddNumberToObject(l, "level", sq_world_listed_level(w, bi, d->lod.level));
     cJSON_AddNumberToObject(l, "split", d->lod.split);
     cJSON_AddNumberToObject(l, "merge", d->lod.merge);
-    cJSON_AddNumberToObject(l, "max_level", d->lod.max_level);
+    cJSON_AddNumberToObject(l, "max_level", sq_world_listed_level(w, bi, d->lod.max_level));
     cJSON_AddNumberToObject(l, "budget", d->lod.budget);
     cJSON *lv = cJSON_AddArrayToObject(o, "levels");
     for (int k = 0; k < sq_body_nlevels(b); k++) {
         cJSON *e = cJSON_CreateObject();
+        cJSON_AddNumberToObject(e, "index", sq_world_listed_level(w, bi, k));
         cJSON_AddNumberToObject(e, "dt", sq_body_level_dt(b, k));
         cJSON_AddNumberToObject(e, "bound", sq_body_level_bound(b, k));
         cJSON_AddItemToArray(lv, e);
@@ -143,7 +145,7 @@ static char *bodies_json(const sq_session *s)
         cJSON_AddNumberToObject(sf, "vertices", sm->nsurf);
         cJSON_AddNumberToObject(sf, "triangles", sm->ntris);
         cJSON_AddNumberToObject(o, "listed_levels", s->scene->nlisted[i]);
-        cJSON_AddItemToObject(o, "settings", settings_json(b));
+        cJSON_AddItemToObject(o, "settings", settings_json(w, i));
         cJSON_AddItemToArray(a, o);
     }
     char *txt = cJSON_PrintUnformatted(a);
@@ -392,6 +394,20 @@ static void do_tool(sq_session *s, const sq_job *j)
     reply(s, j->client, ack("tool", r, w->frame + 1));
 }
 
+/* the loaded index of body b's level listed as `listed` in the scene file; -1 (and msg
+ * naming the loaded ones) if the body did not load it */
+static int loaded_level(const sq_world *w, int b, int listed, const char *key, char *msg, size_t cap)
+{
+    int nl = sq_body_nlevels(w->bodies[b]);
+    for (int k = 0; k < nl; k++)
+        if (sq_world_listed_level(w, b, k) == listed)
+            return k;
+    snprintf(msg, cap, "lod.%s: level %d is not loaded by this body (it loaded levels %d..%d of its "
+             "scene file; a fixed body loads only its own); use one of those or list the body as adaptive "
+             "in the scene", key, listed, sq_world_listed_level(w, b, 0), sq_world_listed_level(w, b, nl - 1));
+    return -1;
+}
+
 static void do_set(sq_session *s, const sq_job *j)
 {
     const sq_request *r = &j->req;
@@ -433,12 +449,18 @@ static void do_set(sq_session *s, const sq_job *j)
         if (!rc && changed_lod) {
             sq_lod_def l = d->lod;
             if (r->set.has_mode) l.mode = r->set.mode;
-            if (r->set.has_level) l.level = r->set.level;
+            /* levels are given as listed in the scene file */
+            if (r->set.has_level && (l.level = loaded_level(w, b, r->set.level, "level", err.msg,
+                                                            sizeof err.msg)) < 0)
+                rc = -1;
             if (r->set.has_split) l.split = r->set.split;
             if (r->set.has_merge) l.merge = r->set.merge;
-            if (r->set.has_max_level) l.max_level = r->set.max_level;
+            if (!rc && r->set.has_max_level &&
+                (l.max_level = loaded_level(w, b, r->set.max_level, "max_level", err.msg, sizeof err.msg)) < 0)
+                rc = -1;
             if (r->set.has_budget) l.budget = r->set.budget;
-            rc = sq_body_set_lod(body, &l, &err);
+            if (!rc)
+                rc = sq_body_set_lod(body, &l, &err);
             if (rc && changed_mat) /* all or nothing for this body */
                 sq_body_set_material(body, &old_m[b], old_op[b], NULL);
         }
@@ -461,7 +483,7 @@ static void do_set(sq_session *s, const sq_job *j)
     for (int b = b0; b < b1; b++) {
         cJSON *e = cJSON_CreateObject();
         cJSON_AddNumberToObject(e, "id", b);
-        cJSON_AddItemToObject(e, "settings", settings_json(w->bodies[b]));
+        cJSON_AddItemToObject(e, "settings", settings_json(w, b));
         cJSON_AddItemToArray(a, e);
     }
     char *bj = bodies_json(s);

@@ -46,3 +46,23 @@ test('an adaptive body with every level loaded keeps indices 0..n-1', async () =
   assert.ok(f.levels.every(l => l < b.levels.length));
   await c.close();
 });
+
+test('settings and set count levels as listed too; a level the body did not load is refused by name', async () => {
+  const c = await SquishClient.connect(srv.url);
+  const o = await c.open('paper-cube');
+  const st = o.bodies[0].settings;
+  assert.equal(st.lod.level, 2);
+  assert.equal(st.levels[0].index, 2);
+  const a = await c.set({ lod: { level: 2 } });
+  assert.equal(a.bodies[0].settings.lod.level, 2);
+  await assert.rejects(c.set({ lod: { level: 1 } }), e => e.code === 'refused' && /level 1 is not loaded/.test(e.message));
+  // cube-poke loads listed levels 0..2: fixed at listed level 1 streams level 1
+  const p = await c.open('cube-poke');
+  const r = await c.set({ lod: { mode: 'fixed', level: 1 } });
+  assert.equal(r.bodies[0].settings.lod.level, 1);
+  assert.equal(r.bodies[0].settings.lod.mode, 'fixed');
+  const f = await c.waitFor(g => g.body === 0 && g.frame > r.frame, 5000, 'frame');
+  assert.ok(f.levels.every(l => l === 1), `levels seen: ${[...new Set(f.levels)]}`);
+  assert.equal(p.bodies[0].settings.lod.max_level, 2);
+  await c.close();
+});
