@@ -293,10 +293,11 @@ int sq_cmd_run(int argc, char **argv)
         goto done;
     }
 
-    /* headers; active counts per loaded level, summed over bodies */
+    /* headers; active counts per level as listed in the scene file, summed over bodies */
     int maxl = 0;
     for (int b = 0; b < w->nbodies; b++)
-        maxl = SQ_MAX(maxl, sq_body_nlevels(w->bodies[b]));
+        for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
+            maxl = SQ_MAX(maxl, sq_world_listed_level(w, b, k) + 1);
     fprintf(fp, "frame,time,probe,ux,uy,uz\n");
     fprintf(ft, "frame,time,tool,body,active,x,y,z,fx,fy,fz,nodes\n");
     fprintf(fs, "frame,time,node_updates,wall_ms");
@@ -326,8 +327,8 @@ int sq_cmd_run(int argc, char **argv)
         for (int b = 0; b < w->nbodies; b++) {
             const sq_frame_profile *pr = &w->profile[b];
             nu += pr->node_updates;
-            for (int k = 0; k < SQ_MAX_LEVELS; k++)
-                active[k] += pr->active[k];
+            for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
+                active[sq_world_listed_level(w, b, k)] += pr->active[k];
             splits += pr->splits;
             refused += pr->splits_refused;
             merges += pr->merges;
@@ -385,7 +386,7 @@ int sq_cmd_run(int argc, char **argv)
             char name[128];
             if (b == 0) {
                 snprintf(vpath, sizeof vpath, "%s/final.vtk", out);
-                if (sq_body_write_vtk(w->bodies[b], vpath, &err)) {
+                if (sq_world_write_vtk(w, b, vpath, &err)) {
                     fprintf(stderr, "squish run: %s\n", err.msg);
                     rc = 1;
                 }
@@ -393,7 +394,7 @@ int sq_cmd_run(int argc, char **argv)
             if (w->nbodies > 1) {
                 snprintf(name, sizeof name, "final_%s.vtk", scene->body_names[b]);
                 snprintf(vpath, sizeof vpath, "%s/%s", out, name);
-                if (sq_body_write_vtk(w->bodies[b], vpath, &err)) {
+                if (sq_world_write_vtk(w, b, vpath, &err)) {
                     fprintf(stderr, "squish run: %s\n", err.msg);
                     rc = 1;
                 }

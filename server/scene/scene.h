@@ -116,5 +116,8 @@ void sq_world_surface_state(const sq_world *w, int body, float *xyz, unsigned ch
 /* listed index (scene file numbering) of the body's loaded level k; k itself without a
  * scene or out of range */
 int sq_world_listed_level(const sq_world *w, int body, int k);
+/* VTK of the body's simulated mesh (the finest loaded level when adaptive) with displacement,
+ * velocity and the active level per node in the listed numbering */
+int sq_world_write_vtk(const sq_world *w, int body, const char *path, sq_err *err);
 
 #endif

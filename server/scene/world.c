@@ -4,6 +4,7 @@
  * stepped the same number of frames gives bit-identical body states.
  */
 #include "scene/scene.h"
+#include "sim/level.h" /* sq_body_fixed_level */
 
 #include <math.h>
 #include <stdio.h>
@@ -221,4 +222,21 @@ void sq_world_surface_state(const sq_world *w, int body, float *xyz, unsigned ch
         map[k] = (unsigned char)w->scene->level_index[body][k];
     for (int i = 0; i < n; i++)
         level[i] = map[level[i]];
+}
+
+int sq_world_write_vtk(const sq_world *w, int body, const char *path, sq_err *err)
+{
+    if (body < 0 || body >= w->nbodies)
+        return sq_err_set(err, "%s: no body %d in this world", path, body);
+    const sq_body *b = w->bodies[body];
+    int adaptive = sq_body_get_def(b)->lod.mode == SQ_LOD_ADAPTIVE;
+    int k = adaptive ? sq_body_nlevels(b) - 1 : sq_body_fixed_level(b);
+    const sq_mesh *m = sq_body_mesh(b, k);
+    const unsigned char *nl = sq_body_node_level(b);
+    int *lev = sq_malloc(sizeof(int) * (size_t)m->nnodes);
+    for (int i = 0; i < m->nnodes; i++)
+        lev[i] = sq_world_listed_level(w, body, adaptive && nl ? nl[i] : k);
+    int rc = sq_mesh_write_vtk(m, path, sq_body_displacement(b, k), sq_body_velocity(b, k), lev, err);
+    free(lev);
+    return rc;
 }

@@ -167,5 +167,12 @@ check "unknown option: exit 2 and named" bash -c "[ $? = 2 ] && grep -q \"unknow
 "$SQUISH" run --help >/dev/null 2>&1
 check "--help exits 0" [ $? = 0 ]
 
+# one level numbering: a fixed body at listed level 2 reports level 2 in stats.csv and final.vtk
+"$SQUISH" run meshes/scenes/paper-cube.json --frames 3 --out "$TMP/lv" >/dev/null 2>&1
+check "stats.csv counts the fixed level under its listed number" \
+    [ "$(awk -F, 'NR == 1 { for (i = 1; i <= NF; i++) if ($i == "active_l2") c = i } NR == 2 { print $c }' "$TMP/lv/stats.csv")" = 668 ]
+check "final.vtk level field uses the listed number" \
+    [ "$(grep -A2 'SCALARS level' "$TMP/lv/final.vtk" | tail -n 1)" = 2 ]
+
 echo "cli_run: $pass passed, $fail failed"
 [ "$fail" = 0 ]
