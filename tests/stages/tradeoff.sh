@@ -73,6 +73,17 @@ check "tradeoff.png is a PNG" bash -c "head -c 8 '$TMP/to/tradeoff.png' | od -An
 check "tradeoff.png not tiny" [ "$(stat -c %s "$TMP/to/tradeoff.png")" -gt 10000 ]
 check "summary names the headline" grep -q '^headline: ' "$TMP/to/summary.txt"
 
+# ---- the scene benchmark, shortened: every shipped scene gets a headroom row
+"$SQUISH" tradeoff --bench --frames 5 --spmv-cells 4 >"$TMP/bench.log" 2>&1
+rc=$?
+check "tradeoff --bench exits 0" [ "$rc" = 0 ]
+check "bench: a headroom row per shipped scene" \
+    bash -c "[ \$(grep -Ec '^[^# ]+ +5 +[0-9]+ +[0-9.]+ ' '$TMP/bench.log') = \$(ls meshes/scenes/*.json | wc -l) ]"
+check "bench: 1 vs 2 threads and the K x pass reported" \
+    bash -c "grep -q '^1 vs 2 threads' '$TMP/bench.log' && grep -q '^K x on a' '$TMP/bench.log'"
+"$SQUISH" tradeoff --bench --scenes "$TMP/none" >"$TMP/bench2.log" 2>&1
+check "bench: missing scene directory named, exit 1" bash -c "[ $? = 1 ] && grep -q 'none' '$TMP/bench2.log'"
+
 # ---- usage and bad input
 "$SQUISH" tradeoff >"$TMP/u1.log" 2>&1
 check "tradeoff without a scene: exit 2" [ $? = 2 ]
