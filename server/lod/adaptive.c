@@ -57,6 +57,7 @@ struct sq_lod {
     int due[SQ_MAX_LEVELS];              /* level steps at the current tick */
     /* each ring ghost as a combination of active nodes (level, node, weight) */
     int *fs_start[SQ_MAX_LEVELS];        /* (nring + 1) */
+    unsigned char *fs_levels[SQ_MAX_LEVELS]; /* per ring ghost: bit m set if a source is on level m */
     int *fs_level[SQ_MAX_LEVELS], *fs_node[SQ_MAX_LEVELS];
     double *fs_w[SQ_MAX_LEVELS];
     int fs_cap[SQ_MAX_LEVELS];
@@ -64,6 +65,17 @@ struct sq_lod {
      * (a ring row cut to S_k would pin the ring to zero displacement); aligned with the
      * mesh adjacency row of each ring ghost */
     int *node_tet_start[SQ_MAX_LEVELS], *node_tet[SQ_MAX_LEVELS];
+    /* per node-tet incidence c: the node's corner in the tet (nt_p) and, for each corner q,
+     * the block's position in the node's adjacency row (nt_e, 4 per incidence) */
+    unsigned char *nt_p[SQ_MAX_LEVELS];
+    int *nt_e[SQ_MAX_LEVELS];
+    /* element blocks of the tets met so far as mixed tets (16 blocks of 9 per tet, viscous
+     * ones alongside when the material uses viscosities), so a rebuild of the ring rows adds
+     * cached blocks instead of recomputing them; slots are handed out on first use, so the
+     * memory follows the region that has been refined, not the mesh */
+    int *ke_slot[SQ_MAX_LEVELS];         /* slot of a tet, or -1 (ntets) */
+    double *ke[SQ_MAX_LEVELS];           /* slots x 144 (x 2 with viscosity) */
+    int ke_n[SQ_MAX_LEVELS], ke_cap[SQ_MAX_LEVELS];
     double *tet_geom[SQ_MAX_LEVELS];     /* per tet: volume and the 4 basis gradients (13) */
     int *rk_off[SQ_MAX_LEVELS];          /* (nring + 1) offsets in blocks */
     int *rk_col[SQ_MAX_LEVELS], *fk_col[SQ_MAX_LEVELS]; /* column (node) of each block */
@@ -387,6 +399,75 @@ static void add_block(sq_operator_kind op, double V, const double *ai, const dou
         }
 }
 
+/* dst += w src over one 3x3 block */
+static inline void axpy9(double *restrict dst, double w, const double *restrict src)
+{
+    for (int x = 0; x < 9; x++)
+        dst[x] += w * src[x];
+}
+
+/* cached element blocks of tet t of level k (built on first use for the current material):
+ * 16 blocks (p, q) of 9, then with viscosity 16 viscous ones */
+static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
+{
+    int sl = lod->ke_slot[k][t];
+    size_t per = visc ? 288 : 144;
+    if (sl >= 0)
+        return lod->ke[k] + per * (size_t)sl;
+    if (lod->ke_n[k] == lod->ke_cap[k]) {
+        lod->ke_cap[k] = lod->ke_cap[k] ? 2 * lod->ke_cap[k] : 256;
+        lod->ke[k] = sq_realloc(lod->ke[k], sizeof(double) * per * (size_t)lod->ke_cap[k]);
+    }
+    sl = lod->ke_n[k]++;
+    lod->ke_slot[k][t] = sl;
+    double *E = lod->ke[k] + per * (size_t)sl;
+    memset(E, 0, sizeof(double) * per);
+    const double *g = lod->tet_geom[k] + 13 * (size_t)t;
+    const sq_material *mat = &lod->mat;
+    for (int p = 0; p < 4; p++)
+        for (int q = 0; q < 4; q++) {
+            add_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
+            if (visc)
+                add_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
+                          E + 144 + 9 * (4 * p + q));
+        }
+    return E;
+}
+
+/* forget the cached element blocks (material or operator changed) */
+static void drop_tet_blocks(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        for (int t = 0; t < lod->lv[k].mesh->ntets && lod->ke_n[k] > 0; t++)
+            lod->ke_slot[k][t] = -1;
+        lod->ke_n[k] = 0;
+    }
+}
+
+/* the mixed-tet blocks of row j (incidences c0..c1) into B (and Bd), times weight (a power
+ * of two, so the products equal those of the blocks built with weight * V) */
+static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight, double *restrict B,
+                              double *restrict Bd)
+{
+    const sq_mesh *m = lod->lv[k].mesh;
+    const unsigned char *act = lod->active[k];
+    int visc = Bd != NULL;
+    for (int c = c0; c < c1; c++) {
+        int t = lod->node_tet[k][c];
+        const int *tv = m->tets + 4 * t;
+        int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
+        if (na == 0 || na == 4)
+            continue;
+        const double *E = tet_blocks(lod, k, t, visc) + 36 * lod->nt_p[k][c];
+        const int *ev = lod->nt_e[k] + 4 * (size_t)c;
+        for (int q = 0; q < 4; q++) {
+            axpy9(B + 9 * ev[q], weight, E + 9 * q);
+            if (visc)
+                axpy9(Bd + 9 * ev[q], weight, E + 144 + 9 * q);
+        }
+    }
+}
+
 /* which operator the level's K was built with: rebuild one row both ways, keep the closer */
 static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
 {
@@ -428,9 +509,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
                          int *bk_cap, double **bd, int *bd_cap, double weight)
 {
     const sq_level *L = &lod->lv[k];
-    const sq_mesh *m = L->mesh;
     const sq_material *mat = &lod->mat;
-    const unsigned char *act = lod->active[k];
     int visc = mat->use_viscosity && L->D;
     int total = 0;
     for (int r = 0; r < nn; r++) {
@@ -456,24 +535,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
         int j = nodes[r];
         double *B = *bk + 9 * (size_t)off[r];
         double *Bd = visc ? *bd + 9 * (size_t)off[r] : NULL;
-        for (int c = lod->node_tet_start[k][j]; c < lod->node_tet_start[k][j + 1]; c++) {
-            int t = lod->node_tet[k][c];
-            const int *tv = m->tets + 4 * t;
-            int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
-            if (na == 0 || na == 4)
-                continue;
-            const double *g = lod->tet_geom[k] + 13 * (size_t)t;
-            double V = weight * g[0];
-            int p = 0;
-            while (tv[p] != j)
-                p++;
-            for (int q = 0; q < 4; q++) {
-                int e = adj_find(m, j, tv[q]) - L->row_start[j];
-                add_block(lod->op, V, g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, B + 9 * e);
-                if (Bd)
-                    add_block(lod->op, V, g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi, Bd + 9 * e);
-            }
-        }
+        row_blocks(lod, k, lod->node_tet_start[k][j], lod->node_tet_start[k][j + 1], weight, B, Bd);
     }
     /* keep the non-zero blocks only, with their column */
     int *col = sq_realloc(*cols, sizeof(int) * (size_t)SQ_MAX(total, 1));
@@ -489,9 +551,12 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
                 nz = B[c] != 0 || (visc && (*bd)[9 * (size_t)(start + e) + c] != 0);
             if (!nz)
                 continue;
-            memmove(*bk + 9 * (size_t)w, B, 9 * sizeof(double));
+            /* w <= start + e: moving down in place, block by block */
+            for (int x = 0; x < 9; x++)
+                (*bk)[9 * (size_t)w + x] = B[x];
             if (visc)
-                memmove(*bd + 9 * (size_t)w, *bd + 9 * (size_t)(start + e), 9 * sizeof(double));
+                for (int x = 0; x < 9; x++)
+                    (*bd)[9 * (size_t)w + x] = (*bd)[9 * (size_t)(start + e) + x];
             col[w++] = L->col[q];
         }
     }
@@ -541,8 +606,10 @@ static void front_correct(sq_lod *lod, const sq_material *mat, int k)
 static double block_norm(const double *B)
 {
     double m = 0;
-    for (int r = 0; r < 3; r++)
-        m = fmax(m, fabs(B[3 * r]) + fabs(B[3 * r + 1]) + fabs(B[3 * r + 2]));
+    for (int r = 0; r < 3; r++) {
+        double x = fabs(B[3 * r]) + fabs(B[3 * r + 1]) + fabs(B[3 * r + 2]);
+        m = x > m ? x : m; /* fmax without the call (a NaN row is skipped, as fmax does) */
+    }
     return m;
 }
 
@@ -622,6 +689,7 @@ static void update_ring_blocks(sq_lod *lod, const sq_material *mat)
         lod->have_mat = 1;
         lod->k_seen = lod->lv[0].K;
         lod->op = infer_op(lod, mat);
+        drop_tet_blocks(lod);
         own_rows(lod);
         for (int k = 0; k < lod->L; k++)
             lod->rk_dirty[k] = 1;
@@ -721,11 +789,31 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->fs_start[k] = sq_calloc(n + 1, sizeof(int));
+        lod->fs_levels[k] = sq_calloc(n + 1, 1);
         lod->rk_off[k] = sq_calloc(n + 1, sizeof(int));
         lod->ring_index[k] = sq_malloc(sizeof(int) * n);
         lod->front[k] = sq_malloc(sizeof(int) * n);
         lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
         node_tets(levels[k].mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
+        {
+            const sq_mesh *mm = levels[k].mesh;
+            int ninc = lod->node_tet_start[k][n];
+            lod->ke_slot[k] = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
+            for (int t = 0; t < mm->ntets; t++)
+                lod->ke_slot[k][t] = -1;
+            lod->nt_p[k] = sq_malloc((size_t)SQ_MAX(ninc, 1));
+            lod->nt_e[k] = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
+            for (int j = 0; j < (int)n; j++)
+                for (int c = lod->node_tet_start[k][j]; c < lod->node_tet_start[k][j + 1]; c++) {
+                    const int *tv = mm->tets + 4 * lod->node_tet[k][c];
+                    int p = 0;
+                    while (tv[p] != j)
+                        p++;
+                    lod->nt_p[k][c] = (unsigned char)p;
+                    for (int q = 0; q < 4; q++)
+                        lod->nt_e[k][4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
+                }
+        }
         const sq_mesh *mk = levels[k].mesh;
         lod->tet_geom[k] = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
         for (int t = 0; t < mk->ntets; t++) {
@@ -760,6 +848,7 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->dprev[k]);
         free(lod->vprev[k]);
         free(lod->fs_start[k]);
+        free(lod->fs_levels[k]);
         free(lod->rk_off[k]);
         free(lod->ring_index[k]);
         free(lod->rowk[k]);
@@ -774,6 +863,10 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->rd[k]);
         free(lod->node_tet_start[k]);
         free(lod->node_tet[k]);
+        free(lod->nt_p[k]);
+        free(lod->ke_slot[k]);
+        free(lod->ke[k]);
+        free(lod->nt_e[k]);
         free(lod->tet_geom[k]);
         free(lod->fs_level[k]);
         free(lod->fs_node[k]);
@@ -1194,6 +1287,10 @@ static void build_sources(sq_lod *lod)
                 lod->fs_node[k][total + i] = buf[i].node;
                 lod->fs_w[k][total + i] = buf[i].w / sum;
             }
+            unsigned char bits = 0;
+            for (int i = 0; i < u; i++)
+                bits |= (unsigned char)(1u << buf[i].level);
+            lod->fs_levels[k][r] = bits;
             total += u;
             lod->fs_start[k][r + 1] = total;
         }
@@ -1207,9 +1304,12 @@ static void eval_ring(sq_lod *lod, int k, long t)
 {
     sq_level *Lk = &lod->lv[k];
     double fr[SQ_MAX_LEVELS];
+    const double *dcur[SQ_MAX_LEVELS], *vcur[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++) {
         double f = (double)(t - lod->step_t0[m]) / (double)lod->step_len[m];
         fr[m] = f < 0 ? 0 : (f > 1 ? 1 : f);
+        dcur[m] = lod->lv[m].d;
+        vcur[m] = lod->lv[m].v;
     }
     for (int r = 0; r < lod->nring[k]; r++) {
         int j = lod->ring[k][r];
@@ -1220,7 +1320,15 @@ static void eval_ring(sq_lod *lod, int k, long t)
         for (int q = a; q < b; q++) {
             int m = lod->fs_level[k][q], s = lod->fs_node[k][q];
             double w = lod->fs_w[k][q], f = fr[m];
-            const double *d1 = lod->lv[m].d + 3 * s, *v1 = lod->lv[m].v + 3 * s;
+            const double *d1 = dcur[m] + 3 * s, *v1 = vcur[m] + 3 * s;
+            if (f == 1) {
+                /* a source level at the end of its step (the common case): its values */
+                for (int c = 0; c < 3; c++) {
+                    d[c] += w * d1[c];
+                    v[c] += w * v1[c];
+                }
+                continue;
+            }
             const double *d0 = lod->dprev[m] + 3 * s, *v0 = lod->vprev[m] + 3 * s;
             for (int c = 0; c < 3; c++) {
                 d[c] += w * (d0[c] + f * (d1[c] - d0[c]));
@@ -1280,13 +1388,13 @@ static void couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     const sq_level *Lk = &lod->lv[k];
     double fr = (double)(t - lod->step_t0[k]) / (double)lod->step_len[k];
     fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
+    unsigned due_bits = 0;
+    for (int m = 0; m < lod->L; m++)
+        due_bits |= lod->due[m] ? 1u << m : 0u;
     for (int r = 0; r < lod->nring[k]; r++) {
         int j = lod->ring[k][r];
         int a = lod->fs_start[k][r], b = lod->fs_start[k][r + 1];
-        int any = 0;
-        for (int q = a; q < b && !any; q++)
-            any = lod->due[lod->fs_level[k][q]];
-        if (!any)
+        if (!(lod->fs_levels[k][r] & due_bits))
             continue;
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
