@@ -56,6 +56,7 @@ typedef struct sw_case {
     sw_mesh_kind mesh;
     double mesh_param;      /* sliver flatness / flat box thickness ratio */
     double above_bound;     /* > 0: test-only: step the level at this multiple of the bound */
+    double split;           /* > 0: adaptive over three box levels (2, 3, 5 cells) at this split */
 } sw_case;
 
 typedef struct sw_result {
@@ -182,9 +183,14 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
 /* total mechanical energy relative to rest: kinetic + elastic + gravity potential
  * (-sum m_i g . d_i) of the simulated level; conserved by the undamped system, decreasing
  * with damping, changed only by the tools */
+static int values_level(const sq_body *b)
+{
+    return sq_body_get_def(b)->lod.mode == SQ_LOD_ADAPTIVE ? sq_body_nlevels(b) - 1 : sq_body_fixed_level(b);
+}
+
 static double total_energy(sq_body *b)
 {
-    const sq_level *L = sq_body_level(b, sq_body_fixed_level(b));
+    const sq_level *L = sq_body_level(b, values_level(b));
     const double *g = sq_body_get_def(b)->gravity;
     double ep = 0;
     for (int i = 0; i < L->n; i++)
@@ -245,6 +251,24 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
     def.name = "sweep";
     def.nlevels = 1;
     def.levels[0] = m;
+    sq_mesh *extra[2] = {NULL, NULL};
+    if (c->split > 0) {
+        /* adaptive: levels of 2, 3 and 5 cells per side (non-nested grids), m the finest */
+        double size[3] = {SW_SIZE, SW_SIZE, SW_SIZE}, origin[3] = {0, 0, 0};
+        extra[0] = sq_mesh_box(2, 2, 2, size, origin, &err);
+        extra[1] = sq_mesh_box(3, 3, 3, size, origin, &err);
+        sq_mesh_free(m);
+        m = sq_mesh_box(5, 5, 5, size, origin, &err);
+        def.nlevels = 3;
+        def.levels[0] = extra[0];
+        def.levels[1] = extra[1];
+        def.levels[2] = m;
+        def.lod.mode = SQ_LOD_ADAPTIVE;
+        def.lod.level = 0;
+        def.lod.max_level = 2;
+        def.lod.split = c->split;
+        def.lod.merge = 0.4 * c->split;
+    }
     def.material = c->mat;
     def.op = c->op;
     def.gravity[2] = -9.81;
@@ -268,11 +292,13 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
         snprintf(r->status, sizeof r->status, "refused");
         snprintf(r->note, sizeof r->note, "%.230s", err.msg);
         sq_mesh_free(m);
+    sq_mesh_free(extra[0]);
+    sq_mesh_free(extra[1]);
         r->wall = sq_now() - w0;
         return;
     }
-    r->bound = sq_body_level_bound(b, 0);
-    r->dt = sq_body_level_dt(b, 0);
+    r->bound = sq_body_level_bound(b, values_level(b));
+    r->dt = sq_body_level_dt(b, values_level(b));
     r->substeps = (int)lround(def.frame_dt / r->dt);
     r->steps_per_s = r->substeps / def.frame_dt;
     if (c->above_bound > 0) {
@@ -280,6 +306,8 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
         r->failed = 0; /* not an accepted case: the body would never run it */
         sq_body_destroy(b);
         sq_mesh_free(m);
+    sq_mesh_free(extra[0]);
+    sq_mesh_free(extra[1]);
         r->wall = sq_now() - w0;
         return;
     }
@@ -297,20 +325,22 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
     }
     double release = c->load == SW_NONE ? 0 : 1.0; /* last tool action ends at 1 s (periodic: never) */
     double e_load = -INFINITY, e_late = -INFINITY, e_abs = 0, dmax = 0;
-    int nonfinite = 0;
+    int nonfinite = 0, max_fine = 0;
     for (long f = 1; f <= nframes; f++) {
         double t = f * def.frame_dt;
         sq_tool tool;
         int nt = case_tool(c, m, t, &tool);
         sq_frame_profile prof;
         sq_body_frame(b, &tool, nt, NULL, &prof, 0);
+        if (c->split > 0)
+            max_fine = SQ_MAX(max_fine, prof.active[2]);
         if (prof.reset) {
             r->resets++;
             if (!r->note[0])
                 snprintf(r->note, sizeof r->note, "frame %ld: %.200s", f, prof.event);
         }
         double e = total_energy(b);
-        const double *d = sq_body_displacement(b, 0);
+        const double *d = sq_body_displacement(b, values_level(b));
         for (int i = 0; i < 3 * m->nnodes; i++) {
             if (!isfinite(d[i]))
                 nonfinite = 1;
@@ -329,6 +359,8 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
     }
     r->frames = nframes;
     r->max_disp = dmax;
+    if (c->split > 0 && !r->note[0])
+        snprintf(r->note, sizeof r->note, "finest level active on up to %d of %d nodes", max_fine, m->nnodes);
     r->e_load = e_load;
     r->e_late = e_late;
     /* bounded: the late energy does not exceed what the loading phase reached; slack 10% of the
@@ -352,6 +384,8 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
     }
     sq_body_destroy(b);
     sq_mesh_free(m);
+    sq_mesh_free(extra[0]);
+    sq_mesh_free(extra[1]);
     r->wall = sq_now() - w0;
 }
 
@@ -493,6 +527,31 @@ static int build_cases(sw_case *cs, int quick)
         cs[n - 1].load = SW_NONE;
         cs[n - 1].seconds = quick ? 0.5 : 2;
     }
+    /* the adaptive engine: three levels, thresholds from "refine everywhere" to "hardly ever" */
+    static const double splits[] = {1e-6, 1e-3, 3e-3, 1e-2};
+    for (size_t k = 0; k < SQ_COUNTOF(splits); k++) {
+        n = add(cs, n, "adaptive", "3 levels, split %g m", splits[k]);
+        cs[n - 1].split = splits[k];
+        cs[n - 1].seconds = quick ? 2 : 5;
+    }
+    n = add(cs, n, "adaptive", "3 levels, split %g m, deep sphere", 3e-3);
+    cs[n - 1].split = 3e-3;
+    cs[n - 1].load = SW_DEEP;
+    cs[n - 1].seconds = quick ? 2 : 5;
+    n = add(cs, n, "adaptive", "3 levels, split %g m, E 1e7 Pa", 3e-3);
+    cs[n - 1].split = 3e-3;
+    set_E_nu(&cs[n - 1].mat, 1e7, 0.3);
+    cs[n - 1].mat.rayleigh_stiffness = 1e-6;
+    cs[n - 1].seconds = quick ? 1 : 3;
+    n = add(cs, n, "adaptive", "3 levels, split %g m, nu 0.49", 3e-3);
+    cs[n - 1].split = 3e-3;
+    set_E_nu(&cs[n - 1].mat, 1e5, 0.49);
+    cs[n - 1].seconds = quick ? 1 : 3;
+    n = add(cs, n, "adaptive", "3 levels, split %g m, grab 10 sizes, undamped", 3e-3);
+    cs[n - 1].split = 3e-3;
+    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].mat.rayleigh_mass = cs[n - 1].mat.rayleigh_stiffness = 0;
+    cs[n - 1].seconds = quick ? 2 : 5;
     /* the very long run: a poke every 2 s */
     n = add(cs, n, "long", "%g s simulated, a poke every 2 s", quick ? 120 : 3600);
     cs[n - 1].load = SW_PERIODIC;
