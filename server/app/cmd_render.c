@@ -70,30 +70,6 @@ static int parse_long(const char *s, long lo, long hi, long *out)
     return 0;
 }
 
-static int mkdir_p(const char *dir)
-{
-    char buf[1024];
-    snprintf(buf, sizeof buf, "%s", dir);
-    for (char *p = buf + 1; *p; p++) {
-        if (*p != '/')
-            continue;
-        *p = 0;
-        if (mkdir(buf, 0777) && errno != EEXIST)
-            return -1;
-        *p = '/';
-    }
-    if (mkdir(buf, 0777) && errno != EEXIST)
-        return -1;
-    struct stat st;
-    if (stat(buf, &st) != 0)
-        return -1;
-    if (!S_ISDIR(st.st_mode)) {
-        errno = ENOTDIR;
-        return -1;
-    }
-    return 0;
-}
-
 /* one image: capture, build, draw, encode, write; times (s) added to t[4] */
 static int render_one(sq_render_state *st, sq_drawlist *dl, sq_renderer *r, unsigned char *rgb,
                       const sq_world *w, const sq_render_opts *o, int width, int height,
@@ -299,7 +275,7 @@ int sq_cmd_render(int argc, char **argv)
         nframes = 0;
 
     int rc = 0;
-    if (out && mkdir_p(out)) {
+    if (out && sq_mkdir_p(out)) {
         fprintf(stderr, "squish render: cannot create output directory %s: %s; choose another --out\n",
                 out, strerror(errno));
         rc = 1;

@@ -67,30 +67,6 @@ static int parse_double(const char *s, double *out)
     return 0;
 }
 
-static int mkdir_p(const char *dir)
-{
-    char buf[1024];
-    snprintf(buf, sizeof buf, "%s", dir);
-    for (char *p = buf + 1; *p; p++) {
-        if (*p != '/')
-            continue;
-        *p = 0;
-        if (mkdir(buf, 0777) && errno != EEXIST)
-            return -1;
-        *p = '/';
-    }
-    if (mkdir(buf, 0777) && errno != EEXIST)
-        return -1;
-    struct stat st;
-    if (stat(buf, &st) != 0)
-        return -1;
-    if (!S_ISDIR(st.st_mode)) {
-        errno = ENOTDIR;
-        return -1;
-    }
-    return 0;
-}
-
 static FILE *open_out(const char *dir, const char *name, char *path, size_t n)
 {
     snprintf(path, n, "%s/%s", dir, name);
@@ -279,7 +255,7 @@ int sq_cmd_run(int argc, char **argv)
     int rc = 0;
     char ppath[1100], spath[1100], tpath[1100];
     FILE *fp = NULL, *fs = NULL, *ft = NULL;
-    if (mkdir_p(out)) {
+    if (sq_mkdir_p(out)) {
         fprintf(stderr, "squish run: cannot create output directory %s: %s; choose another --out\n", out,
                 strerror(errno));
         rc = 1;

@@ -38,6 +38,9 @@ char *sq_strdup(const char *s);
 /* read a whole file into a NUL-terminated buffer; NULL and err on failure */
 char *sq_read_file(const char *path, size_t *len, size_t max_len, sq_err *err);
 
+/* create a directory and its parents (like mkdir -p); 0 on success, -1 with errno set */
+int sq_mkdir_p(const char *dir);
+
 /* 64-bit FNV-1a hash of bytes, for determinism checks */
 uint64_t sq_hash_bytes(uint64_t h, const void *data, size_t n);
 #define SQ_HASH_INIT 1469598103934665603ULL
