@@ -5,27 +5,8 @@
 # The PNGs are decoded by node's zlib (an independent reader). Last line:
 # "cli_render: N passed, N failed".
 set -u
-cd "$(dirname "$0")/../.."
-SQUISH=${SQUISH:-$PWD/build/squish}
+source "$(dirname "$0")/../lib/stage.sh" cli_render
 ROOT=$PWD
-TMP=$(mktemp -d /tmp/squish-cli-render-XXXXXX)
-trap 'rm -rf "$TMP"' EXIT
-pass=0
-fail=0
-
-ok() { pass=$((pass + 1)); echo "  ok   $1"; }
-bad() { fail=$((fail + 1)); echo "  FAIL $1"; }
-check() { # check NAME COMMAND...: passes when the command succeeds
-    local name=$1
-    shift
-    if "$@"; then ok "$name"; else bad "$name"; fi
-}
-
-if [ ! -x "$SQUISH" ]; then
-    echo "cli_render: $SQUISH is missing; build it with make squish"
-    echo "cli_render: 0 passed, 1 failed"
-    exit 1
-fi
 if ! command -v node >/dev/null; then
     echo "cli_render: node is missing; run make deps"
     echo "cli_render: 0 passed, 1 failed"
@@ -192,5 +173,4 @@ if [ "$(id -u)" != 0 ]; then
     err_case "unwritable dir" 1 "cannot write" --default --frames 0 --out "$TMP/ro"
 fi
 
-echo "cli_render: $pass passed, $fail failed"
-[ "$fail" = 0 ]
+stage_end

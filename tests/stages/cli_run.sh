@@ -3,27 +3,8 @@
 # columns, step-bound report, --until-rest, --default, bad scenes and usage errors.
 # Last line: "cli_run: N passed, N failed".
 set -u
-cd "$(dirname "$0")/../.."
-SQUISH=${SQUISH:-$PWD/build/squish}
+source "$(dirname "$0")/../lib/stage.sh" cli_run
 DATA=$PWD/tests/data/scenes
-TMP=$(mktemp -d /tmp/squish-cli-run-XXXXXX)
-trap 'rm -rf "$TMP"' EXIT
-pass=0
-fail=0
-
-ok() { pass=$((pass + 1)); echo "  ok   $1"; }
-bad() { fail=$((fail + 1)); echo "  FAIL $1"; }
-check() { # check NAME COMMAND...: passes when the command succeeds
-    local name=$1
-    shift
-    if "$@"; then ok "$name"; else bad "$name"; fi
-}
-
-if [ ! -x "$SQUISH" ]; then
-    echo "cli_run: $SQUISH is missing; build it with make squish"
-    echo "cli_run: 0 passed, 1 failed"
-    exit 1
-fi
 
 # two runs of the same scene: probes.csv and final.vtk byte-identical
 "$SQUISH" run "$DATA/small-cube.json" --frames 30 --out "$TMP/a" >"$TMP/a.log" 2>&1
@@ -174,5 +155,4 @@ check "stats.csv counts the fixed level under its listed number" \
 check "final.vtk level field uses the listed number" \
     [ "$(grep -A2 'SCALARS level' "$TMP/lv/final.vtk" | tail -n 1)" = 2 ]
 
-echo "cli_run: $pass passed, $fail failed"
-[ "$fail" = 0 ]
+stage_end
