@@ -442,3 +442,67 @@ SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)
     sq_body_destroy(b);
     free_meshes(m, 2);
 }
+
+/* the ring rows are summed from element blocks cached per tet: a material change must rebuild
+ * them. Doubling mu and lambda doubles every stiffness block exactly (a factor of two is exact
+ * in floating point), so the elastic energy of a mixed-level state, ring rows and frontier
+ * corrections included, must double to rounding (1e-12 relative) and come back when the
+ * material is restored; a stale cache would keep the ring rows of the first material. */
+SQ_TEST(lod_ring_blocks_follow_material_change)
+{
+    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
+    if (!m[0] || !m[1]) {
+        CHECK(0);
+        return;
+    }
+    sq_material mat = {0};
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    sq_material stiff = mat;
+    stiff.mu *= 2;
+    stiff.lambda *= 2;
+    sq_level lv[2];
+    CHECK(make_levels(lv, m, 2, &mat));
+    sq_lod_def adapt = lh_lod(SQ_LOD_ADAPTIVE, 0.004, 0.002);
+    sq_err e = {{0}};
+    sq_lod *lod = sq_lod_create(lv, 2, &adapt, &e);
+    CHECK(lod != NULL);
+    if (!lod)
+        return;
+    sq_lod_set_material(lod, &mat);
+    for (int k = 0; k < 2; k++)
+        for (int i = 0; i < lv[k].n; i++) {
+            const double *x = m[k]->x + 3 * i;
+            lv[k].d[3 * i] = lv[k].fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
+        }
+    sq_lod_sync(lod);
+    int sp = 0, mg = 0;
+    sq_lod_adapt(lod, 1, &sp, &mg);
+    /* a mixed state: some finest nodes active, some not */
+    int na = 0;
+    const unsigned char *act = sq_lod_active(lod, 1);
+    for (int i = 0; i < lv[1].n; i++)
+        na += act[i];
+    CHECK(sp > 0 && na > 0 && na < lv[1].n);
+    double e1 = 0, e2 = 0, e3 = 0;
+    sq_lod_energy(lod, NULL, &e1);
+    for (int k = 0; k < 2; k++)
+        CHECK(sq_level_set_material(&lv[k], &stiff, SQ_OPERATOR_FEM, &e) == 0);
+    sq_lod_set_material(lod, &stiff);
+    sq_lod_energy(lod, NULL, &e2);
+    for (int k = 0; k < 2; k++)
+        CHECK(sq_level_set_material(&lv[k], &mat, SQ_OPERATOR_FEM, &e) == 0);
+    sq_lod_set_material(lod, &mat);
+    sq_lod_energy(lod, NULL, &e3);
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "ring blocks: %d splits, %d finest active, elastic %.6g -> %.6g -> %.6g J\n",
+                sp, na, e1, e2, e3);
+    CHECK(e1 > 0);
+    CHECK_NEAR(e2, 2 * e1, 1e-12 * e1);
+    CHECK_NEAR(e3, e1, 1e-12 * e1);
+    sq_lod_destroy(lod);
+    for (int k = 0; k < 2; k++)
+        sq_level_free(&lv[k]);
+    free_meshes(m, 2);
+}
