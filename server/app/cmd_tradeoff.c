@@ -30,30 +30,6 @@
 #define TO_MAX_VARIANTS 32
 #define TO_MAX_SAMPLES 4000 /* surface points compared per body (evenly strided) */
 
-int sq_tradeoff_mkdir(const char *dir)
-{
-    char buf[1024];
-    snprintf(buf, sizeof buf, "%s", dir);
-    for (char *p = buf + 1; *p; p++) {
-        if (*p != '/')
-            continue;
-        *p = 0;
-        if (mkdir(buf, 0777) && errno != EEXIST)
-            return -1;
-        *p = '/';
-    }
-    if (mkdir(buf, 0777) && errno != EEXIST)
-        return -1;
-    struct stat st;
-    if (stat(buf, &st) != 0)
-        return -1;
-    if (!S_ISDIR(st.st_mode)) {
-        errno = ENOTDIR;
-        return -1;
-    }
-    return 0;
-}
-
 /* one setting of the grid */
 typedef struct to_variant {
     char name[48];
@@ -600,7 +576,7 @@ int sq_cmd_tradeoff(int argc, char **argv)
     static to_result r[TO_MAX_VARIANTS];
     memset(r, 0, sizeof r);
     int n = build_grid(v, finest, s0, quick);
-    if (sq_tradeoff_mkdir(out)) {
+    if (sq_mkdir_p(out)) {
         fprintf(stderr, "squish tradeoff: cannot create output directory %s: %s; choose another --out\n", out,
                 strerror(errno));
         cJSON_Delete(root);

@@ -8,6 +8,6 @@ int sq_cmd_serve(int argc, char **argv);    /* cmd_serve.c:    the WebSocket ser
 int sq_cmd_render(int argc, char **argv);   /* cmd_render.c:   headless PNG rendering */
 int sq_cmd_bench(int argc, char **argv);    /* cmd_bench.c:    benchmarks */
 int sq_cmd_tradeoff(int argc, char **argv); /* cmd_tradeoff.c: speed/accuracy grid */
-int sq_cmd_sweep(int argc, char **argv);    /* cmd_tradeoff.c: stability sweep */
+int sq_cmd_sweep(int argc, char **argv);    /* tradeoff_sweep.c: stability sweep */
 
 #endif

@@ -3,9 +3,6 @@
 #ifndef SQ_TRADEOFF_H
 #define SQ_TRADEOFF_H
 
-/* create a directory and its parents (like mkdir -p); 0 on success, -1 with errno set */
-int sq_tradeoff_mkdir(const char *dir);
-
 /* squish tradeoff --bench: frame-budget headroom of the shipped scenes and 1 vs 2 threads
  * (bench_scenes.c); argv[0] is the subcommand name */
 int sq_bench_scenes(int argc, char **argv);

@@ -694,7 +694,7 @@ int sq_cmd_sweep(int argc, char **argv)
             return 2;
         }
     }
-    if (sq_tradeoff_mkdir(out)) {
+    if (sq_mkdir_p(out)) {
         fprintf(stderr, "squish sweep: cannot create output directory %s: %s; choose another --out\n", out,
                 strerror(errno));
         return 1;

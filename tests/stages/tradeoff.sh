@@ -4,26 +4,7 @@
 # `squish tradeoff` on the shipped cube-poke scene (CSV columns and rows, Pareto front, PNG),
 # plus usage errors. Last line: "tradeoff: N passed, N failed".
 set -u
-cd "$(dirname "$0")/../.."
-SQUISH=${SQUISH:-$PWD/build/squish}
-TMP=$(mktemp -d /tmp/squish-tradeoff-XXXXXX)
-trap 'rm -rf "$TMP"' EXIT
-pass=0
-fail=0
-
-ok() { pass=$((pass + 1)); echo "  ok   $1"; }
-bad() { fail=$((fail + 1)); echo "  FAIL $1"; }
-check() { # check NAME COMMAND...: passes when the command succeeds
-    local name=$1
-    shift
-    if "$@"; then ok "$name"; else bad "$name"; fi
-}
-
-if [ ! -x "$SQUISH" ]; then
-    echo "tradeoff: $SQUISH is missing; build it with make squish"
-    echo "tradeoff: 0 passed, 1 failed"
-    exit 1
-fi
+source "$(dirname "$0")/../lib/stage.sh" tradeoff
 
 # ---- the full sweep (about a minute of CPU)
 "$SQUISH" sweep --out "$TMP/sweep" >"$TMP/sweep.log" 2>&1
@@ -94,5 +75,4 @@ check "tradeoff missing scene: exit 1, names the file" bash -c "[ $? = 1 ] && gr
 "$SQUISH" sweep --bogus >"$TMP/u4.log" 2>&1
 check "sweep unknown option: exit 2" [ $? = 2 ]
 
-echo "tradeoff: $pass passed, $fail failed"
-[ "$fail" = 0 ]
+stage_end
