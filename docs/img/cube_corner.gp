@@ -12,7 +12,7 @@ set key outside right top box
 set grid
 set xlabel "time (s)"
 set ylabel "corner (1,1,1) vertical displacement (mm)"
-set title "1 m cube, bottom fixed, gravity, mu = 40 kPa, lambda = 100 kPa, rho = 1000 kg/m3, Rayleigh a = 0.5/s, b = 1e-3 s (paper sec. 2.6)"
+set title "1 m cube, bottom fixed, gravity (paper sec. 2.6)\nmu = 40 kPa, lambda = 100 kPa, rho = 1000 kg/m3, Rayleigh a = 0.5/s, b = 1e-3 s"
 set style line 1 lc rgb "#9ecae1" lw 2
 set style line 2 lc rgb "#3182bd" lw 2
 set style line 3 lc rgb "#08306b" lw 2
