@@ -1376,22 +1376,34 @@ static void eval_ring(sq_lod *lod, int k, long t)
         if (a == b)
             continue;
         double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-        for (int q = a; q < b; q++) {
-            int m = lod->fs_level[k][q], s = lod->fs_node[k][q];
-            double w = lod->fs_w[k][q], f = fr[m];
-            const double *d1 = dcur[m] + 3 * s, *v1 = vcur[m] + 3 * s;
+        const int *fl = lod->fs_level[k], *fn = lod->fs_node[k];
+        const double *fw = lod->fs_w[k];
+        /* the sources are sorted by level: one run per level, its time fraction hoisted */
+        for (int q = a; q < b;) {
+            int m = fl[q];
+            double f = fr[m];
+            const double *D1 = dcur[m], *V1 = vcur[m];
             if (f == 1) {
                 /* a source level at the end of its step (the common case): its values */
-                for (int c = 0; c < 3; c++) {
-                    d[c] += w * d1[c];
-                    v[c] += w * v1[c];
+                for (; q < b && fl[q] == m; q++) {
+                    const double w = fw[q];
+                    const double *d1 = D1 + 3 * fn[q], *v1 = V1 + 3 * fn[q];
+                    for (int c = 0; c < 3; c++) {
+                        d[c] += w * d1[c];
+                        v[c] += w * v1[c];
+                    }
                 }
                 continue;
             }
-            const double *d0 = lod->dprev[m] + 3 * s, *v0 = lod->vprev[m] + 3 * s;
-            for (int c = 0; c < 3; c++) {
-                d[c] += w * (d0[c] + f * (d1[c] - d0[c]));
-                v[c] += w * (v0[c] + f * (v1[c] - v0[c]));
+            const double *D0 = lod->dprev[m], *V0 = lod->vprev[m];
+            for (; q < b && fl[q] == m; q++) {
+                const double w = fw[q];
+                const double *d1 = D1 + 3 * fn[q], *v1 = V1 + 3 * fn[q];
+                const double *d0 = D0 + 3 * fn[q], *v0 = V0 + 3 * fn[q];
+                for (int c = 0; c < 3; c++) {
+                    d[c] += w * (d0[c] + f * (d1[c] - d0[c]));
+                    v[c] += w * (v0[c] + f * (v1[c] - v0[c]));
+                }
             }
         }
         unsigned char fx = Lk->fixed[j];
@@ -1478,14 +1490,23 @@ static void couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
         for (int c = 0; c < 3; c++)
             if (fx & (1u << c))
                 g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
-        for (int q = a; q < b; q++) {
-            int m = lod->fs_level[k][q];
-            if (!lod->due[m])
+        /* one run of sources per level (sorted by level); levels not stepping now skipped */
+        const int *fl = lod->fs_level[k], *fn = lod->fs_node[k];
+        const double *fw = lod->fs_w[k];
+        for (int q = a; q < b;) {
+            int m = fl[q];
+            if (!(due_bits & (1u << m))) {
+                while (q < b && fl[q] == m)
+                    q++;
                 continue;
-            double w = lod->fs_w[k][q], *dst = lod->lv[m].f + 3 * lod->fs_node[k][q];
-            dst[0] += w * g[0];
-            dst[1] += w * g[1];
-            dst[2] += w * g[2];
+            }
+            double *F = lod->lv[m].f;
+            for (; q < b && fl[q] == m; q++) {
+                double w = fw[q], *dst = F + 3 * fn[q];
+                dst[0] += w * g[0];
+                dst[1] += w * g[1];
+                dst[2] += w * g[2];
+            }
         }
     }
 }
