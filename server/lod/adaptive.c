@@ -410,8 +410,16 @@ static void add_block(sq_operator_kind op, double V, const double *ai, const dou
 /* dst += w src over one 3x3 block */
 static inline void axpy9(double *restrict dst, double w, const double *restrict src)
 {
-    for (int x = 0; x < 9; x++)
-        dst[x] += w * src[x];
+    /* written out so the compiler packs it into vector operations */
+    dst[0] += w * src[0];
+    dst[1] += w * src[1];
+    dst[2] += w * src[2];
+    dst[3] += w * src[3];
+    dst[4] += w * src[4];
+    dst[5] += w * src[5];
+    dst[6] += w * src[6];
+    dst[7] += w * src[7];
+    dst[8] += w * src[8];
 }
 
 /* cached element blocks of tet t of level k (built on first use for the current material):
