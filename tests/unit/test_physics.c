@@ -260,10 +260,8 @@ SQ_TEST(physics_tool_force_balance_at_rest)
     CHECK(b != NULL);
     if (!b)
         return;
-    sq_tool t;
-    memset(&t, 0, sizeof t);
+    sq_tool t = th_tool(SQ_TOOL_SPHERE);
     t.id = 7;
-    t.shape = SQ_TOOL_SPHERE;
     t.active = 1;
     t.radius = 0.3;
     t.pos[0] = t.pos[1] = 0.5;

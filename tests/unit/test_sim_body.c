@@ -259,9 +259,7 @@ SQ_TEST(sim_body_sleeps_and_wakes)
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.sleeping == 1 && prof.node_updates == 0);
     CHECK(sq_body_residual(b) < 1e-4);
-    sq_tool t;
-    memset(&t, 0, sizeof t);
-    t.shape = SQ_TOOL_SPHERE;
+    sq_tool t = th_tool(SQ_TOOL_SPHERE);
     t.active = 1;
     t.radius = 0.3;
     t.pos[0] = t.pos[1] = 0.5;
@@ -290,9 +288,7 @@ SQ_TEST(sim_body_deterministic)
         return;
     uint64_t h[2];
     for (int k = 0; k < 2; k++) {
-        sq_tool t;
-        memset(&t, 0, sizeof t);
-        t.shape = SQ_TOOL_GRAB;
+        sq_tool t = th_tool(SQ_TOOL_GRAB);
         t.radius = 0.2;
         t.pos[0] = t.pos[1] = 1;
         t.pos[2] = 1;

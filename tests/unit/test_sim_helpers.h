@@ -57,4 +57,28 @@ static inline double th_kmax(const sq_level *L)
 
 static inline double th_norm3(const double *v) { return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 
+/* largest |force| of L->f over the interior nodes and over the boundary nodes of m */
+static inline void th_force_split(const sq_mesh *m, const sq_level *L, double *interior, double *boundary)
+{
+    double fi = 0, fb = 0;
+    for (int i = 0; i < m->nnodes; i++) {
+        double f = th_norm3(L->f + 3 * i);
+        if (m->on_boundary[i])
+            fb = th_max(fb, f);
+        else
+            fi = th_max(fi, f);
+    }
+    *interior = fi;
+    *boundary = fb;
+}
+
+/* an inactive tool of the given shape with every other field zero */
+static inline sq_tool th_tool(sq_tool_shape shape)
+{
+    sq_tool t;
+    memset(&t, 0, sizeof t);
+    t.shape = shape;
+    return t;
+}
+
 #endif

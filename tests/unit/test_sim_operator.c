@@ -58,14 +58,8 @@ SQ_TEST(sim_operator_rotation_fem_zero_paper_boundary_only)
         CHECK(sq_level_init(&L, m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
         th_elastic_force(&L, &mat, d);
         double tol = 1e-3 * FTOL(&L); /* |d| ~ 1e-3 here */
-        double interior = 0, boundary = 0;
-        for (int i = 0; i < m->nnodes; i++) {
-            double f = th_norm3(L.f + 3 * i);
-            if (m->on_boundary[i])
-                boundary = th_max(boundary, f);
-            else
-                interior = th_max(interior, f);
-        }
+        double interior, boundary;
+        th_force_split(m, &L, &interior, &boundary);
         CHECK(interior <= tol);
         if (op == SQ_OPERATOR_FEM)
             CHECK(boundary <= tol);
@@ -158,14 +152,8 @@ SQ_TEST(sim_operator_patch_test_uniform_strain)
         sq_err e = {{0}};
         CHECK(sq_level_init(&L, m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
         th_elastic_force(&L, &mat, d);
-        double interior = 0, boundary = 0;
-        for (int i = 0; i < m->nnodes; i++) {
-            double f = th_norm3(L.f + 3 * i);
-            if (m->on_boundary[i])
-                boundary = th_max(boundary, f);
-            else
-                interior = th_max(interior, f);
-        }
+        double interior, boundary;
+        th_force_split(m, &L, &interior, &boundary);
         CHECK(interior <= 1e-3 * FTOL(&L));
         CHECK(boundary > 1e3 * 1e-3 * FTOL(&L)); /* the traction of the strain shows on the boundary */
         sq_level_free(&L);
@@ -345,17 +333,11 @@ SQ_TEST(sim_operator_identities_on_shipped_meshes)
             CHECK(sq_level_init(&L[op], m, &mat, (sq_operator_kind)op, NULL, 0, &e) == 0);
             double tol = 1e-11 * th_kmax(&L[op]) * 0.03; /* |d| <= 0.03 m here */
             th_elastic_force(&L[op], &mat, dt);
-            double ft = 0, fi = 0, fb = 0;
+            double ft = 0, fi, fb;
             for (int i = 0; i < m->nnodes; i++)
                 ft = th_max(ft, th_norm3(L[op].f + 3 * i));
             th_elastic_force(&L[op], &mat, dr);
-            for (int i = 0; i < m->nnodes; i++) {
-                double f = th_norm3(L[op].f + 3 * i);
-                if (m->on_boundary[i])
-                    fb = th_max(fb, f);
-                else
-                    fi = th_max(fi, f);
-            }
+            th_force_split(m, &L[op], &fi, &fb);
             CHECK(ft <= tol);
             CHECK(fi <= tol);
             if (op == SQ_OPERATOR_FEM)

@@ -28,10 +28,8 @@ SQ_TEST(sim_tool_grab_drags_and_releases)
     CHECK(b != NULL);
     if (!b)
         return;
-    sq_tool t;
-    memset(&t, 0, sizeof t);
+    sq_tool t = th_tool(SQ_TOOL_GRAB);
     t.id = 3;
-    t.shape = SQ_TOOL_GRAB;
     t.active = 1;
     t.radius = 0.1;
     t.pos[0] = 1;
@@ -73,9 +71,7 @@ SQ_TEST(sim_tool_box_pushes_nodes_to_its_face)
     CHECK(b != NULL);
     if (!b)
         return;
-    sq_tool t;
-    memset(&t, 0, sizeof t);
-    t.shape = SQ_TOOL_BOX;
+    sq_tool t = th_tool(SQ_TOOL_BOX);
     t.active = 1;
     t.half[0] = t.half[1] = 0.3;
     t.half[2] = 0.1;
@@ -106,9 +102,7 @@ SQ_TEST(sim_tool_hold_maps_to_coarse_level)
     CHECK(b != NULL);
     if (!b)
         return;
-    sq_tool t;
-    memset(&t, 0, sizeof t);
-    t.shape = SQ_TOOL_SPHERE;
+    sq_tool t = th_tool(SQ_TOOL_SPHERE);
     t.active = 1;
     t.radius = 0.2;
     t.pos[0] = t.pos[1] = 0.5;
