@@ -927,6 +927,27 @@ static void json_error_position(const char *json, const char *at, int *line, int
     }
 }
 
+/* root.<key>: an optional array of at most max entries, each read by parse; the count, or -1 */
+static int parse_list(pctx *c, sq_scene *s, const cJSON *root, const char *key, int max,
+                      int (*parse)(pctx *, sq_scene *, const cJSON *, int, const char *))
+{
+    int bad;
+    const cJSON *arr = get_typed(c, root, "", key, 1, 0, &bad);
+    if (bad)
+        return -1;
+    int n = arr ? cJSON_GetArraySize(arr) : 0;
+    if (n > max)
+        return fail(c, key, "%d %s; at most %d are supported", n, key, max);
+    char p[64];
+    int i = 0;
+    for (const cJSON *e = arr ? arr->child : NULL; e; e = e->next, i++) {
+        join_index(p, sizeof p, key, i);
+        if (parse(c, s, e, i, p))
+            return -1;
+    }
+    return n;
+}
+
 static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 {
     static const char *const keys[] = {"name", "description", "gravity", "frame_rate", "duration",
@@ -974,32 +995,14 @@ static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
     }
     s->nbodies = nb;
 
-    const cJSON *tools = get_typed(c, root, "", "tools", 1, 0, &bad);
-    if (bad)
+    int nt = parse_list(c, s, root, "tools", SQ_MAX_TOOLS, parse_tool);
+    if (nt < 0)
         return -1;
-    int nt = tools ? cJSON_GetArraySize(tools) : 0;
-    if (nt > SQ_MAX_TOOLS)
-        return fail(c, "tools", "%d tools; at most %d are supported", nt, SQ_MAX_TOOLS);
-    i = 0;
-    for (const cJSON *e = tools ? tools->child : NULL; e; e = e->next, i++) {
-        join_index(p, sizeof p, "tools", i);
-        if (parse_tool(c, s, e, i, p))
-            return -1;
-    }
     s->ntools = nt;
 
-    const cJSON *probes = get_typed(c, root, "", "probes", 1, 0, &bad);
-    if (bad)
+    int np = parse_list(c, s, root, "probes", SQ_MAX_PROBES, parse_probe);
+    if (np < 0)
         return -1;
-    int np = probes ? cJSON_GetArraySize(probes) : 0;
-    if (np > SQ_MAX_PROBES)
-        return fail(c, "probes", "%d probes; at most %d are supported", np, SQ_MAX_PROBES);
-    i = 0;
-    for (const cJSON *e = probes ? probes->child : NULL; e; e = e->next, i++) {
-        join_index(p, sizeof p, "probes", i);
-        if (parse_probe(c, s, e, i, p))
-            return -1;
-    }
     s->nprobes = np;
     return 0;
 }
