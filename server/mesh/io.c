@@ -539,6 +539,19 @@ static int msh_elements_41(rd *r, build *b)
     return expect_end(r, "$EndElements");
 }
 
+/* a reader's end: the mesh when both its sections were read, else an error naming the missing one */
+static sq_mesh *finish_sections(build *b, rd *r, int have_nodes, int have_elems, const char *nodes_name,
+                                const char *elems_name)
+{
+    if (!have_nodes || !have_elems) {
+        sq_err_set(r->err, "%s:%d: missing the %s section; the file is truncated or not a volume mesh",
+                   r->path, r->line, have_nodes ? elems_name : nodes_name);
+        build_free(b);
+        return NULL;
+    }
+    return build_finish(b, r, NULL);
+}
+
 static sq_mesh *read_msh(rd *r)
 {
     build b = {0};
@@ -599,12 +612,7 @@ static sq_mesh *read_msh(rd *r)
         sq_err_set(r->err, "%s:%d: no $MeshFormat section; not a Gmsh .msh file", r->path, r->line);
         goto bad;
     }
-    if (!have_nodes || !have_elems) {
-        sq_err_set(r->err, "%s:%d: missing the %s section; the file is truncated or not a volume mesh",
-                   r->path, r->line, have_nodes ? "$Elements" : "$Nodes");
-        goto bad;
-    }
-    return build_finish(&b, r, NULL);
+    return finish_sections(&b, r, have_nodes, have_elems, "$Nodes", "$Elements");
 bad:
     build_free(&b);
     return NULL;
@@ -835,12 +843,7 @@ static sq_mesh *read_medit(rd *r)
             }
         }
     }
-    if (!have_v || !have_t) {
-        sq_err_set(r->err, "%s:%d: missing the %s section; the file is truncated or not a volume mesh",
-                   r->path, r->line, have_v ? "Tetrahedra" : "Vertices");
-        goto bad;
-    }
-    return build_finish(&b, r, NULL);
+    return finish_sections(&b, r, have_v, have_t, "Vertices", "Tetrahedra");
 bad:
     build_free(&b);
     return NULL;
