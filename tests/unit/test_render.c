@@ -8,6 +8,7 @@
 
 #include "render/render.h"
 #include "sq_test.h"
+#include "test_render_helpers.h"
 
 /* a box surface [0,1]^3 built from 6 faces of n x n quads (vertices not shared between faces),
  * counter-clockwise from outside; level of each vertex: 3 where x > 0.5, else 0 */
@@ -312,25 +313,6 @@ SQ_TEST(render_png_roundtrip)
 }
 
 #if !defined(__SANITIZE_ADDRESS__)
-/* pixels whose colour is a lit version of c: pixel ~ k c for one k in [0.25, 1.4], within
- * max(4, 14 k) per channel (white lights scale the base colour; the tolerance absorbs rounding
- * and specular, and shrinks with k so that dark greys do not match every hue) */
-static int count_lit(const unsigned char *rgb, int n, const unsigned char c[3])
-{
-    int count = 0;
-    for (int i = 0; i < n; i++) {
-        const unsigned char *p = &rgb[3 * i];
-        double k = (double)(p[0] + p[1] + p[2]) / (c[0] + c[1] + c[2]);
-        if (k < 0.25 || k > 1.4)
-            continue;
-        int ok = 1;
-        for (int j = 0; j < 3; j++)
-            ok &= fabs(p[j] - k * c[j]) <= fmax(4.0, 14.0 * k);
-        count += ok;
-    }
-    return count;
-}
-
 SQ_TEST(render_osmesa_box_levels_size_and_determinism)
 {
     test_box b = make_box(8);

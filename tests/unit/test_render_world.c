@@ -7,6 +7,7 @@
 
 #include "render/render.h"
 #include "sq_test.h"
+#include "test_render_helpers.h"
 
 /* a two-level adaptive cube [0,1]^3 (4^3 and 8^3 cells), bottom fixed, no gravity, poked for
  * `frames` frames by a sphere pressing 5 cm into the middle of the top face; w gets the body
@@ -109,23 +110,6 @@ SQ_TEST(render_capture_world_poke_levels)
 }
 
 #if !defined(__SANITIZE_ADDRESS__)
-/* pixels that are a lit version of c (see test_render.c for the tolerance) */
-static int count_lit(const unsigned char *rgb, int n, const unsigned char c[3])
-{
-    int count = 0;
-    for (int i = 0; i < n; i++) {
-        const unsigned char *p = &rgb[3 * i];
-        double k = (double)(p[0] + p[1] + p[2]) / (c[0] + c[1] + c[2]);
-        if (k < 0.25 || k > 1.4)
-            continue;
-        int ok = 1;
-        for (int j = 0; j < 3; j++)
-            ok &= fabs(p[j] - k * c[j]) <= fmax(4.0, 14.0 * k);
-        count += ok;
-    }
-    return count;
-}
-
 SQ_TEST(render_world_png_poke_shows_both_levels)
 {
     sq_world w;
