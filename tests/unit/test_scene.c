@@ -6,6 +6,7 @@
 
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 
 /* small box meshes written once into the test tmpdir: a.msh (2 cells per side, 27 nodes),
  * b.msh (3 cells, 64 nodes), c.msh (4 cells, 125 nodes), all spanning [0,1]^3, and a
@@ -16,22 +17,12 @@ static const char *mesh_dir(void)
     if (dir[0])
         return dir;
     snprintf(dir, sizeof dir, "%s/scene-meshes", sq_test_tmpdir());
-    char cmd[400];
-    snprintf(cmd, sizeof cmd, "mkdir -p '%s'", dir);
-    if (system(cmd) != 0)
+    if (th_make_dir(dir))
         return dir;
     static const int cells[] = {2, 3, 4};
     static const char *const names[] = {"a.msh", "b.msh", "c.msh"};
-    const double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
-    for (int i = 0; i < 3; i++) {
-        sq_err e = {{0}};
-        sq_mesh *m = sq_mesh_box(cells[i], cells[i], cells[i], size, origin, &e);
-        char path[400];
-        snprintf(path, sizeof path, "%s/%s", dir, names[i]);
-        if (!m || sq_mesh_write_msh(m, path, &e))
-            printf("    mesh setup failed: %s\n", e.msg);
-        sq_mesh_free(m);
-    }
+    for (int i = 0; i < 3; i++)
+        th_write_box_msh(dir, names[i], cells[i]);
     char path[400];
     snprintf(path, sizeof path, "%s/bad.msh", dir);
     FILE *f = fopen(path, "w");

@@ -7,6 +7,7 @@
 
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 
 /* box meshes of 2, 3 and 4 cells per side on [0,1]^3, written once into the test tmpdir */
 static const char *level_dir(void)
@@ -15,19 +16,12 @@ static const char *level_dir(void)
     if (dir[0])
         return dir;
     snprintf(dir, sizeof dir, "%s/world-levels", sq_test_tmpdir());
-    char cmd[400];
-    snprintf(cmd, sizeof cmd, "mkdir -p '%s'", dir);
-    if (system(cmd) != 0)
+    if (th_make_dir(dir))
         return dir;
-    const double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
     for (int i = 0; i < 3; i++) {
-        sq_err e = {{0}};
-        sq_mesh *m = sq_mesh_box(2 + i, 2 + i, 2 + i, size, origin, &e);
-        char path[400];
-        snprintf(path, sizeof path, "%s/l%d.msh", dir, i);
-        if (!m || sq_mesh_write_msh(m, path, &e))
-            printf("    mesh setup failed: %s\n", e.msg);
-        sq_mesh_free(m);
+        char name[32];
+        snprintf(name, sizeof name, "l%d.msh", i);
+        th_write_box_msh(dir, name, 2 + i);
     }
     return dir;
 }
