@@ -84,9 +84,7 @@ SQ_TEST(physics_uniaxial_column_converges)
 SQ_TEST(physics_damped_run_settles_to_static_solution)
 {
     sq_mesh *m = th_box(3, 3, 3, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     for (int op = 0; op < 2; op++) {
         sq_body_def def = sq_body_def_default();
         def.nlevels = 1;
@@ -209,9 +207,7 @@ static double run_at(sq_level *L, const sq_material *mat, double dt, int steps)
 SQ_TEST(physics_step_bound_is_safe_and_sharp)
 {
     sq_mesh *m = th_box(2, 2, 3, 1, 1, 1.5); /* 36 nodes, 81 free axes: a quick dense eigen-solve */
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
     for (int damped = 0; damped < 2; damped++) {
         sq_material mat = th_material(40000, 100000, 1000);
@@ -245,9 +241,7 @@ SQ_TEST(physics_step_bound_is_safe_and_sharp)
 SQ_TEST(physics_tool_force_balance_at_rest)
 {
     sq_mesh *m = th_box(4, 4, 4, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = sq_body_def_default();
     def.nlevels = 1;
     def.levels[0] = m;
@@ -257,9 +251,7 @@ SQ_TEST(physics_tool_force_balance_at_rest)
     def.material.rayleigh_mass = 20;
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     sq_tool t = th_tool(SQ_TOOL_SPHERE);
     t.id = 7;
     t.active = 1;
@@ -308,9 +300,7 @@ SQ_TEST(physics_tool_force_balance_at_rest)
 SQ_TEST(physics_viscosity_damps_and_tightens_bound)
 {
     sq_mesh *m = th_box(2, 2, 2, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
     sq_material plain = th_material(40000, 100000, 1000), visc = plain;
     visc.use_viscosity = 1;

@@ -23,9 +23,7 @@ static sq_body_def cube_def(const sq_mesh *m)
 SQ_TEST(sim_body_fixed_frame_surface_probe_vtk)
 {
     sq_mesh *m = th_box(3, 3, 3, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = cube_def(m);
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
@@ -122,15 +120,11 @@ SQ_TEST(sim_body_coarse_level_drives_fine_surface)
 SQ_TEST(sim_body_nan_resets_and_reports)
 {
     sq_mesh *m = th_box(2, 2, 2, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = cube_def(m);
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
     L->d[3 * (L->n - 1) + 2] = NAN;
@@ -153,15 +147,11 @@ SQ_TEST(sim_body_nan_resets_and_reports)
 SQ_TEST(sim_body_set_material_refusal_keeps_state)
 {
     sq_mesh *m = th_box(2, 2, 2, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = cube_def(m);
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     for (int f = 0; f < 3; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
@@ -199,9 +189,7 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
 SQ_TEST(sim_body_create_errors)
 {
     sq_mesh *m = th_box(1, 1, 1, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = cube_def(m);
     def.constraints[0].b[2] = 2; /* fixes everything */
     sq_err e = {{0}};
@@ -238,16 +226,12 @@ SQ_TEST(sim_material_E_nu_round_trip)
 SQ_TEST(sim_body_sleeps_and_wakes)
 {
     sq_mesh *m = th_box(2, 2, 2, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = cube_def(m);
     def.material.rayleigh_mass = 20; /* heavily damped so it settles in a few hundred frames */
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     sq_frame_profile prof;
     int slept = -1;
     for (int f = 0; f < 3000 && slept < 0; f++) {
@@ -277,9 +261,7 @@ SQ_TEST(sim_body_sleeps_and_wakes)
 SQ_TEST(sim_body_deterministic)
 {
     sq_mesh *m = th_box(3, 3, 3, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = cube_def(m);
     sq_err e = {{0}};
     sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};

@@ -9,6 +9,14 @@
 
 #include "sim/level.h"
 
+/* CHECK(p != NULL) and leave the test when it fails: the rest needs p (use after sq_test.h) */
+#define TH_REQUIRE(p)                                                                   \
+    do {                                                                                \
+        CHECK(p != NULL);                                                               \
+        if (!(p))                                                                       \
+            return;                                                                     \
+    } while (0)
+
 /* max that propagates NaN (fmax would drop it and let a broken state pass) */
 static inline double th_max(double a, double b) { return (a > b || isnan(a)) ? a : b; }
 

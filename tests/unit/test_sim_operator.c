@@ -9,9 +9,7 @@
 static void check_translation(sq_operator_kind op)
 {
     sq_mesh *m = th_box(3, 2, 4, 1.0, 0.7, 1.3);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(40000, 100000, 1000);
     sq_level L;
     sq_err e = {{0}};
@@ -40,9 +38,7 @@ SQ_TEST(sim_operator_translation_is_force_free_paper) { check_translation(SQ_OPE
 SQ_TEST(sim_operator_rotation_fem_zero_paper_boundary_only)
 {
     sq_mesh *m = th_box(3, 3, 3, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(40000, 100000, 1000);
     double w[3] = {1e-3, -2e-3, 1.5e-3};
     double *d = malloc(sizeof(double) * 3 * m->nnodes);
@@ -75,9 +71,7 @@ SQ_TEST(sim_operator_rotation_fem_zero_paper_boundary_only)
 SQ_TEST(sim_operator_paper_fem_differ_only_on_boundary_edges)
 {
     sq_mesh *m = th_box(3, 3, 4, 1, 1, 1.2);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(40000, 100000, 1000);
     sq_level P, F;
     sq_err e = {{0}};
@@ -106,9 +100,7 @@ SQ_TEST(sim_operator_paper_fem_differ_only_on_boundary_edges)
 SQ_TEST(sim_operator_blocks_symmetric)
 {
     sq_mesh *m = th_box(2, 3, 2, 0.5, 1, 0.8);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(3000, 12000, 900);
     for (int op = 0; op < 2; op++) {
         sq_level L;
@@ -138,9 +130,7 @@ SQ_TEST(sim_operator_blocks_symmetric)
 SQ_TEST(sim_operator_patch_test_uniform_strain)
 {
     sq_mesh *m = th_box(4, 3, 3, 1, 0.9, 0.7);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(40000, 100000, 1000);
     double G[3][3] = {{1e-3, 2e-4, -3e-4}, {5e-4, -2e-3, 1e-4}, {-4e-4, 3e-4, 1.5e-3}};
     double *d = malloc(sizeof(double) * 3 * m->nnodes);
@@ -166,9 +156,7 @@ SQ_TEST(sim_operator_patch_test_uniform_strain)
 SQ_TEST(sim_level_masses_sum_to_body_mass)
 {
     sq_mesh *m = th_box(3, 2, 2, 1.5, 1, 0.5);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(1e4, 1e4, 1200);
     sq_level L;
     sq_err e = {{0}};
@@ -189,9 +177,7 @@ SQ_TEST(sim_level_masses_sum_to_body_mass)
 SQ_TEST(sim_level_constraints_mark_axes)
 {
     sq_mesh *m = th_box(2, 2, 2, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(1e4, 1e4, 1000);
     sq_constraint c[2];
     memset(c, 0, sizeof c);
@@ -227,9 +213,7 @@ SQ_TEST(sim_level_constraints_mark_axes)
 SQ_TEST(sim_level_step_equals_forces_then_integrate)
 {
     sq_mesh *m = th_box(3, 2, 3, 1, 0.8, 1.1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
     double g[3] = {0.5, 0, -9.81};
     for (int variant = 0; variant < 3; variant++) {
@@ -270,9 +254,7 @@ SQ_TEST(sim_level_step_equals_forces_then_integrate)
 SQ_TEST(sim_level_masked_forces_match_fast_pass)
 {
     sq_mesh *m = th_box(3, 3, 2, 1, 1, 0.6);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_material mat = th_material(40000, 100000, 1000);
     mat.rayleigh_mass = 0.5;
     mat.rayleigh_stiffness = 1e-3;

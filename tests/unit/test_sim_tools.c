@@ -19,15 +19,11 @@ static sq_body_def free_def(const sq_mesh *coarse, const sq_mesh *fine)
 SQ_TEST(sim_tool_grab_drags_and_releases)
 {
     sq_mesh *m = th_box(4, 4, 4, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = free_def(m, NULL);
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     sq_tool t = th_tool(SQ_TOOL_GRAB);
     t.id = 3;
     t.active = 1;
@@ -62,15 +58,11 @@ SQ_TEST(sim_tool_grab_drags_and_releases)
 SQ_TEST(sim_tool_box_pushes_nodes_to_its_face)
 {
     sq_mesh *m = th_box(4, 4, 4, 1, 1, 1);
-    CHECK(m != NULL);
-    if (!m)
-        return;
+    TH_REQUIRE(m);
     sq_body_def def = free_def(m, NULL);
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     sq_tool t = th_tool(SQ_TOOL_BOX);
     t.active = 1;
     t.half[0] = t.half[1] = 0.3;
@@ -99,9 +91,7 @@ SQ_TEST(sim_tool_hold_maps_to_coarse_level)
     def.lod.level = 0;
     sq_err e = {{0}};
     sq_body *b = sq_body_create(&def, &e);
-    CHECK(b != NULL);
-    if (!b)
-        return;
+    TH_REQUIRE(b);
     sq_tool t = th_tool(SQ_TOOL_SPHERE);
     t.active = 1;
     t.radius = 0.2;
