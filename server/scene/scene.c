@@ -104,15 +104,23 @@ static const cJSON *get(const cJSON *obj, const char *key)
     return cJSON_GetObjectItemCaseSensitive(obj, key);
 }
 
+/* obj.key (NULL when absent) with its path path.key written into p; *found says if it is there */
+static const cJSON *get_at(const cJSON *obj, const char *path, const char *key, char *p, size_t cap,
+                           int *found)
+{
+    join(p, cap, path, key);
+    const cJSON *it = get(obj, key);
+    if (found)
+        *found = it != NULL;
+    return it;
+}
+
 /* a finite number; *found = 0 when absent (then out is untouched) */
 static int get_number(pctx *c, const cJSON *obj, const char *path, const char *key, double *out,
                       int *found)
 {
     char p[256];
-    join(p, sizeof p, path, key);
-    const cJSON *it = get(obj, key);
-    if (found)
-        *found = it != NULL;
+    const cJSON *it = get_at(obj, path, key, p, sizeof p, found);
     if (!it)
         return 0;
     if (!cJSON_IsNumber(it))
@@ -164,10 +172,7 @@ static int get_string(pctx *c, const cJSON *obj, const char *path, const char *k
                       size_t cap, int *found)
 {
     char p[256];
-    join(p, sizeof p, path, key);
-    const cJSON *it = get(obj, key);
-    if (found)
-        *found = it != NULL;
+    const cJSON *it = get_at(obj, path, key, p, sizeof p, found);
     if (!it)
         return 0;
     if (!cJSON_IsString(it) || !it->valuestring)
@@ -196,8 +201,7 @@ static int check_name(pctx *c, const char *path, const char *name)
 static int get_bool(pctx *c, const cJSON *obj, const char *path, const char *key, int *out)
 {
     char p[256];
-    join(p, sizeof p, path, key);
-    const cJSON *it = get(obj, key);
+    const cJSON *it = get_at(obj, path, key, p, sizeof p, NULL);
     if (!it)
         return 0;
     if (!cJSON_IsBool(it))
@@ -227,10 +231,7 @@ static int get_vec3(pctx *c, const cJSON *obj, const char *path, const char *key
                     int *found)
 {
     char p[256];
-    join(p, sizeof p, path, key);
-    const cJSON *it = get(obj, key);
-    if (found)
-        *found = it != NULL;
+    const cJSON *it = get_at(obj, path, key, p, sizeof p, found);
     if (!it)
         return 0;
     return vec3_of(c, it, p, out);
@@ -241,8 +242,7 @@ static const cJSON *get_typed(pctx *c, const cJSON *obj, const char *path, const
                               int want_array, int required, int *bad)
 {
     char p[256];
-    join(p, sizeof p, path, key);
-    const cJSON *it = get(obj, key);
+    const cJSON *it = get_at(obj, path, key, p, sizeof p, NULL);
     *bad = 0;
     if (!it) {
         if (required) {
