@@ -17,6 +17,7 @@ static int poked_world(sq_world *w, sq_mesh **coarse, sq_mesh **fine, int frames
 {
     sq_err e = {{0}};
     double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
+    memset(w, 0, sizeof *w); /* callers read w->nbodies even when set-up fails */
     *coarse = sq_mesh_box(4, 4, 4, size, origin, &e);
     *fine = sq_mesh_box(8, 8, 8, size, origin, &e);
     if (!*coarse || !*fine)
