@@ -1341,6 +1341,29 @@ static void build_sources(sq_lod *lod)
                     buf[u++] = buf[i];
                 sum += buf[i].w;
             }
+            /* the kept weights must stay a bounded combination: the ghost's stiffness reaches
+             * each source scaled by its weight, twice (value and reaction), so the coupled row
+             * grows as the square of the weights. Negative coordinates (nodes outside the
+             * other mesh) extrapolate exactly only within their full set; once ghost sources
+             * are dropped, what is left can nearly cancel (a sphere's split ghost kept
+             * +0.056 and -0.054: weights of +-19 after dividing by the sum, 190 times the
+             * level's own stiffness on one node). When the negative weights outweigh the net
+             * one (L1 norm above 3 after renormalising; a full coordinate set with one
+             * coordinate down to -1 stays below), keep the positive sources only: a convex
+             * combination, still a translation. */
+            double neg = 0;
+            for (int i = 0; i < u; i++)
+                neg += buf[i].w < 0 ? -buf[i].w : 0;
+            if (neg > 0 && !(sum > neg)) {
+                int p = 0;
+                sum = 0;
+                for (int i = 0; i < u; i++)
+                    if (buf[i].w > 0) {
+                        buf[p++] = buf[i];
+                        sum += buf[i].w;
+                    }
+                u = p;
+            }
             if (!(fabs(sum) > 1e-3))
                 u = 0; /* no active source: the ghost keeps its value and takes no force */
             if (total + u > lod->fs_cap[k]) {
