@@ -287,6 +287,28 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
     return 0;
 }
 
+/* symplectic Euler for one node: v += h f (h = dt / m), constrained axes zeroed, d += dt v */
+static inline __attribute__((always_inline)) void euler_node(double *restrict v, double *restrict d, int i,
+                                                           double h, double dt, double f0, double f1,
+                                                           double f2, unsigned fx)
+{
+    double v0 = v[3 * i] + h * f0, v1 = v[3 * i + 1] + h * f1, v2 = v[3 * i + 2] + h * f2;
+    if (fx) {
+        if (fx & 1u)
+            v0 = 0;
+        if (fx & 2u)
+            v1 = 0;
+        if (fx & 4u)
+            v2 = 0;
+    }
+    v[3 * i] = v0;
+    v[3 * i + 1] = v1;
+    v[3 * i + 2] = v2;
+    d[3 * i] += dt * v0;
+    d[3 * i + 1] += dt * v1;
+    d[3 * i + 2] += dt * v2;
+}
+
 /* the hot loop: f_i = -sum_j K_ij w_j + m_i (g - a v_i), w = d + b v, for all nodes, from the
  * upper half of K, optionally fused with the symplectic Euler update (dt > 0).
  * With K_ii = -sum_{j != i} K_ij: f_i = sum_{j != i} K_ij (w_i - w_j), and each edge block
@@ -380,25 +402,8 @@ forces_pass(sq_level *L, const int damp, const double b, const double a, const d
         f[3 * i] = f0;
         f[3 * i + 1] = f1;
         f[3 * i + 2] = f2;
-        if (dt > 0 && (!mask || mask[i])) {
-            const double h = dt / m;
-            double v0 = v[3 * i] + h * f0, v1 = v[3 * i + 1] + h * f1, v2 = v[3 * i + 2] + h * f2;
-            const unsigned fx = fixed[i];
-            if (fx) {
-                if (fx & 1u)
-                    v0 = 0;
-                if (fx & 2u)
-                    v1 = 0;
-                if (fx & 4u)
-                    v2 = 0;
-            }
-            v[3 * i] = v0;
-            v[3 * i + 1] = v1;
-            v[3 * i + 2] = v2;
-            d[3 * i] += dt * v0;
-            d[3 * i + 1] += dt * v1;
-            d[3 * i + 2] += dt * v2;
-        }
+        if (dt > 0 && (!mask || mask[i]))
+            euler_node(v, d, i, dt / m, dt, f0, f1, f2, fixed[i]);
     }
 }
 
@@ -517,25 +522,7 @@ void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
     for (int i = 0; i < n; i++) {
         if (active && !active[i])
             continue;
-        double h = dt / mass[i];
-        double v0 = v[3 * i] + h * f[3 * i];
-        double v1 = v[3 * i + 1] + h * f[3 * i + 1];
-        double v2 = v[3 * i + 2] + h * f[3 * i + 2];
-        unsigned fx = fixed[i];
-        if (fx) {
-            if (fx & 1u)
-                v0 = 0;
-            if (fx & 2u)
-                v1 = 0;
-            if (fx & 4u)
-                v2 = 0;
-        }
-        v[3 * i] = v0;
-        v[3 * i + 1] = v1;
-        v[3 * i + 2] = v2;
-        d[3 * i] += dt * v0;
-        d[3 * i + 1] += dt * v1;
-        d[3 * i + 2] += dt * v2;
+        euler_node(v, d, i, dt / mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2], fixed[i]);
     }
 }
 
