@@ -1,0 +1,196 @@
+/* test_determinism.c - pins a hash of the simulated state of every shipped scene.
+ *
+ * Each shipped scene (the .json files of meshes/scenes) runs a fixed number of frames with its scripted
+ * tools and no wall-clock budget (sq_world_step(w, 0): splitting never depends on timing);
+ * then a 64-bit FNV-1a hash is taken over the bytes of every loaded level's displacement and
+ * velocity of every body, and of the simulated time. A scene whose bodies are adaptive is
+ * also run with every body fixed at its finest loaded level. The hashes are compared with
+ * the table below, so "no change of behaviour" is checked by the suite, not by eye: a
+ * refactor must leave them as they are, and a change that alters the physics on purpose
+ * re-pins them in the same commit, saying why.
+ *
+ * Build flags change the hash: the optimised build (-O3 -march=x86-64-v3) runs the AVX2+FMA
+ * step kernel of server/sim/level.c, the sanitizer build (-O1, no -march) the scalar one,
+ * whose sums round differently, so each has its own table. Both builds use the ISO C default
+ * -ffp-contract=off outside the intrinsics; a compiler that contracts a*b+c into FMA on its
+ * own, -ffast-math, or another -march would change them too.
+ *
+ * To re-pin: SQ_DETERMINISM_PRINT=1 build/unit_tests determinism (and the same with
+ * build/san/unit_tests) prints the table rows.
+ */
+#include <dirent.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scene/scene.h"
+#include "sq_test.h"
+
+#define DET_FRAMES 40
+
+typedef struct det_pin {
+    const char *scene;
+    const char *mode;      /* "scene": as the file says; "fixed": every body at its finest loaded level */
+    uint64_t hash;
+} det_pin;
+
+#if defined(__AVX2__) && defined(__FMA__)
+static const det_pin pins[] = {
+    {"beam", "scene", 0x70502495c8492e9aull},
+    {"column", "scene", 0x2655479d8adb8706ull},
+    {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
+    {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
+    {"organ", "scene", 0xe550102d5ff663b1ull},
+    {"organ", "fixed", 0x80bb00020a8271f6ull},
+    {"paper-cube", "scene", 0x496e9643d07c487full},
+    {"sphere-grab", "scene", 0xeabb6d1e24615ef9ull},
+};
+#else
+static const det_pin pins[] = {
+    {"beam", "scene", 0xd5eb77ac63a545efull},
+    {"column", "scene", 0x20c81c236dd2af9full},
+    {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
+    {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
+    {"organ", "scene", 0x20a650ff29c787c8ull},
+    {"organ", "fixed", 0x7d4882e16f12a52full},
+    {"paper-cube", "scene", 0x60a12bacd6867c62ull},
+    {"sphere-grab", "scene", 0x64e58d4b7516bf11ull},
+};
+#endif
+
+static uint64_t fnv1a(uint64_t h, const void *p, size_t n)
+{
+    const unsigned char *b = p;
+    for (size_t i = 0; i < n; i++) {
+        h ^= b[i];
+        h *= 0x100000001b3ull;
+    }
+    return h;
+}
+
+/* run the scene for DET_FRAMES frames and hash its state; 0 and a message on failure */
+static uint64_t run_and_hash(const char *path, int force_fixed, int *skipped)
+{
+    sq_err e = {{0}};
+    *skipped = 0;
+    sq_scene *sc = sq_scene_load(path, &e);
+    if (!sc) {
+        sq_test_fail(__FILE__, __LINE__, "%s: %s", path, e.msg);
+        return 0;
+    }
+    if (force_fixed) {
+        int any = 0;
+        for (int b = 0; b < sc->nbodies; b++) {
+            if (sc->bodies[b].lod.mode == SQ_LOD_ADAPTIVE) {
+                sc->bodies[b].lod.mode = SQ_LOD_FIXED;
+                sc->bodies[b].lod.level = sc->bodies[b].nlevels - 1;
+                any = 1;
+            }
+        }
+        if (!any) {
+            *skipped = 1;
+            sq_scene_free(sc);
+            return 0;
+        }
+    }
+    sq_world *w = sq_world_create(sc, &e);
+    if (!w) {
+        sq_test_fail(__FILE__, __LINE__, "%s: %s", path, e.msg);
+        sq_scene_free(sc);
+        return 0;
+    }
+    for (int f = 0; f < DET_FRAMES; f++)
+        sq_world_step(w, 0);
+    uint64_t h = 0xcbf29ce484222325ull;
+    h = fnv1a(h, &w->time, sizeof w->time);
+    for (int b = 0; b < sc->nbodies; b++) {
+        const sq_body *body = w->bodies[b];
+        for (int k = 0; k < sq_body_nlevels(body); k++) {
+            const sq_mesh *m = sq_body_mesh(body, k);
+            const double *d = sq_body_displacement(body, k);
+            const double *v = sq_body_velocity(body, k);
+            if (!m || !d || !v)
+                continue;
+            h = fnv1a(h, d, sizeof(double) * 3 * (size_t)m->nnodes);
+            h = fnv1a(h, v, sizeof(double) * 3 * (size_t)m->nnodes);
+        }
+    }
+    sq_world_destroy(w);
+    sq_scene_free(sc);
+    return h;
+}
+
+static int by_name(const void *a, const void *b)
+{
+    return strcmp(*(const char *const *)a, *(const char *const *)b);
+}
+
+SQ_TEST(determinism_shipped_scene_hashes)
+{
+    char dir[1024];
+    snprintf(dir, sizeof dir, "%s/../../meshes/scenes", sq_test_data());
+    DIR *dp = opendir(dir);
+    CHECK(dp != NULL);
+    if (!dp)
+        return;
+    char *names[64];
+    int n = 0;
+    struct dirent *de;
+    while ((de = readdir(dp)) && n < 64) {
+        size_t len = strlen(de->d_name);
+        if (len > 5 && strcmp(de->d_name + len - 5, ".json") == 0)
+            names[n++] = strndup(de->d_name, len - 5);
+    }
+    closedir(dp);
+    qsort(names, (size_t)n, sizeof names[0], by_name);
+    CHECK(n >= 6); /* the six scenes shipped when this test was written */
+
+    int print = getenv("SQ_DETERMINISM_PRINT") != NULL;
+    int npins = (int)(sizeof pins / sizeof pins[0]);
+    int checked = 0;
+    for (int i = 0; i < n; i++) {
+        for (int fixed = 0; fixed <= 1; fixed++) {
+            char path[1200];
+            snprintf(path, sizeof path, "%s/%s.json", dir, names[i]);
+            int skipped = 0;
+            uint64_t h = run_and_hash(path, fixed, &skipped);
+            if (skipped)
+                continue;
+            const char *mode = fixed ? "fixed" : "scene";
+            if (print)
+                printf("    {\"%s\", \"%s\", 0x%016llxull},\n", names[i], mode, (unsigned long long)h);
+            const det_pin *pin = NULL;
+            for (int p = 0; p < npins; p++)
+                if (strcmp(pins[p].scene, names[i]) == 0 && strcmp(pins[p].mode, mode) == 0)
+                    pin = &pins[p];
+            if (!pin) {
+                sq_test_fail(__FILE__, __LINE__, "%s (%s): no pinned hash (got 0x%016llx); add it to "
+                             "the table in tests/unit/test_determinism.c", names[i], mode,
+                             (unsigned long long)h);
+                continue;
+            }
+            if (pin->hash != h)
+                sq_test_fail(__FILE__, __LINE__, "%s (%s): state hash 0x%016llx after %d frames, pinned "
+                             "0x%016llx: the simulation's behaviour changed; if on purpose, re-pin "
+                             "(SQ_DETERMINISM_PRINT=1) and say why in the commit", names[i], mode,
+                             (unsigned long long)h, DET_FRAMES, (unsigned long long)pin->hash);
+            checked++;
+        }
+    }
+    CHECK(checked >= 8); /* six scenes, two of them adaptive, also run fixed */
+    for (int i = 0; i < n; i++)
+        free(names[i]);
+}
+
+/* the same scene run twice in one process gives the same hash: the state hashed is the
+ * whole simulated state, and nothing outside it (wall clock, allocation addresses) leaks in */
+SQ_TEST(determinism_same_run_twice)
+{
+    char path[1200];
+    snprintf(path, sizeof path, "%s/../../meshes/scenes/cube-poke.json", sq_test_data());
+    int s1 = 0, s2 = 0;
+    uint64_t a = run_and_hash(path, 0, &s1);
+    uint64_t b = run_and_hash(path, 0, &s2);
+    CHECK(a != 0 && a == b);
+}
