@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "mesh/mesh.h"
+#include "mesh/mesh_internal.h"
 #include "sq_test.h"
 
 /* write text to NAME in the test's temporary directory; returns the path (static buffer) */
@@ -81,6 +82,78 @@ SQ_TEST(parsers_mesh_integer_out_of_range)
             printf("    %s: %s\n", ok[i], err.msg);
         else
             CHECK(m->nnodes == 4 && m->ntets == 1);
+        sq_mesh_free(m);
+    }
+}
+
+/* a 207-byte mesh of two unit tets 1000 m apart made the locator's grid 27.5 M cells
+ * (~150 MB, allocated on the first locate, i.e. when a scene loads it); the cell count is now
+ * bounded by the item count (4 n + 64 per grid), whatever the extent */
+SQ_TEST(parsers_locator_bounded_by_mesh_size)
+{
+    const char *far = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n8\n1 0 0 0\n2 1 0 0\n3 0 1 0\n"
+                      "4 0 0 1\n5 1000 1000 1000\n6 1001 1000 1000\n7 1000 1001 1000\n8 1000 1000 1001\n"
+                      "$EndNodes\n$Elements\n2\n1 4 0 1 2 3 4\n2 4 0 5 6 7 8\n$EndElements\n";
+    CHECK(strlen(far) == 207);
+    sq_err err = {0};
+    sq_mesh *m = sq_mesh_load(put_file("far.msh", far), &err);
+    CHECK(m != NULL);
+    if (!m) {
+        printf("    %s\n", err.msg);
+        return;
+    }
+    size_t items = 0, cells = sq_locator_cells(m, &items);
+    /* 2 tets + 8 boundary triangles: at most (4*2+64) + (4*8+64) cells */
+    CHECK(cells <= 4 * (size_t)(m->ntets + m->ntris) + 128);
+    CHECK(items >= (size_t)(m->ntets + m->ntris));
+    /* location still right: a point inside each tet, and one between them (nearest is a
+     * boundary triangle of either tet, so the barycentrics are those of an outside point) */
+    const double in0[3] = {0.1, 0.1, 0.1}, in1[3] = {1000.1, 1000.2, 1000.3}, mid[3] = {500, 500, 500};
+    double b[4];
+    CHECK(sq_mesh_locate(m, in0, b) == 0);
+    CHECK(b[0] >= 0 && b[1] >= 0 && b[2] >= 0 && b[3] >= 0);
+    CHECK(sq_mesh_locate(m, in1, b) == 1);
+    CHECK(b[0] >= 0 && b[1] >= 0 && b[2] >= 0 && b[3] >= 0);
+    int t = sq_mesh_locate(m, mid, b);
+    CHECK(t == 0 || t == 1);
+    CHECK(b[0] < 0 || b[1] < 0 || b[2] < 0 || b[3] < 0);
+    sq_mesh_free(m);
+
+    /* 64 tets scattered over a 1e6 m cube: still bounded by the count */
+    char *text = malloc(1 << 16);
+    size_t k = (size_t)snprintf(text, 1 << 16, "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n256\n");
+    unsigned s = 7;
+    for (int e = 0; e < 64; e++) {
+        double o[3];
+        for (int c = 0; c < 3; c++) {
+            s = s * 1103515245u + 12345u;
+            o[c] = 1e6 * ((s >> 8) & 0xffff) / 65536.0;
+        }
+        for (int v = 0; v < 4; v++)
+            k += (size_t)snprintf(text + k, (1 << 16) - k, "%d %.17g %.17g %.17g\n", 4 * e + v + 1,
+                                  o[0] + (v == 1), o[1] + (v == 2), o[2] + (v == 3));
+    }
+    k += (size_t)snprintf(text + k, (1 << 16) - k, "$EndNodes\n$Elements\n64\n");
+    for (int e = 0; e < 64; e++)
+        k += (size_t)snprintf(text + k, (1 << 16) - k, "%d 4 0 %d %d %d %d\n", e + 1, 4 * e + 1,
+                              4 * e + 2, 4 * e + 3, 4 * e + 4);
+    snprintf(text + k, (1 << 16) - k, "$EndElements\n");
+    m = sq_mesh_load(put_file("scattered.msh", text), &err);
+    free(text);
+    CHECK(m != NULL);
+    if (m) {
+        cells = sq_locator_cells(m, &items);
+        CHECK(cells <= 4 * (size_t)(m->ntets + m->ntris) + 128);
+        /* each tet's own interior point is found in it */
+        int bad = 0;
+        for (int e = 0; e < m->ntets; e++) {
+            double p[3] = {0, 0, 0};
+            for (int v = 0; v < 4; v++)
+                for (int c = 0; c < 3; c++)
+                    p[c] += 0.25 * m->x[3 * m->tets[4 * e + v] + c];
+            bad += sq_mesh_locate(m, p, b) != e;
+        }
+        CHECK(bad == 0);
         sq_mesh_free(m);
     }
 }
