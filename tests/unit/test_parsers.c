@@ -7,6 +7,7 @@
 
 #include "mesh/mesh.h"
 #include "mesh/mesh_internal.h"
+#include "net/query.h"
 #include "sq_test.h"
 
 /* write text to NAME in the test's temporary directory; returns the path (static buffer) */
@@ -156,4 +157,63 @@ SQ_TEST(parsers_locator_bounded_by_mesh_size)
         CHECK(bad == 0);
         sq_mesh_free(m);
     }
+}
+
+/* GET /snapshot.png query arguments (server/net/query.c) */
+SQ_TEST(parsers_snapshot_query)
+{
+    static const struct {
+        const char *args[4];
+        int nargs, status;
+        unsigned session;
+        int w, h;
+        const char *msg;
+    } cases[] = {
+        {{"session=1025"}, 1, 0, 1025, 800, 600, ""},
+        {{"room=bio", "size=64x48", "session=4294967295"}, 3, 0, 4294967295u, 64, 48, ""},
+        {{"size=64x48"}, 1, 404, 0, 0, 0, "no session (missing)"},
+        {{"session="}, 1, 404, 0, 0, 0, "no session ;"},
+        {{"session=4294967296"}, 1, 404, 0, 0, 0, "no session 4294967296"},
+        {{"session=-1"}, 1, 404, 0, 0, 0, "no session -1"},
+        {{"session= 12"}, 1, 404, 0, 0, 0, "no session  12"},
+        {{"session=0x10"}, 1, 404, 0, 0, 0, "no session 0x10"},
+        {{"session=1", "session=2"}, 2, 400, 0, 0, 0, "session given twice"},
+        {{"session=1", "size=1x1", "size=2x2"}, 3, 400, 0, 0, 0, "size given twice"},
+        {{"session=1", "size=99999x1"}, 2, 400, 0, 0, 0, "each side must be in"},
+        {{"session=1", "size=10"}, 2, 400, 0, 0, 0, "use WxH"},
+        {{"sessions=1"}, 1, 404, 0, 0, 0, "(missing)"},
+    };
+    for (size_t i = 0; i < SQ_COUNTOF(cases); i++) {
+        sq_snapshot_query q;
+        char msg[400] = "";
+        int st = sq_snapshot_query_parse(cases[i].args, cases[i].nargs, 2048, &q, msg, sizeof msg);
+        CHECK(st == cases[i].status);
+        if (st != cases[i].status)
+            printf("    case %zu: status %d (%s)\n", i, st, msg);
+        if (!st) {
+            CHECK(q.session == cases[i].session && q.width == cases[i].w && q.height == cases[i].h);
+        } else {
+            CHECK_CONTAINS(msg, cases[i].msg);
+            CHECK(strchr(msg, '\n') == msg + strlen(msg) - 1);
+        }
+    }
+}
+
+/* the instance rule of session ids: 100 * local + K, local's generation masked to fit */
+SQ_TEST(parsers_session_id_instance)
+{
+    uint32_t local;
+    CHECK(sq_session_id_public(1025, 0) == 1025);
+    CHECK(sq_session_id_local(1025, 0, &local) == 0 && local == 1025);
+    uint32_t mask = sq_session_gen_mask(7, 10);
+    uint32_t top = mask << 10 | 1023;
+    uint32_t id = sq_session_id_public(top, 7);
+    CHECK(id % 100 == 7 && (uint64_t)100 * top + 7 == id); /* no wrap at the largest local id */
+    CHECK(sq_session_id_local(id, 7, &local) == 0 && local == top);
+    CHECK(sq_session_id_local(id, 8, &local) == -1);
+    CHECK(sq_session_id_local(sq_session_id_public(1024, 12), 12, &local) == 0 && local == 1024);
+    char s[16];
+    snprintf(s, sizeof s, "%u", sq_session_id_public(1024, 3));
+    CHECK(!strcmp(s, "102403")); /* what docker/nginx.conf's map matches: ...03 */
+    CHECK(sq_session_gen_mask(0, 10) == (1u << 22) - 1);
 }
