@@ -43,13 +43,22 @@ int sq_snapshot_query_parse(const char *const *args, int nargs, int max_side, sq
         *slot = strchr(a, '=') + 1;
     }
     if (!session || parse_id(session, &q->session)) {
-        snprintf(msg, n, "no session %.40s; use /snapshot.png?session=ID with the id of 'opened'\n",
-                 session ? session : "(missing)");
+        /* the value is echoed: printable ASCII only, so the answer stays one line */
+        char shown[41];
+        size_t k = 0;
+        for (const char *c = session ? session : "(missing)"; *c && k < sizeof shown - 1; c++)
+            shown[k++] = *c >= 32 && *c < 127 ? *c : '?';
+        shown[k] = 0;
+        snprintf(msg, n, "no session %s; use /snapshot.png?session=ID with the id of 'opened'\n", shown);
         return 404;
     }
     if (size) {
         sq_err err = {{0}};
         if (sq_render_parse_size(size, max_side, &q->width, &q->height, &err)) {
+            /* the message quotes the value: printable ASCII only, so the answer stays one line */
+            for (char *c = err.msg; *c; c++)
+                if (*c < 32 || *c >= 127)
+                    *c = '?';
             snprintf(msg, n, "size: %.300s\n", err.msg);
             return 400;
         }

@@ -182,6 +182,9 @@ SQ_TEST(parsers_snapshot_query)
         {{"session=1", "size=99999x1"}, 2, 400, 0, 0, 0, "each side must be in"},
         {{"session=1", "size=10"}, 2, 400, 0, 0, 0, "use WxH"},
         {{"sessions=1"}, 1, 404, 0, 0, 0, "(missing)"},
+        /* found by fuzz_query: a newline in the echoed value made a two-line answer */
+        {{"size=2048x24248", "session=4+29629496x\n1"}, 2, 404, 0, 0, 0, "no session 4+29629496x?1;"},
+        {{"size=2048\n2048", "session=429496"}, 2, 400, 0, 0, 0, "size '2048?2048': use WxH"},
     };
     for (size_t i = 0; i < SQ_COUNTOF(cases); i++) {
         sq_snapshot_query q;
