@@ -67,7 +67,7 @@ test('scale-out: nginx (docker/nginx.conf) in front of three instances', { timeo
   chmodSync(dir, 0o755);
   for (const t of ['client_body', 'proxy', 'fastcgi', 'uwsgi', 'scgi']) { mkdirSync(path.join(dir, t)); chmodSync(path.join(dir, t), 0o777); }
   const servers = [];
-  let nginx = null;
+  let nginx = null, browser = null;
   const clients = [];
   const track = c => { clients.push(c); return c; };
   try {
@@ -146,12 +146,33 @@ test('scale-out: nginx (docker/nginx.conf) in front of three instances', { timeo
       assert.match(await r.text(), /no session 99999902/);
     });
 
+    // the real viewer in Debian's chromium: a controller page opens a scene through nginx,
+    // three share-link pages join it (each must reach the session's instance: with three
+    // instances a viewer that ignored the session in its WebSocket URL would miss it)
+    let ctlPage = null, browserSession = null;
+    await t.test('the viewer in chromium: share links join through nginx', async () => {
+      const { launchBrowser } = await import('../web/helpers.mjs');
+      browser = await launchBrowser();
+      ctlPage = await browser.newPage();
+      await ctlPage.goto(`${base}/?scene=default`);
+      await ctlPage.waitForFunction(() => window.squish.session && window.squish.status === 'connected', null, { timeout: 20000 });
+      browserSession = Number(await ctlPage.evaluate(() => window.squish.session));
+      for (let v = 0; v < 3; v++) {
+        const page = await browser.newPage();
+        await page.goto(`${base}/?session=${browserSession}&role=view`);
+        await page.waitForFunction(() => window.squish.session && window.squish.framesReceived > 2, null, { timeout: 20000 });
+        assert.equal(Number(await page.evaluate(() => window.squish.session)), browserSession);
+        await page.close();
+      }
+    });
+
     // an instance stopped (docker stop: SIGTERM) and one killed (SIGKILL) mid-session
     for (const [signal, label] of [['SIGTERM', 'stopped'], ['SIGKILL', 'killed']]) {
       await t.test(`an instance ${label} mid-session: its clients see a clear close, a reconnect lands on a live one`, async () => {
         const live = sessions.filter(s => servers[instanceOf(s.id) - 1].proc.exitCode === null &&
                                           servers[instanceOf(s.id) - 1].proc.signalCode === null);
-        const victim = live[0];
+        // SIGTERM: the instance of the browser's session, so the page must move too
+        const victim = (signal === 'SIGTERM' && browserSession && live.find(s => instanceOf(s.id) === instanceOf(browserSession))) || live[0];
         const k = instanceOf(victim.id);
         const others = live.filter(s => instanceOf(s.id) !== k);
         assert.ok(others.length > 0, 'sessions on other instances remain');
@@ -183,10 +204,23 @@ test('scale-out: nginx (docker/nginx.conf) in front of three instances', { timeo
         victim.id = r.session;
         victim.controller = again;
         victim.viewers = [v];
+        // the controller page reconnects by itself, is refused the old id and opens its scene
+        // on a live instance
+        if (ctlPage && instanceOf(browserSession) === k) {
+          await ctlPage.waitForFunction(old => window.squish.session && window.squish.session !== old &&
+                                        window.squish.status === 'connected', String(browserSession), { timeout: 20000 });
+          const moved = Number(await ctlPage.evaluate(() => window.squish.session));
+          assert.notEqual(instanceOf(moved), k);
+          t.diagnostic(`the browser's session ${browserSession} (instance ${k}) is now ${moved} (instance ${instanceOf(moved)})`);
+          browserSession = moved;
+        }
       });
     }
     assert.equal(nginx.exitCode, null, `nginx still runs: ${nginxErr}`);
+    if (browser) await browser.close();
+    browser = null;
   } finally {
+    if (browser) await browser.close().catch(() => {});
     for (const c of clients) { try { c.ws.terminate(); } catch (e) { /* already closed */ } }
     if (nginx && nginx.exitCode === null) {
       nginx.kill('SIGTERM');
