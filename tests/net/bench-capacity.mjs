@@ -5,7 +5,7 @@
 // the cores one session and one viewer cost; frames and deadline misses come from `stats`.
 //
 //   SQUISH=build/squish node tests/net/bench-capacity.mjs [--scene cube-poke] [--sessions 1,4]
-//       [--viewers 0,50] [--seconds 10] [--json FILE]
+//       [--viewers 0,50] [--seconds 10] [--grab x,y,z,radius] [--json FILE]
 // Prints one line per (sessions, viewers) pair and the load average. See docs/deploy.md.
 import { readFileSync, writeFileSync } from 'node:fs';
 import os from 'node:os';
@@ -18,6 +18,10 @@ const SCENE = arg('--scene', 'cube-poke');
 const SESSIONS = arg('--sessions', '1,4').split(',').map(Number);
 const VIEWERS = arg('--viewers', '0,50').split(',').map(Number);
 const SECONDS = Number(arg('--seconds', 10));
+// where the controllers grab (x,y,z,radius; the top centre of the body) and how far they pull
+// (0.6 radius up and down): defaults for the shipped scenes
+const GRABS = { 'cube-poke': [0.5, 0.5, 1.0, 0.25], organ: [0.136, 0.096, 0.12, 0.04] };
+const GRAB = (arg('--grab', null) || (GRABS[SCENE] || GRABS['cube-poke']).join(',')).split(',').map(Number);
 const TICK = 100; // USER_HZ: /proc/PID/stat counts CPU time in 1/100 s on Linux
 const cpuSeconds = pid => {
   const f = readFileSync(`/proc/${pid}/stat`, 'utf8').split(') ')[1].split(' ');
@@ -44,11 +48,12 @@ async function run(nsessions, nviewers) {
     }
     // every controller pokes: a grab at the top, moved up and down (period 1.2 s)
     const pokes = ctl.map(async ({ c }, i) => {
-      await c.tool({ id: 1, shape: 'grab', pos: [0.5, 0.5, 1.0], radius: 0.25, active: true });
+      const [gx, gy, gz, gr] = GRAB;
+      await c.tool({ id: 1, shape: 'grab', pos: [gx, gy, gz], radius: gr, active: true });
       const t0 = Date.now();
       while (!stop.now) {
         const ph = ((Date.now() - t0) / 1200 + i / 7) * 2 * Math.PI;
-        c.sendRaw(JSON.stringify({ type: 'tool', id: 1, pos: [0.5, 0.5, 1.0 + 0.15 * (1 - Math.cos(ph)) / 2] }));
+        c.sendRaw(JSON.stringify({ type: 'tool', id: 1, pos: [gx, gy, gz + 0.6 * gr * (1 - Math.cos(ph)) / 2] }));
         await sleep(33);
       }
     });
@@ -71,6 +76,7 @@ async function run(nsessions, nviewers) {
       server_cpu_ms_per_frame: +((cpu1 - cpu0) * 1000 / Math.max(1, frames)).toFixed(2),
       deadline_misses: misses, budget_used_last: +budget.toFixed(3),
       node_updates_last: s1.reduce((a, s) => a + (s.node_updates || 0), 0),
+      grabbed_nodes: s1.reduce((a, s) => a + (s.feedback || []).reduce((b, f) => b + f.nodes, 0), 0),
       sleeping_bodies: s1.reduce((a, s) => a + (s.sleeping || 0), 0),
       load_average: os.loadavg().map(x => +x.toFixed(2)),
     };
