@@ -220,3 +220,17 @@ SQ_TEST(parsers_session_id_instance)
     CHECK(!strcmp(s, "102403")); /* what docker/nginx.conf's map matches: ...03 */
     CHECK(sq_session_gen_mask(0, 10) == (1u << 22) - 1);
 }
+
+/* a sibling of read_long: `squish mesh box 2147483647 1 1` computed nx + 1 in int (signed
+ * overflow) before the size check; now a message */
+SQ_TEST(parsers_mesh_box_int_max)
+{
+    sq_err err = {{0}};
+    sq_mesh *m = sq_mesh_box(2147483647, 1, 1, NULL, NULL, &err);
+    CHECK(m == NULL);
+    sq_mesh_free(m);
+    CHECK_CONTAINS(err.msg, "box: 2147483647 x 1 x 1 cells is too large");
+    m = sq_mesh_box(2147483647, 2147483647, 2147483647, NULL, NULL, &err);
+    CHECK(m == NULL);
+    sq_mesh_free(m);
+}
