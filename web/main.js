@@ -97,7 +97,10 @@ async function start() {
   wireUi();
   wireInput();
   const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  link = new Link(params.get('ws') || `${proto}//${location.host}/ws`);
+  // the session in the WebSocket URL lets a proxy route to the instance holding it
+  // (docs/deploy.md); re-read at each reconnection, as the session may have changed
+  const wsUrl = () => `${proto}//${location.host}/ws${app.session ? `?session=${encodeURIComponent(app.session)}` : ''}`;
+  link = new Link(params.get('ws') || wsUrl);
   app.link = link;
   link.onStatus = onLinkStatus;
   link.onOpen = () => link.send(hello());

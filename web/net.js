@@ -74,19 +74,21 @@ export class Link {
   /** open (or re-open) the socket */
   connect() {
     clearTimeout(this.timer);
-    this.onStatus('connecting', this.url);
+    // the URL may be a function: asked again at every (re)connection
+    const url = typeof this.url === 'function' ? this.url() : this.url;
+    this.onStatus('connecting', url);
     let ws;
     try {
-      ws = new WebSocket(this.url);
+      ws = new WebSocket(url);
     } catch (e) {
-      this.onProblem(`cannot open ${this.url}: ${e.message}`);
+      this.onProblem(`cannot open ${url}: ${e.message}`);
       this.scheduleReconnect();
       return;
     }
     ws.binaryType = 'arraybuffer';
     this.ws = ws;
     ws.onopen = () => {
-      this.onStatus('open', this.url);
+      this.onStatus('open', url);
       this.onOpen();
     };
     ws.onmessage = (ev) => this.receive(ev.data);

@@ -25,6 +25,8 @@ static void usage(FILE *f)
             "                      (default 1e-3: 1.7 mm on a 1 m cube; smaller = finer, more bytes)\n"
             "  --lockstep          no real-time clock: sessions advance only on 'step'\n"
             "  --verbose           log sessions and connections\n"
+            "  --instance K        1..99: this server is instance K behind a proxy; every session\n"
+            "                      id ends in K's two digits (docs/deploy.md, docker/nginx.conf)\n"
             "Protocol: docs/protocol.md. Stops cleanly on SIGINT/SIGTERM.\n");
 }
 
@@ -60,7 +62,7 @@ static int is_value_flag(const char *a)
 {
     static const char *const flags[] = {"--host", "--port", "--scenes", "--web", "--token", "--origin",
                                         "--max-sessions", "--max-clients", "--max-message", "--rate",
-                                        "--grace", "--precision", NULL};
+                                        "--grace", "--precision", "--instance", NULL};
     for (int i = 0; flags[i]; i++)
         if (!strcmp(a, flags[i]))
             return 1;
@@ -124,6 +126,8 @@ int sq_cmd_serve(int argc, char **argv)
             rc = num_arg(a, v, 1e-7, 0.01, &o.precision);
         } else if (!strcmp(a, "--grace")) {
             rc = num_arg(a, v, 0, 86400, &o.grace);
+        } else if (!strcmp(a, "--instance")) {
+            rc = int_arg(a, v, 1, 99, &o.instance);
         } else {
             fprintf(stderr, "squish serve: unknown option '%s'; see squish serve --help\n", a);
             return 2;

@@ -119,10 +119,21 @@ static int read_long(rd *r, long long *v, const char *what)
         neg = r->buf[p++] == '-';
     size_t d0 = p;
     unsigned long long x = 0;
-    while (p < r->len && r->buf[p] >= '0' && r->buf[p] <= '9' && p - d0 < 19)
-        x = 10 * x + (unsigned long long)(r->buf[p++] - '0');
+    int big = 0;
+    /* accumulate while x stays within LLONG_MAX; any longer run of digits is out of range
+     * (so -9223372036854775808 is refused as well: no negation can overflow) */
+    while (p < r->len && r->buf[p] >= '0' && r->buf[p] <= '9') {
+        unsigned d = (unsigned)(r->buf[p++] - '0');
+        if (x > ((unsigned long long)LLONG_MAX - d) / 10)
+            big = 1;
+        else if (!big)
+            x = 10 * x + d;
+    }
     if (p == d0 || !tok_end(r, p))
         return bad_token(r, "expected an integer for %s, found '%s'", what);
+    if (big)
+        return bad_token(r, "%s out of range: '%s'; integers in mesh files must lie within "
+                         "+-9223372036854775807", what);
     r->pos = p;
     *v = neg ? -(long long)x : (long long)x;
     return 0;

@@ -26,6 +26,25 @@ struct sq_locator {
 
 static pthread_mutex_t locator_lock = PTHREAD_MUTEX_INITIALIZER;
 
+size_t sq_locator_cells(const sq_mesh *m, size_t *items)
+{
+    double b[4], p[3] = {m->bbox_min[0], m->bbox_min[1], m->bbox_min[2]};
+    sq_mesh_locate(m, p, b); /* builds the grids */
+    const struct sq_locator *loc = m->locator;
+    if (!loc)
+        return 0;
+    size_t cells = 0, n = 0;
+    const grid *g[2] = {&loc->tets, &loc->tris};
+    for (int k = 0; k < 2; k++) {
+        size_t c = (size_t)g[k]->dim[0] * g[k]->dim[1] * g[k]->dim[2];
+        cells += c;
+        n += (size_t)g[k]->start[c];
+    }
+    if (items)
+        *items = n;
+    return cells;
+}
+
 static void grid_free(grid *g)
 {
     free(g->start);
@@ -67,12 +86,12 @@ static void item_cells(const grid *g, const sq_mesh *m, const int *v, int nv, in
 }
 
 /* bin n items of nv vertices each (indices into x) by bounding box; cells start at scale times
- * the mean item edge */
+ * the mean item edge; at most 4 n + 64 cells */
 static void grid_build(grid *g, const sq_mesh *m, const int *items, int n, int nv, double scale,
                        double max_per_item)
 {
     /* small cells list few items per cell, but list each item in more cells: the cell edge
-     * grows while the listing would exceed max_per_item entries per item (or 16M cells) */
+     * grows while the listing would exceed max_per_item entries per item (or the cell cap) */
     double esum = 0;
     for (int e = 0; e < n; e++) {
         const int *v = items + (size_t)nv * e;
@@ -84,7 +103,14 @@ static void grid_build(grid *g, const sq_mesh *m, const int *items, int n, int n
         ext[c] = m->bbox_max[c] - m->bbox_min[c];
         if (!(ext[c] > 0))
             ext[c] = 1e-30;
+        if (!(ext[c] <= DBL_MAX))
+            ext[c] = DBL_MAX; /* +-1e308 coordinates: the difference overflows */
     }
+    /* cells are bounded by the item count, not by the extent: two tets far apart must not
+     * make a grid of millions of empty cells (shipped meshes use 0.1-0.6 cells per item) */
+    size_t max_cells = 4 * (size_t)n + 64;
+    if (max_cells > 16000000)
+        max_cells = 16000000;
     double h = n ? scale * esum / n : 0;
     if (!(h > 0))
         h = cbrt(ext[0] * ext[1] * ext[2]);
@@ -99,13 +125,13 @@ static void grid_build(grid *g, const sq_mesh *m, const int *items, int n, int n
             total *= (size_t)g->dim[c];
         }
         double entries = 0;
-        if (total <= 16000000)
+        if (total <= max_cells)
             for (int e = 0; e < n; e++) {
                 int lo[3], hi[3];
                 item_cells(g, m, items + (size_t)nv * e, nv, lo, hi);
                 entries += (double)(hi[0] - lo[0] + 1) * (hi[1] - lo[1] + 1) * (hi[2] - lo[2] + 1);
             }
-        if (total <= 16000000 && entries <= max_per_item * n + 64)
+        if (total <= max_cells && entries <= max_per_item * n + 64)
             break;
         h *= 1.26;
     }

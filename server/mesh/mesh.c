@@ -483,7 +483,7 @@ sq_mesh *sq_mesh_box(int nx, int ny, int nz, const double size[3], const double 
                        "origin %g)", "xyz"[c], size[c], origin[c]);
             return NULL;
         }
-    double nn = (double)(nx + 1) * (ny + 1) * (nz + 1), ntd = 6.0 * nx * ny * nz;
+    double nn = ((double)nx + 1) * ((double)ny + 1) * ((double)nz + 1), ntd = 6.0 * nx * ny * nz;
     if (nn > 2e8 || ntd > (double)INT_MAX / 4) {
         sq_err_set(err, "box: %d x %d x %d cells is too large (%.3g tets); use fewer cells", nx, ny, nz, ntd);
         return NULL;

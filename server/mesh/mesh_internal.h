@@ -21,4 +21,8 @@ sq_mesh *sq_mesh_validate_finalize(sq_mesh *m, const char *node_file, const int 
 /* free the point-location grid */
 void sq_locator_free(struct sq_locator *loc);
 
+/* cells of the point-location grids (tets + boundary triangles), built if needed; items
+ * (may be NULL) gets the number of grid entries: what the locator's memory is made of */
+size_t sq_locator_cells(const sq_mesh *m, size_t *items);
+
 #endif

@@ -246,6 +246,7 @@ typedef struct sq_serve_options {
     double precision;        /* frame quantisation floor / body diagonal, SQ_CODEC_PRECISION */
     int lockstep;            /* 0 */
     int verbose;
+    int instance;            /* 0; 1..99 behind a proxy: every session id ends in these two digits */
 } sq_serve_options;
 
 sq_serve_options sq_serve_options_default(void);

@@ -7,6 +7,7 @@
  * bounded FIFO. Writes happen only in SERVER_WRITEABLE, one message per callback.
  */
 #include "net/session.h"
+#include "net/query.h"
 
 #include <cJSON.h>
 #include <dirent.h>
@@ -233,6 +234,8 @@ static int write_one(client *c)
 
 static srec *find_session(server *srv, uint32_t id)
 {
+    if (sq_session_id_local(id, srv->opt->instance, &id))
+        return NULL;
     uint32_t idx = id & ((1u << SLOT_BITS) - 1), gen = id >> SLOT_BITS;
     if (idx >= (uint32_t)srv->nslots)
         return NULL;
@@ -589,14 +592,14 @@ static void do_open_or_join(client *c, const sq_request *req)
             return;
         }
         r = &srv->slots[idx];
-        r->gen = (r->gen + 1) & ((1u << (32 - SLOT_BITS)) - 1);
+        r->gen = (r->gen + 1) & sq_session_gen_mask(srv->opt->instance, SLOT_BITS);
         if (!r->gen)
             r->gen = 1;
         r->scene = sc;
         r->controller = 0;
         r->bytes_sent = 0;
         r->empty_since = 0;
-        uint32_t id = r->gen << SLOT_BITS | (uint32_t)idx;
+        uint32_t id = sq_session_id_public(r->gen << SLOT_BITS | (uint32_t)idx, srv->opt->instance);
         r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep,
                                 srv->opt->precision, wake, srv);
         r->s->snapshotter = srv->snapshotter;
@@ -821,29 +824,27 @@ static int http_reply(struct lws *wsi, unsigned status, const char *type, const 
 /* GET /snapshot.png?session=ID[&size=WxH]: validate, rate-limit, hand to the session */
 static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
 {
-    char buf[128], msg[400];
-    const char *v = lws_get_urlarg_by_name(wsi, "session=", buf, sizeof buf);
-    char *end = NULL;
-    unsigned long id = v ? strtoul(v, &end, 10) : 0;
-    srec *r = (v && end && !*end && end != v) ? find_session(srv, (uint32_t)id) : NULL;
-    if (!r) {
-        snprintf(msg, sizeof msg, "no session %.40s; use /snapshot.png?session=ID with the id of "
-                 "'opened'\n", v ? v : "(missing)");
-        return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", msg, strlen(msg));
+    char buf[8][128], msg[400];
+    const char *args[8];
+    int nargs = 0;
+    for (; nargs < 8 && lws_hdr_copy_fragment(wsi, buf[nargs], sizeof buf[nargs], WSI_TOKEN_HTTP_URI_ARGS,
+                                              nargs) > 0; nargs++)
+        args[nargs] = buf[nargs];
+    sq_snapshot_query q;
+    int status = sq_snapshot_query_parse(args, nargs, SQ_SNAPSHOT_MAX_SIZE, &q, msg, sizeof msg);
+    srec *r = status ? NULL : find_session(srv, q.session);
+    if (!status && !r) {
+        snprintf(msg, sizeof msg, "no session %u; use /snapshot.png?session=ID with the id of "
+                 "'opened'\n", q.session);
+        status = HTTP_STATUS_NOT_FOUND;
     }
+    if (status)
+        return http_reply(wsi, (unsigned)status, "text/plain", msg, strlen(msg));
     if (!srv->snapshotter) {
         snprintf(msg, sizeof msg, "snapshots are not available in this server\n");
         return http_reply(wsi, 503, "text/plain", msg, strlen(msg));
     }
-    int width = 800, height = 600;
-    const char *sz = lws_get_urlarg_by_name(wsi, "size=", buf, sizeof buf);
-    if (sz) {
-        sq_err err = {{0}};
-        if (sq_render_parse_size(sz, SQ_SNAPSHOT_MAX_SIZE, &width, &height, &err)) {
-            snprintf(msg, sizeof msg, "size: %.300s\n", err.msg);
-            return http_reply(wsi, HTTP_STATUS_BAD_REQUEST, "text/plain", msg, strlen(msg));
-        }
-    }
+    int width = q.width, height = q.height;
     double now = sq_now();
     if (now - r->last_snapshot < SNAP_MIN_INTERVAL || srv->nwaits >= SNAP_MAX_WAITING) {
         snprintf(msg, sizeof msg, "too many snapshots: at most one per %.2f s per session; retry "

@@ -270,7 +270,8 @@ describe('web viewer reconnects', () => {
     const page = await (await browser.newContext({ viewport: { width: 1024, height: 700 } })).newPage();
     // the page's WebSocket goes through a pass-through route we can cut
     const routes = [];
-    await page.routeWebSocket(/\/ws$/, (ws) => {
+    // (the reconnection carries the session: /ws?session=ID, for proxies; docs/deploy.md)
+    await page.routeWebSocket(/\/ws(\?session=\d+)?$/, (ws) => {
       ws.connectToServer();
       routes.push(ws);
     });
@@ -289,6 +290,9 @@ describe('web viewer reconnects', () => {
       await waitFrames(page, 5);
       const s2 = await state(page);
       assert.ok(routes.length >= 2, 'a second connection was made');
+      assert.ok(!/\?/.test(routes[0].url()), `the first connection has no session yet: ${routes[0].url()}`);
+      assert.ok(routes[routes.length - 1].url().endsWith(`/ws?session=${s1.session}`),
+        `the reconnection names its session: ${routes[routes.length - 1].url()}`);
       assert.equal(s2.session, s1.session, 'same session');
       assert.equal(s2.opens, s1.opens + 1, 'joined once more');
       assert.equal(s2.role, 'control', 'the controller got its session back');
