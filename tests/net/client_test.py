@@ -10,6 +10,7 @@ import sys
 import traceback
 import zlib
 
+sys.dont_write_bytecode = True  # no __pycache__ inside web/ (the server serves that directory)
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "web"))
 from squish_client import SquishClient, SquishError, decode_binary, decode_header  # noqa: E402
 

@@ -12,6 +12,7 @@ import os
 import sys
 import time
 
+sys.dont_write_bytecode = True  # no __pycache__ inside web/ (the server serves that directory)
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "web"))
 from squish_client import SquishClient, SquishError  # noqa: E402
 
