@@ -87,10 +87,37 @@ describe('viewer first visit', () => {
       // the scripted sphere touches the cube within the first second: a force with the body's name
       await page.waitForFunction(() => / on cube: /.test(document.getElementById('hud-force').textContent), null, { timeout: 20000 });
       await page.waitForFunction(() => window.squish.lastFrame > 60, null, { timeout: 20000 });
+      // pan the view until the scripted sphere's path lies under the side panel
+      const under = await page.evaluate(() => {
+        const s = window.squish, c = [0.5, 0.5, 1.15];
+        const left = document.getElementById('panel').getBoundingClientRect().left;
+        let step = -40;
+        for (let i = 0; i < 60; i++) {
+          const p0 = s.screenPoint(c);
+          if (p0 && p0[0] > left + 80) return p0[0] - left;
+          s.camera.pan(step, 0, window.innerHeight);
+          const p1 = s.screenPoint(c);
+          if (p0 && p1 && p1[0] < p0[0]) step = -step;
+        }
+        return null;
+      });
+      assert.ok(under, 'the view could be moved so the tool sits under the panel');
       const before = await page.evaluate(() => window.squish.lastFrame);
       await replay.click();
       await page.waitForFunction((b) => window.squish.lastFrame >= 0 && window.squish.lastFrame < b - 20, before, { timeout: 10000 });
       assert.match(await page.locator('#event').innerText(), /scripted tools run again/);
+      // the replayed poke's force label is drawn, and kept left of the panel and below the top bar
+      const seen = await (await page.waitForFunction(() => {
+        const ls = [...document.querySelectorAll('.force-label')].filter((e) => !e.hidden && e.textContent);
+        if (!ls.length) return null;
+        return { labels: ls.map((e) => e.getBoundingClientRect().toJSON()),
+          left: document.getElementById('panel').getBoundingClientRect().left,
+          top: document.getElementById('topbar').getBoundingClientRect().bottom };
+      }, null, { timeout: 15000, polling: 50 })).jsonValue();
+      for (const r of seen.labels) {
+        assert.ok(r.right <= seen.left + 1, `force label right edge ${r.right} under the panel (left ${seen.left})`);
+        assert.ok(r.top >= seen.top - 1, `force label top ${r.top} under the top bar (${seen.top})`);
+      }
       // another scene: the force line starts empty
       await page.selectOption('#scene-select', 'paper-cube');
       await page.locator('#btn-open').click();
