@@ -24,6 +24,8 @@ def check(name, fn):
         fn()
         passed += 1
         print(f"ok - {name}", flush=True)
+    except Skip as e:
+        print(f"ok - {name} # SKIP {e}", flush=True)
     except Exception:
         failed += 1
         print(f"not ok - {name}")
@@ -113,6 +115,38 @@ def viewer_and_events():
         assert vf.positions == c.frames[0].positions
 
 
+class Skip(Exception):
+    """a check of a protocol feature this server does not have"""
+
+
+def control_handover():
+    with SquishClient.connect(URL, client="ctl") as c, SquishClient.connect(URL, client="view", role="view") as v:
+        o = c.open("paper-cube")
+        v.join(o["session"])
+        got = []
+        v.on("control", got.append)
+        c.leave()
+        try:
+            ev = v.wait_for(lambda m: m.get("type") == "event" and m.get("kind") == "control", timeout=3)
+        except TimeoutError:
+            raise Skip("this server sends no event of kind control") from None
+        assert ev["controller"] is False and ev["you"] is False and ev["reason"] == "left", ev
+        assert got and got[0] is ev, "the 'control' event fired too"
+        r = v.take_control()
+        assert r["type"] == "ack" and r["request"] == "take_control" and r["role"] == "control", r
+        assert v.role == "control"
+        v.tool(id=3, shape="sphere", pos=[0.5, 0.5, 1.5], radius=0.1)  # now allowed
+        # a second taker is refused while someone controls
+        with SquishClient.connect(URL, client="late", role="view") as w:
+            w.join(o["session"])
+            try:
+                w.take_control()
+            except SquishError as e:
+                assert e.code == "controller_present", e.code
+            else:
+                raise AssertionError("control was taken twice")
+
+
 def bad_binary_is_refused():
     for buf, want in [(b"x" * 10, "shorter"), (b"XXXX" + bytes(60), "magic")]:
         try:
@@ -137,6 +171,7 @@ for name, fn in [("lockstep frames arrive before stepped and decode to plain lis
                  ("error replies raise SquishError with the code", errors_are_exceptions),
                  ("a grab moves the surface; nodes", tool_and_feedback),
                  ("a viewer sees the controller's frames, cannot control", viewer_and_events),
+                 ("control hand-over: control event, take_control, controller_present", control_handover),
                  ("broken binary messages are refused with a reason", bad_binary_is_refused)]:
     check(name, fn)
 print(f"client_test.py: {passed} passed, {failed} failed")
