@@ -291,7 +291,20 @@ function onSession(m) {
   showEvent(`${m.type === 'opened' ? 'opened' : 'joined'} session ${app.session}${app.scene ? ` (${app.scene})` : ''}`);
   showSceneInfo(m);
   showHint();
+  holdScript(m);
   dirty = true;
+}
+
+// a scripted scene opened here waits a moment before its tools move, so its poke is seen
+const SCRIPT_HOLD_MS = 2000;
+let holdTimer = 0;
+function holdScript(m) {
+  clearTimeout(holdTimer);
+  holdTimer = 0;
+  if (m.type !== 'opened' || app.role !== 'control' || !app.scripted || m.lockstep || m.paused) return;
+  link.send({ type: 'pause' });
+  showEvent(`the scene's scripted tools start in ${SCRIPT_HOLD_MS / 1000} s (Replay runs them again)`);
+  holdTimer = setTimeout(() => { holdTimer = 0; link.send({ type: 'resume' }); }, SCRIPT_HOLD_MS);
 }
 
 // the scene's description under the top bar; Replay when the scene has scripted tools
@@ -803,6 +816,9 @@ function setPaused(p) {
 
 function togglePause() {
   if (app.role !== 'control' || !app.session) return;
+  // the user decides: no automatic resume after the first-open wait
+  clearTimeout(holdTimer);
+  holdTimer = 0;
   const next = !app.paused;
   link.send({ type: next ? 'pause' : 'resume' });
 }

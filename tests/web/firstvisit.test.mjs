@@ -78,10 +78,14 @@ describe('viewer first visit', () => {
     }
   });
 
-  it('Replay restarts a scripted scene; tool forces name their body and clear on scene change', async () => {
+  it('a scripted scene waits 2 s on open; Replay restarts it; tool forces name their body and clear on scene change', async () => {
     const page = await openViewer(browser, `${server.url}?scene=cube-poke`);
     try {
       await page.waitForFunction(() => window.squish.scene === 'cube-poke');
+      // a scripted scene opened by the page waits 2 s before its tools move, then runs
+      await page.waitForFunction(() => window.squish.lastFrame > 20, null, { timeout: 20000 });
+      const iOpen = page.sent.indexOf('open'), iPause = page.sent.indexOf('pause'), iResume = page.sent.indexOf('resume');
+      assert.ok(iOpen >= 0 && iPause > iOpen && iResume > iPause, `requests sent: ${page.sent.join(', ')}`);
       const replay = page.locator('#btn-replay');
       await replay.waitFor({ state: 'visible', timeout: 10000 });
       // the scripted sphere touches the cube within the first second: a force with the body's name
