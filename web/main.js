@@ -11,6 +11,7 @@ import { raycast, rayPlane } from './pick.js';
 const FALLBACK_PALETTE = {
   level: ['#4e79a7', '#59a14f', '#edc948', '#f28e2b', '#e15759', '#b07aa1'],
   plain: '#d9a38c', background: '#20242b', floor: '#5b6270', floor_line: '#737b8a', tool: '#c8ccd4',
+  probe: '#ff3ea5',
 };
 
 // our own tool ids (scripted scene tools use small ids from 0)
@@ -1198,6 +1199,8 @@ function drawLabels(tools, w, h) {
         ring = document.createElement('div');
         ring.id = key;
         ring.className = 'probe-marker';
+        // the palette's probe colour, as squish render draws probes
+        ring.style.borderColor = palette.probe || FALLBACK_PALETTE.probe;
         name = document.createElement('div');
         name.id = `${key}-name`;
         name.className = 'probe-name';
