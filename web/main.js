@@ -915,7 +915,11 @@ function wireUi() {
       default: return;
     }
   });
-  window.addEventListener('resize', () => { dirty = true; });
+  // the overlays and the panel sit below the top bar, which wraps on narrow screens
+  const topbarHeight = () => document.documentElement.style.setProperty('--topbar', `${$('topbar').offsetHeight}px`);
+  topbarHeight();
+  if (typeof ResizeObserver === 'function') new ResizeObserver(topbarHeight).observe($('topbar'));
+  window.addEventListener('resize', () => { topbarHeight(); dirty = true; });
 }
 
 // ---------------------------------------------------------------- tools (poke)
