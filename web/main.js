@@ -374,7 +374,11 @@ function onError(m) {
   if (m.ref === 'take' || m.request === 'take_control') {
     if (m.code === 'controller_present') setNotice('taken', 'Someone else controls this session now: you keep watching.');
     else if (m.code === 'bad_token') setNotice('left', 'Taking control needs the control token: add ?token=... to the address.', true);
-    else if (m.code === 'bad_type') setNotice('left', 'This server cannot hand control over: open this page without role=view to start your own session.');
+    else if (m.code === 'bad_type') {
+      // an older server: never offer it again on this page
+      app.takeUnsupported = true;
+      setNotice('unsupported', 'This server cannot hand control over: open this page without role=view to start your own session.');
+    }
     else setNotice('left', `Could not take control: ${text}`, true);
     return;
   }
@@ -622,9 +626,10 @@ function onStats(m) {
     $('hud-force').textContent = f.length ? f.join('; ') : '-';
   }
   // a viewer of a session nobody controls may take it over
-  if (m.controller === false && app.role === 'view' && (!app.notice || !app.notice.take) && app.notice?.kind !== 'taken') {
+  const kind = app.notice ? app.notice.kind : null;
+  if (m.controller === false && app.role === 'view' && !app.takeUnsupported && !['left', 'taken', 'unsupported'].includes(kind)) {
     setNotice('left', 'Nobody controls this session.', true);
-  } else if (m.controller === true && app.role === 'view' && app.notice && app.notice.kind === 'left') {
+  } else if (m.controller === true && app.role === 'view' && (kind === 'left' || kind === 'taken')) {
     setNotice('viewer', 'Someone controls this session again: you are watching it (read only).');
   }
   if (typeof m.skipped === 'number') app.skipped = m.skipped;
