@@ -23,7 +23,7 @@ SAN_OBJ  := $(LIB_SRC:%.c=$(BUILD)/san/%.o) $(TEST_SRC:%.c=$(BUILD)/san/%.o)
 # Debian packages the build, the tests and the benchmarks need
 APT_PKGS := build-essential pkg-config libwebsockets-dev libcjson-dev zlib1g-dev libosmesa6-dev \
             libpng-dev clang libclang-rt-14-dev gnuplot-nox chromium hyperfine \
-            python3-vtk9 nginx
+            python3-vtk9 nginx python3-websockets
 
 .PHONY: all squish deps run test unit asan bench meshes fuzz clean node-deps
 
@@ -80,6 +80,7 @@ asan: $(BUILD)/san/unit_tests
 
 run: deps
 	@$(MAKE) --no-print-directory squish
+	@$(MAKE) --no-print-directory node-deps || echo "warning: npm packages not installed (needed by the Node client examples only): retry with make node-deps"
 	@echo "squish: serving on http://127.0.0.1:$${PORT:-8080}/  (Ctrl-C to stop)"
 	$(BUILD)/squish serve --host 127.0.0.1 --port $${PORT:-8080} --scenes meshes/scenes --web web
 

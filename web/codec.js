@@ -1,6 +1,8 @@
 // codec.js - decode squish protocol v1 binary messages (docs/protocol.md, "Binary messages").
 // Every message: a 64-byte little-endian header, then a zlib stream (RFC 1950) that the
-// browser inflates with DecompressionStream('deflate').
+// browser inflates with DecompressionStream('deflate'); Node may pass its zlib's inflateSync.
+// The one decoder of the project: the viewer's worker and the client library
+// (squish-client.js, for browsers and Node scripts) both call it, so they cannot disagree.
 
 /** message kinds (header byte 6) */
 export const KIND_TOPOLOGY = 1;
@@ -17,6 +19,7 @@ export const TOOL_SHAPES = ['sphere', 'box', 'grab'];
 
 /** parse the fixed header; throws an Error naming the problem */
 export function parseHeader(buf) {
+  buf = toArrayBuffer(buf);
   if (!(buf instanceof ArrayBuffer) || buf.byteLength < HEADER_BYTES) {
     throw new Error(`binary message of ${buf.byteLength} bytes is shorter than the ${HEADER_BYTES}-byte header`);
   }
@@ -45,6 +48,16 @@ export function parseHeader(buf) {
   return h;
 }
 
+/** an ArrayBuffer holding exactly the bytes of buf (an ArrayBuffer, a typed array or a Node Buffer) */
+export function toArrayBuffer(buf) {
+  if (buf instanceof ArrayBuffer) return buf;
+  if (ArrayBuffer.isView(buf)) {
+    if (buf.byteOffset === 0 && buf.byteLength === buf.buffer.byteLength && buf.buffer instanceof ArrayBuffer) return buf.buffer;
+    return buf.buffer.slice(buf.byteOffset, buf.byteOffset + buf.byteLength);
+  }
+  return buf;
+}
+
 /** inflate a zlib stream to an ArrayBuffer */
 export async function inflate(bytes) {
   const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream('deflate'));
@@ -60,10 +73,26 @@ export function expectedRawBytes(h) {
   }
 }
 
-/** decode a whole binary message: {header, ...kind-specific fields}; throws on bad input */
-export async function decodeBinary(buf) {
+/**
+ * decode a whole binary message: {header, ...kind-specific fields}; rejects on bad input.
+ * inflater(Uint8Array) -> ArrayBuffer | typed array | Promise of one (default: DecompressionStream)
+ */
+export async function decodeBinary(buf, inflater = inflate) {
+  buf = toArrayBuffer(buf);
   const h = parseHeader(buf);
-  const raw = await inflate(new Uint8Array(buf, HEADER_BYTES, h.zBytes));
+  return decodePayload(h, await inflater(new Uint8Array(buf, HEADER_BYTES, h.zBytes)));
+}
+
+/** the same with a synchronous inflater (e.g. Node's zlib.inflateSync); throws on bad input */
+export function decodeBinarySync(buf, inflateSync) {
+  buf = toArrayBuffer(buf);
+  const h = parseHeader(buf);
+  return decodePayload(h, inflateSync(new Uint8Array(buf, HEADER_BYTES, h.zBytes)));
+}
+
+/** check an inflated payload against its header and decode it by kind */
+export function decodePayload(h, raw) {
+  raw = toArrayBuffer(raw);
   const want = expectedRawBytes(h);
   if (raw.byteLength !== h.rawBytes || raw.byteLength !== want) {
     throw new Error(`binary message kind ${h.kind}: payload is ${raw.byteLength} bytes, header says ${h.rawBytes}, counts imply ${want}`);

@@ -11,6 +11,7 @@ import { raycast, rayPlane } from './pick.js';
 const FALLBACK_PALETTE = {
   level: ['#4e79a7', '#59a14f', '#edc948', '#f28e2b', '#e15759', '#b07aa1'],
   plain: '#d9a38c', background: '#20242b', floor: '#5b6270', floor_line: '#737b8a', tool: '#c8ccd4',
+  probe: '#ff3ea5',
 };
 
 // our own tool ids (scripted scene tools use small ids from 0)
@@ -49,6 +50,10 @@ const app = {
   joinPending: false,
   bytesPerSecond: 0,
   simRate: 0,
+  notice: null,          // the role notice shown ({kind, text}), null when none
+  pictureRate: 0,        // pictures drawn per second while frames were waiting to be drawn
+  autoScale: null,       // render scale chosen automatically (null: not lowered)
+  debugDrawDelayMs: 0,   // tests: busy-wait this long in every picture (a slow machine)
 };
 window.squish = app;
 
@@ -85,7 +90,8 @@ async function start() {
     app.softwareGl = renderer.software;
     // for machines without a GPU: fewer pixels (scale) or fewer pictures per second (fps)
     const scale = Number(params.get('scale'));
-    if (scale > 0 && scale <= 4) renderer.pixelScale = scale;
+    if (scale > 0 && scale <= 4) { renderer.pixelScale = scale; userScale = true; }
+    if (params.get('autoscale') === '0') userScale = true;
     const fps = Number(params.get('fps'));
     if (fps >= 1) maxFps = fps;
   } catch (e) {
@@ -146,7 +152,7 @@ function enterSession() {
   } else if (app.role === 'control') {
     openScene(app.scene);
   } else {
-    showEvent('no session to watch: ask the controller for a share link, or open a scene', true);
+    setNotice('nosession', 'No session to watch: ask the controller for the share link, or open this page without role=view to start your own session.');
   }
 }
 
@@ -221,7 +227,13 @@ function onSession(m) {
   app.paused = !!m.paused;
   setPaused(app.paused);
   if (m.role === 'view' || m.role === 'control') setRole(m.role);
-  if (m.demoted) showEvent('this session already has a controller: you watch it', true);
+  if (m.demoted) {
+    setNotice('demoted', 'This session already has a controller: you are watching it (read only). You can take control if the controller leaves.');
+  } else if (app.role === 'control') {
+    setNotice(null);
+  } else {
+    setNotice('viewer', 'You are watching this session (read only): drag to turn your own view.');
+  }
   link.send({ type: 'subscribe', stats: true, stats_hz: 4 });
   // a tool of ours left active by a dropped connection is released
   if (app.role === 'control' && Array.isArray(m.tools)) {
@@ -233,13 +245,18 @@ function onSession(m) {
   }
   renderer && renderer.clearBodies();
   app.bodies.clear();
+  // nothing of the previous scene stays in the panel
+  $('hud-force').textContent = '-';
+  peakForce = 0.01;
+  app.stats = null;
   // a re-join of the same scene (after a reconnect) keeps the user's camera
   if (app.scene !== fittedScene) fitted = false;
   fittedScene = app.scene;
   const bodies = m.bodies || [];
   for (const b of bodies) {
     app.bodies.set(b.id, { id: b.id, name: b.name || `body ${b.id}`, levels: b.levels || [], info: b,
-      rest: null, tris: null, pos: null, levelArr: null, tools: [], frame: -1 });
+      rest: null, tris: null, pos: null, levelArr: null, tools: [], frame: -1,
+      probes: Array.isArray(b.probes) ? b.probes : [] });
   }
   const sel = $('body-select');
   sel.replaceChildren(...bodies.map((b) => {
@@ -276,7 +293,64 @@ function onSession(m) {
   share.searchParams.set('role', 'view');
   $('share-link').value = share.toString();
   showEvent(`${m.type === 'opened' ? 'opened' : 'joined'} session ${app.session}${app.scene ? ` (${app.scene})` : ''}`);
+  showSceneInfo(m);
+  showHint();
+  holdScript(m);
   dirty = true;
+}
+
+// a scripted scene opened here waits a moment before its tools move, so its poke is seen
+const SCRIPT_HOLD_MS = 2000;
+let holdTimer = 0;
+function holdScript(m) {
+  clearTimeout(holdTimer);
+  holdTimer = 0;
+  if (m.type !== 'opened' || app.role !== 'control' || !app.scripted || m.lockstep || m.paused) return;
+  link.send({ type: 'pause' });
+  showEvent(`the scene's scripted tools start in ${SCRIPT_HOLD_MS / 1000} s (Replay runs them again)`);
+  holdTimer = setTimeout(() => { holdTimer = 0; link.send({ type: 'resume' }); }, SCRIPT_HOLD_MS);
+}
+
+// the scene's description under the top bar; Replay when the scene has scripted tools
+function showSceneInfo(m) {
+  const sc = app.scenes.find((s) => s.name === app.scene);
+  $('scene-desc').textContent = sc && sc.description ? sc.description : (app.scene || '');
+  const scripted = Array.isArray(m.tools) && m.tools.some((t) => t.id !== GRAB_ID && t.id !== PUSH_ID);
+  app.scripted = scripted;
+  $('btn-replay').hidden = !scripted;
+}
+
+// ---------------------------------------------------------------- first-visit hint and notices
+
+const HINT_KEY = 'squish.hint.v1';
+function hintSeen() {
+  try { return localStorage.getItem(HINT_KEY) === 'seen'; } catch (e) { return false; }
+}
+function showHint() {
+  if (hintSeen() || params.get('hint') === '0') return;
+  $('hint-text').textContent = app.role === 'control'
+    ? 'Drag on the body to pull it. Shift + drag to push it. Drag elsewhere to turn the view, wheel to zoom. ? lists every key.'
+    : 'You are watching: drag to turn the view, wheel to zoom. ? lists every key.';
+  $('hint').hidden = false;
+}
+function dismissHint() {
+  if ($('hint').hidden) return;
+  $('hint').hidden = true;
+  try { localStorage.setItem(HINT_KEY, 'seen'); } catch (e) { /* private mode: shown again next time */ }
+}
+
+// one role notice at a time: kind 'demoted' | 'viewer' | 'left' | 'taken' | 'control' | 'nosession' | null
+function setNotice(kind, text, take = false) {
+  app.notice = kind ? { kind, text, take } : null;
+  $('notice').hidden = !kind;
+  $('notice-text').textContent = kind ? text : '';
+  $('btn-take').hidden = !take;
+}
+
+function takeControl() {
+  const m = { type: 'take_control', ref: 'take' };
+  if (app.token) m.token = app.token;
+  link.send(m);
 }
 
 // fill the setting forms from what the server says about a body (when it says it)
@@ -300,6 +374,17 @@ function fillControls(b) {
 function onError(m) {
   app.lastError = m;
   const text = `${m.message || 'refused'}${m.code ? ` [${m.code}]` : ''}`;
+  if (m.ref === 'take' || m.request === 'take_control') {
+    if (m.code === 'controller_present') setNotice('taken', 'Someone else controls this session now: you keep watching.');
+    else if (m.code === 'bad_token') setNotice('left', 'Taking control needs the control token: add ?token=... to the address.', true);
+    else if (m.code === 'bad_type') {
+      // an older server: never offer it again on this page
+      app.takeUnsupported = true;
+      setNotice('unsupported', 'This server cannot hand control over: open this page without role=view to start your own session.');
+    }
+    else setNotice('left', `Could not take control: ${text}`, true);
+    return;
+  }
   if (app.joinPending && (m.ref === 'join' || m.request === 'join')) {
     // the session is gone (e.g. the server restarted): open the scene again
     app.joinPending = false;
@@ -336,6 +421,8 @@ function onError(m) {
     const el = $(`err-${p.group}`);
     el.className = 'err';
     el.textContent = text;
+    const group = el.closest('details');
+    if (group) group.open = true;
     return;
   }
   showEvent(text, true);
@@ -355,21 +442,47 @@ function onAck(m) {
   } else if (m.request === 'pause' || m.request === 'resume') {
     setPaused(m.request === 'pause');
   } else if (m.request === 'reset') {
-    showEvent('bodies reset to rest');
+    showEvent(app.scripted ? 'scene reset: its scripted tools run again' : 'bodies reset to rest');
+  } else if (m.request === 'take_control') {
+    setRole('control');
+    setNotice('control', 'You control this session now.');
+    setTimeout(() => { if (app.notice && app.notice.kind === 'control') setNotice(null); }, 6000);
   }
 }
 
 // pushed events: blow-up resets, control hand-over, session end, server shutdown
 function onEvent(m) {
   if (m.kind === 'reset') showEvent(`body ${m.body} was reset: ${m.message || 'numerical blow-up'}`, true);
-  else if (m.kind === 'control') { setRole('control'); showEvent('you now control this session'); }
+  else if (m.kind === 'control') onControlEvent(m);
   else if (m.kind === 'session_end') showEvent(`session ended: ${m.reason || ''}`, true);
   else if (m.kind === 'shutdown') showEvent('the server is stopping; reconnecting when it is back', true);
+}
+
+// the session's controller changed (protocol: event kind control {controller, you, reason})
+function onControlEvent(m) {
+  if (m.you === true) {
+    setRole('control');
+    setNotice('control', 'You control this session now.');
+    setTimeout(() => { if (app.notice && app.notice.kind === 'control') setNotice(null); }, 6000);
+    return;
+  }
+  const wasControl = app.role === 'control';
+  if (typeof m.you === 'boolean' && wasControl) { endTool(false); setRole('view'); }
+  if (m.controller === false) {
+    setNotice('left', 'The controller left: nobody controls this session.', true);
+  } else if (wasControl) {
+    setNotice('demoted', m.reason === 'taken' ? 'Someone else took control of this session: you are watching it now (read only).'
+      : 'You no longer control this session: you are watching it (read only).');
+  } else {
+    setNotice('viewer', 'Someone controls this session again: you are watching it (read only).');
+  }
 }
 
 function setRole(role) {
   app.role = role;
   document.body.classList.toggle('viewer', role === 'view');
+  $('scene-select').disabled = role === 'view';
+  $('scene-select').title = role === 'view' ? 'the controller chooses the scene' : '';
   $('role-badge').textContent = role === 'view' ? 'viewer (read only)' : 'controller';
 }
 
@@ -506,9 +619,21 @@ function onStats(m) {
     app.viewers = v;
     $('watchers').textContent = `${v} ${v === 1 ? 'viewer' : 'viewers'} watching`;
   }
-  if (Array.isArray(m.feedback) && m.feedback.length) {
-    const f = m.feedback.map((x) => `#${x.tool}: ${len(x.force || [0, 0, 0]).toFixed(2)} N`).join('  ');
-    $('hud-force').textContent = f;
+  if (Array.isArray(m.feedback)) {
+    // per tool and body: "grab #6 on cube: 1.23 N"
+    const shapes = new Map((m.tools || []).map((t) => [t.id, t.shape]));
+    const f = m.feedback.map((x) => {
+      const b = app.bodies.get(x.body);
+      return `${shapes.get(x.tool) || 'tool'} #${x.tool} on ${b ? b.name : `body ${x.body}`}: ${len(x.force || [0, 0, 0]).toFixed(2)} N`;
+    });
+    $('hud-force').textContent = f.length ? f.join('; ') : '-';
+  }
+  // a viewer of a session nobody controls may take it over
+  const kind = app.notice ? app.notice.kind : null;
+  if (m.controller === false && app.role === 'view' && !app.takeUnsupported && !['left', 'taken', 'unsupported'].includes(kind)) {
+    setNotice('left', 'Nobody controls this session.', true);
+  } else if (m.controller === true && app.role === 'view' && (kind === 'left' || kind === 'taken')) {
+    setNotice('viewer', 'Someone controls this session again: you are watching it (read only).');
   }
   if (typeof m.skipped === 'number') app.skipped = m.skipped;
   // box extents are only in stats (frames carry a radius)
@@ -529,6 +654,50 @@ function tick() {
   $('hud-rate').textContent = `${app.simRate.toFixed(1)} Hz`;
   if (app.simTime !== undefined) $('hud-time').textContent = `${app.simTime.toFixed(2)} s`;
   $('hud-latency').textContent = app.latencyMs === null ? '-' : `${app.latencyMs.toFixed(1)} ms`;
+  pictureCheck();
+}
+
+// ---------------------------------------------------------------- automatic resolution
+
+// below this many pictures per second (with frames waiting to be drawn) the resolution drops
+const MIN_PICTURE_RATE = 20;
+const AUTO_SCALES = [0.5, 0.35];
+let userScale = false;
+const pictures = { count: 0, busyMs: 0, since: 0, slowSeconds: 0 };
+
+// once a second: pictures drawn while frames kept arriving; two slow seconds lower the scale
+function pictureCheck() {
+  const now = performance.now();
+  const dt = now - (pictures.since || now);
+  const busy = pictures.busyMs;
+  const n = pictures.count;
+  pictures.since = now;
+  pictures.count = 0;
+  pictures.busyMs = 0;
+  if (!(dt > 0)) return;
+  // frames that wait for a picture most of the second: the drawing is the bottleneck
+  const demanded = busy > 0.7 * dt;
+  const rate = (1000 * n) / dt;
+  app.pictureRate = rate;
+  const scale = renderer ? (renderer.pixelScale || 1) : 1;
+  const pct = Math.round(scale * 100);
+  let text = n ? `${rate.toFixed(1)}/s at ${pct} %` : '-';
+  if (app.autoScale !== null) text += ' (auto)';
+  $('hud-pictures').textContent = text;
+  $('hud-pictures').className = demanded && rate < MIN_PICTURE_RATE ? 'bad' : '';
+  if (!renderer || userScale || !demanded) { pictures.slowSeconds = 0; return; }
+  pictures.slowSeconds = rate < MIN_PICTURE_RATE ? pictures.slowSeconds + 1 : 0;
+  if (pictures.slowSeconds < 2) return;
+  const next = AUTO_SCALES.find((s) => s < scale - 1e-6);
+  if (next === undefined) return;
+  pictures.slowSeconds = 0;
+  renderer.pixelScale = next;
+  app.autoScale = next;
+  dirty = true;
+  const note = `${rate.toFixed(0)} pictures/s: resolution lowered to ${Math.round(next * 100)} % (?scale=1 keeps full resolution)`;
+  $('res-note').textContent = note;
+  $('res-note').hidden = false;
+  showEvent(note);
 }
 
 let legendShown = [0];   // level numbers (as listed in the scene file) in the legend
@@ -656,6 +825,9 @@ function setPaused(p) {
 
 function togglePause() {
   if (app.role !== 'control' || !app.session) return;
+  // the user decides: no automatic resume after the first-open wait
+  clearTimeout(holdTimer);
+  holdTimer = 0;
   const next = !app.paused;
   link.send({ type: next ? 'pause' : 'resume' });
 }
@@ -698,14 +870,12 @@ function toggleHelp(show) {
 
 function wireUi() {
   for (const f of document.querySelectorAll('form.setting')) f.addEventListener('submit', submitSetting);
-  $('btn-open').addEventListener('click', () => {
-    if (app.role !== 'control') {
-      // a viewer that opens a scene becomes the controller of a new session (a new page)
-      location.search = `?scene=${encodeURIComponent($('scene-select').value)}`;
-      return;
-    }
-    openScene($('scene-select').value);
-  });
+  // viewers have no Open (it would silently start a session of their own); see the notices
+  $('btn-open').addEventListener('click', () => { if (app.role === 'control') openScene($('scene-select').value); });
+  $('btn-replay').addEventListener('click', resetBodies);
+  $('btn-take').addEventListener('click', takeControl);
+  $('btn-hint-close').addEventListener('click', dismissHint);
+  $('btn-share').addEventListener('click', () => $('btn-copy').click());
   $('btn-pause').addEventListener('click', togglePause);
   $('btn-reset').addEventListener('click', resetBodies);
   $('btn-help').addEventListener('click', () => toggleHelp());
@@ -714,6 +884,7 @@ function wireUi() {
   $('btn-large').addEventListener('click', () => setLarge(!document.documentElement.classList.contains('large')));
   $('btn-copy').addEventListener('click', async () => {
     const input = $('share-link');
+    $('share').open = true;
     input.select();
     // the clipboard API needs a secure context (https or localhost); else the older command
     try {
@@ -752,7 +923,11 @@ function wireUi() {
       default: return;
     }
   });
-  window.addEventListener('resize', () => { dirty = true; });
+  // the overlays and the panel sit below the top bar, which wraps on narrow screens
+  const topbarHeight = () => document.documentElement.style.setProperty('--topbar', `${$('topbar').offsetHeight}px`);
+  topbarHeight();
+  if (typeof ResizeObserver === 'function') new ResizeObserver(topbarHeight).observe($('topbar'));
+  window.addEventListener('resize', () => { topbarHeight(); dirty = true; });
 }
 
 // ---------------------------------------------------------------- tools (poke)
@@ -841,6 +1016,8 @@ function flushTool(force) {
 function endTool(send) {
   if (!tool) return;
   if (send) link.send(toolMessage(false));
+  // the user found out how to poke: the hint has done its job
+  dismissHint();
   tool = null;
   dirty = true;
 }
@@ -953,8 +1130,13 @@ function arrowScale(f) {
   return size * 0.6 * (f / (f + peakForce * 0.5));
 }
 
+let lastLoopAt = 0;
 function frameLoop() {
   requestAnimationFrame(frameLoop);
+  const loopAt = performance.now();
+  // time during which something was waiting to be drawn (counts towards the picture check)
+  if (dirty && lastLoopAt) pictures.busyMs += Math.min(loopAt - lastLoopAt, 1000);
+  lastLoopAt = loopAt;
   flushTool(false);
   if (opts.nodes && app.lastFrame !== nodesFrame && !nodesPending) { nodesFrame = app.lastFrame; requestNodes(); }
   if (!renderer || !dirty) return;
@@ -962,6 +1144,8 @@ function frameLoop() {
   if (maxFps && t0 - lastDrawAt < 1000 / maxFps - 2) return;
   lastDrawAt = t0;
   dirty = false;
+  pictures.count++;
+  if (app.debugDrawDelayMs > 0) { const until = t0 + app.debugDrawDelayMs; while (performance.now() < until) { /* a slow machine */ } }
   for (const b of app.bodies.values()) {
     if (b.gpuDirty && b.pos) { renderer.updateBody(b.id, b.pos, b.levelArr); b.gpuDirty = false; }
   }
@@ -997,10 +1181,52 @@ let nodesFrame = -1;
 let maxFps = 0;
 let lastDrawAt = 0;
 
-// force values next to the arrow tips
+// the part of the window the labels may use: left of the side panel, below the top bar
+function labelArea(w, h) {
+  const panel = $('panel');
+  const pr = panel.classList.contains('hidden') ? null : panel.getBoundingClientRect();
+  const top = $('topbar').getBoundingClientRect().bottom;
+  let right = w, bottom = h;
+  if (pr && pr.left > w * 0.4) right = pr.left - 6;
+  else if (pr && pr.top > h * 0.4) bottom = pr.top - 6;
+  return { top: top + 4, right, bottom };
+}
+
+// force values next to the arrow tips, probe rings on their vertices
 function drawLabels(tools, w, h) {
   const layer = $('labels');
   const seen = new Set();
+  const area = labelArea(w, h);
+  for (const b of app.bodies.values()) {
+    if (!b.pos) continue;
+    for (const [k, pr] of b.probes.entries()) {
+      const v = Number.isInteger(pr.vertex) && pr.vertex >= 0 && pr.vertex * 3 < b.pos.length ? pr.vertex : -1;
+      const at = v >= 0 ? [b.pos[3 * v], b.pos[3 * v + 1], b.pos[3 * v + 2]] : Array.isArray(pr.point) ? pr.point : null;
+      if (!at) continue;
+      const key = `probe-${b.id}-${k}`;
+      seen.add(key);
+      seen.add(`${key}-name`);
+      let ring = document.getElementById(key), name = document.getElementById(`${key}-name`);
+      if (!ring) {
+        ring = document.createElement('div');
+        ring.id = key;
+        ring.className = 'probe-marker';
+        // the palette's probe colour, as squish render draws probes
+        ring.style.borderColor = palette.probe || FALLBACK_PALETTE.probe;
+        name = document.createElement('div');
+        name.id = `${key}-name`;
+        name.className = 'probe-name';
+        layer.append(ring, name);
+      }
+      name.textContent = pr.name || `probe ${k}`;
+      const p = camera.project(at, w, h);
+      const off = !p || p[0] > area.right || p[1] < area.top || p[1] > area.bottom;
+      ring.hidden = name.hidden = off;
+      if (off) continue;
+      ring.style.left = name.style.left = `${p[0]}px`;
+      ring.style.top = name.style.top = `${p[1]}px`;
+    }
+  }
   for (const t of tools) {
     if (!t.force) continue;
     const f = len(t.force);
@@ -1018,9 +1244,11 @@ function drawLabels(tools, w, h) {
     const p = camera.project(tip, w, h);
     if (!p) { el.hidden = true; continue; }
     el.hidden = false;
-    el.style.left = `${p[0]}px`;
-    el.style.top = `${p[1]}px`;
     el.textContent = `${f >= 100 ? f.toFixed(0) : f >= 1 ? f.toFixed(2) : f.toPrecision(3)} N`;
+    // centred above the tip, moved left/down so that it never sits under the panel or the top bar
+    const half = (el.offsetWidth || 60) / 2, tall = el.offsetHeight || 20;
+    el.style.left = `${Math.max(half + 2, Math.min(p[0], area.right - half))}px`;
+    el.style.top = `${Math.max(area.top + tall * 1.3, Math.min(p[1], area.bottom))}px`;
   }
   for (const el of [...layer.children]) if (!seen.has(el.id)) el.remove();
 }

@@ -89,6 +89,61 @@ export function computeNormals(pos, tris, out) {
   }
 }
 
+/** faces meeting at more than 45 degrees keep separate normals (as squish render does) */
+export const CREASE_COS = 0.7071;
+
+/**
+ * split a surface's vertices at creases, from the rest shape: the triangles around a vertex
+ * are grouped by normal (a face joins the first group whose mean normal is within 45 degrees
+ * of its own), and each group gets a vertex of its own. Smooth parts keep one vertex, a box
+ * edge gets two, a box corner three, so area-weighted normals of the split mesh are smooth on
+ * curved parts and sharp at box edges, as in server/render/drawlist.c.
+ * returns {map: Uint32Array (split vertex -> source vertex), tris: Uint32Array (split indices)}
+ */
+export function creaseSplit(rest, tris) {
+  const nv = rest.length / 3, nt = tris.length / 3;
+  const fu = new Float64Array(nt * 3);
+  for (let t = 0; t < nt; t++) {
+    const a = tris[3 * t] * 3, b = tris[3 * t + 1] * 3, c = tris[3 * t + 2] * 3;
+    const ux = rest[b] - rest[a], uy = rest[b + 1] - rest[a + 1], uz = rest[b + 2] - rest[a + 2];
+    const vx = rest[c] - rest[a], vy = rest[c + 1] - rest[a + 1], vz = rest[c + 2] - rest[a + 2];
+    const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    const l = Math.hypot(nx, ny, nz) || 1;
+    fu[3 * t] = nx / l; fu[3 * t + 1] = ny / l; fu[3 * t + 2] = nz / l;
+  }
+  // vertex -> incident corners (CSR)
+  const start = new Uint32Array(nv + 1);
+  for (let i = 0; i < tris.length; i++) start[tris[i] + 1]++;
+  for (let i = 0; i < nv; i++) start[i + 1] += start[i];
+  const fill = start.slice(0, nv), inc = new Uint32Array(tris.length);
+  for (let i = 0; i < tris.length; i++) inc[fill[tris[i]]++] = i;
+  const map = [], out = new Uint32Array(tris.length);
+  for (let v = 0; v < nv; v++) {
+    const groups = [];   // {sum: [x, y, z], id}
+    for (let j = start[v]; j < start[v + 1]; j++) {
+      const corner = inc[j], t = (corner / 3) | 0;
+      const n = [fu[3 * t], fu[3 * t + 1], fu[3 * t + 2]];
+      let g = groups.find((q) => {
+        const l = Math.hypot(q.sum[0], q.sum[1], q.sum[2]) || 1;
+        return (q.sum[0] * n[0] + q.sum[1] * n[1] + q.sum[2] * n[2]) / l >= CREASE_COS;
+      });
+      if (!g) { g = { sum: [0, 0, 0], id: map.length }; map.push(v); groups.push(g); }
+      g.sum[0] += n[0]; g.sum[1] += n[1]; g.sum[2] += n[2];
+      out[corner] = g.id;
+    }
+  }
+  return { map: new Uint32Array(map), tris: out };
+}
+
+/** gather per-vertex values (stride k) of the source vertices into the split vertices */
+export function gather(src, map, k, out) {
+  for (let i = 0; i < map.length; i++) {
+    const s = map[i] * k, d = i * k;
+    for (let c = 0; c < k; c++) out[d + c] = src[s + c];
+  }
+  return out;
+}
+
 /** unique edges of a triangle list, as a line index list */
 export function edgesOf(tris) {
   const seen = new Set(), out = [];
@@ -254,11 +309,13 @@ export class Renderer {
     return { vao, count: m.idx.length };
   }
 
-  /** (re)create the buffers of a body from its topology */
-  setBody(id, rest, tris) {
+  /** (re)create the buffers of a body from its topology (split at creases, see creaseSplit) */
+  setBody(id, restIn, trisIn) {
     this.removeBody(id);
     const gl = this.gl, vao = gl.createVertexArray();
-    const n = rest.length / 3;
+    const split = creaseSplit(restIn, trisIn);
+    const n = split.map.length, tris = split.tris;
+    const rest = gather(restIn, split.map, 3, new Float32Array(n * 3));
     gl.bindVertexArray(vao);
     const pos = this.buffer(gl.ARRAY_BUFFER, rest, gl.DYNAMIC_DRAW);
     gl.enableVertexAttribArray(A_POS);
@@ -283,7 +340,7 @@ export class Renderer {
     const edge = this.buffer(gl.ELEMENT_ARRAY_BUFFER, edges, gl.STATIC_DRAW);
     gl.bindVertexArray(null);
     this.bodies.set(id, { vao, wvao, pos, nrm, lvl, tri, edge, normals, tris, ntri: tris.length,
-      nedge: edges.length });
+      nedge: edges.length, map: split.map, spos: rest, slev: new Uint8Array(n) });
   }
 
   removeBody(id) {
@@ -303,14 +360,16 @@ export class Renderer {
     const b = this.bodies.get(id);
     if (!b) return;
     const gl = this.gl;
-    computeNormals(pos, b.tris, b.normals);
+    gather(pos, b.map, 3, b.spos);
+    computeNormals(b.spos, b.tris, b.normals);
     gl.bindBuffer(gl.ARRAY_BUFFER, b.pos);
-    gl.bufferSubData(gl.ARRAY_BUFFER, 0, pos);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, b.spos);
     gl.bindBuffer(gl.ARRAY_BUFFER, b.nrm);
     gl.bufferSubData(gl.ARRAY_BUFFER, 0, b.normals);
     if (levels) {
+      gather(levels, b.map, 1, b.slev);
       gl.bindBuffer(gl.ARRAY_BUFFER, b.lvl);
-      gl.bufferSubData(gl.ARRAY_BUFFER, 0, levels);
+      gl.bufferSubData(gl.ARRAY_BUFFER, 0, b.slev);
     }
   }
 

@@ -96,12 +96,18 @@ export function launchBrowser() {
 const NOISE = [/GL Driver Message/i, /GPU stall/i, /swiftshader/i, /WebGL.*fallback/i];
 
 /**
- * open the viewer in a new page; collects console errors and uncaught exceptions in
+ * open the viewer in a new page (with ?autoscale=0 unless autoScale is true); collects console errors and uncaught exceptions in
  * page.problems and the types of the requests it sends in page.sent. Waits until `minFrames`
  * frames were received.
  */
-export async function openViewer(browser, url, { minFrames = 3, viewport = { width: 1280, height: 800 } } = {}) {
+export async function openViewer(browser, url, { minFrames = 3, viewport = { width: 1280, height: 800 }, autoScale = false } = {}) {
   const page = await browser.newPage({ viewport });
+  // pixel comparisons need one canvas size: the automatic resolution drop is off unless asked
+  if (!autoScale) {
+    const u = new URL(url);
+    if (!u.searchParams.has('autoscale')) u.searchParams.set('autoscale', '0');
+    url = u.toString();
+  }
   page.problems = [];
   page.on('console', (m) => {
     if ((m.type() === 'error' || m.type() === 'warning') && !NOISE.some((r) => r.test(m.text()))) {

@@ -207,6 +207,8 @@ describe('web viewer', () => {
     // a tall window, so the panel screenshot shows the whole panel
     const page = await openViewer(browser, server.url, { viewport: { width: 1280, height: 1280 } });
     try {
+      // the setting groups are folded: open Material
+      await page.locator('#form-material').locator('xpath=..').locator('summary').click();
       await page.fill('#in-nu', '0.7');
       await page.locator('#form-material button[type=submit]').click();
       const err = page.locator('#err-material');

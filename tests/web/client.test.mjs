@@ -1,0 +1,60 @@
+// client.test.mjs - the client library web/squish-client.js loaded by a real chromium page (its
+// own WebSocket, DecompressionStream decoding) and by Node (npm ws, zlib) against the same real
+// server: the two decode the same frame to the same numbers.
+
+import { describe, it, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import { startServer, launchBrowser } from './helpers.mjs';
+import { SquishClient } from '../../web/squish-client.js';
+
+describe('client library in a browser and in Node', () => {
+  let server, browser;
+  before(async () => {
+    server = await startServer(0, { args: ['--lockstep'] });
+    browser = await launchBrowser();
+  });
+  after(async () => {
+    if (browser) await browser.close();
+    if (server) await server.stop();
+  });
+
+  it('steps a lockstep session from a page and decodes what Node decodes', async () => {
+    const page = await browser.newPage();
+    const problems = [];
+    page.on('pageerror', (e) => problems.push(e.message));
+    const ws = `ws://127.0.0.1:${server.port}/ws`;
+    try {
+      await page.goto(`${server.url}favicon.png`);
+      const got = await page.evaluate(async (url) => {
+        const { SquishClient } = await import('/squish-client.js');
+        const c = await SquishClient.connect(url, { client: 'page' });
+        const o = await c.open('paper-cube');
+        const st = await c.step(5);
+        const f = await c.waitFrame(st.frame);
+        let err = null;
+        try { await c.set({ material: { nu: 0.7 } }); } catch (e) { err = e.code; }
+        const out = { session: o.session, frame: f.frame, stepped: st.frames, err,
+          n: f.positions.length, pos: Array.from(f.positions.slice(0, 30)), lockstep: c.welcome.lockstep };
+        c.leave();
+        return out;
+      }, ws);
+      assert.equal(got.lockstep, true);
+      assert.equal(got.stepped, 5);
+      assert.equal(got.err, 'out_of_range', 'an error reply rejects with its code');
+      // Node joins the page's session (kept for the grace period) and reads the same frame
+      const c = await SquishClient.connect(ws, { client: 'node', role: 'view' });
+      try {
+        await c.join(got.session);
+        const f = await c.waitFrame(got.frame);
+        assert.equal(f.frame, got.frame);
+        assert.equal(f.positions.length, got.n);
+        assert.deepEqual(Array.from(f.positions.slice(0, 30)), got.pos, 'same positions, bit for bit');
+      } finally {
+        await c.close();
+      }
+      assert.deepEqual(problems, []);
+    } finally {
+      await page.close();
+    }
+  });
+});
