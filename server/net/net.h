@@ -43,6 +43,7 @@ typedef enum sq_req_type {
     SQ_REQ_SUBSCRIBE,
     SQ_REQ_NODES,
     SQ_REQ_PING,
+    SQ_REQ_TAKE_CONTROL,
     SQ_REQ_COUNT
 } sq_req_type;
 
@@ -115,6 +116,10 @@ typedef struct sq_request {
         int has_t;
         double t;
     } ping;
+    struct {
+        int has_token;
+        char token[SQ_NET_TOKEN_MAX];
+    } take_control;
 } sq_request;
 
 /* a protocol error: a code from docs/protocol.md and a message naming field, value and fix */

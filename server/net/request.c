@@ -28,6 +28,7 @@ static const char *const req_names[SQ_REQ_COUNT] = {
     [SQ_REQ_SUBSCRIBE] = "subscribe",
     [SQ_REQ_NODES] = "nodes",
     [SQ_REQ_PING] = "ping",
+    [SQ_REQ_TAKE_CONTROL] = "take_control",
 };
 
 const char *sq_req_name(sq_req_type t)
@@ -249,6 +250,21 @@ static int decode_hello(const cJSON *o, sq_request *r, sq_net_error *err)
         if (get_string(v, "hello.token", r->hello.token, sizeof r->hello.token, err))
             return -1;
         r->hello.has_token = 1;
+    }
+    return 0;
+}
+
+static int decode_take_control(const cJSON *o, sq_request *r, sq_net_error *err)
+{
+    static const char *const f[] = {"type", "ref", "token", NULL};
+    if (check_fields(o, "take_control", f, err))
+        return -1;
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, "token");
+    if (v) {
+        if (get_string(v, "take_control.token", r->take_control.token,
+                       sizeof r->take_control.token, err))
+            return -1;
+        r->take_control.has_token = 1;
     }
     return 0;
 }
@@ -591,7 +607,8 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
             req->type = (sq_req_type)t;
     if (req->type == SQ_REQ_NONE) {
         fail(err, "bad_type", "unknown type \"%.40s\"; known: hello, list_scenes, open, join, "
-             "leave, tool, set, pause, resume, reset, step, stats, subscribe, nodes, ping",
+             "leave, tool, set, pause, resume, reset, step, stats, subscribe, nodes, ping, "
+             "take_control",
              type->valuestring);
         goto out;
     }
@@ -603,6 +620,7 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
     case SQ_REQ_TOOL: rc = decode_tool(root, req, err); break;
     case SQ_REQ_SET: rc = decode_set(root, req, err); break;
     case SQ_REQ_SUBSCRIBE: rc = decode_subscribe(root, req, err); break;
+    case SQ_REQ_TAKE_CONTROL: rc = decode_take_control(root, req, err); break;
     default: rc = decode_simple(root, req, err); break;
     }
     rc = rc ? -1 : 0;
@@ -621,7 +639,8 @@ static int needs_control(sq_req_type t)
 /* requests that act on the client's session */
 static int needs_session(sq_req_type t)
 {
-    return needs_control(t) || t == SQ_REQ_STATS || t == SQ_REQ_NODES || t == SQ_REQ_LEAVE;
+    return needs_control(t) || t == SQ_REQ_STATS || t == SQ_REQ_NODES || t == SQ_REQ_LEAVE ||
+           t == SQ_REQ_TAKE_CONTROL;
 }
 
 int sq_request_check(const sq_request *r, const sq_client_ctx *c, sq_net_error *err)

@@ -284,6 +284,23 @@ static void release_tools(client *c, srec *r)
     c->ntool_ids = 0;
 }
 
+/* tell every client of r who controls it now (event "control"): sent on every change */
+static void control_event(srec *r, const char *reason)
+{
+    for (int i = 0; i < r->nmembers; i++) {
+        client *m = r->members[i];
+        if (!m->ready)
+            continue; /* a client still joining learns its role from joined */
+        cJSON *e = sq_reply_new("event", NULL);
+        cJSON_AddStringToObject(e, "kind", "control");
+        cJSON_AddNumberToObject(e, "session", r->s->id);
+        cJSON_AddBoolToObject(e, "controller", r->controller != 0);
+        cJSON_AddBoolToObject(e, "you", r->controller == m->serial);
+        cJSON_AddStringToObject(e, "reason", reason);
+        send_json(m, e);
+    }
+}
+
 static void leave_session(client *c)
 {
     srec *r = c->sess;
@@ -297,6 +314,7 @@ static void leave_session(client *c)
     if (r->controller == c->serial) {
         r->controller = 0;
         release_tools(c, r);
+        control_event(r, "left");
     }
     c->ntool_ids = 0;
     if (r->nmembers == 0) {
@@ -619,7 +637,13 @@ static void do_open_or_join(client *c, const sq_request *req)
             return;
         }
         if (c->sess == r) {
-            /* already here: answer again with the current state */
+            /* already here: answer again with the current state; the controller joining
+             * as a viewer gives control up */
+            if (role == SQ_ROLE_VIEW && r->controller == c->serial) {
+                r->controller = 0;
+                release_tools(c, r);
+                control_event(r, "demoted");
+            }
             c->pending_req = *req;
             send_session_info(c);
             return;
@@ -627,11 +651,14 @@ static void do_open_or_join(client *c, const sq_request *req)
         leave_session(c);
     }
     c->pending_req = *req;
+    uint64_t had = r->controller;
     if (add_member(c, r, role)) {
         if (r->nmembers == 0 && !r->empty_since)
             r->empty_since = sq_now();
         return;
     }
+    if (req->type == SQ_REQ_JOIN && r->controller != had)
+        control_event(r, "taken"); /* a control client joined a session without one */
     c->pending = 1;
     pthread_mutex_lock(&r->s->mu);
     int state = r->s->state;
@@ -742,6 +769,36 @@ static void handle_request(client *c, const char *text, size_t len)
         }
         cJSON_AddNumberToObject(o, "frame", (double)frame);
         send_json(c, o);
+        break;
+    }
+    case SQ_REQ_TAKE_CONTROL: {
+        if (r->controller && r->controller != c->serial) {
+            send_error(c, &req, "controller_present", "take_control: another client controls "
+                       "this session; wait for an event of kind \"control\" saying nobody does");
+            return;
+        }
+        if (opt->token && !c->token_ok &&
+            !(req.take_control.has_token && token_matches(srv, req.take_control.token))) {
+            send_error(c, &req, "bad_token", req.take_control.has_token
+                       ? "take_control.token: wrong token; ask the server's operator"
+                       : "take_control.token: the server needs a token for control; send it "
+                         "here or in hello.token");
+            return;
+        }
+        c->token_ok = 1;
+        int changed = r->controller != c->serial;
+        r->controller = c->serial;
+        c->demoted = 0;
+        cJSON *o = sq_reply_new("ack", &req);
+        cJSON_AddStringToObject(o, "request", "take_control");
+        cJSON_AddStringToObject(o, "role", "control");
+        pthread_mutex_lock(&r->s->mu);
+        long frame = r->s->snap.frame;
+        pthread_mutex_unlock(&r->s->mu);
+        cJSON_AddNumberToObject(o, "frame", (double)frame);
+        send_json(c, o);
+        if (changed)
+            control_event(r, "taken");
         break;
     }
     case SQ_REQ_PING: {
@@ -1124,17 +1181,24 @@ static void load_scenes(server *srv, const char *dir)
         snprintf(path, sizeof path, "%s/%s", dir, files[i]);
         sq_err err = {{0}};
         sq_scene *sc = sq_scene_load(path, &err);
+        int dup = -1;
+        for (int k = 0; sc && k < srv->nscenes; k++)
+            if (!strcmp(srv->names[k], sc->name))
+                dup = k;
         if (!sc) {
             fprintf(stderr, "squish serve: skipping scene %s\n", err.msg);
+        } else if (dup >= 0) {
+            /* clients open scenes by their "name": two files may not share one */
+            fprintf(stderr, "squish serve: skipping scene %s: its name \"%s\" is already the name "
+                    "of %s; give each scene file its own \"name\"\n", path, sc->name,
+                    srv->scenes[dup]->path);
+            sq_scene_free(sc);
         } else {
             srv->scenes = sq_realloc(srv->scenes, sizeof *srv->scenes * (size_t)(srv->nscenes + 1));
             srv->names = sq_realloc(srv->names, sizeof *srv->names * (size_t)(srv->nscenes + 1));
             srv->scenes[srv->nscenes] = sc;
-            size_t len = strlen(files[i]) - 5;
-            if (len >= SQ_NET_NAME_MAX)
-                len = SQ_NET_NAME_MAX - 1;
-            memcpy(srv->names[srv->nscenes], files[i], len);
-            srv->names[srv->nscenes][len] = 0;
+            /* the scene's "name" (sq_scene_load gives the file's base name without one) */
+            snprintf(srv->names[srv->nscenes], sizeof srv->names[srv->nscenes], "%s", sc->name);
             srv->nscenes++;
         }
         free(files[i]);

@@ -194,3 +194,22 @@ SQ_TEST(net_request_state_checks)
     CHECK(dec("{\"type\":\"pause\"}", &r, &e) == 0);
     CHECK(sq_request_check(&r, &c, &e) == -1 && !strcmp(e.code, "lockstep"));
 }
+
+SQ_TEST(net_request_take_control)
+{
+    sq_request r;
+    sq_net_error e;
+    CHECK(dec("{\"type\":\"take_control\",\"ref\":4}", &r, &e) == 0);
+    CHECK(r.type == SQ_REQ_TAKE_CONTROL && !r.take_control.has_token);
+    CHECK(!strcmp(sq_req_name(r.type), "take_control"));
+    CHECK(dec("{\"type\":\"take_control\",\"token\":\"sesame\"}", &r, &e) == 0);
+    CHECK(r.take_control.has_token && !strcmp(r.take_control.token, "sesame"));
+    expect_code("{\"type\":\"take_control\",\"token\":1}", "bad_field");
+    expect_code("{\"type\":\"take_control\",\"role\":\"control\"}", "bad_field");
+    /* it acts on the client's session: refused before open/join */
+    sq_client_ctx ctx = {.greeted = 1, .max_tools = SQ_MAX_TOOLS};
+    CHECK(dec("{\"type\":\"take_control\"}", &r, &e) == 0);
+    CHECK(sq_request_check(&r, &ctx, &e) == -1 && !strcmp(e.code, "no_session"));
+    ctx.in_session = 1;
+    CHECK(sq_request_check(&r, &ctx, &e) == 0);
+}
