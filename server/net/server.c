@@ -980,6 +980,17 @@ static int snapshot_write(server *srv, struct lws *wsi, conn *pss)
     return rc;
 }
 
+/* "/" when the server has no viewer to serve (no --web and none found) */
+static const char no_viewer_page[] =
+    "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>squish serve: "
+    "no viewer</title></head>\n<body>\n<h1>squish serve is running, without its viewer</h1>\n"
+    "<p>This server found no viewer to serve. Start it with <code>squish serve --web DIR</code>, "
+    "DIR being the viewer's directory: <code>web/</code> in the source tree, "
+    "<code>PREFIX/share/squish/web</code> after <code>make install</code>.</p>\n"
+    "<p>The simulation itself is up: WebSocket clients connect to <code>/ws</code> "
+    "(docs/protocol.md), <code>/healthz</code> answers <code>ok</code> and "
+    "<code>/snapshot.png?session=ID</code> renders a session.</p>\n</body></html>\n";
+
 static int origin_allowed(server *srv, struct lws *wsi)
 {
     if (!srv->opt->norigins)
@@ -1120,6 +1131,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
             return snapshot_request(srv, wsi, pss);
         if (!strcmp(uri, "/healthz"))
             return http_reply(wsi, HTTP_STATUS_OK, "text/plain", "ok\n", 3);
+        if (!srv->opt->web_dir && (!strcmp(uri, "/") || !strcmp(uri, "/index.html")))
+            return http_reply(wsi, HTTP_STATUS_OK, "text/html; charset=utf-8", no_viewer_page,
+                              strlen(no_viewer_page));
         return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", "not found\n", 10);
     }
     default:
@@ -1228,6 +1242,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     }
     if (opt->scenes_dir)
         load_scenes(&srv, opt->scenes_dir);
+    int builtin = srv.nscenes == 0;
     if (srv.nscenes == 0) {
         sq_scene *sc = sq_scene_default(err);
         if (!sc)
@@ -1291,11 +1306,21 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     }
     srv.vhost = lws_get_vhost_by_name(srv.ctx, "default");
     int port = srv.vhost ? lws_get_vhost_listen_port(srv.vhost) : opt->port;
-    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; %d scene%s:", opt->host, port,
-           srv.nscenes, srv.nscenes == 1 ? "" : "s");
-    for (int i = 0; i < srv.nscenes; i++)
-        printf(" %s", srv.names[i]);
-    printf(")%s\n", opt->lockstep ? " lockstep" : "");
+    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; ", opt->host, port);
+    if (opt->web_dir)
+        printf("viewer from %s; ", opt->web_dir);
+    else
+        printf("no viewer: / says to pass --web DIR; ");
+    if (builtin) {
+        printf("only the built-in cube is offered, as scene \"default\": %s)",
+               opt->scenes_dir ? "no scene loaded from --scenes" : "pass --scenes DIR for more");
+    } else {
+        printf("%d scene%s from %s:", srv.nscenes, srv.nscenes == 1 ? "" : "s", opt->scenes_dir);
+        for (int i = 0; i < srv.nscenes; i++)
+            printf(" %s", srv.names[i]);
+        printf(")");
+    }
+    printf("%s\n", opt->lockstep ? " lockstep" : "");
     fflush(stdout);
 
     struct sigaction sa;
