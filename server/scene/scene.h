@@ -91,6 +91,11 @@ typedef struct sq_world {
     long deadline_misses;
     long resets;
     double last_frame_s;     /* wall-clock compute time of the last frame, s */
+    /* per tool slot: the body a grab's nearest-node fallback may take (-1: none), decided
+     * once per capture point (grab_at) */
+    int grab_known[SQ_MAX_TOOLS];
+    int grab_fallback[SQ_MAX_TOOLS];
+    double grab_at[SQ_MAX_TOOLS][3];
 } sq_world;
 
 sq_world *sq_world_create(const sq_scene *scene, sq_err *err);
