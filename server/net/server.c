@@ -1195,6 +1195,12 @@ static void load_scenes(server *srv, const char *dir)
         snprintf(path, sizeof path, "%s/%s", dir, files[i]);
         sq_err err = {{0}};
         sq_scene *sc = sq_scene_load(path, &err);
+        /* what only the engine can tell (every node fixed, a step bound needing more than
+         * 2^20 substeps, ...): a scene that cannot start is not offered */
+        if (sc && sq_scene_check(sc, &err)) {
+            sq_scene_free(sc);
+            sc = NULL;
+        }
         int dup = -1;
         for (int k = 0; sc && k < srv->nscenes; k++)
             if (!strcmp(srv->names[k], sc->name))

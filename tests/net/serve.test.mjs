@@ -1,0 +1,35 @@
+// serve.test.mjs - what `squish serve` does with the scenes it loads, and replies a client
+// matches by ref: scenes that cannot start are left out with a message, error replies to
+// unparseable JSON carry the ref, stats pushes keep the asked rate.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { execFileSync } from 'node:child_process';
+import { mkdtempSync, writeFileSync } from 'node:fs';
+import os from 'node:os';
+import path from 'node:path';
+import { SquishClient } from './client.mjs';
+import { startServer, SQUISH, sleep } from './harness.mjs';
+
+const box = (name, { material = { E: 1e5, nu: 0.3, density: 1000 }, fixed = [[-1, -1, -1], [2, 2, 0.001]], levels = ['box.msh'] } = {}) =>
+  JSON.stringify({ name, bodies: [{ name: 'box', levels, material, fixed: [{ box: fixed }] }] });
+
+test('scenes that cannot start are left out at start-up, each with a message naming the file and the problem', async () => {
+  const dir = mkdtempSync(path.join(os.tmpdir(), 'squish-check-'));
+  execFileSync(SQUISH, ['mesh', 'box', '3', '3', '3', '--out', path.join(dir, 'box.msh')]);
+  writeFileSync(path.join(dir, 'good.json'), box('good'));
+  writeFileSync(path.join(dir, 'all-fixed.json'), box('all-fixed', { fixed: [[-1, -1, -1], [2, 2, 2]] }));
+  writeFileSync(path.join(dir, 'stiff.json'), box('stiff', { material: { E: 1e18, nu: 0.3, density: 1000 } }));
+  writeFileSync(path.join(dir, 'no-mesh.json'), box('no-mesh', { levels: ['missing.msh'] }));
+  const srv = await startServer(['--scenes', dir]);
+  try {
+    const c = await SquishClient.connect(srv.url);
+    assert.deepEqual(c.welcome.scenes, ['good']);
+    assert.deepEqual((await c.listScenes()).map(s => s.name), ['good']);
+    await c.open('good');
+    await c.close();
+    const err = srv.stderr();
+    assert.match(err, /skipping scene .*all-fixed\.json: bodies\[0\] \("box"\): .*fix all \d+ nodes/);
+    assert.match(err, /skipping scene .*stiff\.json: bodies\[0\] \("box"\): .*needs 2\^\d+ substeps.*the limit is 2\^20/);
+    assert.match(err, /skipping scene .*no-mesh\.json: bodies\[0\]\.levels\[0\]: mesh file "missing\.msh" .*cannot be read/);
+  } finally { await srv.stop(); }
+});
