@@ -1070,13 +1070,15 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         if (!lws_is_final_fragment(wsi) || lws_remaining_packet_payload(wsi))
             return 0;
+        /* messages not read as JSON: their errors say "ref": null */
+        static const sq_request unread = {.ref_kind = SQ_REF_NULL};
         if (c->rx_binary) {
-            send_error(c, NULL, "bad_json", "binary messages are not accepted; send JSON text");
+            send_error(c, &unread, "bad_json", "binary messages are not accepted; send JSON text");
         } else if (c->rx_oversize) {
             char m[160];
             snprintf(m, sizeof m, "text message larger than %zu bytes (--max-message) dropped; "
                      "send smaller messages", max);
-            send_error(c, NULL, "too_large", m);
+            send_error(c, &unread, "too_large", m);
         } else {
             handle_request(c, c->rx, c->rx_len);
         }

@@ -24,6 +24,8 @@ cJSON *sq_reply_new(const char *type, const sq_request *req)
         cJSON_AddStringToObject(o, "ref", req->ref_str);
     else if (req && req->ref_kind == SQ_REF_NUMBER)
         cJSON_AddNumberToObject(o, "ref", req->ref_num);
+    else if (req && req->ref_kind == SQ_REF_NULL)
+        cJSON_AddNullToObject(o, "ref");
     return o;
 }
 

@@ -33,3 +33,36 @@ test('scenes that cannot start are left out at start-up, each with a message nam
     assert.match(err, /skipping scene .*no-mesh\.json: bodies\[0\]\.levels\[0\]: mesh file "missing\.msh" .*cannot be read/);
   } finally { await srv.stop(); }
 });
+
+test('errors to unparseable JSON carry the ref found in the raw text, else "ref": null', async () => {
+  const srv = await startServer();
+  try {
+    const c = await SquishClient.connect(srv.url);
+    const next = () => c.waitFor(m => m.type === 'error', 5000);
+    let p = next();
+    c.sendRaw('{"type":"ping","ref":"abc","t":1,');            // cut off
+    let e = await p;
+    assert.equal(e.code, 'bad_json');
+    assert.equal(e.ref, 'abc');
+    p = next();
+    c.sendRaw('{"ref": 17, "type": ping}');                   // bare word
+    e = await p;
+    assert.deepEqual([e.code, e.ref], ['bad_json', 17]);
+    p = next();
+    c.sendRaw('{"opts":{"ref":"inner"},"type":}');             // only a nested ref: not taken
+    e = await p;
+    assert.equal(e.code, 'bad_json');
+    assert.ok('ref' in e && e.ref === null, `ref null, got ${JSON.stringify(e)}`);
+    p = next();
+    c.sendRaw('not json at all');
+    e = await p;
+    assert.ok('ref' in e && e.ref === null);
+    p = next();
+    c.sendRaw(Buffer.from([1, 2, 3]), { binary: true });
+    e = await p;
+    assert.deepEqual([e.code, e.ref], ['bad_json', null]);
+    // the connection still works, and a valid request's reply is matched by ref as before
+    assert.equal((await c.ping(5)).t, 5);
+    await c.close();
+  } finally { await srv.stop(); }
+});
