@@ -44,7 +44,7 @@ typedef struct client {
     sq_request pending_req;          /* the open/join to answer */
     int demoted;
     int sub_frames, sub_stats;
-    double stats_hz, next_stats;
+    double stats_hz, next_stats, last_stats;
     sq_blob *stats_queued;           /* a stats push not yet written */
     double tokens, last_refill;      /* rate limit */
     char *rx;                        /* message being assembled */
@@ -749,6 +749,10 @@ static void handle_request(client *c, const char *text, size_t len)
         send_json(c, stats_json(srv, r, c, &req));
         break;
     case SQ_REQ_SUBSCRIBE: {
+        /* the first push comes at once when stats are turned on; a subscribe that only
+         * changes the rate (or repeats stats: true) keeps the schedule: next push one new
+         * period after the last one, never an extra push */
+        int was_on = c->sub_stats;
         if (req.subscribe.stats >= 0)
             c->sub_stats = req.subscribe.stats;
         if (req.subscribe.frames >= 0) {
@@ -758,7 +762,10 @@ static void handle_request(client *c, const char *text, size_t len)
         }
         if (req.subscribe.has_hz)
             c->stats_hz = req.subscribe.stats_hz;
-        c->next_stats = 0;
+        if (!was_on)
+            c->next_stats = 0;
+        else if (c->last_stats > 0)
+            c->next_stats = c->last_stats + 1.0 / c->stats_hz;
         cJSON *o = sq_reply_new("ack", &req);
         cJSON_AddStringToObject(o, "request", "subscribe");
         long frame = 0;
@@ -848,7 +855,12 @@ static void tick(lws_sorted_usec_list_t *sul)
             client *c = r->members[k];
             if (!c->ready || !c->sub_stats || c->stats_queued || now < c->next_stats)
                 continue;
-            c->next_stats = now + 1.0 / (c->stats_hz > 0 ? c->stats_hz : 4);
+            /* on a fixed grid (no drift from the 50 ms tick), restarted after a gap; a late
+             * push delays the next one to at least half a period */
+            double period = 1.0 / (c->stats_hz > 0 ? c->stats_hz : 4);
+            c->next_stats = c->next_stats > 0 && now - c->next_stats < period
+                            ? fmax(c->next_stats + period, now + 0.5 * period) : now + period;
+            c->last_stats = now;
             sq_blob *b = sq_reply_blob(stats_json(srv, r, c, NULL));
             c->stats_queued = b;
             fifo_push(c, b);

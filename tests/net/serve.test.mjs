@@ -66,3 +66,32 @@ test('errors to unparseable JSON carry the ref found in the raw text, else "ref"
     await c.close();
   } finally { await srv.stop(); }
 });
+
+test('subscribe stats_hz: 2 pushes 2 stats per second, also when the rate is changed after stats: true', async () => {
+  const srv = await startServer();
+  try {
+    const c = await SquishClient.connect(srv.url);
+    await c.open('default');
+    const at = [];
+    c.on('stats', () => at.push(Date.now()));
+    const t0 = Date.now();
+    const pushed = c.waitFor(() => true, 5000, 'stats');
+    await c.subscribe({ stats: true });          // 4 Hz by default, first push at once
+    await pushed;
+    await c.subscribe({ stats_hz: 2 });          // a rate change: no extra push
+    await sleep(1600 - (Date.now() - t0));
+    const first = at.filter(t => t - t0 < 1600).length;
+    await sleep(4000 - (Date.now() - t0));
+    const all = at.filter(t => t - t0 < 4000);
+    const gaps = all.slice(1).map((t, i) => t - all[i]);
+    console.log(`# stats pushes: ${first} in 1.6 s, ${all.length} in 4 s, gaps ${gaps.join(' ')} ms`);
+    // pushes due at 0, 0.5, 1.0, 1.5 s (the 50 ms housekeeping tick and a loaded machine
+    // delay them, never add any): at most 4 in the first 1.6 s, 7 to 8 in 4 s
+    assert.ok(first <= 4, `${first} stats in 1.6 s at 2 Hz`);
+    assert.ok(all.length >= 7 && all.length <= 8, `${all.length} stats in 4 s at 2 Hz`);
+    // no two pushes close together: a late push delays the next to half a period (250 ms);
+    // 150 ms leaves room for delivery jitter
+    assert.ok(Math.min(...gaps) >= 150, `gaps ${gaps}`);
+    await c.close();
+  } finally { await srv.stop(); }
+});
