@@ -377,7 +377,13 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
             r->set.has_E = given = 1;
         }
         if ((v = cJSON_GetObjectItemCaseSensitive(m, "nu"))) {
-            if (get_number(v, "set.material.nu", 0, 0.49, 0, &r->set.nu, err))
+            /* [0, 0.5), as in scene files (docs/scenes.md); the engine refuses a value whose
+             * step bound it cannot meet */
+            if (cJSON_IsNumber(v) && isfinite(v->valuedouble) &&
+                !(v->valuedouble >= 0 && v->valuedouble < 0.5))
+                return fail(err, "out_of_range", "set.material.nu: %g is outside [0, 0.5); "
+                            "send a value in range", v->valuedouble);
+            if (get_number(v, "set.material.nu", 0, 0.5, 0, &r->set.nu, err))
                 return -1;
             r->set.has_nu = given = 1;
         }

@@ -50,7 +50,7 @@ static void check_request(const sq_request *r)
         break;
     case SQ_REQ_SET:
         if (r->set.has_nu)
-            expect(r->set.nu >= 0 && r->set.nu <= 0.49);
+            expect(r->set.nu >= 0 && r->set.nu < 0.5);
         if (r->set.has_E)
             expect(r->set.E > 0 && r->set.E <= 1e10);
         if (r->set.has_budget)

@@ -279,3 +279,19 @@ SQ_TEST(net_request_ref_recovered_from_bad_json)
                        : q.ref_kind != SQ_REF_STRING || !strcmp(q.ref_str, "k1"));
     }
 }
+
+SQ_TEST(net_request_nu_range_as_scene_files)
+{
+    /* set accepts nu in [0, 0.5), the range of scene files (docs/scenes.md) */
+    sq_request r;
+    sq_net_error e;
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":0.499}}", &r, &e) == 0);
+    CHECK(r.set.has_nu && r.set.nu == 0.499);
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":0}}", &r, &e) == 0);
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":0.5}}", &r, &e) == -1);
+    CHECK(!strcmp(e.code, "out_of_range"));
+    CHECK_CONTAINS(e.message, "set.material.nu: 0.5 is outside [0, 0.5)");
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":-0.1}}", &r, &e) == -1);
+    CHECK_CONTAINS(e.message, "outside [0, 0.5)");
+    expect_code("{\"type\":\"set\",\"material\":{\"nu\":\"0.3\"}}", "bad_field");
+}
