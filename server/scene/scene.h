@@ -52,6 +52,8 @@ typedef struct sq_scene {
     sq_probe probes[SQ_MAX_PROBES];
     double duration;       /* default run length of `squish run`, s (key "duration", default 2) */
     int nlisted[SQ_MAX_BODIES];                   /* levels listed in the file per body */
+    int nwarnings;                                /* load-time warnings (sq_scene_load prints them) */
+    char warnings[SQ_MAX_BODIES][400];            /* e.g. an implausible mesh size: "scale" */
     int level_index[SQ_MAX_BODIES][SQ_MAX_LEVELS]; /* listed index of each loaded level */
 } sq_scene;
 
