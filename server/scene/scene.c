@@ -723,11 +723,13 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
                                 : fabs(hint - 1e-2) < 1e-9 ? " (a mesh in centimetres)" : "";
             char bp[256];
             join(bp, sizeof bp, path, "scale");
-            snprintf(s->warnings[s->nwarnings++], sizeof s->warnings[0],
+            char *wm = s->warnings[s->nwarnings++];
+            if (snprintf(wm, sizeof s->warnings[0],
                      "%s: %s: the mesh's bounding-box diagonal is %g m, %s: are its units metres? "
                      "If not, set %s (now %g), e.g. \"scale\": %g%s",
                      c->label, p, diag, diag > 10 ? "above 10 m" : "below 1 mm", bp, scale,
-                     hint * scale, units);
+                     hint * scale, units) < 0)
+                wm[0] = 0;
             warned = 1;
         }
         if (offset[0] != 0 || offset[1] != 0 || offset[2] != 0) {
