@@ -142,3 +142,22 @@ test('scenes are listed and opened by the scene file\'s "name"', async () => {
     assert.match(s.stderr(), /same-name-again\.json: its name "my-cube" is already the name of .*file-name\.json/);
   } finally { await s.stop(); }
 });
+
+test('two viewers racing for control: one ack, one controller_present', async () => {
+  const ctl = await connect();
+  const o = await ctl.open('paper-cube');
+  const v = await Promise.all([connect({ role: 'view' }), connect({ role: 'view' })]);
+  await Promise.all(v.map(c => c.join(o.session)));
+  const left = v.map(controlEvent);
+  await ctl.close();
+  await Promise.all(left);
+  const r = await Promise.allSettled(v.map(c => c.request({ type: 'take_control' })));
+  const won = r.filter(x => x.status === 'fulfilled');
+  const lost = r.filter(x => x.status === 'rejected');
+  assert.equal(won.length, 1);
+  assert.equal(lost.length, 1);
+  assert.equal(lost[0].reason.code, 'controller_present');
+  const s = await v[0].stats();
+  assert.equal(s.controller, true);
+  await Promise.all(v.map(c => c.close()));
+});
