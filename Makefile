@@ -9,6 +9,9 @@ CFLAGS   ?= $(OPT) -g
 CFLAGS   += -std=c11 -Wall -Wextra -D_GNU_SOURCE -Iserver -MMD -MP
 CFLAGS   += $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
 LDLIBS   += $(shell pkg-config --libs $(PKGS) 2>/dev/null) -lm -lpthread
+PREFIX   ?= /usr/local
+DATADIR  := $(PREFIX)/share/squish
+CFLAGS   += -DSQ_DATADIR='"$(DATADIR)"'
 SAN      := -O1 -g -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
 
 LIB_SRC  := $(sort $(filter-out server/app/%,$(wildcard server/*/*.c)))
@@ -25,7 +28,7 @@ APT_PKGS := build-essential pkg-config libwebsockets-dev libcjson-dev zlib1g-dev
             libpng-dev clang libclang-rt-14-dev gnuplot-nox chromium hyperfine \
             python3-vtk9 nginx python3-websockets
 
-.PHONY: all squish deps run test unit asan bench meshes fuzz clean node-deps
+.PHONY: all squish deps run test unit asan bench meshes fuzz clean node-deps install uninstall
 
 all: squish
 squish: $(BUILD)/squish
@@ -78,11 +81,34 @@ unit: $(BUILD)/unit_tests
 asan: $(BUILD)/san/unit_tests
 	ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 $(BUILD)/san/unit_tests
 
+# the viewer (web/) and the shipped scenes (meshes/scenes) are found next to the binary's tree
 run: deps
 	@$(MAKE) --no-print-directory squish
 	@$(MAKE) --no-print-directory node-deps || echo "warning: npm packages not installed (needed by the Node client examples only): retry with make node-deps"
 	@echo "squish: serving on http://127.0.0.1:$${PORT:-8080}/  (Ctrl-C to stop)"
-	$(BUILD)/squish serve --host 127.0.0.1 --port $${PORT:-8080} --scenes meshes/scenes --web web
+	$(BUILD)/squish serve --host 127.0.0.1 --port $${PORT:-8080}
+
+# $(DESTDIR)$(PREFIX)/bin/squish and $(DESTDIR)$(DATADIR)/{web,scenes,meshes}. The scene files
+# name their meshes "../<shape>/..." (meshes/scenes next to meshes/<shape>); installed they sit
+# in share/squish/scenes next to share/squish/meshes, so those paths become "../meshes/<shape>/".
+install: squish
+	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(DATADIR)/web $(DESTDIR)$(DATADIR)/scenes \
+	  $(DESTDIR)$(DATADIR)/meshes
+	install -m 755 $(BUILD)/squish $(DESTDIR)$(PREFIX)/bin/squish
+	install -m 644 $(wildcard web/*.*) $(DESTDIR)$(DATADIR)/web/
+	@set -e; for d in meshes/*/; do d=$${d%/}; n=$${d#meshes/}; [ "$$n" = scenes ] && continue; \
+	  echo "install $$d -> $(DESTDIR)$(DATADIR)/meshes/$$n"; \
+	  install -d $(DESTDIR)$(DATADIR)/meshes/$$n; \
+	  install -m 644 $$d/*.msh $(DESTDIR)$(DATADIR)/meshes/$$n/; done
+	@set -e; for f in meshes/scenes/*.json; do \
+	  echo "install $$f -> $(DESTDIR)$(DATADIR)/scenes/ (mesh paths ../X/ -> ../meshes/X/)"; \
+	  sed 's#"\.\./\([A-Za-z0-9_-]*\)/#"../meshes/\1/#g' $$f > $(DESTDIR)$(DATADIR)/scenes/$${f##*/}; \
+	  chmod 644 $(DESTDIR)$(DATADIR)/scenes/$${f##*/}; done
+	@echo "installed: $(DESTDIR)$(PREFIX)/bin/squish; viewer, scenes and meshes in $(DESTDIR)$(DATADIR)"
+
+uninstall:
+	rm -f $(DESTDIR)$(PREFIX)/bin/squish
+	rm -rf $(DESTDIR)$(DATADIR)
 
 test: deps node-deps
 	@$(MAKE) --no-print-directory -j2 squish $(BUILD)/unit_tests $(BUILD)/san/unit_tests

@@ -1,7 +1,22 @@
-/* cmd_serve.c - `squish serve`: the WebSocket simulation service (server/net). */
+/* cmd_serve.c - `squish serve`: the WebSocket simulation service (server/net).
+ *
+ * Without --web / --scenes the viewer and the shipped scenes are looked for where a build or
+ * an install puts them (sq_serve_find_data): next to the executable's tree (<exe>/../web,
+ * <exe>/../meshes/scenes: the repository's build/squish), the installed data directory
+ * relative to the executable (<exe>/../share/squish/{web,scenes}) and the data directory
+ * compiled in (SQ_DATADIR, from the Makefile's PREFIX).
+ */
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <dirent.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#ifndef SQ_DATADIR
+#define SQ_DATADIR "/usr/local/share/squish"
+#endif
 
 #include "app/commands.h"
 #include "net/net.h"
@@ -12,8 +27,12 @@ static void usage(FILE *f)
             "usage: squish serve [options]\n"
             "  --host ADDR         address to bind (default 127.0.0.1; 0.0.0.0 for all)\n"
             "  --port N            TCP port (default 8080; 0 picks a free one, printed)\n"
-            "  --scenes DIR        scene files (*.json) offered to clients (default: built-in cube)\n"
-            "  --web DIR           static files served over HTTP (the viewer)\n"
+            "  --scenes DIR        scene files (*.json) offered to clients (default: the shipped\n"
+            "                      scenes, found next to the executable or in " SQ_DATADIR "/scenes)\n"
+            "  --no-scenes         offer only the built-in cube (scene \"default\")\n"
+            "  --web DIR           static files served over HTTP (default: the viewer, found next to\n"
+            "                      the executable or in " SQ_DATADIR "/web)\n"
+            "  --no-web            serve no viewer (/ says how to get one)\n"
             "  --token T           clients need this token for the control role\n"
             "  --origin URL        allowed Origin of WebSocket clients (repeatable; default any)\n"
             "  --max-sessions N    running sessions (default 16)\n"
@@ -28,6 +47,67 @@ static void usage(FILE *f)
             "  --instance K        1..99: this server is instance K behind a proxy; every session\n"
             "                      id ends in K's two digits (docs/deploy.md, docker/nginx.conf)\n"
             "Protocol: docs/protocol.md. Stops cleanly on SIGINT/SIGTERM.\n");
+}
+
+/* dir holds a regular file `file` */
+static int has_file(const char *dir, const char *file)
+{
+    char p[PATH_MAX + 64];
+    struct stat st;
+    if (snprintf(p, sizeof p, "%s/%s", dir, file) >= (int)sizeof p)
+        return 0;
+    return stat(p, &st) == 0 && S_ISREG(st.st_mode);
+}
+
+/* dir holds at least one *.json file */
+static int has_json(const char *dir)
+{
+    DIR *d = opendir(dir);
+    if (!d)
+        return 0;
+    int found = 0;
+    struct dirent *e;
+    while (!found && (e = readdir(d))) {
+        size_t n = strlen(e->d_name);
+        found = e->d_name[0] != '.' && n > 5 && !strcmp(e->d_name + n - 5, ".json");
+    }
+    closedir(d);
+    return found;
+}
+
+/* the first candidate directory that holds what is wanted (index.html for the viewer, a
+ * *.json for scenes), made absolute; NULL when none does */
+static const char *find_data(int scenes, char *out, size_t cap)
+{
+    char exe[PATH_MAX] = "", dir[PATH_MAX] = "";
+    ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    if (n > 0) {
+        exe[n] = 0;
+        snprintf(dir, sizeof dir, "%s", exe);
+        char *slash = strrchr(dir, '/');
+        if (slash)
+            *slash = 0;
+    }
+    const char *tails[] = {scenes ? "/../meshes/scenes" : "/../web",
+                           scenes ? "/../share/squish/scenes" : "/../share/squish/web",
+                           scenes ? "/meshes/scenes" : "/web"};
+    char cand[PATH_MAX + 64];
+    for (int i = 0; i < 4; i++) {
+        if (i < 3) {
+            if (!dir[0])
+                continue;
+            snprintf(cand, sizeof cand, "%s%s", dir, tails[i]);
+        } else {
+            snprintf(cand, sizeof cand, "%s%s", SQ_DATADIR, scenes ? "/scenes" : "/web");
+        }
+        if (scenes ? has_json(cand) : has_file(cand, "index.html")) {
+            char real[PATH_MAX];
+            if (snprintf(out, cap, "%s", realpath(cand, real) ? real : cand) >= (int)cap)
+                continue; /* too long to hold: look further */
+            return out;
+        }
+    }
+    return NULL;
 }
 
 /* integer flag value in [lo, hi]; -1 on error (message printed) */
@@ -72,6 +152,8 @@ static int is_value_flag(const char *a)
 int sq_cmd_serve(int argc, char **argv)
 {
     sq_serve_options o = sq_serve_options_default();
+    int no_scenes = 0, no_web = 0;
+    static char web_found[PATH_MAX], scenes_found[PATH_MAX];
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int used = 1, rc = 0;
@@ -84,6 +166,12 @@ int sq_cmd_serve(int argc, char **argv)
             used = 0;
         } else if (!strcmp(a, "--verbose")) {
             o.verbose = 1;
+            used = 0;
+        } else if (!strcmp(a, "--no-scenes")) {
+            no_scenes = 1;
+            used = 0;
+        } else if (!strcmp(a, "--no-web")) {
+            no_web = 1;
             used = 0;
         } else if (!is_value_flag(a)) {
             fprintf(stderr, "squish serve: unknown option '%s'; see squish serve --help\n", a);
@@ -136,6 +224,16 @@ int sq_cmd_serve(int argc, char **argv)
             return 2;
         i += used;
     }
+    if ((no_scenes && o.scenes_dir) || (no_web && o.web_dir)) {
+        fprintf(stderr, "squish serve: %s contradicts %s; give one of them\n",
+                no_scenes && o.scenes_dir ? "--no-scenes" : "--no-web",
+                no_scenes && o.scenes_dir ? "--scenes" : "--web");
+        return 2;
+    }
+    if (!o.web_dir && !no_web)
+        o.web_dir = find_data(0, web_found, sizeof web_found);
+    if (!o.scenes_dir && !no_scenes)
+        o.scenes_dir = find_data(1, scenes_found, sizeof scenes_found);
     sq_err err = {{0}};
     if (sq_serve(&o, &err)) {
         fprintf(stderr, "squish serve: %s\n", err.msg);

@@ -43,6 +43,7 @@ typedef enum sq_req_type {
     SQ_REQ_SUBSCRIBE,
     SQ_REQ_NODES,
     SQ_REQ_PING,
+    SQ_REQ_TAKE_CONTROL,
     SQ_REQ_COUNT
 } sq_req_type;
 
@@ -50,7 +51,12 @@ typedef enum sq_req_type {
 typedef enum sq_role { SQ_ROLE_CONTROL = 0, SQ_ROLE_VIEW = 1 } sq_role;
 
 /* the optional "ref" of a request, echoed in its reply */
-typedef enum sq_ref_kind { SQ_REF_NONE = 0, SQ_REF_STRING = 1, SQ_REF_NUMBER = 2 } sq_ref_kind;
+typedef enum sq_ref_kind {
+    SQ_REF_NONE = 0,
+    SQ_REF_STRING = 1,
+    SQ_REF_NUMBER = 2,
+    SQ_REF_NULL = 3          /* "ref": null in the reply (unreadable message, ref not found) */
+} sq_ref_kind;
 
 /* a decoded request; fields of the other types are zero. has_* flags tell which optional
  * fields were given. */
@@ -115,6 +121,10 @@ typedef struct sq_request {
         int has_t;
         double t;
     } ping;
+    struct {
+        int has_token;
+        char token[SQ_NET_TOKEN_MAX];
+    } take_control;
 } sq_request;
 
 /* a protocol error: a code from docs/protocol.md and a message naming field, value and fix */
@@ -129,7 +139,9 @@ const char *sq_req_name(sq_req_type t);
 /* decode one text message of len bytes (need not be NUL-terminated) into req. Checks JSON
  * syntax, the type, field names and JSON types, number finiteness and ranges, string
  * lengths. Messages longer than max_len are refused ("too_large"). Returns 0, or -1 with err
- * filled; on error req->type and the ref are still set when they could be read. */
+ * filled; on error req->type and the ref are still set when they could be read. A message
+ * that is not valid UTF-8 or JSON gets its ref from a scan of the raw text for a top-level
+ * "ref" string or number (SQ_REF_NULL when there is none to recover). */
 int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *req,
                       sq_net_error *err);
 

@@ -9,6 +9,7 @@
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 static const char *const req_names[SQ_REQ_COUNT] = {
@@ -28,6 +29,7 @@ static const char *const req_names[SQ_REQ_COUNT] = {
     [SQ_REQ_SUBSCRIBE] = "subscribe",
     [SQ_REQ_NODES] = "nodes",
     [SQ_REQ_PING] = "ping",
+    [SQ_REQ_TAKE_CONTROL] = "take_control",
 };
 
 const char *sq_req_name(sq_req_type t)
@@ -253,6 +255,21 @@ static int decode_hello(const cJSON *o, sq_request *r, sq_net_error *err)
     return 0;
 }
 
+static int decode_take_control(const cJSON *o, sq_request *r, sq_net_error *err)
+{
+    static const char *const f[] = {"type", "ref", "token", NULL};
+    if (check_fields(o, "take_control", f, err))
+        return -1;
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, "token");
+    if (v) {
+        if (get_string(v, "take_control.token", r->take_control.token,
+                       sizeof r->take_control.token, err))
+            return -1;
+        r->take_control.has_token = 1;
+    }
+    return 0;
+}
+
 static int decode_open(const cJSON *o, sq_request *r, sq_net_error *err)
 {
     static const char *const f[] = {"type", "ref", "scene", NULL};
@@ -360,7 +377,13 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
             r->set.has_E = given = 1;
         }
         if ((v = cJSON_GetObjectItemCaseSensitive(m, "nu"))) {
-            if (get_number(v, "set.material.nu", 0, 0.49, 0, &r->set.nu, err))
+            /* [0, 0.5), as in scene files (docs/scenes.md); the engine refuses a value whose
+             * step bound it cannot meet */
+            if (cJSON_IsNumber(v) && isfinite(v->valuedouble) &&
+                !(v->valuedouble >= 0 && v->valuedouble < 0.5))
+                return fail(err, "out_of_range", "set.material.nu: %g is outside [0, 0.5); "
+                            "send a value in range", v->valuedouble);
+            if (get_number(v, "set.material.nu", 0, 0.5, 0, &r->set.nu, err))
                 return -1;
             r->set.has_nu = given = 1;
         }
@@ -523,24 +546,150 @@ static size_t utf8_check(const unsigned char *s, size_t len)
     return len;
 }
 
+/* ---- ref recovery from text that is not valid JSON */
+
+static size_t skip_ws(const char *t, size_t i, size_t len)
+{
+    while (i < len && (t[i] == ' ' || t[i] == '\t' || t[i] == '\n' || t[i] == '\r'))
+        i++;
+    return i;
+}
+
+/* the JSON string starting at t[i] == '"': its end (index after the closing quote), or len
+ * when unterminated. When out is given, the value is decoded into it: printable ASCII and
+ * the simple escapes only (*ok = 0 for anything else or when it does not fit in cap - 1). */
+static size_t scan_string(const char *t, size_t i, size_t len, char *out, size_t cap, int *ok)
+{
+    size_t n = 0;
+    if (ok)
+        *ok = 1;
+    for (i++; i < len; i++) {
+        unsigned char ch = (unsigned char)t[i];
+        if (ch == '"') {
+            if (out)
+                out[n < cap ? n : cap - 1] = 0;
+            return i + 1;
+        }
+        if (ch == '\\') {
+            if (++i >= len)
+                break;
+            static const char esc[] = "\"\\/bfnrt", val[] = "\"\\/\b\f\n\r\t";
+            const char *e = strchr(esc, t[i]);
+            if (t[i] == 'u' || !e || !*e) {
+                if (ok)
+                    *ok = 0; /* \uXXXX (or a bad escape): not recovered */
+                continue;
+            }
+            ch = (unsigned char)val[e - esc];
+            if (ch < 0x20 && ok)
+                *ok = 0; /* control characters are refused in refs */
+        } else if (ch < 0x20 || ch > 0x7e) {
+            if (ok)
+                *ok = 0;
+        }
+        if (out && n + 1 < cap)
+            out[n] = (char)ch;
+        if (out && ++n >= cap && ok)
+            *ok = 0;
+    }
+    if (ok)
+        *ok = 0;
+    return len;
+}
+
+/* a top-level "ref" of an object in text that failed to parse: scanned with strings and
+ * nesting tracked, so a "ref" inside a string or a nested object is not taken; the first
+ * one found is used (as for valid JSON). Sets SQ_REF_STRING/NUMBER, else SQ_REF_NULL. */
+static void recover_ref(const char *t, size_t len, sq_request *req)
+{
+    req->ref_kind = SQ_REF_NULL;
+    if (!t)
+        return;
+    size_t i = skip_ws(t, 0, len);
+    if (i >= len || t[i] != '{')
+        return;
+    int depth = 0, expect_key = 0;
+    while (i < len) {
+        char ch = t[i];
+        if (ch == '"') {
+            if (depth == 1 && expect_key) {
+                char key[8];
+                int ok;
+                size_t e = scan_string(t, i, len, key, sizeof key, &ok);
+                expect_key = 0;
+                size_t v = skip_ws(t, e, len);
+                if (ok && e < len && !strcmp(key, "ref") && v < len && t[v] == ':') {
+                    v = skip_ws(t, v + 1, len);
+                    if (v < len && t[v] == '"') {
+                        char val[SQ_NET_NAME_MAX];
+                        scan_string(t, v, len, val, sizeof val, &ok);
+                        if (ok) {
+                            req->ref_kind = SQ_REF_STRING;
+                            memcpy(req->ref_str, val, sizeof val);
+                        }
+                        return;
+                    }
+                    /* a JSON number: -? digits [. digits] [e[+-] digits], then a delimiter */
+                    size_t k = v;
+                    char num[40];
+                    size_t n = 0;
+                    while (k < len && n < sizeof num - 1 && strchr("+-.eE0123456789", t[k]) && t[k])
+                        num[n++] = t[k++];
+                    num[n] = 0;
+                    size_t after = skip_ws(t, k, len);
+                    if (n && (after >= len || t[after] == ',' || t[after] == '}')) {
+                        char *end;
+                        double x = strtod(num, &end);
+                        int digit0 = num[0] == '-' ? num[1] : num[0];
+                        if (!*end && isfinite(x) && digit0 >= '0' && digit0 <= '9') {
+                            req->ref_kind = SQ_REF_NUMBER;
+                            req->ref_num = x;
+                        }
+                    }
+                    return;
+                }
+                i = e;
+                continue;
+            }
+            i = scan_string(t, i, len, NULL, 0, NULL);
+            continue;
+        }
+        if (ch == '{' || ch == '[') {
+            depth++;
+            expect_key = depth == 1 && ch == '{';
+        } else if (ch == '}' || ch == ']') {
+            if (--depth <= 0)
+                return; /* the top-level object ended without a ref */
+        } else if (ch == ',' && depth == 1) {
+            expect_key = 1;
+        }
+        i++;
+    }
+}
+
 int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *req,
                       sq_net_error *err)
 {
     memset(req, 0, sizeof *req);
     err->code = NULL;
     err->message[0] = 0;
-    if (len > max_len)
+    if (len > max_len) {
+        recover_ref(text, len, req);
         return fail(err, "too_large", "message of %zu bytes exceeds the limit of %zu bytes; "
                     "send smaller messages", len, max_len);
+    }
     if (!text)
         return fail(err, "bad_json", "empty message; send a JSON object with a \"type\"");
     size_t bad = utf8_check((const unsigned char *)text, len);
-    if (bad < len)
+    if (bad < len) {
+        recover_ref(text, len, req);
         return fail(err, "bad_json", "text is not valid UTF-8 at byte %zu; send UTF-8 JSON", bad);
+    }
 
     const char *end = NULL;
     cJSON *root = cJSON_ParseWithLengthOpts(text, len, &end, 0);
     if (!root) {
+        recover_ref(text, len, req);
         size_t at = (end && end >= text && end <= text + len) ? (size_t)(end - text) : 0;
         return fail(err, "bad_json", "invalid JSON at byte %zu; send one JSON object", at);
     }
@@ -550,12 +699,14 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
             break;
         if (*p != ' ' && *p != '\t' && *p != '\n' && *p != '\r') {
             cJSON_Delete(root);
+            recover_ref(text, len, req);
             return fail(err, "bad_json", "trailing bytes after the JSON value at byte %zu; "
                         "send exactly one JSON object", (size_t)(p - text));
         }
     }
     int rc = -1;
     if (!cJSON_IsObject(root)) {
+        req->ref_kind = SQ_REF_NULL;
         fail(err, "bad_json", "expected a JSON object with a \"type\", got %s", json_kind(root));
         goto out;
     }
@@ -570,6 +721,7 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
             req->ref_kind = SQ_REF_NUMBER;
             req->ref_num = ref->valuedouble;
         } else {
+            req->ref_kind = SQ_REF_NULL; /* given but unusable: the error says "ref": null */
             fail(err, "bad_field", "ref: expected a string of at most %d bytes or a finite "
                  "number", SQ_NET_NAME_MAX - 1);
             goto out;
@@ -591,7 +743,8 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
             req->type = (sq_req_type)t;
     if (req->type == SQ_REQ_NONE) {
         fail(err, "bad_type", "unknown type \"%.40s\"; known: hello, list_scenes, open, join, "
-             "leave, tool, set, pause, resume, reset, step, stats, subscribe, nodes, ping",
+             "leave, tool, set, pause, resume, reset, step, stats, subscribe, nodes, ping, "
+             "take_control",
              type->valuestring);
         goto out;
     }
@@ -603,6 +756,7 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
     case SQ_REQ_TOOL: rc = decode_tool(root, req, err); break;
     case SQ_REQ_SET: rc = decode_set(root, req, err); break;
     case SQ_REQ_SUBSCRIBE: rc = decode_subscribe(root, req, err); break;
+    case SQ_REQ_TAKE_CONTROL: rc = decode_take_control(root, req, err); break;
     default: rc = decode_simple(root, req, err); break;
     }
     rc = rc ? -1 : 0;
@@ -621,7 +775,8 @@ static int needs_control(sq_req_type t)
 /* requests that act on the client's session */
 static int needs_session(sq_req_type t)
 {
-    return needs_control(t) || t == SQ_REQ_STATS || t == SQ_REQ_NODES || t == SQ_REQ_LEAVE;
+    return needs_control(t) || t == SQ_REQ_STATS || t == SQ_REQ_NODES || t == SQ_REQ_LEAVE ||
+           t == SQ_REQ_TAKE_CONTROL;
 }
 
 int sq_request_check(const sq_request *r, const sq_client_ctx *c, sq_net_error *err)

@@ -45,7 +45,7 @@ typedef struct client {
     sq_request pending_req;          /* the open/join to answer */
     int demoted;
     int sub_frames, sub_stats;
-    double stats_hz, next_stats;
+    double stats_hz, next_stats, last_stats;
     sq_blob *stats_queued;           /* a stats push not yet written */
     double tokens, last_refill;      /* rate limit */
     char *rx;                        /* message being assembled */
@@ -287,6 +287,23 @@ static void release_tools(client *c, srec *r)
     c->ntool_ids = 0;
 }
 
+/* tell every client of r who controls it now (event "control"): sent on every change */
+static void control_event(srec *r, const char *reason)
+{
+    for (int i = 0; i < r->nmembers; i++) {
+        client *m = r->members[i];
+        if (!m->ready)
+            continue; /* a client still joining learns its role from joined */
+        cJSON *e = sq_reply_new("event", NULL);
+        cJSON_AddStringToObject(e, "kind", "control");
+        cJSON_AddNumberToObject(e, "session", r->s->id);
+        cJSON_AddBoolToObject(e, "controller", r->controller != 0);
+        cJSON_AddBoolToObject(e, "you", r->controller == m->serial);
+        cJSON_AddStringToObject(e, "reason", reason);
+        send_json(m, e);
+    }
+}
+
 static void leave_session(client *c)
 {
     srec *r = c->sess;
@@ -300,6 +317,7 @@ static void leave_session(client *c)
     if (r->controller == c->serial) {
         r->controller = 0;
         release_tools(c, r);
+        control_event(r, "left");
     }
     c->ntool_ids = 0;
     if (r->nmembers == 0) {
@@ -622,7 +640,13 @@ static void do_open_or_join(client *c, const sq_request *req)
             return;
         }
         if (c->sess == r) {
-            /* already here: answer again with the current state */
+            /* already here: answer again with the current state; the controller joining
+             * as a viewer gives control up */
+            if (role == SQ_ROLE_VIEW && r->controller == c->serial) {
+                r->controller = 0;
+                release_tools(c, r);
+                control_event(r, "demoted");
+            }
             c->pending_req = *req;
             send_session_info(c);
             return;
@@ -630,11 +654,14 @@ static void do_open_or_join(client *c, const sq_request *req)
         leave_session(c);
     }
     c->pending_req = *req;
+    uint64_t had = r->controller;
     if (add_member(c, r, role)) {
         if (r->nmembers == 0 && !r->empty_since)
             r->empty_since = sq_now();
         return;
     }
+    if (req->type == SQ_REQ_JOIN && r->controller != had)
+        control_event(r, "taken"); /* a control client joined a session without one */
     c->pending = 1;
     pthread_mutex_lock(&r->s->mu);
     int state = r->s->state;
@@ -725,6 +752,10 @@ static void handle_request(client *c, const char *text, size_t len)
         send_json(c, stats_json(srv, r, c, &req));
         break;
     case SQ_REQ_SUBSCRIBE: {
+        /* the first push comes at once when stats are turned on; a subscribe that only
+         * changes the rate (or repeats stats: true) keeps the schedule: next push one new
+         * period after the last one, never an extra push */
+        int was_on = c->sub_stats;
         if (req.subscribe.stats >= 0)
             c->sub_stats = req.subscribe.stats;
         if (req.subscribe.frames >= 0) {
@@ -734,7 +765,10 @@ static void handle_request(client *c, const char *text, size_t len)
         }
         if (req.subscribe.has_hz)
             c->stats_hz = req.subscribe.stats_hz;
-        c->next_stats = 0;
+        if (!was_on)
+            c->next_stats = 0;
+        else if (c->last_stats > 0)
+            c->next_stats = c->last_stats + 1.0 / c->stats_hz;
         cJSON *o = sq_reply_new("ack", &req);
         cJSON_AddStringToObject(o, "request", "subscribe");
         long frame = 0;
@@ -745,6 +779,36 @@ static void handle_request(client *c, const char *text, size_t len)
         }
         cJSON_AddNumberToObject(o, "frame", (double)frame);
         send_json(c, o);
+        break;
+    }
+    case SQ_REQ_TAKE_CONTROL: {
+        if (r->controller && r->controller != c->serial) {
+            send_error(c, &req, "controller_present", "take_control: another client controls "
+                       "this session; wait for an event of kind \"control\" saying nobody does");
+            return;
+        }
+        if (opt->token && !c->token_ok &&
+            !(req.take_control.has_token && token_matches(srv, req.take_control.token))) {
+            send_error(c, &req, "bad_token", req.take_control.has_token
+                       ? "take_control.token: wrong token; ask the server's operator"
+                       : "take_control.token: the server needs a token for control; send it "
+                         "here or in hello.token");
+            return;
+        }
+        c->token_ok = 1;
+        int changed = r->controller != c->serial;
+        r->controller = c->serial;
+        c->demoted = 0;
+        cJSON *o = sq_reply_new("ack", &req);
+        cJSON_AddStringToObject(o, "request", "take_control");
+        cJSON_AddStringToObject(o, "role", "control");
+        pthread_mutex_lock(&r->s->mu);
+        long frame = r->s->snap.frame;
+        pthread_mutex_unlock(&r->s->mu);
+        cJSON_AddNumberToObject(o, "frame", (double)frame);
+        send_json(c, o);
+        if (changed)
+            control_event(r, "taken");
         break;
     }
     case SQ_REQ_PING: {
@@ -794,7 +858,12 @@ static void tick(lws_sorted_usec_list_t *sul)
             client *c = r->members[k];
             if (!c->ready || !c->sub_stats || c->stats_queued || now < c->next_stats)
                 continue;
-            c->next_stats = now + 1.0 / (c->stats_hz > 0 ? c->stats_hz : 4);
+            /* on a fixed grid (no drift from the 50 ms tick), restarted after a gap; a late
+             * push delays the next one to at least half a period */
+            double period = 1.0 / (c->stats_hz > 0 ? c->stats_hz : 4);
+            c->next_stats = c->next_stats > 0 && now - c->next_stats < period
+                            ? fmax(c->next_stats + period, now + 0.5 * period) : now + period;
+            c->last_stats = now;
             sq_blob *b = sq_reply_blob(stats_json(srv, r, c, NULL));
             c->stats_queued = b;
             fifo_push(c, b);
@@ -924,6 +993,17 @@ static int snapshot_write(server *srv, struct lws *wsi, conn *pss)
     return rc;
 }
 
+/* "/" when the server has no viewer to serve (no --web and none found) */
+static const char no_viewer_page[] =
+    "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>squish serve: "
+    "no viewer</title></head>\n<body>\n<h1>squish serve is running, without its viewer</h1>\n"
+    "<p>This server found no viewer to serve. Start it with <code>squish serve --web DIR</code>, "
+    "DIR being the viewer's directory: <code>web/</code> in the source tree, "
+    "<code>PREFIX/share/squish/web</code> after <code>make install</code>.</p>\n"
+    "<p>The simulation itself is up: WebSocket clients connect to <code>/ws</code> "
+    "(docs/protocol.md), <code>/healthz</code> answers <code>ok</code> and "
+    "<code>/snapshot.png?session=ID</code> renders a session.</p>\n</body></html>\n";
+
 static int origin_allowed(server *srv, struct lws *wsi)
 {
     if (!srv->opt->norigins)
@@ -1003,13 +1083,15 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         if (!lws_is_final_fragment(wsi) || lws_remaining_packet_payload(wsi))
             return 0;
+        /* messages not read as JSON: their errors say "ref": null */
+        static const sq_request unread = {.ref_kind = SQ_REF_NULL};
         if (c->rx_binary) {
-            send_error(c, NULL, "bad_json", "binary messages are not accepted; send JSON text");
+            send_error(c, &unread, "bad_json", "binary messages are not accepted; send JSON text");
         } else if (c->rx_oversize) {
             char m[160];
             snprintf(m, sizeof m, "text message larger than %zu bytes (--max-message) dropped; "
                      "send smaller messages", max);
-            send_error(c, NULL, "too_large", m);
+            send_error(c, &unread, "too_large", m);
         } else {
             handle_request(c, c->rx, c->rx_len);
         }
@@ -1064,6 +1146,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
             return snapshot_request(srv, wsi, pss);
         if (!strcmp(uri, "/healthz"))
             return http_reply(wsi, HTTP_STATUS_OK, "text/plain", "ok\n", 3);
+        if (!srv->opt->web_dir && (!strcmp(uri, "/") || !strcmp(uri, "/index.html")))
+            return http_reply(wsi, HTTP_STATUS_OK, "text/html; charset=utf-8", no_viewer_page,
+                              strlen(no_viewer_page));
         return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", "not found\n", 10);
     }
     default:
@@ -1125,17 +1210,30 @@ static void load_scenes(server *srv, const char *dir)
         snprintf(path, sizeof path, "%s/%s", dir, files[i]);
         sq_err err = {{0}};
         sq_scene *sc = sq_scene_load(path, &err);
+        /* what only the engine can tell (every node fixed, a step bound needing more than
+         * 2^20 substeps, ...): a scene that cannot start is not offered */
+        if (sc && sq_scene_check(sc, &err)) {
+            sq_scene_free(sc);
+            sc = NULL;
+        }
+        int dup = -1;
+        for (int k = 0; sc && k < srv->nscenes; k++)
+            if (!strcmp(srv->names[k], sc->name))
+                dup = k;
         if (!sc) {
             fprintf(stderr, "squish serve: skipping scene %s\n", err.msg);
+        } else if (dup >= 0) {
+            /* clients open scenes by their "name": two files may not share one */
+            fprintf(stderr, "squish serve: skipping scene %s: its name \"%s\" is already the name "
+                    "of %s; give each scene file its own \"name\"\n", path, sc->name,
+                    srv->scenes[dup]->path);
+            sq_scene_free(sc);
         } else {
             srv->scenes = sq_realloc(srv->scenes, sizeof *srv->scenes * (size_t)(srv->nscenes + 1));
             srv->names = sq_realloc(srv->names, sizeof *srv->names * (size_t)(srv->nscenes + 1));
             srv->scenes[srv->nscenes] = sc;
-            size_t len = strlen(files[i]) - 5;
-            if (len >= SQ_NET_NAME_MAX)
-                len = SQ_NET_NAME_MAX - 1;
-            memcpy(srv->names[srv->nscenes], files[i], len);
-            srv->names[srv->nscenes][len] = 0;
+            /* the scene's "name" (sq_scene_load gives the file's base name without one) */
+            snprintf(srv->names[srv->nscenes], sizeof srv->names[srv->nscenes], "%s", sc->name);
             srv->nscenes++;
         }
         free(files[i]);
@@ -1165,6 +1263,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     }
     if (opt->scenes_dir)
         load_scenes(&srv, opt->scenes_dir);
+    int builtin = srv.nscenes == 0;
     if (srv.nscenes == 0) {
         sq_scene *sc = sq_scene_default(err);
         if (!sc)
@@ -1228,11 +1327,21 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     }
     srv.vhost = lws_get_vhost_by_name(srv.ctx, "default");
     int port = srv.vhost ? lws_get_vhost_listen_port(srv.vhost) : opt->port;
-    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; %d scene%s:", opt->host, port,
-           srv.nscenes, srv.nscenes == 1 ? "" : "s");
-    for (int i = 0; i < srv.nscenes; i++)
-        printf(" %s", srv.names[i]);
-    printf(")%s\n", opt->lockstep ? " lockstep" : "");
+    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; ", opt->host, port);
+    if (opt->web_dir)
+        printf("viewer from %s; ", opt->web_dir);
+    else
+        printf("no viewer: / says to pass --web DIR; ");
+    if (builtin) {
+        printf("only the built-in cube is offered, as scene \"default\": %s)",
+               opt->scenes_dir ? "no scene loaded from --scenes" : "pass --scenes DIR for more");
+    } else {
+        printf("%d scene%s from %s:", srv.nscenes, srv.nscenes == 1 ? "" : "s", opt->scenes_dir);
+        for (int i = 0; i < srv.nscenes; i++)
+            printf(" %s", srv.names[i]);
+        printf(")");
+    }
+    printf("%s\n", opt->lockstep ? " lockstep" : "");
     fflush(stdout);
 
     struct sigaction sa;

@@ -24,6 +24,8 @@ cJSON *sq_reply_new(const char *type, const sq_request *req)
         cJSON_AddStringToObject(o, "ref", req->ref_str);
     else if (req && req->ref_kind == SQ_REF_NUMBER)
         cJSON_AddNumberToObject(o, "ref", req->ref_num);
+    else if (req && req->ref_kind == SQ_REF_NULL)
+        cJSON_AddNullToObject(o, "ref");
     return o;
 }
 
@@ -119,6 +121,35 @@ static cJSON *settings_json(const sq_world *w, int bi)
     return o;
 }
 
+/* the scene's probes on body bi: name, nearest surface vertex (topology order), rest point */
+static cJSON *probes_json(const sq_scene *sc, int bi, const sq_mesh *sm)
+{
+    cJSON *a = cJSON_CreateArray();
+    for (int p = 0; p < sc->nprobes; p++) {
+        const sq_probe *pr = &sc->probes[p];
+        if (pr->body != bi)
+            continue;
+        int best = -1;
+        double bd = INFINITY;
+        for (int v = 0; v < sm->nsurf; v++) {
+            const double *x = sm->x + 3 * (size_t)sm->surf_nodes[v];
+            double d = 0;
+            for (int k = 0; k < 3; k++)
+                d += (x[k] - pr->point[k]) * (x[k] - pr->point[k]);
+            if (d < bd) {
+                bd = d;
+                best = v;
+            }
+        }
+        cJSON *e = cJSON_CreateObject();
+        cJSON_AddStringToObject(e, "name", pr->name);
+        cJSON_AddNumberToObject(e, "vertex", best);
+        cJSON_AddItemToObject(e, "point", vec3(pr->point));
+        cJSON_AddItemToArray(a, e);
+    }
+    return a;
+}
+
 /* the "bodies" array of opened/joined */
 static char *bodies_json(const sq_session *s)
 {
@@ -146,6 +177,7 @@ static char *bodies_json(const sq_session *s)
         cJSON_AddNumberToObject(sf, "triangles", sm->ntris);
         cJSON_AddNumberToObject(o, "listed_levels", s->scene->nlisted[i]);
         cJSON_AddItemToObject(o, "settings", settings_json(w, i));
+        cJSON_AddItemToObject(o, "probes", probes_json(s->scene, i, sm));
         cJSON_AddItemToArray(a, o);
     }
     char *txt = cJSON_PrintUnformatted(a);

@@ -333,6 +333,9 @@ static void add_tools(sq_drawlist *dl, const sq_render_state *s, const sq_render
         const sq_tool *t = &s->tools[i];
         if (!isfinite(t->pos[0]) || !isfinite(t->pos[1]) || !isfinite(t->pos[2]))
             continue;
+        /* an inactive grab holds nothing and is not shown (the viewer hides it too) */
+        if (t->shape == SQ_TOOL_GRAB && !t->active)
+            continue;
         unsigned char rgb[3];
         for (int k = 0; k < 3; k++)
             rgb[k] = to_byte(o->palette.tool[k] * (t->active ? 1.0f : 0.5f));
@@ -356,6 +359,18 @@ static void add_tools(sq_drawlist *dl, const sq_render_state *s, const sq_render
         }
         }
     }
+}
+
+/* the scene's probes: a bead (1.8 % of the scene diagonal) in the probe colour at each */
+static void add_probes(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
+                       double diag)
+{
+    unsigned char rgb[3];
+    for (int k = 0; k < 3; k++)
+        rgb[k] = to_byte(o->palette.probe[k]);
+    for (int i = 0; i < s->nprobes; i++)
+        if (isfinite(s->probes[i][0]) && isfinite(s->probes[i][1]) && isfinite(s->probes[i][2]))
+            add_sphere(dl, s->probes[i], 0.018 * diag, rgb);
 }
 
 /* resolve the camera: eye, target, up, clip planes */
@@ -462,6 +477,8 @@ int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render
         add_floor(dl, s, o, diag);
     if (o->tools)
         add_tools(dl, s, o, diag);
+    if (o->probes)
+        add_probes(dl, s, o, diag);
     return resolve_camera(dl, s, &o->camera, aspect, diag, err);
 }
 

@@ -20,6 +20,7 @@ static const struct {
     {"stress_mid", -1, "#ffffbf"}, {"stress_high", -1, "#d7191c"},
     {"background", -1, "#20242b"}, {"floor", -1, "#5b6270"},
     {"floor_line", -1, "#737b8a"}, {"tool", -1, "#c8ccd4"},
+    {"probe", -1, "#ff3ea5"},
 };
 
 /* "#rrggbb" -> 0..1 floats; -1 if malformed */
@@ -66,6 +67,8 @@ static float *palette_slot(sq_palette *p, const char *key)
         return p->floor_line;
     if (!strcmp(key, "tool"))
         return p->tool;
+    if (!strcmp(key, "probe"))
+        return p->probe;
     return NULL;
 }
 
@@ -115,7 +118,7 @@ int sq_palette_parse(sq_palette *p, const char *json, const char *label, sq_err 
         float *slot = palette_slot(&out, it->string);
         if (!slot) {
             rc = sq_err_set(err, "%s: %s: unknown key; known keys: level, plain, stress_low, "
-                            "stress_mid, stress_high, background, floor, floor_line, tool",
+                            "stress_mid, stress_high, background, floor, floor_line, tool, probe",
                             label, it->string);
             break;
         }
@@ -235,6 +238,7 @@ sq_render_opts sq_render_opts_default(void)
     o.stress_max = 0.0;
     o.floor = 1;
     o.tools = 1;
+    o.probes = 1;
     o.supersample = 2;
     return o;
 }

@@ -37,6 +37,7 @@ typedef struct sq_palette {
     float floor[3];                /* floor tiles */
     float floor_line[3];           /* alternate floor tiles */
     float tool[3];                 /* active tools; inactive ones are drawn at half */
+    float probe[3];                /* the scene's probes (beads at their current position) */
 } sq_palette;
 
 /* the compiled-in palette: the same values as web/palette.json */
@@ -81,7 +82,8 @@ typedef struct sq_render_opts {
     double stress_max;  /* stress mode: |displacement| (m) at the top of the ramp; <= 0:
                            the largest value in the frame */
     int floor;          /* draw the floor (default 1) */
-    int tools;          /* draw the tools (default 1) */
+    int tools;          /* draw the tools (default 1; inactive grabs are never drawn) */
+    int probes;         /* draw the scene's probes (default 1) */
     int supersample;    /* 1..4 samples per pixel side, box-filtered (default 2) */
 } sq_render_opts;
 
@@ -110,6 +112,8 @@ typedef struct sq_render_state {
     sq_tool tools[SQ_MAX_TOOLS];
     double up[3];          /* unit up vector: against gravity, +z when there is none */
     double bbox_min[3], bbox_max[3]; /* rest bounding box of all bodies (framing, floor) */
+    int nprobes;
+    double probes[SQ_MAX_PROBES][3]; /* probes' current positions (rest point + displacement), m */
     long frame;            /* frame number, for captions and file names */
     double time;           /* simulated time, s */
 } sq_render_state;
@@ -123,6 +127,8 @@ int sq_render_state_add_body(sq_render_state *s, int nverts, const float *xyz, c
                              const unsigned char *level, int ntris, const int *tris, sq_err *err);
 /* append a tool (copied); -1 + err when the table is full */
 int sq_render_state_add_tool(sq_render_state *s, const sq_tool *t, sq_err *err);
+/* append a probe at its current position; -1 + err when the table is full */
+int sq_render_state_add_probe(sq_render_state *s, const double p[3], sq_err *err);
 /* set the up vector from a gravity vector (+z if zero) */
 void sq_render_state_set_gravity(sq_render_state *s, const double g[3]);
 

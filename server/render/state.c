@@ -101,6 +101,14 @@ int sq_render_state_add_tool(sq_render_state *s, const sq_tool *t, sq_err *err)
     return 0;
 }
 
+int sq_render_state_add_probe(sq_render_state *s, const double p[3], sq_err *err)
+{
+    if (s->nprobes >= SQ_MAX_PROBES)
+        return sq_err_set(err, "render state: more than %d probes", SQ_MAX_PROBES);
+    memcpy(s->probes[s->nprobes++], p, sizeof s->probes[0]);
+    return 0;
+}
+
 void sq_render_state_set_gravity(sq_render_state *s, const double g[3])
 {
     double n = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
@@ -118,6 +126,7 @@ int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err)
 {
     s->nbodies = 0;
     s->ntools = 0;
+    s->nprobes = 0;
     if (w->nbodies > SQ_MAX_BODIES)
         return sq_err_set(err, "render capture: world has %d bodies, more than %d", w->nbodies,
                           SQ_MAX_BODIES);
@@ -149,6 +158,16 @@ int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err)
             s->bbox_min[k] = s->bbox_max[k] = 0.0;
     s->ntools = SQ_MIN(w->ntools, SQ_MAX_TOOLS);
     memcpy(s->tools, w->tools, (size_t)s->ntools * sizeof(sq_tool));
+    /* probes where they are now: rest point plus the body's displacement there */
+    for (int i = 0; w->scene && i < w->scene->nprobes && s->nprobes < SQ_MAX_PROBES; i++) {
+        double u[3];
+        if (sq_world_probe(w, i, u) != 0)
+            continue;
+        const double *x = w->scene->probes[i].point;
+        double p[3] = {x[0] + u[0], x[1] + u[1], x[2] + u[2]};
+        if (isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]))
+            memcpy(s->probes[s->nprobes++], p, sizeof p);
+    }
     if (w->scene)
         sq_render_state_set_gravity(s, w->scene->gravity);
     else if (w->nbodies > 0)

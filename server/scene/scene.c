@@ -551,8 +551,8 @@ static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
 
 static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
 {
-    static const char *const keys[] = {"name", "levels", "offset", "material", "operator", "fixed", "lod",
-                                       "step_fraction", NULL};
+    static const char *const keys[] = {"name", "levels", "scale", "offset", "material", "operator", "fixed",
+                                       "lod", "step_fraction", NULL};
     if (!cJSON_IsObject(obj))
         return fail(c, path, "expected an object, got %s; see docs/scenes.md", type_name(obj));
     if (check_keys(c, obj, path, keys))
@@ -677,6 +677,19 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
                     offset[2]);
     }
 
+    /* scale: multiply every level's coordinates at load, before the offset (meshes made in
+     * millimetres: 0.001) */
+    double scale = 1;
+    int has_scale = 0;
+    if (get_number(c, obj, path, "scale", &scale, &has_scale))
+        return -1;
+    if (!(scale >= 1e-6 && scale <= 1e6)) {
+        join(p, sizeof p, path, "scale");
+        return fail(c, p, "%g is out of range; use a factor in [1e-6, 1e6] (0.001 for a mesh in millimetres)",
+                    scale);
+    }
+    int warned = 0;
+
     /* load only the levels the body needs: fixed -> the simulated level alone,
      * adaptive -> levels 0..max_level */
     int first = def->lod.mode == SQ_LOD_FIXED ? def->lod.level : 0;
@@ -690,6 +703,35 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
         join_index(p, sizeof p, lp, k);
         if (!m)
             return fail(c, p, "%s; fix or regenerate the mesh file", e.msg);
+        if (scale != 1) {
+            for (int v = 0; v < 3 * m->nnodes; v++)
+                m->x[v] *= scale;
+            for (int a = 0; a < 3; a++) {
+                m->bbox_min[a] *= scale;
+                m->bbox_max[a] *= scale;
+            }
+        }
+        /* a body is a few mm to a few m: anything else is most likely in other units */
+        double diag = 0;
+        for (int a = 0; a < 3; a++)
+            diag += (m->bbox_max[a] - m->bbox_min[a]) * (m->bbox_max[a] - m->bbox_min[a]);
+        diag = sqrt(diag);
+        if (!warned && (diag > 10 || diag < 1e-3) && s->nwarnings < SQ_MAX_BODIES) {
+            /* the power of ten that brings it near 1 m: 0.001 for millimetres, 0.01 for cm */
+            double hint = pow(10, -round(log10(diag)));
+            const char *units = fabs(hint - 1e-3) < 1e-9 ? " (a mesh in millimetres)"
+                                : fabs(hint - 1e-2) < 1e-9 ? " (a mesh in centimetres)" : "";
+            char bp[256];
+            join(bp, sizeof bp, path, "scale");
+            char *wm = s->warnings[s->nwarnings++];
+            if (snprintf(wm, sizeof s->warnings[0],
+                     "%s: %s: the mesh's bounding-box diagonal is %g m, %s: are its units metres? "
+                     "If not, set %s (now %g), e.g. \"scale\": %g%s",
+                     c->label, p, diag, diag > 10 ? "above 10 m" : "below 1 mm", bp, scale,
+                     hint * scale, units) < 0)
+                wm[0] = 0;
+            warned = 1;
+        }
         if (offset[0] != 0 || offset[1] != 0 || offset[2] != 0) {
             for (int v = 0; v < m->nnodes; v++)
                 for (int a = 0; a < 3; a++)
@@ -1080,6 +1122,8 @@ sq_scene *sq_scene_load(const char *path, sq_err *err)
     free(text);
     if (!s)
         return NULL;
+    for (int i = 0; i < s->nwarnings; i++)
+        fprintf(stderr, "warning: %s\n", s->warnings[i]);
     /* a scene without "name" takes the file's base name */
     if (!strcmp(s->name, "scene")) {
         const char *b = strrchr(path, '/');

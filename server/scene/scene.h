@@ -52,6 +52,8 @@ typedef struct sq_scene {
     sq_probe probes[SQ_MAX_PROBES];
     double duration;       /* default run length of `squish run`, s (key "duration", default 2) */
     int nlisted[SQ_MAX_BODIES];                   /* levels listed in the file per body */
+    int nwarnings;                                /* load-time warnings (sq_scene_load prints them) */
+    char warnings[SQ_MAX_BODIES][400];            /* e.g. an implausible mesh size: "scale" */
     int level_index[SQ_MAX_BODIES][SQ_MAX_LEVELS]; /* listed index of each loaded level */
 } sq_scene;
 
@@ -91,6 +93,11 @@ typedef struct sq_world {
     long deadline_misses;
     long resets;
     double last_frame_s;     /* wall-clock compute time of the last frame, s */
+    /* per tool slot: the body a grab's nearest-node fallback may take (-1: none), decided
+     * once per capture point (grab_at) */
+    int grab_known[SQ_MAX_TOOLS];
+    int grab_fallback[SQ_MAX_TOOLS];
+    double grab_at[SQ_MAX_TOOLS][3];
 } sq_world;
 
 sq_world *sq_world_create(const sq_scene *scene, sq_err *err);

@@ -38,6 +38,38 @@ static void restore_tools(sq_world *w)
         sq_tool_script_pose(&w->scene->tools[i], 0, &w->tools[i]);
     }
     memset(w->feedback, 0, sizeof w->feedback);
+    memset(w->grab_known, 0, sizeof w->grab_known);
+}
+
+/* a grab's capture fallback (nearest node within 3 radii when no node is within the radius)
+ * takes only the body the tool hit: none when some body has a node within the radius (those
+ * direct captures are what the tool hit), else the body whose surface is nearest to the
+ * capture point. Decided once per capture point; the bodies capture in the same frame. */
+static void grab_fallbacks(sq_world *w)
+{
+    for (int i = 0; i < w->ntools; i++) {
+        const sq_tool *t = &w->tools[i];
+        if (t->shape != SQ_TOOL_GRAB || !t->active) {
+            w->grab_known[i] = 0;
+            continue;
+        }
+        const double *at = t->has_origin ? t->origin : t->pos;
+        if (w->grab_known[i] && !memcmp(w->grab_at[i], at, sizeof w->grab_at[i]))
+            continue;
+        int direct = 0, nearest_body = -1;
+        double nearest = INFINITY;
+        for (int b = 0; b < w->nbodies; b++) {
+            double d;
+            direct += sq_body_grab_reach(w->bodies[b], at, t->radius, &d);
+            if (d < nearest) {
+                nearest = d;
+                nearest_body = b;
+            }
+        }
+        w->grab_fallback[i] = direct ? -1 : nearest_body;
+        memcpy(w->grab_at[i], at, sizeof w->grab_at[i]);
+        w->grab_known[i] = 1;
+    }
 }
 
 int sq_scene_check(const sq_scene *s, sq_err *err)
@@ -105,10 +137,15 @@ void sq_world_step(sq_world *w, double budget_s)
 
     /* each body gets an equal share of the compute budget for its splitting decisions */
     double share = budget_s > 0 ? budget_s / w->nbodies : 0;
+    grab_fallbacks(w);
+    sq_tool tools[SQ_MAX_TOOLS];
     for (int b = 0; b < w->nbodies; b++) {
         sq_frame_profile *prof = &w->profile[b];
         memset(prof, 0, sizeof *prof);
-        sq_body_frame(w->bodies[b], w->tools, w->ntools, w->feedback[b], prof, share);
+        memcpy(tools, w->tools, sizeof(sq_tool) * (size_t)w->ntools);
+        for (int i = 0; i < w->ntools; i++)
+            tools[i].no_fallback = w->grab_known[i] && w->grab_fallback[i] != b;
+        sq_body_frame(w->bodies[b], tools, w->ntools, w->feedback[b], prof, share);
         if (prof->reset)
             w->resets++;
     }

@@ -90,6 +90,9 @@ typedef struct sq_tool {
      * the first frame the tool is active. A changed origin while active re-captures. */
     double origin[3];
     int has_origin;
+    /* grab: 1 = this body may not use the nearest-node fallback (set per body by the world:
+     * the fallback only takes the one body nearest to the capture point) */
+    int no_fallback;
 } sq_tool;
 
 typedef struct sq_tool_feedback {
@@ -153,6 +156,9 @@ void sq_body_surface_state(const sq_body *b, float *xyz, unsigned char *level);
 
 /* displacement interpolated at a rest-space point (finest level values); -1 if outside */
 int sq_body_probe(const sq_body *b, const double p[3], double u[3]);
+/* grab capture test at point at (current positions of the finest surface): the number of
+ * surface vertices within radius, and in *nearest the distance of the nearest one (m) */
+int sq_body_grab_reach(const sq_body *b, const double at[3], double radius, double *nearest);
 
 /* energies (J) of the currently simulated state */
 double sq_body_kinetic_energy(const sq_body *b);

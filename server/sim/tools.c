@@ -3,7 +3,8 @@
  * sphere / box push: a surface vertex whose current position lies inside the shape is moved
  * to the nearest point of the shape's surface. grab: on activation the surface vertices within
  * `radius` of its activation point (sq_tool.origin, else pos) are captured (or, if none, the
- * nearest one within 3 radius); each frame their target displacement is the captured one plus
+ * nearest one within 3 radius, unless sq_tool.no_fallback: the world allows the fallback on
+ * the one body nearest to the point, and only when no body has a vertex within radius); each frame their target displacement is the captured one plus
  * (pos - start), start being that point; released when the tool goes
  * inactive or disappears from the frame's tool list.
  */
@@ -69,7 +70,7 @@ static sq_grab *capture(sq_body *b, const sq_tool *tool)
             g->n++;
         }
     }
-    if (g->n == 0 && nearest >= 0 && best <= 9 * r2) {
+    if (g->n == 0 && !tool->no_fallback && nearest >= 0 && best <= 9 * r2) {
         g->surf = sq_malloc(sizeof(int));
         g->disp = sq_malloc(sizeof(double) * 3);
         g->surf[0] = nearest;
@@ -79,6 +80,24 @@ static sq_grab *capture(sq_body *b, const sq_tool *tool)
     g->id = tool->id;
     memcpy(g->start, at, sizeof g->start);
     return g;
+}
+
+int sq_body_grab_reach(const sq_body *b, const double at[3], double radius, double *nearest)
+{
+    const sq_mesh *fm = b->def.levels[b->fine];
+    double best = INFINITY, r2 = radius * radius;
+    int n = 0;
+    for (int s = 0; s < fm->nsurf; s++) {
+        double u[3], d2 = 0;
+        sq_body_surface_disp(b, s, u);
+        const double *x = fm->x + 3 * (size_t)fm->surf_nodes[s];
+        for (int c = 0; c < 3; c++)
+            d2 += (x[c] + u[c] - at[c]) * (x[c] + u[c] - at[c]);
+        best = fmin(best, d2);
+        n += d2 <= r2;
+    }
+    *nearest = sqrt(best);
+    return n;
 }
 
 int sq_body_tool_holds(sq_body *b, const sq_tool *tools, int ntools, int *tool_nodes)

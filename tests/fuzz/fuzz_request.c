@@ -50,7 +50,7 @@ static void check_request(const sq_request *r)
         break;
     case SQ_REQ_SET:
         if (r->set.has_nu)
-            expect(r->set.nu >= 0 && r->set.nu <= 0.49);
+            expect(r->set.nu >= 0 && r->set.nu < 0.5);
         if (r->set.has_E)
             expect(r->set.E > 0 && r->set.E <= 1e10);
         if (r->set.has_budget)
@@ -91,6 +91,18 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
     } else {
         check_error(&e);
+        /* a ref goes back to the client: short, finite; one recovered from unreadable text
+         * (bad_json, too_large) printable ASCII (a valid message's ref is echoed as cJSON
+         * read it, escaped on output) */
+        if (r.ref_kind == SQ_REF_STRING) {
+            size_t n = strnlen(r.ref_str, sizeof r.ref_str);
+            expect(n < sizeof r.ref_str);
+            int recovered = !strcmp(e.code, "bad_json") || !strcmp(e.code, "too_large");
+            for (size_t i = 0; recovered && i < n; i++)
+                expect((unsigned char)r.ref_str[i] >= 0x20 && (unsigned char)r.ref_str[i] < 0x7f);
+        } else if (r.ref_kind == SQ_REF_NUMBER) {
+            expect(isfinite(r.ref_num));
+        }
     }
     free(text);
     return 0;

@@ -14,7 +14,10 @@ export const SQUISH = process.env.SQUISH || path.join(ROOT, 'build/squish');
 export function startServer(args = [], { env = {} } = {}) {
   // for sanitizer builds: OSMesa's own allocations are not ours
   const lsan = `suppressions=${path.join(ROOT, 'tests/net/lsan.supp')}`;
-  const proc = spawn(SQUISH, ['serve', '--host', '127.0.0.1', '--port', '0', ...args], {
+  // without --scenes the server would offer the shipped scenes it finds: these tests use the
+  // built-in cube ("default") unless they name a directory
+  const scenes = args.includes('--scenes') ? [] : ['--no-scenes'];
+  const proc = spawn(SQUISH, ['serve', '--host', '127.0.0.1', '--port', '0', ...scenes, ...args], {
     env: { LSAN_OPTIONS: lsan, ...process.env, ...env }, stdio: ['ignore', 'pipe', 'pipe'],
   });
   let out = '', err = '';

@@ -194,3 +194,104 @@ SQ_TEST(net_request_state_checks)
     CHECK(dec("{\"type\":\"pause\"}", &r, &e) == 0);
     CHECK(sq_request_check(&r, &c, &e) == -1 && !strcmp(e.code, "lockstep"));
 }
+
+SQ_TEST(net_request_take_control)
+{
+    sq_request r;
+    sq_net_error e;
+    CHECK(dec("{\"type\":\"take_control\",\"ref\":4}", &r, &e) == 0);
+    CHECK(r.type == SQ_REQ_TAKE_CONTROL && !r.take_control.has_token);
+    CHECK(!strcmp(sq_req_name(r.type), "take_control"));
+    CHECK(dec("{\"type\":\"take_control\",\"token\":\"sesame\"}", &r, &e) == 0);
+    CHECK(r.take_control.has_token && !strcmp(r.take_control.token, "sesame"));
+    expect_code("{\"type\":\"take_control\",\"token\":1}", "bad_field");
+    expect_code("{\"type\":\"take_control\",\"role\":\"control\"}", "bad_field");
+    /* it acts on the client's session: refused before open/join */
+    sq_client_ctx ctx = {.greeted = 1, .max_tools = SQ_MAX_TOOLS};
+    CHECK(dec("{\"type\":\"take_control\"}", &r, &e) == 0);
+    CHECK(sq_request_check(&r, &ctx, &e) == -1 && !strcmp(e.code, "no_session"));
+    ctx.in_session = 1;
+    CHECK(sq_request_check(&r, &ctx, &e) == 0);
+}
+
+/* the ref a client gets back for a message that is not valid JSON */
+static sq_request bad_ref(const char *msg, const char *code)
+{
+    sq_request r;
+    sq_net_error e;
+    CHECK(dec(msg, &r, &e) == -1);
+    CHECK(e.code && !strcmp(e.code, code));
+    return r;
+}
+
+SQ_TEST(net_request_ref_recovered_from_bad_json)
+{
+    sq_request r = bad_ref("{\"type\":\"tool\",\"ref\":\"r7\",\"id\":1,", "bad_json"); /* cut off */
+    CHECK(r.ref_kind == SQ_REF_STRING && !strcmp(r.ref_str, "r7"));
+    r = bad_ref("{\"ref\": 42 , \"type\": pong}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NUMBER && r.ref_num == 42);
+    r = bad_ref("{\"type\":\"ping\",\"ref\":-1.5e2} trailing", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NUMBER && r.ref_num == -150);
+    r = bad_ref("{\"type\":\"set\",\"ref\":\"a\\\"b\\\\c\",,}", "bad_json"); /* escapes decoded */
+    CHECK(r.ref_kind == SQ_REF_STRING && !strcmp(r.ref_str, "a\"b\\c"));
+    /* not taken: a "ref" inside a string value, inside a nested object or array, as a value */
+    r = bad_ref("{\"type\":\"x \\\"ref\\\": 3\",,}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"set\":{\"ref\":3},,}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"a\":[\"x\",{\"ref\":3}],,}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"client\":\"ref\",\"x\":}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    /* unusable values: too long, non-ASCII, \u escapes, a number cut short, not a number */
+    char longref[200];
+    snprintf(longref, sizeof longref, "{\"ref\":\"%070d\",}", 1);
+    r = bad_ref(longref, "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"ref\":\"\\u0041\",}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"ref\":\"\xc3\xa9\",}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"ref\":1e999,}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"ref\":12abc}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"ref\":true,}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    /* not an object, not JSON at all, invalid UTF-8 (ref before the bad byte still found) */
+    r = bad_ref("[1, 2]", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("hello", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    r = bad_ref("{\"ref\":9,\"client\":\"\xff\"}", "bad_json");
+    CHECK(r.ref_kind == SQ_REF_NUMBER && r.ref_num == 9);
+    /* a ref of the wrong type in valid JSON: the error says "ref": null */
+    r = bad_ref("{\"type\":\"ping\",\"ref\":[1]}", "bad_field");
+    CHECK(r.ref_kind == SQ_REF_NULL);
+    /* every prefix of a message with a ref: never a crash, the ref once it is complete */
+    const char *full = "{\"type\":\"tool\",\"ref\":\"k1\",\"id\":1}";
+    for (size_t n = 0; n < strlen(full); n++) {
+        sq_request q;
+        sq_net_error e;
+        CHECK(sq_request_decode(full, n, 65536, &q, &e) == -1);
+        int complete = n >= strlen("{\"type\":\"tool\",\"ref\":\"k1\"");
+        CHECK(complete ? q.ref_kind == SQ_REF_STRING && !strcmp(q.ref_str, "k1")
+                       : q.ref_kind != SQ_REF_STRING || !strcmp(q.ref_str, "k1"));
+    }
+}
+
+SQ_TEST(net_request_nu_range_as_scene_files)
+{
+    /* set accepts nu in [0, 0.5), the range of scene files (docs/scenes.md) */
+    sq_request r;
+    sq_net_error e;
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":0.499}}", &r, &e) == 0);
+    CHECK(r.set.has_nu && r.set.nu == 0.499);
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":0}}", &r, &e) == 0);
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":0.5}}", &r, &e) == -1);
+    CHECK(!strcmp(e.code, "out_of_range"));
+    CHECK_CONTAINS(e.message, "set.material.nu: 0.5 is outside [0, 0.5)");
+    CHECK(dec("{\"type\":\"set\",\"material\":{\"nu\":-0.1}}", &r, &e) == -1);
+    CHECK_CONTAINS(e.message, "outside [0, 0.5)");
+    expect_code("{\"type\":\"set\",\"material\":{\"nu\":\"0.3\"}}", "bad_field");
+}

@@ -702,3 +702,75 @@ SQ_TEST(world_adaptive_split_extremes_reach_the_engine)
         sq_scene_free(s);
     }
 }
+
+/* a box of 2 cells per side with the given edge length written into the mesh dir */
+static void write_sized_box(const char *name, double edge)
+{
+    const double size[3] = {edge, edge, edge}, origin[3] = {0, 0, 0};
+    sq_err e = {{0}};
+    sq_mesh *m = sq_mesh_box(2, 2, 2, size, origin, &e);
+    char path[400];
+    snprintf(path, sizeof path, "%s/%s", mesh_dir(), name);
+    if (!m || sq_mesh_write_msh(m, path, &e))
+        printf("    mesh setup failed: %s\n", e.msg);
+    sq_mesh_free(m);
+}
+
+SQ_TEST(scene_scale_and_implausible_size_warning)
+{
+    write_sized_box("mm400.msh", 400);   /* a 400 mm cube written in millimetres */
+    write_sized_box("tiny.msh", 0.0005); /* 0.5 mm: probably kilometres or a typo */
+    sq_err e;
+    /* in millimetres, no scale: loads (runs as a 400 m cube) with a warning naming "scale" */
+    sq_scene *s = parse(SCENE("{\"levels\": [\"mm400.msh\"], " MAT "}"), &e);
+    CHECK(s != NULL);
+    if (s) {
+        CHECK(s->nwarnings == 1);
+        CHECK_CONTAINS(s->warnings[0], "t.json: bodies[0].levels[0]: the mesh's bounding-box diagonal is 692.82 m, above 10 m");
+        CHECK_CONTAINS(s->warnings[0], "bodies[0].scale");
+        CHECK_CONTAINS(s->warnings[0], "\"scale\": 0.001 (a mesh in millimetres)");
+        CHECK_NEAR(s->meshes[0][0]->bbox_max[2], 400, 1e-9);
+        sq_scene_free(s);
+    }
+    /* "scale": 0.001, then the offset: a 0.4 m cube at the offset, no warning; fixed
+     * regions are in world space (after scale and offset) */
+    s = parse(SCENE("{\"levels\": [\"mm400.msh\"], \"scale\": 0.001, \"offset\": [1, 0, 0], " MAT
+                    ", \"fixed\": [{\"box\": [[0.9, -1, -1], [2, 1, 0.01]]}]}"), &e);
+    CHECK(s != NULL);
+    if (!s)
+        printf("    %s\n", e.msg);
+    if (s) {
+        CHECK(s->nwarnings == 0);
+        const sq_mesh *m = s->meshes[0][0];
+        CHECK_NEAR(m->bbox_min[0], 1.0, 1e-12);
+        CHECK_NEAR(m->bbox_max[0], 1.4, 1e-12);
+        CHECK_NEAR(m->bbox_max[2], 0.4, 1e-12);
+        double xmax = 0;
+        for (int v = 0; v < m->nnodes; v++)
+            xmax = fmax(xmax, m->x[3 * v]);
+        CHECK_NEAR(xmax, 1.4, 1e-12); /* the nodes, not only the box */
+        sq_scene_free(s);
+    }
+    /* a sub-millimetre mesh: the warning suggests a factor up */
+    s = parse(SCENE("{\"levels\": [\"tiny.msh\"], " MAT "}"), &e);
+    CHECK(s != NULL);
+    if (s) {
+        CHECK(s->nwarnings == 1);
+        CHECK_CONTAINS(s->warnings[0], "below 1 mm");
+        CHECK_CONTAINS(s->warnings[0], "\"scale\": 1000");
+        sq_scene_free(s);
+    }
+    /* a plausible mesh: no warning */
+    s = parse(SCENE(BODY), &e);
+    CHECK(s && s->nwarnings == 0);
+    sq_scene_free(s);
+    /* bad scales are errors naming the key */
+    s = parse(SCENE("{\"levels\": [\"a.msh\"], \"scale\": 0, " MAT "}"), &e);
+    CHECK(s == NULL);
+    CHECK_CONTAINS(e.msg, "bodies[0].scale: 0 is out of range");
+    s = parse(SCENE("{\"levels\": [\"a.msh\"], \"scale\": -2, " MAT "}"), &e);
+    CHECK(s == NULL);
+    s = parse(SCENE("{\"levels\": [\"a.msh\"], \"scale\": \"mm\", " MAT "}"), &e);
+    CHECK(s == NULL);
+    CHECK_CONTAINS(e.msg, "bodies[0].scale");
+}

@@ -177,3 +177,70 @@ SQ_TEST(world_scripted_grab_origin_is_activating_keyframe)
     sq_tool_script_pose(&sc, 3.5, &out);
     CHECK(!out.active && !out.has_origin);
 }
+
+/* the shipped beam scene: front beam y in [-0.05, 0.05], back beam 0.3 m behind */
+static sq_world *beam_world(sq_scene **sc)
+{
+    char path[600];
+    snprintf(path, sizeof path, "%s/../../meshes/scenes/beam.json", sq_test_data());
+    sq_err e = {{0}};
+    *sc = sq_scene_load(path, &e);
+    if (!*sc) {
+        printf("    %s\n", e.msg);
+        return NULL;
+    }
+    sq_world *w = sq_world_create(*sc, &e);
+    if (!w)
+        printf("    %s\n", e.msg);
+    return w;
+}
+
+/* nodes a grab at p (radius r) holds on each beam after one frame */
+static void grab_beams(const double p[3], double r, int held[2])
+{
+    sq_scene *sc = NULL;
+    sq_world *w = beam_world(&sc);
+    CHECK(w != NULL);
+    held[0] = held[1] = -1;
+    if (w) {
+        sq_tool t;
+        memset(&t, 0, sizeof t);
+        t.id = 1;
+        t.shape = SQ_TOOL_GRAB;
+        t.active = 1;
+        t.radius = r;
+        memcpy(t.pos, p, sizeof t.pos);
+        sq_err e = {{0}};
+        CHECK(sq_world_set_tool(w, &t, &e) == 0);
+        sq_world_step(w, 0);
+        /* lift it: the held nodes follow, so they are still held the next frame */
+        t.pos[2] += 0.05;
+        CHECK(sq_world_set_tool(w, &t, &e) == 0);
+        sq_world_step(w, 0);
+        for (int b = 0; b < 2; b++)
+            held[b] = w->feedback[b][0].nnodes;
+        sq_world_destroy(w);
+    }
+    sq_scene_free(sc);
+}
+
+SQ_TEST(world_grab_fallback_takes_only_the_body_hit)
+{
+    /* on the front beam's tip (top back edge), radius 0.1: direct capture on the front beam;
+     * the back beam's nearest node is 0.2 m away, inside 3 radii, and must not be pulled */
+    int held[2];
+    const double tip[3] = {1.0, 0.05, 0.05};
+    grab_beams(tip, 0.1, held);
+    printf("    tip grab: front %d nodes, back %d nodes\n", held[0], held[1]);
+    CHECK(held[0] > 0);
+    CHECK(held[1] == 0);
+
+    /* between the beams, 0.07 m from the front one and 0.13 m from the back one, radius
+     * 0.05: no node within the radius, both within 3 radii: the fallback takes the nearest
+     * node of the nearest body (the front beam) alone */
+    const double gap[3] = {1.0, 0.12, 0.0};
+    grab_beams(gap, 0.05, held);
+    printf("    fallback grab: front %d nodes, back %d nodes\n", held[0], held[1]);
+    CHECK(held[0] == 1);
+    CHECK(held[1] == 0);
+}
