@@ -63,7 +63,6 @@ typedef struct client {
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
 typedef struct conn {
     client *c;
-    uint64_t snap_id;                /* HTTP: the snapshot this connection waits for */
 } conn;
 
 /* a snapshot request waiting for its PNG (lws thread only) */
@@ -76,6 +75,7 @@ typedef struct snap_wait {
 
 #define SNAP_MIN_INTERVAL 0.25       /* s between snapshots of one session */
 #define SNAP_MAX_WAITING 8           /* snapshot requests waiting, server-wide */
+#define SNAP_TIMEOUT_S 60            /* s a snapshot request may wait for its PNG */
 
 /* the server's record of a session (lws thread only, except s) */
 typedef struct srec {
@@ -850,6 +850,7 @@ static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
                  "later\n", SNAP_MIN_INTERVAL);
         return http_reply(wsi, 429, "text/plain", msg, strlen(msg));
     }
+    (void)pss;
     r->last_snapshot = now;
     snap_wait *w = sq_calloc(1, sizeof *w);
     w->id = ++srv->next_snap;
@@ -857,16 +858,30 @@ static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
     w->next = srv->waits;
     srv->waits = w;
     srv->nwaits++;
-    pss->snap_id = w->id;
     sq_snap_job *j = sq_calloc(1, sizeof *j);
     j->id = w->id;
     j->width = width;
     j->height = height;
     sq_session_push_snapshot(r->s, j);
+    /* rendering may take longer than lws' default wait for a reply (5 s): the render queue
+     * is bounded (SNAP_MAX_WAITING), so each request gets time for the whole queue */
+    lws_set_timeout(wsi, PENDING_TIMEOUT_HTTP_CONTENT, SNAP_TIMEOUT_S);
     return 0; /* answered from HTTP_WRITEABLE when the PNG is ready */
 }
 
-/* rendered snapshots: wake their HTTP connections */
+/* the snapshot a connection waits for, or NULL. Waits are found by connection, never
+ * through the per-request user data: lws frees and re-zeroes that at every completed
+ * transaction, including one pipelined behind a waiting snapshot. */
+static snap_wait *snapshot_wait_of(server *srv, struct lws *wsi)
+{
+    for (snap_wait *w = srv->waits; w; w = w->next)
+        if (w->wsi == wsi)
+            return w;
+    return NULL;
+}
+
+/* rendered snapshots: wake their HTTP connections (by handle: a result whose connection
+ * closed meanwhile only frees its render place) */
 static void snapshot_results(server *srv)
 {
     if (!srv->snapshotter)
@@ -877,16 +892,19 @@ static void snapshot_results(server *srv)
         snap_wait *w = srv->waits;
         while (w && w->id != j->id)
             w = w->next;
-        if (w && w->wsi && !w->result) {
+        if (w && !w->result) {
             w->result = j;
-            lws_callback_on_writable(w->wsi);
+            if (w->wsi)
+                lws_callback_on_writable(w->wsi);
         } else {
             sq_snap_job_free(j);
         }
     }
-    /* forget waits whose connection closed */
+    /* forget rendered waits whose connection closed; unrendered ones keep their place in
+     * SNAP_MAX_WAITING until the render is done, so closing connections cannot queue
+     * unbounded renders */
     for (snap_wait **p = &srv->waits; *p;) {
-        if (!(*p)->wsi) {
+        if (!(*p)->wsi && (*p)->result) {
             snap_wait *d = *p;
             *p = d->next;
             sq_snap_job_free(d->result);
@@ -898,17 +916,24 @@ static void snapshot_results(server *srv)
     }
 }
 
-static int snapshot_write(server *srv, struct lws *wsi, conn *pss)
+/* the connection closed: its waits lose their connection (freed when rendered) */
+static void snapshot_closed(server *srv, struct lws *wsi)
+{
+    for (snap_wait *w = srv->waits; w; w = w->next)
+        if (w->wsi == wsi)
+            w->wsi = NULL;
+}
+
+static int snapshot_write(server *srv, struct lws *wsi)
 {
     snap_wait **p = &srv->waits;
-    while (*p && (*p)->id != pss->snap_id)
+    while (*p && (*p)->wsi != wsi)
         p = &(*p)->next;
     if (!*p || !(*p)->result)
         return 0;
     snap_wait *w = *p;
     *p = w->next;
     srv->nwaits--;
-    pss->snap_id = 0;
     sq_snap_job *j = w->result;
     free(w);
     int rc;
@@ -1036,15 +1061,12 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         return 0;
 
     case LWS_CALLBACK_CLOSED_HTTP:
-        if (pss && pss->snap_id)
-            for (snap_wait *w = srv->waits; w; w = w->next)
-                if (w->id == pss->snap_id)
-                    w->wsi = NULL;
+        snapshot_closed(srv, wsi);
         break;
 
-    case LWS_CALLBACK_HTTP_WRITEABLE:
-        if (pss && pss->snap_id)
-            return snapshot_write(srv, wsi, pss);
+    case LWS_CALLBACK_HTTP_WRITEABLE: 
+        if (snapshot_wait_of(srv, wsi))
+            return snapshot_write(srv, wsi);
         break;
 
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
@@ -1056,7 +1078,22 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         return 0;
 
+    case LWS_CALLBACK_FILTER_HTTP_CONNECTION:
+        /* a file request pipelined behind a waiting snapshot would be served before it
+         * by lws: close too */
+        if (snapshot_wait_of(srv, wsi))
+            return -1;
+        break;
     case LWS_CALLBACK_HTTP: {
+        if (snapshot_wait_of(srv, wsi)) {
+            /* pipelined behind a snapshot still rendering: lws 4.1 no longer makes the
+             * connection writeable for the earlier reply, and replies must keep the order
+             * of the requests; close (the client sends both again on a new connection,
+             * as HTTP/1.1 allows). The waiting snapshot loses its connection and frees its
+             * render place when rendered. */
+            lwsl_notice("squish: HTTP request pipelined behind a snapshot: closing\n");
+            return -1;
+        }
         char uri[128] = "";
         lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI);
         if (!strcmp(uri, "/snapshot.png"))
