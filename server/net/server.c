@@ -22,6 +22,7 @@ _Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
 
 #define FIFO_MAX 4096            /* queued messages per client before it is dropped */
 #define FIFO_MAX_BYTES (32u << 20) /* queued bytes per client before it is dropped */
+#define CLIENT_MAX_JOBS 64       /* requests of one client waiting for its session thread */
 #define SLOT_BITS 10             /* session id = generation << SLOT_BITS | slot */
 #define TICK_US 50000            /* housekeeping period (stats pushes, grace), us */
 #define SNDBUF_BYTES (128 << 10) /* kernel send buffer per client: bounds how stale a slow
@@ -58,6 +59,12 @@ typedef struct client {
     int closing;
     int tool_ids[SQ_MAX_TOOLS];      /* tools this client set as controller of its session */
     int ntool_ids;
+    /* nodes: one request at a time per client, the newest waiting (docs/security.md) */
+    int nodes_busy;                  /* 1: job queued or running; 2: reply in the FIFO; 0 */
+    int nodes_deferred;              /* nodes_req waits for the current one */
+    sq_request nodes_req;
+    uint64_t pushed, written;        /* FIFO messages queued / written so far */
+    uint64_t nodes_mark;             /* `pushed` when the whole nodes reply was queued */
 } client;
 
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
@@ -151,6 +158,7 @@ static void fifo_push(client *c, sq_blob *b)
     }
     c->fifo[(c->fhead + c->fcount) % c->fcap] = b;
     c->fcount++;
+    c->pushed++;
     c->fbytes += b->len;
     lws_callback_on_writable(c->wsi);
 }
@@ -188,6 +196,21 @@ static void clear_slots(client *c)
     }
 }
 
+/* the client's nodes reply is written: run its waiting nodes request, if any. A client
+ * that does not read its replies thus never has more than one nodes job and one nodes
+ * message on the server. */
+static void nodes_check(client *c)
+{
+    if (c->nodes_busy != 2 || c->written < c->nodes_mark)
+        return;
+    c->nodes_busy = 0;
+    if (c->nodes_deferred && c->sess && c->ready && !c->closing) {
+        c->nodes_deferred = 0;
+        c->nodes_busy = 1;
+        sq_session_push_job(c->sess->s, c->serial, &c->nodes_req);
+    }
+}
+
 /* write one queued message; -1 closes the connection */
 static int write_one(client *c)
 {
@@ -198,6 +221,7 @@ static int write_one(client *c)
         b = c->fifo[c->fhead];
         c->fhead = (c->fhead + 1) % c->fcap;
         c->fcount--;
+        c->written++;
         c->fbytes -= b->len;
     } else {
         /* then the newest frame of each body, in body order */
@@ -221,6 +245,7 @@ static int write_one(client *c)
     sq_blob_unref(b);
     if (n < (int)len)
         return -1;
+    nodes_check(c);
     int more = c->fcount > 0;
     for (int i = 0; i < SQ_MAX_BODIES && !more; i++)
         more = c->slot[i] != NULL;
@@ -258,6 +283,7 @@ static void end_session(server *srv, srec *r)
         client *c = r->members[i];
         c->sess = NULL;
         c->ready = c->pending = 0;
+        c->nodes_busy = c->nodes_deferred = 0;
         clear_slots(c);
     }
     free(r->members);
@@ -289,6 +315,10 @@ static void leave_session(client *c)
     srec *r = c->sess;
     if (!r)
         return;
+    /* its nodes requests are dropped: their replies would go nowhere */
+    if (c->nodes_busy || c->nodes_deferred)
+        sq_session_drop_jobs(r->s, c->serial, SQ_REQ_NODES);
+    c->nodes_busy = c->nodes_deferred = 0;
     for (int i = 0; i < r->nmembers; i++)
         if (r->members[i] == c) {
             r->members[i] = r->members[--r->nmembers];
@@ -408,6 +438,16 @@ static void drain_session(server *srv, srec *r)
             for (int k = 0; k < r->nmembers; k++)
                 if (r->members[k]->ready && r->members[k]->sub_frames)
                     fifo_push(r->members[k], sq_blob_ref(o->blob));
+            break;
+        case SQ_OUT_NODES_DONE:
+            for (int k = 0; k < r->nmembers; k++) {
+                client *m = r->members[k];
+                if (m->serial == o->client && m->nodes_busy == 1) {
+                    m->nodes_busy = 2;
+                    m->nodes_mark = m->pushed;
+                    nodes_check(m);
+                }
+            }
             break;
         case SQ_OUT_TEXT:
         case SQ_OUT_BINARY:
@@ -761,7 +801,26 @@ static void handle_request(client *c, const char *text, size_t len)
             if (!known && c->ntool_ids < SQ_MAX_TOOLS)
                 c->tool_ids[c->ntool_ids++] = req.tool.id;
         }
+        if (req.type == SQ_REQ_NODES && c->nodes_busy) {
+            /* one nodes request runs at a time per client; the newest waits, older waiting
+             * ones are answered as replaced */
+            if (c->nodes_deferred)
+                send_error(c, &c->nodes_req, "superseded", "nodes: replaced by a newer nodes "
+                           "request of this client (one runs at a time; wait for the reply)");
+            c->nodes_req = req;
+            c->nodes_deferred = 1;
+            break;
+        }
+        if (sq_session_pending_jobs(r->s, c->serial) >= CLIENT_MAX_JOBS) {
+            char m[200];
+            snprintf(m, sizeof m, "%d requests of this client wait for session %u; wait for "
+                     "their replies before sending more", CLIENT_MAX_JOBS, r->s->id);
+            send_error(c, &req, "busy", m);
+            break;
+        }
         sq_session_push_job(r->s, c->serial, &req);
+        if (req.type == SQ_REQ_NODES)
+            c->nodes_busy = 1;
         break;
     }
 }

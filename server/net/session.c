@@ -229,6 +229,27 @@ void sq_session_push_snapshot(sq_session *s, sq_snap_job *j)
     pthread_mutex_unlock(&s->mu);
 }
 
+int sq_session_pending_jobs(sq_session *s, uint64_t client)
+{
+    int n = 0;
+    pthread_mutex_lock(&s->mu);
+    for (int i = 0; i < s->njobs; i++)
+        n += s->jobs[i].client == client && !s->jobs[i].snap;
+    pthread_mutex_unlock(&s->mu);
+    return n;
+}
+
+void sq_session_drop_jobs(sq_session *s, uint64_t client, sq_req_type type)
+{
+    pthread_mutex_lock(&s->mu);
+    int k = 0;
+    for (int i = 0; i < s->njobs; i++)
+        if (s->jobs[i].snap || s->jobs[i].client != client || s->jobs[i].req.type != type)
+            s->jobs[k++] = s->jobs[i];
+    s->njobs = k;
+    pthread_mutex_unlock(&s->mu);
+}
+
 sq_out *sq_session_take_outbox(sq_session *s, int *n)
 {
     pthread_mutex_lock(&s->mu);
@@ -524,6 +545,7 @@ static void do_nodes(sq_session *s, const sq_job *j)
     cJSON_AddNumberToObject(o, "level", sq_world_listed_level(w, r->nodes.body, L));
     cJSON_AddNumberToObject(o, "frame", (double)w->frame);
     reply(s, j->client, o);
+    post(s, SQ_OUT_NODES_DONE, j->client, 0, NULL);
 }
 
 /* apply one job; returns 1 if the visible state changed without a step */
@@ -551,6 +573,8 @@ static int do_job(sq_session *s, const sq_job *j)
              : r->type == SQ_REQ_NODES ? r->nodes.body : -1;
     if (body >= w->nbodies) {
         reply_error(s, j->client, r, "unknown_body", "body id out of range");
+        if (r->type == SQ_REQ_NODES)
+            post(s, SQ_OUT_NODES_DONE, j->client, 0, NULL);
         return 0;
     }
     switch (r->type) {
@@ -639,6 +663,20 @@ static int setup(sq_session *s)
     return 0;
 }
 
+/* put jobs not applied this frame back in front of the queue, in order */
+static void requeue_front(sq_session *s, const sq_job *j, int m)
+{
+    pthread_mutex_lock(&s->mu);
+    if (s->njobs + m > s->cap_jobs) {
+        s->cap_jobs = SQ_MAX(s->njobs + m, 2 * s->cap_jobs);
+        s->jobs = sq_realloc(s->jobs, sizeof *s->jobs * (size_t)s->cap_jobs);
+    }
+    memmove(s->jobs + m, s->jobs, sizeof *s->jobs * (size_t)s->njobs);
+    memcpy(s->jobs, j, sizeof *j * (size_t)m);
+    s->njobs += m;
+    pthread_mutex_unlock(&s->mu);
+}
+
 static void *session_main(void *arg)
 {
     sq_session *s = arg;
@@ -684,9 +722,17 @@ static void *session_main(void *arg)
         cap = tcap;
         pthread_mutex_unlock(&s->mu);
 
-        int changed = 0;
-        for (int i = 0; i < n; i++)
-            changed |= do_job(s, &jobs[i]);
+        int changed = 0, done = 0;
+        double jobs_t0 = sq_now();
+        while (done < n) {
+            changed |= do_job(s, &jobs[done++]);
+            /* requests get at most part of a frame period per frame; the rest wait for the
+             * next frame, so that a flood of costly ones (set) cannot freeze the clock */
+            if (!s->lockstep && sq_now() - jobs_t0 > SQ_SESSION_JOB_SHARE * s->period)
+                break;
+        }
+        if (done < n)
+            requeue_front(s, jobs + done, n - done);
         double frame_start = next;
         int idle = __atomic_load_n(&s->idle, __ATOMIC_RELAXED);
         if (!s->lockstep && !s->paused && !idle)

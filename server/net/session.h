@@ -17,6 +17,9 @@
 #include "net/snapshot.h"
 #include "scene/scene.h"
 
+/* fraction of the frame period a session spends on requests per frame (the rest waits) */
+#define SQ_SESSION_JOB_SHARE 0.5
+
 /* a request handed to the session thread, with the client it came from */
 typedef struct sq_job {
     uint64_t client;         /* client serial, for the reply */
@@ -30,7 +33,8 @@ typedef enum sq_out_kind {
     SQ_OUT_FRAME,            /* realtime frame of `body` for every member: latest wins */
     SQ_OUT_STEP_FRAME,       /* lockstep frame for every member: never dropped */
     SQ_OUT_READY,            /* the world exists: topology and info are set */
-    SQ_OUT_FAILED            /* the world could not be created: fail_msg */
+    SQ_OUT_FAILED,           /* the world could not be created: fail_msg */
+    SQ_OUT_NODES_DONE        /* the client's nodes request is answered (no blob) */
 } sq_out_kind;
 
 typedef struct sq_out {
@@ -119,6 +123,10 @@ void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req);
 /* queue a snapshot capture: the session thread captures its world into j->state at its
  * next frame and submits j to s->snapshotter */
 void sq_session_push_snapshot(sq_session *s, sq_snap_job *j);
+/* jobs of `client` waiting in the queue (lws thread; bounds what one client may queue) */
+int sq_session_pending_jobs(sq_session *s, uint64_t client);
+/* drop the queued jobs of `client` of request type `type` (a departed client's nodes) */
+void sq_session_drop_jobs(sq_session *s, uint64_t client, sq_req_type type);
 /* take every outbox item (lws thread); *n items, caller frees the array and blob refs */
 sq_out *sq_session_take_outbox(sq_session *s, int *n);
 

@@ -73,3 +73,57 @@ test('8 concurrent 2048x2048 snapshots are all answered (none cut by a 5 s timeo
     await srv.stop();
   }
 });
+
+/** frames per second a client receives over `ms` */
+async function frameRate(c, ms) {
+  let n = 0;
+  const on = () => { n++; };
+  c.on('binary', on);
+  await sleep(ms);
+  c.off('binary', on);
+  return n / (ms / 1000);
+}
+
+test('nodes amplification: 10 non-reading viewers spamming nodes cannot starve an honest viewer', async () => {
+  const { mkdtempSync } = await import('node:fs');
+  const os = await import('node:os');
+  const path = await import('node:path');
+  const { makeBoxScene, rssKiB } = await import('./harness.mjs');
+  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-sec-')), 'box16', 16);
+  const srv = await startServer(['--scenes', dir]);
+  try {
+    const ctl = await SquishClient.connect(srv.url);
+    const o = await ctl.open('box16');
+    const honest = await SquishClient.connect(srv.url, { role: 'view', decode: false });
+    await honest.join(o.session);
+    const base = await frameRate(honest, 2000);
+    const rss0 = rssKiB(srv.pid);
+    const spammers = await Promise.all(Array.from({ length: 10 }, () =>
+      SquishClient.connect(srv.url, { role: 'view', decode: false })));
+    await Promise.all(spammers.map(s => s.join(o.session)));
+    for (const s of spammers) s.ws._socket.pause(); // never read a reply
+    // each sends 20 nodes requests every 100 ms (200/s, the default --rate) for 6 s
+    const msg = JSON.stringify({ type: 'nodes', body: 0 });
+    const spam = setInterval(() => { for (const s of spammers) for (let i = 0; i < 20; i++) s.sendRaw(msg); }, 100);
+    await sleep(2000);
+    const during = await frameRate(honest, 4000);
+    clearInterval(spam);
+    const rss1 = rssKiB(srv.pid);
+    // a 50 Hz session on a loaded 2-vCPU machine: the honest viewer keeps at least half its rate
+    console.log(`# honest viewer ${base.toFixed(1)} -> ${during.toFixed(1)} frames/s; RSS +${rss1 - rss0} KiB`);
+    assert.ok(during >= 0.5 * base, `honest viewer: ${base.toFixed(1)} frames/s before, ${during.toFixed(1)} during the spam`);
+    assert.ok(rss1 - rss0 < 64 * 1024, `server RSS grew by ${rss1 - rss0} KiB`);
+    for (const s of spammers) s.ws.terminate();
+    await sleep(300);
+    // the session goes on, and a nodes request of a reading client is answered at once
+    const reply = await honest.request({ type: 'nodes', body: 0 }, 5000);
+    assert.equal(reply.count, 17 * 17 * 17);
+    await honest.close();
+    await ctl.close();
+  } finally {
+    const t0 = Date.now();
+    const { code } = await srv.stop();
+    assert.equal(code, 0);
+    assert.ok(Date.now() - t0 < 2000, `SIGTERM took ${Date.now() - t0} ms`);
+  }
+});
