@@ -14,6 +14,7 @@
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
+#include <sys/random.h>
 #include <sys/socket.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,6 +25,8 @@ _Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
 #define FIFO_MAX_BYTES (32u << 20) /* queued bytes per client before it is dropped */
 #define CLIENT_MAX_JOBS 64       /* requests of one client waiting for its session thread */
 #define SLOT_BITS 10             /* session id = generation << SLOT_BITS | slot */
+#define GEN_BITS 39              /* random generation: ids stay below 2^49, at most 15 decimal
+                                    digits, which JSON (and cJSON, printing 15 digits) keep exact */
 #define TICK_US 50000            /* housekeeping period (stats pushes, grace), us */
 #define SNDBUF_BYTES (128 << 10) /* kernel send buffer per client: bounds how stale a slow
                                     client's frames get (the kernel doubles it) */
@@ -87,7 +90,7 @@ typedef struct snap_wait {
 /* the server's record of a session (lws thread only, except s) */
 typedef struct srec {
     sq_session *s;                   /* NULL: free slot */
-    uint32_t gen;
+    uint64_t gen;                    /* random, GEN_BITS bits, never 0, new at every open */
     int scene;
     client **members;
     int nmembers, cap;
@@ -256,13 +259,35 @@ static int write_one(client *c)
 
 /* ---------------------------------------------------------------- sessions */
 
-static srec *find_session(server *srv, uint32_t id)
+static srec *find_session(server *srv, uint64_t id)
 {
-    uint32_t idx = id & ((1u << SLOT_BITS) - 1), gen = id >> SLOT_BITS;
-    if (idx >= (uint32_t)srv->nslots)
+    uint64_t idx = id & ((1u << SLOT_BITS) - 1), gen = id >> SLOT_BITS;
+    if (idx >= (uint64_t)srv->nslots)
         return NULL;
     srec *r = &srv->slots[idx];
     return (r->s && r->gen == gen && gen) ? r : NULL;
+}
+
+/* a random session generation (GEN_BITS bits, not 0, not old): ids cannot be guessed from
+ * one another */
+static uint64_t new_generation(uint64_t old)
+{
+    uint64_t g = 0;
+    while (g == 0 || g == old) {
+        if (getrandom(&g, sizeof g, 0) != (ssize_t)sizeof g) {
+            /* no entropy source: fall back on time and address bits (guessable; logged) */
+            lwsl_warn("squish: getrandom failed; session ids are less random\n");
+            g = (uint64_t)(sq_now() * 1e9) ^ ((uint64_t)(uintptr_t)&g << 7) ^ old * 0x9e3779b97f4a7c15ull;
+        }
+        g &= (1ull << GEN_BITS) - 1;
+    }
+    return g;
+}
+
+/* session slots kept for token holders when the server has a token: a quarter, at least 1 */
+static int reserved_sessions(const server *srv)
+{
+    return srv->opt->token ? SQ_MAX(1, srv->opt->max_sessions / 4) : 0;
 }
 
 static int live_sessions(const server *srv)
@@ -278,7 +303,7 @@ static void end_session(server *srv, srec *r)
     if (!r->s)
         return;
     if (srv->opt->verbose)
-        fprintf(stderr, "squish serve: session %u ends\n", r->s->id);
+        fprintf(stderr, "squish serve: session %llu ends\n", (unsigned long long)r->s->id);
     for (int i = 0; i < r->nmembers; i++) {
         client *c = r->members[i];
         c->sess = NULL;
@@ -345,8 +370,8 @@ static int add_member(client *c, srec *r, sq_role role)
 {
     if (r->nmembers >= c->srv->opt->max_clients) {
         char m[160];
-        snprintf(m, sizeof m, "session %u already has %d clients (--max-clients); open another "
-                 "session", r->s->id, r->nmembers);
+        snprintf(m, sizeof m, "session %llu already has %d clients (--max-clients); open another "
+                 "session", (unsigned long long)r->s->id, r->nmembers);
         send_error(c, &c->pending_req, "session_full", m);
         return -1;
     }
@@ -617,37 +642,42 @@ static void do_open_or_join(client *c, const sq_request *req)
         }
         /* a free slot (the one the client leaves may be reused) */
         leave_session(c);
-        int idx = -1;
-        if (live_sessions(srv) < srv->opt->max_sessions)
+        int idx = -1, limit = srv->opt->max_sessions - (c->token_ok ? 0 : reserved_sessions(srv));
+        if (live_sessions(srv) < limit)
             for (int i = 0; i < srv->nslots && idx < 0; i++)
                 if (!srv->slots[i].s)
                     idx = i;
         if (idx < 0) {
-            snprintf(m, sizeof m, "%d sessions are running (--max-sessions); join one or retry "
-                     "later", live_sessions(srv));
+            if (limit < srv->opt->max_sessions)
+                snprintf(m, sizeof m, "%d sessions are running; the other %d of --max-sessions are "
+                         "kept for clients with the control token (--token); join one or retry "
+                         "later", live_sessions(srv), reserved_sessions(srv));
+            else
+                snprintf(m, sizeof m, "%d sessions are running (--max-sessions); join one or retry "
+                         "later", live_sessions(srv));
             send_error(c, req, "server_full", m);
             return;
         }
         r = &srv->slots[idx];
-        r->gen = (r->gen + 1) & ((1u << (32 - SLOT_BITS)) - 1);
-        if (!r->gen)
-            r->gen = 1;
+        r->gen = new_generation(r->gen);
         r->scene = sc;
         r->controller = 0;
         r->bytes_sent = 0;
         r->empty_since = 0;
-        uint32_t id = r->gen << SLOT_BITS | (uint32_t)idx;
+        uint64_t id = r->gen << SLOT_BITS | (uint64_t)idx;
         r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep,
                                 srv->opt->precision, wake, srv);
         r->s->snapshotter = srv->snapshotter;
+        __atomic_store(&r->s->budget.frac, &srv->opt->frame_budget, __ATOMIC_RELAXED);
         r->last_snapshot = 0;
         if (srv->opt->verbose)
-            fprintf(stderr, "squish serve: session %u opened (scene %s)\n", id, srv->names[sc]);
+            fprintf(stderr, "squish serve: session %llu opened (scene %s)\n",
+                    (unsigned long long)id, srv->names[sc]);
     } else {
         r = find_session(srv, req->join.session);
         if (!r) {
-            snprintf(m, sizeof m, "join.session: no session %u (it ended, or never existed); open "
-                     "a scene instead", req->join.session);
+            snprintf(m, sizeof m, "join.session: no session %llu (it ended, or never existed); open "
+                     "a scene instead", (unsigned long long)req->join.session);
             send_error(c, req, "unknown_session", m);
             return;
         }
@@ -813,8 +843,9 @@ static void handle_request(client *c, const char *text, size_t len)
         }
         if (sq_session_pending_jobs(r->s, c->serial) >= CLIENT_MAX_JOBS) {
             char m[200];
-            snprintf(m, sizeof m, "%d requests of this client wait for session %u; wait for "
-                     "their replies before sending more", CLIENT_MAX_JOBS, r->s->id);
+            snprintf(m, sizeof m, "%d requests of this client wait for session %llu; wait for "
+                     "their replies before sending more", CLIENT_MAX_JOBS,
+                     (unsigned long long)r->s->id);
             send_error(c, &req, "busy", m);
             break;
         }
@@ -884,7 +915,7 @@ static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
     const char *v = lws_get_urlarg_by_name(wsi, "session=", buf, sizeof buf);
     char *end = NULL;
     unsigned long id = v ? strtoul(v, &end, 10) : 0;
-    srec *r = (v && end && !*end && end != v) ? find_session(srv, (uint32_t)id) : NULL;
+    srec *r = (v && end && !*end && end != v) ? find_session(srv, (uint64_t)id) : NULL;
     if (!r) {
         snprintf(msg, sizeof msg, "no session %.40s; use /snapshot.png?session=ID with the id of "
                  "'opened'\n", v ? v : "(missing)");
@@ -1181,6 +1212,10 @@ sq_serve_options sq_serve_options_default(void)
     o.rate = 200;
     o.grace = 30;
     o.precision = SQ_CODEC_PRECISION;
+    o.frame_budget = 1.0;
+    o.max_conns = 1000;
+    o.max_conns_per_addr = 100;
+    o.idle_timeout = 300;
     return o;
 }
 
@@ -1342,8 +1377,12 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
         if (lws_service(srv.ctx, 0) < 0)
             break;
 
-    /* clean shutdown: tell the clients, flush for a moment, then close everything */
+    /* clean shutdown: tell the clients, flush for a moment, then close everything; every
+     * session thread is told to stop first, so that frames in progress end together */
     srv.stopping = 1;
+    for (int i = 0; i < srv.nslots; i++)
+        if (srv.slots[i].s)
+            sq_session_cancel(srv.slots[i].s);
     for (int i = 0; i < srv.nslots; i++) {
         srec *r = &srv.slots[i];
         for (int k = 0; r->s && k < r->nmembers; k++) {

@@ -356,10 +356,42 @@ static void publish(sq_session *s, int kind, double frame_s)
 }
 
 /* one frame: step and publish */
+static double budget_frac(sq_session *s)
+{
+    double f;
+    __atomic_load(&s->budget.frac, &f, __ATOMIC_RELAXED);
+    return f > 0 ? f : 1.0;
+}
+
+/* account a stepped frame of cpu seconds; a realtime session far over its budget pauses */
+static void budget_account(sq_session *s, double cpu)
+{
+    if (__atomic_load_n(&s->stop, __ATOMIC_RELAXED))
+        return; /* the frame was abandoned */
+    const sq_world *w = s->world;
+    double updates = 0;
+    for (int b = 0; b < w->nbodies; b++)
+        updates += (double)w->profile[b].node_updates;
+    double frac = budget_frac(s);
+    char msg[400];
+    if (!sq_budget_frame(&s->budget, frac, s->period, cpu, updates, msg, sizeof msg) || s->lockstep)
+        return;
+    s->paused = 1;
+    cJSON *e = sq_reply_new("event", NULL);
+    cJSON_AddStringToObject(e, "kind", "over_budget");
+    cJSON_AddNumberToObject(e, "session", s->id);
+    cJSON_AddNumberToObject(e, "frame", (double)w->frame);
+    cJSON_AddNumberToObject(e, "frame_ms", 1e3 * cpu);
+    cJSON_AddNumberToObject(e, "budget_ms", 1e3 * frac * s->period);
+    cJSON_AddStringToObject(e, "message", msg);
+    post(s, SQ_OUT_TEXT, 0, 0, sq_reply_blob(e));
+}
+
 static void step_frame(sq_session *s, sq_out_kind kind)
 {
-    double t0 = sq_now();
+    double t0 = sq_now(), c0 = sq_thread_cpu();
     sq_world_step(s->world, s->lockstep ? 0 : s->period);
+    budget_account(s, sq_thread_cpu() - c0);
     publish(s, kind, sq_now() - t0);
 }
 
@@ -498,6 +530,29 @@ static void do_set(sq_session *s, const sq_job *j)
             reply_error(s, j->client, r, "refused", msg);
             return;
         }
+    }
+    /* the compute budget: settings predictably over it are refused (docs/security.md) */
+    sq_budget_prediction p;
+    double frac = budget_frac(s);
+    sq_budget_predict(&s->budget, w, s->period, &p);
+    double budget = frac * s->period;
+    if (p.seconds > budget) {
+        for (int k = b0; k < b1; k++) {
+            if (changed_lod)
+                sq_body_set_lod(w->bodies[k], &old_lod[k], NULL);
+            if (changed_mat)
+                sq_body_set_material(w->bodies[k], &old_m[k], old_op[k], NULL);
+        }
+        char msg[480];
+        snprintf(msg, sizeof msg, "predicted cost %.1f ms of CPU per frame (%.3g node updates; body "
+                 "%d: %d substeps x %d nodes; %.3g us per node update) is over the frame budget "
+                 "of %.1f ms (--frame-budget %.3g x the %.1f ms period); settings unchanged: use a "
+                 "softer or denser material, less stiffness damping or a coarser level",
+                 1e3 * p.seconds, p.updates, p.body, p.substeps, p.nodes,
+                 1e6 * p.seconds / (p.updates > 0 ? p.updates : 1), 1e3 * budget,
+                 frac, 1e3 * s->period);
+        reply_error(s, j->client, r, "over_budget", msg);
+        return;
     }
     cJSON *o = ack("set", r, w->frame + 1);
     cJSON *a = cJSON_AddArrayToObject(o, "bodies");
@@ -680,6 +735,7 @@ static void requeue_front(sq_session *s, const sq_job *j, int m)
 static void *session_main(void *arg)
 {
     sq_session *s = arg;
+    sq_cancel_flag = &s->stop; /* a frame in progress is abandoned when the session stops */
     if (setup(s))
         return NULL;
     double next = sq_now() + s->period;
@@ -759,7 +815,7 @@ static void *session_main(void *arg)
     return NULL;
 }
 
-sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
+sq_session *sq_session_start(const sq_scene *scene, const char *name, uint64_t id, int lockstep,
                              double precision, void (*wake)(void *), void *wake_arg)
 {
     sq_session *s = sq_calloc(1, sizeof *s);
@@ -769,6 +825,7 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t i
     s->period = 1.0 / (scene->frame_rate > 0 ? scene->frame_rate : 50.0);
     s->lockstep = lockstep;
     s->precision = precision > 0 ? precision : SQ_CODEC_PRECISION;
+    s->budget.frac = 1.0;
     s->wake = wake;
     s->wake_arg = wake_arg;
     pthread_mutex_init(&s->mu, NULL);
@@ -785,6 +842,14 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t i
         post_locked(s, SQ_OUT_FAILED, 0, 0, NULL);
     }
     return s;
+}
+
+void sq_session_cancel(sq_session *s)
+{
+    pthread_mutex_lock(&s->mu);
+    __atomic_store_n(&s->stop, 1, __ATOMIC_RELAXED);
+    pthread_cond_broadcast(&s->cv);
+    pthread_mutex_unlock(&s->mu);
 }
 
 void sq_session_stop(sq_session *s)

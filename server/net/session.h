@@ -13,6 +13,7 @@
 
 #include <pthread.h>
 
+#include "net/budget.h"
 #include "net/net.h"
 #include "net/snapshot.h"
 #include "scene/scene.h"
@@ -72,7 +73,7 @@ typedef enum sq_session_state {
 
 typedef struct sq_session {
     /* fixed at creation */
-    uint32_t id;                     /* handle: generation << 10 | slot index */
+    uint64_t id;                     /* handle: random generation << 10 | slot index (< 2^49) */
     const sq_scene *scene;
     char scene_name[SQ_NET_NAME_MAX];
     double period;                   /* frame period, s */
@@ -110,12 +111,16 @@ typedef struct sq_session {
     unsigned char *lev;              /* scratch levels */
     int paused;
     long deadline_misses;
+    sq_budget budget;                /* compute budget; budget.frac set by the server right
+                                        after start (read atomically) */
 } sq_session;
 
 /* create and start a session's thread for scene; the world is built on that thread, which
  * then posts SQ_OUT_READY or SQ_OUT_FAILED */
-sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
+sq_session *sq_session_start(const sq_scene *scene, const char *name, uint64_t id, int lockstep,
                              double precision, void (*wake)(void *), void *wake_arg);
+/* ask the thread to stop (a frame in progress is abandoned); sq_session_stop still needed */
+void sq_session_cancel(sq_session *s);
 /* stop the thread, free everything (pending outbox blobs included) */
 void sq_session_stop(sq_session *s);
 /* queue a request for the session thread (lws thread) */

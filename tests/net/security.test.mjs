@@ -127,3 +127,116 @@ test('nodes amplification: 10 non-reading viewers spamming nodes cannot starve a
     assert.ok(Date.now() - t0 < 2000, `SIGTERM took ${Date.now() - t0} ms`);
   }
 });
+
+test('compute budget: a set predictably over the frame budget is refused with its predicted cost; others keep their rate', async () => {
+  const srv = await startServer();
+  try {
+    const victim = await SquishClient.connect(srv.url);
+    await victim.open('default');
+    const attacker = await SquishClient.connect(srv.url);
+    await attacker.open('default');
+    await sleep(500);
+    const before = await victim.stats();
+    // E = 1e10 Pa at 1 kg/m^3 needs 2^16 substeps per frame on the default cube
+    const e = await attacker.set({ material: { E: 1e10, density: 1 } }).then(() => null, x => x);
+    assert.ok(e, 'the set was refused');
+    assert.equal(e.code, 'over_budget');
+    assert.match(e.message, /predicted cost [\d.]+ ms of CPU per frame .*65536 substeps x 729 nodes.*frame budget of 20\.0 ms/);
+    // nothing changed, and a set within the budget still passes
+    const s = await attacker.stats();
+    assert.equal(s.paused, false);
+    const ok = await attacker.set({ material: { E: 2e5 } });
+    assert.equal(ok.type, 'ack');
+    // a set flood (the default --rate of 200/s, for 2 s) does not freeze the flooder's viewers
+    const viewer = await SquishClient.connect(srv.url, { role: 'view', decode: false });
+    await viewer.join(attacker.session);
+    const flood = setInterval(() => {
+      for (let i = 0; i < 20; i++)
+        attacker.sendRaw(JSON.stringify({ type: 'set', material: { E: 1e10, density: 1 } }));
+    }, 100);
+    const rate = await frameRate(viewer, 2000);
+    clearInterval(flood);
+    assert.ok(rate >= 15, `the flooder's viewer got ${rate} frames/s during the set flood`);
+    const after = await victim.stats();
+    const frames = after.frame - before.frame;
+    assert.ok(frames > 50, `the other session stepped ${frames} frames`);
+    await Promise.all([victim, attacker, viewer].map(c => c.close()));
+  } finally {
+    await srv.stop();
+  }
+});
+
+test('compute budget: a scene far over its budget is paused with an over_budget event', async () => {
+  const { mkdtempSync } = await import('node:fs');
+  const os = await import('node:os');
+  const path = await import('node:path');
+  const { makeBoxScene } = await import('./harness.mjs');
+  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-sec-')), 'box12', 12);
+  // a 0.2 ms budget: the 12^3 box needs several ms per frame
+  const srv = await startServer(['--scenes', dir, '--frame-budget', '0.01']);
+  try {
+    const c = await SquishClient.connect(srv.url);
+    const ev = c.waitFor(e => e.kind === 'over_budget', 10000, 'event');
+    await c.open('box12');
+    const e = await ev;
+    assert.match(e.message, /session paused: its frames take [\d.]+ ms of CPU, over the frame budget of 0\.2 ms/);
+    assert.ok(e.frame_ms > e.budget_ms);
+    const s = await c.stats();
+    assert.equal(s.paused, true);
+    await c.close();
+  } finally {
+    await srv.stop();
+  }
+});
+
+test('SIGTERM within 2 s while a 16 s frame is being computed (the frame is abandoned)', async () => {
+  const { mkdtempSync } = await import('node:fs');
+  const os = await import('node:os');
+  const path = await import('node:path');
+  const { makeBoxScene } = await import('./harness.mjs');
+  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-sec-')), 'box16', 16);
+  // an operator who allows anything: frames of 2^16 substeps x 4913 nodes
+  const srv = await startServer(['--scenes', dir, '--frame-budget', '1e6']);
+  const c = await SquishClient.connect(srv.url);
+  await c.open('box16');
+  await c.set({ material: { E: 1e10, density: 1 } });
+  await sleep(1500); // well inside the first long frame
+  const t0 = Date.now();
+  const { code } = await srv.stop('SIGTERM', 20000);
+  const ms = Date.now() - t0;
+  assert.equal(code, 0);
+  assert.ok(ms < 2000, `SIGTERM took ${ms} ms`);
+});
+
+test('session slots: a client without the token cannot take the slots kept for token holders', async () => {
+  const srv = await startServer(['--token', 'sesame', '--max-sessions', '4', '--grace', '30']);
+  try {
+    // a viewer (no token) opens sessions as fast as it can: each open leaves an empty one
+    const v = await SquishClient.connect(srv.url, { role: 'view' });
+    const ids = [];
+    let refused = null;
+    for (let i = 0; i < 8 && !refused; i++)
+      await v.open('default').then(o => ids.push(o.session), e => { refused = e; });
+    assert.equal(ids.length, 3, 'a quarter of --max-sessions 4 (one) is kept');
+    assert.equal(refused.code, 'server_full');
+    assert.match(refused.message, /kept for clients with the control token/);
+    // the token holder still gets a session
+    const t = await SquishClient.connect(srv.url, { token: 'sesame' });
+    const o = await t.open('default');
+    assert.ok(o.session > 0);
+    // ids are random, not sequential: integers below 2^53 that differ in their high bits
+    const all = [...ids, o.session];
+    for (const id of all) assert.ok(Number.isSafeInteger(id) && id > 1024, `id ${id}`);
+    const gens = all.map(id => Math.floor(id / 1024));
+    assert.equal(new Set(gens).size, gens.length);
+    assert.ok(Math.max(...gens) > 2 ** 20, `generations ${gens} look sequential`);
+    // an id is good for joins and snapshots; a neighbouring id is not
+    const w = await SquishClient.connect(srv.url, { role: 'view' });
+    assert.equal((await w.join(o.session)).session, o.session);
+    await assert.rejects(w.join(o.session + 1024), e => e.code === 'unknown_session');
+    assert.equal((await fetch(`${srv.http}/snapshot.png?session=${o.session}&size=32x32`)).status, 200);
+    await Promise.all([v, t, w].map(c => c.close()));
+  } finally {
+    await srv.stop();
+  }
+});
