@@ -6,8 +6,11 @@
  * replaces an unsent one: the client skips it, counted), everything else into the client's
  * bounded FIFO. Writes happen only in SERVER_WRITEABLE, one message per callback.
  */
+#include "net/limits.h"
+#include "net/metrics.h"
 #include "net/session.h"
 
+#include <arpa/inet.h>
 #include <cJSON.h>
 #include <dirent.h>
 #include <libwebsockets.h>
@@ -15,6 +18,7 @@
 #include <signal.h>
 #include <stdio.h>
 #include <sys/random.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <stdlib.h>
 #include <string.h>
@@ -68,6 +72,7 @@ typedef struct client {
     sq_request nodes_req;
     uint64_t pushed, written;        /* FIFO messages queued / written so far */
     uint64_t nodes_mark;             /* `pushed` when the whole nodes reply was queued */
+    char addr[SQ_ADDR_MAX];          /* peer address */
 } client;
 
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
@@ -98,6 +103,9 @@ typedef struct srec {
     double empty_since;
     uint64_t bytes_sent;
     double last_snapshot;            /* when the last snapshot was asked for */
+    long seen_frame;                 /* frame number at progress_at */
+    double progress_at;              /* when the session last finished a frame (or had no
+                                        reason to: paused, idle, starting) */
 } srec;
 
 typedef struct server {
@@ -116,7 +124,33 @@ typedef struct server {
     snap_wait *waits;
     int nwaits;
     uint64_t next_snap;
+    sq_conns *conns;                 /* open connections per address (limits.c) */
+    sq_guard *guard;                 /* wrong tokens per address */
+    /* counters for /metrics */
+    uint64_t bytes_out;              /* WebSocket message bytes written */
+    long frames_ended, misses_ended, resets_ended; /* of sessions that ended */
+    int nrefused;
+    struct { const char *code; long n; } refused[48]; /* error replies and HTTP statuses */
 } server;
+
+#define MAX_URI 2048                 /* longer request paths get 414 */
+#define HEADER_BYTES 16384           /* lws header space per request (longer: closed) */
+#define FROZEN_MIN_S 2.0             /* a session is frozen after max(2 s, 50 periods) */
+#define FROZEN_PERIODS 50
+
+/* count a refused request by its code (a protocol error code or an HTTP status) */
+static void count_refused(server *srv, const char *code)
+{
+    for (int i = 0; i < srv->nrefused; i++)
+        if (!strcmp(srv->refused[i].code, code)) {
+            srv->refused[i].n++;
+            return;
+        }
+    if (srv->nrefused < (int)(sizeof srv->refused / sizeof srv->refused[0])) {
+        srv->refused[srv->nrefused].code = code;
+        srv->refused[srv->nrefused++].n = 1;
+    }
+}
 
 static volatile sig_atomic_t interrupted; /* set by SIGINT/SIGTERM */
 
@@ -173,6 +207,7 @@ static void send_json(client *c, cJSON *o)
 
 static void send_error(client *c, const sq_request *req, const char *code, const char *msg)
 {
+    count_refused(c->srv, code);
     fifo_push(c, sq_error_blob(code, msg, req));
 }
 
@@ -244,6 +279,7 @@ static int write_one(client *c)
     int n = lws_write(c->wsi, b->msg, b->len, b->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
     if (c->sess)
         c->sess->bytes_sent += b->len;
+    c->srv->bytes_out += b->len;
     size_t len = b->len;
     sq_blob_unref(b);
     if (n < (int)len)
@@ -304,6 +340,11 @@ static void end_session(server *srv, srec *r)
         return;
     if (srv->opt->verbose)
         fprintf(stderr, "squish serve: session %llu ends\n", (unsigned long long)r->s->id);
+    pthread_mutex_lock(&r->s->mu);
+    srv->frames_ended += r->s->snap.frame;
+    srv->misses_ended += r->s->snap.deadline_misses;
+    srv->resets_ended += r->s->snap.resets;
+    pthread_mutex_unlock(&r->s->mu);
     for (int i = 0; i < r->nmembers; i++) {
         client *c = r->members[i];
         c->sess = NULL;
@@ -760,6 +801,19 @@ static void handle_request(client *c, const char *text, size_t len)
 
     switch (req.type) {
     case SQ_REQ_HELLO:
+        if (opt->token && req.hello.has_token) {
+            /* token guessing is throttled per address */
+            double wait = sq_guard_wait(srv->guard, c->addr, now);
+            if (wait > 0) {
+                char m[200];
+                snprintf(m, sizeof m, "hello.token: %d wrong tokens from %s; wait %.0f s before "
+                         "trying again", SQ_GUARD_FAILS, c->addr, ceil(wait));
+                send_error(c, &req, "throttled", m);
+                return;
+            }
+            if (!token_matches(srv, req.hello.token))
+                sq_guard_fail(srv->guard, c->addr, now);
+        }
         if (req.hello.role == SQ_ROLE_CONTROL && opt->token &&
             (!req.hello.has_token || !token_matches(srv, req.hello.token))) {
             send_error(c, &req, "bad_token", req.hello.has_token
@@ -869,6 +923,18 @@ static void tick(lws_sorted_usec_list_t *sul)
         drain_session(srv, r);
         if (!r->s)
             continue;
+        {
+            /* progress: a stepping session that finishes no frame for long is frozen */
+            pthread_mutex_lock(&r->s->mu);
+            long frame = r->s->snap.frame;
+            int waiting = r->s->state != SQ_SESSION_READY || r->s->snap.paused || r->s->lockstep;
+            pthread_mutex_unlock(&r->s->mu);
+            if (waiting || frame != r->seen_frame || __atomic_load_n(&r->s->idle, __ATOMIC_RELAXED) ||
+                !r->progress_at) {
+                r->seen_frame = frame;
+                r->progress_at = now;
+            }
+        }
         if (r->nmembers == 0) {
             if (!r->empty_since)
                 r->empty_since = now;
@@ -892,9 +958,28 @@ static void tick(lws_sorted_usec_list_t *sul)
 
 /* ---------------------------------------------------------------- lws callback */
 
+static const char *status_code(unsigned status)
+{
+    switch (status) {
+    case 400: return "400";
+    case 403: return "403";
+    case 404: return "404";
+    case 405: return "405";
+    case 414: return "414";
+    case 429: return "429";
+    case 500: return "500";
+    case 503: return "503";
+    default: return "other";
+    }
+}
+
 static int http_reply(struct lws *wsi, unsigned status, const char *type, const void *body,
                       size_t len)
 {
+    if (status >= 400) {
+        server *srv = lws_context_user(lws_get_context(wsi));
+        count_refused(srv, status_code(status));
+    }
     unsigned char buf[LWS_PRE + 512], *start = buf + LWS_PRE, *p = start, *end = buf + sizeof buf;
     if (lws_add_http_common_headers(wsi, status, type, (lws_filepos_t)len, &p, end) ||
         lws_finalize_write_http_header(wsi, start, &p, end))
@@ -1038,6 +1123,121 @@ static int snapshot_write(server *srv, struct lws *wsi)
     return rc;
 }
 
+/* the first session that should be stepping but has finished no frame for max(2 s, 50
+ * periods), or NULL; *stalled its seconds without a frame */
+static srec *frozen_session(server *srv, double *stalled)
+{
+    double now = sq_now();
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s || !r->progress_at)
+            continue;
+        double lim = SQ_MAX(FROZEN_MIN_S, FROZEN_PERIODS * r->s->period);
+        if (now - r->progress_at > lim) {
+            *stalled = now - r->progress_at;
+            return r;
+        }
+    }
+    return NULL;
+}
+
+/* GET or HEAD /healthz: 200 "ok", or 503 naming a frozen session */
+static int healthz(server *srv, struct lws *wsi, int head)
+{
+    char msg[300];
+    double stalled = 0;
+    srec *r = frozen_session(srv, &stalled);
+    unsigned status = HTTP_STATUS_OK;
+    if (r) {
+        snprintf(msg, sizeof msg, "unhealthy: session %llu has not finished a frame for %.1f s "
+                 "(frame %ld; its thread is stuck or far over its budget)\n",
+                 (unsigned long long)r->s->id, stalled, r->seen_frame);
+        status = HTTP_STATUS_SERVICE_UNAVAILABLE;
+    } else {
+        snprintf(msg, sizeof msg, "ok\n");
+    }
+    if (!head)
+        return http_reply(wsi, status, "text/plain", msg, strlen(msg));
+    /* HEAD: the headers of the GET reply, no body */
+    unsigned char buf[LWS_PRE + 512], *start = buf + LWS_PRE, *p = start, *end = buf + sizeof buf;
+    if (lws_add_http_common_headers(wsi, status, "text/plain", (lws_filepos_t)strlen(msg), &p, end) ||
+        lws_finalize_write_http_header(wsi, start, &p, end))
+        return -1;
+    return lws_http_transaction_completed(wsi) ? -1 : 0;
+}
+
+/* GET /metrics: Prometheus text format (docs/deploy.md lists the series) */
+static int metrics_reply(server *srv, struct lws *wsi)
+{
+    sq_metrics m = {0};
+    long frames = srv->frames_ended, misses = srv->misses_ended, resets = srv->resets_ended;
+    int sessions = 0, clients = 0;
+    sq_metrics_family(&m, "squish_session_frame_seconds", "gauge",
+                      "compute time of the session's last frame");
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s)
+            continue;
+        sessions++;
+        clients += r->nmembers;
+        pthread_mutex_lock(&r->s->mu);
+        frames += r->s->snap.frame;
+        misses += r->s->snap.deadline_misses;
+        resets += r->s->snap.resets;
+        double fs = r->s->snap.frame_s;
+        pthread_mutex_unlock(&r->s->mu);
+        char l[64];
+        snprintf(l, sizeof l, "session=\"%llu\"", (unsigned long long)r->s->id);
+        sq_metrics_sample(&m, "squish_session_frame_seconds", l, fs);
+    }
+    sq_metrics_family(&m, "squish_sessions", "gauge", "running sessions");
+    sq_metrics_sample(&m, "squish_sessions", NULL, sessions);
+    sq_metrics_family(&m, "squish_clients", "gauge", "WebSocket clients in sessions");
+    sq_metrics_sample(&m, "squish_clients", NULL, clients);
+    sq_metrics_family(&m, "squish_connections", "gauge", "open TCP connections");
+    sq_metrics_sample(&m, "squish_connections", NULL, sq_conns_open(srv->conns));
+    sq_metrics_family(&m, "squish_frames_total", "counter", "frames stepped, every session");
+    sq_metrics_sample(&m, "squish_frames_total", NULL, (double)frames);
+    sq_metrics_family(&m, "squish_deadline_misses_total", "counter",
+                      "frames finished after their frame time");
+    sq_metrics_sample(&m, "squish_deadline_misses_total", NULL, (double)misses);
+    sq_metrics_family(&m, "squish_resets_total", "counter", "bodies reset after a blow-up");
+    sq_metrics_sample(&m, "squish_resets_total", NULL, (double)resets);
+    sq_metrics_family(&m, "squish_bytes_out_total", "counter", "WebSocket message bytes written");
+    sq_metrics_sample(&m, "squish_bytes_out_total", NULL, (double)srv->bytes_out);
+    sq_metrics_family(&m, "squish_connections_refused_total", "counter",
+                      "connections closed at accept (--max-conns, --max-conns-per-addr)");
+    sq_metrics_sample(&m, "squish_connections_refused_total", NULL,
+                      (double)sq_conns_refused(srv->conns));
+    sq_metrics_family(&m, "squish_refused_total", "counter",
+                      "refused requests by code (protocol error codes and HTTP statuses)");
+    for (int i = 0; i < srv->nrefused; i++) {
+        char l[80];
+        snprintf(l, sizeof l, "code=\"%.60s\"", srv->refused[i].code);
+        sq_metrics_sample(&m, "squish_refused_total", l, (double)srv->refused[i].n);
+    }
+    int rc = http_reply(wsi, HTTP_STATUS_OK, "text/plain; version=0.0.4", m.text, m.len);
+    sq_metrics_free(&m);
+    return rc;
+}
+
+/* a file of the web root whose real path leaves the root (a symlink out of it)? */
+static int outside_web_root(server *srv, const char *uri)
+{
+    if (!srv->opt->web_dir)
+        return 0;
+    char root[PATH_MAX], path[PATH_MAX + 160], real[PATH_MAX];
+    if (!realpath(srv->opt->web_dir, root))
+        return 1;
+    size_t n = strlen(uri);
+    snprintf(path, sizeof path, "%s%s%s", srv->opt->web_dir, uri,
+             n && uri[n - 1] == '/' ? "index.html" : "");
+    if (!realpath(path, real))
+        return 0; /* missing: lws answers 404 */
+    size_t rl = strlen(root);
+    return !(strncmp(real, root, rl) == 0 && (real[rl] == '/' || real[rl] == 0));
+}
+
 static int origin_allowed(server *srv, struct lws *wsi)
 {
     if (!srv->opt->norigins)
@@ -1068,6 +1268,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         if (!origin_allowed(srv, wsi)) {
             lwsl_notice("squish: WebSocket upgrade refused: Origin not in --origin list\n");
+            count_refused(srv, "403");
+            lws_return_http_status(wsi, HTTP_STATUS_FORBIDDEN,
+                                   "WebSocket upgrade refused: this Origin is not allowed (--origin)");
             return 1;
         }
         return 0;
@@ -1082,6 +1285,7 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         c->last_refill = sq_now();
         c->stats_hz = 4;
         c->sub_frames = 1;
+        lws_get_peer_simple(wsi, c->addr, sizeof c->addr);
         pss->c = c;
         {
             /* a fixed send buffer: a slow reader fills it quickly, and from then on the
@@ -1168,13 +1372,70 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         return 0;
 
-    case LWS_CALLBACK_FILTER_HTTP_CONNECTION:
+    case LWS_CALLBACK_FILTER_HTTP_CONNECTION: {
         /* a file request pipelined behind a waiting snapshot would be served before it
          * by lws: close too */
         if (snapshot_wait_of(srv, wsi))
             return -1;
+        /* only GET and HEAD; files only inside the web root */
+        if (lws_hdr_total_length(wsi, WSI_TOKEN_POST_URI) || lws_hdr_total_length(wsi, WSI_TOKEN_PUT_URI) ||
+            lws_hdr_total_length(wsi, WSI_TOKEN_DELETE_URI) || lws_hdr_total_length(wsi, WSI_TOKEN_PATCH_URI) ||
+            lws_hdr_total_length(wsi, WSI_TOKEN_OPTIONS_URI)) {
+            count_refused(srv, "405");
+            lws_return_http_status(wsi, HTTP_STATUS_METHOD_NOT_ALLOWED,
+                                   "method not allowed: this server answers GET and HEAD only");
+            return 1;
+        }
+        if (lws_hdr_total_length(wsi, WSI_TOKEN_GET_URI) > MAX_URI ||
+            lws_hdr_total_length(wsi, WSI_TOKEN_HEAD_URI) > MAX_URI) {
+            count_refused(srv, "414");
+            lws_return_http_status(wsi, HTTP_STATUS_REQ_URI_TOO_LONG,
+                                   "request line too long: the path and query may have 2048 bytes");
+            return 1;
+        }
+        char uri[1024] = "";
+        if (lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI) <= 0)
+            lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_HEAD_URI);
+        if (uri[0] == '/' && strcmp(uri, "/ws") && outside_web_root(srv, uri)) {
+            lwsl_notice("squish: %s leads outside the web root (a symlink): refused\n", uri);
+            count_refused(srv, "404");
+            lws_return_http_status(wsi, HTTP_STATUS_NOT_FOUND, "not found");
+            return 1;
+        }
+        break;
+    }
+    case LWS_CALLBACK_FILTER_NETWORK_CONNECTION: {
+        /* connection caps, at accept: over them the socket is closed at once */
+        int fd = (int)(intptr_t)in;
+        struct sockaddr_storage sa;
+        socklen_t sl = sizeof sa;
+        char addr[SQ_ADDR_MAX] = "?", why[160];
+        if (!getpeername(fd, (struct sockaddr *)&sa, &sl)) {
+            if (sa.ss_family == AF_INET)
+                inet_ntop(AF_INET, &((struct sockaddr_in *)&sa)->sin_addr, addr, sizeof addr);
+            else if (sa.ss_family == AF_INET6)
+                inet_ntop(AF_INET6, &((struct sockaddr_in6 *)&sa)->sin6_addr, addr, sizeof addr);
+        }
+        if (srv->conns && sq_conns_accept(srv->conns, fd, addr, why, sizeof why)) {
+            lwsl_warn("squish: connection from %s refused: %s\n", addr, why);
+            return 1;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_SERVER_NEW_CLIENT_INSTANTIATED:
+        if (srv->conns)
+            sq_conns_bind(srv->conns, (int)lws_get_socket_fd(wsi), wsi);
+        break;
+    case LWS_CALLBACK_WSI_DESTROY:
+        if (srv && srv->conns)
+            sq_conns_close(srv->conns, wsi);
         break;
     case LWS_CALLBACK_HTTP: {
+        {
+            char head[64] = "";
+            if (lws_hdr_copy(wsi, head, sizeof head, WSI_TOKEN_HEAD_URI) > 0 && !strcmp(head, "/healthz"))
+                return healthz(srv, wsi, 1);
+        }
         if (snapshot_wait_of(srv, wsi)) {
             /* pipelined behind a snapshot still rendering: lws 4.1 no longer makes the
              * connection writeable for the earlier reply, and replies must keep the order
@@ -1189,7 +1450,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         if (!strcmp(uri, "/snapshot.png"))
             return snapshot_request(srv, wsi, pss);
         if (!strcmp(uri, "/healthz"))
-            return http_reply(wsi, HTTP_STATUS_OK, "text/plain", "ok\n", 3);
+            return healthz(srv, wsi, 0);
+        if (!strcmp(uri, "/metrics"))
+            return metrics_reply(srv, wsi);
         return http_reply(wsi, HTTP_STATUS_NOT_FOUND, "text/plain", "not found\n", 10);
     }
     default:
@@ -1334,7 +1597,14 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     snap.mountpoint_len = (unsigned char)strlen(snap.mountpoint);
     snap.origin = "squish";
     snap.origin_protocol = LWSMPRO_CALLBACK;
-    health.mount_next = &snap;
+    struct lws_http_mount metrics;
+    memset(&metrics, 0, sizeof metrics);
+    metrics.mountpoint = "/metrics";
+    metrics.mountpoint_len = (unsigned char)strlen(metrics.mountpoint);
+    metrics.origin = "squish";
+    metrics.origin_protocol = LWSMPRO_CALLBACK;
+    health.mount_next = &metrics;
+    metrics.mount_next = &snap;
     if (opt->web_dir)
         snap.mount_next = &files;
 
@@ -1347,7 +1617,36 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     info.mounts = &health;
     info.options = LWS_SERVER_OPTION_HTTP_HEADERS_SECURITY_BEST_PRACTICES_ENFORCE |
                    LWS_SERVER_OPTION_DISABLE_IPV6;
-    lws_set_log_level(opt->verbose ? (LLL_ERR | LLL_WARN | LLL_NOTICE) : (LLL_ERR | LLL_WARN), NULL);
+    lws_set_log_level(opt->verbose ? (LLL_ERR | LLL_WARN | LLL_NOTICE) : (LLL_ERR | LLL_WARN),
+                      sq_log_emit);
+    /* a WebSocket silent for idle_timeout / 2 gets a ping; one that has not answered (or
+     * sent anything) within idle_timeout is closed */
+    static lws_retry_bo_t idle;
+    memset(&idle, 0, sizeof idle);
+    idle.secs_since_valid_ping = (uint16_t)SQ_MAX(1.0, opt->idle_timeout / 2);
+    idle.secs_since_valid_hangup = (uint16_t)SQ_MAX(idle.secs_since_valid_ping + 1.0, opt->idle_timeout);
+    info.retry_and_idle_policy = &idle;
+    info.max_http_header_data = HEADER_BYTES;
+    /* the fd limit: raised to its hard maximum; the connection cap stays below it (two fds
+     * per connection serving a file, plus a margin), so that accept never fails with EMFILE
+     * (lws would retry it in a busy loop) */
+    int max_conns = opt->max_conns;
+    struct rlimit rl;
+    if (!getrlimit(RLIMIT_NOFILE, &rl)) {
+        if (rl.rlim_cur < rl.rlim_max) {
+            rl.rlim_cur = rl.rlim_max;
+            setrlimit(RLIMIT_NOFILE, &rl);
+            getrlimit(RLIMIT_NOFILE, &rl);
+        }
+        long fit = ((long)rl.rlim_cur - 64) / 2;
+        if (fit < max_conns) {
+            fprintf(stderr, "squish serve: --max-conns %d lowered to %ld (file descriptor limit %ld)\n",
+                    max_conns, SQ_MAX(fit, 1L), (long)rl.rlim_cur);
+            max_conns = (int)SQ_MAX(fit, 1L);
+        }
+    }
+    srv.conns = sq_conns_new(max_conns, opt->max_conns_per_addr);
+    srv.guard = sq_guard_new();
 
     srv.snapshotter = sq_snapshotter_start(wake, &srv);
     srv.ctx = lws_create_context(&info);
@@ -1427,5 +1726,7 @@ done:
     free(srv.scenes);
     free(srv.names);
     free(srv.slots);
+    sq_conns_free(srv.conns);
+    sq_guard_free(srv.guard);
     return rc;
 }

@@ -240,3 +240,184 @@ test('session slots: a client without the token cannot take the slots kept for t
     await srv.stop();
   }
 });
+
+/** CPU seconds (user + system) a process has used */
+async function cpuSeconds(pid) {
+  const { readFileSync } = await import('node:fs');
+  const f = readFileSync(`/proc/${pid}/stat`, 'utf8').split(') ')[1].split(' ');
+  return (Number(f[11]) + Number(f[12])) / 100; // clock ticks of 10 ms
+}
+
+/** open a TCP connection from a loopback source address; resolves with the socket or null */
+function tcpFrom(port, localAddress) {
+  return new Promise(resolve => {
+    const s = net.connect({ port, host: '127.0.0.1', localAddress });
+    s.on('error', () => resolve(null));
+    s.on('connect', () => resolve(s));
+  });
+}
+
+test('connections: per-address cap, no busy loop or log flood at the fd limit, /healthz reachable', async () => {
+  // a file-descriptor limit of 200 (soft and hard), as a small container would have
+  const srv = await startServer(['--max-conns-per-addr', '40'], { prefix: ['prlimit', '--nofile=200:200', '--'] });
+  const socks = [];
+  try {
+    const cpu0 = await cpuSeconds(srv.pid);
+    // 400 connections from 127.0.0.2, more than the fds the process has
+    for (let i = 0; i < 400; i++) {
+      const s = await tcpFrom(srv.port, '127.0.0.2');
+      if (s) { s.on('close', () => { s.gone = true; }); socks.push(s); }
+    }
+    await sleep(2000);
+    const open = socks.filter(s => !s.gone && !s.destroyed).length;
+    assert.ok(open <= 40, `${open} connections of one address stayed open (cap 40)`);
+    const cpu = await cpuSeconds(srv.pid) - cpu0;
+    assert.ok(cpu < 1.0, `the server used ${cpu} s of CPU for 400 connection attempts`);
+    // another address still gets its health check, and the metrics count the refusals
+    const h = await fetch(`${srv.http}/healthz`);
+    assert.equal(h.status, 200);
+    const m = await (await fetch(`${srv.http}/metrics`)).text();
+    const refused = Number(m.match(/^squish_connections_refused_total (\d+)/m)[1]);
+    assert.ok(refused >= 300, `refused ${refused}`);
+    assert.ok(srv.stderr().length < 20000, `stderr has ${srv.stderr().length} bytes`);
+  } finally {
+    for (const s of socks) s.destroy();
+    await srv.stop();
+  }
+});
+
+test('idle timeout: a WebSocket that neither reads nor answers pings is closed; a reading client stays', async () => {
+  const srv = await startServer(['--idle-timeout', '2']);
+  try {
+    const stuck = await SquishClient.connect(srv.url, { role: 'view', decode: false });
+    const reader = await SquishClient.connect(srv.url, { role: 'view', decode: false });
+    const o = await reader.open('default');
+    await stuck.join(o.session);
+    assert.equal((await reader.stats()).clients, 2);
+    stuck.ws._socket.pause(); // it reads nothing from now on, pings included
+    const t0 = Date.now();
+    let clients = 2;
+    while (clients === 2 && Date.now() - t0 < 8000) {
+      await sleep(250);
+      clients = (await reader.stats()).clients;
+    }
+    assert.equal(clients, 1, 'the server closed the stuck client');
+    assert.ok(Date.now() - t0 < 7000, `after ${Date.now() - t0} ms`);
+    assert.equal(reader.ws.readyState, 1, 'the reading client (it answers pings) is still open');
+    assert.equal((await reader.ping(5)).t, 5);
+    await reader.close();
+    stuck.ws.terminate();
+  } finally {
+    await srv.stop();
+  }
+});
+
+test('/healthz: HEAD answers 200; a frozen session makes it 503 with the reason', async () => {
+  const { mkdtempSync } = await import('node:fs');
+  const os = await import('node:os');
+  const path = await import('node:path');
+  const { makeBoxScene } = await import('./harness.mjs');
+  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-sec-')), 'box16', 16);
+  const srv = await startServer(['--scenes', dir, '--frame-budget', '1e6']);
+  try {
+    const head = await fetch(`${srv.http}/healthz`, { method: 'HEAD' });
+    assert.equal(head.status, 200);
+    const c = await SquishClient.connect(srv.url);
+    await c.open('box16');
+    assert.equal((await fetch(`${srv.http}/healthz`)).status, 200);
+    await c.set({ material: { E: 1e10, density: 1 } }); // 16 s frames from now on
+    await sleep(3500);
+    const r = await fetch(`${srv.http}/healthz`);
+    const text = await r.text();
+    assert.equal(r.status, 503, text);
+    assert.match(text, /unhealthy: session \d+ has not finished a frame for [\d.]+ s/);
+    assert.equal((await fetch(`${srv.http}/healthz`, { method: 'HEAD' })).status, 503);
+    c.ws.terminate();
+  } finally {
+    await srv.stop('SIGTERM', 20000);
+  }
+});
+
+test('HTTP: POST gets 405, a long request line 414, a refused Origin 403, no symlink out of the web root', async () => {
+  const { mkdtempSync, writeFileSync, symlinkSync, mkdirSync } = await import('node:fs');
+  const os = await import('node:os');
+  const path = await import('node:path');
+  const tmp = mkdtempSync(path.join(os.tmpdir(), 'squish-web-'));
+  const web = path.join(tmp, 'web');
+  mkdirSync(web);
+  writeFileSync(path.join(web, 'index.html'), '<p>viewer</p>');
+  writeFileSync(path.join(tmp, 'secret.txt'), 'the secret');
+  symlinkSync(path.join(tmp, 'secret.txt'), path.join(web, 'leak.txt'));
+  symlinkSync(tmp, path.join(web, 'up'));
+  const srv = await startServer(['--web', web, '--origin', 'http://good.example']);
+  try {
+    assert.equal((await fetch(`${srv.http}/`, { method: 'POST', body: 'x=1' })).status, 405);
+    assert.equal((await fetch(`${srv.http}/index.html`)).status, 200);
+    for (const p of ['/leak.txt', '/up/secret.txt']) {
+      const r = await fetch(`${srv.http}${p}`);
+      const body = await r.text();
+      assert.equal(r.status, 404, p);
+      assert.ok(!body.includes('the secret'), p);
+    }
+    const long = await rawHttp(srv.port, `GET /${'a'.repeat(6000)} HTTP/1.1\r\nHost: x\r\n\r\n`);
+    assert.match(long.text, /^HTTP\/1.1 414/);
+    const up = await rawHttp(srv.port, 'GET /ws HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n' +
+      'Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\nOrigin: http://evil.example\r\n\r\n');
+    assert.match(up.text, /^HTTP\/1.[01] 403/);
+  } finally {
+    await srv.stop();
+  }
+});
+
+test('token guessing is throttled per address with a clear error', async () => {
+  const srv = await startServer(['--token', 'sesame']);
+  try {
+    const c = new SquishClient(srv.url);
+    await c._opened;
+    const codes = [];
+    for (let i = 0; i < 8; i++)
+      codes.push(await c.request({ type: 'hello', role: 'control', token: `guess${i}` }).then(() => 'ok', e => e.code));
+    assert.deepEqual(codes.slice(0, 5), Array(5).fill('bad_token'));
+    assert.deepEqual(codes.slice(5), Array(3).fill('throttled'));
+    // even the right token waits now, from this address
+    const e = await c.request({ type: 'hello', role: 'control', token: 'sesame' }).then(() => null, x => x);
+    assert.equal(e.code, 'throttled');
+    assert.match(e.message, /5 wrong tokens from 127\.0\.0\.1; wait \d+ s/);
+    await c.close();
+  } finally {
+    await srv.stop();
+  }
+});
+
+test('/metrics: Prometheus text whose counters move', async () => {
+  const srv = await startServer();
+  try {
+    const scrape = async () => {
+      const r = await fetch(`${srv.http}/metrics`);
+      assert.equal(r.status, 200);
+      assert.match(r.headers.get('content-type'), /^text\/plain/);
+      const t = await r.text();
+      const v = name => { const m = t.match(new RegExp(`^${name} (\\S+)$`, 'm')); return m ? Number(m[1]) : NaN; };
+      return { t, v };
+    };
+    const a = await scrape();
+    assert.match(a.t, /# TYPE squish_frames_total counter/);
+    assert.equal(a.v('squish_sessions'), 0);
+    const c = await SquishClient.connect(srv.url);
+    const o = await c.open('default');
+    c.sendRaw('not json');
+    await sleep(1000);
+    const b = await scrape();
+    assert.equal(b.v('squish_sessions'), 1);
+    assert.equal(b.v('squish_clients'), 1);
+    assert.ok(b.v('squish_frames_total') > a.v('squish_frames_total') + 10);
+    assert.ok(b.v('squish_bytes_out_total') > a.v('squish_bytes_out_total'));
+    assert.match(b.t, /^squish_refused_total\{code="bad_json"\} 1$/m);
+    assert.match(b.t, new RegExp(`^squish_session_frame_seconds\\{session="${o.session}"\\} [\\d.e-]+$`, 'm'));
+    for (const name of ['squish_deadline_misses_total', 'squish_resets_total', 'squish_connections'])
+      assert.ok(Number.isFinite(b.v(name)), name);
+    await c.close();
+  } finally {
+    await srv.stop();
+  }
+});
