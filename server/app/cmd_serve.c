@@ -26,8 +26,8 @@ static void usage(FILE *f)
             "  --lockstep          no real-time clock: sessions advance only on 'step'\n"
             "  --frame-budget F    CPU time a session may spend per frame, as a fraction of its\n"
             "                      frame period (default 1); costlier settings are refused\n"
-            "  --max-conns N       open connections, server-wide (default 1000)\n"
-            "  --max-conns-per-addr N  open connections from one address (default 100)\n"
+            "  --max-conns N       open connections, server-wide (default 2000)\n"
+            "  --max-conns-per-addr N  open connections from one address (default 500)\n"
             "  --idle-timeout S    close a WebSocket silent for S seconds (default 300)\n"
             "  --verbose           log sessions and connections\n"
             "Protocol: docs/protocol.md. Stops cleanly on SIGINT/SIGTERM.\n");

@@ -249,8 +249,9 @@ typedef struct sq_serve_options {
     int verbose;
     /* limits against unfriendly clients (docs/security.md) */
     double frame_budget;     /* CPU per frame a session may use, fraction of its period, 1.0 */
-    int max_conns;           /* open connections, server-wide, 1000 */
-    int max_conns_per_addr;  /* open connections from one address, 100 */
+    int max_conns;           /* open connections, server-wide, 2000 */
+    int max_conns_per_addr;  /* open connections from one address, 500 (a classroom behind
+                                one NAT shares an address) */
     double idle_timeout;     /* s without a message before a WebSocket is closed, 300 */
 } sq_serve_options;
 

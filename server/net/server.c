@@ -1476,8 +1476,8 @@ sq_serve_options sq_serve_options_default(void)
     o.grace = 30;
     o.precision = SQ_CODEC_PRECISION;
     o.frame_budget = 1.0;
-    o.max_conns = 1000;
-    o.max_conns_per_addr = 100;
+    o.max_conns = 2000;
+    o.max_conns_per_addr = 500;
     o.idle_timeout = 300;
     return o;
 }

@@ -150,13 +150,15 @@ test('compute budget: a set predictably over the frame budget is refused with it
     // a set flood (the default --rate of 200/s, for 2 s) does not freeze the flooder's viewers
     const viewer = await SquishClient.connect(srv.url, { role: 'view', decode: false });
     await viewer.join(attacker.session);
+    const base = await frameRate(viewer, 2000);
     const flood = setInterval(() => {
       for (let i = 0; i < 20; i++)
         attacker.sendRaw(JSON.stringify({ type: 'set', material: { E: 1e10, density: 1 } }));
     }, 100);
     const rate = await frameRate(viewer, 2000);
     clearInterval(flood);
-    assert.ok(rate >= 15, `the flooder's viewer got ${rate} frames/s during the set flood`);
+    // on a loaded 2-vCPU machine: at least half the rate it had before (a frozen viewer gets 0)
+    assert.ok(rate >= 0.5 * base, `the flooder's viewer: ${base} frames/s before, ${rate} during the set flood`);
     const after = await victim.stats();
     const frames = after.frame - before.frame;
     assert.ok(frames > 50, `the other session stepped ${frames} frames`);
