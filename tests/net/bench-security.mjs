@@ -68,12 +68,17 @@ say('load average at start', load());
   const srv = await startServer(['--scenes', SCENES]);
   const victim = await SquishClient.connect(srv.url);
   await victim.open(SCENE);
+  await sleep(1000);
+  const b0 = await victim.stats(), v0 = Date.now();
+  await sleep(10000);
+  const b1 = await victim.stats(), v1 = Date.now();
+  say(`other session (${SCENE}) alone, 10 s: frames/s, deadline misses`, [+((b1.frame - b0.frame) / ((v1 - v0) / 1000)).toFixed(1), b1.deadline_misses - b0.deadline_misses]);
   const att = await SquishClient.connect(srv.url);
   await att.open('paper-cube');
   await sleep(1000);
   const s0 = await victim.stats(), w0 = Date.now();
   const e = await att.set({ material: { E: 1e10, density: 1 } }).then(() => null, x => x);
-  say('set E=1e10 density=1 (paper-cube)', e ? `${e.code}: ${e.message}` : 'accepted');
+  say('set E=1e10 density=1 (paper-cube)', e ? `${e.code}: ${e.reply.message}` : 'accepted');
   const viewer = await SquishClient.connect(srv.url, { role: 'view', decode: false });
   await viewer.join(att.session);
   let last = Date.now(), gap = 0;
@@ -91,10 +96,12 @@ say('load average at start', load());
   // an operator who allows anything (--frame-budget 1e6): SIGTERM during a long frame
   const srv = await startServer(['--scenes', SCENES, '--frame-budget', '1e6']);
   const c = await SquishClient.connect(srv.url);
-  await c.open(SCENE);
-  await c.set({ material: { E: 1e10, density: 1 } }).catch(e => say('long-frame set', e.message));
-  await sleep(2000);
-  say(`SIGTERM during a 2^16-substep frame of ${SCENE} (--frame-budget 1e6)`, await stopTimed(srv));
+  await c.open('paper-cube');
+  // E / density = 6.4e11: 2^20 substeps per frame, the engine's limit (one frame ~30 s)
+  const r = await c.set({ material: { E: 1e10, density: 0.015625 } }).catch(e => e);
+  say('long-frame set', r.type === 'ack' ? `substeps of the level: ${JSON.stringify(r.bodies[0].settings.levels.map(l => l.dt && Math.round(0.02 / l.dt)))}` : r.message);
+  await sleep(3000);
+  say('SIGTERM 3 s into a 2^20-substep frame of paper-cube (--frame-budget 1e6)', await stopTimed(srv));
 }
 
 // 4. session slots with --token
