@@ -138,18 +138,23 @@ typedef struct server {
 #define FROZEN_MIN_S 2.0             /* a session is frozen after max(2 s, 50 periods) */
 #define FROZEN_PERIODS 50
 
-/* count a refused request by its code (a protocol error code or an HTTP status) */
-static void count_refused(server *srv, const char *code)
+/* count n refused requests of a code (a protocol error code or an HTTP status) */
+static void count_refused_n(server *srv, const char *code, long n)
 {
     for (int i = 0; i < srv->nrefused; i++)
         if (!strcmp(srv->refused[i].code, code)) {
-            srv->refused[i].n++;
+            srv->refused[i].n += n;
             return;
         }
     if (srv->nrefused < (int)(sizeof srv->refused / sizeof srv->refused[0])) {
         srv->refused[srv->nrefused].code = code;
-        srv->refused[srv->nrefused++].n = 1;
+        srv->refused[srv->nrefused++].n = n;
     }
+}
+
+static void count_refused(server *srv, const char *code)
+{
+    count_refused_n(srv, code, 1);
 }
 
 static volatile sig_atomic_t interrupted; /* set by SIGINT/SIGTERM */
@@ -344,6 +349,8 @@ static void end_session(server *srv, srec *r)
     srv->frames_ended += r->s->snap.frame;
     srv->misses_ended += r->s->snap.deadline_misses;
     srv->resets_ended += r->s->snap.resets;
+    for (int i = 0; i < r->s->nrefused; i++)
+        count_refused_n(srv, r->s->refused[i].code, r->s->refused[i].n);
     pthread_mutex_unlock(&r->s->mu);
     for (int i = 0; i < r->nmembers; i++) {
         client *c = r->members[i];
@@ -1211,10 +1218,23 @@ static int metrics_reply(server *srv, struct lws *wsi)
                       (double)sq_conns_refused(srv->conns));
     sq_metrics_family(&m, "squish_refused_total", "counter",
                       "refused requests by code (protocol error codes and HTTP statuses)");
-    for (int i = 0; i < srv->nrefused; i++) {
+    /* the I/O thread's refusals, plus those of the running sessions' threads */
+    server tmp;
+    tmp.nrefused = srv->nrefused;
+    memcpy(tmp.refused, srv->refused, sizeof tmp.refused);
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s)
+            continue;
+        pthread_mutex_lock(&r->s->mu);
+        for (int k = 0; k < r->s->nrefused; k++)
+            count_refused_n(&tmp, r->s->refused[k].code, r->s->refused[k].n);
+        pthread_mutex_unlock(&r->s->mu);
+    }
+    for (int i = 0; i < tmp.nrefused; i++) {
         char l[80];
-        snprintf(l, sizeof l, "code=\"%.60s\"", srv->refused[i].code);
-        sq_metrics_sample(&m, "squish_refused_total", l, (double)srv->refused[i].n);
+        snprintf(l, sizeof l, "code=\"%.60s\"", tmp.refused[i].code);
+        sq_metrics_sample(&m, "squish_refused_total", l, (double)tmp.refused[i].n);
     }
     int rc = http_reply(wsi, HTTP_STATUS_OK, "text/plain; version=0.0.4", m.text, m.len);
     sq_metrics_free(&m);

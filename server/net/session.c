@@ -189,7 +189,22 @@ static void reply(sq_session *s, uint64_t client, cJSON *o)
 static void reply_error(sq_session *s, uint64_t client, const sq_request *req, const char *code,
                         const char *msg)
 {
-    post(s, SQ_OUT_TEXT, client, 0, sq_error_blob(code, msg, req));
+    sq_blob *b = sq_error_blob(code, msg, req);
+    pthread_mutex_lock(&s->mu);
+    /* counted by code for /metrics (code: a static string) */
+    int i = 0;
+    while (i < s->nrefused && strcmp(s->refused[i].code, code))
+        i++;
+    if (i < (int)(sizeof s->refused / sizeof s->refused[0])) {
+        if (i == s->nrefused) {
+            s->refused[i].code = code;
+            s->refused[i].n = 0;
+            s->nrefused++;
+        }
+        s->refused[i].n++;
+    }
+    post_locked(s, SQ_OUT_TEXT, client, 0, b);
+    pthread_mutex_unlock(&s->mu);
 }
 
 void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req)

@@ -101,6 +101,8 @@ typedef struct sq_session {
     sq_snapshot snap;
     int ntool_ids;
     int tool_ids[SQ_MAX_TOOLS];      /* ids of the world's tools, for request checks */
+    int nrefused;                    /* error replies of the session thread, by code */
+    struct { const char *code; long n; } refused[16];
 
     /* session thread only */
     pthread_t thread;

@@ -408,6 +408,7 @@ test('/metrics: Prometheus text whose counters move', async () => {
     const c = await SquishClient.connect(srv.url);
     const o = await c.open('default');
     c.sendRaw('not json');
+    await assert.rejects(c.set({ material: { E: 1e10, density: 1 } }), e => e.code === 'over_budget');
     await sleep(1000);
     const b = await scrape();
     assert.equal(b.v('squish_sessions'), 1);
@@ -415,6 +416,7 @@ test('/metrics: Prometheus text whose counters move', async () => {
     assert.ok(b.v('squish_frames_total') > a.v('squish_frames_total') + 10);
     assert.ok(b.v('squish_bytes_out_total') > a.v('squish_bytes_out_total'));
     assert.match(b.t, /^squish_refused_total\{code="bad_json"\} 1$/m);
+    assert.match(b.t, /^squish_refused_total\{code="over_budget"\} 1$/m); // a session thread's refusal
     assert.match(b.t, new RegExp(`^squish_session_frame_seconds\\{session="${o.session}"\\} [\\d.e-]+$`, 'm'));
     for (const name of ['squish_deadline_misses_total', 'squish_resets_total', 'squish_connections'])
       assert.ok(Number.isFinite(b.v(name)), name);
