@@ -43,6 +43,11 @@ static void usage(FILE *f)
             "  --precision REL     frame quantisation floor as a fraction of a body's size\n"
             "                      (default 1e-3: 1.7 mm on a 1 m cube; smaller = finer, more bytes)\n"
             "  --lockstep          no real-time clock: sessions advance only on 'step'\n"
+            "  --frame-budget F    CPU time a session may spend per frame, as a fraction of its\n"
+            "                      frame period (default 1); costlier settings are refused\n"
+            "  --max-conns N       open connections, server-wide (default 2000)\n"
+            "  --max-conns-per-addr N  open connections from one address (default 500)\n"
+            "  --idle-timeout S    close a WebSocket silent for S seconds (default 300)\n"
             "  --verbose           log sessions and connections\n"
             "  --instance K        1..99: this server is instance K behind a proxy; every session\n"
             "                      id ends in K's two digits (docs/deploy.md, docker/nginx.conf)\n"
@@ -142,7 +147,8 @@ static int is_value_flag(const char *a)
 {
     static const char *const flags[] = {"--host", "--port", "--scenes", "--web", "--token", "--origin",
                                         "--max-sessions", "--max-clients", "--max-message", "--rate",
-                                        "--grace", "--precision", "--instance", NULL};
+                                        "--grace", "--precision", "--instance", "--frame-budget",
+                                        "--max-conns", "--max-conns-per-addr", "--idle-timeout", NULL};
     for (int i = 0; flags[i]; i++)
         if (!strcmp(a, flags[i]))
             return 1;
@@ -216,6 +222,14 @@ int sq_cmd_serve(int argc, char **argv)
             rc = num_arg(a, v, 0, 86400, &o.grace);
         } else if (!strcmp(a, "--instance")) {
             rc = int_arg(a, v, 1, 99, &o.instance);
+        } else if (!strcmp(a, "--frame-budget")) {
+            rc = num_arg(a, v, 0.01, 1e6, &o.frame_budget);
+        } else if (!strcmp(a, "--max-conns")) {
+            rc = int_arg(a, v, 1, 1000000, &o.max_conns);
+        } else if (!strcmp(a, "--max-conns-per-addr")) {
+            rc = int_arg(a, v, 1, 1000000, &o.max_conns_per_addr);
+        } else if (!strcmp(a, "--idle-timeout")) {
+            rc = num_arg(a, v, 1, 86400, &o.idle_timeout);
         } else {
             fprintf(stderr, "squish serve: unknown option '%s'; see squish serve --help\n", a);
             return 2;

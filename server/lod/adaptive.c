@@ -1607,6 +1607,8 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         lod->step_len[k] = stride[k];
     }
     for (long t = 0; t < nticks; t++) {
+        if ((t & 15) == 15 && sq_cancelled())
+            break; /* the server is stopping: the frame is abandoned */
         /* (1) ghost values of every due level at this tick (ring ghosts from the active
          * nodes, finest simulated level included) */
         double t0 = sq_now();

@@ -22,6 +22,7 @@
 #define SQ_NET_MAX_TOOL_ID 255
 #define SQ_NET_MAX_STEP 1000    /* frames per step request */
 #define SQ_NET_POS_MAX 1000.0   /* |tool coordinate| bound, m */
+#define SQ_NET_SESSION_MAX 9007199254740991.0 /* largest session id: 2^53 - 1 */
 
 /* ---------------------------------------------------------------- requests */
 
@@ -76,7 +77,7 @@ typedef struct sq_request {
         char scene[SQ_NET_NAME_MAX];
     } open;
     struct {
-        uint32_t session;
+        uint64_t session;              /* < 2^53: exact in JSON */
         int has_role;
         sq_role role;
     } join;
@@ -259,6 +260,12 @@ typedef struct sq_serve_options {
     int lockstep;            /* 0 */
     int verbose;
     int instance;            /* 0; 1..99 behind a proxy: every session id ends in these two digits */
+    /* limits against unfriendly clients (docs/security.md) */
+    double frame_budget;     /* CPU per frame a session may use, fraction of its period, 1.0 */
+    int max_conns;           /* open connections, server-wide, 2000 */
+    int max_conns_per_addr;  /* open connections from one address, 500 (a classroom behind
+                                one NAT shares an address) */
+    double idle_timeout;     /* s without a message before a WebSocket is closed, 300 */
 } sq_serve_options;
 
 sq_serve_options sq_serve_options_default(void);

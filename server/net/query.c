@@ -6,8 +6,8 @@
 
 #include "render/render.h"
 
-/* a decimal session id: digits only (no sign, space or "0x"), at most 4294967295 */
-static int parse_id(const char *s, uint32_t *out)
+/* a decimal session id: digits only (no sign, space or "0x"), at most 2^53 - 1 */
+static int parse_id(const char *s, uint64_t *out)
 {
     uint64_t v = 0;
     if (!*s)
@@ -16,10 +16,10 @@ static int parse_id(const char *s, uint32_t *out)
         if (*s < '0' || *s > '9')
             return -1;
         v = 10 * v + (uint64_t)(*s - '0');
-        if (v > UINT32_MAX)
+        if (v > 9007199254740991ull)
             return -1;
     }
-    *out = (uint32_t)v;
+    *out = v;
     return 0;
 }
 
@@ -66,25 +66,26 @@ int sq_snapshot_query_parse(const char *const *args, int nargs, int max_side, sq
     return 0;
 }
 
-uint32_t sq_session_gen_mask(int instance, int slot_bits)
+uint64_t sq_session_gen_mask(int instance, int slot_bits)
 {
-    /* 100 * ((mask << slot_bits) | slot) < 2^32 needs mask < 2^(32 - slot_bits) / 100 */
-    int bits = 32 - slot_bits - (instance > 0 ? 7 : 0);
-    return (uint32_t)((1ull << bits) - 1);
+    /* ids stay below 2^49 (at most 15 decimal digits, which JSON numbers as cJSON prints
+     * them keep exactly): 100 * ((mask << slot_bits) | slot) < 2^49 needs 7 bits fewer */
+    int bits = 49 - slot_bits - (instance > 0 ? 7 : 0);
+    return (1ull << bits) - 1;
 }
 
-uint32_t sq_session_id_public(uint32_t local, int instance)
+uint64_t sq_session_id_public(uint64_t local, int instance)
 {
-    return instance > 0 ? 100 * local + (uint32_t)instance : local;
+    return instance > 0 ? 100 * local + (uint64_t)instance : local;
 }
 
-int sq_session_id_local(uint32_t id, int instance, uint32_t *local)
+int sq_session_id_local(uint64_t id, int instance, uint64_t *local)
 {
     if (instance <= 0) {
         *local = id;
         return 0;
     }
-    if (id % 100 != (uint32_t)instance)
+    if (id % 100 != (uint64_t)instance)
         return -1;
     *local = id / 100;
     return 0;

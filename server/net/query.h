@@ -11,7 +11,7 @@
 
 /* what GET /snapshot.png?session=ID[&size=WxH] asks for */
 typedef struct sq_snapshot_query {
-    uint32_t session;
+    uint64_t session;
     int width, height;       /* 800 x 600 when size is not given */
 } sq_snapshot_query;
 
@@ -26,9 +26,9 @@ int sq_snapshot_query_parse(const char *const *args, int nargs, int max_side, sq
  * number K (1..99) the id handed out is 100 * local + K, so a proxy can route by the id's
  * last two digits (docker/nginx.conf); K = 0 (a lone server) keeps id = local. */
 /* mask of the generation counter: with an instance 100 * local must stay below 2^32 */
-uint32_t sq_session_gen_mask(int instance, int slot_bits);
-uint32_t sq_session_id_public(uint32_t local, int instance);
+uint64_t sq_session_gen_mask(int instance, int slot_bits);
+uint64_t sq_session_id_public(uint64_t local, int instance);
 /* local part of a public id; -1 when the id belongs to another instance */
-int sq_session_id_local(uint32_t id, int instance, uint32_t *local);
+int sq_session_id_local(uint64_t id, int instance, uint64_t *local);
 
 #endif

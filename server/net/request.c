@@ -290,11 +290,11 @@ static int decode_join(const cJSON *o, sq_request *r, sq_net_error *err)
     if (!v)
         return fail(err, "bad_field", "join.session: missing; give the session id from 'opened'");
     double s;
-    if (get_number(v, "join.session", 0, 4294967295.0, 0, &s, err))
+    if (get_number(v, "join.session", 0, SQ_NET_SESSION_MAX, 0, &s, err))
         return -1;
     if (s != floor(s))
         return fail(err, "out_of_range", "join.session: %g is not an integer session id", s);
-    r->join.session = (uint32_t)s;
+    r->join.session = (uint64_t)s;
     if ((v = cJSON_GetObjectItemCaseSensitive(o, "role"))) {
         int e;
         if (get_enum(v, "join.role", roles, &e, err))

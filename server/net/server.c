@@ -6,15 +6,20 @@
  * replaces an unsent one: the client skips it, counted), everything else into the client's
  * bounded FIFO. Writes happen only in SERVER_WRITEABLE, one message per callback.
  */
+#include "net/limits.h"
+#include "net/metrics.h"
 #include "net/session.h"
 #include "net/query.h"
 
+#include <arpa/inet.h>
 #include <cJSON.h>
 #include <dirent.h>
 #include <libwebsockets.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
+#include <sys/random.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,6 +28,7 @@ _Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
 
 #define FIFO_MAX 4096            /* queued messages per client before it is dropped */
 #define FIFO_MAX_BYTES (32u << 20) /* queued bytes per client before it is dropped */
+#define CLIENT_MAX_JOBS 64       /* requests of one client waiting for its session thread */
 #define SLOT_BITS 10             /* session id = generation << SLOT_BITS | slot */
 #define TICK_US 50000            /* housekeeping period (stats pushes, grace), us */
 #define SNDBUF_BYTES (128 << 10) /* kernel send buffer per client: bounds how stale a slow
@@ -59,12 +65,18 @@ typedef struct client {
     int closing;
     int tool_ids[SQ_MAX_TOOLS];      /* tools this client set as controller of its session */
     int ntool_ids;
+    /* nodes: one request at a time per client, the newest waiting (docs/security.md) */
+    int nodes_busy;                  /* 1: job queued or running; 2: reply in the FIFO; 0 */
+    int nodes_deferred;              /* nodes_req waits for the current one */
+    sq_request nodes_req;
+    uint64_t pushed, written;        /* FIFO messages queued / written so far */
+    uint64_t nodes_mark;             /* `pushed` when the whole nodes reply was queued */
+    char addr[SQ_ADDR_MAX];          /* peer address */
 } client;
 
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
 typedef struct conn {
     client *c;
-    uint64_t snap_id;                /* HTTP: the snapshot this connection waits for */
 } conn;
 
 /* a snapshot request waiting for its PNG (lws thread only) */
@@ -77,11 +89,12 @@ typedef struct snap_wait {
 
 #define SNAP_MIN_INTERVAL 0.25       /* s between snapshots of one session */
 #define SNAP_MAX_WAITING 8           /* snapshot requests waiting, server-wide */
+#define SNAP_TIMEOUT_S 60            /* s a snapshot request may wait for its PNG */
 
 /* the server's record of a session (lws thread only, except s) */
 typedef struct srec {
     sq_session *s;                   /* NULL: free slot */
-    uint32_t gen;
+    uint64_t gen;                    /* random, never 0, new at every open */
     int scene;
     client **members;
     int nmembers, cap;
@@ -89,6 +102,9 @@ typedef struct srec {
     double empty_since;
     uint64_t bytes_sent;
     double last_snapshot;            /* when the last snapshot was asked for */
+    long seen_frame;                 /* frame number at progress_at */
+    double progress_at;              /* when the session last finished a frame (or had no
+                                        reason to: paused, idle, starting) */
 } srec;
 
 typedef struct server {
@@ -107,7 +123,38 @@ typedef struct server {
     snap_wait *waits;
     int nwaits;
     uint64_t next_snap;
+    sq_conns *conns;                 /* open connections per address (limits.c) */
+    sq_guard *guard;                 /* wrong tokens per address */
+    /* counters for /metrics */
+    uint64_t bytes_out;              /* WebSocket message bytes written */
+    long frames_ended, misses_ended, resets_ended; /* of sessions that ended */
+    int nrefused;
+    struct { const char *code; long n; } refused[48]; /* error replies and HTTP statuses */
 } server;
+
+#define MAX_URI 2048                 /* longer request paths get 414 */
+#define HEADER_BYTES 16384           /* lws header space per request (longer: closed) */
+#define FROZEN_MIN_S 2.0             /* a session is frozen after max(2 s, 50 periods) */
+#define FROZEN_PERIODS 50
+
+/* count n refused requests of a code (a protocol error code or an HTTP status) */
+static void count_refused_n(server *srv, const char *code, long n)
+{
+    for (int i = 0; i < srv->nrefused; i++)
+        if (!strcmp(srv->refused[i].code, code)) {
+            srv->refused[i].n += n;
+            return;
+        }
+    if (srv->nrefused < (int)(sizeof srv->refused / sizeof srv->refused[0])) {
+        srv->refused[srv->nrefused].code = code;
+        srv->refused[srv->nrefused++].n = n;
+    }
+}
+
+static void count_refused(server *srv, const char *code)
+{
+    count_refused_n(srv, code, 1);
+}
 
 static volatile sig_atomic_t interrupted; /* set by SIGINT/SIGTERM */
 
@@ -152,6 +199,7 @@ static void fifo_push(client *c, sq_blob *b)
     }
     c->fifo[(c->fhead + c->fcount) % c->fcap] = b;
     c->fcount++;
+    c->pushed++;
     c->fbytes += b->len;
     lws_callback_on_writable(c->wsi);
 }
@@ -163,6 +211,7 @@ static void send_json(client *c, cJSON *o)
 
 static void send_error(client *c, const sq_request *req, const char *code, const char *msg)
 {
+    count_refused(c->srv, code);
     fifo_push(c, sq_error_blob(code, msg, req));
 }
 
@@ -189,6 +238,21 @@ static void clear_slots(client *c)
     }
 }
 
+/* the client's nodes reply is written: run its waiting nodes request, if any. A client
+ * that does not read its replies thus never has more than one nodes job and one nodes
+ * message on the server. */
+static void nodes_check(client *c)
+{
+    if (c->nodes_busy != 2 || c->written < c->nodes_mark)
+        return;
+    c->nodes_busy = 0;
+    if (c->nodes_deferred && c->sess && c->ready && !c->closing) {
+        c->nodes_deferred = 0;
+        c->nodes_busy = 1;
+        sq_session_push_job(c->sess->s, c->serial, &c->nodes_req);
+    }
+}
+
 /* write one queued message; -1 closes the connection */
 static int write_one(client *c)
 {
@@ -199,6 +263,7 @@ static int write_one(client *c)
         b = c->fifo[c->fhead];
         c->fhead = (c->fhead + 1) % c->fcap;
         c->fcount--;
+        c->written++;
         c->fbytes -= b->len;
     } else {
         /* then the newest frame of each body, in body order */
@@ -218,10 +283,12 @@ static int write_one(client *c)
     int n = lws_write(c->wsi, b->msg, b->len, b->binary ? LWS_WRITE_BINARY : LWS_WRITE_TEXT);
     if (c->sess)
         c->sess->bytes_sent += b->len;
+    c->srv->bytes_out += b->len;
     size_t len = b->len;
     sq_blob_unref(b);
     if (n < (int)len)
         return -1;
+    nodes_check(c);
     int more = c->fcount > 0;
     for (int i = 0; i < SQ_MAX_BODIES && !more; i++)
         more = c->slot[i] != NULL;
@@ -232,15 +299,38 @@ static int write_one(client *c)
 
 /* ---------------------------------------------------------------- sessions */
 
-static srec *find_session(server *srv, uint32_t id)
+static srec *find_session(server *srv, uint64_t id)
 {
     if (sq_session_id_local(id, srv->opt->instance, &id))
         return NULL;
-    uint32_t idx = id & ((1u << SLOT_BITS) - 1), gen = id >> SLOT_BITS;
-    if (idx >= (uint32_t)srv->nslots)
+    uint64_t idx = id & ((1u << SLOT_BITS) - 1), gen = id >> SLOT_BITS;
+    if (idx >= (uint64_t)srv->nslots)
         return NULL;
     srec *r = &srv->slots[idx];
     return (r->s && r->gen == gen && gen) ? r : NULL;
+}
+
+/* a random session generation (the bits of mask, sq_session_gen_mask: ids stay below 2^49,
+ * at most 15 decimal digits, which JSON and cJSON keep exact; not 0, not old): ids cannot be guessed from
+ * one another */
+static uint64_t new_generation(uint64_t old, uint64_t mask)
+{
+    uint64_t g = 0;
+    while (g == 0 || g == old) {
+        if (getrandom(&g, sizeof g, 0) != (ssize_t)sizeof g) {
+            /* no entropy source: fall back on time and address bits (guessable; logged) */
+            lwsl_warn("squish: getrandom failed; session ids are less random\n");
+            g = (uint64_t)(sq_now() * 1e9) ^ ((uint64_t)(uintptr_t)&g << 7) ^ old * 0x9e3779b97f4a7c15ull;
+        }
+        g &= mask;
+    }
+    return g;
+}
+
+/* session slots kept for token holders when the server has a token: a quarter, at least 1 */
+static int reserved_sessions(const server *srv)
+{
+    return srv->opt->token ? SQ_MAX(1, srv->opt->max_sessions / 4) : 0;
 }
 
 static int live_sessions(const server *srv)
@@ -256,11 +346,19 @@ static void end_session(server *srv, srec *r)
     if (!r->s)
         return;
     if (srv->opt->verbose)
-        fprintf(stderr, "squish serve: session %u ends\n", r->s->id);
+        fprintf(stderr, "squish serve: session %llu ends\n", (unsigned long long)r->s->id);
+    pthread_mutex_lock(&r->s->mu);
+    srv->frames_ended += r->s->snap.frame;
+    srv->misses_ended += r->s->snap.deadline_misses;
+    srv->resets_ended += r->s->snap.resets;
+    for (int i = 0; i < r->s->nrefused; i++)
+        count_refused_n(srv, r->s->refused[i].code, r->s->refused[i].n);
+    pthread_mutex_unlock(&r->s->mu);
     for (int i = 0; i < r->nmembers; i++) {
         client *c = r->members[i];
         c->sess = NULL;
         c->ready = c->pending = 0;
+        c->nodes_busy = c->nodes_deferred = 0;
         clear_slots(c);
     }
     free(r->members);
@@ -309,6 +407,10 @@ static void leave_session(client *c)
     srec *r = c->sess;
     if (!r)
         return;
+    /* its nodes requests are dropped: their replies would go nowhere */
+    if (c->nodes_busy || c->nodes_deferred)
+        sq_session_drop_jobs(r->s, c->serial, SQ_REQ_NODES);
+    c->nodes_busy = c->nodes_deferred = 0;
     for (int i = 0; i < r->nmembers; i++)
         if (r->members[i] == c) {
             r->members[i] = r->members[--r->nmembers];
@@ -336,8 +438,8 @@ static int add_member(client *c, srec *r, sq_role role)
 {
     if (r->nmembers >= c->srv->opt->max_clients) {
         char m[160];
-        snprintf(m, sizeof m, "session %u already has %d clients (--max-clients); open another "
-                 "session", r->s->id, r->nmembers);
+        snprintf(m, sizeof m, "session %llu already has %d clients (--max-clients); open another "
+                 "session", (unsigned long long)r->s->id, r->nmembers);
         send_error(c, &c->pending_req, "session_full", m);
         return -1;
     }
@@ -429,6 +531,16 @@ static void drain_session(server *srv, srec *r)
             for (int k = 0; k < r->nmembers; k++)
                 if (r->members[k]->ready && r->members[k]->sub_frames)
                     fifo_push(r->members[k], sq_blob_ref(o->blob));
+            break;
+        case SQ_OUT_NODES_DONE:
+            for (int k = 0; k < r->nmembers; k++) {
+                client *m = r->members[k];
+                if (m->serial == o->client && m->nodes_busy == 1) {
+                    m->nodes_busy = 2;
+                    m->nodes_mark = m->pushed;
+                    nodes_check(m);
+                }
+            }
             break;
         case SQ_OUT_TEXT:
         case SQ_OUT_BINARY:
@@ -598,37 +710,42 @@ static void do_open_or_join(client *c, const sq_request *req)
         }
         /* a free slot (the one the client leaves may be reused) */
         leave_session(c);
-        int idx = -1;
-        if (live_sessions(srv) < srv->opt->max_sessions)
+        int idx = -1, limit = srv->opt->max_sessions - (c->token_ok ? 0 : reserved_sessions(srv));
+        if (live_sessions(srv) < limit)
             for (int i = 0; i < srv->nslots && idx < 0; i++)
                 if (!srv->slots[i].s)
                     idx = i;
         if (idx < 0) {
-            snprintf(m, sizeof m, "%d sessions are running (--max-sessions); join one or retry "
-                     "later", live_sessions(srv));
+            if (limit < srv->opt->max_sessions)
+                snprintf(m, sizeof m, "%d sessions are running; the other %d of --max-sessions are "
+                         "kept for clients with the control token (--token); join one or retry "
+                         "later", live_sessions(srv), reserved_sessions(srv));
+            else
+                snprintf(m, sizeof m, "%d sessions are running (--max-sessions); join one or retry "
+                         "later", live_sessions(srv));
             send_error(c, req, "server_full", m);
             return;
         }
         r = &srv->slots[idx];
-        r->gen = (r->gen + 1) & sq_session_gen_mask(srv->opt->instance, SLOT_BITS);
-        if (!r->gen)
-            r->gen = 1;
+        r->gen = new_generation(r->gen, sq_session_gen_mask(srv->opt->instance, SLOT_BITS));
         r->scene = sc;
         r->controller = 0;
         r->bytes_sent = 0;
         r->empty_since = 0;
-        uint32_t id = sq_session_id_public(r->gen << SLOT_BITS | (uint32_t)idx, srv->opt->instance);
+        uint64_t id = sq_session_id_public(r->gen << SLOT_BITS | (uint64_t)idx, srv->opt->instance);
         r->s = sq_session_start(srv->scenes[sc], srv->names[sc], id, srv->opt->lockstep,
                                 srv->opt->precision, wake, srv);
         r->s->snapshotter = srv->snapshotter;
+        __atomic_store(&r->s->budget.frac, &srv->opt->frame_budget, __ATOMIC_RELAXED);
         r->last_snapshot = 0;
         if (srv->opt->verbose)
-            fprintf(stderr, "squish serve: session %u opened (scene %s)\n", id, srv->names[sc]);
+            fprintf(stderr, "squish serve: session %llu opened (scene %s)\n",
+                    (unsigned long long)id, srv->names[sc]);
     } else {
         r = find_session(srv, req->join.session);
         if (!r) {
-            snprintf(m, sizeof m, "join.session: no session %u (it ended, or never existed); open "
-                     "a scene instead", req->join.session);
+            snprintf(m, sizeof m, "join.session: no session %llu (it ended, or never existed); open "
+                     "a scene instead", (unsigned long long)req->join.session);
             send_error(c, req, "unknown_session", m);
             return;
         }
@@ -720,6 +837,19 @@ static void handle_request(client *c, const char *text, size_t len)
 
     switch (req.type) {
     case SQ_REQ_HELLO:
+        if (opt->token && req.hello.has_token) {
+            /* token guessing is throttled per address */
+            double wait = sq_guard_wait(srv->guard, c->addr, now);
+            if (wait > 0) {
+                char m[200];
+                snprintf(m, sizeof m, "hello.token: %d wrong tokens from %s; wait %.0f s before "
+                         "trying again", SQ_GUARD_FAILS, c->addr, ceil(wait));
+                send_error(c, &req, "throttled", m);
+                return;
+            }
+            if (!token_matches(srv, req.hello.token))
+                sq_guard_fail(srv->guard, c->addr, now);
+        }
         if (req.hello.role == SQ_ROLE_CONTROL && opt->token &&
             (!req.hello.has_token || !token_matches(srv, req.hello.token))) {
             send_error(c, &req, "bad_token", req.hello.has_token
@@ -828,7 +958,27 @@ static void handle_request(client *c, const char *text, size_t len)
             if (!known && c->ntool_ids < SQ_MAX_TOOLS)
                 c->tool_ids[c->ntool_ids++] = req.tool.id;
         }
+        if (req.type == SQ_REQ_NODES && c->nodes_busy) {
+            /* one nodes request runs at a time per client; the newest waits, older waiting
+             * ones are answered as replaced */
+            if (c->nodes_deferred)
+                send_error(c, &c->nodes_req, "superseded", "nodes: replaced by a newer nodes "
+                           "request of this client (one runs at a time; wait for the reply)");
+            c->nodes_req = req;
+            c->nodes_deferred = 1;
+            break;
+        }
+        if (sq_session_pending_jobs(r->s, c->serial) >= CLIENT_MAX_JOBS) {
+            char m[200];
+            snprintf(m, sizeof m, "%d requests of this client wait for session %llu; wait for "
+                     "their replies before sending more", CLIENT_MAX_JOBS,
+                     (unsigned long long)r->s->id);
+            send_error(c, &req, "busy", m);
+            break;
+        }
         sq_session_push_job(r->s, c->serial, &req);
+        if (req.type == SQ_REQ_NODES)
+            c->nodes_busy = 1;
         break;
     }
 }
@@ -846,6 +996,18 @@ static void tick(lws_sorted_usec_list_t *sul)
         drain_session(srv, r);
         if (!r->s)
             continue;
+        {
+            /* progress: a stepping session that finishes no frame for long is frozen */
+            pthread_mutex_lock(&r->s->mu);
+            long frame = r->s->snap.frame;
+            int waiting = r->s->state != SQ_SESSION_READY || r->s->snap.paused || r->s->lockstep;
+            pthread_mutex_unlock(&r->s->mu);
+            if (waiting || frame != r->seen_frame || __atomic_load_n(&r->s->idle, __ATOMIC_RELAXED) ||
+                !r->progress_at) {
+                r->seen_frame = frame;
+                r->progress_at = now;
+            }
+        }
         if (r->nmembers == 0) {
             if (!r->empty_since)
                 r->empty_since = now;
@@ -874,9 +1036,28 @@ static void tick(lws_sorted_usec_list_t *sul)
 
 /* ---------------------------------------------------------------- lws callback */
 
+static const char *status_code(unsigned status)
+{
+    switch (status) {
+    case 400: return "400";
+    case 403: return "403";
+    case 404: return "404";
+    case 405: return "405";
+    case 414: return "414";
+    case 429: return "429";
+    case 500: return "500";
+    case 503: return "503";
+    default: return "other";
+    }
+}
+
 static int http_reply(struct lws *wsi, unsigned status, const char *type, const void *body,
                       size_t len)
 {
+    if (status >= 400) {
+        server *srv = lws_context_user(lws_get_context(wsi));
+        count_refused(srv, status_code(status));
+    }
     unsigned char buf[LWS_PRE + 512], *start = buf + LWS_PRE, *p = start, *end = buf + sizeof buf;
     if (lws_add_http_common_headers(wsi, status, type, (lws_filepos_t)len, &p, end) ||
         lws_finalize_write_http_header(wsi, start, &p, end))
@@ -903,8 +1084,8 @@ static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
     int status = sq_snapshot_query_parse(args, nargs, SQ_SNAPSHOT_MAX_SIZE, &q, msg, sizeof msg);
     srec *r = status ? NULL : find_session(srv, q.session);
     if (!status && !r) {
-        snprintf(msg, sizeof msg, "no session %u; use /snapshot.png?session=ID with the id of "
-                 "'opened'\n", q.session);
+        snprintf(msg, sizeof msg, "no session %llu; use /snapshot.png?session=ID with the id of "
+                 "'opened'\n", (unsigned long long)q.session);
         status = HTTP_STATUS_NOT_FOUND;
     }
     if (status)
@@ -920,6 +1101,7 @@ static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
                  "later\n", SNAP_MIN_INTERVAL);
         return http_reply(wsi, 429, "text/plain", msg, strlen(msg));
     }
+    (void)pss;
     r->last_snapshot = now;
     snap_wait *w = sq_calloc(1, sizeof *w);
     w->id = ++srv->next_snap;
@@ -927,16 +1109,30 @@ static int snapshot_request(server *srv, struct lws *wsi, conn *pss)
     w->next = srv->waits;
     srv->waits = w;
     srv->nwaits++;
-    pss->snap_id = w->id;
     sq_snap_job *j = sq_calloc(1, sizeof *j);
     j->id = w->id;
     j->width = width;
     j->height = height;
     sq_session_push_snapshot(r->s, j);
+    /* rendering may take longer than lws' default wait for a reply (5 s): the render queue
+     * is bounded (SNAP_MAX_WAITING), so each request gets time for the whole queue */
+    lws_set_timeout(wsi, PENDING_TIMEOUT_HTTP_CONTENT, SNAP_TIMEOUT_S);
     return 0; /* answered from HTTP_WRITEABLE when the PNG is ready */
 }
 
-/* rendered snapshots: wake their HTTP connections */
+/* the snapshot a connection waits for, or NULL. Waits are found by connection, never
+ * through the per-request user data: lws frees and re-zeroes that at every completed
+ * transaction, including one pipelined behind a waiting snapshot. */
+static snap_wait *snapshot_wait_of(server *srv, struct lws *wsi)
+{
+    for (snap_wait *w = srv->waits; w; w = w->next)
+        if (w->wsi == wsi)
+            return w;
+    return NULL;
+}
+
+/* rendered snapshots: wake their HTTP connections (by handle: a result whose connection
+ * closed meanwhile only frees its render place) */
 static void snapshot_results(server *srv)
 {
     if (!srv->snapshotter)
@@ -947,16 +1143,19 @@ static void snapshot_results(server *srv)
         snap_wait *w = srv->waits;
         while (w && w->id != j->id)
             w = w->next;
-        if (w && w->wsi && !w->result) {
+        if (w && !w->result) {
             w->result = j;
-            lws_callback_on_writable(w->wsi);
+            if (w->wsi)
+                lws_callback_on_writable(w->wsi);
         } else {
             sq_snap_job_free(j);
         }
     }
-    /* forget waits whose connection closed */
+    /* forget rendered waits whose connection closed; unrendered ones keep their place in
+     * SNAP_MAX_WAITING until the render is done, so closing connections cannot queue
+     * unbounded renders */
     for (snap_wait **p = &srv->waits; *p;) {
-        if (!(*p)->wsi) {
+        if (!(*p)->wsi && (*p)->result) {
             snap_wait *d = *p;
             *p = d->next;
             sq_snap_job_free(d->result);
@@ -968,17 +1167,24 @@ static void snapshot_results(server *srv)
     }
 }
 
-static int snapshot_write(server *srv, struct lws *wsi, conn *pss)
+/* the connection closed: its waits lose their connection (freed when rendered) */
+static void snapshot_closed(server *srv, struct lws *wsi)
+{
+    for (snap_wait *w = srv->waits; w; w = w->next)
+        if (w->wsi == wsi)
+            w->wsi = NULL;
+}
+
+static int snapshot_write(server *srv, struct lws *wsi)
 {
     snap_wait **p = &srv->waits;
-    while (*p && (*p)->id != pss->snap_id)
+    while (*p && (*p)->wsi != wsi)
         p = &(*p)->next;
     if (!*p || !(*p)->result)
         return 0;
     snap_wait *w = *p;
     *p = w->next;
     srv->nwaits--;
-    pss->snap_id = 0;
     sq_snap_job *j = w->result;
     free(w);
     int rc;
@@ -1003,6 +1209,133 @@ static const char no_viewer_page[] =
     "<p>The simulation itself is up: WebSocket clients connect to <code>/ws</code> "
     "(docs/protocol.md), <code>/healthz</code> answers <code>ok</code> and "
     "<code>/snapshot.png?session=ID</code> renders a session.</p>\n</body></html>\n";
+/* the first session that should be stepping but has finished no frame for max(2 s, 50
+ * periods), or NULL; *stalled its seconds without a frame */
+static srec *frozen_session(server *srv, double *stalled)
+{
+    double now = sq_now();
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s || !r->progress_at)
+            continue;
+        double lim = SQ_MAX(FROZEN_MIN_S, FROZEN_PERIODS * r->s->period);
+        if (now - r->progress_at > lim) {
+            *stalled = now - r->progress_at;
+            return r;
+        }
+    }
+    return NULL;
+}
+
+/* GET or HEAD /healthz: 200 "ok", or 503 naming a frozen session */
+static int healthz(server *srv, struct lws *wsi, int head)
+{
+    char msg[300];
+    double stalled = 0;
+    srec *r = frozen_session(srv, &stalled);
+    unsigned status = HTTP_STATUS_OK;
+    if (r) {
+        snprintf(msg, sizeof msg, "unhealthy: session %llu has not finished a frame for %.1f s "
+                 "(frame %ld; its thread is stuck or far over its budget)\n",
+                 (unsigned long long)r->s->id, stalled, r->seen_frame);
+        status = HTTP_STATUS_SERVICE_UNAVAILABLE;
+    } else {
+        snprintf(msg, sizeof msg, "ok\n");
+    }
+    if (!head)
+        return http_reply(wsi, status, "text/plain", msg, strlen(msg));
+    /* HEAD: the headers of the GET reply, no body */
+    unsigned char buf[LWS_PRE + 512], *start = buf + LWS_PRE, *p = start, *end = buf + sizeof buf;
+    if (lws_add_http_common_headers(wsi, status, "text/plain", (lws_filepos_t)strlen(msg), &p, end) ||
+        lws_finalize_write_http_header(wsi, start, &p, end))
+        return -1;
+    return lws_http_transaction_completed(wsi) ? -1 : 0;
+}
+
+/* GET /metrics: Prometheus text format (docs/deploy.md lists the series) */
+static int metrics_reply(server *srv, struct lws *wsi)
+{
+    sq_metrics m = {0};
+    long frames = srv->frames_ended, misses = srv->misses_ended, resets = srv->resets_ended;
+    int sessions = 0, clients = 0;
+    sq_metrics_family(&m, "squish_session_frame_seconds", "gauge",
+                      "compute time of the session's last frame");
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s)
+            continue;
+        sessions++;
+        clients += r->nmembers;
+        pthread_mutex_lock(&r->s->mu);
+        frames += r->s->snap.frame;
+        misses += r->s->snap.deadline_misses;
+        resets += r->s->snap.resets;
+        double fs = r->s->snap.frame_s;
+        pthread_mutex_unlock(&r->s->mu);
+        char l[64];
+        snprintf(l, sizeof l, "session=\"%llu\"", (unsigned long long)r->s->id);
+        sq_metrics_sample(&m, "squish_session_frame_seconds", l, fs);
+    }
+    sq_metrics_family(&m, "squish_sessions", "gauge", "running sessions");
+    sq_metrics_sample(&m, "squish_sessions", NULL, sessions);
+    sq_metrics_family(&m, "squish_clients", "gauge", "WebSocket clients in sessions");
+    sq_metrics_sample(&m, "squish_clients", NULL, clients);
+    sq_metrics_family(&m, "squish_connections", "gauge", "open TCP connections");
+    sq_metrics_sample(&m, "squish_connections", NULL, sq_conns_open(srv->conns));
+    sq_metrics_family(&m, "squish_frames_total", "counter", "frames stepped, every session");
+    sq_metrics_sample(&m, "squish_frames_total", NULL, (double)frames);
+    sq_metrics_family(&m, "squish_deadline_misses_total", "counter",
+                      "frames finished after their frame time");
+    sq_metrics_sample(&m, "squish_deadline_misses_total", NULL, (double)misses);
+    sq_metrics_family(&m, "squish_resets_total", "counter", "bodies reset after a blow-up");
+    sq_metrics_sample(&m, "squish_resets_total", NULL, (double)resets);
+    sq_metrics_family(&m, "squish_bytes_out_total", "counter", "WebSocket message bytes written");
+    sq_metrics_sample(&m, "squish_bytes_out_total", NULL, (double)srv->bytes_out);
+    sq_metrics_family(&m, "squish_connections_refused_total", "counter",
+                      "connections closed at accept (--max-conns, --max-conns-per-addr)");
+    sq_metrics_sample(&m, "squish_connections_refused_total", NULL,
+                      (double)sq_conns_refused(srv->conns));
+    sq_metrics_family(&m, "squish_refused_total", "counter",
+                      "refused requests by code (protocol error codes and HTTP statuses)");
+    /* the I/O thread's refusals, plus those of the running sessions' threads */
+    server tmp;
+    tmp.nrefused = srv->nrefused;
+    memcpy(tmp.refused, srv->refused, sizeof tmp.refused);
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        if (!r->s)
+            continue;
+        pthread_mutex_lock(&r->s->mu);
+        for (int k = 0; k < r->s->nrefused; k++)
+            count_refused_n(&tmp, r->s->refused[k].code, r->s->refused[k].n);
+        pthread_mutex_unlock(&r->s->mu);
+    }
+    for (int i = 0; i < tmp.nrefused; i++) {
+        char l[80];
+        snprintf(l, sizeof l, "code=\"%.60s\"", tmp.refused[i].code);
+        sq_metrics_sample(&m, "squish_refused_total", l, (double)tmp.refused[i].n);
+    }
+    int rc = http_reply(wsi, HTTP_STATUS_OK, "text/plain; version=0.0.4", m.text, m.len);
+    sq_metrics_free(&m);
+    return rc;
+}
+
+/* a file of the web root whose real path leaves the root (a symlink out of it)? */
+static int outside_web_root(server *srv, const char *uri)
+{
+    if (!srv->opt->web_dir)
+        return 0;
+    char root[PATH_MAX], path[PATH_MAX + 160], real[PATH_MAX];
+    if (!realpath(srv->opt->web_dir, root))
+        return 1;
+    size_t n = strlen(uri);
+    snprintf(path, sizeof path, "%s%s%s", srv->opt->web_dir, uri,
+             n && uri[n - 1] == '/' ? "index.html" : "");
+    if (!realpath(path, real))
+        return 0; /* missing: lws answers 404 */
+    size_t rl = strlen(root);
+    return !(strncmp(real, root, rl) == 0 && (real[rl] == '/' || real[rl] == 0));
+}
 
 static int origin_allowed(server *srv, struct lws *wsi)
 {
@@ -1034,6 +1367,9 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         if (!origin_allowed(srv, wsi)) {
             lwsl_notice("squish: WebSocket upgrade refused: Origin not in --origin list\n");
+            count_refused(srv, "403");
+            lws_return_http_status(wsi, HTTP_STATUS_FORBIDDEN,
+                                   "WebSocket upgrade refused: this Origin is not allowed (--origin)");
             return 1;
         }
         return 0;
@@ -1048,6 +1384,7 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         c->last_refill = sq_now();
         c->stats_hz = 4;
         c->sub_frames = 1;
+        lws_get_peer_simple(wsi, c->addr, sizeof c->addr);
         pss->c = c;
         {
             /* a fixed send buffer: a slow reader fills it quickly, and from then on the
@@ -1119,15 +1456,12 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         return 0;
 
     case LWS_CALLBACK_CLOSED_HTTP:
-        if (pss && pss->snap_id)
-            for (snap_wait *w = srv->waits; w; w = w->next)
-                if (w->id == pss->snap_id)
-                    w->wsi = NULL;
+        snapshot_closed(srv, wsi);
         break;
 
-    case LWS_CALLBACK_HTTP_WRITEABLE:
-        if (pss && pss->snap_id)
-            return snapshot_write(srv, wsi, pss);
+    case LWS_CALLBACK_HTTP_WRITEABLE: 
+        if (snapshot_wait_of(srv, wsi))
+            return snapshot_write(srv, wsi);
         break;
 
     case LWS_CALLBACK_EVENT_WAIT_CANCELLED:
@@ -1139,13 +1473,87 @@ static int callback(struct lws *wsi, enum lws_callback_reasons reason, void *use
         }
         return 0;
 
+    case LWS_CALLBACK_FILTER_HTTP_CONNECTION: {
+        /* a file request pipelined behind a waiting snapshot would be served before it
+         * by lws: close too */
+        if (snapshot_wait_of(srv, wsi))
+            return -1;
+        /* only GET and HEAD; files only inside the web root */
+        if (lws_hdr_total_length(wsi, WSI_TOKEN_POST_URI) || lws_hdr_total_length(wsi, WSI_TOKEN_PUT_URI) ||
+            lws_hdr_total_length(wsi, WSI_TOKEN_DELETE_URI) || lws_hdr_total_length(wsi, WSI_TOKEN_PATCH_URI) ||
+            lws_hdr_total_length(wsi, WSI_TOKEN_OPTIONS_URI)) {
+            count_refused(srv, "405");
+            lws_return_http_status(wsi, HTTP_STATUS_METHOD_NOT_ALLOWED,
+                                   "method not allowed: this server answers GET and HEAD only");
+            return 1;
+        }
+        if (lws_hdr_total_length(wsi, WSI_TOKEN_GET_URI) > MAX_URI ||
+            lws_hdr_total_length(wsi, WSI_TOKEN_HEAD_URI) > MAX_URI) {
+            count_refused(srv, "414");
+            lws_return_http_status(wsi, HTTP_STATUS_REQ_URI_TOO_LONG,
+                                   "request line too long: the path and query may have 2048 bytes");
+            return 1;
+        }
+        char uri[1024] = "";
+        if (lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI) <= 0)
+            lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_HEAD_URI);
+        if (uri[0] == '/' && strcmp(uri, "/ws") && outside_web_root(srv, uri)) {
+            lwsl_notice("squish: %s leads outside the web root (a symlink): refused\n", uri);
+            count_refused(srv, "404");
+            lws_return_http_status(wsi, HTTP_STATUS_NOT_FOUND, "not found");
+            return 1;
+        }
+        break;
+    }
+    case LWS_CALLBACK_FILTER_NETWORK_CONNECTION: {
+        /* connection caps, at accept: over them the socket is closed at once */
+        int fd = (int)(intptr_t)in;
+        struct sockaddr_storage sa;
+        socklen_t sl = sizeof sa;
+        char addr[SQ_ADDR_MAX] = "?", why[160];
+        if (!getpeername(fd, (struct sockaddr *)&sa, &sl)) {
+            if (sa.ss_family == AF_INET)
+                inet_ntop(AF_INET, &((struct sockaddr_in *)&sa)->sin_addr, addr, sizeof addr);
+            else if (sa.ss_family == AF_INET6)
+                inet_ntop(AF_INET6, &((struct sockaddr_in6 *)&sa)->sin6_addr, addr, sizeof addr);
+        }
+        if (srv->conns && sq_conns_accept(srv->conns, fd, addr, why, sizeof why)) {
+            lwsl_warn("squish: connection from %s refused: %s\n", addr, why);
+            return 1;
+        }
+        return 0;
+    }
+    case LWS_CALLBACK_SERVER_NEW_CLIENT_INSTANTIATED:
+        if (srv->conns)
+            sq_conns_bind(srv->conns, (int)lws_get_socket_fd(wsi), wsi);
+        break;
+    case LWS_CALLBACK_WSI_DESTROY:
+        if (srv && srv->conns)
+            sq_conns_close(srv->conns, wsi);
+        break;
     case LWS_CALLBACK_HTTP: {
+        {
+            char head[64] = "";
+            if (lws_hdr_copy(wsi, head, sizeof head, WSI_TOKEN_HEAD_URI) > 0 && !strcmp(head, "/healthz"))
+                return healthz(srv, wsi, 1);
+        }
+        if (snapshot_wait_of(srv, wsi)) {
+            /* pipelined behind a snapshot still rendering: lws 4.1 no longer makes the
+             * connection writeable for the earlier reply, and replies must keep the order
+             * of the requests; close (the client sends both again on a new connection,
+             * as HTTP/1.1 allows). The waiting snapshot loses its connection and frees its
+             * render place when rendered. */
+            lwsl_notice("squish: HTTP request pipelined behind a snapshot: closing\n");
+            return -1;
+        }
         char uri[128] = "";
         lws_hdr_copy(wsi, uri, sizeof uri, WSI_TOKEN_GET_URI);
         if (!strcmp(uri, "/snapshot.png"))
             return snapshot_request(srv, wsi, pss);
         if (!strcmp(uri, "/healthz"))
-            return http_reply(wsi, HTTP_STATUS_OK, "text/plain", "ok\n", 3);
+            return healthz(srv, wsi, 0);
+        if (!strcmp(uri, "/metrics"))
+            return metrics_reply(srv, wsi);
         if (!srv->opt->web_dir && (!strcmp(uri, "/") || !strcmp(uri, "/index.html")))
             return http_reply(wsi, HTTP_STATUS_OK, "text/html; charset=utf-8", no_viewer_page,
                               strlen(no_viewer_page));
@@ -1171,6 +1579,10 @@ sq_serve_options sq_serve_options_default(void)
     o.rate = 200;
     o.grace = 30;
     o.precision = SQ_CODEC_PRECISION;
+    o.frame_budget = 1.0;
+    o.max_conns = 2000;
+    o.max_conns_per_addr = 500;
+    o.idle_timeout = 300;
     return o;
 }
 
@@ -1303,7 +1715,14 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     snap.mountpoint_len = (unsigned char)strlen(snap.mountpoint);
     snap.origin = "squish";
     snap.origin_protocol = LWSMPRO_CALLBACK;
-    health.mount_next = &snap;
+    struct lws_http_mount metrics;
+    memset(&metrics, 0, sizeof metrics);
+    metrics.mountpoint = "/metrics";
+    metrics.mountpoint_len = (unsigned char)strlen(metrics.mountpoint);
+    metrics.origin = "squish";
+    metrics.origin_protocol = LWSMPRO_CALLBACK;
+    health.mount_next = &metrics;
+    metrics.mount_next = &snap;
     if (opt->web_dir)
         snap.mount_next = &files;
 
@@ -1316,7 +1735,36 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     info.mounts = &health;
     info.options = LWS_SERVER_OPTION_HTTP_HEADERS_SECURITY_BEST_PRACTICES_ENFORCE |
                    LWS_SERVER_OPTION_DISABLE_IPV6;
-    lws_set_log_level(opt->verbose ? (LLL_ERR | LLL_WARN | LLL_NOTICE) : (LLL_ERR | LLL_WARN), NULL);
+    lws_set_log_level(opt->verbose ? (LLL_ERR | LLL_WARN | LLL_NOTICE) : (LLL_ERR | LLL_WARN),
+                      sq_log_emit);
+    /* a WebSocket silent for idle_timeout / 2 gets a ping; one that has not answered (or
+     * sent anything) within idle_timeout is closed */
+    static lws_retry_bo_t idle;
+    memset(&idle, 0, sizeof idle);
+    idle.secs_since_valid_ping = (uint16_t)SQ_MAX(1.0, opt->idle_timeout / 2);
+    idle.secs_since_valid_hangup = (uint16_t)SQ_MAX(idle.secs_since_valid_ping + 1.0, opt->idle_timeout);
+    info.retry_and_idle_policy = &idle;
+    info.max_http_header_data = HEADER_BYTES;
+    /* the fd limit: raised to its hard maximum; the connection cap stays below it (two fds
+     * per connection serving a file, plus a margin), so that accept never fails with EMFILE
+     * (lws would retry it in a busy loop) */
+    int max_conns = opt->max_conns;
+    struct rlimit rl;
+    if (!getrlimit(RLIMIT_NOFILE, &rl)) {
+        if (rl.rlim_cur < rl.rlim_max) {
+            rl.rlim_cur = rl.rlim_max;
+            setrlimit(RLIMIT_NOFILE, &rl);
+            getrlimit(RLIMIT_NOFILE, &rl);
+        }
+        long fit = ((long)rl.rlim_cur - 64) / 2;
+        if (fit < max_conns) {
+            fprintf(stderr, "squish serve: --max-conns %d lowered to %ld (file descriptor limit %ld)\n",
+                    max_conns, SQ_MAX(fit, 1L), (long)rl.rlim_cur);
+            max_conns = (int)SQ_MAX(fit, 1L);
+        }
+    }
+    srv.conns = sq_conns_new(max_conns, opt->max_conns_per_addr);
+    srv.guard = sq_guard_new();
 
     srv.snapshotter = sq_snapshotter_start(wake, &srv);
     srv.ctx = lws_create_context(&info);
@@ -1356,8 +1804,12 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
         if (lws_service(srv.ctx, 0) < 0)
             break;
 
-    /* clean shutdown: tell the clients, flush for a moment, then close everything */
+    /* clean shutdown: tell the clients, flush for a moment, then close everything; every
+     * session thread is told to stop first, so that frames in progress end together */
     srv.stopping = 1;
+    for (int i = 0; i < srv.nslots; i++)
+        if (srv.slots[i].s)
+            sq_session_cancel(srv.slots[i].s);
     for (int i = 0; i < srv.nslots; i++) {
         srec *r = &srv.slots[i];
         for (int k = 0; r->s && k < r->nmembers; k++) {
@@ -1402,5 +1854,7 @@ done:
     free(srv.scenes);
     free(srv.names);
     free(srv.slots);
+    sq_conns_free(srv.conns);
+    sq_guard_free(srv.guard);
     return rc;
 }

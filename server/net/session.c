@@ -221,7 +221,22 @@ static void reply(sq_session *s, uint64_t client, cJSON *o)
 static void reply_error(sq_session *s, uint64_t client, const sq_request *req, const char *code,
                         const char *msg)
 {
-    post(s, SQ_OUT_TEXT, client, 0, sq_error_blob(code, msg, req));
+    sq_blob *b = sq_error_blob(code, msg, req);
+    pthread_mutex_lock(&s->mu);
+    /* counted by code for /metrics (code: a static string) */
+    int i = 0;
+    while (i < s->nrefused && strcmp(s->refused[i].code, code))
+        i++;
+    if (i < (int)(sizeof s->refused / sizeof s->refused[0])) {
+        if (i == s->nrefused) {
+            s->refused[i].code = code;
+            s->refused[i].n = 0;
+            s->nrefused++;
+        }
+        s->refused[i].n++;
+    }
+    post_locked(s, SQ_OUT_TEXT, client, 0, b);
+    pthread_mutex_unlock(&s->mu);
 }
 
 void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req)
@@ -258,6 +273,27 @@ void sq_session_push_snapshot(sq_session *s, sq_snap_job *j)
     s->jobs[s->njobs].snap = j;
     s->njobs++;
     pthread_cond_signal(&s->cv);
+    pthread_mutex_unlock(&s->mu);
+}
+
+int sq_session_pending_jobs(sq_session *s, uint64_t client)
+{
+    int n = 0;
+    pthread_mutex_lock(&s->mu);
+    for (int i = 0; i < s->njobs; i++)
+        n += s->jobs[i].client == client && !s->jobs[i].snap;
+    pthread_mutex_unlock(&s->mu);
+    return n;
+}
+
+void sq_session_drop_jobs(sq_session *s, uint64_t client, sq_req_type type)
+{
+    pthread_mutex_lock(&s->mu);
+    int k = 0;
+    for (int i = 0; i < s->njobs; i++)
+        if (s->jobs[i].snap || s->jobs[i].client != client || s->jobs[i].req.type != type)
+            s->jobs[k++] = s->jobs[i];
+    s->njobs = k;
     pthread_mutex_unlock(&s->mu);
 }
 
@@ -367,10 +403,42 @@ static void publish(sq_session *s, int kind, double frame_s)
 }
 
 /* one frame: step and publish */
+static double budget_frac(sq_session *s)
+{
+    double f;
+    __atomic_load(&s->budget.frac, &f, __ATOMIC_RELAXED);
+    return f > 0 ? f : 1.0;
+}
+
+/* account a stepped frame of cpu seconds; a realtime session far over its budget pauses */
+static void budget_account(sq_session *s, double cpu)
+{
+    if (__atomic_load_n(&s->stop, __ATOMIC_RELAXED))
+        return; /* the frame was abandoned */
+    const sq_world *w = s->world;
+    double updates = 0;
+    for (int b = 0; b < w->nbodies; b++)
+        updates += (double)w->profile[b].node_updates;
+    double frac = budget_frac(s);
+    char msg[400];
+    if (!sq_budget_frame(&s->budget, frac, s->period, cpu, updates, msg, sizeof msg) || s->lockstep)
+        return;
+    s->paused = 1;
+    cJSON *e = sq_reply_new("event", NULL);
+    cJSON_AddStringToObject(e, "kind", "over_budget");
+    cJSON_AddNumberToObject(e, "session", s->id);
+    cJSON_AddNumberToObject(e, "frame", (double)w->frame);
+    cJSON_AddNumberToObject(e, "frame_ms", 1e3 * cpu);
+    cJSON_AddNumberToObject(e, "budget_ms", 1e3 * frac * s->period);
+    cJSON_AddStringToObject(e, "message", msg);
+    post(s, SQ_OUT_TEXT, 0, 0, sq_reply_blob(e));
+}
+
 static void step_frame(sq_session *s, sq_out_kind kind)
 {
-    double t0 = sq_now();
+    double t0 = sq_now(), c0 = sq_thread_cpu();
     sq_world_step(s->world, s->lockstep ? 0 : s->period);
+    budget_account(s, sq_thread_cpu() - c0);
     publish(s, kind, sq_now() - t0);
 }
 
@@ -510,6 +578,29 @@ static void do_set(sq_session *s, const sq_job *j)
             return;
         }
     }
+    /* the compute budget: settings predictably over it are refused (docs/security.md) */
+    sq_budget_prediction p;
+    double frac = budget_frac(s);
+    sq_budget_predict(&s->budget, w, s->period, &p);
+    double budget = frac * s->period;
+    if (p.seconds > budget) {
+        for (int k = b0; k < b1; k++) {
+            if (changed_lod)
+                sq_body_set_lod(w->bodies[k], &old_lod[k], NULL);
+            if (changed_mat)
+                sq_body_set_material(w->bodies[k], &old_m[k], old_op[k], NULL);
+        }
+        char msg[480];
+        snprintf(msg, sizeof msg, "predicted cost %.1f ms of CPU per frame (%.3g node updates; body "
+                 "%d: %d substeps x %d nodes; %.3g us per node update) is over the frame budget "
+                 "of %.1f ms (--frame-budget %.3g x the %.1f ms period); settings unchanged: use a "
+                 "softer or denser material, less stiffness damping or a coarser level",
+                 1e3 * p.seconds, p.updates, p.body, p.substeps, p.nodes,
+                 1e6 * p.seconds / (p.updates > 0 ? p.updates : 1), 1e3 * budget,
+                 frac, 1e3 * s->period);
+        reply_error(s, j->client, r, "over_budget", msg);
+        return;
+    }
     cJSON *o = ack("set", r, w->frame + 1);
     cJSON *a = cJSON_AddArrayToObject(o, "bodies");
     for (int b = b0; b < b1; b++) {
@@ -556,6 +647,7 @@ static void do_nodes(sq_session *s, const sq_job *j)
     cJSON_AddNumberToObject(o, "level", sq_world_listed_level(w, r->nodes.body, L));
     cJSON_AddNumberToObject(o, "frame", (double)w->frame);
     reply(s, j->client, o);
+    post(s, SQ_OUT_NODES_DONE, j->client, 0, NULL);
 }
 
 /* apply one job; returns 1 if the visible state changed without a step */
@@ -583,6 +675,8 @@ static int do_job(sq_session *s, const sq_job *j)
              : r->type == SQ_REQ_NODES ? r->nodes.body : -1;
     if (body >= w->nbodies) {
         reply_error(s, j->client, r, "unknown_body", "body id out of range");
+        if (r->type == SQ_REQ_NODES)
+            post(s, SQ_OUT_NODES_DONE, j->client, 0, NULL);
         return 0;
     }
     switch (r->type) {
@@ -671,9 +765,24 @@ static int setup(sq_session *s)
     return 0;
 }
 
+/* put jobs not applied this frame back in front of the queue, in order */
+static void requeue_front(sq_session *s, const sq_job *j, int m)
+{
+    pthread_mutex_lock(&s->mu);
+    if (s->njobs + m > s->cap_jobs) {
+        s->cap_jobs = SQ_MAX(s->njobs + m, 2 * s->cap_jobs);
+        s->jobs = sq_realloc(s->jobs, sizeof *s->jobs * (size_t)s->cap_jobs);
+    }
+    memmove(s->jobs + m, s->jobs, sizeof *s->jobs * (size_t)s->njobs);
+    memcpy(s->jobs, j, sizeof *j * (size_t)m);
+    s->njobs += m;
+    pthread_mutex_unlock(&s->mu);
+}
+
 static void *session_main(void *arg)
 {
     sq_session *s = arg;
+    sq_cancel_flag = &s->stop; /* a frame in progress is abandoned when the session stops */
     if (setup(s))
         return NULL;
     double next = sq_now() + s->period;
@@ -716,9 +825,17 @@ static void *session_main(void *arg)
         cap = tcap;
         pthread_mutex_unlock(&s->mu);
 
-        int changed = 0;
-        for (int i = 0; i < n; i++)
-            changed |= do_job(s, &jobs[i]);
+        int changed = 0, done = 0;
+        double jobs_t0 = sq_now();
+        while (done < n) {
+            changed |= do_job(s, &jobs[done++]);
+            /* requests get at most part of a frame period per frame; the rest wait for the
+             * next frame, so that a flood of costly ones (set) cannot freeze the clock */
+            if (!s->lockstep && sq_now() - jobs_t0 > SQ_SESSION_JOB_SHARE * s->period)
+                break;
+        }
+        if (done < n)
+            requeue_front(s, jobs + done, n - done);
         double frame_start = next;
         int idle = __atomic_load_n(&s->idle, __ATOMIC_RELAXED);
         if (!s->lockstep && !s->paused && !idle)
@@ -745,7 +862,7 @@ static void *session_main(void *arg)
     return NULL;
 }
 
-sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
+sq_session *sq_session_start(const sq_scene *scene, const char *name, uint64_t id, int lockstep,
                              double precision, void (*wake)(void *), void *wake_arg)
 {
     sq_session *s = sq_calloc(1, sizeof *s);
@@ -755,6 +872,7 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t i
     s->period = 1.0 / (scene->frame_rate > 0 ? scene->frame_rate : 50.0);
     s->lockstep = lockstep;
     s->precision = precision > 0 ? precision : SQ_CODEC_PRECISION;
+    s->budget.frac = 1.0;
     s->wake = wake;
     s->wake_arg = wake_arg;
     pthread_mutex_init(&s->mu, NULL);
@@ -771,6 +889,14 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t i
         post_locked(s, SQ_OUT_FAILED, 0, 0, NULL);
     }
     return s;
+}
+
+void sq_session_cancel(sq_session *s)
+{
+    pthread_mutex_lock(&s->mu);
+    __atomic_store_n(&s->stop, 1, __ATOMIC_RELAXED);
+    pthread_cond_broadcast(&s->cv);
+    pthread_mutex_unlock(&s->mu);
 }
 
 void sq_session_stop(sq_session *s)

@@ -13,9 +13,13 @@
 
 #include <pthread.h>
 
+#include "net/budget.h"
 #include "net/net.h"
 #include "net/snapshot.h"
 #include "scene/scene.h"
+
+/* fraction of the frame period a session spends on requests per frame (the rest waits) */
+#define SQ_SESSION_JOB_SHARE 0.5
 
 /* a request handed to the session thread, with the client it came from */
 typedef struct sq_job {
@@ -30,7 +34,8 @@ typedef enum sq_out_kind {
     SQ_OUT_FRAME,            /* realtime frame of `body` for every member: latest wins */
     SQ_OUT_STEP_FRAME,       /* lockstep frame for every member: never dropped */
     SQ_OUT_READY,            /* the world exists: topology and info are set */
-    SQ_OUT_FAILED            /* the world could not be created: fail_msg */
+    SQ_OUT_FAILED,           /* the world could not be created: fail_msg */
+    SQ_OUT_NODES_DONE        /* the client's nodes request is answered (no blob) */
 } sq_out_kind;
 
 typedef struct sq_out {
@@ -68,7 +73,7 @@ typedef enum sq_session_state {
 
 typedef struct sq_session {
     /* fixed at creation */
-    uint32_t id;                     /* handle: generation << 10 | slot index */
+    uint64_t id;                     /* handle: random generation << 10 | slot index (< 2^49) */
     const sq_scene *scene;
     char scene_name[SQ_NET_NAME_MAX];
     double period;                   /* frame period, s */
@@ -96,6 +101,8 @@ typedef struct sq_session {
     sq_snapshot snap;
     int ntool_ids;
     int tool_ids[SQ_MAX_TOOLS];      /* ids of the world's tools, for request checks */
+    int nrefused;                    /* error replies of the session thread, by code */
+    struct { const char *code; long n; } refused[16];
 
     /* session thread only */
     pthread_t thread;
@@ -106,12 +113,16 @@ typedef struct sq_session {
     unsigned char *lev;              /* scratch levels */
     int paused;
     long deadline_misses;
+    sq_budget budget;                /* compute budget; budget.frac set by the server right
+                                        after start (read atomically) */
 } sq_session;
 
 /* create and start a session's thread for scene; the world is built on that thread, which
  * then posts SQ_OUT_READY or SQ_OUT_FAILED */
-sq_session *sq_session_start(const sq_scene *scene, const char *name, uint32_t id, int lockstep,
+sq_session *sq_session_start(const sq_scene *scene, const char *name, uint64_t id, int lockstep,
                              double precision, void (*wake)(void *), void *wake_arg);
+/* ask the thread to stop (a frame in progress is abandoned); sq_session_stop still needed */
+void sq_session_cancel(sq_session *s);
 /* stop the thread, free everything (pending outbox blobs included) */
 void sq_session_stop(sq_session *s);
 /* queue a request for the session thread (lws thread) */
@@ -119,6 +130,10 @@ void sq_session_push_job(sq_session *s, uint64_t client, const sq_request *req);
 /* queue a snapshot capture: the session thread captures its world into j->state at its
  * next frame and submits j to s->snapshotter */
 void sq_session_push_snapshot(sq_session *s, sq_snap_job *j);
+/* jobs of `client` waiting in the queue (lws thread; bounds what one client may queue) */
+int sq_session_pending_jobs(sq_session *s, uint64_t client);
+/* drop the queued jobs of `client` of request type `type` (a departed client's nodes) */
+void sq_session_drop_jobs(sq_session *s, uint64_t client, sq_req_type type);
 /* take every outbox item (lws thread); *n items, caller frees the array and blob refs */
 sq_out *sq_session_take_outbox(sq_session *s, int *n);
 

@@ -547,6 +547,8 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     int nsub = 1 << L->substeps_log2;
     double inv = 1.0 / nsub;
     for (int s = 0; s < nsub; s++) {
+        if ((s & 15) == 15 && sq_cancelled())
+            break; /* the server is stopping: the frame is abandoned */
         sq_level_step(L, mat, g, L->dt, nk ? mask : NULL); /* L->f: forces before the update */
         for (int h = 0; h < nk; h++) {
             int i = b->khold[h].node, t = b->khold[h].tool;

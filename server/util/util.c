@@ -43,6 +43,8 @@ int sq_err_prefix(sq_err *err, const char *fmt, ...)
     return -1;
 }
 
+_Thread_local const int *sq_cancel_flag;
+
 double sq_now(void)
 {
     struct timespec ts;

@@ -18,6 +18,15 @@ int sq_err_prefix(sq_err *err, const char *fmt, ...) __attribute__((format(print
 /* monotonic wall clock in seconds */
 double sq_now(void);
 
+/* cancellation of a long computation: a thread points sq_cancel_flag at an int another
+ * thread sets (atomically) to ask it to stop; the frame loops poll sq_cancelled() every few
+ * substeps and abandon the frame. NULL (the default): never cancelled. */
+extern _Thread_local const int *sq_cancel_flag;
+static inline int sq_cancelled(void)
+{
+    return sq_cancel_flag && __atomic_load_n(sq_cancel_flag, __ATOMIC_RELAXED);
+}
+
 /* progress bar on stderr, only when stderr is a terminal (or force is set) */
 typedef struct sq_progress {
     const char *label;

@@ -11,13 +11,15 @@ export const SQUISH = process.env.SQUISH || path.join(ROOT, 'build/squish');
  * Start a server with extra flags; resolves with { url (ws), http, port, proc, pid, stop }.
  * Port 0 lets the kernel pick a free port; the server prints the one it got.
  */
-export function startServer(args = [], { env = {} } = {}) {
+export function startServer(args = [], { env = {}, prefix = [] } = {}) {
   // for sanitizer builds: OSMesa's own allocations are not ours
   const lsan = `suppressions=${path.join(ROOT, 'tests/net/lsan.supp')}`;
   // without --scenes the server would offer the shipped scenes it finds: these tests use the
   // built-in cube ("default") unless they name a directory
   const scenes = args.includes('--scenes') ? [] : ['--no-scenes'];
-  const proc = spawn(SQUISH, ['serve', '--host', '127.0.0.1', '--port', '0', ...scenes, ...args], {
+  // prefix: a command that execs the server (e.g. prlimit), so that proc.pid stays the server's
+  const argv = [SQUISH, 'serve', '--host', '127.0.0.1', '--port', '0', ...scenes, ...args];
+  const proc = spawn(prefix.length ? prefix[0] : SQUISH, prefix.length ? [...prefix.slice(1), ...argv] : argv.slice(1), {
     env: { LSAN_OPTIONS: lsan, ...process.env, ...env }, stdio: ['ignore', 'pipe', 'pipe'],
   });
   let out = '', err = '';
