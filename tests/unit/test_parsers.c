@@ -165,7 +165,7 @@ SQ_TEST(parsers_snapshot_query)
     static const struct {
         const char *args[4];
         int nargs, status;
-        unsigned session;
+        uint64_t session;
         int w, h;
         const char *msg;
     } cases[] = {
@@ -173,7 +173,8 @@ SQ_TEST(parsers_snapshot_query)
         {{"room=bio", "size=64x48", "session=4294967295"}, 3, 0, 4294967295u, 64, 48, ""},
         {{"size=64x48"}, 1, 404, 0, 0, 0, "no session (missing)"},
         {{"session="}, 1, 404, 0, 0, 0, "no session ;"},
-        {{"session=4294967296"}, 1, 404, 0, 0, 0, "no session 4294967296"},
+        {{"session=9007199254740991"}, 1, 0, 9007199254740991ull, 800, 600, ""},
+        {{"session=9007199254740992"}, 1, 404, 0, 0, 0, "no session 9007199254740992"},
         {{"session=-1"}, 1, 404, 0, 0, 0, "no session -1"},
         {{"session= 12"}, 1, 404, 0, 0, 0, "no session  12"},
         {{"session=0x10"}, 1, 404, 0, 0, 0, "no session 0x10"},
@@ -205,20 +206,22 @@ SQ_TEST(parsers_snapshot_query)
 /* the instance rule of session ids: 100 * local + K, local's generation masked to fit */
 SQ_TEST(parsers_session_id_instance)
 {
-    uint32_t local;
+    uint64_t local;
     CHECK(sq_session_id_public(1025, 0) == 1025);
     CHECK(sq_session_id_local(1025, 0, &local) == 0 && local == 1025);
-    uint32_t mask = sq_session_gen_mask(7, 10);
-    uint32_t top = mask << 10 | 1023;
-    uint32_t id = sq_session_id_public(top, 7);
-    CHECK(id % 100 == 7 && (uint64_t)100 * top + 7 == id); /* no wrap at the largest local id */
+    uint64_t mask = sq_session_gen_mask(7, 10);
+    uint64_t top = mask << 10 | 1023;
+    uint64_t id = sq_session_id_public(top, 7);
+    CHECK(id % 100 == 7 && 100 * top + 7 == id); /* no wrap at the largest local id */
+    CHECK(id < (1ull << 49));                     /* 15 decimal digits: JSON keeps it exact */
     CHECK(sq_session_id_local(id, 7, &local) == 0 && local == top);
     CHECK(sq_session_id_local(id, 8, &local) == -1);
     CHECK(sq_session_id_local(sq_session_id_public(1024, 12), 12, &local) == 0 && local == 1024);
-    char s[16];
-    snprintf(s, sizeof s, "%u", sq_session_id_public(1024, 3));
+    char s[32];
+    snprintf(s, sizeof s, "%llu", (unsigned long long)sq_session_id_public(1024, 3));
     CHECK(!strcmp(s, "102403")); /* what docker/nginx.conf's map matches: ...03 */
-    CHECK(sq_session_gen_mask(0, 10) == (1u << 22) - 1);
+    CHECK(sq_session_gen_mask(0, 10) == (1ull << 39) - 1);
+    CHECK((sq_session_gen_mask(0, 10) << 10 | 1023) < (1ull << 49));
 }
 
 /* a sibling of read_long: `squish mesh box 2147483647 1 1` computed nx + 1 in int (signed
