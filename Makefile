@@ -23,7 +23,7 @@ SAN_OBJ  := $(LIB_SRC:%.c=$(BUILD)/san/%.o) $(TEST_SRC:%.c=$(BUILD)/san/%.o)
 # Debian packages the build, the tests and the benchmarks need
 APT_PKGS := build-essential pkg-config libwebsockets-dev libcjson-dev zlib1g-dev libosmesa6-dev \
             libpng-dev clang libclang-rt-14-dev gnuplot-nox chromium hyperfine \
-            python3-vtk9
+            python3-vtk9 python3-numpy python3-scipy
 
 .PHONY: all squish deps run test unit asan bench meshes fuzz clean node-deps
 

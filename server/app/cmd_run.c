@@ -107,8 +107,9 @@ static void print_setup(const sq_scene *s, const sq_world *w)
         const sq_body_def *def = sq_body_get_def(w->bodies[b]);
         double E, nu;
         sq_material_E_nu(&def->material, &E, &nu);
-        printf("body %s: %s operator, %s lod, E %.4g Pa, nu %.4g, density %g kg/m^3\n", s->body_names[b],
-               def->op == SQ_OPERATOR_PAPER ? "paper" : "fem",
+        printf("body %s: %s operator, %s elasticity, %s lod, E %.4g Pa, nu %.4g, density %g kg/m^3\n",
+               s->body_names[b], def->op == SQ_OPERATOR_PAPER ? "paper" : "fem",
+               def->elasticity == SQ_ELASTICITY_COROTATIONAL ? "corotational" : "linear",
                def->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed", E, nu, def->material.density);
         int nl = sq_body_nlevels(w->bodies[b]);
         for (int k = 0; k < nl; k++) {

@@ -104,6 +104,11 @@ static int ensure_level(sq_body *b, int k, sq_err *err)
     if (sq_level_init(L, b->def.levels[k], &b->def.material, b->def.op, b->def.constraints,
                       b->def.nconstraints, err) < 0)
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
+    if (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
+        sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) {
+        sq_level_free(L);
+        return sq_err_prefix(err, "body '%s' level %d", b->name, k);
+    }
     if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d (%d nodes)", b->name, k, b->def.levels[k]->nnodes);
@@ -178,6 +183,27 @@ static void set_lod_levels_fixed(sq_body *b)
 
 /* ---- create / destroy ------------------------------------------------------------------- */
 
+#define COROT_ADAPTIVE_MSG                                                                                 \
+    "corotational elasticity runs in fixed lod mode only (adaptive mode does not support it yet): use "    \
+    "\"lod\": {\"mode\": \"fixed\"} with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" " \
+    "with adaptive lod"
+#define COROT_PAPER_MSG                                                                                    \
+    "corotational elasticity needs the fem operator (the paper operator has no corotational form here): "  \
+    "use \"operator\": \"fem\" with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" with "  \
+    "the paper operator"
+
+/* is elasticity e allowed with operator op and lod mode? 0, or -1 + err naming the combination */
+static int check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
+{
+    if (e != SQ_ELASTICITY_LINEAR && e != SQ_ELASTICITY_COROTATIONAL)
+        return sq_err_set(err, "elasticity %d is unknown: use linear or corotational", (int)e);
+    if (e == SQ_ELASTICITY_COROTATIONAL && op != SQ_OPERATOR_FEM)
+        return sq_err_set(err, COROT_PAPER_MSG);
+    if (e == SQ_ELASTICITY_COROTATIONAL && mode == SQ_LOD_ADAPTIVE)
+        return sq_err_set(err, COROT_ADAPTIVE_MSG);
+    return 0;
+}
+
 static int check_def(const sq_body_def *def, sq_err *err)
 {
     if (def->nlevels < 1 || def->nlevels > SQ_MAX_LEVELS)
@@ -211,6 +237,8 @@ static int check_def(const sq_body_def *def, sq_err *err)
         if (cn->axes == 0 || cn->axes > 7)
             return sq_err_set(err, "constraint %d: axes mask %u must be 1..7 (bits x=1, y=2, z=4)", c, cn->axes);
     }
+    if (check_elasticity(def->elasticity, def->op, def->lod.mode, err) < 0)
+        return -1;
     return sq_material_check(&def->material, err);
 }
 
@@ -323,12 +351,15 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         return -1;
     if (op != SQ_OPERATOR_FEM && op != SQ_OPERATOR_PAPER)
         return sq_err_set(err, "operator %d is unknown: use fem or paper", (int)op);
+    if (check_elasticity(b->def.elasticity, op, b->def.lod.mode, err) < 0)
+        return -1;
     /* build every loaded level anew; swap only when all succeed */
     sq_level fresh[SQ_MAX_LEVELS];
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         if (!b->ready[k])
             continue;
         if (sq_level_init(&fresh[k], b->def.levels[k], m, op, b->def.constraints, b->def.nconstraints, err) < 0 ||
+            (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
             sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0) {
             if (fresh[k].n)
                 sq_level_free(&fresh[k]);
@@ -345,6 +376,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         size_t n3 = 3 * (size_t)b->level[k].n;
         memcpy(fresh[k].d, b->level[k].d, sizeof(double) * n3);
         memcpy(fresh[k].v, b->level[k].v, sizeof(double) * n3);
+        sq_level_corot_copy(&fresh[k], &b->level[k]);
         sq_level_free(&b->level[k]);
         b->level[k] = fresh[k]; /* same address: the lod module's pointer stays valid */
     }
@@ -360,6 +392,8 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
     if (check_lod(b, lod, err) < 0)
         return -1;
     int was_adaptive = b->def.lod.mode == SQ_LOD_ADAPTIVE;
+    if (check_elasticity(b->def.elasticity, b->def.op, lod->mode, err) < 0)
+        return -1;
     if (lod->mode == SQ_LOD_ADAPTIVE) {
         for (int k = 0; k < b->nuse; k++)
             if (ensure_level(b, k, err) < 0)
@@ -381,8 +415,10 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         if (ensure_level(b, lod->level, err) < 0)
             return -1;
         int from = was_adaptive ? b->fine : b->cur;
-        if (from != lod->level)
+        if (from != lod->level) {
             transfer_state(b, from, lod->level);
+            sq_level_corot_converge(&b->level[lod->level]);
+        }
         if (was_adaptive) {
             sq_lod_destroy(b->lod);
             b->lod = NULL;
@@ -406,6 +442,7 @@ void sq_body_reset(sq_body *b)
         memset(b->level[k].d, 0, sizeof(double) * n3);
         memset(b->level[k].v, 0, sizeof(double) * n3);
         memset(b->level[k].f, 0, sizeof(double) * n3);
+        sq_level_corot_reset(&b->level[k]);
     }
     if (b->lod) {
         sq_lod_reset(b->lod);
@@ -415,6 +452,32 @@ void sq_body_reset(sq_body *b)
         b->grab[t].id = -1;
     b->sleeping = 0;
     b->calm = 0;
+}
+
+int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
+{
+    if (check_elasticity(e, b->def.op, b->def.lod.mode, err) < 0)
+        return -1;
+    if (e == b->def.elasticity)
+        return 0;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        if (!b->ready[k])
+            continue;
+        if (e == SQ_ELASTICITY_COROTATIONAL) {
+            if (sq_level_corot_enable(&b->level[k], &b->def.material, b->def.op, err) < 0) {
+                for (int j = 0; j < k; j++)
+                    sq_level_corot_free(&b->level[j]);
+                return -1;
+            }
+            sq_level_corot_converge(&b->level[k]);
+        } else {
+            sq_level_corot_free(&b->level[k]);
+        }
+    }
+    b->def.elasticity = e;
+    b->sleeping = 0;
+    b->calm = 0;
+    return 0;
 }
 
 void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual)
@@ -684,6 +747,12 @@ const unsigned char *sq_body_node_level(const sq_body *b) { return b->node_level
 const sq_mesh *sq_body_surface_mesh(const sq_body *b) { return b->def.levels[b->fine]; }
 int sq_body_is_sleeping(const sq_body *b) { return b->sleeping; }
 
+int sq_body_inverted_tets(const sq_body *b)
+{
+    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    return sq_level_corot_inverted(&b->level[k]);
+}
+
 sq_level *sq_body_level(sq_body *b, int level)
 {
     return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? &b->level[level] : NULL;
@@ -746,9 +815,11 @@ double sq_body_kinetic_energy(const sq_body *b)
     return ke;
 }
 
-/* 0.5 d.K d of level k */
+/* 0.5 d.K d of level k (the corotational energy with corotational elasticity) */
 double sq_level_elastic_energy(const sq_level *L)
 {
+    if (L->corot)
+        return sq_level_corot_energy(L);
     double e = 0;
     for (int i = 0; i < L->n; i++) {
         const double *di = L->d + 3 * (size_t)i;

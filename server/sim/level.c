@@ -206,6 +206,7 @@ void sq_level_free(sq_level *L)
     free(L->up_start);
     free(L->up_col);
     free(L->Kup);
+    sq_level_corot_free(L);
     memset(L, 0, sizeof *L);
 }
 
@@ -430,6 +431,10 @@ static void forces_all(sq_level *L, double b, double a, const double g[3], doubl
 void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
                    const unsigned char *mask)
 {
+    if (L->corot) {
+        sq_level_corot_step(L, mat, gravity, dt, mask);
+        return;
+    }
     if (mat->use_viscosity && L->D) {
         /* the viscosity blocks are applied row by row: two passes */
         sq_level_forces(L, mat, gravity, NULL);
@@ -485,6 +490,10 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
     double *restrict f = L->f;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
+    if (L->corot) { /* all nodes (a superset of the active ones) */
+        sq_level_corot_forces(L, mat, gravity);
+        return;
+    }
     if (!active) {
         forces_all(L, b, a, gravity, 0, NULL);
         if (L->D && mat->use_viscosity)

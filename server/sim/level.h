@@ -13,6 +13,8 @@
 
 #include "sim/sim.h"
 
+typedef struct sq_corot sq_corot;
+
 typedef struct sq_level {
     const sq_mesh *mesh;   /* rest mesh (borrowed) */
     int n;                 /* nodes */
@@ -43,6 +45,7 @@ typedef struct sq_level {
     double bound;          /* stability bound on the step with damping, s */
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
+    sq_corot *corot;       /* corotational elasticity state (sim/corot.c), NULL: linear */
 } sq_level;
 
 /* a tool's hold on one node of the finest loaded level (the rendered surface's mesh):
@@ -93,6 +96,22 @@ int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol
 
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);
+
+/* corotational elasticity (sim/corot.c; fem operator, fixed mode): per-tet rest gradients and
+ * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
+ * operator. With L->corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
+ * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
+int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
+void sq_level_corot_free(sq_level *L);
+void sq_level_corot_reset(sq_level *L);                        /* rotations to identity */
+void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: copy the rotations */
+void sq_level_corot_converge(sq_level *L);                     /* rotations converged to the current d */
+void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
+                         const unsigned char *mask);
+void sq_level_corot_forces(sq_level *L, const sq_material *mat, const double g[3]);
+double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
+/* tets with det F <= 0 at the current displacement (any level, linear or not) */
+int sq_level_corot_inverted(const sq_level *L);
 
 /* engine-internal access to a body's levels (lod, tests, benchmarks): the level if it is
  * initialised, else NULL */
