@@ -495,3 +495,24 @@ SQ_TEST(corot_vector_step_matches_scalar_forces)
     sq_level_free(&L);
     sq_mesh_free(m);
 }
+
+/* the same arc drag with linear elasticity (the issue's "today" column, printed for
+ * docs/physics.md): the body swells by more than 10 % at 45 and 90 degrees and the tool force
+ * at 45 degrees is more than 3 times the reference; the pull-up force is less than half of it */
+SQ_TEST(corot_arc_drag_beam_linear_is_far_off)
+{
+    double ref[4][4];
+    CHECK(read_reference(ref) == 0);
+    static const char *const names[4] = {"15 deg", "45 deg", "90 deg", "pull up 100 mm"};
+    arc_result r[4];
+    for (int k = 0; k < 4; k++) {
+        r[k] = arc_run(k, SQ_ELASTICITY_LINEAR, 100);
+        fprintf(stderr, "    linear %-15s volume %.4f (ref %.4f), |F| %.3f N (ref %.3f N), inverted %d, resets %d\n",
+                names[k], r[k].volume, ref[k][0], th_norm3(r[k].force), th_norm3(ref[k] + 1), r[k].inverted,
+                r[k].resets);
+    }
+    CHECK(r[1].volume > 1.10);
+    CHECK(r[2].volume > 1.10);
+    CHECK(th_norm3(r[1].force) > 3 * th_norm3(ref[1] + 1));
+    CHECK(th_norm3(r[3].force) < 0.5 * th_norm3(ref[3] + 1));
+}
