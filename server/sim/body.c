@@ -116,10 +116,21 @@ static int ensure_level(sq_body *b, int k, sq_err *err)
     b->mask[k] = sq_malloc((size_t)L->n);
     memset(b->mask[k], 1, (size_t)L->n);
     b->hold_of[k] = sq_malloc(sizeof(int) * (size_t)L->n);
+    b->held[k] = sq_calloc((size_t)L->n, 1);
+    b->held_list[k] = sq_malloc(sizeof(int) * (size_t)L->n);
+    b->nheld[k] = 0;
     for (int i = 0; i < L->n; i++)
         b->hold_of[k][i] = -1;
     b->ready[k] = 1;
     return 0;
+}
+
+/* forget which nodes of level k a tool held (released: reset or lod change) */
+static void clear_held(sq_body *b, int k)
+{
+    for (int h = 0; h < b->nheld[k]; h++)
+        b->held[k][b->held_list[k][h]] = 0;
+    b->nheld[k] = 0;
 }
 
 /* copy displacement and velocity from level src to level dst by interpolation */
@@ -326,6 +337,8 @@ void sq_body_destroy(sq_body *b)
             sq_level_free(&b->level[k]);
         free(b->mask[k]);
         free(b->hold_of[k]);
+        free(b->held[k]);
+        free(b->held_list[k]);
     }
     for (int t = 0; t < SQ_MAX_TOOLS; t++) {
         free(b->grab[t].surf);
@@ -428,6 +441,9 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         prepare_surface_map(b);
         set_lod_levels_fixed(b);
     }
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        if (b->ready[k])
+            clear_held(b, k);
     b->sleeping = 0;
     b->calm = 0;
     return 0;
@@ -443,6 +459,7 @@ void sq_body_reset(sq_body *b)
         memset(b->level[k].v, 0, sizeof(double) * n3);
         memset(b->level[k].f, 0, sizeof(double) * n3);
         sq_level_corot_reset(&b->level[k]);
+        clear_held(b, k);
     }
     if (b->lod) {
         sq_lod_reset(b->lod);
@@ -527,13 +544,28 @@ static const char *health(const sq_body *b, double *value)
     return NULL;
 }
 
-/* residual of level L from its last force pass, over active nodes (mask may be NULL) */
-static double level_residual(const sq_level *L, const double g[3], const unsigned char *active)
+/* the nodes of level k held in the frame just done (hold list of that level) */
+static void mark_held(sq_body *b, int k, const sq_hold *holds, int nholds)
+{
+    clear_held(b, k);
+    for (int h = 0; h < nholds; h++) {
+        int i = holds[h].node;
+        if (!b->held[k][i]) {
+            b->held[k][i] = 1;
+            b->held_list[k][b->nheld[k]++] = i;
+        }
+    }
+}
+
+/* residual of level L from its last force pass, over active nodes (mask may be NULL) that no
+ * tool held (held may be NULL): a held node's unbalanced force is the tool's reaction */
+static double level_residual(const sq_level *L, const double g[3], const unsigned char *active,
+                             const unsigned char *held)
 {
     double gn = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
     double r = 0;
     for (int i = 0; i < L->n; i++) {
-        if ((active && !active[i]) || L->fixed[i] == 7)
+        if ((active && !active[i]) || L->fixed[i] == 7 || (held && held[i]))
             continue;
         double s = 0;
         for (int c = 0; c < 3; c++)
@@ -620,6 +652,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     }
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;
+    mark_held(b, b->cur, b->khold, nk);
 
     if (prof) {
         prof->node_updates = (long)(L->n - nk) * nsub;
@@ -658,6 +691,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
             sq_lod_frame(b->lod, &b->def.material, b->def.gravity, b->def.frame_dt, b->holds, nholds, ntools,
                          force, prof, frame_budget_s);
+            mark_held(b, b->fine, b->holds, nholds);
             sq_lod_node_levels(b->lod, b->node_level);
         } else {
             frame_fixed(b, b->holds, nholds, ntools, force, prof);
@@ -685,7 +719,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
             for (int i = 0; i < b->level[k].n; i++)
                 if (!act || act[i])
                     M += b->level[k].mass[i];
-            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, act));
+            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, act, NULL));
         }
         double vrms = M > 0 ? sqrt(2 * ke / M) : 0;
         int calm = nholds == 0 && vrms < b->sleep_ke_speed * b->diag && res < b->sleep_residual;
@@ -848,7 +882,7 @@ double sq_body_residual(const sq_body *b)
     L.w = sq_malloc(sizeof(double) * n3);
     L.acc = sq_calloc(n3 + 1, sizeof(double)); /* own accumulator: the body's is left untouched */
     sq_level_forces(&L, &b->def.material, b->def.gravity, NULL);
-    double r = level_residual(&L, b->def.gravity, NULL);
+    double r = level_residual(&L, b->def.gravity, NULL, b->held[k]);
     free(L.f);
     free(L.w);
     free(L.acc);
