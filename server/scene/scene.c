@@ -552,7 +552,7 @@ static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
 static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
 {
     static const char *const keys[] = {"name", "levels", "offset", "material", "operator", "fixed", "lod",
-                                       "step_fraction", "elasticity", NULL};
+                                       "step_fraction", "elasticity", "step_bound", NULL};
     if (!cJSON_IsObject(obj))
         return fail(c, path, "expected an object, got %s; see docs/scenes.md", type_name(obj));
     if (check_keys(c, obj, path, keys))
@@ -640,6 +640,14 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
     else
         return fail(c, p, "\"%.40s\" is not an elasticity; use \"linear\" (small strain, the paper's) or "
                           "\"corotational\" (large rotations; fem operator, fixed lod)", el->valuestring);
+
+    /* step bound: gershgorin (default, 2^n substeps) or sharp (fixed lod: Lanczos, any count) */
+    const cJSON *sb = get(obj, "step_bound");
+    join(p, sizeof p, path, "step_bound");
+    if (sb && !(cJSON_IsString(sb) && (!strcmp(sb->valuestring, "gershgorin") || !strcmp(sb->valuestring, "sharp"))))
+        return fail(c, p, "expected \"gershgorin\" (default: row-sum bound, 2^n substeps per frame) or \"sharp\" "
+                          "(fixed lod: Lanczos estimate, any substep count); see docs/stability.md");
+    def->sharp_step = sb && !strcmp(sb->valuestring, "sharp");
 
     /* constraints */
     const cJSON *fx = get_typed(c, obj, path, "fixed", 1, 0, &bad);

@@ -41,6 +41,9 @@ sq_body_def sq_body_def_default(void)
 
 /* ---- helpers ---------------------------------------------------------------------------- */
 
+/* Lanczos steps of the sharp step bound (fixed mode; docs/stability.md) */
+#define SQ_LANCZOS_ITERS 40
+
 static double mesh_diag(const sq_mesh *m)
 {
     double s = 0;
@@ -109,7 +112,9 @@ static int ensure_level(sq_body *b, int k, sq_err *err)
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     }
-    if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0) {
+    if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+        sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
+                                   err) < 0) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d (%d nodes)", b->name, k, b->def.levels[k]->nnodes);
     }
@@ -373,7 +378,9 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
             continue;
         if (sq_level_init(&fresh[k], b->def.levels[k], m, op, b->def.constraints, b->def.nconstraints, err) < 0 ||
             (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
-            sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0) {
+            sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+            sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
+                                       err) < 0) {
             if (fresh[k].n)
                 sq_level_free(&fresh[k]);
             for (int j = 0; j < k; j++)
@@ -639,10 +646,13 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     }
 
     /* substeps: forces on all nodes, feedback on held nodes, integrate the others */
-    int nsub = 1 << L->substeps_log2;
+    /* substeps: 2^n at the Gershgorin bound, or with sharp_step the sharp bound's step, any
+     * integer count (adaptive mode keeps 2^n per level) */
+    int nsub = b->def.sharp_step ? L->nsub : 1 << L->substeps_log2;
+    double sdt = b->def.sharp_step ? L->dt_fixed : L->dt;
     double inv = 1.0 / nsub;
     for (int s = 0; s < nsub; s++) {
-        sq_level_step(L, mat, g, L->dt, nk ? mask : NULL); /* L->f: forces before the update */
+        sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
         for (int h = 0; h < nk; h++) {
             int i = b->khold[h].node, t = b->khold[h].tool;
             if (force && t >= 0 && t < ntools)
@@ -759,12 +769,17 @@ const sq_mesh *sq_body_mesh(const sq_body *b, int level)
 
 double sq_body_level_dt(const sq_body *b, int level)
 {
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].dt : 0;
+    if (!(level >= 0 && level < SQ_MAX_LEVELS && b->ready[level]))
+        return 0;
+    return b->def.lod.mode == SQ_LOD_FIXED && b->def.sharp_step ? b->level[level].dt_fixed : b->level[level].dt;
 }
 
 double sq_body_level_bound(const sq_body *b, int level)
 {
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].bound : 0;
+    if (!(level >= 0 && level < SQ_MAX_LEVELS && b->ready[level]))
+        return 0;
+    return b->def.lod.mode == SQ_LOD_FIXED && b->def.sharp_step ? b->level[level].bound_sharp
+                                                                 : b->level[level].bound;
 }
 
 const double *sq_body_displacement(const sq_body *b, int level)

@@ -46,6 +46,12 @@ typedef struct sq_level {
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
     sq_corot *corot;       /* corotational elasticity state (sim/corot.c), NULL: linear */
+    /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
+     * as the ceiling), its bound, and any integer number of substeps per frame */
+    double omega_est;      /* rad/s */
+    double bound_sharp;    /* s */
+    int nsub;              /* substeps per frame */
+    double dt_fixed;       /* frame_dt / nsub, s */
 } sq_level;
 
 /* a tool's hold on one node of the finest loaded level (the rendered surface's mesh):
@@ -69,6 +75,15 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
  * frame period at fraction `step_fraction` of it; -1 + err if more than 2^20 substeps needed */
 int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
                          sq_err *err);
+
+/* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes estimated by
+ * `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
+ * from it, and the smallest integer substep count n with frame_dt / n <= step_fraction * bound
+ * (sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
+int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
+                               int iters, sq_err *err);
+/* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2 */
+double sq_level_lanczos_max(const sq_level *L, int iters);
 
 /* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
  * NULL), reading d and v of all neighbours (ghost values included) */

@@ -78,6 +78,8 @@ typedef struct sq_body_def {
     double frame_dt;      /* frame period, s (1 / frame_rate) */
     double step_fraction; /* fraction of the stability bound to run at (default 0.9) */
     sq_elasticity_kind elasticity; /* linear (default) or corotational */
+    int sharp_step;       /* fixed mode: 1 = step from the Lanczos estimate of the bound (Gershgorin
+                             as ceiling), any integer substep count; 0 (default) = Gershgorin, 2^n */
 } sq_body_def;
 
 /* defaults: fem, gravity 0, 50 Hz, fixed lod at level 0, budget 0.95, step_fraction 0.9 */
