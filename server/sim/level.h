@@ -109,6 +109,12 @@ void sq_level_laplacian(const sq_level *L, int i, double out[3]);
 int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
                           double *d, int *iterations, sq_err *err);
 
+/* the same static solve with average nodal pressure tets (volumetric strain averaged at the
+ * nodes; a locking-free option measured in docs/physics.md section 10, not yet selectable for
+ * the simulation); mat gives mu and lambda */
+int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
+                                         double tol, int max_iter, double *d, int *iterations, sq_err *err);
+
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);
 
