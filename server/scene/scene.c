@@ -552,7 +552,7 @@ static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
 static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
 {
     static const char *const keys[] = {"name", "levels", "offset", "material", "operator", "fixed", "lod",
-                                       "step_fraction", "elasticity", "step_bound", NULL};
+                                       "step_fraction", "elasticity", "step_bound", "pressure", NULL};
     if (!cJSON_IsObject(obj))
         return fail(c, path, "expected an object, got %s; see docs/scenes.md", type_name(obj));
     if (check_keys(c, obj, path, keys))
@@ -648,6 +648,14 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
         return fail(c, p, "expected \"gershgorin\" (default: row-sum bound, 2^n substeps per frame) or \"sharp\" "
                           "(fixed lod: Lanczos estimate, any substep count); see docs/stability.md");
     def->sharp_step = sb && !strcmp(sb->valuestring, "sharp");
+
+    /* pressure: element (default) or nodal (average nodal pressure tets: less locking) */
+    const cJSON *pr = get(obj, "pressure");
+    join(p, sizeof p, path, "pressure");
+    if (pr && !(cJSON_IsString(pr) && (!strcmp(pr->valuestring, "element") || !strcmp(pr->valuestring, "nodal"))))
+        return fail(c, p, "expected \"element\" (default: one pressure per tet) or \"nodal\" (average nodal "
+                          "pressure tets: less locking; fem, linear, fixed lod); see docs/physics.md section 10");
+    def->nodal_pressure = pr && !strcmp(pr->valuestring, "nodal");
 
     /* constraints */
     const cJSON *fx = get_typed(c, obj, path, "fixed", 1, 0, &bad);
@@ -762,6 +770,12 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
     if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->op != SQ_OPERATOR_FEM)
         return fail(c, p, "\"corotational\" needs \"operator\": \"fem\" (the paper operator has no corotational "
                           "form here); use \"elasticity\": \"linear\" with the paper operator");
+    if (def->nodal_pressure && (def->elasticity != SQ_ELASTICITY_LINEAR || def->op != SQ_OPERATOR_FEM ||
+                                def->lod.mode != SQ_LOD_FIXED)) {
+        join(p, sizeof p, path, "pressure");
+        return fail(c, p, "\"nodal\" runs with \"operator\": \"fem\", \"elasticity\": \"linear\" and fixed lod only; "
+                          "use those, or \"pressure\": \"element\"");
+    }
     if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->lod.mode == SQ_LOD_ADAPTIVE)
         return fail(c, p, "\"corotational\" runs in fixed lod mode only (adaptive mode does not support it yet): "
                           "use \"lod\": {\"mode\": \"fixed\"} with \"corotational\", or \"elasticity\": "

@@ -107,8 +107,9 @@ static int ensure_level(sq_body *b, int k, sq_err *err)
     if (sq_level_init(L, b->def.levels[k], &b->def.material, b->def.op, b->def.constraints,
                       b->def.nconstraints, err) < 0)
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
-    if (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
-        sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) {
+    if ((b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
+         sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) ||
+        (b->def.nodal_pressure && sq_level_anp_enable(L, &b->def.material, b->def.op, err) < 0)) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     }
@@ -208,6 +209,18 @@ static void set_lod_levels_fixed(sq_body *b)
     "use \"operator\": \"fem\" with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" with "  \
     "the paper operator"
 
+#define NODAL_MSG                                                                                          \
+    "nodal pressure tets (\"pressure\": \"nodal\") run with the fem operator, linear elasticity and fixed "   \
+    "lod only: use those, or \"pressure\": \"element\""
+
+/* is nodal pressure allowed with the rest? */
+static int check_pressure(int nodal, sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
+{
+    if (nodal && (e != SQ_ELASTICITY_LINEAR || op != SQ_OPERATOR_FEM || mode != SQ_LOD_FIXED))
+        return sq_err_set(err, NODAL_MSG);
+    return 0;
+}
+
 /* is elasticity e allowed with operator op and lod mode? 0, or -1 + err naming the combination */
 static int check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
 {
@@ -253,7 +266,8 @@ static int check_def(const sq_body_def *def, sq_err *err)
         if (cn->axes == 0 || cn->axes > 7)
             return sq_err_set(err, "constraint %d: axes mask %u must be 1..7 (bits x=1, y=2, z=4)", c, cn->axes);
     }
-    if (check_elasticity(def->elasticity, def->op, def->lod.mode, err) < 0)
+    if (check_elasticity(def->elasticity, def->op, def->lod.mode, err) < 0 ||
+        check_pressure(def->nodal_pressure, def->elasticity, def->op, def->lod.mode, err) < 0)
         return -1;
     return sq_material_check(&def->material, err);
 }
@@ -369,7 +383,8 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         return -1;
     if (op != SQ_OPERATOR_FEM && op != SQ_OPERATOR_PAPER)
         return sq_err_set(err, "operator %d is unknown: use fem or paper", (int)op);
-    if (check_elasticity(b->def.elasticity, op, b->def.lod.mode, err) < 0)
+    if (check_elasticity(b->def.elasticity, op, b->def.lod.mode, err) < 0 ||
+        check_pressure(b->def.nodal_pressure, b->def.elasticity, op, b->def.lod.mode, err) < 0)
         return -1;
     /* build every loaded level anew; swap only when all succeed */
     sq_level fresh[SQ_MAX_LEVELS];
@@ -378,6 +393,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
             continue;
         if (sq_level_init(&fresh[k], b->def.levels[k], m, op, b->def.constraints, b->def.nconstraints, err) < 0 ||
             (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
+            (b->def.nodal_pressure && sq_level_anp_enable(&fresh[k], m, op, err) < 0) ||
             sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
             sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
                                        err) < 0) {
@@ -412,7 +428,8 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
     if (check_lod(b, lod, err) < 0)
         return -1;
     int was_adaptive = b->def.lod.mode == SQ_LOD_ADAPTIVE;
-    if (check_elasticity(b->def.elasticity, b->def.op, lod->mode, err) < 0)
+    if (check_elasticity(b->def.elasticity, b->def.op, lod->mode, err) < 0 ||
+        check_pressure(b->def.nodal_pressure, b->def.elasticity, b->def.op, lod->mode, err) < 0)
         return -1;
     if (lod->mode == SQ_LOD_ADAPTIVE) {
         for (int k = 0; k < b->nuse; k++)
@@ -480,7 +497,8 @@ void sq_body_reset(sq_body *b)
 
 int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
 {
-    if (check_elasticity(e, b->def.op, b->def.lod.mode, err) < 0)
+    if (check_elasticity(e, b->def.op, b->def.lod.mode, err) < 0 ||
+        check_pressure(b->def.nodal_pressure, e, b->def.op, b->def.lod.mode, err) < 0)
         return -1;
     if (e == b->def.elasticity)
         return 0;
@@ -499,6 +517,32 @@ int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
         }
     }
     b->def.elasticity = e;
+    b->sleeping = 0;
+    b->calm = 0;
+    return 0;
+}
+
+int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err)
+{
+    nodal = nodal != 0;
+    if (check_pressure(nodal, b->def.elasticity, b->def.op, b->def.lod.mode, err) < 0)
+        return -1;
+    if (nodal == b->def.nodal_pressure)
+        return 0;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        if (!b->ready[k])
+            continue;
+        if (nodal) {
+            if (sq_level_anp_enable(&b->level[k], &b->def.material, b->def.op, err) < 0) {
+                for (int j = 0; j < k; j++)
+                    sq_level_anp_free(&b->level[j]);
+                return -1;
+            }
+        } else {
+            sq_level_anp_free(&b->level[k]);
+        }
+    }
+    b->def.nodal_pressure = nodal;
     b->sleeping = 0;
     b->calm = 0;
     return 0;
@@ -869,6 +913,8 @@ double sq_level_elastic_energy(const sq_level *L)
 {
     if (L->corot)
         return sq_level_corot_energy(L);
+    if (L->anp)
+        return sq_level_anp_energy(L);
     double e = 0;
     for (int i = 0; i < L->n; i++) {
         const double *di = L->d + 3 * (size_t)i;

@@ -207,6 +207,7 @@ void sq_level_free(sq_level *L)
     free(L->up_col);
     free(L->Kup);
     sq_level_corot_free(L);
+    sq_level_anp_free(L);
     memset(L, 0, sizeof *L);
 }
 
@@ -574,6 +575,11 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
         sq_level_corot_step(L, mat, gravity, dt, mask);
         return;
     }
+    if (L->anp) {
+        sq_level_anp_forces(L, mat, gravity);
+        sq_level_integrate(L, dt, mask);
+        return;
+    }
     if (mat->use_viscosity && L->D) {
         /* the viscosity blocks are applied row by row: two passes */
         sq_level_forces(L, mat, gravity, NULL);
@@ -631,6 +637,10 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
 
     if (L->corot) { /* all nodes (a superset of the active ones) */
         sq_level_corot_forces(L, mat, gravity);
+        return;
+    }
+    if (L->anp) {
+        sq_level_anp_forces(L, mat, gravity);
         return;
     }
     if (!active) {

@@ -14,6 +14,7 @@
 #include "sim/sim.h"
 
 typedef struct sq_corot sq_corot;
+typedef struct sq_anp sq_anp;
 
 typedef struct sq_level {
     const sq_mesh *mesh;   /* rest mesh (borrowed) */
@@ -46,6 +47,7 @@ typedef struct sq_level {
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
     sq_corot *corot;       /* corotational elasticity state (sim/corot.c), NULL: linear */
+    sq_anp *anp;           /* average nodal pressure tets (sim/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
      * as the ceiling), its bound, and any integer number of substeps per frame */
     double omega_est;      /* rad/s */
@@ -110,10 +112,17 @@ int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol
                           double *d, int *iterations, sq_err *err);
 
 /* the same static solve with average nodal pressure tets (volumetric strain averaged at the
- * nodes; a locking-free option measured in docs/physics.md section 10, not yet selectable for
- * the simulation); mat gives mu and lambda */
+ * nodes; docs/physics.md section 10); mat gives mu and lambda */
 int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
                                          double tol, int max_iter, double *d, int *iterations, sq_err *err);
+
+/* average nodal pressure tets (sim/anp.c; fem operator, linear elasticity, fixed mode): with
+ * L->anp set, sq_level_step and sq_level_forces use them; enable refuses the paper operator */
+int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
+void sq_level_anp_free(sq_level *L);
+void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
+void sq_level_anp_forces(sq_level *L, const sq_material *mat, const double g[3]);
+double sq_level_anp_energy(const sq_level *L);
 
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);

@@ -80,6 +80,7 @@ typedef struct sq_body_def {
     sq_elasticity_kind elasticity; /* linear (default) or corotational */
     int sharp_step;       /* fixed mode: 1 = step from the Lanczos estimate of the bound (Gershgorin
                              as ceiling), any integer substep count; 0 (default) = Gershgorin, 2^n */
+    int nodal_pressure;   /* 1: average nodal pressure tets (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
 /* defaults: fem, gravity 0, 50 Hz, fixed lod at level 0, budget 0.95, step_fraction 0.9 */
@@ -137,6 +138,9 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err);
 /* linear <-> corotational; corotational is refused (nothing changes) with the paper operator or
  * in adaptive lod mode; the state is kept */
 int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err);
+/* element-wise (0) <-> average nodal pressure (1) tets; refused (nothing changes) with the paper
+ * operator, corotational elasticity or adaptive lod; the state is kept */
+int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err);
 
 /* back to rest (zero displacement and velocity, coarse level) */
 void sq_body_reset(sq_body *b);

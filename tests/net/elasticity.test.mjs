@@ -62,3 +62,18 @@ test('set elasticity: adaptive lod refuses corotational (sphere-grab ships corot
   assert.equal(a.bodies[0].settings.lod.mode, 'fixed');
   await c.close();
 });
+
+test('set pressure: nodal on a fixed linear fem body, refused with corotational', async () => {
+  const c = await SquishClient.connect(srv.url);
+  await c.open('paper-cube');
+  let a = await c.set({ pressure: 'nodal' });
+  assert.equal(a.bodies[0].settings.pressure, 'nodal');
+  await assert.rejects(c.set({ elasticity: 'corotational' }), refused(/nodal pressure tets/));
+  a = await c.set({ pressure: 'element', elasticity: 'corotational' });
+  assert.equal(a.bodies[0].settings.pressure, 'element');
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  await assert.rejects(c.set({ pressure: 'nodal' }), refused(/linear elasticity/));
+  a = await c.set({ elasticity: 'linear', pressure: 'nodal' });
+  assert.equal(a.bodies[0].settings.pressure, 'nodal');
+  await c.close();
+});

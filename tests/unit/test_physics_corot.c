@@ -352,6 +352,19 @@ SQ_TEST(corot_scene_key_and_refusals)
     sc = sphere_grab_with("\"corotational\"", "3", &e);
     CHECK(sc == NULL);
     CHECK_CONTAINS(e.msg, "expected \"linear\" or \"corotational\"");
+    /* pressure: nodal with corotational refused at load; with linear accepted; a bad value */
+    memset(&e, 0, sizeof e);
+    sc = sphere_grab_with("\"elasticity\": \"corotational\",", "\"elasticity\": \"corotational\", \"pressure\": \"nodal\",", &e);
+    CHECK(sc == NULL);
+    CHECK_CONTAINS(e.msg, "bodies[0].pressure");
+    sc = sphere_grab_with("\"elasticity\": \"corotational\",", "\"pressure\": \"nodal\",", &e);
+    TH_REQUIRE(sc);
+    CHECK(sc->bodies[0].nodal_pressure == 1);
+    sq_scene_free(sc);
+    memset(&e, 0, sizeof e);
+    sc = sphere_grab_with("\"elasticity\": \"corotational\",", "\"pressure\": \"node\",", &e);
+    CHECK(sc == NULL);
+    CHECK_CONTAINS(e.msg, "expected \"element\"");
     /* default: linear */
     sc = sphere_grab_with("\"elasticity\": \"corotational\",", "", &e);
     TH_REQUIRE(sc);

@@ -97,3 +97,66 @@ SQ_TEST(locking_beam_tip_today_and_nodal_pressure)
     for (int k = 0; k < 6; k++)
         CHECK(r_std[k][2] < r_std[k][1] && r_std[k][1] < r_std[k][0]);
 }
+
+/* the simulation with "pressure": "nodal": the damped run settles to the nodal pressure static
+ * solution (relative 1e-6: the step uses that operator), which bends 2x today's at nu 0.45 on
+ * this mesh; the refused combinations and run-time switching */
+SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
+{
+    sq_mesh *m = th_box(20, 2, 2, 1, 0.1, 0.1);
+    TH_REQUIRE(m);
+    sq_body_def def = sq_body_def_default();
+    def.nlevels = 1;
+    def.levels[0] = m;
+    CHECK(sq_material_from_E_nu(&def.material, 1e7, 0.45, NULL) == 0);
+    def.material.density = 1000;
+    def.material.rayleigh_mass = 40;
+    def.material.rayleigh_stiffness = 0;
+    def.gravity[2] = -9.81;
+    def.nconstraints = 1;
+    def.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {1e-3, 1, 1}, 7};
+    def.nodal_pressure = 1;
+    sq_err e = {{0}};
+    def.elasticity = SQ_ELASTICITY_COROTATIONAL;
+    CHECK(sq_body_create(&def, &e) == NULL);
+    CHECK_CONTAINS(e.msg, "nodal pressure tets");
+    def.elasticity = SQ_ELASTICITY_LINEAR;
+    def.op = SQ_OPERATOR_PAPER;
+    CHECK(sq_body_create(&def, &e) == NULL);
+    def.op = SQ_OPERATOR_FEM;
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_body_set_sleep(b, 0, 0, 0);
+    for (int f = 0; f < 250; f++)
+        sq_body_frame(b, NULL, 0, NULL, NULL, 0);
+    sq_level *L = sq_body_level(b, 0);
+    double *ds = malloc(sizeof(double) * 3 * m->nnodes), *dl = malloc(sizeof(double) * 3 * m->nnodes);
+    CHECK(sq_level_static_solve_nodal_pressure(L, &def.material, def.gravity, 1e-12, 100000, ds, NULL, &e) == 0);
+    CHECK(sq_level_static_solve(L, def.gravity, 1e-12, 100000, dl, NULL, &e) == 0);
+    double diff = 0, scale = 0, tl = 0;
+    for (int i = 0; i < 3 * m->nnodes; i++) {
+        diff = th_max(diff, fabs(L->d[i] - ds[i]));
+        scale = th_max(scale, fabs(ds[i]));
+        tl = th_max(tl, fabs(dl[i]));
+    }
+    fprintf(stderr, "    settled vs nodal pressure static: %.3g relative; max |d| nodal %.4g m, element %.4g m\n",
+            diff / scale, scale, tl);
+    CHECK(diff <= 1e-6 * scale);
+    CHECK(scale > 1.8 * tl);
+    CHECK(sq_body_residual(b) < 1e-6);
+    /* refusals while nodal: corotational, paper, adaptive; switching back keeps the state */
+    CHECK(sq_body_set_elasticity(b, SQ_ELASTICITY_COROTATIONAL, &e) < 0);
+    CHECK_CONTAINS(e.msg, "nodal pressure tets");
+    CHECK(sq_body_set_material(b, &def.material, SQ_OPERATOR_PAPER, &e) < 0);
+    CHECK(sq_body_get_def(b)->nodal_pressure == 1);
+    double e_np = sq_body_elastic_energy(b);
+    CHECK(sq_body_set_pressure(b, 0, &e) == 0);
+    CHECK(sq_body_level(b, 0)->anp == NULL);
+    CHECK(sq_body_elastic_energy(b) > e_np); /* the same state costs more energy element-wise */
+    CHECK(sq_body_set_pressure(b, 1, &e) == 0);
+    CHECK(sq_body_level(b, 0)->anp != NULL);
+    free(ds);
+    free(dl);
+    sq_body_destroy(b);
+    sq_mesh_free(m);
+}
