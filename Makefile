@@ -87,6 +87,8 @@ bench: deps node-deps
 	@$(MAKE) --no-print-directory squish
 	@echo "=== step and operators"
 	$(BUILD)/squish bench
+	@echo "=== step bounds per shipped fixed-lod scene: Gershgorin (2^n) against sharp (Lanczos, any integer) substeps"
+	@for f in meshes/scenes/*.json; do echo "$$f"; $(BUILD)/squish run $$f --frames 0 --out $(BUILD)/bench-bounds | grep "step bounds" || true; done
 	@echo "=== scenes: frame-budget headroom, threads"
 	$(BUILD)/squish tradeoff --bench
 	@echo "=== speed against accuracy (quick grid)"
