@@ -26,7 +26,7 @@ SAN_OBJ  := $(LIB_SRC:%.c=$(BUILD)/san/%.o) $(TEST_SRC:%.c=$(BUILD)/san/%.o)
 # Debian packages the build, the tests and the benchmarks need
 APT_PKGS := build-essential pkg-config libwebsockets-dev libcjson-dev zlib1g-dev libosmesa6-dev \
             libpng-dev clang libclang-rt-14-dev gnuplot-nox chromium hyperfine \
-            python3-vtk9 nginx python3-websockets
+            python3-vtk9 nginx python3-websockets python3-numpy python3-scipy
 
 .PHONY: all squish deps run test unit asan bench meshes fuzz clean node-deps install uninstall
 
@@ -118,6 +118,8 @@ bench: deps node-deps
 	@$(MAKE) --no-print-directory squish
 	@echo "=== step and operators"
 	$(BUILD)/squish bench
+	@echo "=== step bounds per shipped fixed-lod scene: Gershgorin (2^n) against sharp (Lanczos, any integer) substeps"
+	@for f in meshes/scenes/*.json; do echo "$$f"; $(BUILD)/squish run $$f --frames 0 --out $(BUILD)/bench-bounds | grep "step bounds" || true; done
 	@echo "=== scenes: frame-budget headroom, threads"
 	$(BUILD)/squish tradeoff --bench
 	@echo "=== speed against accuracy (quick grid)"

@@ -19,11 +19,13 @@
 
 static int usage(FILE *f)
 {
-    fprintf(f, "usage: squish bench [step] [--sizes LIST] [--seconds T] [--op fem|paper|both]\n"
+    fprintf(f, "usage: squish bench [step] [--sizes LIST] [--seconds T] [--op fem|paper|both|corot]\n"
                "       squish bench operators\n"
                "       squish bench cube [--meshes DIR] [--seconds T] [--out FILE]\n"
                "  step       node-steps per second of the fixed-resolution step on box meshes\n"
-               "             (LIST: node counts such as 1k,10k,100k,1M; default all four)\n"
+               "             (LIST: node counts such as 1k,10k,100k,1M; default all four); fem, paper\n"
+               "             and fem with corotational elasticity (fem-corot) by default; --op corot:\n"
+               "             fem linear beside fem-corot\n"
                "  operators  static corner/tip deflection of the paper cube and a clamped beam,\n"
                "             paper vs fem operator\n"
                "  cube       the paper's section 2.6: corner (1,1,1) vertical displacement over time of\n"
@@ -55,6 +57,8 @@ static double bytes_per_node_step(const sq_level *L)
 {
     double per_entry = 9 * sizeof(double) + sizeof(int);
     double per_node = 4 + 96 + 48 + 24 + 8 + 1;
+    if (L->corot) /* per tet: 3 gradients + volume + quaternion read, quaternion written, 4 indices */
+        return (14.0 * 8 + 4 * 8 + 16) * L->mesh->ntets / L->n + per_node;
     return per_entry * L->up_start[L->n] / L->n + per_node;
 }
 
@@ -109,7 +113,7 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
     double bw = measure_bandwidth();
     printf("# rates per CPU second of the benchmark thread (wall-clock rate beside it)\n"
            "# measured triad bandwidth of this thread: %.1f GB/s ('of meas.' uses it)\n", bw / 1e9);
-    printf("%-8s %8s %9s %6s %8s %13s %8s %11s %10s %8s %9s\n", "operator", "nodes", "csr", "steps", "cpu s",
+    printf("%-9s %8s %9s %6s %8s %13s %8s %11s %10s %8s %9s\n", "operator", "nodes", "csr", "steps", "cpu s",
            "Mnode-steps/s", "wall M/s", "B/node-step", "bound M/s", "of bound", "of meas.");
     for (int s = 0; s < nsizes; s++) {
         int c = cells_for(want[s]);
@@ -120,14 +124,23 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             fprintf(stderr, "squish bench step: %s\n", err.msg);
             return 1;
         }
-        for (int op = 0; op < 2; op++) {
-            if (!(op_mask & (1 << op)))
+        double fem_cpu_rate = 0;
+        for (int variant = 0; variant < 3; variant++) {
+            if (!(op_mask & (1 << variant)))
                 continue;
+            int op = variant == 1; /* 0 fem, 1 paper, 2 fem corotational */
+            if (variant == 2 && m->nnodes > 200000) { /* ~130 B per tet: 0.8 GB at 1M nodes */
+                printf("# %d nodes: fem-corot skipped (its per-tet state would need %.2g GB)\n", m->nnodes,
+                       130e-9 * m->ntets);
+                continue;
+            }
+            const char *name = variant == 0 ? "fem" : variant == 1 ? "paper" : "fem-corot";
             sq_body_def def = sq_body_def_default();
             sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-3}, 7};
             double g[3] = {0, 0, -9.81};
             sq_level L;
             if (sq_level_init(&L, m, &def.material, (sq_operator_kind)op, &fixed, 1, &err) < 0 ||
+                (variant == 2 && sq_level_corot_enable(&L, &def.material, SQ_OPERATOR_FEM, &err) < 0) ||
                 sq_level_choose_step(&L, &def.material, def.frame_dt, def.step_fraction, &err) < 0) {
                 fprintf(stderr, "squish bench step: %s\n", err.msg);
                 sq_mesh_free(m);
@@ -135,7 +148,7 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             }
             /* warm up, then time batches of steps until `seconds` have passed */
             char label[64];
-            snprintf(label, sizeof label, "bench step %s %d nodes", op ? "paper" : "fem", m->nnodes);
+            snprintf(label, sizeof label, "bench step %s %d nodes", name, m->nnodes);
             sq_progress pr;
             sq_progress_begin(&pr, label, seconds);
             sq_level_step(&L, &def.material, g, L.dt, NULL);
@@ -154,9 +167,14 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             double rate = (double)m->nnodes * steps / cpu, wall = (double)m->nnodes * steps / t;
             double bps = bytes_per_node_step(&L);
             double bound = SQ_BENCH_BANDWIDTH / bps;
-            printf("%-8s %8d %9d %6ld %8.3f %13.2f %8.2f %11.0f %10.2f %7.0f%% %8.0f%%\n", op ? "paper" : "fem",
+            printf("%-9s %8d %9d %6ld %8.3f %13.2f %8.2f %11.0f %10.2f %7.0f%% %8.0f%%\n", name,
                    m->nnodes, L.nnz, steps, cpu, rate / 1e6, wall / 1e6, bps, bound / 1e6, 100 * rate / bound,
                    100 * rate * bps / bw);
+            if (variant == 0)
+                fem_cpu_rate = rate;
+            if (variant == 2 && fem_cpu_rate > 0)
+                printf("# %d nodes: corotational costs %.2fx the linear fem step per node-step (CPU time; "
+                       "%d tets)\n", m->nnodes, fem_cpu_rate / rate, m->ntets);
             fflush(stdout);
             sq_level_free(&L);
         }
@@ -374,7 +392,7 @@ int sq_cmd_bench(int argc, char **argv)
     int seconds_given = 0;
     const char *what = "all", *sizes = "1k,10k,100k,1M";
     double seconds = 1.0;
-    int op_mask = 3;
+    int op_mask = 7;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h"))
             return usage(stdout);
@@ -403,8 +421,10 @@ int sq_cmd_bench(int argc, char **argv)
                 op_mask = 2;
             else if (!strcmp(argv[i], "both"))
                 op_mask = 3;
+            else if (!strcmp(argv[i], "corot"))
+                op_mask = 5; /* linear fem beside corotational */
             else {
-                fprintf(stderr, "squish bench: --op '%s' must be fem, paper or both\n", argv[i]);
+                fprintf(stderr, "squish bench: --op '%s' must be fem, paper, both or corot\n", argv[i]);
                 return 2;
             }
         } else {

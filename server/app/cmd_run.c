@@ -18,6 +18,7 @@
 
 #include "app/commands.h"
 #include "scene/scene.h"
+#include "sim/level.h"
 
 /* --until-rest defaults (documented in docs/scenes.md) */
 #define REST_KE_PER_KG 1e-8   /* kinetic energy per kg of body, J/kg (rms speed ~1.4e-4 m/s) */
@@ -107,8 +108,9 @@ static void print_setup(const sq_scene *s, const sq_world *w)
         const sq_body_def *def = sq_body_get_def(w->bodies[b]);
         double E, nu;
         sq_material_E_nu(&def->material, &E, &nu);
-        printf("body %s: %s operator, %s lod, E %.4g Pa, nu %.4g, density %g kg/m^3\n", s->body_names[b],
-               def->op == SQ_OPERATOR_PAPER ? "paper" : "fem",
+        printf("body %s: %s operator, %s elasticity, %s lod, E %.4g Pa, nu %.4g, density %g kg/m^3\n",
+               s->body_names[b], def->op == SQ_OPERATOR_PAPER ? "paper" : "fem",
+               def->elasticity == SQ_ELASTICITY_COROTATIONAL ? "corotational" : "linear",
                def->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed", E, nu, def->material.density);
         int nl = sq_body_nlevels(w->bodies[b]);
         for (int k = 0; k < nl; k++) {
@@ -122,6 +124,12 @@ static void print_setup(const sq_scene *s, const sq_world *w)
             }
             printf("  level %d (%d nodes): bound %.3g s, %ld substeps/frame, dt %.3g s\n", s->level_index[b][k],
                    m ? m->nnodes : 0, bound, sub, dt);
+            const sq_level *L = sq_body_level(w->bodies[b], k);
+            if (L && def->lod.mode == SQ_LOD_FIXED)
+                printf("    step bounds: Gershgorin %.3g s (%d substeps, 2^n), sharp %.3g s (Lanczos omega %.4g rad/s, "
+                       "Gershgorin/Lanczos %.3f: %d substeps)%s\n", L->bound, 1 << L->substeps_log2, L->bound_sharp,
+                       L->omega_est, L->omega_max / L->omega_est, L->nsub,
+                       def->sharp_step ? ", sharp in use" : ", Gershgorin in use");
         }
     }
     fflush(stdout);

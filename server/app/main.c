@@ -15,7 +15,7 @@ static const struct {
     {"run", sq_cmd_run, "run SCENE.json|--default [--frames N | --seconds T | --until-rest] [--realtime] [--out DIR]"},
     {"serve", sq_cmd_serve, "serve [--host 127.0.0.1] [--port 8080] [--scenes DIR] [--web DIR] [--token T] [--lockstep] ..."},
     {"render", sq_cmd_render, "render SCENE.json|--default [--frames N] [--every K] [--size WxH] [--color level|plain|stress] [--camera AZ,EL[,DIST]] --out DIR"},
-    {"bench", sq_cmd_bench, "bench [step|operators|cube] [--sizes LIST] [--seconds T] [--op fem|paper|both]"},
+    {"bench", sq_cmd_bench, "bench [step|operators|cube] [--sizes LIST] [--seconds T] [--op fem|paper|both|corot]"},
     {"tradeoff", sq_cmd_tradeoff, "tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K] | tradeoff --bench"},
     {"sweep", sq_cmd_sweep, "sweep [--out DIR] [--quick] [--verbose]  (stability at the extremes)"},
 };

@@ -96,6 +96,9 @@ typedef struct sq_request {
         double E, nu, density;
         int has_operator;
         sq_operator_kind op;
+        int has_elasticity;
+        sq_elasticity_kind elasticity;
+        int has_pressure, nodal_pressure;
         int has_mass, has_stiffness;   /* damping */
         double mass, stiffness;
         int has_mode, has_level, has_split, has_merge, has_max_level, has_budget;

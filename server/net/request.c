@@ -229,6 +229,8 @@ static int expect_object(const cJSON *v, const char *path, sq_net_error *err)
 static const char *const roles[] = {"control", "view", NULL};
 static const char *const shapes[] = {"sphere", "box", "grab", NULL};
 static const char *const operators[] = {"fem", "paper", NULL};
+static const char *const elasticities[] = {"linear", "corotational", NULL};
+static const char *const pressures[] = {"element", "nodal", NULL};
 static const char *const lod_modes[] = {"fixed", "adaptive", NULL};
 
 static int decode_hello(const cJSON *o, sq_request *r, sq_net_error *err)
@@ -359,7 +361,7 @@ static int decode_body(const cJSON *o, const char *path, int *body, sq_net_error
 static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
 {
     static const char *const f[] = {"type", "ref", "body", "material", "operator", "damping",
-                                    "lod", NULL};
+                                    "lod", "elasticity", "pressure", NULL};
     static const char *const fm[] = {"E", "nu", "density", NULL};
     static const char *const fd[] = {"mass", "stiffness", NULL};
     static const char *const fl[] = {"mode", "level", "split", "merge", "max_level", "budget",
@@ -398,6 +400,18 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
             return -1;
         r->set.has_operator = given = 1;
         r->set.op = e ? SQ_OPERATOR_PAPER : SQ_OPERATOR_FEM;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(o, "elasticity"))) {
+        if (get_enum(v, "set.elasticity", elasticities, &e, err))
+            return -1;
+        r->set.has_elasticity = given = 1;
+        r->set.elasticity = e ? SQ_ELASTICITY_COROTATIONAL : SQ_ELASTICITY_LINEAR;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(o, "pressure"))) {
+        if (get_enum(v, "set.pressure", pressures, &e, err))
+            return -1;
+        r->set.has_pressure = given = 1;
+        r->set.nodal_pressure = e;
     }
     if ((m = cJSON_GetObjectItemCaseSensitive(o, "damping"))) {
         if (expect_object(m, "set.damping", err) || check_fields(m, "set.damping", fd, err))
@@ -450,7 +464,7 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
     }
     if (!given)
         return fail(err, "bad_field",
-                    "set: nothing to change; give material, operator, damping or lod");
+                    "set: nothing to change; give material, operator, elasticity, pressure, damping or lod");
     return 0;
 }
 

@@ -103,6 +103,8 @@ static cJSON *settings_json(const sq_world *w, int bi)
     cJSON_AddNumberToObject(dm, "mass", d->material.rayleigh_mass);
     cJSON_AddNumberToObject(dm, "stiffness", d->material.rayleigh_stiffness);
     cJSON_AddStringToObject(o, "operator", d->op == SQ_OPERATOR_PAPER ? "paper" : "fem");
+    cJSON_AddStringToObject(o, "elasticity", d->elasticity == SQ_ELASTICITY_COROTATIONAL ? "corotational" : "linear");
+    cJSON_AddStringToObject(o, "pressure", d->nodal_pressure ? "nodal" : "element");
     cJSON *l = cJSON_AddObjectToObject(o, "lod");
     cJSON_AddStringToObject(l, "mode", d->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed");
     cJSON_AddNumberToObject(l, "level", sq_world_listed_level(w, bi, d->lod.level));
@@ -516,6 +518,8 @@ static void do_set(sq_session *s, const sq_job *j)
     sq_material old_m[SQ_MAX_BODIES];
     sq_operator_kind old_op[SQ_MAX_BODIES];
     sq_lod_def old_lod[SQ_MAX_BODIES];
+    sq_elasticity_kind old_el[SQ_MAX_BODIES];
+    int old_np[SQ_MAX_BODIES];
     int changed_mat = r->set.has_E || r->set.has_nu || r->set.has_density || r->set.has_operator ||
                       r->set.has_mass || r->set.has_stiffness;
     int changed_lod = r->set.has_mode || r->set.has_level || r->set.has_split || r->set.has_merge ||
@@ -526,9 +530,18 @@ static void do_set(sq_session *s, const sq_job *j)
         old_m[b] = d->material;
         old_op[b] = d->op;
         old_lod[b] = d->lod;
+        old_el[b] = d->elasticity;
+        old_np[b] = d->nodal_pressure;
         sq_err err = {{0}};
         int rc = 0;
-        if (changed_mat) {
+        /* pressure: element first, nodal last (it needs fem, linear and fixed lod) */
+        if (r->set.has_pressure && !r->set.nodal_pressure)
+            rc = sq_body_set_pressure(body, 0, &err);
+        /* elasticity: linear before the other changes, corotational after them (it needs fem and
+         * fixed lod, which this same request may set) */
+        if (!rc && r->set.has_elasticity && r->set.elasticity == SQ_ELASTICITY_LINEAR)
+            rc = sq_body_set_elasticity(body, SQ_ELASTICITY_LINEAR, &err);
+        if (!rc && changed_mat) {
             sq_material m = d->material;
             if (r->set.has_E || r->set.has_nu) {
                 double E, nu;
@@ -564,13 +577,40 @@ static void do_set(sq_session *s, const sq_job *j)
             if (rc && changed_mat) /* all or nothing for this body */
                 sq_body_set_material(body, &old_m[b], old_op[b], NULL);
         }
+        if (!rc && r->set.has_elasticity && r->set.elasticity == SQ_ELASTICITY_COROTATIONAL &&
+            (rc = sq_body_set_elasticity(body, SQ_ELASTICITY_COROTATIONAL, &err)) < 0) {
+            if (changed_lod) /* all or nothing for this body */
+                sq_body_set_lod(body, &old_lod[b], NULL);
+            if (changed_mat)
+                sq_body_set_material(body, &old_m[b], old_op[b], NULL);
+        }
+        if (!rc && r->set.has_pressure && r->set.nodal_pressure && (rc = sq_body_set_pressure(body, 1, &err)) < 0) {
+            if (r->set.has_elasticity && old_el[b] == SQ_ELASTICITY_LINEAR)
+                sq_body_set_elasticity(body, old_el[b], NULL);
+            if (changed_lod)
+                sq_body_set_lod(body, &old_lod[b], NULL);
+            if (changed_mat)
+                sq_body_set_material(body, &old_m[b], old_op[b], NULL);
+        }
+        if (rc && r->set.has_elasticity)
+            sq_body_set_elasticity(body, old_el[b], NULL);
+        if (rc && r->set.has_pressure)
+            sq_body_set_pressure(body, old_np[b], NULL);
         if (rc) {
             /* undo the bodies already changed, then refuse */
             for (int k = b0; k < b; k++) {
+                if (r->set.has_pressure && !old_np[k])
+                    sq_body_set_pressure(w->bodies[k], 0, NULL);
+                if (r->set.has_elasticity && old_el[k] == SQ_ELASTICITY_LINEAR)
+                    sq_body_set_elasticity(w->bodies[k], old_el[k], NULL);
                 if (changed_lod)
                     sq_body_set_lod(w->bodies[k], &old_lod[k], NULL);
                 if (changed_mat)
                     sq_body_set_material(w->bodies[k], &old_m[k], old_op[k], NULL);
+                if (r->set.has_elasticity && old_el[k] == SQ_ELASTICITY_COROTATIONAL)
+                    sq_body_set_elasticity(w->bodies[k], old_el[k], NULL);
+                if (r->set.has_pressure && old_np[k])
+                    sq_body_set_pressure(w->bodies[k], 1, NULL);
             }
             char msg[400];
             snprintf(msg, sizeof msg, "body %d (\"%.40s\"): %.260s", b, s->scene->body_names[b], err.msg);

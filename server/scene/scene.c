@@ -552,7 +552,7 @@ static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
 static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
 {
     static const char *const keys[] = {"name", "levels", "scale", "offset", "material", "operator", "fixed",
-                                       "lod", "step_fraction", NULL};
+                                       "lod", "step_fraction", "elasticity", "step_bound", "pressure", NULL};
     if (!cJSON_IsObject(obj))
         return fail(c, path, "expected an object, got %s; see docs/scenes.md", type_name(obj));
     if (check_keys(c, obj, path, keys))
@@ -627,6 +627,35 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
     else
         return fail(c, p, "\"%s\" is not an operator; use \"fem\" (standard linear FEM) or \"paper\" "
                           "(the paper's Laplacian + grad-div)", op);
+
+    /* elasticity: linear (default) or corotational */
+    const cJSON *el = get(obj, "elasticity");
+    join(p, sizeof p, path, "elasticity");
+    if (el && !cJSON_IsString(el))
+        return fail(c, p, "expected \"linear\" or \"corotational\", got %s; see docs/scenes.md", type_name(el));
+    if (!el || !strcmp(el->valuestring, "linear"))
+        def->elasticity = SQ_ELASTICITY_LINEAR;
+    else if (!strcmp(el->valuestring, "corotational"))
+        def->elasticity = SQ_ELASTICITY_COROTATIONAL;
+    else
+        return fail(c, p, "\"%.40s\" is not an elasticity; use \"linear\" (small strain, the paper's) or "
+                          "\"corotational\" (large rotations; fem operator, fixed lod)", el->valuestring);
+
+    /* step bound: gershgorin (default, 2^n substeps) or sharp (fixed lod: Lanczos, any count) */
+    const cJSON *sb = get(obj, "step_bound");
+    join(p, sizeof p, path, "step_bound");
+    if (sb && !(cJSON_IsString(sb) && (!strcmp(sb->valuestring, "gershgorin") || !strcmp(sb->valuestring, "sharp"))))
+        return fail(c, p, "expected \"gershgorin\" (default: row-sum bound, 2^n substeps per frame) or \"sharp\" "
+                          "(fixed lod: Lanczos estimate, any substep count); see docs/stability.md");
+    def->sharp_step = sb && !strcmp(sb->valuestring, "sharp");
+
+    /* pressure: element (default) or nodal (average nodal pressure tets: less locking) */
+    const cJSON *pr = get(obj, "pressure");
+    join(p, sizeof p, path, "pressure");
+    if (pr && !(cJSON_IsString(pr) && (!strcmp(pr->valuestring, "element") || !strcmp(pr->valuestring, "nodal"))))
+        return fail(c, p, "expected \"element\" (default: one pressure per tet) or \"nodal\" (average nodal "
+                          "pressure tets: less locking; fem, linear, fixed lod); see docs/physics.md section 10");
+    def->nodal_pressure = pr && !strcmp(pr->valuestring, "nodal");
 
     /* constraints */
     const cJSON *fx = get_typed(c, obj, path, "fixed", 1, 0, &bad);
@@ -778,6 +807,21 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
                             m->bbox_min[1], m->bbox_min[2], m->bbox_max[0], m->bbox_max[1], m->bbox_max[2]);
             }
         }
+    /* corotational elasticity: fem operator and fixed lod only (docs/physics.md section 9) */
+    join(p, sizeof p, path, "elasticity");
+    if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->op != SQ_OPERATOR_FEM)
+        return fail(c, p, "\"corotational\" needs \"operator\": \"fem\" (the paper operator has no corotational "
+                          "form here); use \"elasticity\": \"linear\" with the paper operator");
+    if (def->nodal_pressure && (def->elasticity != SQ_ELASTICITY_LINEAR || def->op != SQ_OPERATOR_FEM ||
+                                def->lod.mode != SQ_LOD_FIXED)) {
+        join(p, sizeof p, path, "pressure");
+        return fail(c, p, "\"nodal\" runs with \"operator\": \"fem\", \"elasticity\": \"linear\" and fixed lod only; "
+                          "use those, or \"pressure\": \"element\"");
+    }
+    if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->lod.mode == SQ_LOD_ADAPTIVE)
+        return fail(c, p, "\"corotational\" runs in fixed lod mode only (adaptive mode does not support it yet): "
+                          "use \"lod\": {\"mode\": \"fixed\"} with \"corotational\", or \"elasticity\": "
+                          "\"linear\" with adaptive lod");
     return 0;
 }
 

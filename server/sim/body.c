@@ -41,6 +41,9 @@ sq_body_def sq_body_def_default(void)
 
 /* ---- helpers ---------------------------------------------------------------------------- */
 
+/* Lanczos steps of the sharp step bound (fixed mode; docs/stability.md) */
+#define SQ_LANCZOS_ITERS 40
+
 static double mesh_diag(const sq_mesh *m)
 {
     double s = 0;
@@ -104,17 +107,36 @@ static int ensure_level(sq_body *b, int k, sq_err *err)
     if (sq_level_init(L, b->def.levels[k], &b->def.material, b->def.op, b->def.constraints,
                       b->def.nconstraints, err) < 0)
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
-    if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0) {
+    if ((b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
+         sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) ||
+        (b->def.nodal_pressure && sq_level_anp_enable(L, &b->def.material, b->def.op, err) < 0)) {
+        sq_level_free(L);
+        return sq_err_prefix(err, "body '%s' level %d", b->name, k);
+    }
+    if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+        sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
+                                   err) < 0) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d (%d nodes)", b->name, k, b->def.levels[k]->nnodes);
     }
     b->mask[k] = sq_malloc((size_t)L->n);
     memset(b->mask[k], 1, (size_t)L->n);
     b->hold_of[k] = sq_malloc(sizeof(int) * (size_t)L->n);
+    b->held[k] = sq_calloc((size_t)L->n, 1);
+    b->held_list[k] = sq_malloc(sizeof(int) * (size_t)L->n);
+    b->nheld[k] = 0;
     for (int i = 0; i < L->n; i++)
         b->hold_of[k][i] = -1;
     b->ready[k] = 1;
     return 0;
+}
+
+/* forget which nodes of level k a tool held (released: reset or lod change) */
+static void clear_held(sq_body *b, int k)
+{
+    for (int h = 0; h < b->nheld[k]; h++)
+        b->held[k][b->held_list[k][h]] = 0;
+    b->nheld[k] = 0;
 }
 
 /* copy displacement and velocity from level src to level dst by interpolation */
@@ -178,6 +200,39 @@ static void set_lod_levels_fixed(sq_body *b)
 
 /* ---- create / destroy ------------------------------------------------------------------- */
 
+#define COROT_ADAPTIVE_MSG                                                                                 \
+    "corotational elasticity runs in fixed lod mode only (adaptive mode does not support it yet): use "    \
+    "\"lod\": {\"mode\": \"fixed\"} with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" " \
+    "with adaptive lod"
+#define COROT_PAPER_MSG                                                                                    \
+    "corotational elasticity needs the fem operator (the paper operator has no corotational form here): "  \
+    "use \"operator\": \"fem\" with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" with "  \
+    "the paper operator"
+
+#define NODAL_MSG                                                                                          \
+    "nodal pressure tets (\"pressure\": \"nodal\") run with the fem operator, linear elasticity and fixed "   \
+    "lod only: use those, or \"pressure\": \"element\""
+
+/* is nodal pressure allowed with the rest? */
+static int check_pressure(int nodal, sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
+{
+    if (nodal && (e != SQ_ELASTICITY_LINEAR || op != SQ_OPERATOR_FEM || mode != SQ_LOD_FIXED))
+        return sq_err_set(err, NODAL_MSG);
+    return 0;
+}
+
+/* is elasticity e allowed with operator op and lod mode? 0, or -1 + err naming the combination */
+static int check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
+{
+    if (e != SQ_ELASTICITY_LINEAR && e != SQ_ELASTICITY_COROTATIONAL)
+        return sq_err_set(err, "elasticity %d is unknown: use linear or corotational", (int)e);
+    if (e == SQ_ELASTICITY_COROTATIONAL && op != SQ_OPERATOR_FEM)
+        return sq_err_set(err, COROT_PAPER_MSG);
+    if (e == SQ_ELASTICITY_COROTATIONAL && mode == SQ_LOD_ADAPTIVE)
+        return sq_err_set(err, COROT_ADAPTIVE_MSG);
+    return 0;
+}
+
 static int check_def(const sq_body_def *def, sq_err *err)
 {
     if (def->nlevels < 1 || def->nlevels > SQ_MAX_LEVELS)
@@ -211,6 +266,9 @@ static int check_def(const sq_body_def *def, sq_err *err)
         if (cn->axes == 0 || cn->axes > 7)
             return sq_err_set(err, "constraint %d: axes mask %u must be 1..7 (bits x=1, y=2, z=4)", c, cn->axes);
     }
+    if (check_elasticity(def->elasticity, def->op, def->lod.mode, err) < 0 ||
+        check_pressure(def->nodal_pressure, def->elasticity, def->op, def->lod.mode, err) < 0)
+        return -1;
     return sq_material_check(&def->material, err);
 }
 
@@ -298,6 +356,8 @@ void sq_body_destroy(sq_body *b)
             sq_level_free(&b->level[k]);
         free(b->mask[k]);
         free(b->hold_of[k]);
+        free(b->held[k]);
+        free(b->held_list[k]);
     }
     for (int t = 0; t < SQ_MAX_TOOLS; t++) {
         free(b->grab[t].surf);
@@ -323,13 +383,20 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         return -1;
     if (op != SQ_OPERATOR_FEM && op != SQ_OPERATOR_PAPER)
         return sq_err_set(err, "operator %d is unknown: use fem or paper", (int)op);
+    if (check_elasticity(b->def.elasticity, op, b->def.lod.mode, err) < 0 ||
+        check_pressure(b->def.nodal_pressure, b->def.elasticity, op, b->def.lod.mode, err) < 0)
+        return -1;
     /* build every loaded level anew; swap only when all succeed */
     sq_level fresh[SQ_MAX_LEVELS];
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         if (!b->ready[k])
             continue;
         if (sq_level_init(&fresh[k], b->def.levels[k], m, op, b->def.constraints, b->def.nconstraints, err) < 0 ||
-            sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0) {
+            (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
+            (b->def.nodal_pressure && sq_level_anp_enable(&fresh[k], m, op, err) < 0) ||
+            sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+            sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
+                                       err) < 0) {
             if (fresh[k].n)
                 sq_level_free(&fresh[k]);
             for (int j = 0; j < k; j++)
@@ -345,6 +412,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         size_t n3 = 3 * (size_t)b->level[k].n;
         memcpy(fresh[k].d, b->level[k].d, sizeof(double) * n3);
         memcpy(fresh[k].v, b->level[k].v, sizeof(double) * n3);
+        sq_level_corot_copy(&fresh[k], &b->level[k]);
         sq_level_free(&b->level[k]);
         b->level[k] = fresh[k]; /* same address: the lod module's pointer stays valid */
     }
@@ -360,6 +428,9 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
     if (check_lod(b, lod, err) < 0)
         return -1;
     int was_adaptive = b->def.lod.mode == SQ_LOD_ADAPTIVE;
+    if (check_elasticity(b->def.elasticity, b->def.op, lod->mode, err) < 0 ||
+        check_pressure(b->def.nodal_pressure, b->def.elasticity, b->def.op, lod->mode, err) < 0)
+        return -1;
     if (lod->mode == SQ_LOD_ADAPTIVE) {
         for (int k = 0; k < b->nuse; k++)
             if (ensure_level(b, k, err) < 0)
@@ -381,8 +452,10 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         if (ensure_level(b, lod->level, err) < 0)
             return -1;
         int from = was_adaptive ? b->fine : b->cur;
-        if (from != lod->level)
+        if (from != lod->level) {
             transfer_state(b, from, lod->level);
+            sq_level_corot_converge(&b->level[lod->level]);
+        }
         if (was_adaptive) {
             sq_lod_destroy(b->lod);
             b->lod = NULL;
@@ -392,6 +465,9 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         prepare_surface_map(b);
         set_lod_levels_fixed(b);
     }
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        if (b->ready[k])
+            clear_held(b, k);
     b->sleeping = 0;
     b->calm = 0;
     return 0;
@@ -406,6 +482,8 @@ void sq_body_reset(sq_body *b)
         memset(b->level[k].d, 0, sizeof(double) * n3);
         memset(b->level[k].v, 0, sizeof(double) * n3);
         memset(b->level[k].f, 0, sizeof(double) * n3);
+        sq_level_corot_reset(&b->level[k]);
+        clear_held(b, k);
     }
     if (b->lod) {
         sq_lod_reset(b->lod);
@@ -415,6 +493,59 @@ void sq_body_reset(sq_body *b)
         b->grab[t].id = -1;
     b->sleeping = 0;
     b->calm = 0;
+}
+
+int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
+{
+    if (check_elasticity(e, b->def.op, b->def.lod.mode, err) < 0 ||
+        check_pressure(b->def.nodal_pressure, e, b->def.op, b->def.lod.mode, err) < 0)
+        return -1;
+    if (e == b->def.elasticity)
+        return 0;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        if (!b->ready[k])
+            continue;
+        if (e == SQ_ELASTICITY_COROTATIONAL) {
+            if (sq_level_corot_enable(&b->level[k], &b->def.material, b->def.op, err) < 0) {
+                for (int j = 0; j < k; j++)
+                    sq_level_corot_free(&b->level[j]);
+                return -1;
+            }
+            sq_level_corot_converge(&b->level[k]);
+        } else {
+            sq_level_corot_free(&b->level[k]);
+        }
+    }
+    b->def.elasticity = e;
+    b->sleeping = 0;
+    b->calm = 0;
+    return 0;
+}
+
+int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err)
+{
+    nodal = nodal != 0;
+    if (check_pressure(nodal, b->def.elasticity, b->def.op, b->def.lod.mode, err) < 0)
+        return -1;
+    if (nodal == b->def.nodal_pressure)
+        return 0;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        if (!b->ready[k])
+            continue;
+        if (nodal) {
+            if (sq_level_anp_enable(&b->level[k], &b->def.material, b->def.op, err) < 0) {
+                for (int j = 0; j < k; j++)
+                    sq_level_anp_free(&b->level[j]);
+                return -1;
+            }
+        } else {
+            sq_level_anp_free(&b->level[k]);
+        }
+    }
+    b->def.nodal_pressure = nodal;
+    b->sleeping = 0;
+    b->calm = 0;
+    return 0;
 }
 
 void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual)
@@ -464,13 +595,28 @@ static const char *health(const sq_body *b, double *value)
     return NULL;
 }
 
-/* residual of level L from its last force pass, over active nodes (mask may be NULL) */
-static double level_residual(const sq_level *L, const double g[3], const unsigned char *active)
+/* the nodes of level k held in the frame just done (hold list of that level) */
+static void mark_held(sq_body *b, int k, const sq_hold *holds, int nholds)
+{
+    clear_held(b, k);
+    for (int h = 0; h < nholds; h++) {
+        int i = holds[h].node;
+        if (!b->held[k][i]) {
+            b->held[k][i] = 1;
+            b->held_list[k][b->nheld[k]++] = i;
+        }
+    }
+}
+
+/* residual of level L from its last force pass, over active nodes (mask may be NULL) that no
+ * tool held (held may be NULL): a held node's unbalanced force is the tool's reaction */
+static double level_residual(const sq_level *L, const double g[3], const unsigned char *active,
+                             const unsigned char *held)
 {
     double gn = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
     double r = 0;
     for (int i = 0; i < L->n; i++) {
-        if ((active && !active[i]) || L->fixed[i] == 7)
+        if ((active && !active[i]) || L->fixed[i] == 7 || (held && held[i]))
             continue;
         double s = 0;
         for (int c = 0; c < 3; c++)
@@ -544,12 +690,15 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     }
 
     /* substeps: forces on all nodes, feedback on held nodes, integrate the others */
-    int nsub = 1 << L->substeps_log2;
+    /* substeps: 2^n at the Gershgorin bound, or with sharp_step the sharp bound's step, any
+     * integer count (adaptive mode keeps 2^n per level) */
+    int nsub = b->def.sharp_step ? L->nsub : 1 << L->substeps_log2;
+    double sdt = b->def.sharp_step ? L->dt_fixed : L->dt;
     double inv = 1.0 / nsub;
     for (int s = 0; s < nsub; s++) {
         if ((s & 15) == 15 && sq_cancelled())
             break; /* the server is stopping: the frame is abandoned */
-        sq_level_step(L, mat, g, L->dt, nk ? mask : NULL); /* L->f: forces before the update */
+        sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
         for (int h = 0; h < nk; h++) {
             int i = b->khold[h].node, t = b->khold[h].tool;
             if (force && t >= 0 && t < ntools)
@@ -559,6 +708,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     }
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;
+    mark_held(b, b->cur, b->khold, nk);
 
     if (prof) {
         prof->node_updates = (long)(L->n - nk) * nsub;
@@ -597,6 +747,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
             sq_lod_frame(b->lod, &b->def.material, b->def.gravity, b->def.frame_dt, b->holds, nholds, ntools,
                          force, prof, frame_budget_s);
+            mark_held(b, b->fine, b->holds, nholds);
             sq_lod_node_levels(b->lod, b->node_level);
         } else {
             frame_fixed(b, b->holds, nholds, ntools, force, prof);
@@ -624,7 +775,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
             for (int i = 0; i < b->level[k].n; i++)
                 if (!act || act[i])
                     M += b->level[k].mass[i];
-            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, act));
+            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, act, NULL));
         }
         double vrms = M > 0 ? sqrt(2 * ke / M) : 0;
         int calm = nholds == 0 && vrms < b->sleep_ke_speed * b->diag && res < b->sleep_residual;
@@ -664,12 +815,17 @@ const sq_mesh *sq_body_mesh(const sq_body *b, int level)
 
 double sq_body_level_dt(const sq_body *b, int level)
 {
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].dt : 0;
+    if (!(level >= 0 && level < SQ_MAX_LEVELS && b->ready[level]))
+        return 0;
+    return b->def.lod.mode == SQ_LOD_FIXED && b->def.sharp_step ? b->level[level].dt_fixed : b->level[level].dt;
 }
 
 double sq_body_level_bound(const sq_body *b, int level)
 {
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].bound : 0;
+    if (!(level >= 0 && level < SQ_MAX_LEVELS && b->ready[level]))
+        return 0;
+    return b->def.lod.mode == SQ_LOD_FIXED && b->def.sharp_step ? b->level[level].bound_sharp
+                                                                 : b->level[level].bound;
 }
 
 const double *sq_body_displacement(const sq_body *b, int level)
@@ -685,6 +841,12 @@ const double *sq_body_velocity(const sq_body *b, int level)
 const unsigned char *sq_body_node_level(const sq_body *b) { return b->node_level; }
 const sq_mesh *sq_body_surface_mesh(const sq_body *b) { return b->def.levels[b->fine]; }
 int sq_body_is_sleeping(const sq_body *b) { return b->sleeping; }
+
+int sq_body_inverted_tets(const sq_body *b)
+{
+    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    return sq_level_corot_inverted(&b->level[k]);
+}
 
 sq_level *sq_body_level(sq_body *b, int level)
 {
@@ -748,9 +910,13 @@ double sq_body_kinetic_energy(const sq_body *b)
     return ke;
 }
 
-/* 0.5 d.K d of level k */
+/* 0.5 d.K d of level k (the corotational energy with corotational elasticity) */
 double sq_level_elastic_energy(const sq_level *L)
 {
+    if (L->corot)
+        return sq_level_corot_energy(L);
+    if (L->anp)
+        return sq_level_anp_energy(L);
     double e = 0;
     for (int i = 0; i < L->n; i++) {
         const double *di = L->d + 3 * (size_t)i;
@@ -779,7 +945,7 @@ double sq_body_residual(const sq_body *b)
     L.w = sq_malloc(sizeof(double) * n3);
     L.acc = sq_calloc(n3 + 1, sizeof(double)); /* own accumulator: the body's is left untouched */
     sq_level_forces(&L, &b->def.material, b->def.gravity, NULL);
-    double r = level_residual(&L, b->def.gravity, NULL);
+    double r = level_residual(&L, b->def.gravity, NULL, b->held[k]);
     free(L.f);
     free(L.w);
     free(L.acc);

@@ -43,6 +43,11 @@ struct sq_body {
     int *kcount;                           /* holds averaged into each khold */
     int cap_khold;
 
+    /* nodes held by a tool in the last frame, per level (n_k, 1 = held), for the rest check */
+    unsigned char *held[SQ_MAX_LEVELS];
+    int *held_list[SQ_MAX_LEVELS];         /* their indices (n_k capacity) */
+    int nheld[SQ_MAX_LEVELS];
+
     /* sleep */
     int sleeping, calm;
     int sleep_frames;                      /* calm frames before sleeping (0: never sleep) */

@@ -206,6 +206,8 @@ void sq_level_free(sq_level *L)
     free(L->up_start);
     free(L->up_col);
     free(L->Kup);
+    sq_level_corot_free(L);
+    sq_level_anp_free(L);
     memset(L, 0, sizeof *L);
 }
 
@@ -284,6 +286,145 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
     }
     L->substeps_log2 = n;
     L->dt = frame_dt / ldexp(1.0, n);
+    return 0;
+}
+
+/* y = M^-1/2 K M^-1/2 x over the unconstrained axes (constrained components of y are zero) */
+static void scaled_matvec(const sq_level *L, const double *x, double *y)
+{
+    for (int i = 0; i < L->n; i++)
+        for (int r = 0; r < 3; r++) {
+            double s = 0;
+            if (!(L->fixed[i] & (1u << r)))
+                for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+                    int j = L->col[e];
+                    const double *B = L->K + 9 * (size_t)e + 3 * r;
+                    for (int c = 0; c < 3; c++)
+                        s += B[c] * x[3 * j + c] / sqrt(L->mass[j]);
+                }
+            y[3 * i + r] = s / sqrt(L->mass[i]);
+        }
+}
+
+/* largest eigenvalue of the tridiagonal (alpha, beta) of size m by bisection on the Sturm count */
+static double tridiag_max(const double *alpha, const double *beta, int m)
+{
+    double lo = INFINITY, hi = -INFINITY;
+    for (int i = 0; i < m; i++) {
+        double r = (i > 0 ? fabs(beta[i - 1]) : 0) + (i < m - 1 ? fabs(beta[i]) : 0);
+        lo = fmin(lo, alpha[i] - r);
+        hi = fmax(hi, alpha[i] + r);
+    }
+    for (int it = 0; it < 200 && hi - lo > 1e-15 * fmax(fabs(hi), fabs(lo)); it++) {
+        double x = 0.5 * (lo + hi), q = 1;
+        int above = 0; /* eigenvalues > x */
+        for (int i = 0; i < m; i++) {
+            q = alpha[i] - x - (i > 0 ? beta[i - 1] * beta[i - 1] / q : 0);
+            if (q == 0)
+                q = 1e-300;
+            above += q > 0;
+        }
+        if (above > 0)
+            lo = x;
+        else
+            hi = x;
+    }
+    return hi;
+}
+
+double sq_level_lanczos_max(const sq_level *L, int iters)
+{
+    size_t n3 = 3 * (size_t)L->n;
+    double *q0 = sq_calloc(n3, sizeof(double)), *q = sq_malloc(n3 * sizeof(double)),
+           *w = sq_malloc(n3 * sizeof(double));
+    double *alpha = sq_malloc(sizeof(double) * (size_t)(iters + 1)),
+           *beta = sq_malloc(sizeof(double) * (size_t)(iters + 1));
+    /* deterministic start on the free axes */
+    unsigned long long st = 88172645463325252ULL;
+    double nn = 0;
+    for (size_t k = 0; k < n3; k++) {
+        st ^= st << 13, st ^= st >> 7, st ^= st << 17;
+        q[k] = (L->fixed[k / 3] & (1u << (k % 3))) ? 0 : 0.5 + (double)(st >> 11) / 9007199254740992.0;
+        nn += q[k] * q[k];
+    }
+    double theta = 0;
+    if (nn > 0) {
+        for (size_t k = 0; k < n3; k++)
+            q[k] /= sqrt(nn);
+        int m = 0;
+        double bprev = 0;
+        for (int j = 0; j < iters; j++) {
+            scaled_matvec(L, q, w);
+            double a = 0;
+            for (size_t k = 0; k < n3; k++)
+                a += w[k] * q[k];
+            double b = 0;
+            for (size_t k = 0; k < n3; k++) {
+                w[k] -= a * q[k] + bprev * q0[k];
+                b += w[k] * w[k];
+            }
+            b = sqrt(b);
+            alpha[m] = a;
+            beta[m] = b;
+            m++;
+            if (!(b > 1e-12 * fabs(a)))
+                break;
+            for (size_t k = 0; k < n3; k++) {
+                q0[k] = q[k];
+                q[k] = w[k] / b;
+            }
+            bprev = b;
+        }
+        theta = tridiag_max(alpha, beta, m);
+        /* residual of the Ritz pair: beta_m |s_m|, s the eigenvector of T for theta (recurrence) */
+        double s0 = 1, s1 = m > 1 ? (theta - alpha[0]) / beta[0] : 0, ns = 1 + s1 * s1, last = m > 1 ? s1 : s0;
+        for (int i = 1; i + 1 < m; i++) {
+            double s2 = ((theta - alpha[i]) * s1 - beta[i - 1] * s0) / beta[i];
+            s0 = s1;
+            s1 = s2;
+            ns += s2 * s2;
+            last = s2;
+        }
+        if (isfinite(ns) && ns > 0)
+            theta += fabs(beta[m - 1]) * fabs(last) / sqrt(ns);
+        else
+            theta = INFINITY; /* let the ceiling decide */
+    }
+    free(q0);
+    free(q);
+    free(w);
+    free(alpha);
+    free(beta);
+    return theta;
+}
+
+int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
+                               int iters, sq_err *err)
+{
+    if (!(frame_dt > 0) || !isfinite(frame_dt))
+        return sq_err_set(err, "frame period %g s is out of range: give a frame rate > 0", frame_dt);
+    if (!(step_fraction > 0 && step_fraction <= 1))
+        return sq_err_set(err, "step_fraction %g is out of range: give 0 < step_fraction <= 1", step_fraction);
+    double g2 = L->omega_max * L->omega_max, lz = sq_level_lanczos_max(L, iters);
+    double w2 = fmin(g2, lz); /* Gershgorin is the ceiling */
+    double w = sqrt(w2);
+    double c = mat->rayleigh_mass;
+    if (mat->use_viscosity && L->D)
+        c += gershgorin(L, L->D);
+    else
+        c += mat->rayleigh_stiffness * w2;
+    double bound = (w > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+    double need = ceil(frame_dt / (step_fraction * bound) * (1 - 1e-12));
+    if (!(need >= 1))
+        need = 1;
+    if (need > 1048576)
+        return sq_err_set(err, "needs %.0f substeps per frame at %.4g Hz (bound %.3g s); the limit is 2^20 "
+                               "(1048576): lower the stiffness or damping, raise the density, or use a coarser mesh",
+                          need, 1.0 / frame_dt, bound);
+    L->omega_est = w;
+    L->bound_sharp = bound;
+    L->nsub = (int)need;
+    L->dt_fixed = frame_dt / L->nsub;
     return 0;
 }
 
@@ -430,6 +571,15 @@ static void forces_all(sq_level *L, double b, double a, const double g[3], doubl
 void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
                    const unsigned char *mask)
 {
+    if (L->corot) {
+        sq_level_corot_step(L, mat, gravity, dt, mask);
+        return;
+    }
+    if (L->anp) {
+        sq_level_anp_forces(L, mat, gravity);
+        sq_level_integrate(L, dt, mask);
+        return;
+    }
     if (mat->use_viscosity && L->D) {
         /* the viscosity blocks are applied row by row: two passes */
         sq_level_forces(L, mat, gravity, NULL);
@@ -485,6 +635,14 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
     double *restrict f = L->f;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
+    if (L->corot) { /* all nodes (a superset of the active ones) */
+        sq_level_corot_forces(L, mat, gravity);
+        return;
+    }
+    if (L->anp) {
+        sq_level_anp_forces(L, mat, gravity);
+        return;
+    }
     if (!active) {
         forces_all(L, b, a, gravity, 0, NULL);
         if (L->D && mat->use_viscosity)

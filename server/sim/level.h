@@ -13,6 +13,9 @@
 
 #include "sim/sim.h"
 
+typedef struct sq_corot sq_corot;
+typedef struct sq_anp sq_anp;
+
 typedef struct sq_level {
     const sq_mesh *mesh;   /* rest mesh (borrowed) */
     int n;                 /* nodes */
@@ -43,6 +46,14 @@ typedef struct sq_level {
     double bound;          /* stability bound on the step with damping, s */
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
+    sq_corot *corot;       /* corotational elasticity state (sim/corot.c), NULL: linear */
+    sq_anp *anp;           /* average nodal pressure tets (sim/anp.c), NULL: element-wise */
+    /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
+     * as the ceiling), its bound, and any integer number of substeps per frame */
+    double omega_est;      /* rad/s */
+    double bound_sharp;    /* s */
+    int nsub;              /* substeps per frame */
+    double dt_fixed;       /* frame_dt / nsub, s */
 } sq_level;
 
 /* a tool's hold on one node of the finest loaded level (the rendered surface's mesh):
@@ -66,6 +77,15 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
  * frame period at fraction `step_fraction` of it; -1 + err if more than 2^20 substeps needed */
 int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
                          sq_err *err);
+
+/* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes estimated by
+ * `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
+ * from it, and the smallest integer substep count n with frame_dt / n <= step_fraction * bound
+ * (sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
+int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
+                               int iters, sq_err *err);
+/* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2 */
+double sq_level_lanczos_max(const sq_level *L, int iters);
 
 /* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
  * NULL), reading d and v of all neighbours (ghost values included) */
@@ -91,8 +111,37 @@ void sq_level_laplacian(const sq_level *L, int i, double out[3]);
 int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
                           double *d, int *iterations, sq_err *err);
 
+/* the same static solve with average nodal pressure tets (volumetric strain averaged at the
+ * nodes; docs/physics.md section 10); mat gives mu and lambda */
+int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
+                                         double tol, int max_iter, double *d, int *iterations, sq_err *err);
+
+/* average nodal pressure tets (sim/anp.c; fem operator, linear elasticity, fixed mode): with
+ * L->anp set, sq_level_step and sq_level_forces use them; enable refuses the paper operator */
+int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
+void sq_level_anp_free(sq_level *L);
+void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
+void sq_level_anp_forces(sq_level *L, const sq_material *mat, const double g[3]);
+double sq_level_anp_energy(const sq_level *L);
+
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);
+
+/* corotational elasticity (sim/corot.c; fem operator, fixed mode): per-tet rest gradients and
+ * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
+ * operator. With L->corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
+ * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
+int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
+void sq_level_corot_free(sq_level *L);
+void sq_level_corot_reset(sq_level *L);                        /* rotations to identity */
+void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: copy the rotations */
+void sq_level_corot_converge(sq_level *L);                     /* rotations converged to the current d */
+void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
+                         const unsigned char *mask);
+void sq_level_corot_forces(sq_level *L, const sq_material *mat, const double g[3]);
+double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
+/* tets with det F <= 0 at the current displacement (any level, linear or not) */
+int sq_level_corot_inverted(const sq_level *L);
 
 /* engine-internal access to a body's levels (lod, tests, benchmarks): the level if it is
  * initialised, else NULL */

@@ -38,6 +38,13 @@ typedef enum sq_operator_kind {
     SQ_OPERATOR_PAPER = 1  /* the paper's Laplacian + grad-div (Eqs. 5-6) */
 } sq_operator_kind;
 
+/* elastic model: linear (the paper's, small-strain) or corotational (rotation-invariant:
+ * f = R K_T (R^T x - X) per tet; fem operator, fixed lod mode only; docs/physics.md) */
+typedef enum sq_elasticity_kind {
+    SQ_ELASTICITY_LINEAR = 0,
+    SQ_ELASTICITY_COROTATIONAL = 1
+} sq_elasticity_kind;
+
 /* constraint regions */
 typedef enum sq_region_kind { SQ_REGION_BOX = 0, SQ_REGION_HALFSPACE = 1 } sq_region_kind;
 typedef struct sq_constraint {
@@ -70,6 +77,10 @@ typedef struct sq_body_def {
     double gravity[3];    /* m/s^2 */
     double frame_dt;      /* frame period, s (1 / frame_rate) */
     double step_fraction; /* fraction of the stability bound to run at (default 0.9) */
+    sq_elasticity_kind elasticity; /* linear (default) or corotational */
+    int sharp_step;       /* fixed mode: 1 = step from the Lanczos estimate of the bound (Gershgorin
+                             as ceiling), any integer substep count; 0 (default) = Gershgorin, 2^n */
+    int nodal_pressure;   /* 1: average nodal pressure tets (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
 /* defaults: fem, gravity 0, 50 Hz, fixed lod at level 0, budget 0.95, step_fraction 0.9 */
@@ -127,6 +138,12 @@ void sq_body_destroy(sq_body *b);
  * and err says why (e.g. the step bound it would break) */
 int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, sq_err *err);
 int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err);
+/* linear <-> corotational; corotational is refused (nothing changes) with the paper operator or
+ * in adaptive lod mode; the state is kept */
+int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err);
+/* element-wise (0) <-> average nodal pressure (1) tets; refused (nothing changes) with the paper
+ * operator, corotational elasticity or adaptive lod; the state is kept */
+int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err);
 
 /* back to rest (zero displacement and velocity, coarse level) */
 void sq_body_reset(sq_body *b);
@@ -166,6 +183,8 @@ double sq_body_elastic_energy(const sq_body *b);
 /* max over free nodes of |f_i| / (m_i |g|) (or / m_i if g = 0): residual force measure */
 double sq_body_residual(const sq_body *b);
 int sq_body_is_sleeping(const sq_body *b);
+/* tets of the simulated level with det F <= 0 (inverted or flat) */
+int sq_body_inverted_tets(const sq_body *b);
 
 /* write the finest level (or the fixed level) as VTK with displacement, velocity, level */
 int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err);

@@ -10,8 +10,9 @@
 #include "sim/level.h"
 
 /* y = K x on unconstrained axes (constrained components of x are taken as zero) */
-static void matvec(const sq_level *L, const double *x, double *y)
+static void matvec(const sq_level *L, const void *ctx, const double *x, double *y)
 {
+    (void)ctx;
     for (int i = 0; i < L->n; i++) {
         double s[3] = {0, 0, 0};
         for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
@@ -32,8 +33,10 @@ static double dot(const double *a, const double *b, size_t n)
     return s;
 }
 
-int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
-                          double *d, int *iterations, sq_err *err)
+typedef void (*op_fn)(const sq_level *L, const void *ctx, const double *x, double *y);
+
+static int cg_solve(const sq_level *L, op_fn op, const void *ctx, const double gravity[3], double tol,
+                    int max_iter, double *d, int *iterations, sq_err *err)
 {
     size_t n3 = 3 * (size_t)L->n;
     double *r = sq_malloc(sizeof(double) * n3), *z = sq_malloc(sizeof(double) * n3);
@@ -62,7 +65,7 @@ int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol
         for (it = 0; it < max_iter; it++) {
             if (sqrt(dot(r, r, n3)) <= tol * bnorm)
                 break;
-            matvec(L, p, q);
+            op(L, ctx, p, q);
             double pq = dot(p, q, n3);
             if (!(pq > 0)) {
                 rc = sq_err_set(err, "%s: conjugate gradients broke down (p.Kp = %g at iteration %d): "
@@ -94,5 +97,91 @@ int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol
     free(p);
     free(q);
     free(pre);
+    return rc;
+}
+
+int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
+                          double *d, int *iterations, sq_err *err)
+{
+    return cg_solve(L, matvec, NULL, gravity, tol, max_iter, d, iterations, err);
+}
+
+/* ---- average nodal pressure tets (static solve; the step is sim/anp.c) --------------------
+ * Energy sum_T V_T mu |dev eps_T|^2 + sum_i (kappa / 2) W_i theta_i^2, kappa = lambda + 2 mu / 3,
+ * W_i the nodal volume, theta_i = sum_{T ni i} (V_T / 4) tr(eps_T) / W_i: the volumetric strain
+ * averaged at the nodes, so a tet's pressure is kappa times the mean of its 4 nodes' theta. The
+ * operator is symmetric and not above the standard one (Jensen), so the standard bound holds. */
+typedef struct {
+    const sq_material *mat;
+    double *grad;  /* per tet: a_0..a_3 (12) and V */
+    double *theta; /* scratch, n */
+} anp_ctx;
+
+static void anp_matvec(const sq_level *L, const void *vctx, const double *x, double *y)
+{
+    const anp_ctx *c = vctx;
+    const sq_mesh *m = L->mesh;
+    const double mu = c->mat->mu, kappa = c->mat->lambda + 2.0 * c->mat->mu / 3.0;
+    memset(c->theta, 0, sizeof(double) * (size_t)L->n);
+    memset(y, 0, sizeof(double) * 3 * (size_t)L->n);
+    for (int t = 0; t < m->ntets; t++) {
+        const double *a = c->grad + 13 * (size_t)t;
+        double th = 0;
+        for (int k = 0; k < 4; k++) {
+            int i = m->tets[4 * t + k];
+            for (int r = 0; r < 3; r++)
+                if (!(L->fixed[i] & (1u << r)))
+                    th += a[3 * k + r] * x[3 * i + r];
+        }
+        for (int k = 0; k < 4; k++)
+            c->theta[m->tets[4 * t + k]] += a[12] / 4 * th;
+    }
+    for (int i = 0; i < L->n; i++)
+        c->theta[i] /= L->vol[i];
+    for (int t = 0; t < m->ntets; t++) {
+        const double *a = c->grad + 13 * (size_t)t;
+        const int *tv = m->tets + 4 * t;
+        double G[9] = {0};
+        for (int k = 0; k < 4; k++)
+            for (int r = 0; r < 3; r++) {
+                double u = (L->fixed[tv[k]] & (1u << r)) ? 0 : x[3 * tv[k] + r];
+                for (int cc = 0; cc < 3; cc++)
+                    G[3 * r + cc] += u * a[3 * k + cc];
+            }
+        double tr = G[0] + G[4] + G[8], tbar = 0;
+        for (int k = 0; k < 4; k++)
+            tbar += 0.25 * c->theta[tv[k]];
+        double sig[9];
+        for (int r = 0; r < 3; r++)
+            for (int cc = 0; cc < 3; cc++)
+                sig[3 * r + cc] = mu * (G[3 * r + cc] + G[3 * cc + r]) +
+                                  (r == cc ? kappa * tbar - 2.0 * mu * tr / 3.0 : 0);
+        for (int k = 0; k < 4; k++)
+            for (int r = 0; r < 3; r++)
+                y[3 * tv[k] + r] += a[12] * (sig[3 * r] * a[3 * k] + sig[3 * r + 1] * a[3 * k + 1] +
+                                             sig[3 * r + 2] * a[3 * k + 2]);
+    }
+    for (int i = 0; i < L->n; i++)
+        for (int r = 0; r < 3; r++)
+            if (L->fixed[i] & (1u << r))
+                y[3 * i + r] = 0;
+}
+
+int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
+                                         double tol, int max_iter, double *d, int *iterations, sq_err *err)
+{
+    const sq_mesh *m = L->mesh;
+    anp_ctx c = {mat, sq_malloc(sizeof(double) * 13 * (size_t)m->ntets), sq_malloc(sizeof(double) * (size_t)L->n)};
+    for (int t = 0; t < m->ntets; t++) {
+        double a[4][3];
+        double V = sq_tet_gradients(m, t, a);
+        for (int k = 0; k < 4; k++)
+            for (int r = 0; r < 3; r++)
+                c.grad[13 * (size_t)t + 3 * k + r] = a[k][r];
+        c.grad[13 * (size_t)t + 12] = V;
+    }
+    int rc = cg_solve(L, anp_matvec, &c, gravity, tol, max_iter, d, iterations, err);
+    free(c.grad);
+    free(c.theta);
     return rc;
 }

@@ -1,0 +1,610 @@
+/* corot.c - corotational linear elasticity for the fem operator (fixed mode).
+ *
+ * Per tet T the force is f = R K_T (R^T x - X) (negated), K_T the rest element stiffness of the
+ * fem operator and R the rotation of the tet's deformation gradient F = I + sum_j d_j a_j^T.
+ * It is evaluated matrix-free: with G = R^T F - I (the gradient of the unrotated displacement
+ * R^T x - X), eps = sym(G), sigma = 2 mu eps + lambda tr(eps) I, node j of T gets
+ * -V R sigma a_j, which is exactly -[R K_T (R^T x - X)]_j (sum_j X_j a_j^T = I, sum_j a_j = 0).
+ * Damping uses the rotated operators as well: Rayleigh b K becomes b R K_T R^T v, i.e. the
+ * same stress formula applied to R^T grad(v) with (b mu, b lambda); the paper's viscosities
+ * (phi, psi) the same way; the mass term a m v is per node as in the linear path.
+ *
+ * R maximises tr(R^T F) over proper rotations (the rotation of the polar decomposition when
+ * det F > 0; a proper rotation, never a reflection, when the tet is inverted, so an inverted
+ * tet is pushed back). It is kept per tet as a unit quaternion, warm-started from the last
+ * step, and improved by one Newton step per substep on tr(R^T F) (R <- exp([w]) R with
+ * (tr(B) I - sym(B)) w = axial(B - B^T), B = F R^T), which converges quadratically near the
+ * solution; where that matrix is not safely positive definite (far from the solution, nearly
+ * flat or inverted tets) the step falls back to w = axial(B - B^T) / |tr(B)| (always an
+ * ascent direction, the scheme of Mueller et al. 2016), capped at 1 rad. Steps move a rotation
+ * by at most a few 1e-3 rad, so one iteration per substep keeps R converged to ~1e-8.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "sim/level.h"
+
+struct sq_corot {
+    int ntets, nblocks;    /* tets, blocks of CW tets (padded with V = 0 tets at node 0) */
+    double *g;             /* per block: [10][CW] a_1, a_2, a_3 (rest gradients of the first three
+                              basis functions, x y z each), V (tet_lane, tet_block) */
+    double *q;             /* per block: [4][CW] rotation as a unit quaternion (w, x, y, z) */
+    int *tv;               /* per block: [4][CW] node indices (padding: node 0) */
+    double *acc;           /* force accumulator of the vector pass, n x 4, zero between calls */
+    double mu, lambda;
+};
+
+#define CW 4 /* tets per block */
+
+/* lane and block of tet t: groups of CW * CK consecutive tets fill CK blocks, lane l taking
+ * the l-th run of CK tets, so the lanes of a block are CK tets apart (a few cells in a
+ * structured mesh: they rarely share a node) while a block's nodes stay close in memory */
+#define CK 16
+static inline int tet_lane(int t) { return (t % (CW * CK)) / CK; }
+static inline int tet_block(int t) { return (t / (CW * CK)) * CK + t % CK; }
+
+/* a tet's gradients and volume (G[10]) and rotation (q[4]) out of / into the block layout */
+static inline void tet_load(const sq_corot *C, int t, double G[10], double q[4])
+{
+    const double *gb = C->g + 10 * CW * (size_t)tet_block(t);
+    const double *qb = C->q + 4 * CW * (size_t)tet_block(t);
+    int l = tet_lane(t);
+    for (int k = 0; k < 10; k++)
+        G[k] = gb[CW * k + l];
+    if (q)
+        for (int k = 0; k < 4; k++)
+            q[k] = qb[CW * k + l];
+}
+
+static inline void tet_store_q(sq_corot *C, int t, const double q[4])
+{
+    double *qb = C->q + 4 * CW * (size_t)tet_block(t);
+    for (int k = 0; k < 4; k++)
+        qb[CW * k + tet_lane(t)] = q[k];
+}
+
+int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err)
+{
+    if (op != SQ_OPERATOR_FEM)
+        return sq_err_set(err, "corotational elasticity needs the fem operator (the paper operator charges "
+                               "rotation as strain, so it has no corotational form here): use \"operator\": "
+                               "\"fem\" with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\"");
+    if (sq_material_check(mat, err) < 0)
+        return -1;
+    const sq_mesh *m = L->mesh;
+    sq_corot *C = L->corot;
+    if (!C) {
+        C = sq_calloc(1, sizeof *C);
+        C->ntets = m->ntets;
+        C->nblocks = (m->ntets + CW * CK - 1) / (CW * CK) * CK;
+        C->g = sq_calloc(10 * CW * (size_t)C->nblocks, sizeof(double));
+        C->q = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(double));
+        C->tv = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
+        C->acc = sq_calloc(4 * (size_t)L->n + 4, sizeof(double));
+        L->corot = C;
+        for (int t = 0; t < m->ntets; t++) {
+            double a[4][3];
+            double V = sq_tet_gradients(m, t, a);
+            if (!(V > 0) || !isfinite(V)) {
+                sq_level_corot_free(L);
+                return sq_err_set(err, "%s: tetrahedron %d has volume %g: repair the mesh", m->source, t, V);
+            }
+            double *gb = C->g + 10 * CW * (size_t)tet_block(t);
+            int *tb = C->tv + 4 * CW * (size_t)tet_block(t);
+            for (int k = 0; k < 3; k++)
+                for (int c = 0; c < 3; c++)
+                    gb[CW * (3 * k + c) + tet_lane(t)] = a[k][c];
+            gb[CW * 9 + tet_lane(t)] = V;
+            for (int k = 0; k < 4; k++)
+                tb[CW * k + tet_lane(t)] = m->tets[4 * t + k];
+        }
+        sq_level_corot_reset(L);
+    }
+    C->mu = mat->mu;
+    C->lambda = mat->lambda;
+    return 0;
+}
+
+void sq_level_corot_free(sq_level *L)
+{
+    if (!L->corot)
+        return;
+    free(L->corot->g);
+    free(L->corot->q);
+    free(L->corot->tv);
+    free(L->corot->acc);
+    free(L->corot);
+    L->corot = NULL;
+}
+
+void sq_level_corot_reset(sq_level *L)
+{
+    sq_corot *C = L->corot;
+    if (!C)
+        return;
+    size_t nq = 4 * CW * (size_t)C->nblocks;
+    memset(C->q, 0, sizeof(double) * nq);
+    for (int b = 0; b < C->nblocks; b++)
+        for (int l = 0; l < CW; l++)
+            C->q[4 * CW * (size_t)b + l] = 1;
+}
+
+void sq_level_corot_copy(sq_level *dst, const sq_level *src)
+{
+    if (dst->corot && src->corot && dst->corot->ntets == src->corot->ntets)
+        memcpy(dst->corot->q, src->corot->q, sizeof(double) * 4 * CW * (size_t)src->corot->nblocks);
+}
+
+/* R (row-major) of a unit quaternion */
+static inline void quat_mat(const double *q, double R[9])
+{
+    const double w = q[0], x = q[1], y = q[2], z = q[3];
+    R[0] = 1 - 2 * (y * y + z * z);
+    R[1] = 2 * (x * y - w * z);
+    R[2] = 2 * (x * z + w * y);
+    R[3] = 2 * (x * y + w * z);
+    R[4] = 1 - 2 * (x * x + z * z);
+    R[5] = 2 * (y * z - w * x);
+    R[6] = 2 * (x * z - w * y);
+    R[7] = 2 * (y * z + w * x);
+    R[8] = 1 - 2 * (x * x + y * y);
+}
+
+/* one improvement of the rotation q towards argmax tr(R^T F); R = R(q) on entry; returns |w| */
+static inline double rot_iterate(double *q, const double R[9], const double F[9])
+{
+    /* B = F R^T */
+    double B[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            B[3 * r + c] = F[3 * r] * R[3 * c] + F[3 * r + 1] * R[3 * c + 1] + F[3 * r + 2] * R[3 * c + 2];
+    const double g0 = B[7] - B[5], g1 = B[2] - B[6], g2 = B[3] - B[1];
+    const double tr = B[0] + B[4] + B[8];
+    /* H = tr(B) I - sym(B) */
+    const double h00 = tr - B[0], h11 = tr - B[4], h22 = tr - B[8];
+    const double h01 = -0.5 * (B[1] + B[3]), h02 = -0.5 * (B[2] + B[6]), h12 = -0.5 * (B[5] + B[7]);
+    const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
+    const double det = h00 * c00 + h01 * c01 + h02 * c02;
+    const double ht = h00 + h11 + h22;
+    double w0, w1, w2;
+    if (h00 > 0 && h00 * h11 - h01 * h01 > 0 && det > 1e-3 * ht * ht * ht / 27) {
+        const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
+        const double id = 1.0 / det;
+        w0 = id * (c00 * g0 + c01 * g1 + c02 * g2);
+        w1 = id * (c01 * g0 + c11 * g1 + c12 * g2);
+        w2 = id * (c02 * g0 + c12 * g1 + c22 * g2);
+    } else {
+        const double s = 1.0 / (fabs(tr) + 1e-12);
+        w0 = s * g0;
+        w1 = s * g1;
+        w2 = s * g2;
+    }
+    double wn = sqrt(w0 * w0 + w1 * w1 + w2 * w2);
+    if (wn > 1) {
+        w0 /= wn;
+        w1 /= wn;
+        w2 /= wn;
+    }
+    /* q <- normalise((1, w/2) q): a rotation by 2 atan(|w|/2) about w, then q */
+    const double hw0 = 0.5 * w0, hw1 = 0.5 * w1, hw2 = 0.5 * w2;
+    const double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+    double nw = qw - (hw0 * qx + hw1 * qy + hw2 * qz);
+    double nx = qx + qw * hw0 + (hw1 * qz - hw2 * qy);
+    double ny = qy + qw * hw1 + (hw2 * qx - hw0 * qz);
+    double nz = qz + qw * hw2 + (hw0 * qy - hw1 * qx);
+    const double in = 1.0 / sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
+    q[0] = nw * in;
+    q[1] = nx * in;
+    q[2] = ny * in;
+    q[3] = nz * in;
+    return wn;
+}
+
+/* F = diag I + sum_{k<3} (u_k - u_3) a_k^T of a tet with u = d + b v (b = 0: u = d; d = NULL:
+ * u = v, for the displacement-rate gradient) */
+static inline void tet_grad(const double *G, const int *tv, const double *d, const double *v, double b,
+                            double F[9], double diag)
+{
+    double u[4][3];
+    for (int k = 0; k < 4; k++)
+        for (int c = 0; c < 3; c++) {
+            size_t i = 3 * (size_t)tv[k] + c;
+            u[k][c] = d ? (b != 0 ? d[i] + b * v[i] : d[i]) : v[i];
+        }
+    for (int r = 0; r < 9; r++)
+        F[r] = 0;
+    for (int k = 0; k < 3; k++) {
+        const double e0 = u[k][0] - u[3][0], e1 = u[k][1] - u[3][1], e2 = u[k][2] - u[3][2];
+        const double *a = G + 3 * k;
+        for (int c = 0; c < 3; c++) {
+            F[c] += e0 * a[c];
+            F[3 + c] += e1 * a[c];
+            F[6 + c] += e2 * a[c];
+        }
+    }
+    F[0] += diag;
+    F[4] += diag;
+    F[8] += diag;
+}
+
+/* S = R^T A */
+static inline void rt_mul(const double R[9], const double A[9], double S[9])
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            S[3 * r + c] = R[r] * A[c] + R[3 + r] * A[3 + c] + R[6 + r] * A[6 + c];
+}
+
+/* rotation of F from q: iters improvements (stopping when converged), R = R(q) on return */
+static inline void tet_rotation(double q[4], const double F[9], int iters, double R[9])
+{
+    for (int it = 0; it < iters; it++) {
+        quat_mat(q, R);
+        if (rot_iterate(q, R, F) < 1e-15)
+            break;
+    }
+    quat_mat(q, R);
+}
+
+/* sigma = 2 s sym(S - I) + l tr(S - I) I, added to sig (or set when add == 0) */
+static inline void add_stress(const double S[9], double s, double l, double diag, double sig[9], int add)
+{
+    double e00 = S[0] - diag, e11 = S[4] - diag, e22 = S[8] - diag;
+    double t = l * (e00 + e11 + e22), s2 = 2 * s;
+    double x01 = s * (S[1] + S[3]), x02 = s * (S[2] + S[6]), x12 = s * (S[5] + S[7]);
+    double o[9] = {s2 * e00 + t, x01, x02, x01, s2 * e11 + t, x12, x02, x12, s2 * e22 + t};
+    for (int k = 0; k < 9; k++)
+        sig[k] = add ? sig[k] + o[k] : o[k];
+}
+
+/* elastic (+ damping) element forces of every tet added into f (n x 3), one tet at a time;
+ * iters rotation updates per tet; store: write the updated rotations back (else they are only
+ * used). Rayleigh damping: the rotation and the stress come from F = I + grad(d + b v), i.e.
+ * f = -R K_T (R^T (x + b v) - X): the elastic force plus b R K_T R^T v, with R the rotation of
+ * I + grad(d + b v) (it differs from that of I + grad d by O(b |grad v|)). Viscosities (not
+ * proportional to K): R from I + grad d, and R D_T R^T v added. */
+static void corot_tets(sq_level *L, const sq_material *mat, double *f, int iters, int store)
+{
+    sq_corot *C = L->corot;
+    const double mu = C->mu, lam = C->lambda;
+    const int visc = mat->use_viscosity;
+    const double b = visc ? 0 : mat->rayleigh_stiffness;
+    const double *d = L->d, *v = L->v;
+    for (int t = 0; t < C->ntets; t++) {
+        double G[10], q[4], F[9], R[9], S[9], sig[9];
+        tet_load(C, t, G, q);
+        const int *tv = L->mesh->tets + 4 * (size_t)t;
+        tet_grad(G, tv, d, v, b, F, 1.0);
+        tet_rotation(q, F, iters, R);
+        if (store)
+            tet_store_q(C, t, q);
+        rt_mul(R, F, S);
+        add_stress(S, mu, lam, 1.0, sig, 0);
+        if (visc) {
+            double Lv[9];
+            tet_grad(G, tv, NULL, v, 0, Lv, 0.0);
+            rt_mul(R, Lv, S);
+            add_stress(S, mat->phi, mat->psi, 0.0, sig, 1);
+        }
+        /* P = V R sigma; node k < 3 gets -P a_k, node 3 the opposite of their sum */
+        const double V = G[9];
+        double P[9];
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)
+                P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
+        double s0 = 0, s1 = 0, s2 = 0;
+        for (int k = 0; k < 3; k++) {
+            const double *a = G + 3 * k;
+            const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
+            const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
+            const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
+            double *fk = f + 3 * (size_t)tv[k];
+            fk[0] -= f0;
+            fk[1] -= f1;
+            fk[2] -= f2;
+            s0 += f0;
+            s1 += f1;
+            s2 += f2;
+        }
+        double *f3 = f + 3 * (size_t)tv[3];
+        f3[0] += s0;
+        f3[1] += s1;
+        f3[2] += s2;
+    }
+}
+
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#define COROT_SIMD 1
+typedef __m256d vd;
+#define VADD _mm256_add_pd
+#define VSUB _mm256_sub_pd
+#define VMUL _mm256_mul_pd
+#define VFMA _mm256_fmadd_pd   /* a b + c */
+#define VFNMA _mm256_fnmadd_pd /* c - a b */
+#define VSET1 _mm256_set1_pd
+
+/* 4 nodes' (x, y, z, .) rows -> x, y, z vectors (lane l = row l) */
+static inline void transpose_in(vd r0, vd r1, vd r2, vd r3, vd *x, vd *y, vd *z)
+{
+    vd t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
+    vd t2 = _mm256_unpacklo_pd(r2, r3), t3 = _mm256_unpackhi_pd(r2, r3);
+    *x = _mm256_permute2f128_pd(t0, t2, 0x20);
+    *y = _mm256_permute2f128_pd(t1, t3, 0x20);
+    *z = _mm256_permute2f128_pd(t0, t2, 0x31);
+}
+
+/* x, y, z vectors -> 4 rows (x, y, z, 0) */
+static inline void transpose_out(vd x, vd y, vd z, vd out[4])
+{
+    vd zero = _mm256_setzero_pd();
+    vd t0 = _mm256_unpacklo_pd(x, y), t1 = _mm256_unpackhi_pd(x, y);
+    vd t2 = _mm256_unpacklo_pd(z, zero), t3 = _mm256_unpackhi_pd(z, zero);
+    out[0] = _mm256_permute2f128_pd(t0, t2, 0x20);
+    out[1] = _mm256_permute2f128_pd(t1, t3, 0x20);
+    out[2] = _mm256_permute2f128_pd(t0, t2, 0x31);
+    out[3] = _mm256_permute2f128_pd(t1, t3, 0x31);
+}
+
+/* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
+ * update), CW tets per iteration in vector lanes, into C->acc (n x 4) */
+static void corot_tets_simd(sq_level *L, double b)
+{
+    sq_corot *C = L->corot;
+    const double *d = L->d, *v = L->v;
+    double *acc = C->acc;
+    const vd one = VSET1(1.0), half = VSET1(0.5), two = VSET1(2.0), vb = VSET1(b);
+    const vd m2 = VSET1(2 * C->mu), lam = VSET1(C->lambda);
+    const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
+    const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+    for (int blk = 0; blk < C->nblocks; blk++) {
+        const double *gb = C->g + 10 * CW * (size_t)blk;
+        double *qb = C->q + 4 * CW * (size_t)blk;
+        const int *tb = C->tv + 4 * CW * (size_t)blk;
+        /* u = d + b v of the 4 nodes of the 4 tets, as x/y/z lane vectors per node slot */
+        vd ux[4], uy[4], uz[4];
+        for (int k = 0; k < 4; k++) {
+            vd r[4];
+            for (int l = 0; l < 4; l++) {
+                size_t i = 3 * (size_t)tb[CW * k + l];
+                r[l] = _mm256_loadu_pd(d + i);
+                if (b != 0)
+                    r[l] = VFMA(vb, _mm256_loadu_pd(v + i), r[l]);
+            }
+            transpose_in(r[0], r[1], r[2], r[3], &ux[k], &uy[k], &uz[k]);
+        }
+        vd a[9];
+        for (int k = 0; k < 9; k++)
+            a[k] = _mm256_loadu_pd(gb + CW * k);
+        /* F = I + sum_k (u_k - u_3) a_k^T */
+        vd F[9];
+        for (int r = 0; r < 9; r++)
+            F[r] = _mm256_setzero_pd();
+        for (int k = 0; k < 3; k++) {
+            vd e[3] = {VSUB(ux[k], ux[3]), VSUB(uy[k], uy[3]), VSUB(uz[k], uz[3])};
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    F[3 * r + c] = VFMA(e[r], a[3 * k + c], F[3 * r + c]);
+        }
+        F[0] = VADD(F[0], one);
+        F[4] = VADD(F[4], one);
+        F[8] = VADD(F[8], one);
+        /* R = R(q) from the last substep, S = R^T F; one Newton (or fallback) step in the body
+         * frame, R <- R exp([w]) with (tr(S) I - sym(S)) w = axial(S - S^T); then R and S again
+         * for this substep's stress. (Using the old rotation for the stress instead saves a
+         * quarter of the work but is unstable: the lag acts as a negative damping of order
+         * dt |stress| on the fastest modes; the arc-drag beam blew up at 15 degrees.) */
+        vd qw = _mm256_loadu_pd(qb), qx = _mm256_loadu_pd(qb + CW), qy = _mm256_loadu_pd(qb + 2 * CW),
+           qz = _mm256_loadu_pd(qb + 3 * CW);
+        vd R[9], S[9];
+        for (int pass = 0; pass < 2; pass++) {
+            vd xx = VMUL(qx, qx), yy = VMUL(qy, qy), zz = VMUL(qz, qz);
+            vd xy = VMUL(qx, qy), xz = VMUL(qx, qz), yz = VMUL(qy, qz);
+            vd wx = VMUL(qw, qx), wy = VMUL(qw, qy), wz = VMUL(qw, qz);
+            R[0] = VFNMA(two, VADD(yy, zz), one);
+            R[1] = VMUL(two, VSUB(xy, wz));
+            R[2] = VMUL(two, VADD(xz, wy));
+            R[3] = VMUL(two, VADD(xy, wz));
+            R[4] = VFNMA(two, VADD(xx, zz), one);
+            R[5] = VMUL(two, VSUB(yz, wx));
+            R[6] = VMUL(two, VSUB(xz, wy));
+            R[7] = VMUL(two, VADD(yz, wx));
+            R[8] = VFNMA(two, VADD(xx, yy), one);
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    S[3 * r + c] = VFMA(R[r], F[c], VFMA(R[3 + r], F[3 + c], VMUL(R[6 + r], F[6 + c])));
+            if (pass == 1)
+                break;
+            vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
+            vd tr = VADD(VADD(S[0], S[4]), S[8]);
+            vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
+            vd h01 = VMUL(half, VADD(S[1], S[3])), h02 = VMUL(half, VADD(S[2], S[6])),
+               h12 = VMUL(half, VADD(S[5], S[7])); /* the negated off-diagonals of H */
+            /* cofactors of H = [[h00, -h01, -h02], [-h01, h11, -h12], [-h02, -h12, h22]] */
+            vd c00 = VFNMA(h12, h12, VMUL(h11, h22));
+            vd c01 = VFMA(h01, h22, VMUL(h02, h12));
+            vd c02 = VFMA(h02, h11, VMUL(h01, h12));
+            vd c11 = VFNMA(h02, h02, VMUL(h00, h22));
+            vd c12 = VFMA(h00, h12, VMUL(h01, h02));
+            vd c22 = VFNMA(h01, h01, VMUL(h00, h11));
+            vd det = VFNMA(h02, c02, VFNMA(h01, c01, VMUL(h00, c00)));
+            vd ht = VADD(VADD(h00, h11), h22);
+            vd ok = _mm256_and_pd(_mm256_cmp_pd(h00, _mm256_setzero_pd(), _CMP_GT_OQ),
+                                  _mm256_cmp_pd(c22, _mm256_setzero_pd(), _CMP_GT_OQ));
+            ok = _mm256_and_pd(ok, _mm256_cmp_pd(det, VMUL(thr, VMUL(ht, VMUL(ht, ht))), _CMP_GT_OQ));
+            /* Newton: w = adj(H) g / det; fallback: g / (|tr| + tiny) */
+            vd s = _mm256_div_pd(one, _mm256_blendv_pd(VADD(_mm256_and_pd(tr, absmask), tiny), det, ok));
+            vd n0 = VFMA(c00, g0, VFMA(c01, g1, VMUL(c02, g2)));
+            vd n1 = VFMA(c01, g0, VFMA(c11, g1, VMUL(c12, g2)));
+            vd n2 = VFMA(c02, g0, VFMA(c12, g1, VMUL(c22, g2)));
+            vd w0 = VMUL(_mm256_blendv_pd(g0, n0, ok), s), w1 = VMUL(_mm256_blendv_pd(g1, n1, ok), s),
+               w2 = VMUL(_mm256_blendv_pd(g2, n2, ok), s);
+            /* cap |w| at 1 rad, then q <- normalise(q (1, w/2)) */
+            vd wn2 = VFMA(w0, w0, VFMA(w1, w1, VMUL(w2, w2)));
+            vd cap = half;
+            if (_mm256_movemask_pd(_mm256_cmp_pd(wn2, one, _CMP_GT_OQ)))
+                cap = _mm256_div_pd(half, _mm256_max_pd(one, _mm256_sqrt_pd(wn2)));
+            vd hw0 = VMUL(w0, cap), hw1 = VMUL(w1, cap), hw2 = VMUL(w2, cap);
+            vd nw = VFNMA(qx, hw0, VFNMA(qy, hw1, VFNMA(qz, hw2, qw)));
+            vd nx = VFMA(qw, hw0, VFMA(qy, hw2, VFNMA(qz, hw1, qx)));
+            vd ny = VFMA(qw, hw1, VFMA(qz, hw0, VFNMA(qx, hw2, qy)));
+            vd nz = VFMA(qw, hw2, VFMA(qx, hw1, VFNMA(qy, hw0, qz)));
+            /* 1 / |n|: |n|^2 = (1 + |w/2|^2) |q|^2 is 1 + O(1e-8) in a normal step, where
+             * (3 - x) / 2 is exact to ~1e-16; otherwise divide */
+            vd nn = VFMA(nw, nw, VFMA(nx, nx, VFMA(ny, ny, VMUL(nz, nz))));
+            vd in = VFNMA(half, nn, VSET1(1.5));
+            if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
+                in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
+            qw = VMUL(nw, in), qx = VMUL(nx, in), qy = VMUL(ny, in), qz = VMUL(nz, in);
+        }
+        _mm256_storeu_pd(qb, qw);
+        _mm256_storeu_pd(qb + CW, qx);
+        _mm256_storeu_pd(qb + 2 * CW, qy);
+        _mm256_storeu_pd(qb + 3 * CW, qz);
+        /* sigma = 2 mu sym(S - I) + lambda tr(S - I) I, P = R (V sigma) */
+        vd V = _mm256_loadu_pd(gb + 9 * CW);
+        vd e00 = VSUB(S[0], one), e11 = VSUB(S[4], one), e22 = VSUB(S[8], one);
+        vd vm2 = VMUL(V, m2), vhm = VMUL(half, vm2);
+        vd t = VMUL(VMUL(V, lam), VADD(VADD(e00, e11), e22));
+        vd sg[9];
+        sg[0] = VFMA(vm2, e00, t);
+        sg[4] = VFMA(vm2, e11, t);
+        sg[8] = VFMA(vm2, e22, t);
+        sg[1] = sg[3] = VMUL(vhm, VADD(S[1], S[3]));
+        sg[2] = sg[6] = VMUL(vhm, VADD(S[2], S[6]));
+        sg[5] = sg[7] = VMUL(vhm, VADD(S[5], S[7]));
+        vd P[9];
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)
+                P[3 * r + c] = VFMA(R[3 * r], sg[c], VFMA(R[3 * r + 1], sg[3 + c], VMUL(R[3 * r + 2], sg[6 + c])));
+        /* forces: node k < 3 gets -P a_k, node 3 the sum; scattered lane by lane */
+        vd fx[4], fy[4], fz[4];
+        fx[3] = fy[3] = fz[3] = _mm256_setzero_pd();
+        for (int k = 0; k < 3; k++) {
+            const vd *ak = a + 3 * k;
+            fx[k] = VFMA(P[0], ak[0], VFMA(P[1], ak[1], VMUL(P[2], ak[2])));
+            fy[k] = VFMA(P[3], ak[0], VFMA(P[4], ak[1], VMUL(P[5], ak[2])));
+            fz[k] = VFMA(P[6], ak[0], VFMA(P[7], ak[1], VMUL(P[8], ak[2])));
+            fx[3] = VADD(fx[3], fx[k]);
+            fy[3] = VADD(fy[3], fy[k]);
+            fz[3] = VADD(fz[3], fz[k]);
+        }
+        for (int k = 0; k < 4; k++) {
+            vd rows[4];
+            transpose_out(fx[k], fy[k], fz[k], rows);
+            for (int l = 0; l < 4; l++) {
+                double *ai = acc + 4 * (size_t)tb[CW * k + l];
+                vd cur = _mm256_loadu_pd(ai);
+                _mm256_storeu_pd(ai, k < 3 ? VSUB(cur, rows[l]) : VADD(cur, rows[l]));
+            }
+        }
+    }
+}
+#endif
+
+/* f = m (g - a v) + element forces */
+static void corot_forces(sq_level *L, const sq_material *mat, const double g[3], int iters, int store)
+{
+    const double a = mat->rayleigh_mass;
+    for (int i = 0; i < L->n; i++) {
+        const double mi = L->mass[i];
+        for (int c = 0; c < 3; c++)
+            L->f[3 * i + c] = mi * (g[c] - a * L->v[3 * i + c]);
+    }
+    corot_tets(L, mat, L->f, iters, store);
+}
+
+void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
+                         const unsigned char *mask)
+{
+#ifdef COROT_SIMD
+    if (!mat->use_viscosity) {
+        sq_corot *C = L->corot;
+        corot_tets_simd(L, mat->rayleigh_stiffness);
+        /* forces, then symplectic Euler as in sq_level_integrate (same arithmetic) */
+        const double a = mat->rayleigh_mass;
+        double *restrict acc = C->acc, *restrict f = L->f, *restrict vv = L->v, *restrict dd = L->d;
+        const unsigned char *restrict fixed = L->fixed;
+        for (int i = 0; i < L->n; i++) {
+            const double mi = L->mass[i];
+            double fi[3], vi[3];
+            for (int c = 0; c < 3; c++) {
+                fi[c] = acc[4 * i + c] + mi * (g[c] - a * vv[3 * i + c]);
+                f[3 * i + c] = fi[c];
+                acc[4 * i + c] = 0;
+            }
+            if (dt > 0 && (!mask || mask[i])) {
+                const double h = dt / mi;
+                for (int c = 0; c < 3; c++) {
+                    vi[c] = vv[3 * i + c] + h * fi[c];
+                    if (fixed[i] & (1u << c))
+                        vi[c] = 0;
+                    vv[3 * i + c] = vi[c];
+                    dd[3 * i + c] += dt * vi[c];
+                }
+            }
+        }
+        return;
+    }
+#endif
+    corot_forces(L, mat, g, 1, 1);
+    sq_level_integrate(L, dt, mask);
+}
+
+void sq_level_corot_forces(sq_level *L, const sq_material *mat, const double g[3])
+{
+    /* rotations iterated to convergence from the stored ones, not stored: the state is unchanged */
+    corot_forces(L, mat, g, 50, 0);
+}
+
+void sq_level_corot_converge(sq_level *L)
+{
+    sq_corot *C = L->corot;
+    if (!C)
+        return;
+    for (int t = 0; t < C->ntets; t++) {
+        double G[10], q[4], F[9], R[9];
+        tet_load(C, t, G, q);
+        tet_grad(G, L->mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_rotation(q, F, 50, R);
+        tet_store_q(C, t, q);
+    }
+}
+
+double sq_level_corot_energy(const sq_level *L)
+{
+    const sq_corot *C = L->corot;
+    double e = 0;
+    for (int t = 0; t < C->ntets; t++) {
+        double G[10], q[4], F[9], R[9], S[9];
+        tet_load(C, t, G, q);
+        tet_grad(G, L->mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_rotation(q, F, 50, R);
+        rt_mul(R, F, S);
+        double e00 = S[0] - 1, e11 = S[4] - 1, e22 = S[8] - 1;
+        double e01 = 0.5 * (S[1] + S[3]), e02 = 0.5 * (S[2] + S[6]), e12 = 0.5 * (S[5] + S[7]);
+        double tr = e00 + e11 + e22;
+        double ee = e00 * e00 + e11 * e11 + e22 * e22 + 2 * (e01 * e01 + e02 * e02 + e12 * e12);
+        e += G[9] * (C->mu * ee + 0.5 * C->lambda * tr * tr);
+    }
+    return e;
+}
+
+int sq_level_corot_inverted(const sq_level *L)
+{
+    const sq_mesh *m = L->mesh;
+    int n = 0;
+    for (int t = 0; t < m->ntets; t++) {
+        double a[4][3], G[10], F[9];
+        sq_tet_gradients(m, t, a);
+        for (int k = 0; k < 3; k++)
+            for (int c = 0; c < 3; c++)
+                G[3 * k + c] = a[k][c];
+        tet_grad(G, m->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        double det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
+                     F[2] * (F[3] * F[7] - F[4] * F[6]);
+        n += det <= 0;
+    }
+    return n;
+}

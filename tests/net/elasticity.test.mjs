@@ -1,0 +1,79 @@
+// elasticity.test.mjs - "elasticity" in set and settings (docs/protocol.md), against the real
+// server: switching at run time, the refused combinations (paper operator, adaptive lod) with
+// the supported one named, all-or-nothing requests, and a bad value.
+import { test, before, after } from 'node:test';
+import assert from 'node:assert/strict';
+import { SquishClient, SquishError } from './client.mjs';
+import { startServer } from './harness.mjs';
+
+let srv;
+before(async () => { srv = await startServer(['--grace', '1', '--scenes', 'meshes/scenes']); });
+after(async () => { await srv.stop(); });
+
+const refused = (re) => e => {
+  assert.ok(e instanceof SquishError);
+  assert.equal(e.code, 'refused');
+  assert.match(e.message, re);
+  return true;
+};
+
+test('set elasticity: default linear, corotational on, refusals change nothing', async () => {
+  const c = await SquishClient.connect(srv.url);
+  await c.open('paper-cube');
+  let a = await c.set({ damping: { mass: 1 } });
+  assert.equal(a.bodies[0].settings.elasticity, 'linear');
+  a = await c.set({ elasticity: 'corotational' });
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  // the paper operator has no corotational form: refused, naming the supported combination
+  await assert.rejects(c.set({ operator: 'paper' }), refused(/needs the fem operator/));
+  a = await c.set({ damping: { mass: 1 } });
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  assert.equal(a.bodies[0].settings.operator, 'fem');
+  // linear is applied before the operator in the same request
+  a = await c.set({ elasticity: 'linear', operator: 'paper' });
+  assert.equal(a.bodies[0].settings.elasticity, 'linear');
+  assert.equal(a.bodies[0].settings.operator, 'paper');
+  // corotational with paper: refused, and the request's other change is undone too
+  await assert.rejects(c.set({ elasticity: 'corotational', damping: { mass: 3 } }), refused(/fem operator/));
+  a = await c.set({ operator: 'fem', elasticity: 'corotational' });
+  assert.equal(a.bodies[0].settings.damping.mass, 1);
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  await assert.rejects(c.set({ elasticity: 'rotated' }), e => {
+    assert.ok(e instanceof SquishError);
+    assert.equal(e.code, "out_of_range"); // the enum code, as for set.operator
+    assert.match(e.message, /set\.elasticity/);
+    return true;
+  });
+  await c.close();
+});
+
+test('set elasticity: adaptive lod refuses corotational (sphere-grab ships corotational, fixed)', async () => {
+  const c = await SquishClient.connect(srv.url);
+  await c.open('sphere-grab');
+  let a = await c.set({ damping: { mass: 1.5 } });
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  await assert.rejects(c.set({ lod: { mode: 'adaptive' } }), refused(/fixed lod mode only/));
+  a = await c.set({ elasticity: 'linear', lod: { mode: 'adaptive' } });
+  assert.equal(a.bodies[0].settings.elasticity, 'linear');
+  assert.equal(a.bodies[0].settings.lod.mode, 'adaptive');
+  await assert.rejects(c.set({ elasticity: 'corotational' }), refused(/fixed lod mode only/));
+  a = await c.set({ lod: { mode: 'fixed' }, elasticity: 'corotational' });
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  assert.equal(a.bodies[0].settings.lod.mode, 'fixed');
+  await c.close();
+});
+
+test('set pressure: nodal on a fixed linear fem body, refused with corotational', async () => {
+  const c = await SquishClient.connect(srv.url);
+  await c.open('paper-cube');
+  let a = await c.set({ pressure: 'nodal' });
+  assert.equal(a.bodies[0].settings.pressure, 'nodal');
+  await assert.rejects(c.set({ elasticity: 'corotational' }), refused(/nodal pressure tets/));
+  a = await c.set({ pressure: 'element', elasticity: 'corotational' });
+  assert.equal(a.bodies[0].settings.pressure, 'element');
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  await assert.rejects(c.set({ pressure: 'nodal' }), refused(/linear elasticity/));
+  a = await c.set({ elasticity: 'linear', pressure: 'nodal' });
+  assert.equal(a.bodies[0].settings.pressure, 'nodal');
+  await c.close();
+});
