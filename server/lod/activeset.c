@@ -28,16 +28,21 @@ static int cmp_int(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+void sq_lodx_sort_ints(int *a, int n)
+{
+    qsort(a, (size_t)n, sizeof(int), cmp_int);
+}
+
+/* after rebuild_level filled alist (active nodes, increasing) and the inner mask */
 void sq_lodx_level_lists(sq_lod *lod, int k)
 {
-    int n = lod->lv[k].n, na = 0, ni = 0;
-    const unsigned char *st = lod->state[k], *inner = lod->inner[k];
-    for (int i = 0; i < n; i++)
-        if (st[i] == ST_ACTIVE) {
-            lod->alist[k][na++] = i;
-            if (inner[i])
-                lod->ilist[k][ni++] = i;
-        }
+    int ni = 0;
+    const unsigned char *inner = lod->inner[k];
+    for (int r = 0; r < lod->nactive[k]; r++) {
+        int i = lod->alist[k][r];
+        if (inner[i])
+            lod->ilist[k][ni++] = i;
+    }
     lod->nilist[k] = ni;
     lod->lists_dirty = 1;
     lod->gen++;

@@ -42,7 +42,7 @@ static void rebuild_level(sq_lod *lod, int k)
         lod->active[k][i] = (s == ST_ACTIVE);
         lod->mask[k][i] = (s == ST_ACTIVE);
         if (s == ST_ACTIVE)
-            na++;
+            lod->alist[k][na++] = i;
         else if (s == ST_SPLIT)
             lod->gf[k][nf++] = i;
         else
@@ -51,33 +51,33 @@ static void rebuild_level(sq_lod *lod, int k)
     lod->nactive[k] = na;
     lod->ngf[k] = nf;
     lod->ngc[k] = nc;
-    /* the ring: ghosts with an active neighbour */
+    /* the ring (ghosts with an active neighbour) and the frontier (active nodes with a ghost
+     * neighbour), found from the active nodes' rows, so the cost follows the active set; the
+     * ring is kept in increasing node order */
     const sq_level *Lk = &lod->lv[k];
-    int nr = 0;
-    for (int i = 0; i < n; i++) {
-        lod->ring_index[k][i] = -1;
-        lod->ins[k][i] = lod->active[k][i];
-        if (lod->active[k][i] || na == 0)
-            continue;
-        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
-            if (lod->active[k][Lk->col[q]]) {
-                lod->ins[k][i] = 1;
-                lod->ring_index[k][i] = nr;
-                lod->ring[k][nr++] = i;
-                break;
+    const unsigned char *act = lod->active[k];
+    for (int r = 0; r < lod->nring[k]; r++)
+        lod->ring_index[k][lod->ring[k][r]] = -1;
+    int nr = 0, nfr = 0;
+    for (int a = 0; a < na; a++) {
+        int i = lod->alist[k][a], front = 0;
+        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
+            int j = Lk->col[q];
+            if (act[j])
+                continue;
+            front = 1;
+            if (lod->ring_index[k][j] < 0) {
+                lod->ring_index[k][j] = 0;
+                lod->ring[k][nr++] = j;
             }
+        }
+        if (front)
+            lod->front[k][nfr++] = i;
     }
+    sq_lodx_sort_ints(lod->ring[k], nr);
+    for (int r = 0; r < nr; r++)
+        lod->ring_index[k][lod->ring[k][r]] = r;
     lod->nring[k] = nr;
-    int nfr = 0;
-    for (int i = 0; i < n && na < n; i++) {
-        if (!lod->active[k][i])
-            continue;
-        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
-            if (!lod->active[k][Lk->col[q]]) {
-                lod->front[k][nfr++] = i;
-                break;
-            }
-    }
     lod->nfront[k] = nfr;
     memcpy(lod->inner[k], lod->active[k], (size_t)n);
     for (int r = 0; r < nfr; r++)
@@ -594,6 +594,11 @@ static void own_rows(sq_lod *lod)
                 s += block_norm(L->K + 9 * (size_t)q);
             lod->rowk[k][i] = s;
         }
+        double own = 0;
+        for (int i = 0; i < L->n; i++)
+            if (L->fixed[i] != 7)
+                own = fmax(own, lod->rowk[k][i] / L->mass[i]);
+        lod->own_max[k] = own;
     }
 }
 
@@ -634,13 +639,12 @@ static void coupling_bound(sq_lod *lod)
     }
     for (int k = 0; k < L; k++) {
         const sq_level *Lk = &lod->lv[k];
-        double own = 0, coupled = 0;
-        for (int i = 0; i < Lk->n; i++) {
+        double own = lod->own_max[k], coupled = 0;
+        for (int a = 0; a < lod->nactive[k]; a++) {
+            int i = lod->alist[k][a];
             if (Lk->fixed[i] == 7)
                 continue;
-            own = fmax(own, lod->rowk[k][i] / Lk->mass[i]);
-            if (lod->active[k][i])
-                coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
+            coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
         }
         int extra = 0;
         if (own > 0 && coupled > own)
@@ -761,7 +765,6 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->gc[k] = sq_malloc(sizeof(int) * n);
         lod->slot[k] = sq_malloc(sizeof(int) * n);
         lod->clap[k] = criterion_weights(levels[k].mesh);
-        lod->ins[k] = sq_calloc(n, 1);
         lod->ring[k] = sq_malloc(sizeof(int) * n);
         lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
@@ -769,6 +772,8 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->fs_levels[k] = sq_calloc(n + 1, 1);
         lod->rk_off[k] = sq_calloc(n + 1, sizeof(int));
         lod->ring_index[k] = sq_malloc(sizeof(int) * n);
+        for (size_t i = 0; i < n; i++)
+            lod->ring_index[k][i] = -1;
         lod->front[k] = sq_malloc(sizeof(int) * n);
         lod->inner[k] = sq_calloc(n, 1);
         lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
@@ -822,7 +827,6 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->gc[k]);
         free(lod->slot[k]);
         free(lod->clap[k]);
-        free(lod->ins[k]);
         free(lod->ring[k]);
         free(lod->dprev[k]);
         free(lod->vprev[k]);

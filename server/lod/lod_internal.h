@@ -37,7 +37,6 @@ struct sq_lod {
     int *gc[SQ_MAX_LEVELS], ngc[SQ_MAX_LEVELS]; /* coarse ghosts */
     double *clap[SQ_MAX_LEVELS];         /* criterion Laplacian weights per CSR entry (nnz) */
     /* coupling: the ring of ghosts next to active nodes, and the reactions handed back */
-    unsigned char *ins[SQ_MAX_LEVELS];   /* 1 if active or in the ring (the set S_k) */
     int *ring[SQ_MAX_LEVELS], nring[SQ_MAX_LEVELS];
     int due[SQ_MAX_LEVELS];              /* level steps at the current tick */
     /* each ring ghost as a combination of active nodes (level, node, weight) */
@@ -88,6 +87,7 @@ struct sq_lod {
      * near an interface beyond the level's own bound (see coupling_bound) */
     int extra[SQ_MAX_LEVELS];
     double *rowk[SQ_MAX_LEVELS];         /* own Gershgorin row sums (n) */
+    double own_max[SQ_MAX_LEVELS];       /* largest rowk / mass over the level's free nodes */
     double *cpl[SQ_MAX_LEVELS];          /* coupling row sums (n) */
     int *ring_index[SQ_MAX_LEVELS];      /* ring position of a node, or -1 (n) */
     const double *k_seen;                /* level 0's K when the blocks were built */
@@ -159,5 +159,6 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3]);
 /* interp_node reading stale coarse-ghost corners on demand */
 void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, const double *b);
 void sq_lodx_free(sq_lod *lod, int k);
+void sq_lodx_sort_ints(int *a, int n);
 
 #endif
