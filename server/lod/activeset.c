@@ -406,4 +406,44 @@ void sq_lodx_free(sq_lod *lod, int k)
     free(lod->mark[k]);
     free(lod->cv[k]);
     free(lod->pstamp[k]);
+    free(lod->dstat[k]);
+}
+
+/* The criterion measures curvature of the displacement; a body sagging under its own weight
+ * has a curved static field, so on a soft body gravity alone kept regions refined for good.
+ * Linear elasticity superposes: the motion a tool causes is d - d_static, and the criterion is
+ * taken of that. d_static of each level is solved once (sq_level_static_solve, Jacobi CG to a
+ * relative residual of 1e-8) for the body's gravity and material; a level whose solve fails (a
+ * body with no support has no equilibrium) is judged from zero displacement, as before. */
+void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
+{
+    if (lod->stat_done && lod->stat_k == lod->lv[0].K && !memcmp(lod->stat_g, gravity, sizeof lod->stat_g) &&
+        lod->stat_top == lod->top && (!lod->have_mat || !memcmp(&lod->stat_mat, &lod->mat, sizeof lod->mat)))
+        return;
+    lod->stat_done = 1;
+    lod->stat_top = lod->top;
+    lod->stat_mat = lod->mat;
+    lod->stat_k = lod->lv[0].K;
+    memcpy(lod->stat_g, gravity, sizeof lod->stat_g);
+    int loaded = gravity[0] != 0 || gravity[1] != 0 || gravity[2] != 0;
+    for (int k = 0; k < lod->L; k++) {
+        free(lod->dstat[k]);
+        lod->dstat[k] = NULL;
+        if (!loaded || k > lod->top)
+            continue;
+        const sq_level *Lk = &lod->lv[k];
+        double *d = sq_malloc(sizeof(double) * 3 * (size_t)SQ_MAX(Lk->n, 1));
+        sq_err err = {{0}};
+        int it = 0;
+        if (sq_level_static_solve(Lk, gravity, 1e-8, 20 * Lk->n + 1000, d, &it, &err) == 0)
+            lod->dstat[k] = d;
+        else
+            free(d);
+    }
+}
+
+void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[3])
+{
+    sq_lod_set_material(lod, mat);
+    sq_lodx_static_loads(lod, gravity);
 }

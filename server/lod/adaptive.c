@@ -941,6 +941,7 @@ static double delta_at(const sq_lod *lod, int k, int i)
     const unsigned char *st = lod->state[k];
     const unsigned *ps = lod->pstamp[k];
     int all_valid = lod->full_no == lod->cascade_no;
+    const double *ds = lod->dstat[k];
     for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++) {
         int j = L->col[q];
         const double *dj = L->d + 3 * j;
@@ -949,6 +950,15 @@ static double delta_at(const sq_lod *lod, int k, int i)
             /* a neighbour the last cascade did not push (a node that just became active in
              * this split pass sees beyond the old ring): its value now, on demand */
             sq_lodx_value(lod, k, j, fresh, fv);
+            dj = fresh;
+        }
+        if (ds) {
+            /* the motion from the static equilibrium (the sag alone has no curvature here) */
+            if (dj != fresh)
+                memcpy(fresh, dj, sizeof fresh);
+            fresh[0] -= ds[3 * j];
+            fresh[1] -= ds[3 * j + 1];
+            fresh[2] -= ds[3 * j + 2];
             dj = fresh;
         }
         s[0] += w[q] * dj[0];
@@ -1497,6 +1507,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     for (int t = 0; force && t < ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
 
+    sq_lodx_static_loads(lod, gravity); /* no-op unless gravity or material changed */
     /* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
     double prev_time = lod->last_time;
     int over_budget = budget_s > 0 && prev_time > lod->def.budget * budget_s;

@@ -85,6 +85,11 @@ void sq_lod_flush(sq_lod *lod);
  * sq_lod_sync account for the level coupling before the first frame */
 void sq_lod_set_material(sq_lod *lod, const sq_material *mat);
 
+/* the frame's material and loads before the first frame: the coupling blocks and each level's
+ * static equilibrium under gravity (the criterion judges the displacement from it, so a sag
+ * alone refines nothing) are set up here instead of in the first frame */
+void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[3]);
+
 /* energy (J) of the simulated state, the quantity the adaptive frame conserves without
  * damping: kinetic 1/2 m_i |v_i|^2 over the active nodes of every level, and elastic energy
  * of every tet touching an active node (ghost corners at their interpolated values); either

@@ -113,6 +113,13 @@ struct sq_lod {
     unsigned *pstamp[SQ_MAX_LEVELS];     /* cascade a coarse ghost was last pushed at (n) */
     unsigned cascade_no;                 /* cascades run (the end-of-frame push counts one) */
     unsigned full_no;                    /* the last one that pushed every coarse ghost */
+    /* the criterion judges the displacement from each level's static equilibrium under the
+     * body's constant load (gravity), so a sag alone keeps nothing refined */
+    double *dstat[SQ_MAX_LEVELS];        /* static displacement (n x 3), NULL: judged from 0 */
+    double stat_g[3];                    /* gravity it was solved for */
+    const double *stat_k;                /* level 0's K it was solved with */
+    int stat_done, stat_top;
+    sq_material stat_mat;                /* material it was solved with (lod->mat then) */
     int stale;                           /* coarse ghosts outside `need` not pushed since the last frame */
     long gen;                            /* bumped whenever a level's states change */
     long nl_gen;                         /* gen the node levels were last given out at */
@@ -159,6 +166,8 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3]);
 /* interp_node reading stale coarse-ghost corners on demand */
 void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, const double *b);
 void sq_lodx_free(sq_lod *lod, int k);
+/* static equilibria of the levels up to the top for gravity (once per gravity and material) */
+void sq_lodx_static_loads(sq_lod *lod, const double gravity[3]);
 void sq_lodx_sort_ints(int *a, int n);
 
 #endif

@@ -279,6 +279,7 @@ sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
             sq_body_destroy(b);
             return NULL;
         }
+        sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity); /* set-up before frame 1 */
         sq_lod_node_levels(b->lod, b->node_level);
     } else {
         prepare_surface_map(b);
@@ -375,6 +376,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
             b->def.lod = *lod;
             sq_body_reset(b);
         }
+        sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity);
         b->def.lod = *lod;
         sq_lod_node_levels(b->lod, b->node_level);
     } else {
