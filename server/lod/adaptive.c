@@ -24,6 +24,16 @@
 
 #include "lod/lod_internal.h"
 
+#include <time.h>
+
+/* CPU time of the calling thread (s): what the frame costs on an idle core */
+static double thread_cpu(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 /* ---------------------------------------------------------------- state bookkeeping */
 
 /* substep exponent a level runs at in the adaptive frame */
@@ -1498,7 +1508,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                   const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                   sq_frame_profile *prof, double budget_s)
 {
-    double t_start = sq_now();
+    double t_start = sq_now(), c_start = thread_cpu();
     int L = lod->L, F = L - 1;
     double t_pull = 0, t_int = 0, t_push = 0, t_adapt = 0;
     long updates = 0;
@@ -1511,6 +1521,22 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     /* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
     double prev_time = lod->last_time;
     int over_budget = budget_s > 0 && prev_time > lod->def.budget * budget_s;
+    /* ... and the next frame predicted from its node updates times the CPU cost of one update
+     * measured on the last frame that had any: above budget x period, the node-update cap of
+     * this frame is what fits, so the finest mergeable regions merge first and splits that
+     * would exceed it are refused (the user's cap, if lower, still holds) */
+    long cap_user = lod->def.max_node_updates, cap_guard = 0;
+    double coarse_ms = 0;
+    if (budget_s > 0 && lod->cost_update > 0) {
+        double fit = lod->def.budget * budget_s / lod->cost_update;
+        cap_guard = fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 1L);
+        if (cap_user <= 0 || cap_guard < cap_user)
+            lod->def.max_node_updates = cap_guard;
+        else
+            cap_guard = 0;
+        /* the cheapest layout: every region at level 0 */
+        coarse_ms = 1e3 * lod->cost_update * (double)((long)lod->lv[0].nfree << sub_log2(lod, 0));
+    }
     /* coupling blocks and the substeps they need (which may push the cost over the cap:
      * merge first then), then the substep clock of the finest step */
     update_ring_blocks(lod, mat);
@@ -1677,8 +1703,16 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             lod->nmask[k] = lod->nactive[k];
         }
 
-    double t_end = sq_now();
-    lod->last_time = t_end - t_start;
+    double t_end = sq_now(), c_end = thread_cpu();
+    lod->last_time = c_end - c_start;
+    if (updates > 0) {
+        /* a decaying maximum: a frame with a rebuild costs more per update than a quiet one,
+         * and the next frame may have one */
+        double c = (c_end - c_start) / (double)updates;
+        lod->cost_update = fmax(c, 0.9 * lod->cost_update);
+    }
+    long cap_used = lod->def.max_node_updates;
+    lod->def.max_node_updates = cap_user;
     if (prof) {
         prof->t_pull = t_pull;
         prof->t_integrate = t_int;
@@ -1693,15 +1727,24 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         prof->splits = ao.splits;
         prof->merges = ao.merges;
         prof->splits_refused = over_budget || ao.refused;
-        if (over_budget)
+        if (coarse_ms > lod->def.budget * budget_s * 1e3)
+            snprintf(prof->event, sizeof(prof->event),
+                     "warning: cannot run in real time even fully coarse: level 0 needs %.2f ms "
+                     "(%d nodes x %d steps), budget %.2f ms; splitting refused", coarse_ms,
+                     lod->lv[0].nfree, 1 << sub_log2(lod, 0), lod->def.budget * budget_s * 1e3);
+        else if (over_budget)
             snprintf(prof->event, sizeof(prof->event),
                      "warning: frame compute %.2f ms over %.0f%% of the %.2f ms budget: splitting "
                      "refused, merging allowed", prev_time * 1e3, lod->def.budget * 100,
                      budget_s * 1e3);
+        else if (ao.refused && cap_guard > 0 && cap_used == cap_guard)
+            snprintf(prof->event, sizeof(prof->event),
+                     "warning: next frame predicted over %.0f%% of %.2f ms (%ld node updates fit): "
+                     "finest regions merged, splitting refused", lod->def.budget * 100, budget_s * 1e3,
+                     cap_guard);
         else if (ao.refused)
             snprintf(prof->event, sizeof(prof->event),
-                     "warning: node-update cap %ld per frame reached: splitting refused",
-                     lod->def.max_node_updates);
+                     "warning: node-update cap %ld per frame reached: splitting refused", cap_user);
     }
 }
 

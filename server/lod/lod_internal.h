@@ -97,7 +97,8 @@ struct sq_lod {
     int nhe, cap_he;
     int *hold_entry_of;                  /* entry of each hold of the frame */
     int cap_holds;
-    double last_time;                    /* compute time of the previous frame, s */
+    double last_time;                    /* CPU time of the previous frame, s */
+    double cost_update;                  /* CPU s per node update, last frame with updates (0: none yet) */
     /* index lists (activeset.c), so a frame's cost follows the active set, not the body */
     int *alist[SQ_MAX_LEVELS];           /* active nodes, increasing (nactive) */
     int *ilist[SQ_MAX_LEVELS], nilist[SQ_MAX_LEVELS]; /* inner active nodes */

@@ -211,3 +211,46 @@ SQ_TEST(lod_static_sag_splits_nothing)
     sq_mesh_free(m[0]);
     sq_mesh_free(m[1]);
 }
+
+/* The guard holds the rate by merging, not only by refusing splits: a body refined under a
+ * poke with no budget, then given a budget nothing fits in (1 ns), is merged back to level 0
+ * within two frames although the tool still presses, and the event says why. (Before, a refined
+ * region stayed: only new splits were refused.) */
+SQ_TEST(lod_guard_merges_when_the_frame_does_not_fit)
+{
+    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
+    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_frame_profile p;
+    int refined = 0;
+    for (int f = 0; f < 25; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.2 - 0.1 * SQ_MIN(f / 20.0, 1.0), 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 0);
+        refined = SQ_MAX(refined, p.active[2]);
+    }
+    int before = p.active[0] < m[0]->nnodes;
+    int coarse_at = -1, merged = 0, said = 0;
+    for (int f = 0; f < 5; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.1, 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 1e-9);
+        merged += p.merges;
+        said += strstr(p.event, "splitting refused") != NULL;
+        if (coarse_at < 0 && p.active[1] == 0 && p.active[2] == 0)
+            coarse_at = f;
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "guard: finest active up to %d under the poke; with a 1 ns budget %d merges, "
+                "all coarse at frame %d; last event: %s\n", refined, merged, coarse_at, p.event);
+    CHECK(refined > 0 && before);
+    CHECK(coarse_at >= 0 && coarse_at <= 1);
+    CHECK(merged > 0);
+    CHECK(said == 5);
+    sq_body_destroy(b);
+    for (int k = 0; k < 3; k++)
+        sq_mesh_free(m[k]);
+}
