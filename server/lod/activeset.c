@@ -33,6 +33,21 @@ void sq_lodx_sort_ints(int *a, int n)
     qsort(a, (size_t)n, sizeof(int), cmp_int);
 }
 
+/* the distinct nodes list[0..cnt) of a level of n nodes, each with mark[i] != 0, in increasing
+ * order: a scan of the marks when the list is a sizeable part of the level (qsort cost
+ * ~cnt log cnt compares, the scan n byte tests), else a sort */
+static void sort_marked(int *list, int cnt, const unsigned char *mark, int n)
+{
+    if ((long)cnt * 32 > n) {
+        int w = 0;
+        for (int i = 0; i < n; i++)
+            if (mark[i])
+                list[w++] = i;
+    } else {
+        qsort(list, (size_t)cnt, sizeof(int), cmp_int);
+    }
+}
+
 /* after rebuild_level filled alist (active nodes, increasing) and the inner mask */
 void sq_lodx_level_lists(sq_lod *lod, int k)
 {
@@ -114,9 +129,9 @@ void sq_lodx_refresh_lists(sq_lod *lod)
         }
     }
     for (int m = 0; m < L; m++) {
+        sort_marked(lod->plist[m], lod->nplist[m], lod->mark[m], lod->lv[m].n);
         for (int r = 0; r < lod->nplist[m]; r++)
             lod->mark[m][lod->plist[m][r]] = 0;
-        qsort(lod->plist[m], (size_t)lod->nplist[m], sizeof(int), cmp_int);
     }
 
     /* need: clear the previous set, then mark what is read */
@@ -156,7 +171,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             }
     }
     for (int k = 0; k < L; k++)
-        qsort(lod->need[k], (size_t)lod->nneed[k], sizeof(int), cmp_int);
+        sort_marked(lod->need[k], lod->nneed[k], lod->inneed[k], lod->lv[k].n);
     lod->lists_dirty = 0;
 }
 

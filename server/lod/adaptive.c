@@ -84,12 +84,19 @@ static void rebuild_level(sq_lod *lod, int k)
         if (front)
             lod->front[k][nfr++] = i;
     }
-    sq_lodx_sort_ints(lod->ring[k], nr);
+    if ((long)nr * 32 > n) { /* a sizeable ring: a scan of the marks beats a sort */
+        nr = 0;
+        for (int i = 0; i < n; i++)
+            if (lod->ring_index[k][i] >= 0)
+                lod->ring[k][nr++] = i;
+    } else {
+        sq_lodx_sort_ints(lod->ring[k], nr);
+    }
     for (int r = 0; r < nr; r++)
         lod->ring_index[k][lod->ring[k][r]] = r;
     lod->nring[k] = nr;
     lod->nfront[k] = nfr;
-    memcpy(lod->inner[k], lod->active[k], (size_t)n);
+    memcpy(lod->inner[k], lod->active[k], (size_t)SQ_MAX(n, 0));
     for (int r = 0; r < nfr; r++)
         lod->inner[k][lod->front[k][r]] = 0;
     lod->rk_dirty[k] = 1;
@@ -1528,7 +1535,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     long cap_user = lod->def.max_node_updates, cap_guard = 0;
     double coarse_ms = 0;
     if (budget_s > 0 && lod->cost_update > 0) {
-        double fit = lod->def.budget * budget_s / lod->cost_update;
+        double fit = (lod->def.budget * budget_s - lod->cost_fixed) / lod->cost_update;
         cap_guard = fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 1L);
         if (cap_user <= 0 || cap_guard < cap_user)
             lod->def.max_node_updates = cap_guard;
@@ -1708,8 +1715,14 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     if (updates > 0) {
         /* a decaying maximum: a frame with a rebuild costs more per update than a quiet one,
          * and the next frame may have one */
-        double c = (c_end - c_start) / (double)updates;
+        /* split the frame's CPU time into the part that scales with node updates (ghost
+         * values, forces, integration) and the rest (split/merge and rebuilds, end-of-frame
+         * ghosts), in the proportions of the stage wall times */
+        double cpu = c_end - c_start, wall = t_end - t_start;
+        double share = wall > 0 ? fmin(1.0, (t_pull + t_int) / wall) : 1.0;
+        double c = cpu * share / (double)updates;
         lod->cost_update = fmax(c, 0.9 * lod->cost_update);
+        lod->cost_fixed = fmax(cpu * (1 - share), 0.9 * lod->cost_fixed);
     }
     long cap_used = lod->def.max_node_updates;
     lod->def.max_node_updates = cap_user;

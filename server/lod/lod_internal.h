@@ -99,6 +99,7 @@ struct sq_lod {
     int cap_holds;
     double last_time;                    /* CPU time of the previous frame, s */
     double cost_update;                  /* CPU s per node update, last frame with updates (0: none yet) */
+    double cost_fixed;                   /* CPU s of a frame's rest (rebuilds, end-of-frame ghosts) */
     /* index lists (activeset.c), so a frame's cost follows the active set, not the body */
     int *alist[SQ_MAX_LEVELS];           /* active nodes, increasing (nactive) */
     int *ilist[SQ_MAX_LEVELS], nilist[SQ_MAX_LEVELS]; /* inner active nodes */
