@@ -764,6 +764,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         free(lod);
         return NULL;
     }
+    size_t nmax_nodes = 1;
     for (int k = 0; k < nlevels; k++) {
         size_t n = (size_t)levels[k].n;
         lod->state[k] = sq_calloc(n, 1);
@@ -778,6 +779,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->inneed[k] = sq_calloc(SQ_MAX(n, 1), 1);
         lod->mark[k] = sq_calloc(SQ_MAX(n, 1), 1);
         lod->pstamp[k] = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
+        nmax_nodes = SQ_MAX(nmax_nodes, n);
         lod->gf[k] = sq_malloc(sizeof(int) * n);
         lod->gc[k] = sq_malloc(sizeof(int) * n);
         lod->slot[k] = sq_malloc(sizeof(int) * n);
@@ -825,6 +827,8 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         for (size_t i = 0; i < n; i++)
             lod->slot[k][i] = -1;
     }
+    lod->nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
     set_uniform_level(lod, start_level(lod));
     sq_lod_sync(lod);
     return lod;
@@ -874,6 +878,8 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->fs_node[k]);
         free(lod->fs_w[k]);
     }
+    free(lod->nlv[0]);
+    free(lod->nlv[1]);
     free(lod->he);
     free(lod->hold_entry_of);
     sq_hierarchy_free(&lod->h);
@@ -1791,10 +1797,24 @@ void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
         return;
     lod->nl_gen = lod->gen;
     lod->nl_out = out;
+    /* level by level, coarse to fine: a node's level is its own if active, else its parent's
+     * (the walk up from each finest node to its active ancestor, without repeating it) */
     int F = lod->L - 1;
-    for (int j = 0; j < lod->lv[F].n; j++) {
-        int k = 0;
-        out[j] = active_of_finest(lod, j, &k) >= 0 ? (unsigned char)k : 0;
+    if (F == 0) {
+        memset(out, 0, (size_t)lod->lv[0].n);
+        return;
+    }
+    unsigned char *prev = lod->nlv[0], *cur = lod->nlv[1];
+    memset(prev, 0, (size_t)lod->lv[0].n);
+    for (int k = 1; k <= F; k++) {
+        unsigned char *dst = k == F ? out : cur;
+        const unsigned char *st = lod->state[k];
+        const int *par = lod->h.link[k - 1].parent;
+        for (int j = 0; j < lod->lv[k].n; j++)
+            dst[j] = st[j] == ST_ACTIVE ? (unsigned char)k : prev[par[j]];
+        unsigned char *t = prev;
+        prev = cur;
+        cur = t;
     }
 }
 

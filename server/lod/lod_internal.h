@@ -126,6 +126,7 @@ struct sq_lod {
     long gen;                            /* bumped whenever a level's states change */
     long nl_gen;                         /* gen the node levels were last given out at */
     const unsigned char *nl_out;         /* ... and the buffer they went to */
+    unsigned char *nlv[2];               /* scratch of sq_lod_node_levels (largest level) */
 };
 
 /* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained

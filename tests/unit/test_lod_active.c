@@ -50,7 +50,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
     sq_err e = {{0}};
     sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
     TH_REQUIRE(b[0] && b[1]);
-    long diff_frames = 0, max_fine = 0, splits = 0, merges = 0;
+    long diff_frames = 0, max_fine = 0, splits = 0, merges = 0, bad_levels = 0;
     for (int f = 0; f < 120; f++) {
         sq_tool tool = moving_poke(f * def.frame_dt);
         sq_frame_profile p[2];
@@ -60,6 +60,15 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
         diff_frames += p[0].node_updates != p[1].node_updates || p[0].active[3] != p[1].active[3] ||
                        p[0].splits != p[1].splits || p[0].merges != p[1].merges;
         max_fine = SQ_MAX(max_fine, p[0].active[3]);
+        /* the node levels (computed level by level) against the walk up to the active ancestor */
+        for (int j = 0; j < m[3]->nnodes; j++) {
+            int k = 3, x = j;
+            while (k > 0 && b[1]->lod->state[k][x] != 1) {
+                x = b[1]->lod->h.link[k - 1].parent[x];
+                k--;
+            }
+            bad_levels += b[1]->node_level[j] != (unsigned char)k;
+        }
         splits += p[0].splits;
         merges += p[0].merges;
     }
@@ -76,6 +85,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
     CHECK(max_fine < m[3]->nnodes / 2);              /* ... locally */
     CHECK(diff_frames == 0);
     CHECK(same);
+    CHECK(bad_levels == 0);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
     free4(m);
