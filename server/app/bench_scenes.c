@@ -187,7 +187,7 @@ static void bench_spmv_threads(int cells)
 
 int sq_bench_scenes(int argc, char **argv)
 {
-    const char *dir = "meshes/scenes", *thread_scene = "organ";
+    const char *dir = "meshes/scenes", *thread_scene = "organ", *one = NULL;
     long frames = 0;
     int spmv_cells = 79; /* 80^3 = 512,000 nodes, ~330 MB of blocks */
     for (int i = 1; i < argc; i++) {
@@ -208,37 +208,49 @@ int sq_bench_scenes(int argc, char **argv)
                 return 2;
             }
             spmv_cells = (int)c;
+        } else if (!strcmp(argv[i], "--scene") && i + 1 < argc) {
+            one = argv[++i];
         } else if (!strcmp(argv[i], "--threads-scene") && i + 1 < argc) {
             thread_scene = argv[++i];
         } else {
             fprintf(stderr, "squish tradeoff --bench: unknown argument '%s'; options: --scenes DIR, --frames N, "
-                            "--threads-scene NAME, --spmv-cells C\n", argv[i]);
+                            "--scene FILE, --threads-scene NAME, --spmv-cells C\n", argv[i]);
             return 2;
         }
     }
-    DIR *d = opendir(dir);
-    if (!d) {
-        fprintf(stderr, "squish tradeoff --bench: cannot open scene directory %s; pass --scenes DIR\n", dir);
-        return 1;
-    }
     char *names[64];
     int n = 0;
-    struct dirent *e;
-    while ((e = readdir(d)) && n < 64) {
-        size_t len = strlen(e->d_name);
-        if (len > 5 && !strcmp(e->d_name + len - 5, ".json"))
-            names[n++] = sq_strdup(e->d_name);
+    if (one) {
+        /* one scene file, no thread or spmv benches */
+        dir = NULL;
+        names[n++] = sq_strdup(one);
+    } else {
+        DIR *d = opendir(dir);
+        if (!d) {
+            fprintf(stderr, "squish tradeoff --bench: cannot open scene directory %s; pass --scenes DIR\n", dir);
+            return 1;
+        }
+        struct dirent *e;
+        while ((e = readdir(d)) && n < 64) {
+            size_t len = strlen(e->d_name);
+            if (len > 5 && !strcmp(e->d_name + len - 5, ".json"))
+                names[n++] = sq_strdup(e->d_name);
+        }
+        closedir(d);
     }
-    closedir(d);
     qsort(names, (size_t)n, sizeof *names, cmp_str);
     printf("# frame-budget headroom: wall time per frame (sq_world_step with the live budget = the frame\n"
            "# period, so adaptive bodies stop splitting above lod.budget of it), one thread\n");
-    printf("%-14s %7s %8s %9s %9s %9s %9s %9s %7s %9s %9s\n", "scene", "frames", "nodes", "period ms", "p50 ms",
-           "p95 ms", "max ms", "headroom", "misses", "cpu p95", "cpu room");
+    printf("%-14s %7s %8s %9s %9s %9s %9s %9s %7s %9s %9s %9s %9s %9s\n", "scene", "frames", "nodes", "period ms",
+           "p50 ms", "p95 ms", "max ms", "headroom", "misses", "cpu p95", "cpu room", "cpu max*", "cpu late*",
+           "cpu s/s");
     char thread_path[1024] = "";
     for (int k = 0; k < n; k++) {
         char path[1024];
-        snprintf(path, sizeof path, "%s/%s", dir, names[k]);
+        if (dir)
+            snprintf(path, sizeof path, "%s/%s", dir, names[k]);
+        else
+            snprintf(path, sizeof path, "%s", names[k]);
         sq_err err = {{0}};
         sq_scene *s = sq_scene_load(path, &err);
         if (!s) {
@@ -266,6 +278,17 @@ int sq_bench_scenes(int argc, char **argv)
             t[f] = sq_now() - t0;
             tc[f] = thread_cpu() - c0;
         }
+        /* after the first frame (which may carry one-off set-up): the slowest frame in CPU time,
+         * the frames over the period in CPU time, and CPU seconds per simulated second */
+        double cmax1 = 0, csum = 0;
+        long clate1 = 0;
+        for (long f = 0; f < nf; f++) {
+            csum += tc[f];
+            if (f > 0) {
+                cmax1 = fmax(cmax1, tc[f]);
+                clate1 += tc[f] > period;
+            }
+        }
         qsort(t, (size_t)nf, sizeof *t, cmp_double);
         qsort(tc, (size_t)nf, sizeof *tc, cmp_double);
         long misses = 0;
@@ -273,15 +296,23 @@ int sq_bench_scenes(int argc, char **argv)
             misses += t[f] > period;
         double p50 = nf ? t[nf / 2] : 0, p95 = nf ? t[(long)(0.95 * (nf - 1))] : 0, mx = nf ? t[nf - 1] : 0;
         double c95 = nf ? tc[(long)(0.95 * (nf - 1))] : 0;
-        printf("%-14s %7ld %8ld %9.1f %9.2f %9.2f %9.2f %8.0f%% %7ld %9.2f %8.0f%%\n", s->name, nf, nodes, 1e3 * period,
-               1e3 * p50, 1e3 * p95, 1e3 * mx, 100 * (1 - p95 / period), misses, 1e3 * c95, 100 * (1 - c95 / period));
+        printf("%-14s %7ld %8ld %9.1f %9.2f %9.2f %9.2f %8.0f%% %7ld %9.2f %8.0f%% %9.2f %9ld %9.4f\n", s->name, nf,
+               nodes, 1e3 * period, 1e3 * p50, 1e3 * p95, 1e3 * mx, 100 * (1 - p95 / period), misses, 1e3 * c95,
+               100 * (1 - c95 / period), 1e3 * cmax1, clate1, nf ? csum / (nf * period) : 0);
+        fflush(stdout);
         free(t);
         free(tc);
         sq_world_destroy(w);
         sq_scene_free(s);
     }
     printf("# nodes: finest loaded level of every body; headroom = 1 - p95 / period (negative: frames late);\n"
-           "# cpu p95 / cpu room: the same from the thread's CPU time (what an idle core would take)\n");
+           "# cpu p95 / cpu room: the same from the thread's CPU time (what an idle core would take);\n"
+           "# cpu max* / cpu late*: slowest frame and frames over the period in CPU time, after frame 1;\n"
+           "# cpu s/s: thread CPU seconds per simulated second\n");
+    if (one) {
+        free(names[0]);
+        return 0;
+    }
     if (thread_path[0])
         bench_threads(thread_path, frames > 0 ? SQ_MIN(frames, 100L) : 100L);
     bench_spmv_threads(spmv_cells);

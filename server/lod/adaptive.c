@@ -22,98 +22,17 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
+#include "lod/lod_internal.h"
 
-/* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
- * the node jumps to its target when the hold starts, with velocity (target - old) / time left,
- * and is not integrated; its feedback is the mean over its level's substeps of f - m g) */
-typedef struct hold_entry {
-    int level, node;
-    int count;        /* holds mapped to it (0: dead, its node stopped being active) */
-    int pending;      /* target changed, to be applied */
-    double gsum[3];   /* sum of the targets its holds ask of it */
-    double from[3];   /* displacement when the hold (re)started */
-    double t_from;    /* time within the frame the hold (re)started, s */
-    double fsum[3];   /* internal force summed over the substeps it was held, N */
-    int nf;
-} hold_entry;
+#include <time.h>
 
-struct sq_lod {
-    sq_level *lv;
-    int L;                               /* levels */
-    int top;                             /* highest level that may be active */
-    sq_lod_def def;
-    sq_hierarchy h;
-    unsigned char *state[SQ_MAX_LEVELS];
-    unsigned char *active[SQ_MAX_LEVELS]; /* 1 = active (exposed) */
-    unsigned char *mask[SQ_MAX_LEVELS];   /* integrated this frame: active and not held */
-    int nactive[SQ_MAX_LEVELS], nmask[SQ_MAX_LEVELS];
-    int *gf[SQ_MAX_LEVELS], ngf[SQ_MAX_LEVELS]; /* split ghosts */
-    int *gc[SQ_MAX_LEVELS], ngc[SQ_MAX_LEVELS]; /* coarse ghosts */
-    double *clap[SQ_MAX_LEVELS];         /* criterion Laplacian weights per CSR entry (nnz) */
-    /* coupling: the ring of ghosts next to active nodes, and the reactions handed back */
-    unsigned char *ins[SQ_MAX_LEVELS];   /* 1 if active or in the ring (the set S_k) */
-    int *ring[SQ_MAX_LEVELS], nring[SQ_MAX_LEVELS];
-    int due[SQ_MAX_LEVELS];              /* level steps at the current tick */
-    /* each ring ghost as a combination of active nodes (level, node, weight) */
-    int *fs_start[SQ_MAX_LEVELS];        /* (nring + 1) */
-    unsigned char *fs_levels[SQ_MAX_LEVELS]; /* per ring ghost: bit m set if a source is on level m */
-    int *fs_level[SQ_MAX_LEVELS], *fs_node[SQ_MAX_LEVELS];
-    double *fs_w[SQ_MAX_LEVELS];
-    int fs_cap[SQ_MAX_LEVELS];
-    /* ring rows of the energy: blocks summed over the tets that touch an active node only
-     * (a ring row cut to S_k would pin the ring to zero displacement); aligned with the
-     * mesh adjacency row of each ring ghost */
-    int *node_tet_start[SQ_MAX_LEVELS], *node_tet[SQ_MAX_LEVELS];
-    /* per node-tet incidence c: the node's corner in the tet (nt_p) and, for each corner q,
-     * the block's position in the node's adjacency row (nt_e, 4 per incidence) */
-    unsigned char *nt_p[SQ_MAX_LEVELS];
-    int *nt_e[SQ_MAX_LEVELS];
-    /* element blocks of the tets met so far as mixed tets (16 blocks of 9 per tet, viscous
-     * ones alongside when the material uses viscosities), so a rebuild of the ring rows adds
-     * cached blocks instead of recomputing them; slots are handed out on first use, so the
-     * memory follows the region that has been refined, not the mesh */
-    int *ke_slot[SQ_MAX_LEVELS];         /* slot of a tet, or -1 (ntets) */
-    double *ke[SQ_MAX_LEVELS];           /* slots x 144 (x 2 with viscosity) */
-    int ke_n[SQ_MAX_LEVELS], ke_cap[SQ_MAX_LEVELS];
-    double *tet_geom[SQ_MAX_LEVELS];     /* per tet: volume and the 4 basis gradients (13) */
-    int *rk_off[SQ_MAX_LEVELS];          /* (nring + 1) offsets in blocks */
-    int *rk_col[SQ_MAX_LEVELS], *fk_col[SQ_MAX_LEVELS]; /* column (node) of each block */
-    double *rk[SQ_MAX_LEVELS], *rd[SQ_MAX_LEVELS];
-    int rk_cap[SQ_MAX_LEVELS], rd_cap[SQ_MAX_LEVELS];
-    int rk_dirty[SQ_MAX_LEVELS];
-    /* frontier: active nodes with a ghost neighbour; their tets with a ghost corner count
-     * half (the other level covers the same band), a correction to their full rows */
-    int *front[SQ_MAX_LEVELS], nfront[SQ_MAX_LEVELS];
-    unsigned char *inner[SQ_MAX_LEVELS]; /* active and not on the frontier (n) */
-    /* the frontier rows with their correction folded in (full adjacency rows, K - correction),
-     * so the masked force pass can skip the frontier and no correction pass is needed */
-    double *fm[SQ_MAX_LEVELS];
-    int fm_cap[SQ_MAX_LEVELS];
-    int *fk_off[SQ_MAX_LEVELS];
-    double *fk[SQ_MAX_LEVELS], *fd[SQ_MAX_LEVELS];
-    int fk_cap[SQ_MAX_LEVELS], fd_cap[SQ_MAX_LEVELS];
-    int have_mat;
-    sq_material mat;                     /* material the ring blocks were built for */
-    sq_operator_kind op;
-    /* values at the start of each level's last step, for values between its steps */
-    double *dprev[SQ_MAX_LEVELS], *vprev[SQ_MAX_LEVELS];
-    long step_t0[SQ_MAX_LEVELS], step_len[SQ_MAX_LEVELS];
-    /* extra substep exponent per level: coupling forces from other levels stiffen the nodes
-     * near an interface beyond the level's own bound (see coupling_bound) */
-    int extra[SQ_MAX_LEVELS];
-    double *rowk[SQ_MAX_LEVELS];         /* own Gershgorin row sums (n) */
-    double *cpl[SQ_MAX_LEVELS];          /* coupling row sums (n) */
-    int *ring_index[SQ_MAX_LEVELS];      /* ring position of a node, or -1 (n) */
-    const double *k_seen;                /* level 0's K when the blocks were built */
-    int *slot[SQ_MAX_LEVELS];            /* hold entry of a node, or -1 */
-    unsigned char *fresh[SQ_MAX_LEVELS]; /* split in the current adapt pass (no merge back) */
-    hold_entry *he;
-    int nhe, cap_he;
-    int *hold_entry_of;                  /* entry of each hold of the frame */
-    int cap_holds;
-    double last_time;                    /* compute time of the previous frame, s */
-};
+/* CPU time of the calling thread (s): what the frame costs on an idle core */
+static double thread_cpu(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
 
 /* ---------------------------------------------------------------- state bookkeeping */
 
@@ -133,7 +52,7 @@ static void rebuild_level(sq_lod *lod, int k)
         lod->active[k][i] = (s == ST_ACTIVE);
         lod->mask[k][i] = (s == ST_ACTIVE);
         if (s == ST_ACTIVE)
-            na++;
+            lod->alist[k][na++] = i;
         else if (s == ST_SPLIT)
             lod->gf[k][nf++] = i;
         else
@@ -142,35 +61,42 @@ static void rebuild_level(sq_lod *lod, int k)
     lod->nactive[k] = na;
     lod->ngf[k] = nf;
     lod->ngc[k] = nc;
-    /* the ring: ghosts with an active neighbour */
+    /* the ring (ghosts with an active neighbour) and the frontier (active nodes with a ghost
+     * neighbour), found from the active nodes' rows, so the cost follows the active set; the
+     * ring is kept in increasing node order */
     const sq_level *Lk = &lod->lv[k];
-    int nr = 0;
-    for (int i = 0; i < n; i++) {
-        lod->ring_index[k][i] = -1;
-        lod->ins[k][i] = lod->active[k][i];
-        if (lod->active[k][i] || na == 0)
-            continue;
-        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
-            if (lod->active[k][Lk->col[q]]) {
-                lod->ins[k][i] = 1;
-                lod->ring_index[k][i] = nr;
+    const unsigned char *act = lod->active[k];
+    for (int r = 0; r < lod->nring[k]; r++)
+        lod->ring_index[k][lod->ring[k][r]] = -1;
+    int nr = 0, nfr = 0;
+    for (int a = 0; a < na; a++) {
+        int i = lod->alist[k][a], front = 0;
+        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
+            int j = Lk->col[q];
+            if (act[j])
+                continue;
+            front = 1;
+            if (lod->ring_index[k][j] < 0) {
+                lod->ring_index[k][j] = 0;
+                lod->ring[k][nr++] = j;
+            }
+        }
+        if (front)
+            lod->front[k][nfr++] = i;
+    }
+    if ((long)nr * 32 > n) { /* a sizeable ring: a scan of the marks beats a sort */
+        nr = 0;
+        for (int i = 0; i < n; i++)
+            if (lod->ring_index[k][i] >= 0)
                 lod->ring[k][nr++] = i;
-                break;
-            }
+    } else {
+        sq_lodx_sort_ints(lod->ring[k], nr);
     }
+    for (int r = 0; r < nr; r++)
+        lod->ring_index[k][lod->ring[k][r]] = r;
     lod->nring[k] = nr;
-    int nfr = 0;
-    for (int i = 0; i < n && na < n; i++) {
-        if (!lod->active[k][i])
-            continue;
-        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
-            if (!lod->active[k][Lk->col[q]]) {
-                lod->front[k][nfr++] = i;
-                break;
-            }
-    }
     lod->nfront[k] = nfr;
-    memcpy(lod->inner[k], lod->active[k], (size_t)n);
+    memcpy(lod->inner[k], lod->active[k], (size_t)SQ_MAX(n, 0));
     for (int r = 0; r < nfr; r++)
         lod->inner[k][lod->front[k][r]] = 0;
     lod->rk_dirty[k] = 1;
@@ -182,6 +108,7 @@ static void rebuild_level(sq_lod *lod, int k)
             nm--;
         }
     lod->nmask[k] = nm;
+    sq_lodx_level_lists(lod, k);
 }
 
 /* all levels below s split, level s active, finer levels coarse ghosts */
@@ -197,27 +124,6 @@ static void set_uniform_level(sq_lod *lod, int s)
 
 /* ---------------------------------------------------------------- ghost interpolation */
 
-/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
- * axes of the destination stay zero */
-static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
-{
-    const int *tn = src->mesh->tets + 4 * t;
-    double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-    for (int m = 0; m < 4; m++) {
-        const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
-        for (int a = 0; a < 3; a++) {
-            d[a] += b[m] * sd[a];
-            v[a] += b[m] * sv[a];
-        }
-    }
-    unsigned char fx = dst->fixed[i];
-    for (int a = 0; a < 3; a++) {
-        int free_axis = !(fx & (1u << a));
-        dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
-        dst->v[3 * i + a] = free_axis ? v[a] : 0.0;
-    }
-}
-
 /* split ghosts of level k from their child tets in level k+1 */
 static void pull_level(sq_lod *lod, int k)
 {
@@ -225,10 +131,9 @@ static void pull_level(sq_lod *lod, int k)
         return;
     const sq_lod_link *ln = &lod->h.link[k];
     sq_level *dst = &lod->lv[k];
-    const sq_level *src = &lod->lv[k + 1];
     for (int g = 0; g < lod->ngf[k]; g++) {
         int i = lod->gf[k][g];
-        interp_node(dst, i, src, ln->down_tet[i], ln->down_bary + 4 * i);
+        sq_lodx_interp(lod, dst, i, k + 1, ln->down_tet[i], ln->down_bary + 4 * i);
     }
 }
 
@@ -259,6 +164,22 @@ static void cascade(sq_lod *lod)
         pull_level(lod, k);
     for (int k = 1; k < lod->L; k++)
         push_level(lod, k);
+    lod->stale = 0;
+    lod->full_no = ++lod->cascade_no;
+    for (int k = 0; k < lod->L; k++)
+        eval_ring(lod, k, lod->step_t0[k] + lod->step_len[k]);
+}
+
+/* the end-of-frame cascade: as cascade(), but coarse ghosts are pushed only where something
+ * reads them (the needed set, activeset.c); the others are pushed on demand */
+static void cascade_needed(sq_lod *lod)
+{
+    for (int k = lod->L - 2; k >= 0; k--)
+        pull_level(lod, k);
+    if (lod->lists_dirty)
+        sq_lodx_refresh_lists(lod);
+    sq_lodx_push_needed(lod);
+    sq_lodx_save_cascade(lod);
     for (int k = 0; k < lod->L; k++)
         eval_ring(lod, k, lod->step_t0[k] + lod->step_len[k]);
 }
@@ -690,6 +611,11 @@ static void own_rows(sq_lod *lod)
                 s += block_norm(L->K + 9 * (size_t)q);
             lod->rowk[k][i] = s;
         }
+        double own = 0;
+        for (int i = 0; i < L->n; i++)
+            if (L->fixed[i] != 7)
+                own = fmax(own, lod->rowk[k][i] / L->mass[i]);
+        lod->own_max[k] = own;
     }
 }
 
@@ -730,13 +656,12 @@ static void coupling_bound(sq_lod *lod)
     }
     for (int k = 0; k < L; k++) {
         const sq_level *Lk = &lod->lv[k];
-        double own = 0, coupled = 0;
-        for (int i = 0; i < Lk->n; i++) {
+        double own = lod->own_max[k], coupled = 0;
+        for (int a = 0; a < lod->nactive[k]; a++) {
+            int i = lod->alist[k][a];
             if (Lk->fixed[i] == 7)
                 continue;
-            own = fmax(own, lod->rowk[k][i] / Lk->mass[i]);
-            if (lod->active[k][i])
-                coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
+            coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
         }
         int extra = 0;
         if (own > 0 && coupled > own)
@@ -834,21 +759,31 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
     lod->L = nlevels;
     lod->def = *def;
     lod->top = top_of(def, nlevels);
+    lod->nl_gen = -1;
     if (sq_hierarchy_build(&lod->h, meshes, nlevels, err)) {
         free(lod);
         return NULL;
     }
+    size_t nmax_nodes = 1;
     for (int k = 0; k < nlevels; k++) {
         size_t n = (size_t)levels[k].n;
         lod->state[k] = sq_calloc(n, 1);
         lod->active[k] = sq_calloc(n, 1);
         lod->mask[k] = sq_calloc(n, 1);
         lod->fresh[k] = sq_calloc(n, 1);
+        lod->alist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->ilist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->mlist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->plist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->need[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->inneed[k] = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->mark[k] = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->pstamp[k] = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
+        nmax_nodes = SQ_MAX(nmax_nodes, n);
         lod->gf[k] = sq_malloc(sizeof(int) * n);
         lod->gc[k] = sq_malloc(sizeof(int) * n);
         lod->slot[k] = sq_malloc(sizeof(int) * n);
         lod->clap[k] = criterion_weights(levels[k].mesh);
-        lod->ins[k] = sq_calloc(n, 1);
         lod->ring[k] = sq_malloc(sizeof(int) * n);
         lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
@@ -856,6 +791,8 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->fs_levels[k] = sq_calloc(n + 1, 1);
         lod->rk_off[k] = sq_calloc(n + 1, sizeof(int));
         lod->ring_index[k] = sq_malloc(sizeof(int) * n);
+        for (size_t i = 0; i < n; i++)
+            lod->ring_index[k][i] = -1;
         lod->front[k] = sq_malloc(sizeof(int) * n);
         lod->inner[k] = sq_calloc(n, 1);
         lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
@@ -890,6 +827,8 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         for (size_t i = 0; i < n; i++)
             lod->slot[k][i] = -1;
     }
+    lod->nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
     set_uniform_level(lod, start_level(lod));
     sq_lod_sync(lod);
     return lod;
@@ -904,11 +843,11 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->active[k]);
         free(lod->mask[k]);
         free(lod->fresh[k]);
+        sq_lodx_free(lod, k);
         free(lod->gf[k]);
         free(lod->gc[k]);
         free(lod->slot[k]);
         free(lod->clap[k]);
-        free(lod->ins[k]);
         free(lod->ring[k]);
         free(lod->dprev[k]);
         free(lod->vprev[k]);
@@ -939,6 +878,8 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->fs_node[k]);
         free(lod->fs_w[k]);
     }
+    free(lod->nlv[0]);
+    free(lod->nlv[1]);
     free(lod->he);
     free(lod->hold_entry_of);
     sq_hierarchy_free(&lod->h);
@@ -994,6 +935,16 @@ const unsigned char *sq_lod_active(const sq_lod *lod, int level)
     return lod->active[level];
 }
 
+const int *sq_lod_active_list(const sq_lod *lod, int level, int *n)
+{
+    if (level < 0 || level >= lod->L) {
+        *n = 0;
+        return NULL;
+    }
+    *n = lod->nactive[level];
+    return lod->alist[level];
+}
+
 long sq_lod_projected_updates(const sq_lod *lod)
 {
     long u = 0;
@@ -1010,8 +961,29 @@ static double delta_at(const sq_lod *lod, int k, int i)
     const sq_level *L = &lod->lv[k];
     const double *w = lod->clap[k];
     double s[3] = {0, 0, 0};
+    const unsigned char *st = lod->state[k];
+    const unsigned *ps = lod->pstamp[k];
+    int all_valid = lod->full_no == lod->cascade_no;
+    const double *ds = lod->dstat[k];
     for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++) {
-        const double *dj = L->d + 3 * L->col[q];
+        int j = L->col[q];
+        const double *dj = L->d + 3 * j;
+        double fresh[3], fv[3];
+        if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->cascade_no) {
+            /* a neighbour the last cascade did not push (a node that just became active in
+             * this split pass sees beyond the old ring): its value now, on demand */
+            sq_lodx_value(lod, k, j, fresh, fv);
+            dj = fresh;
+        }
+        if (ds) {
+            /* the motion from the static equilibrium (the sag alone has no curvature here) */
+            if (dj != fresh)
+                memcpy(fresh, dj, sizeof fresh);
+            fresh[0] -= ds[3 * j];
+            fresh[1] -= ds[3 * j + 1];
+            fresh[2] -= ds[3 * j + 2];
+            dj = fresh;
+        }
         s[0] += w[q] * dj[0];
         s[1] += w[q] * dj[1];
         s[2] += w[q] * dj[2];
@@ -1024,6 +996,7 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
 {
     if (level < 0 || level >= lod->L || node < 0 || node >= lod->lv[level].n)
         return 0;
+    sq_lod_flush((sq_lod *)lod); /* ghost values pushed on demand are part of the state */
     return delta_at(lod, level, node);
 }
 
@@ -1038,7 +1011,7 @@ static void merge_node(sq_lod *lod, int k, int p)
     const sq_lod_link *ln = &lod->h.link[k];
     lod->state[k][p] = ST_ACTIVE;
     /* the merged node starts from its interpolated value (pulled from its child tet) */
-    interp_node(&lod->lv[k], p, &lod->lv[k + 1], ln->down_tet[p], ln->down_bary + 4 * p);
+    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
         lod->state[k + 1][ln->child[c]] = ST_COARSE;
     memcpy(lod->dprev[k] + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
@@ -1046,7 +1019,7 @@ static void merge_node(sq_lod *lod, int k, int p)
     /* children become coarse ghosts and take their parent-tet value at once */
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
         int j = ln->child[c];
-        interp_node(&lod->lv[k + 1], j, &lod->lv[k], ln->up_tet[j], ln->up_bary + 4 * j);
+        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
     }
 }
 
@@ -1082,7 +1055,7 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
             for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
                 int j = ln->child[c];
                 lod->state[k + 1][j] = ST_ACTIVE;
-                interp_node(Lf, j, Lk, ln->up_tet[j], ln->up_bary + 4 * j);
+                sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
                 memcpy(lod->dprev[k + 1] + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
                 memcpy(lod->vprev[k + 1] + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
             }
@@ -1548,7 +1521,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                   const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                   sq_frame_profile *prof, double budget_s)
 {
-    double t_start = sq_now();
+    double t_start = sq_now(), c_start = thread_cpu();
     int L = lod->L, F = L - 1;
     double t_pull = 0, t_int = 0, t_push = 0, t_adapt = 0;
     long updates = 0;
@@ -1557,9 +1530,26 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     for (int t = 0; force && t < ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
 
+    sq_lodx_static_loads(lod, gravity); /* no-op unless gravity or material changed */
     /* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
     double prev_time = lod->last_time;
     int over_budget = budget_s > 0 && prev_time > lod->def.budget * budget_s;
+    /* ... and the next frame predicted from its node updates times the CPU cost of one update
+     * measured on the last frame that had any: above budget x period, the node-update cap of
+     * this frame is what fits, so the finest mergeable regions merge first and splits that
+     * would exceed it are refused (the user's cap, if lower, still holds) */
+    long cap_user = lod->def.max_node_updates, cap_guard = 0;
+    double coarse_ms = 0;
+    if (budget_s > 0 && lod->cost_update > 0) {
+        double fit = (lod->def.budget * budget_s - lod->cost_fixed) / lod->cost_update;
+        cap_guard = fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 1L);
+        if (cap_user <= 0 || cap_guard < cap_user)
+            lod->def.max_node_updates = cap_guard;
+        else
+            cap_guard = 0;
+        /* the cheapest layout: every region at level 0 */
+        coarse_ms = 1e3 * lod->cost_update * (double)((long)lod->lv[0].nfree << sub_log2(lod, 0));
+    }
     /* coupling blocks and the substeps they need (which may push the cost over the cap:
      * merge first then), then the substep clock of the finest step */
     update_ring_blocks(lod, mat);
@@ -1601,6 +1591,10 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         map_hold(lod, &holds[h], h, 0.0);
     }
     start_holds(lod, frame_dt);
+    for (int k = 0; k < L; k++)
+        sq_lodx_mask_list(lod, k);
+    if (lod->lists_dirty)
+        sq_lodx_refresh_lists(lod);
 
     for (int k = 0; k < L; k++) {
         lod->step_t0[k] = -stride[k]; /* the previous frame's last step ended at tick 0 */
@@ -1636,7 +1630,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                 } else {
                     /* interior rows by the level's pass, frontier rows with their
                      * correction folded in */
-                    sq_level_forces(&lod->lv[k], mat, gravity, lod->inner[k]);
+                    sq_lodx_rows(lod, mat, gravity, k);
                     front_rows(lod, mat, gravity, k);
                 }
             }
@@ -1664,13 +1658,14 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                 E->nf++;
             }
             /* finer levels read this level between its steps */
-            if (k + 1 < L) {
-                memcpy(lod->dprev[k], Lk->d, sizeof(double) * 3 * (size_t)Lk->n);
-                memcpy(lod->vprev[k], Lk->v, sizeof(double) * 3 * (size_t)Lk->n);
+            sq_lodx_save_prev(lod, k);
+            if (lod->nmask[k] > 0) {
+                double dtk = lod->extra[k] ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
+                if (lod->nmask[k] == Lk->n)
+                    sq_level_integrate(Lk, dtk, NULL);
+                else
+                    sq_lodx_integrate(lod, k, dtk);
             }
-            if (lod->nmask[k] > 0)
-                sq_level_integrate(Lk, lod->extra[k] ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt,
-                                   lod->nmask[k] == Lk->n ? NULL : lod->mask[k]);
             updates += lod->nmask[k];
         }
         double t2 = sq_now();
@@ -1697,13 +1692,14 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             /* (holds are mapped again onto the new active nodes at the next frame) */
             build_sources(lod);
             update_ring_blocks(lod, mat);
+            sq_lodx_refresh_lists(lod);
         }
         t_adapt += sq_now() - t2;
     }
     /* (3) every ghost from the active nodes at the end of the frame: the rendered finest
      * level, probes and the next frame start from consistent values */
     double t3 = sq_now();
-    cascade(lod);
+    cascade_needed(lod);
     t_push += sq_now() - t3;
 
     /* feedback: mean internal force on the held nodes, shared among the holds mapped there */
@@ -1722,8 +1718,22 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             lod->nmask[k] = lod->nactive[k];
         }
 
-    double t_end = sq_now();
-    lod->last_time = t_end - t_start;
+    double t_end = sq_now(), c_end = thread_cpu();
+    lod->last_time = c_end - c_start;
+    if (updates > 0) {
+        /* a decaying maximum: a frame with a rebuild costs more per update than a quiet one,
+         * and the next frame may have one */
+        /* split the frame's CPU time into the part that scales with node updates (ghost
+         * values, forces, integration) and the rest (split/merge and rebuilds, end-of-frame
+         * ghosts), in the proportions of the stage wall times */
+        double cpu = c_end - c_start, wall = t_end - t_start;
+        double share = wall > 0 ? fmin(1.0, (t_pull + t_int) / wall) : 1.0;
+        double c = cpu * share / (double)updates;
+        lod->cost_update = fmax(c, 0.9 * lod->cost_update);
+        lod->cost_fixed = fmax(cpu * (1 - share), 0.9 * lod->cost_fixed);
+    }
+    long cap_used = lod->def.max_node_updates;
+    lod->def.max_node_updates = cap_user;
     if (prof) {
         prof->t_pull = t_pull;
         prof->t_integrate = t_int;
@@ -1738,15 +1748,24 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         prof->splits = ao.splits;
         prof->merges = ao.merges;
         prof->splits_refused = over_budget || ao.refused;
-        if (over_budget)
+        if (coarse_ms > lod->def.budget * budget_s * 1e3)
+            snprintf(prof->event, sizeof(prof->event),
+                     "warning: cannot run in real time even fully coarse: level 0 needs %.2f ms "
+                     "(%d nodes x %d steps), budget %.2f ms; splitting refused", coarse_ms,
+                     lod->lv[0].nfree, 1 << sub_log2(lod, 0), lod->def.budget * budget_s * 1e3);
+        else if (over_budget)
             snprintf(prof->event, sizeof(prof->event),
                      "warning: frame compute %.2f ms over %.0f%% of the %.2f ms budget: splitting "
                      "refused, merging allowed", prev_time * 1e3, lod->def.budget * 100,
                      budget_s * 1e3);
+        else if (ao.refused && cap_guard > 0 && cap_used == cap_guard)
+            snprintf(prof->event, sizeof(prof->event),
+                     "warning: next frame predicted over %.0f%% of %.2f ms (%ld node updates fit): "
+                     "finest regions merged, splitting refused", lod->def.budget * 100, budget_s * 1e3,
+                     cap_guard);
         else if (ao.refused)
             snprintf(prof->event, sizeof(prof->event),
-                     "warning: node-update cap %ld per frame reached: splitting refused",
-                     lod->def.max_node_updates);
+                     "warning: node-update cap %ld per frame reached: splitting refused", cap_user);
     }
 }
 
@@ -1773,12 +1792,31 @@ int sq_lod_adapt(sq_lod *lod, int allow_split, int *splits, int *merges)
 
 /* ---------------------------------------------------------------- views */
 
-void sq_lod_node_levels(const sq_lod *lod, unsigned char *out)
+void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
 {
+    /* the states change only at a rebuild: the same buffer needs no new walk before then */
+    if (lod->nl_gen == lod->gen && lod->nl_out == out)
+        return;
+    lod->nl_gen = lod->gen;
+    lod->nl_out = out;
+    /* level by level, coarse to fine: a node's level is its own if active, else its parent's
+     * (the walk up from each finest node to its active ancestor, without repeating it) */
     int F = lod->L - 1;
-    for (int j = 0; j < lod->lv[F].n; j++) {
-        int k = 0;
-        out[j] = active_of_finest(lod, j, &k) >= 0 ? (unsigned char)k : 0;
+    if (F == 0) {
+        memset(out, 0, (size_t)lod->lv[0].n);
+        return;
+    }
+    unsigned char *prev = lod->nlv[0], *cur = lod->nlv[1];
+    memset(prev, 0, (size_t)lod->lv[0].n);
+    for (int k = 1; k <= F; k++) {
+        unsigned char *dst = k == F ? out : cur;
+        const unsigned char *st = lod->state[k];
+        const int *par = lod->h.link[k - 1].parent;
+        for (int j = 0; j < lod->lv[k].n; j++)
+            dst[j] = st[j] == ST_ACTIVE ? (unsigned char)k : prev[par[j]];
+        unsigned char *t = prev;
+        prev = cur;
+        cur = t;
     }
 }
 

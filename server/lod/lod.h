@@ -69,12 +69,26 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                   const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                   sq_frame_profile *prof, double budget_s);
 
-/* level active at each node of the finest level (out has n_finest entries) */
-void sq_lod_node_levels(const sq_lod *lod, unsigned char *out);
+/* level active at each node of the finest level (out has n_finest entries); the walk is
+ * skipped when the states did not change since the last call with the same buffer */
+void sq_lod_node_levels(sq_lod *lod, unsigned char *out);
+
+/* active nodes of a level, increasing (*n of them) */
+const int *sq_lod_active_list(const sq_lod *lod, int level, int *n);
+
+/* coarse ghosts that nothing in the frame reads are pushed on demand (docs/lod.md, "Cost that
+ * follows the active set"): bring every ghost value up to date before reading a level's whole
+ * field (the body's accessors call it); a no-op when nothing is out of date */
+void sq_lod_flush(sq_lod *lod);
 
 /* the material the next frames use (sq_lod_frame passes it too): lets sq_lod_energy and
  * sq_lod_sync account for the level coupling before the first frame */
 void sq_lod_set_material(sq_lod *lod, const sq_material *mat);
+
+/* the frame's material and loads before the first frame: the coupling blocks and each level's
+ * static equilibrium under gravity (the criterion judges the displacement from it, so a sag
+ * alone refines nothing) are set up here instead of in the first frame */
+void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[3]);
 
 /* energy (J) of the simulated state, the quantity the adaptive frame conserves without
  * damping: kinetic 1/2 m_i |v_i|^2 over the active nodes of every level, and elastic energy

@@ -337,6 +337,7 @@ sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
             sq_body_destroy(b);
             return NULL;
         }
+        sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity); /* set-up before frame 1 */
         sq_lod_node_levels(b->lod, b->node_level);
     } else {
         prepare_surface_map(b);
@@ -446,6 +447,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
             b->def.lod = *lod;
             sq_body_reset(b);
         }
+        sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity);
         b->def.lod = *lod;
         sq_lod_node_levels(b->lod, b->node_level);
     } else {
@@ -571,7 +573,11 @@ static const char *health(const sq_body *b, double *value)
             continue;
         const sq_level *L = &b->level[k];
         double ke = 0, M = 0;
-        for (int i = 0; i < L->n; i++) {
+        /* adaptive: the active nodes (ghosts are combinations of them) */
+        int na = L->n;
+        const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
+        for (int r = 0; r < na; r++) {
+            int i = al ? al[r] : r;
             const double *d = L->d + 3 * (size_t)i, *v = L->v + 3 * (size_t)i;
             double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
             double vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
@@ -608,15 +614,18 @@ static void mark_held(sq_body *b, int k, const sq_hold *holds, int nholds)
     }
 }
 
-/* residual of level L from its last force pass, over active nodes (mask may be NULL) that no
- * tool held (held may be NULL): a held node's unbalanced force is the tool's reaction */
-static double level_residual(const sq_level *L, const double g[3], const unsigned char *active,
+/* residual of level L from its last force pass, over active nodes (the list active of
+ * nactive nodes; all when NULL) that no tool held (held may be NULL): a held node's
+ * unbalanced force is the tool's reaction */
+static double level_residual(const sq_level *L, const double g[3], const int *active, int nactive,
                              const unsigned char *held)
 {
     double gn = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
     double r = 0;
-    for (int i = 0; i < L->n; i++) {
-        if ((active && !active[i]) || L->fixed[i] == 7 || (held && held[i]))
+    int na = active ? nactive : L->n;
+    for (int q = 0; q < na; q++) {
+        int i = active ? active[q] : q;
+        if (L->fixed[i] == 7 || (held && held[i]))
             continue;
         double s = 0;
         for (int c = 0; c < 3; c++)
@@ -771,11 +780,11 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
             if (!b->ready[k] || (b->def.lod.mode == SQ_LOD_FIXED && k != b->cur))
                 continue;
-            const unsigned char *act = b->lod ? sq_lod_active(b->lod, k) : NULL;
-            for (int i = 0; i < b->level[k].n; i++)
-                if (!act || act[i])
-                    M += b->level[k].mass[i];
-            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, act, NULL));
+            int na = b->level[k].n;
+            const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
+            for (int r = 0; r < na; r++)
+                M += b->level[k].mass[al ? al[r] : r];
+            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, al, na, NULL));
         }
         double vrms = M > 0 ? sqrt(2 * ke / M) : 0;
         int calm = nholds == 0 && vrms < b->sleep_ke_speed * b->diag && res < b->sleep_residual;
@@ -830,11 +839,13 @@ double sq_body_level_bound(const sq_body *b, int level)
 
 const double *sq_body_displacement(const sq_body *b, int level)
 {
+    sq_lod_flush(b->lod); /* ghosts nothing read during the frame, pushed now (no-op if fixed) */
     return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].d : NULL;
 }
 
 const double *sq_body_velocity(const sq_body *b, int level)
 {
+    sq_lod_flush(b->lod);
     return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].v : NULL;
 }
 
@@ -850,6 +861,7 @@ int sq_body_inverted_tets(const sq_body *b)
 
 sq_level *sq_body_level(sq_body *b, int level)
 {
+    sq_lod_flush(b->lod);
     return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? &b->level[level] : NULL;
 }
 
@@ -888,6 +900,7 @@ int sq_body_probe(const sq_body *b, const double p[3], double u[3])
         if (t < 0)
             return -1;
     }
+    sq_lod_flush(b->lod);
     interp3(b->def.levels[k], b->level[k].d, t, bary, u);
     return 0;
 }
@@ -899,10 +912,10 @@ double sq_body_kinetic_energy(const sq_body *b)
         if (!b->ready[k] || (b->def.lod.mode == SQ_LOD_FIXED && k != b->cur))
             continue;
         const sq_level *L = &b->level[k];
-        const unsigned char *act = b->lod ? sq_lod_active(b->lod, k) : NULL;
-        for (int i = 0; i < L->n; i++) {
-            if (act && !act[i])
-                continue;
+        int na = L->n;
+        const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
+        for (int r = 0; r < na; r++) {
+            int i = al ? al[r] : r;
             const double *v = L->v + 3 * (size_t)i;
             ke += 0.5 * L->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         }
@@ -931,6 +944,7 @@ double sq_level_elastic_energy(const sq_level *L)
 
 double sq_body_elastic_energy(const sq_body *b)
 {
+    sq_lod_flush(b->lod);
     int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
     return sq_level_elastic_energy(&b->level[k]);
 }
@@ -939,13 +953,14 @@ double sq_body_residual(const sq_body *b)
 {
     /* fresh force pass on a copy of the simulated level's scratch (the state is unchanged) */
     int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    sq_lod_flush(b->lod);
     sq_level L = b->level[k];
     size_t n3 = 3 * (size_t)L.n;
     L.f = sq_malloc(sizeof(double) * n3);
     L.w = sq_malloc(sizeof(double) * n3);
     L.acc = sq_calloc(n3 + 1, sizeof(double)); /* own accumulator: the body's is left untouched */
     sq_level_forces(&L, &b->def.material, b->def.gravity, NULL);
-    double r = level_residual(&L, b->def.gravity, NULL, b->held[k]);
+    double r = level_residual(&L, b->def.gravity, NULL, 0, b->held[k]);
     free(L.f);
     free(L.w);
     free(L.acc);
@@ -955,6 +970,7 @@ double sq_body_residual(const sq_body *b)
 int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err)
 {
     int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    sq_lod_flush(b->lod);
     const sq_mesh *m = b->def.levels[k];
     int *lev = sq_malloc(sizeof(int) * (size_t)m->nnodes);
     for (int i = 0; i < m->nnodes; i++)

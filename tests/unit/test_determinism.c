@@ -41,10 +41,10 @@ static const det_pin pins[] = {
     {"column", "scene", 0x2655479d8adb8706ull},
     {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
     {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
-    {"organ", "scene", 0xe550102d5ff663b1ull},
+    {"organ", "scene", 0x60d3d04480b5bc22ull},
     {"organ", "fixed", 0x80bb00020a8271f6ull},
     {"paper-cube", "scene", 0x496e9643d07c487full},
-    {"sphere-grab", "scene", 0xeabb6d1e24615ef9ull},
+    {"sphere-grab", "scene", 0x20efc77625975d9bull},
 };
 #else
 static const det_pin pins[] = {
@@ -52,10 +52,10 @@ static const det_pin pins[] = {
     {"column", "scene", 0x20c81c236dd2af9full},
     {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
     {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
-    {"organ", "scene", 0x20a650ff29c787c8ull},
+    {"organ", "scene", 0xf3fa7ee681b553d0ull},
     {"organ", "fixed", 0x7d4882e16f12a52full},
     {"paper-cube", "scene", 0x60a12bacd6867c62ull},
-    {"sphere-grab", "scene", 0x64e58d4b7516bf11ull},
+    {"sphere-grab", "scene", 0x30d61939d64069b8ull},
 };
 #endif
 

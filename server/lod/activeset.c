@@ -1,0 +1,464 @@
+/* activeset.c - per-level index lists of the adaptive state and the kernels that run over them,
+ * so the cost of a frame follows the active set, not the size of the body (docs/lod.md,
+ * "Cost that follows the active set").
+ *
+ * Lists, rebuilt only when a level's states change (a split or merge):
+ *   alist   active nodes, increasing;
+ *   ilist   inner active nodes (no ghost neighbour), whose rows are the level's own rows;
+ *   mlist   active nodes integrated this frame (the held ones left out);
+ *   plist   nodes whose values at the start of their level's step are read between two of
+ *           its steps (sources of ring ghosts, active columns of ring rows): only those are
+ *           saved before a step, not the whole level;
+ *   need    coarse ghosts something reads every frame: the rendered (finest) surface, ring
+ *           ghosts, the corners split ghosts are pulled from and split or merged nodes start
+ *           from, and the parent corners of all of those. The end-of-frame push updates these
+ *           only; the rest are pushed on demand (sq_lod_flush, sq_lodx_value), with the same
+ *           interpolation, when something outside the frame reads the whole field.
+ * The row and integration kernels repeat the arithmetic of sim/level.c's masked passes
+ * (same operations in the same order), so trajectories are unchanged.
+ */
+#include "lod/lod_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+static int cmp_int(const void *a, const void *b)
+{
+    int x = *(const int *)a, y = *(const int *)b;
+    return (x > y) - (x < y);
+}
+
+void sq_lodx_sort_ints(int *a, int n)
+{
+    qsort(a, (size_t)n, sizeof(int), cmp_int);
+}
+
+/* the distinct nodes list[0..cnt) of a level of n nodes, each with mark[i] != 0, in increasing
+ * order: a scan of the marks when the list is a sizeable part of the level (qsort cost
+ * ~cnt log cnt compares, the scan n byte tests), else a sort */
+static void sort_marked(int *list, int cnt, const unsigned char *mark, int n)
+{
+    if ((long)cnt * 32 > n) {
+        int w = 0;
+        for (int i = 0; i < n; i++)
+            if (mark[i])
+                list[w++] = i;
+    } else {
+        qsort(list, (size_t)cnt, sizeof(int), cmp_int);
+    }
+}
+
+/* after rebuild_level filled alist (active nodes, increasing) and the inner mask */
+void sq_lodx_level_lists(sq_lod *lod, int k)
+{
+    int ni = 0;
+    const unsigned char *inner = lod->inner[k];
+    for (int r = 0; r < lod->nactive[k]; r++) {
+        int i = lod->alist[k][r];
+        if (inner[i])
+            lod->ilist[k][ni++] = i;
+    }
+    lod->nilist[k] = ni;
+    lod->lists_dirty = 1;
+    lod->gen++;
+    sq_lodx_mask_list(lod, k);
+}
+
+void sq_lodx_mask_list(sq_lod *lod, int k)
+{
+    int nm = 0;
+    const unsigned char *mask = lod->mask[k];
+    for (int r = 0; r < lod->nactive[k]; r++) {
+        int i = lod->alist[k][r];
+        if (mask[i])
+            lod->mlist[k][nm++] = i;
+    }
+    lod->nmlist[k] = nm;
+}
+
+/* add node i of level k to a list once (marks in lod->mark[k]) */
+static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
+{
+    if (!lod->mark[k][i]) {
+        lod->mark[k][i] = 1;
+        list[(*n)++] = i;
+    }
+}
+
+/* coarse ghost j of level k into the needed set (with its parent corners, recursively) */
+static void need_node(sq_lod *lod, int k, int j)
+{
+    while (k >= 1 && lod->state[k][j] == ST_COARSE && !lod->inneed[k][j]) {
+        lod->inneed[k][j] = 1;
+        lod->need[k][lod->nneed[k]++] = j;
+        const int *tn = lod->lv[k - 1].mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
+        for (int q = 0; q < 3; q++)
+            need_node(lod, k - 1, tn[q]);
+        j = tn[3];
+        k--;
+    }
+}
+
+/* corners of tet t of level m into the needed set */
+static void need_tet(sq_lod *lod, int m, int t)
+{
+    const int *tn = lod->lv[m].mesh->tets + 4 * t;
+    for (int q = 0; q < 4; q++)
+        need_node(lod, m, tn[q]);
+}
+
+void sq_lodx_refresh_lists(sq_lod *lod)
+{
+    int L = lod->L, F = L - 1;
+    /* plist: sources of every ring ghost (any level), active columns of each level's ring rows */
+    for (int m = 0; m < L; m++)
+        lod->nplist[m] = 0;
+    for (int k = 0; k < L; k++) {
+        int ns = lod->fs_start[k][lod->nring[k]];
+        for (int q = 0; q < ns; q++) {
+            int m = lod->fs_level[k][q];
+            add_once(lod, m, lod->fs_node[k][q], lod->plist[m], &lod->nplist[m]);
+        }
+        if (!lod->rk_dirty[k] && lod->rk_col[k]) {
+            int ne = lod->rk_off[k][lod->nring[k]];
+            for (int e = 0; e < ne; e++) {
+                int l = lod->rk_col[k][e];
+                if (lod->active[k][l])
+                    add_once(lod, k, l, lod->plist[k], &lod->nplist[k]);
+            }
+        }
+    }
+    for (int m = 0; m < L; m++) {
+        sort_marked(lod->plist[m], lod->nplist[m], lod->mark[m], lod->lv[m].n);
+        for (int r = 0; r < lod->nplist[m]; r++)
+            lod->mark[m][lod->plist[m][r]] = 0;
+    }
+
+    /* need: clear the previous set, then mark what is read */
+    for (int k = 0; k < L; k++) {
+        for (int r = 0; r < lod->nneed[k]; r++)
+            lod->inneed[k][lod->need[k][r]] = 0;
+        lod->nneed[k] = 0;
+    }
+    const sq_mesh *fm = lod->lv[F].mesh;
+    for (int s = 0; s < fm->nsurf; s++)
+        need_node(lod, F, fm->surf_nodes[s]); /* the rendered surface, tool holds */
+    for (int k = 0; k < L; k++)
+        for (int r = 0; r < lod->nring[k]; r++)
+            need_node(lod, k, lod->ring[k][r]); /* a ring ghost without sources keeps its push */
+    for (int k = 0; k + 1 < L; k++) {
+        const sq_lod_link *ln = &lod->h.link[k];
+        /* split ghosts are pulled from their child tets; active nodes may split (their child
+         * tets are read then, and their children start from their parent tets) */
+        for (int r = 0; r < lod->ngf[k]; r++) {
+            int i = lod->gf[k][r];
+            need_tet(lod, k + 1, ln->down_tet[i]);
+            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
+                need_tet(lod, k, ln->up_tet[ln->child[c]]);
+            if (ln->child_start[i + 1] == ln->child_start[i]) {
+                /* a childless split node is judged on its own field: its neighbours */
+                const sq_level *Lk = &lod->lv[k];
+                for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
+                    need_node(lod, k, Lk->col[q]);
+            }
+        }
+        if (k < lod->top)
+            for (int r = 0; r < lod->nactive[k]; r++) {
+                int i = lod->alist[k][r];
+                need_tet(lod, k + 1, ln->down_tet[i]);
+                for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
+                    need_tet(lod, k, ln->up_tet[ln->child[c]]);
+            }
+    }
+    for (int k = 0; k < L; k++)
+        sort_marked(lod->need[k], lod->nneed[k], lod->inneed[k], lod->lv[k].n);
+    lod->lists_dirty = 0;
+}
+
+/* f_i -= sum_j K_ij (d_j + b v_j) (sim/level.c block_row_damped) */
+static inline void row_damped(const sq_level *L, const double *restrict d, const double *restrict v, double b,
+                              int i, double *out)
+{
+    double f0 = 0, f1 = 0, f2 = 0;
+    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+        const double *B = L->K + 9 * (size_t)e;
+        const size_t j = 3 * (size_t)L->col[e];
+        const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
+        f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
+        f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
+        f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
+    }
+    out[0] -= f0;
+    out[1] -= f1;
+    out[2] -= f2;
+}
+
+/* f_i -= sum_j K_ij d_j (sim/level.c block_row) */
+static inline void row_plain(const sq_level *L, const double *restrict d, int i, double *out)
+{
+    double f0 = 0, f1 = 0, f2 = 0;
+    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+        const double *B = L->K + 9 * (size_t)e;
+        const double *wj = d + 3 * (size_t)L->col[e];
+        f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
+        f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
+        f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
+    }
+    out[0] -= f0;
+    out[1] -= f1;
+    out[2] -= f2;
+}
+
+/* forces of the inner active nodes of level k (no viscosity): sq_level_forces with the inner
+ * mask, over the list */
+void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
+{
+    sq_level *L = &lod->lv[k];
+    const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
+    const double *restrict d = L->d, *restrict v = L->v;
+    const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
+    const int *il = lod->ilist[k];
+    for (int r = 0; r < lod->nilist[k]; r++) {
+        int i = il[r];
+        double *fi = L->f + 3 * (size_t)i;
+        double m = L->mass[i];
+        fi[0] = m * (g0 - a * v[3 * i]);
+        fi[1] = m * (g1 - a * v[3 * i + 1]);
+        fi[2] = m * (g2 - a * v[3 * i + 2]);
+        if (b != 0)
+            row_damped(L, d, v, b, i, fi);
+        else
+            row_plain(L, d, i, fi);
+    }
+}
+
+/* symplectic Euler of the listed nodes (sim/level.c euler_node, same operations) */
+void sq_lodx_integrate(sq_lod *lod, int k, double dt)
+{
+    sq_level *L = &lod->lv[k];
+    double *restrict d = L->d, *restrict v = L->v;
+    const double *restrict f = L->f;
+    const int *ml = lod->mlist[k];
+    for (int r = 0; r < lod->nmlist[k]; r++) {
+        int i = ml[r];
+        double h = dt / L->mass[i];
+        double v0 = v[3 * i] + h * f[3 * i], v1 = v[3 * i + 1] + h * f[3 * i + 1],
+               v2 = v[3 * i + 2] + h * f[3 * i + 2];
+        unsigned fx = L->fixed[i];
+        if (fx) {
+            if (fx & 1u)
+                v0 = 0;
+            if (fx & 2u)
+                v1 = 0;
+            if (fx & 4u)
+                v2 = 0;
+        }
+        v[3 * i] = v0;
+        v[3 * i + 1] = v1;
+        v[3 * i + 2] = v2;
+        d[3 * i] += dt * v0;
+        d[3 * i + 1] += dt * v1;
+        d[3 * i + 2] += dt * v2;
+    }
+}
+
+void sq_lodx_save_prev(sq_lod *lod, int k)
+{
+    const double *d = lod->lv[k].d, *v = lod->lv[k].v;
+    double *dp = lod->dprev[k], *vp = lod->vprev[k];
+    for (int r = 0; r < lod->nplist[k]; r++) {
+        size_t i = 3 * (size_t)lod->plist[k][r];
+        dp[i] = d[i];
+        dp[i + 1] = d[i + 1];
+        dp[i + 2] = d[i + 2];
+        vp[i] = v[i];
+        vp[i + 1] = v[i + 1];
+        vp[i + 2] = v[i + 2];
+    }
+}
+
+void sq_lodx_push_needed(sq_lod *lod)
+{
+    int stale = 0;
+    unsigned no = ++lod->cascade_no;
+    for (int k = 1; k < lod->L; k++) {
+        const sq_lod_link *ln = &lod->h.link[k - 1];
+        sq_level *dst = &lod->lv[k];
+        const sq_level *src = &lod->lv[k - 1];
+        for (int r = 0; r < lod->nneed[k]; r++) {
+            int j = lod->need[k][r];
+            interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
+            lod->pstamp[k][j] = no;
+        }
+        stale |= lod->nneed[k] < lod->ngc[k];
+    }
+    lod->stale = stale;
+}
+
+void sq_lodx_save_cascade(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        int nr = lod->nring[k];
+        if (nr > lod->cv_cap[k]) {
+            lod->cv_cap[k] = SQ_MAX(nr, 2 * lod->cv_cap[k]);
+            lod->cv[k] = sq_realloc(lod->cv[k], sizeof(double) * 6 * (size_t)lod->cv_cap[k]);
+        }
+        const double *d = lod->lv[k].d, *v = lod->lv[k].v;
+        for (int r = 0; r < nr; r++) {
+            size_t j = 3 * (size_t)lod->ring[k][r];
+            double *c = lod->cv[k] + 6 * (size_t)r;
+            c[0] = d[j];
+            c[1] = d[j + 1];
+            c[2] = d[j + 2];
+            c[3] = v[j];
+            c[4] = v[j + 1];
+            c[5] = v[j + 2];
+        }
+    }
+}
+
+/* the full push of the coarse ghosts outside the needed set, as the cascade would have done it:
+ * a ring ghost among the corners is read at its cascade value (the push ran before the ring
+ * values), the other corners are current (nothing changed them since the cascade) */
+void sq_lod_flush(sq_lod *lod)
+{
+    if (!lod || !lod->stale)
+        return;
+    for (int k = 1; k < lod->L; k++) {
+        const sq_lod_link *ln = &lod->h.link[k - 1];
+        sq_level *dst = &lod->lv[k];
+        const sq_level *src = &lod->lv[k - 1];
+        const int *ri = lod->ring_index[k - 1];
+        for (int r = 0; r < lod->ngc[k]; r++) {
+            int j = lod->gc[k][r];
+            if (lod->pstamp[k][j] == lod->cascade_no)
+                continue;
+            const int *tn = src->mesh->tets + 4 * ln->up_tet[j];
+            const double *b = ln->up_bary + 4 * j;
+            double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+            for (int m = 0; m < 4; m++) {
+                const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
+                if (ri[tn[m]] >= 0) {
+                    sd = lod->cv[k - 1] + 6 * (size_t)ri[tn[m]];
+                    sv = sd + 3;
+                }
+                for (int a = 0; a < 3; a++) {
+                    d[a] += b[m] * sd[a];
+                    v[a] += b[m] * sv[a];
+                }
+            }
+            unsigned char fx = dst->fixed[j];
+            for (int a = 0; a < 3; a++) {
+                int free_axis = !(fx & (1u << a));
+                dst->d[3 * j + a] = free_axis ? d[a] : 0.0;
+                dst->v[3 * j + a] = free_axis ? v[a] : 0.0;
+            }
+        }
+    }
+    lod->stale = 0;
+}
+
+void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
+{
+    const sq_level *Lk = &lod->lv[k];
+    /* a coarse ghost the last cascade did not push is always interpolated afresh (whether or
+     * not a flush brought its stored value up to date), so a flush never changes the trajectory */
+    if (k == 0 || lod->state[k][j] != ST_COARSE || lod->full_no == lod->cascade_no ||
+        lod->pstamp[k][j] == lod->cascade_no) {
+        memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
+        memcpy(v, Lk->v + 3 * (size_t)j, 3 * sizeof(double));
+        return;
+    }
+    const sq_lod_link *ln = &lod->h.link[k - 1];
+    const int *tn = lod->lv[k - 1].mesh->tets + 4 * ln->up_tet[j];
+    const double *b = ln->up_bary + 4 * j;
+    double sd[4][3], sv[4][3];
+    for (int m = 0; m < 4; m++)
+        sq_lodx_value(lod, k - 1, tn[m], sd[m], sv[m]);
+    double dd[3] = {0, 0, 0}, vv[3] = {0, 0, 0};
+    for (int m = 0; m < 4; m++)
+        for (int a = 0; a < 3; a++) {
+            dd[a] += b[m] * sd[m][a];
+            vv[a] += b[m] * sv[m][a];
+        }
+    unsigned char fx = Lk->fixed[j];
+    for (int a = 0; a < 3; a++) {
+        int free_axis = !(fx & (1u << a));
+        d[a] = free_axis ? dd[a] : 0.0;
+        v[a] = free_axis ? vv[a] : 0.0;
+    }
+}
+
+void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, const double *b)
+{
+    const sq_level *src = &lod->lv[src_level];
+    const int *tn = src->mesh->tets + 4 * t;
+    double sd[4][3], sv[4][3];
+    for (int m = 0; m < 4; m++)
+        sq_lodx_value(lod, src_level, tn[m], sd[m], sv[m]);
+    double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+    for (int m = 0; m < 4; m++)
+        for (int a = 0; a < 3; a++) {
+            d[a] += b[m] * sd[m][a];
+            v[a] += b[m] * sv[m][a];
+        }
+    unsigned char fx = dst->fixed[i];
+    for (int a = 0; a < 3; a++) {
+        int free_axis = !(fx & (1u << a));
+        dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
+        dst->v[3 * i + a] = free_axis ? v[a] : 0.0;
+    }
+}
+
+void sq_lodx_free(sq_lod *lod, int k)
+{
+    free(lod->alist[k]);
+    free(lod->ilist[k]);
+    free(lod->mlist[k]);
+    free(lod->plist[k]);
+    free(lod->need[k]);
+    free(lod->inneed[k]);
+    free(lod->mark[k]);
+    free(lod->cv[k]);
+    free(lod->pstamp[k]);
+    free(lod->dstat[k]);
+}
+
+/* The criterion measures curvature of the displacement; a body sagging under its own weight
+ * has a curved static field, so on a soft body gravity alone kept regions refined for good.
+ * Linear elasticity superposes: the motion a tool causes is d - d_static, and the criterion is
+ * taken of that. d_static of each level is solved once (sq_level_static_solve, Jacobi CG to a
+ * relative residual of 1e-8) for the body's gravity and material; a level whose solve fails (a
+ * body with no support has no equilibrium) is judged from zero displacement, as before. */
+void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
+{
+    if (lod->stat_done && lod->stat_k == lod->lv[0].K && !memcmp(lod->stat_g, gravity, sizeof lod->stat_g) &&
+        lod->stat_top == lod->top && (!lod->have_mat || !memcmp(&lod->stat_mat, &lod->mat, sizeof lod->mat)))
+        return;
+    lod->stat_done = 1;
+    lod->stat_top = lod->top;
+    lod->stat_mat = lod->mat;
+    lod->stat_k = lod->lv[0].K;
+    memcpy(lod->stat_g, gravity, sizeof lod->stat_g);
+    int loaded = gravity[0] != 0 || gravity[1] != 0 || gravity[2] != 0;
+    for (int k = 0; k < lod->L; k++) {
+        free(lod->dstat[k]);
+        lod->dstat[k] = NULL;
+        if (!loaded || k > lod->top)
+            continue;
+        const sq_level *Lk = &lod->lv[k];
+        double *d = sq_malloc(sizeof(double) * 3 * (size_t)SQ_MAX(Lk->n, 1));
+        sq_err err = {{0}};
+        int it = 0;
+        if (sq_level_static_solve(Lk, gravity, 1e-8, 20 * Lk->n + 1000, d, &it, &err) == 0)
+            lod->dstat[k] = d;
+        else
+            free(d);
+    }
+}
+
+void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[3])
+{
+    sq_lod_set_material(lod, mat);
+    sq_lodx_static_loads(lod, gravity);
+}

@@ -1,0 +1,266 @@
+/* test_lod_active.c - the cost of the adaptive frame follows the active set: coarse ghosts
+ * nobody reads are pushed on demand only, and that changes nothing a caller can see. */
+#include <stdint.h>
+
+#include "lod/lod_internal.h"
+#include "sim/body_internal.h"
+#include "sq_test.h"
+#include "test_lod_helpers.h"
+#include "test_sim_helpers.h"
+
+/* four cube levels: 3, 6 (jittered), 12, 18 (jittered) cells */
+static int four_meshes(sq_mesh **m)
+{
+    m[0] = lh_cube(3, 0, 1, 1);
+    m[1] = lh_cube(6, 0.1, 1, 2);
+    m[2] = lh_cube(12, 0, 1, 3);
+    m[3] = lh_cube(18, 0.1, 1, 4);
+    return m[0] && m[1] && m[2] && m[3];
+}
+
+static void free4(sq_mesh **m)
+{
+    for (int k = 0; k < 4; k++)
+        sq_mesh_free(m[k]);
+}
+
+/* a sphere pressing the top 8 cm over 0.6 s, held, released at 1.2 s, moving sideways while
+ * it presses so regions split and merge during the poke */
+static sq_tool moving_poke(double t)
+{
+    double depth = t < 0.6 ? 0.08 * t / 0.6 : 0.08;
+    double x = 0.4 + 0.2 * (t < 1.2 ? t / 1.2 : 1.0);
+    return lh_sphere(x, 0.5, 1.15 - depth, 0.15, t < 1.2);
+}
+
+/* Two identical bodies, one flushed after every frame (every ghost value up to date, as the
+ * eager push kept them) and one never flushed: the trajectories must be the same bit for bit
+ * (the flush only fills values nothing inside the frame reads), and after a final flush every
+ * level's d and v must be equal. Fails if the needed set misses a value the frame reads. */
+SQ_TEST(lod_flush_does_not_change_the_trajectory)
+{
+    sq_mesh *m[4];
+    if (!four_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 4);
+    def.gravity[2] = 0; /* the poke alone: most of the body stays coarse, far ghosts stay stale */
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.02, 0.004);
+    sq_err e = {{0}};
+    sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
+    TH_REQUIRE(b[0] && b[1]);
+    long diff_frames = 0, max_fine = 0, splits = 0, merges = 0, bad_levels = 0;
+    for (int f = 0; f < 120; f++) {
+        sq_tool tool = moving_poke(f * def.frame_dt);
+        sq_frame_profile p[2];
+        for (int i = 0; i < 2; i++)
+            sq_body_frame(b[i], &tool, 1, NULL, &p[i], 0);
+        sq_lod_flush(b[0]->lod);
+        diff_frames += p[0].node_updates != p[1].node_updates || p[0].active[3] != p[1].active[3] ||
+                       p[0].splits != p[1].splits || p[0].merges != p[1].merges;
+        max_fine = SQ_MAX(max_fine, p[0].active[3]);
+        /* the node levels (computed level by level) against the walk up to the active ancestor */
+        for (int j = 0; j < m[3]->nnodes; j++) {
+            int k = 3, x = j;
+            while (k > 0 && b[1]->lod->state[k][x] != 1) {
+                x = b[1]->lod->h.link[k - 1].parent[x];
+                k--;
+            }
+            bad_levels += b[1]->node_level[j] != (unsigned char)k;
+        }
+        splits += p[0].splits;
+        merges += p[0].merges;
+    }
+    sq_lod_flush(b[1]->lod);
+    int same = 1;
+    for (int k = 0; k < 4; k++) {
+        size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
+        same &= !memcmp(b[0]->level[k].d, b[1]->level[k].d, n3) && !memcmp(b[0]->level[k].v, b[1]->level[k].v, n3);
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "flush: finest active up to %ld of %d, %ld splits %ld merges, %ld frames differ, "
+                "states %s\n", max_fine, m[3]->nnodes, splits, merges, diff_frames, same ? "equal" : "DIFFER");
+    CHECK(max_fine > 0 && splits > 0 && merges > 0); /* it refined down to level 3 and back */
+    CHECK(max_fine < m[3]->nnodes / 2);              /* ... locally */
+    CHECK(diff_frames == 0);
+    CHECK(same);
+    CHECK(bad_levels == 0);
+    sq_body_destroy(b[0]);
+    sq_body_destroy(b[1]);
+    free4(m);
+}
+
+/* Nothing refined (split = inf): the end-of-frame push updates the finest surface and what it
+ * is interpolated from, not the whole finest level; a flush then gives exactly the eager
+ * cascade (every coarse ghost interpolated from the level below, coarse to fine). */
+SQ_TEST(lod_coarse_frame_pushes_what_is_read)
+{
+    sq_mesh *m[4];
+    if (!four_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 4);
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, INFINITY, 0.001);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    for (int f = 0; f < 20; f++)
+        sq_body_frame(b, NULL, 0, NULL, NULL, 0);
+    sq_lod *lod = b->lod;
+    int F = 3, nF = m[F]->nnodes, nsurf = m[F]->nsurf;
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "coarse frame: pushed %d / %d / %d of %d / %d / %d nodes (finest surface %d)\n",
+                lod->nneed[1], lod->nneed[2], lod->nneed[3], m[1]->nnodes, m[2]->nnodes, nF, nsurf);
+    CHECK(lod->stale);
+    CHECK(lod->nneed[F] == nsurf); /* exactly the rendered surface at the finest level */
+    CHECK(lod->nneed[F] < nF / 2);
+    /* the eager cascade by hand, on copies */
+    double *d[4], *v[4];
+    for (int k = 0; k < 4; k++) {
+        size_t n3 = 3 * (size_t)m[k]->nnodes;
+        d[k] = malloc(sizeof(double) * n3);
+        v[k] = malloc(sizeof(double) * n3);
+        memcpy(d[k], b->level[k].d, sizeof(double) * n3);
+        memcpy(v[k], b->level[k].v, sizeof(double) * n3);
+    }
+    for (int k = 1; k < 4; k++) {
+        const sq_lod_link *ln = &lod->h.link[k - 1];
+        for (int j = 0; j < m[k]->nnodes; j++) {
+            const int *tn = m[k - 1]->tets + 4 * ln->up_tet[j];
+            const double *bb = ln->up_bary + 4 * j;
+            double dd[3] = {0, 0, 0}, vv[3] = {0, 0, 0};
+            for (int q = 0; q < 4; q++)
+                for (int c = 0; c < 3; c++) {
+                    dd[c] += bb[q] * d[k - 1][3 * tn[q] + c];
+                    vv[c] += bb[q] * v[k - 1][3 * tn[q] + c];
+                }
+            for (int c = 0; c < 3; c++) {
+                int fr = !(b->level[k].fixed[j] & (1u << c));
+                d[k][3 * j + c] = fr ? dd[c] : 0.0;
+                v[k][3 * j + c] = fr ? vv[c] : 0.0;
+            }
+        }
+    }
+    /* surface values were pushed in the frame: equal before any flush */
+    int surf_ok = 1;
+    for (int s = 0; s < nsurf; s++) {
+        int j = m[F]->surf_nodes[s];
+        surf_ok &= !memcmp(b->level[F].d + 3 * j, d[F] + 3 * j, 3 * sizeof(double));
+    }
+    CHECK(surf_ok);
+    sq_lod_flush(lod);
+    CHECK(!lod->stale);
+    int all_ok = 1;
+    for (int k = 1; k < 4; k++) {
+        size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
+        all_ok &= !memcmp(b->level[k].d, d[k], n3) && !memcmp(b->level[k].v, v[k], n3);
+    }
+    CHECK(all_ok);
+    /* something moved: gravity sags the body */
+    double sag = 0;
+    for (int j = 0; j < nF; j++)
+        sag = fmax(sag, fabs(b->level[F].d[3 * j + 2]));
+    CHECK(sag > 1e-4);
+    for (int k = 0; k < 4; k++) {
+        free(d[k]);
+        free(v[k]);
+    }
+    sq_body_destroy(b);
+    free4(m);
+}
+
+/* A cube resting in its static sag under its own weight: the criterion judges the motion from
+ * each level's static equilibrium, so the sag alone splits nothing, although its own curvature
+ * is far above the split threshold (judged from zero it would split most of the body). */
+SQ_TEST(lod_static_sag_splits_nothing)
+{
+    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
+    TH_REQUIRE(m[0] && m[1]);
+    sq_body_def def = lh_cube_def(m, 2);
+    double split = 0.002;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, split, split / 4);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_lod *lod = b->lod;
+    CHECK(lod->dstat[0] != NULL && lod->dstat[1] != NULL); /* solved at creation */
+    if (!lod->dstat[0] || !lod->dstat[1])
+        return;
+    /* every level at its own static equilibrium */
+    for (int k = 0; k < 2; k++)
+        memcpy(b->level[k].d, lod->dstat[k], sizeof(double) * 3 * (size_t)m[k]->nnodes);
+    double filt = 0, raw = 0, sag = 0;
+    for (int i = 0; i < m[0]->nnodes; i++) {
+        filt = fmax(filt, sq_lod_delta(lod, 0, i));
+        sag = fmax(sag, fabs(b->level[0].d[3 * i + 2]));
+    }
+    double *keep = lod->dstat[0];
+    lod->dstat[0] = NULL;
+    int raw_over = 0;
+    for (int i = 0; i < m[0]->nnodes; i++) {
+        double d = sq_lod_delta(lod, 0, i);
+        raw = fmax(raw, d);
+        raw_over += d > split;
+    }
+    lod->dstat[0] = keep;
+    int splits = -1, merges = -1;
+    sq_lod_adapt(lod, 1, &splits, &merges);
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "static sag %.1f mm: criterion of the field up to %.4g m (%d of %d nodes over split "
+                "%g), of the motion from equilibrium %.3g m; %d splits\n", 1e3 * sag, raw, raw_over,
+                m[0]->nnodes, split, filt, splits);
+    CHECK(sag > 0.01);
+    CHECK(raw_over > m[0]->nnodes / 4); /* judged from zero, the sag would split */
+    /* the level's own equilibrium has no motion: zero up to the CG tolerance (1e-8 relative
+     * residual on a 4 cm sag; 1e-6 m leaves three orders of margin below the threshold) */
+    CHECK(filt < 1e-6);
+    CHECK(splits == 0);
+    sq_body_destroy(b);
+    sq_mesh_free(m[0]);
+    sq_mesh_free(m[1]);
+}
+
+/* The guard holds the rate by merging, not only by refusing splits: a body refined under a
+ * poke with no budget, then given a budget nothing fits in (1 ns), is merged back to level 0
+ * within two frames although the tool still presses, and the event says why. (Before, a refined
+ * region stayed: only new splits were refused.) */
+SQ_TEST(lod_guard_merges_when_the_frame_does_not_fit)
+{
+    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
+    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_frame_profile p;
+    int refined = 0;
+    for (int f = 0; f < 25; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.2 - 0.1 * SQ_MIN(f / 20.0, 1.0), 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 0);
+        refined = SQ_MAX(refined, p.active[2]);
+    }
+    int before = p.active[0] < m[0]->nnodes;
+    int coarse_at = -1, merged = 0, said = 0;
+    for (int f = 0; f < 5; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.1, 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 1e-9);
+        merged += p.merges;
+        said += strstr(p.event, "splitting refused") != NULL;
+        if (coarse_at < 0 && p.active[1] == 0 && p.active[2] == 0)
+            coarse_at = f;
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "guard: finest active up to %d under the poke; with a 1 ns budget %d merges, "
+                "all coarse at frame %d; last event: %s\n", refined, merged, coarse_at, p.event);
+    CHECK(refined > 0 && before);
+    CHECK(coarse_at >= 0 && coarse_at <= 1);
+    CHECK(merged > 0);
+    CHECK(said == 5);
+    sq_body_destroy(b);
+    for (int k = 0; k < 3; k++)
+        sq_mesh_free(m[k]);
+}
