@@ -25,7 +25,8 @@ int sq_snapshot_query_parse(const char *const *args, int nargs, int max_side, sq
 /* session ids: the server composes local = generation << slot bits | slot; with an instance
  * number K (1..99) the id handed out is 100 * local + K, so a proxy can route by the id's
  * last two digits (docker/nginx.conf); K = 0 (a lone server) keeps id = local. */
-/* mask of the generation counter: with an instance 100 * local must stay below 2^32 */
+/* mask of the random generation: ids stay below 2^49 (exact in JSON), with an instance
+ * 100 * local too */
 uint64_t sq_session_gen_mask(int instance, int slot_bits);
 uint64_t sq_session_id_public(uint64_t local, int instance);
 /* local part of a public id; -1 when the id belongs to another instance */
