@@ -396,8 +396,10 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
             (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
             (b->def.nodal_pressure && sq_level_anp_enable(&fresh[k], m, op, err) < 0) ||
             sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
-            sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
-                                       err) < 0) {
+            /* the Lanczos estimate only where it is used (a set flood must stay cheap) */
+            (b->def.sharp_step &&
+             sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
+                                        err) < 0)) {
             if (fresh[k].n)
                 sq_level_free(&fresh[k]);
             for (int j = 0; j < k; j++)
