@@ -38,11 +38,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         expect(q.height >= SQ_RENDER_MIN_SIZE && q.height <= SQ_SNAPSHOT_MAX_SIZE);
         /* the instance rule on the parsed id, for every instance */
         for (int k = 0; k <= SQ_INSTANCE_MAX; k += 7) {
-            uint32_t local, id = q.session;
+            uint64_t local, id = q.session;
             if (sq_session_id_local(id, k, &local) == 0) {
                 expect(sq_session_id_public(local, k) == id);
             } else {
-                expect(k > 0 && id % 100 != (uint32_t)k);
+                expect(k > 0 && id % 100 != (uint64_t)k);
             }
         }
     } else {
