@@ -18,7 +18,7 @@
 
 #include "app/tradeoff.h"
 #include "scene/scene.h"
-#include "sim/level.h"
+#include "body/body.h"
 
 /* CPU time of the calling thread, s: unlike wall time it does not count the time other
  * processes hold the core, so it shows what a frame costs on an idle machine */

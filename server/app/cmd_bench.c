@@ -12,7 +12,7 @@
 #include <time.h>
 
 #include "app/commands.h"
-#include "sim/level.h"
+#include "body/body.h"
 
 /* memory bandwidth of one core on the reference machine (docs/benchmarks.md), bytes/s */
 #define SQ_BENCH_BANDWIDTH 20e9
@@ -49,7 +49,7 @@ static int cells_for(double nodes)
     return c < 1 ? 1 : c;
 }
 
-/* bytes one node-step moves from and to memory in the fused pass of sim/level.c: each
+/* bytes one node-step moves from and to memory in the fused pass of level/level.c: each
  * upper-half block and column index once (72 + 4 B per entry); per node the row start (4),
  * d and v read and written (96), the force accumulator read and cleared (48), f written (24),
  * mass (8) and the fixed byte (1). Neighbour values are assumed to hit the cache. */

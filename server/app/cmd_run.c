@@ -18,7 +18,7 @@
 
 #include "app/commands.h"
 #include "scene/scene.h"
-#include "sim/level.h"
+#include "body/body.h"
 
 /* --until-rest defaults (documented in docs/scenes.md) */
 #define REST_KE_PER_KG 1e-8   /* kinetic energy per kg of body, J/kg (rms speed ~1.4e-4 m/s) */

@@ -25,7 +25,7 @@
 #include "app/commands.h"
 #include "app/tradeoff.h"
 #include "scene/scene.h"
-#include "sim/level.h"
+#include "body/body.h"
 
 #define TO_MAX_VARIANTS 32
 #define TO_MAX_SAMPLES 4000 /* surface points compared per body (evenly strided) */

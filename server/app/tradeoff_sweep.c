@@ -2,7 +2,7 @@
  *
  *   squish sweep [--out DIR] [--quick]
  *
- * Every case builds a body through the public engine API (sim/sim.h) exactly as a scene
+ * Every case builds a body through the public engine API (body/body.h) exactly as a scene
  * would, and is either refused (sq_body_create names the reason), accepted and adjusted
  * (the frame is cut into more substeps than asked for), or accepted and run for a long
  * simulated time with a poke that presses, holds and releases. An accepted case passes when
@@ -26,7 +26,7 @@
 
 #include "app/commands.h"
 #include "app/tradeoff.h"
-#include "sim/level.h"
+#include "body/body.h"
 
 /* the sweep body: a 10 cm gel-like cube, 4 cells per side, bottom face fixed, gravity */
 #define SW_SIZE 0.1

@@ -14,7 +14,7 @@
  *           from, and the parent corners of all of those. The end-of-frame push updates these
  *           only; the rest are pushed on demand (sq_lod_flush, sq_lodx_value), with the same
  *           interpolation, when something outside the frame reads the whole field.
- * The row and integration kernels repeat the arithmetic of sim/level.c's masked passes
+ * The row and integration kernels repeat the arithmetic of level/level.c's masked passes
  * (same operations in the same order), so trajectories are unchanged.
  */
 #include "lod/lod_internal.h"
@@ -175,7 +175,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
     lod->lists_dirty = 0;
 }
 
-/* f_i -= sum_j K_ij (d_j + b v_j) (sim/level.c block_row_damped) */
+/* f_i -= sum_j K_ij (d_j + b v_j) (level/level.c block_row_damped) */
 static inline void row_damped(const sq_level *L, const double *restrict d, const double *restrict v, double b,
                               int i, double *out)
 {
@@ -193,7 +193,7 @@ static inline void row_damped(const sq_level *L, const double *restrict d, const
     out[2] -= f2;
 }
 
-/* f_i -= sum_j K_ij d_j (sim/level.c block_row) */
+/* f_i -= sum_j K_ij d_j (level/level.c block_row) */
 static inline void row_plain(const sq_level *L, const double *restrict d, int i, double *out)
 {
     double f0 = 0, f1 = 0, f2 = 0;
@@ -232,7 +232,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
 }
 
-/* symplectic Euler of the listed nodes (sim/level.c euler_node, same operations) */
+/* symplectic Euler of the listed nodes (level/level.c euler_node, same operations) */
 void sq_lodx_integrate(sq_lod *lod, int k, double dt)
 {
     sq_level *L = &lod->lv[k];

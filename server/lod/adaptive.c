@@ -311,7 +311,7 @@ static void node_tets(const sq_mesh *m, int **start, int **list)
     *list = ls;
 }
 
-/* block (i, j) of one tet's operator (sim/level.c, PHYSICS.md section 2) with shear-like
+/* block (i, j) of one tet's operator (level/level.c, PHYSICS.md section 2) with shear-like
  * coefficient s and volume-like l, added to B */
 static void add_block(sq_operator_kind op, double V, const double *ai, const double *aj, double s,
                       double l, double *B)

@@ -7,12 +7,38 @@
  * runs the paper's per-level algorithm: pull ghosts from finer levels, integrate active
  * nodes, push ghosts to finer levels, split/merge on delta_i = hbar_i^2 |Lap(d)_i|.
  *
- * sim/body.c owns the levels (sim/level.h) and calls this module when lod.mode is adaptive.
+ * body/body.c owns the levels (level/level.h) and calls this module when lod.mode is adaptive.
  */
 #ifndef SQ_LOD_H
 #define SQ_LOD_H
 
-#include "sim/level.h"
+#include "level/level.h"
+
+typedef enum sq_lod_mode { SQ_LOD_FIXED = 0, SQ_LOD_ADAPTIVE = 1 } sq_lod_mode;
+typedef struct sq_lod_def {
+    sq_lod_mode mode;
+    int level;            /* fixed mode: the level simulated; adaptive: the starting level */
+    double split;         /* adaptive: split when delta_i > split (m); 0 forces finest */
+    double merge;         /* adaptive: merge when all children delta < merge (< split) */
+    int max_level;        /* highest level index used (caps the levels list) */
+    double budget;        /* fraction of the frame period above which splits stop (0.95) */
+    long max_node_updates;/* hard cap on node updates per frame (0 = none) */
+} sq_lod_def;
+
+/* per-frame profile (one body); times in seconds */
+typedef struct sq_frame_profile {
+    double t_pull, t_integrate, t_push, t_adapt, t_tools, t_health, t_total;
+    long node_updates;                 /* active-node integrations this frame */
+    int active[SQ_MAX_LEVELS];         /* active nodes per level */
+    int substeps[SQ_MAX_LEVELS];       /* 2^n steps per frame per level */
+    int splits, merges;
+    int splits_refused;                /* 1 if splitting was forbidden this frame (budget) */
+    int sleeping;                      /* 1 if the body slept (no updates) this frame */
+    int awake_nodes, sleeping_nodes;
+    int reset;                         /* 1 if a blow-up was detected and the body reset */
+    char event[160];                   /* human-readable event of this frame, or empty */
+} sq_frame_profile;
+
 
 /* links between level k and level k+1 */
 typedef struct sq_lod_link {

@@ -13,7 +13,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "sim/sim.h"
+#include "body/body.h"
 
 #define SQ_PROTOCOL_VERSION 1
 #define SQ_SERVER_NAME "squish/0.1"

@@ -9,7 +9,7 @@
 #ifndef SQ_SCENE_H
 #define SQ_SCENE_H
 
-#include "sim/sim.h"
+#include "body/body.h"
 
 #define SQ_MAX_BODIES 8
 #define SQ_MAX_PROBES 32

@@ -4,7 +4,7 @@
  * stepped the same number of frames gives bit-identical body states.
  */
 #include "scene/scene.h"
-#include "sim/level.h" /* sq_body_fixed_level */
+#include "body/body.h" /* sq_body_fixed_level */
 
 #include <math.h>
 #include <stdio.h>

@@ -17,7 +17,7 @@
 #include <unistd.h>
 
 #include "scene/scene.h"
-#include "sim/body_internal.h"
+#include "body/body_internal.h"
 
 #define FUZZ_MAX_WORK (1L << 16)
 #define FUZZ_FRAMES 3

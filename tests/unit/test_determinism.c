@@ -10,7 +10,7 @@
  * re-pins them in the same commit, saying why.
  *
  * Build flags change the hash: the optimised build (-O3 -march=x86-64-v3) runs the AVX2+FMA
- * step kernel of server/sim/level.c, the sanitizer build (-O1, no -march) the scalar one,
+ * step kernel of server/level/level.c, the sanitizer build (-O1, no -march) the scalar one,
  * whose sums round differently, so each has its own table. Both builds use the ISO C default
  * -ffp-contract=off outside the intrinsics; a compiler that contracts a*b+c into FMA on its
  * own, -ffast-math, or another -march would change them too.

@@ -3,7 +3,7 @@
 #include <stdint.h>
 
 #include "lod/lod_internal.h"
-#include "sim/body_internal.h"
+#include "body/body_internal.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"
 #include "test_sim_helpers.h"

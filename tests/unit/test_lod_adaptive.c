@@ -5,7 +5,7 @@
 #include <stdint.h>
 
 #include "lod/lod.h"
-#include "sim/body_internal.h"
+#include "body/body_internal.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"
 

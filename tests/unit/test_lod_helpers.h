@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/level.h"
+#include "body/body.h"
 
 static inline double lh_dist2(const double *a, const double *b)
 {

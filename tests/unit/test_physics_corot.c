@@ -1,4 +1,4 @@
-/* test_physics_corot.c - corotational elasticity (sim/corot.c, docs/physics.md section 9):
+/* test_physics_corot.c - corotational elasticity (level/corot.c, docs/physics.md section 9):
  * rotation invariance, agreement with linear at small strain, the arc-drag beam of issue 11
  * against the Neo-Hookean reference in tests/ref/, and its wiring (refusals, reset, energy). */
 #include "sq_test.h"

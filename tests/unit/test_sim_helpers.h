@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/level.h"
+#include "body/body.h"
 
 /* CHECK(p != NULL) and leave the test when it fails: the rest needs p (use after sq_test.h) */
 #define TH_REQUIRE(p)                                                                   \

@@ -23,7 +23,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/level.h"
+#include "level/level.h"
 
 struct sq_corot {
     int ntets, nblocks;    /* tets, blocks of CW tets (padded with V = 0 tets at node 0) */

@@ -11,7 +11,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/level.h"
+#include "level/level.h"
 
 struct sq_anp {
     double *grad;   /* per tet: a_0..a_3 (12) and V */

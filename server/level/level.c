@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/level.h"
+#include "level/level.h"
 
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>

@@ -1,8 +1,8 @@
-/* body_internal.h - the body's private state, shared by sim/body.c and sim/tools.c. */
+/* body_internal.h - the body's private state, shared by body/body.c and body/tools.c. */
 #ifndef SQ_BODY_INTERNAL_H
 #define SQ_BODY_INTERNAL_H
 
-#include "sim/level.h"
+#include "body/body.h"
 
 struct sq_lod;
 

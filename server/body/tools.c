@@ -12,7 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/body_internal.h"
+#include "body/body_internal.h"
 
 static void add_hold(sq_body *b, int *nh, int tool, int node, const double target[3])
 {

@@ -1,69 +1,21 @@
-/* sim.h - soft bodies: material, operators, stability bound, stepping, health, tools.
+/* body.h - soft bodies: levels + lod + tools + sleep + health; the engine's public contract.
  *
  * Second stage of the data flow. A body owns one or more levels of detail (independent,
  * non-nested meshes of the same shape, coarse to fine). With one level, or with
  * "lod": {"mode": "fixed"}, exactly one level is simulated; with "adaptive", the lod
- * module (lod/lod.h) decides per node which level is active (paper sections 3-4).
+ * module (lod/lod.h) decides per node which level is active (paper sections 3-4). One level's
+ * physics (material, operator, step bound, step, static solve) is level/level.h.
  *
  * Units are SI throughout: m, kg, s, Pa, N.
  */
-#ifndef SQ_SIM_H
-#define SQ_SIM_H
+#ifndef SQ_BODY_H
+#define SQ_BODY_H
 
-#include "mesh/mesh.h"
+#include "lod/lod.h"
 
-#define SQ_MAX_LEVELS 6
-#define SQ_MAX_CONSTRAINTS 16
 #define SQ_MAX_TOOLS 8
 
-/* material in the standard Lamé names (mu = shear modulus); see docs/physics.md */
-typedef struct sq_material {
-    double mu;                 /* shear modulus, Pa */
-    double lambda;             /* first Lamé parameter, Pa */
-    double density;            /* kg/m^3 */
-    double rayleigh_mass;      /* a in C = a M + b K, 1/s */
-    double rayleigh_stiffness; /* b in C = a M + b K, s */
-    int use_viscosity;         /* 1: damping from the paper's viscosities phi/psi instead of b K */
-    double phi, psi;           /* paper Eq. 7 viscosities (standard-name roles of mu, lambda), Pa s */
-} sq_material;
 
-/* E (Pa), nu -> mu, lambda; returns -1 and err if out of range */
-int sq_material_from_E_nu(sq_material *m, double E, double nu, sq_err *err);
-void sq_material_E_nu(const sq_material *m, double *E, double *nu);
-/* range checks (positive moduli, 0 <= nu < 0.5, density > 0, finite values) */
-int sq_material_check(const sq_material *m, sq_err *err);
-
-typedef enum sq_operator_kind {
-    SQ_OPERATOR_FEM = 0,   /* standard linear FEM (default) */
-    SQ_OPERATOR_PAPER = 1  /* the paper's Laplacian + grad-div (Eqs. 5-6) */
-} sq_operator_kind;
-
-/* elastic model: linear (the paper's, small-strain) or corotational (rotation-invariant:
- * f = R K_T (R^T x - X) per tet; fem operator, fixed lod mode only; docs/physics.md) */
-typedef enum sq_elasticity_kind {
-    SQ_ELASTICITY_LINEAR = 0,
-    SQ_ELASTICITY_COROTATIONAL = 1
-} sq_elasticity_kind;
-
-/* constraint regions */
-typedef enum sq_region_kind { SQ_REGION_BOX = 0, SQ_REGION_HALFSPACE = 1 } sq_region_kind;
-typedef struct sq_constraint {
-    sq_region_kind kind;
-    double a[3], b[3]; /* box: min corner a, max corner b; half-space: point a, normal b
-                          (nodes with (x - a).b <= 0 are selected) */
-    unsigned axes;     /* constrained axes: bit 0 = x, 1 = y, 2 = z; 7 = fixed node */
-} sq_constraint;
-
-typedef enum sq_lod_mode { SQ_LOD_FIXED = 0, SQ_LOD_ADAPTIVE = 1 } sq_lod_mode;
-typedef struct sq_lod_def {
-    sq_lod_mode mode;
-    int level;            /* fixed mode: the level simulated; adaptive: the starting level */
-    double split;         /* adaptive: split when delta_i > split (m); 0 forces finest */
-    double merge;         /* adaptive: merge when all children delta < merge (< split) */
-    int max_level;        /* highest level index used (caps the levels list) */
-    double budget;        /* fraction of the frame period above which splits stop (0.95) */
-    long max_node_updates;/* hard cap on node updates per frame (0 = none) */
-} sq_lod_def;
 
 typedef struct sq_body_def {
     const char *name;
@@ -112,19 +64,6 @@ typedef struct sq_tool_feedback {
     int nnodes;        /* nodes the tool constrains this frame */
 } sq_tool_feedback;
 
-/* per-frame profile (one body); times in seconds */
-typedef struct sq_frame_profile {
-    double t_pull, t_integrate, t_push, t_adapt, t_tools, t_health, t_total;
-    long node_updates;                 /* active-node integrations this frame */
-    int active[SQ_MAX_LEVELS];         /* active nodes per level */
-    int substeps[SQ_MAX_LEVELS];       /* 2^n steps per frame per level */
-    int splits, merges;
-    int splits_refused;                /* 1 if splitting was forbidden this frame (budget) */
-    int sleeping;                      /* 1 if the body slept (no updates) this frame */
-    int awake_nodes, sleeping_nodes;
-    int reset;                         /* 1 if a blow-up was detected and the body reset */
-    char event[160];                   /* human-readable event of this frame, or empty */
-} sq_frame_profile;
 
 typedef struct sq_body sq_body;
 
@@ -188,5 +127,14 @@ int sq_body_inverted_tets(const sq_body *b);
 
 /* write the finest level (or the fixed level) as VTK with displacement, velocity, level */
 int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err);
+
+/* engine-internal access to a body's levels (lod, tests, benchmarks): the level if it is
+ * initialised, else NULL */
+sq_level *sq_body_level(sq_body *b, int level);
+/* the level simulated in fixed mode */
+int sq_body_fixed_level(const sq_body *b);
+/* sleep tolerances: calm for `frames` frames (0: never sleep) with rms speed below
+ * ke_speed bbox diagonals per second and sq_body_residual below `residual` (defaults 25, 1e-4, 1e-4) */
+void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual);
 
 #endif

@@ -1,7 +1,7 @@
 /* material.c - elastic material in the standard Lamé names: conversions and range checks. */
 #include <math.h>
 
-#include "sim/sim.h"
+#include "level/level.h"
 
 int sq_material_from_E_nu(sq_material *m, double E, double nu, sq_err *err)
 {

@@ -1,8 +1,8 @@
-/* level.h - one level of detail of a body: its rest mesh, precomputed operator and state.
- *
- * Internal to the engine (sim and lod); not used by scene, net or render, which go through
- * sim.h. The fixed-resolution step (sim/) and the adaptive multi-level step (lod/) are both
- * built from these per-level primitives, so a level behaves the same whichever drives it.
+/* level.h - one level of detail of a body: its material, rest mesh, precomputed operator,
+ * stability bound, step, static solve and state. The lowest engine layer: it knows no lod and
+ * no body. Scene, net and render go through body/body.h. The fixed-resolution step (body/)
+ * and the adaptive multi-level step (lod/) are both built from these per-level primitives, so
+ * a level behaves the same whichever drives it.
  *
  * Elastic force on node i: f_i = - sum_j K_ij d_j  (3x3 blocks K_ij, CSR over the mesh
  * adjacency, diagonal included). Damping force: - a m_i v_i - b sum_j K_ij v_j (Rayleigh), or
@@ -11,7 +11,49 @@
 #ifndef SQ_LEVEL_H
 #define SQ_LEVEL_H
 
-#include "sim/sim.h"
+#include "mesh/mesh.h"
+
+#define SQ_MAX_LEVELS 6
+#define SQ_MAX_CONSTRAINTS 16
+
+/* material in the standard Lamé names (mu = shear modulus); see docs/physics.md */
+typedef struct sq_material {
+    double mu;                 /* shear modulus, Pa */
+    double lambda;             /* first Lamé parameter, Pa */
+    double density;            /* kg/m^3 */
+    double rayleigh_mass;      /* a in C = a M + b K, 1/s */
+    double rayleigh_stiffness; /* b in C = a M + b K, s */
+    int use_viscosity;         /* 1: damping from the paper's viscosities phi/psi instead of b K */
+    double phi, psi;           /* paper Eq. 7 viscosities (standard-name roles of mu, lambda), Pa s */
+} sq_material;
+
+/* E (Pa), nu -> mu, lambda; returns -1 and err if out of range */
+int sq_material_from_E_nu(sq_material *m, double E, double nu, sq_err *err);
+void sq_material_E_nu(const sq_material *m, double *E, double *nu);
+/* range checks (positive moduli, 0 <= nu < 0.5, density > 0, finite values) */
+int sq_material_check(const sq_material *m, sq_err *err);
+
+typedef enum sq_operator_kind {
+    SQ_OPERATOR_FEM = 0,   /* standard linear FEM (default) */
+    SQ_OPERATOR_PAPER = 1  /* the paper's Laplacian + grad-div (Eqs. 5-6) */
+} sq_operator_kind;
+
+/* elastic model: linear (the paper's, small-strain) or corotational (rotation-invariant:
+ * f = R K_T (R^T x - X) per tet; fem operator, fixed lod mode only; docs/physics.md) */
+typedef enum sq_elasticity_kind {
+    SQ_ELASTICITY_LINEAR = 0,
+    SQ_ELASTICITY_COROTATIONAL = 1
+} sq_elasticity_kind;
+
+/* constraint regions */
+typedef enum sq_region_kind { SQ_REGION_BOX = 0, SQ_REGION_HALFSPACE = 1 } sq_region_kind;
+typedef struct sq_constraint {
+    sq_region_kind kind;
+    double a[3], b[3]; /* box: min corner a, max corner b; half-space: point a, normal b
+                          (nodes with (x - a).b <= 0 are selected) */
+    unsigned axes;     /* constrained axes: bit 0 = x, 1 = y, 2 = z; 7 = fixed node */
+} sq_constraint;
+
 
 typedef struct sq_corot sq_corot;
 typedef struct sq_anp sq_anp;
@@ -46,8 +88,8 @@ typedef struct sq_level {
     double bound;          /* stability bound on the step with damping, s */
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
-    sq_corot *corot;       /* corotational elasticity state (sim/corot.c), NULL: linear */
-    sq_anp *anp;           /* average nodal pressure tets (sim/anp.c), NULL: element-wise */
+    sq_corot *corot;       /* corotational elasticity state (level/corot.c), NULL: linear */
+    sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
      * as the ceiling), its bound, and any integer number of substeps per frame */
     double omega_est;      /* rad/s */
@@ -116,7 +158,7 @@ int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol
 int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
                                          double tol, int max_iter, double *d, int *iterations, sq_err *err);
 
-/* average nodal pressure tets (sim/anp.c; fem operator, linear elasticity, fixed mode): with
+/* average nodal pressure tets (level/anp.c; fem operator, linear elasticity, fixed mode): with
  * L->anp set, sq_level_step and sq_level_forces use them; enable refuses the paper operator */
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
 void sq_level_anp_free(sq_level *L);
@@ -127,7 +169,7 @@ double sq_level_anp_energy(const sq_level *L);
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);
 
-/* corotational elasticity (sim/corot.c; fem operator, fixed mode): per-tet rest gradients and
+/* corotational elasticity (level/corot.c; fem operator, fixed mode): per-tet rest gradients and
  * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
  * operator. With L->corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
  * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
@@ -142,14 +184,5 @@ void sq_level_corot_forces(sq_level *L, const sq_material *mat, const double g[3
 double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
 int sq_level_corot_inverted(const sq_level *L);
-
-/* engine-internal access to a body's levels (lod, tests, benchmarks): the level if it is
- * initialised, else NULL */
-sq_level *sq_body_level(sq_body *b, int level);
-/* the level simulated in fixed mode */
-int sq_body_fixed_level(const sq_body *b);
-/* sleep tolerances: calm for `frames` frames (0: never sleep) with rms speed below
- * ke_speed bbox diagonals per second and sq_body_residual below `residual` (defaults 25, 1e-4, 1e-4) */
-void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual);
 
 #endif

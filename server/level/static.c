@@ -7,7 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "sim/level.h"
+#include "level/level.h"
 
 /* y = K x on unconstrained axes (constrained components of x are taken as zero) */
 static void matvec(const sq_level *L, const void *ctx, const double *x, double *y)
@@ -106,7 +106,7 @@ int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol
     return cg_solve(L, matvec, NULL, gravity, tol, max_iter, d, iterations, err);
 }
 
-/* ---- average nodal pressure tets (static solve; the step is sim/anp.c) --------------------
+/* ---- average nodal pressure tets (static solve; the step is level/anp.c) --------------------
  * Energy sum_T V_T mu |dev eps_T|^2 + sum_i (kappa / 2) W_i theta_i^2, kappa = lambda + 2 mu / 3,
  * W_i the nodal volume, theta_i = sum_{T ni i} (V_T / 4) tr(eps_T) / W_i: the volumetric strain
  * averaged at the nodes, so a tet's pressure is kappa times the mean of its 4 nodes' theta. The

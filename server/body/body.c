@@ -4,7 +4,7 @@
  * Fixed mode simulates one level k. The rendered surface is always the finest loaded
  * level's boundary: at k < finest its vertices take their displacement by interpolation in
  * level k (barycentric coordinates found once). Tools become holds on finest surface nodes
- * (sim/tools.c); at k < finest each hold moves the nearest level-k node by the same
+ * (body/tools.c); at k < finest each hold moves the nearest level-k node by the same
  * translation. Adaptive mode hands the frame to the lod module.
  */
 #include <math.h>
@@ -13,7 +13,7 @@
 #include <string.h>
 
 #include "lod/lod.h"
-#include "sim/body_internal.h"
+#include "body/body_internal.h"
 
 sq_body_def sq_body_def_default(void)
 {
@@ -753,6 +753,19 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     if (b->sleeping && nholds == 0) {
         prof->sleeping = 1;
         prof->sleeping_nodes = b->level[b->cur].n;
+        /* asleep, the resolution stays what it was: active nodes are reported as they stand
+         * (nothing is updated: node_updates stays 0) */
+        for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+            if (!b->ready[k])
+                continue;
+            if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
+                int na = 0;
+                sq_lod_active_list(b->lod, k, &na);
+                prof->active[k] = na;
+            } else if (k == b->cur) {
+                prof->active[k] = b->level[k].n;
+            }
+        }
     } else {
         b->sleeping = 0;
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {

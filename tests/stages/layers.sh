@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# layers stage: the include rule (tests/layers.sh) holds on server/, and the check itself
+# catches each kind of violation on a copy of the tree with one bad include planted.
+# Last line: "layers: N passed, N failed".
+set -u
+cd "$(dirname "$0")/../.."
+pass=0 fail=0
+ok() { echo "ok - $1"; pass=$((pass + 1)); }
+bad() { echo "not ok - $1"; fail=$((fail + 1)); }
+
+if out=$(bash tests/layers.sh server 2>&1); then ok "server/ keeps the layer order"; else bad "server/ breaks the layer order:"; echo "$out"; fi
+
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+plant() { # name file line expected-words
+    rm -rf "$tmp/server"; cp -r server "$tmp/server"
+    printf '%s\n' "$3" >> "$tmp/server/$2"
+    if out=$(bash tests/layers.sh "$tmp/server" 2>&1); then
+        bad "$1: not caught"
+    elif echo "$out" | grep -q "$4"; then
+        ok "$1: caught ($(echo "$out" | head -n 1 | cut -c1-110))"
+    else
+        bad "$1: caught with the wrong message: $out"
+    fi
+}
+plant "an upward include (level -> lod)" level/level.c '#include "lod/lod.h"' 'level may not use lod'
+plant "an upward include (body -> net)" body/body.c '#include "net/net.h"' 'body may not use net'
+plant "another folder's internal header" body/body.c '#include "lod/lod_internal.h"' 'only its public header'
+plant "a bare relative include" scene/world.c '#include "scene.h"' 'write it as'
+plant "a folder outside the order" util/util.c '#include "extra/extra.h"' "no module 'extra'"
+mkdir -p "$tmp/x"; rm -rf "$tmp/server"; cp -r server "$tmp/server"; mkdir "$tmp/server/extra"; touch "$tmp/server/extra/extra.c"
+if bash tests/layers.sh "$tmp/server" 2>&1 | grep -q "not in the module order"; then ok "a new folder must be placed in the order"; else bad "a new folder outside the order passes"; fi
+
+echo "layers: $pass passed, $fail failed"
+[ "$fail" = 0 ]
