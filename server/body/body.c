@@ -755,17 +755,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         prof->sleeping_nodes = b->level[b->cur].n;
         /* asleep, the resolution stays what it was: active nodes are reported as they stand
          * (nothing is updated: node_updates stays 0) */
-        for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-            if (!b->ready[k])
-                continue;
-            if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
-                int na = 0;
-                sq_lod_active_list(b->lod, k, &na);
-                prof->active[k] = na;
-            } else if (k == b->cur) {
-                prof->active[k] = b->level[k].n;
-            }
-        }
+        sq_body_active_nodes(b, prof->active);
     } else {
         b->sleeping = 0;
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
@@ -867,6 +857,20 @@ const double *sq_body_velocity(const sq_body *b, int level)
 const unsigned char *sq_body_node_level(const sq_body *b) { return b->node_level; }
 const sq_mesh *sq_body_surface_mesh(const sq_body *b) { return b->def.levels[b->fine]; }
 int sq_body_is_sleeping(const sq_body *b) { return b->sleeping; }
+
+void sq_body_active_nodes(const sq_body *b, int active[SQ_MAX_LEVELS])
+{
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        active[k] = 0;
+        if (k >= b->nuse || !b->ready[k])
+            continue;
+        if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
+            sq_lod_active_list(b->lod, k, &active[k]);
+        } else if (k == b->cur) {
+            active[k] = b->level[k].n;
+        }
+    }
+}
 
 int sq_body_inverted_tets(const sq_body *b)
 {

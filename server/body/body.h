@@ -122,6 +122,9 @@ double sq_body_elastic_energy(const sq_body *b);
 /* max over free nodes of |f_i| / (m_i |g|) (or / m_i if g = 0): residual force measure */
 double sq_body_residual(const sq_body *b);
 int sq_body_is_sleeping(const sq_body *b);
+/* active nodes per loaded level as the resolution stands now (also before the first frame and
+ * while asleep): fixed mode counts the simulated level whole, adaptive the active lists */
+void sq_body_active_nodes(const sq_body *b, int active[SQ_MAX_LEVELS]);
 /* tets of the simulated level with det F <= 0 (inverted or flat) */
 int sq_body_inverted_tets(const sq_body *b);
 

@@ -72,6 +72,13 @@ static void grab_fallbacks(sq_world *w)
     }
 }
 
+/* before any frame, the profiles already say which nodes are active (stats read them) */
+static void profile_at_rest(sq_world *w)
+{
+    for (int b = 0; b < w->nbodies; b++)
+        sq_body_active_nodes(w->bodies[b], w->profile[b].active);
+}
+
 int sq_scene_check(const sq_scene *s, sq_err *err)
 {
     for (int b = 0; b < s->nbodies; b++) {
@@ -103,6 +110,7 @@ sq_world *sq_world_create(const sq_scene *scene, sq_err *err)
         w->nbodies = b + 1;
     }
     restore_tools(w);
+    profile_at_rest(w);
     return w;
 }
 
@@ -126,6 +134,7 @@ void sq_world_reset(sq_world *w)
     w->last_frame_s = 0;
     memset(w->profile, 0, sizeof w->profile);
     restore_tools(w);
+    profile_at_rest(w);
 }
 
 void sq_world_step(sq_world *w, double budget_s)

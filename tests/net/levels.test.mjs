@@ -66,3 +66,33 @@ test('settings and set count levels as listed too; a level the body did not load
   assert.equal(p.bodies[0].settings.lod.max_level, 2);
   await c.close();
 });
+
+test('a body asleep keeps reporting its active nodes (and no node updates)', async () => {
+  const c = await SquishClient.connect(srv.url);
+  const o = await c.open('cube-poke');
+  const n0 = o.bodies[0].levels[0].nodes;
+  // untouched, the cube is calm from the start and sleeps after 25 frames (0.5 s); 10 s cap
+  let s = await c.stats();
+  for (let t = 0; t < 100 && !s.bodies[0].sleeping; t++) {
+    await new Promise(r => setTimeout(r, 100));
+    s = await c.stats();
+  }
+  assert.equal(s.bodies[0].sleeping, true, 'the untouched cube falls asleep within 10 s');
+  assert.equal(s.active_nodes[0], n0, 'asleep, the coarse level still counts as active');
+  assert.equal(s.bodies[0].node_updates, 0, 'asleep, nothing is integrated');
+  await c.close();
+});
+
+test('before its first frame a session already reports its active nodes (lockstep, no step)', async () => {
+  const ls = await startServer(['--scenes', path.join(ROOT, 'meshes/scenes'), '--grace', '0', '--lockstep']);
+  try {
+    const c = await SquishClient.connect(ls.url);
+    const o = await c.open('paper-cube');
+    const s = await c.stats();
+    assert.equal(s.frame, 0, 'nothing stepped');
+    assert.equal(s.active_nodes[2], o.bodies[0].levels[0].nodes);
+    await c.close();
+  } finally {
+    await ls.stop();
+  }
+});
