@@ -78,6 +78,13 @@ test('a body asleep keeps reporting its active nodes (and no node updates)', asy
     s = await c.stats();
   }
   assert.equal(s.bodies[0].sleeping, true, 'the untouched cube falls asleep within 10 s');
+  // the frame that fell asleep still integrated: read a frame stepped asleep
+  const fell = s.frame;
+  for (let t = 0; t < 100 && s.frame <= fell; t++) {
+    await new Promise(r => setTimeout(r, 50));
+    s = await c.stats();
+  }
+  assert.ok(s.frame > fell && s.bodies[0].sleeping, 'a frame stepped asleep');
   assert.equal(s.active_nodes[0], n0, 'asleep, the coarse level still counts as active');
   assert.equal(s.bodies[0].node_updates, 0, 'asleep, nothing is integrated');
   await c.close();
