@@ -26,11 +26,18 @@ describe('client library in a browser and in Node', () => {
     try {
       await page.goto(`${server.url}favicon.png`);
       const got = await page.evaluate(async (url) => {
+        let stage = 'import /squish-client.js';
         const { SquishClient } = await import('/squish-client.js');
-        const c = await SquishClient.connect(url, { client: 'page' });
-        const o = await c.open('paper-cube');
-        const st = await c.step(5);
-        const f = await c.waitFrame(st.frame);
+        // a failure names the stage it happened in (the assertion below prints it)
+        let c, o, st, f;
+        try {
+          stage = 'connect'; c = await SquishClient.connect(url, { client: 'page' });
+          stage = 'open paper-cube'; o = await c.open('paper-cube');
+          stage = 'step 5'; st = await c.step(5);
+          stage = `wait for frame ${st.frame}`; f = await c.waitFrame(st.frame);
+        } catch (e) {
+          return { failed: `${stage}: ${e && e.message}` };
+        }
         let err = null;
         try { await c.set({ material: { nu: 0.7 } }); } catch (e) { err = e.code; }
         const out = { session: o.session, frame: f.frame, stepped: st.frames, err,
@@ -38,14 +45,15 @@ describe('client library in a browser and in Node', () => {
         c.leave();
         return out;
       }, ws);
+      assert.equal(got.failed, undefined, 'the page drives the session');
       assert.equal(got.lockstep, true);
       assert.equal(got.stepped, 5);
       assert.equal(got.err, 'out_of_range', 'an error reply rejects with its code');
       // Node joins the page's session (kept for the grace period) and reads the same frame
       const c = await SquishClient.connect(ws, { client: 'node', role: 'view' });
       try {
-        await c.join(got.session);
-        const f = await c.waitFrame(got.frame);
+        await c.join(got.session).catch((e) => { throw new Error(`node joins session ${got.session}: ${e.message}`); });
+        const f = await c.waitFrame(got.frame).catch((e) => { throw new Error(`node waits for frame ${got.frame}: ${e.message}`); });
         assert.equal(f.frame, got.frame);
         assert.equal(f.positions.length, got.n);
         assert.deepEqual(Array.from(f.positions.slice(0, 30)), got.pos, 'same positions, bit for bit');
