@@ -87,12 +87,12 @@ int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, 
         /* messages not read as JSON: their errors say "ref": null */
         static const sq_request unread = {.ref_kind = SQ_REF_NULL};
         if (c->rx_binary) {
-            net_send_error(c, &unread, "bad_json", "binary messages are not accepted; send JSON text");
+            net_send_error(c, &unread, SQ_CODE_BAD_JSON, "binary messages are not accepted; send JSON text");
         } else if (c->rx_oversize) {
             char m[160];
             snprintf(m, sizeof m, "text message larger than %zu bytes (--max-message) dropped; "
                      "send smaller messages", max);
-            net_send_error(c, &unread, "too_large", m);
+            net_send_error(c, &unread, SQ_CODE_TOO_LARGE, m);
         } else {
             net_handle_request(c, c->rx, c->rx_len);
         }

@@ -67,9 +67,9 @@ void net_send_json(client *c, cJSON *o)
     net_fifo_push(c, sq_reply_blob(o));
 }
 
-void net_send_error(client *c, const sq_request *req, const char *code, const char *msg)
+void net_send_error(client *c, const sq_request *req, sq_net_code code, const char *msg)
 {
-    net_count_refused(c->srv, code);
+    net_count_refused(c->srv, sq_net_code_name(code));
     net_fifo_push(c, sq_error_blob(code, msg, req));
 }
 

@@ -27,7 +27,7 @@ static void do_open_or_join(client *c, const sq_request *req)
     server *srv = c->srv;
     char m[240];
     if (srv->stopping) {
-        net_send_error(c, req, "shutting_down", "the server is stopping; reconnect later");
+        net_send_error(c, req, SQ_CODE_SHUTTING_DOWN, "the server is stopping; reconnect later");
         return;
     }
     srec *r = NULL;
@@ -37,7 +37,7 @@ static void do_open_or_join(client *c, const sq_request *req)
         if (sc < 0) {
             snprintf(m, sizeof m, "open.scene: no scene \"%.60s\"; list_scenes gives the names",
                      req->open.scene);
-            net_send_error(c, req, "unknown_scene", m);
+            net_send_error(c, req, SQ_CODE_UNKNOWN_SCENE, m);
             return;
         }
         /* a free slot (the one the client leaves may be reused) */
@@ -55,7 +55,7 @@ static void do_open_or_join(client *c, const sq_request *req)
             else
                 snprintf(m, sizeof m, "%d sessions are running (--max-sessions); join one or retry "
                          "later", net_live_sessions(srv));
-            net_send_error(c, req, "server_full", m);
+            net_send_error(c, req, SQ_CODE_SERVER_FULL, m);
             return;
         }
         r = &srv->slots[idx];
@@ -78,13 +78,13 @@ static void do_open_or_join(client *c, const sq_request *req)
         if (!r) {
             snprintf(m, sizeof m, "join.session: no session %llu (it ended, or never existed); open "
                      "a scene instead", (unsigned long long)req->join.session);
-            net_send_error(c, req, "unknown_session", m);
+            net_send_error(c, req, SQ_CODE_UNKNOWN_SESSION, m);
             return;
         }
         if (req->join.has_role)
             role = req->join.role;
         if (role == SQ_ROLE_CONTROL && !c->token_ok) {
-            net_send_error(c, req, "bad_token", "join.role: control needs the server's token; send it "
+            net_send_error(c, req, SQ_CODE_BAD_TOKEN, "join.role: control needs the server's token; send it "
                        "in hello.token or join as \"view\"");
             return;
         }
@@ -136,13 +136,13 @@ void net_handle_request(client *c, const char *text, size_t len)
         if (sq_request_decode(text, len, (size_t)opt->max_message, &req, &err))
             memset(&req, 0, sizeof req);
         snprintf(m, sizeof m, "more than %g requests per second (--rate); slow down", opt->rate);
-        net_send_error(c, &req, "rate_limited", m);
+        net_send_error(c, &req, SQ_CODE_RATE_LIMITED, m);
         return;
     }
     c->tokens -= 1;
 
     if (sq_request_decode(text, len, (size_t)opt->max_message, &req, &err)) {
-        net_send_error(c, &req, err.code, err.message);
+        net_send_error(c, &req, sq_net_code_of(err.code), err.message);
         return;
     }
     srec *r = c->sess;
@@ -163,7 +163,7 @@ void net_handle_request(client *c, const char *text, size_t len)
         ctx.tool_ids = ids;
     }
     if (sq_request_check(&req, &ctx, &err)) {
-        net_send_error(c, &req, err.code, err.message);
+        net_send_error(c, &req, sq_net_code_of(err.code), err.message);
         return;
     }
 
@@ -176,7 +176,7 @@ void net_handle_request(client *c, const char *text, size_t len)
                 char m[200];
                 snprintf(m, sizeof m, "hello.token: %d wrong tokens from %s; wait %.0f s before "
                          "trying again", SQ_GUARD_FAILS, c->addr, ceil(wait));
-                net_send_error(c, &req, "throttled", m);
+                net_send_error(c, &req, SQ_CODE_THROTTLED, m);
                 return;
             }
             if (!token_matches(srv, req.hello.token))
@@ -184,7 +184,7 @@ void net_handle_request(client *c, const char *text, size_t len)
         }
         if (req.hello.role == SQ_ROLE_CONTROL && opt->token &&
             (!req.hello.has_token || !token_matches(srv, req.hello.token))) {
-            net_send_error(c, &req, "bad_token", req.hello.has_token
+            net_send_error(c, &req, SQ_CODE_BAD_TOKEN, req.hello.has_token
                        ? "hello.token: wrong token for role control; ask the server's operator"
                        : "hello.token: the server needs a token for role control; send it or use "
                          "role \"view\"");
@@ -245,13 +245,13 @@ void net_handle_request(client *c, const char *text, size_t len)
     }
     case SQ_REQ_TAKE_CONTROL: {
         if (r->controller && r->controller != c->serial) {
-            net_send_error(c, &req, "controller_present", "take_control: another client controls "
+            net_send_error(c, &req, SQ_CODE_CONTROLLER_PRESENT, "take_control: another client controls "
                        "this session; wait for an event of kind \"control\" saying nobody does");
             return;
         }
         if (opt->token && !c->token_ok &&
             !(req.take_control.has_token && token_matches(srv, req.take_control.token))) {
-            net_send_error(c, &req, "bad_token", req.take_control.has_token
+            net_send_error(c, &req, SQ_CODE_BAD_TOKEN, req.take_control.has_token
                        ? "take_control.token: wrong token; ask the server's operator"
                        : "take_control.token: the server needs a token for control; send it "
                          "here or in hello.token");
@@ -294,7 +294,7 @@ void net_handle_request(client *c, const char *text, size_t len)
             /* one nodes request runs at a time per client; the newest waits, older waiting
              * ones are answered as replaced */
             if (c->nodes_deferred)
-                net_send_error(c, &c->nodes_req, "superseded", "nodes: replaced by a newer nodes "
+                net_send_error(c, &c->nodes_req, SQ_CODE_SUPERSEDED, "nodes: replaced by a newer nodes "
                            "request of this client (one runs at a time; wait for the reply)");
             c->nodes_req = req;
             c->nodes_deferred = 1;
@@ -305,7 +305,7 @@ void net_handle_request(client *c, const char *text, size_t len)
             snprintf(m, sizeof m, "%d requests of this client wait for session %llu; wait for "
                      "their replies before sending more", CLIENT_MAX_JOBS,
                      (unsigned long long)r->s->id);
-            net_send_error(c, &req, "busy", m);
+            net_send_error(c, &req, SQ_CODE_BUSY, m);
             break;
         }
         sq_session_push_job(r->s, c->serial, &req);

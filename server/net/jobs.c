@@ -35,7 +35,7 @@ static void do_tool(sq_session *s, const sq_job *j)
         if (!r->tool.has_shape || !r->tool.has_pos) {
             snprintf(msg, sizeof msg, "tool.id: %d is not a tool of this session; a new tool needs "
                      "shape and pos", r->tool.id);
-            sq_session_reply_error(s, j->client, r, "unknown_tool", msg);
+            sq_session_reply_error(s, j->client, r, SQ_CODE_UNKNOWN_TOOL, msg);
             sq_session_sync_tool_ids(s);
             return;
         }
@@ -54,7 +54,7 @@ static void do_tool(sq_session *s, const sq_job *j)
     if (r->tool.has_active) t.active = r->tool.active;
     sq_err err = {{0}};
     if (sq_world_set_tool(w, &t, &err)) {
-        sq_session_reply_error(s, j->client, r, w->ntools >= SQ_MAX_TOOLS ? "too_many_tools" : "refused",
+        sq_session_reply_error(s, j->client, r, w->ntools >= SQ_MAX_TOOLS ? SQ_CODE_TOO_MANY_TOOLS : SQ_CODE_REFUSED,
                     err.msg);
         sq_session_sync_tool_ids(s);
         return;
@@ -181,7 +181,7 @@ static void do_set(sq_session *s, const sq_job *j)
             }
             char msg[400];
             snprintf(msg, sizeof msg, "body %d (\"%.40s\"): %.260s", b, s->scene->body_names[b], err.msg);
-            sq_session_reply_error(s, j->client, r, "refused", msg);
+            sq_session_reply_error(s, j->client, r, SQ_CODE_REFUSED, msg);
             return;
         }
     }
@@ -205,7 +205,7 @@ static void do_set(sq_session *s, const sq_job *j)
                  1e3 * p.seconds, p.updates, p.body, p.substeps, p.nodes,
                  1e6 * p.seconds / (p.updates > 0 ? p.updates : 1), 1e3 * budget,
                  frac, 1e3 * s->period);
-        sq_session_reply_error(s, j->client, r, "over_budget", msg);
+        sq_session_reply_error(s, j->client, r, SQ_CODE_OVER_BUDGET, msg);
         return;
     }
     cJSON *o = ack("set", r, w->frame + 1);
@@ -281,7 +281,7 @@ int sq_session_do_job(sq_session *s, const sq_job *j)
     int body = r->type == SQ_REQ_SET ? r->set.body : r->type == SQ_REQ_RESET ? r->reset.body
              : r->type == SQ_REQ_NODES ? r->nodes.body : -1;
     if (body >= w->nbodies) {
-        sq_session_reply_error(s, j->client, r, "unknown_body", "body id out of range");
+        sq_session_reply_error(s, j->client, r, SQ_CODE_UNKNOWN_BODY, "body id out of range");
         if (r->type == SQ_REQ_NODES)
             sq_session_post(s, SQ_OUT_NODES_DONE, j->client, 0, NULL);
         return 0;
@@ -321,7 +321,7 @@ int sq_session_do_job(sq_session *s, const sq_job *j)
         do_nodes(s, j);
         return 0;
     default:
-        sq_session_reply_error(s, j->client, r, "internal", "request not handled by the session");
+        sq_session_reply_error(s, j->client, r, SQ_CODE_INTERNAL, "request not handled by the session");
         return 0;
     }
 }

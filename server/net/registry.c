@@ -156,7 +156,7 @@ int net_add_member(client *c, srec *r, sq_role role)
         char m[160];
         snprintf(m, sizeof m, "session %llu already has %d clients (--max-clients); open another "
                  "session", (unsigned long long)r->s->id, r->nmembers);
-        net_send_error(c, &c->pending_req, "session_full", m);
+        net_send_error(c, &c->pending_req, SQ_CODE_SESSION_FULL, m);
         return -1;
     }
     if (r->nmembers == r->cap) {
@@ -235,7 +235,7 @@ void net_drain_session(server *srv, srec *r)
         case SQ_OUT_FAILED:
             failed = 1;
             for (int k = 0; k < r->nmembers; k++)
-                net_send_error(r->members[k], &r->members[k]->pending_req, "scene_failed",
+                net_send_error(r->members[k], &r->members[k]->pending_req, SQ_CODE_SCENE_FAILED,
                            r->s->fail_msg);
             break;
         case SQ_OUT_FRAME:

@@ -7,6 +7,7 @@
 #include "net/server.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -29,14 +30,18 @@ sq_blob *sq_reply_blob(cJSON *o)
 {
     char *s = cJSON_PrintUnformatted(o);
     cJSON_Delete(o);
-    if (!s)
-        return sq_blob_text("{\"type\":\"error\",\"code\":\"internal\",\"message\":\"out of memory\"}");
+    if (!s) {
+        char oom[96];
+        snprintf(oom, sizeof oom, "{\"type\":\"error\",\"code\":\"%s\",\"message\":\"out of memory\"}",
+                 sq_net_code_name(SQ_CODE_INTERNAL));
+        return sq_blob_text(oom);
+    }
     sq_blob *b = sq_blob_text(s);
     cJSON_free(s);
     return b;
 }
 
-sq_blob *sq_error_blob(const char *code, const char *message, const sq_request *req)
+sq_blob *sq_error_blob(sq_net_code code, const char *message, const sq_request *req)
 {
     /* messages quote client input, possibly cut in the middle of a UTF-8 sequence or not
      * UTF-8 at all: keep them ASCII so the text frame is always valid UTF-8 */
@@ -46,7 +51,7 @@ sq_blob *sq_error_blob(const char *code, const char *message, const sq_request *
         clean[n++] = *p < 0x80 ? (char)*p : '?';
     clean[n] = 0;
     cJSON *o = sq_reply_new("error", req);
-    cJSON_AddStringToObject(o, "code", code);
+    cJSON_AddStringToObject(o, "code", sq_net_code_name(code));
     cJSON_AddStringToObject(o, "message", clean);
     if (req && req->type != SQ_REQ_NONE)
         cJSON_AddStringToObject(o, "request", sq_req_name(req->type));

@@ -15,6 +15,7 @@
 #ifndef SQ_NET_SERVER_H
 #define SQ_NET_SERVER_H
 
+#include "net/errors.h"
 #include "net/limits.h"
 #include "net/metrics.h"
 #include "net/session.h"
@@ -139,7 +140,7 @@ void net_count_refused_n(server *srv, const char *code, long n);
 void net_count_refused(server *srv, const char *code);
 void net_fifo_push(client *c, sq_blob *b);
 void net_send_json(client *c, cJSON *o);
-void net_send_error(client *c, const sq_request *req, const char *code, const char *msg);
+void net_send_error(client *c, const sq_request *req, sq_net_code code, const char *msg);
 void net_slot_put(client *c, int body, sq_blob *b);
 void net_clear_slots(client *c);
 void net_nodes_check(client *c);

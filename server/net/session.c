@@ -46,10 +46,11 @@ void sq_session_reply(sq_session *s, uint64_t client, cJSON *o)
     sq_session_post(s, SQ_OUT_TEXT, client, 0, sq_reply_blob(o));
 }
 
-void sq_session_reply_error(sq_session *s, uint64_t client, const sq_request *req, const char *code,
+void sq_session_reply_error(sq_session *s, uint64_t client, const sq_request *req, sq_net_code ec,
                         const char *msg)
 {
-    sq_blob *b = sq_error_blob(code, msg, req);
+    sq_blob *b = sq_error_blob(ec, msg, req);
+    const char *code = sq_net_code_name(ec);
     pthread_mutex_lock(&s->mu);
     /* counted by code for /metrics (code: a static string) */
     int i = 0;

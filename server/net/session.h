@@ -14,6 +14,7 @@
 #include <pthread.h>
 
 #include "net/budget.h"
+#include "net/errors.h"
 #include "net/net.h"
 #include "net/snapshot.h"
 #include "scene/scene.h"
@@ -147,7 +148,7 @@ void sq_session_post(sq_session *s, sq_out_kind kind, uint64_t client, int body,
 void sq_session_reply(sq_session *s, uint64_t client, struct cJSON *o);
 /* an error reply, counted by code for /metrics (code: a static string) */
 void sq_session_reply_error(sq_session *s, uint64_t client, const sq_request *req,
-                            const char *code, const char *msg);
+                            sq_net_code code, const char *msg);
 /* refresh the tool ids requests are checked against (takes mu) */
 void sq_session_sync_tool_ids(sq_session *s);
 /* step one frame and post its messages as kind */
@@ -163,7 +164,7 @@ struct cJSON *sq_reply_new(const char *type, const sq_request *req);
 /* print and free a JSON object into a text blob */
 sq_blob *sq_reply_blob(struct cJSON *o);
 /* an error reply */
-sq_blob *sq_error_blob(const char *code, const char *message, const sq_request *req);
+sq_blob *sq_error_blob(sq_net_code code, const char *message, const sq_request *req);
 /* the tools array of a snapshot */
 struct cJSON *sq_tools_json(const sq_tool *tools, int ntools);
 /* settings of body bi, as in docs/protocol.md; levels numbered as listed in the scene file */
