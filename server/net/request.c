@@ -67,108 +67,105 @@ static void show(const cJSON *v, char *out, size_t n)
 
 static const char *json_kind(const cJSON *v)
 {
-    if (cJSON_IsNumber(v)) return "a number";
-    if (cJSON_IsString(v)) return "a string";
-    if (cJSON_IsBool(v)) return "a boolean";
-    if (cJSON_IsNull(v)) return "null";
-    if (cJSON_IsArray(v)) return "an array";
-    if (cJSON_IsObject(v)) return "an object";
-    return "invalid";
+    const char *k = sq_json_kind(v);
+    return k ? k : "invalid";
 }
+
+/* the protocol's wording of a refused field (util/json.c checks it): the path, the value,
+ * what to send; bad_field for a wrong JSON type or key, out_of_range for a wrong value */
+static int report(sq_json_reader *r, const sq_json_fault *f)
+{
+    sq_net_error *err = r->ctx;
+    const char *path = f->path;
+    char buf[48];
+    switch (f->kind) {
+    case SQ_JSON_WRONG_TYPE: {
+        static const char *const want[] = {
+            [SQ_JSON_NUMBER] = "a number", [SQ_JSON_STRING] = "a string",
+            [SQ_JSON_BOOL] = "true or false", [SQ_JSON_ARRAY] = "an array",
+            [SQ_JSON_OBJECT] = "an object", [SQ_JSON_VEC3] = "[x, y, z]"};
+        show(f->item, buf, sizeof buf);
+        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected %s, got %s (%s)", path, want[f->want],
+                    json_kind(f->item), buf);
+    }
+    case SQ_JSON_NOT_FINITE:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is not a finite number; send a finite value",
+                    path, f->x);
+    case SQ_JSON_BAD_INT:
+    case SQ_JSON_OUT_OF_RANGE:
+        /* an integer outside [lo, hi] is refused as outside, before being whole */
+        if (f->kind == SQ_JSON_BAD_INT && f->in_range)
+            return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is not an integer; send a whole number", path,
+                        f->x);
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is outside %s%g, %g]; send a value in range",
+                    path, f->x, f->lo_open ? "(" : "[", f->lo, f->hi);
+    case SQ_JSON_TOO_LONG:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: string of %zu bytes is too long (at most %zu)",
+                    path, f->len, f->cap - 1);
+    case SQ_JSON_CONTROL_CHAR:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: control character at byte %zu; send plain text",
+                    path, f->at);
+    case SQ_JSON_WRONG_LENGTH:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: expected 3 numbers [x, y, z], got %d", path, f->n);
+    case SQ_JSON_UNKNOWN_KEY: {
+        char list[200] = "";
+        for (int i = 0; f->known[i]; i++) {
+            strncat(list, i ? ", " : "", sizeof list - strlen(list) - 1);
+            strncat(list, f->known[i], sizeof list - strlen(list) - 1);
+        }
+        return fail(err, SQ_CODE_BAD_FIELD, "%s: unknown field '%.40s'; known fields: %s", path,
+                    f->key, list);
+    }
+    case SQ_JSON_DUPLICATE_KEY:
+        return fail(err, SQ_CODE_BAD_FIELD, "%s.%.40s: given twice; give each field once", path,
+                    f->key);
+    }
+    return fail(err, SQ_CODE_INTERNAL, "%s: refused", path);
+}
+
+/* the readers of request fields, with the protocol's wording: a key given twice is refused
+ * where it first appears */
+#define READER(err) sq_json_reader rd = {report, err, 1}
 
 /* every child of obj must be named in allowed (NULL-terminated) and appear once */
 static int check_fields(const cJSON *obj, const char *path, const char *const *allowed,
                         sq_net_error *err)
 {
-    for (const cJSON *c = obj->child; c; c = c->next) {
-        const char *name = c->string ? c->string : "";
-        int ok = 0;
-        for (int i = 0; allowed[i]; i++)
-            if (!strcmp(name, allowed[i]))
-                ok = 1;
-        if (!ok) {
-            char list[200] = "";
-            for (int i = 0; allowed[i]; i++) {
-                strncat(list, i ? ", " : "", sizeof list - strlen(list) - 1);
-                strncat(list, allowed[i], sizeof list - strlen(list) - 1);
-            }
-            return fail(err, SQ_CODE_BAD_FIELD, "%s: unknown field '%.40s'; known fields: %s", path,
-                        name, list);
-        }
-        for (const cJSON *d = c->next; d; d = d->next)
-            if (d->string && !strcmp(d->string, name))
-                return fail(err, SQ_CODE_BAD_FIELD, "%s.%.40s: given twice; give each field once",
-                            path, name);
-    }
-    return 0;
+    READER(err);
+    return sq_json_keys(&rd, obj, path, allowed);
 }
 
 /* a finite number in [lo, hi] (open ends when lo_open/hi_open) */
 static int get_number(const cJSON *v, const char *path, double lo, double hi, int lo_open,
                       double *out, sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsNumber(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected a number, got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    double x = v->valuedouble;
-    if (!isfinite(x))
-        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is not a finite number; send a finite value",
-                    path, x);
-    if (x < lo || x > hi || (lo_open && x == lo))
-        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is outside %s%g, %g]; send a value in range",
-                    path, x, lo_open ? "(" : "[", lo, hi);
-    *out = x;
-    return 0;
+    READER(err);
+    return sq_json_number(&rd, v, path, lo, hi, lo_open, out);
 }
 
 static int get_int(const cJSON *v, const char *path, int lo, int hi, int *out,
                    sq_net_error *err)
 {
+    READER(err);
     double x = 0;
-    if (get_number(v, path, lo, hi, 0, &x, err))
+    if (sq_json_int(&rd, v, path, lo, hi, &x))
         return -1;
-    if (x != floor(x))
-        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is not an integer; send a whole number", path,
-                    x);
     *out = (int)x;
     return 0;
 }
 
 static int get_bool(const cJSON *v, const char *path, int *out, sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsBool(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected true or false, got %s (%s)", path,
-                    json_kind(v), buf);
-    }
-    *out = cJSON_IsTrue(v) ? 1 : 0;
-    return 0;
+    READER(err);
+    return sq_json_bool(&rd, v, path, out);
 }
 
 /* a string of at most cap - 1 bytes, without control characters */
 static int get_string(const cJSON *v, const char *path, char *out, size_t cap,
                       sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsString(v) || !v->valuestring) {
-        show(v, buf, sizeof buf);
-        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected a string, got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    size_t n = strlen(v->valuestring);
-    if (n >= cap)
-        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: string of %zu bytes is too long (at most %zu)",
-                    path, n, cap - 1);
-    for (size_t i = 0; i < n; i++)
-        if ((unsigned char)v->valuestring[i] < 0x20)
-            return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: control character at byte %zu; send plain text",
-                        path, i);
-    memcpy(out, v->valuestring, n + 1);
-    return 0;
+    READER(err);
+    return sq_json_string(&rd, v, path, out, cap, 1);
 }
 
 /* one of the given words; returns its index */
@@ -197,34 +194,14 @@ static int get_enum(const cJSON *v, const char *path, const char *const *words, 
 static int get_vec3(const cJSON *v, const char *path, double lo, double hi, int lo_open,
                     double out[3], sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsArray(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected [x, y, z], got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    int n = cJSON_GetArraySize(v);
-    if (n != 3)
-        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: expected 3 numbers [x, y, z], got %d", path, n);
-    int i = 0;
-    for (const cJSON *c = v->child; c; c = c->next, i++) {
-        char p[64];
-        snprintf(p, sizeof p, "%s[%d]", path, i);
-        if (get_number(c, p, lo, hi, lo_open, &out[i], err))
-            return -1;
-    }
-    return 0;
+    READER(err);
+    return sq_json_vec3(&rd, v, path, lo, hi, lo_open, out);
 }
 
 static int expect_object(const cJSON *v, const char *path, sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsObject(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected an object, got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    return 0;
+    READER(err);
+    return sq_json_expect(&rd, v, path, SQ_JSON_OBJECT);
 }
 
 static const char *const roles[] = {"control", "view", NULL};

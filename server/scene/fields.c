@@ -1,7 +1,8 @@
 /* fields.c - the field readers of scene files: typed values at JSON paths, worded errors.
  *
  * "scene.json: bodies[0].material.nu: expected a number, got a string; see docs/scenes.md":
- * every reader names the file (label), the JSON path and what to give instead.
+ * every reader names the file (label), the JSON path and what to give instead. The checks
+ * are those of util/json.c (shared with the protocol's requests); the wording is here.
  */
 #include "scene/scene_internal.h"
 
@@ -25,20 +26,75 @@ int scene_fail(pctx *c, const char *path, const char *fmt, ...)
 
 const char *scene_type_name(const cJSON *it)
 {
-    if (cJSON_IsNumber(it))
-        return "a number";
-    if (cJSON_IsString(it))
-        return "a string";
-    if (cJSON_IsBool(it))
-        return "a boolean";
-    if (cJSON_IsNull(it))
-        return "null";
-    if (cJSON_IsArray(it))
-        return "an array";
-    if (cJSON_IsObject(it))
-        return "an object";
-    return "an invalid value";
+    const char *k = sq_json_kind(it);
+    return k ? k : "an invalid value";
 }
+
+/* the scene files' wording of a field the readers of util/json.c refused: "<label>: <path>:
+ * <what>; <what to do>" */
+static int report(sq_json_reader *r, const sq_json_fault *f)
+{
+    pctx *c = r->ctx;
+    char p[256];
+    switch (f->kind) {
+    case SQ_JSON_WRONG_TYPE:
+        if (f->index >= 0)
+            return scene_fail(c, f->array_path, "element %d: expected a number, got %s; see docs/scenes.md",
+                              f->index, scene_type_name(f->item));
+        switch (f->want) {
+        case SQ_JSON_NUMBER:
+            return scene_fail(c, f->path, "expected a number, got %s; see docs/scenes.md", scene_type_name(f->item));
+        case SQ_JSON_STRING:
+            return scene_fail(c, f->path, "expected a string, got %s; see docs/scenes.md", scene_type_name(f->item));
+        case SQ_JSON_BOOL:
+            return scene_fail(c, f->path, "expected true or false, got %s; see docs/scenes.md",
+                              scene_type_name(f->item));
+        case SQ_JSON_ARRAY:
+        case SQ_JSON_OBJECT:
+            return scene_fail(c, f->path, "expected %s, got %s; see docs/scenes.md",
+                              f->want == SQ_JSON_ARRAY ? "an array" : "an object", scene_type_name(f->item));
+        case SQ_JSON_VEC3:
+            break;
+        }
+        return scene_fail(c, f->path, "expected an array of 3 numbers [x, y, z], got %s; see docs/scenes.md",
+                          scene_type_name(f->item));
+    case SQ_JSON_WRONG_LENGTH:
+        return scene_fail(c, f->path, "expected an array of 3 numbers [x, y, z], got %s%s; see docs/scenes.md",
+                          scene_type_name(f->item), cJSON_IsArray(f->item) ? " of another length" : "");
+    case SQ_JSON_NOT_FINITE:
+        if (f->index >= 0)
+            return scene_fail(c, f->array_path, "element %d: not a finite number; use a finite value", f->index);
+        return scene_fail(c, f->path, "not a finite number; use a value within the double range");
+    case SQ_JSON_OUT_OF_RANGE:
+        return scene_fail(c, f->path, "%g is out of range; use a value in [%g, %g]", f->x, f->lo, f->hi);
+    case SQ_JSON_BAD_INT:
+        if (!f->whole)
+            return scene_fail(c, f->path, "%g is not an integer; use a whole number in [%ld, %ld]", f->x,
+                              (long)f->lo, (long)f->hi);
+        return scene_fail(c, f->path, "%g is out of range; use an integer in [%ld, %ld]", f->x, (long)f->lo,
+                          (long)f->hi);
+    case SQ_JSON_TOO_LONG:
+        return scene_fail(c, f->path, "too long (%zu bytes); use at most %zu", f->len, f->cap - 1);
+    case SQ_JSON_CONTROL_CHAR:
+        return scene_fail(c, f->path, "control character at byte %zu; use plain text", f->at);
+    case SQ_JSON_UNKNOWN_KEY: {
+        scene_join(p, sizeof p, f->path, f->key);
+        char list[256] = "";
+        for (int k = 0; f->known[k]; k++) {
+            size_t l = strlen(list);
+            snprintf(list + l, sizeof list - l, "%s%s", k ? ", " : "", f->known[k]);
+        }
+        return scene_fail(c, p, "unknown key; known keys here: %s (check the spelling)", list);
+    }
+    case SQ_JSON_DUPLICATE_KEY:
+        scene_join(p, sizeof p, f->path, f->key);
+        return scene_fail(c, p, "key given twice; keep one");
+    }
+    return scene_fail(c, f->path, "refused");
+}
+
+/* the readers of scene fields: a key given twice is refused at its second appearance */
+#define READER(c) sq_json_reader rd = {report, c, 0}
 
 /* "a.b" + "c" -> "a.b.c"; "" + "c" -> "c" (truncated paths stay NUL-terminated) */
 void scene_join(char *out, size_t n, const char *path, const char *key)
@@ -57,26 +113,8 @@ void scene_join_index(char *out, size_t n, const char *path, int i)
 /* reject keys not in `known` (NULL-terminated) and duplicated keys */
 int scene_check_keys(pctx *c, const cJSON *obj, const char *path, const char *const *known)
 {
-    char p[256];
-    for (const cJSON *it = obj->child; it; it = it->next) {
-        int ok = 0;
-        for (int k = 0; known[k]; k++)
-            if (!strcmp(it->string, known[k]))
-                ok = 1;
-        scene_join(p, sizeof p, path, it->string);
-        if (!ok) {
-            char list[256] = "";
-            for (int k = 0; known[k]; k++) {
-                size_t l = strlen(list);
-                snprintf(list + l, sizeof list - l, "%s%s", k ? ", " : "", known[k]);
-            }
-            return scene_fail(c, p, "unknown key; known keys here: %s (check the spelling)", list);
-        }
-        for (const cJSON *o = obj->child; o != it; o = o->next)
-            if (!strcmp(o->string, it->string))
-                return scene_fail(c, p, "key given twice; keep one");
-    }
-    return 0;
+    READER(c);
+    return sq_json_keys(&rd, obj, path, known);
 }
 
 const cJSON *scene_get(const cJSON *obj, const char *key)
@@ -103,12 +141,8 @@ int scene_get_number(pctx *c, const cJSON *obj, const char *path, const char *ke
     const cJSON *it = get_at(obj, path, key, p, sizeof p, found);
     if (!it)
         return 0;
-    if (!cJSON_IsNumber(it))
-        return scene_fail(c, p, "expected a number, got %s; see docs/scenes.md", scene_type_name(it));
-    if (!isfinite(it->valuedouble))
-        return scene_fail(c, p, "not a finite number; use a value within the double range");
-    *out = it->valuedouble;
-    return 0;
+    READER(c);
+    return sq_json_number(&rd, it, p, -INFINITY, INFINITY, 0, out);
 }
 
 int scene_get_required_number(pctx *c, const cJSON *obj, const char *path, const char *key,
@@ -129,20 +163,14 @@ int scene_get_required_number(pctx *c, const cJSON *obj, const char *path, const
 int scene_get_int(pctx *c, const cJSON *obj, const char *path, const char *key, long lo, long hi,
                    long *out, int *found)
 {
-    double v = 0;
-    int f;
-    if (scene_get_number(c, obj, path, key, &v, &f))
-        return -1;
-    if (found)
-        *found = f;
-    if (!f)
-        return 0;
     char p[256];
-    scene_join(p, sizeof p, path, key);
-    if (v != floor(v))
-        return scene_fail(c, p, "%g is not an integer; use a whole number in [%ld, %ld]", v, lo, hi);
-    if (v < (double)lo || v > (double)hi)
-        return scene_fail(c, p, "%g is out of range; use an integer in [%ld, %ld]", v, lo, hi);
+    const cJSON *it = get_at(obj, path, key, p, sizeof p, found);
+    if (!it)
+        return 0;
+    READER(c);
+    double v = 0;
+    if (sq_json_int(&rd, it, p, (double)lo, (double)hi, &v))
+        return -1;
     *out = (long)v;
     return 0;
 }
@@ -155,12 +183,8 @@ int scene_get_string(pctx *c, const cJSON *obj, const char *path, const char *ke
     const cJSON *it = get_at(obj, path, key, p, sizeof p, found);
     if (!it)
         return 0;
-    if (!cJSON_IsString(it) || !it->valuestring)
-        return scene_fail(c, p, "expected a string, got %s; see docs/scenes.md", scene_type_name(it));
-    if (strlen(it->valuestring) >= cap)
-        return scene_fail(c, p, "too long (%zu bytes); use at most %zu", strlen(it->valuestring), cap - 1);
-    snprintf(out, cap, "%s", it->valuestring);
-    return 0;
+    READER(c);
+    return sq_json_string(&rd, it, p, out, cap, 0);
 }
 
 /* a name usable in CSV files and file names: letters, digits, '_', '-', '.' */
@@ -184,27 +208,15 @@ int scene_get_bool(pctx *c, const cJSON *obj, const char *path, const char *key,
     const cJSON *it = get_at(obj, path, key, p, sizeof p, NULL);
     if (!it)
         return 0;
-    if (!cJSON_IsBool(it))
-        return scene_fail(c, p, "expected true or false, got %s; see docs/scenes.md", scene_type_name(it));
-    *out = cJSON_IsTrue(it) ? 1 : 0;
-    return 0;
+    READER(c);
+    return sq_json_bool(&rd, it, p, out);
 }
 
 /* an array of three finite numbers, given as the item itself */
 int scene_vec3_of(pctx *c, const cJSON *it, const char *p, double out[3])
 {
-    if (!cJSON_IsArray(it) || cJSON_GetArraySize(it) != 3)
-        return scene_fail(c, p, "expected an array of 3 numbers [x, y, z], got %s%s; see docs/scenes.md", scene_type_name(it),
-                    cJSON_IsArray(it) ? " of another length" : "");
-    int i = 0;
-    for (const cJSON *e = it->child; e; e = e->next, i++) {
-        if (!cJSON_IsNumber(e))
-            return scene_fail(c, p, "element %d: expected a number, got %s; see docs/scenes.md", i, scene_type_name(e));
-        if (!isfinite(e->valuedouble))
-            return scene_fail(c, p, "element %d: not a finite number; use a finite value", i);
-        out[i] = e->valuedouble;
-    }
-    return 0;
+    READER(c);
+    return sq_json_vec3(&rd, it, p, -INFINITY, INFINITY, 0, out);
 }
 
 int scene_get_vec3(pctx *c, const cJSON *obj, const char *path, const char *key, double out[3],
@@ -231,9 +243,9 @@ const cJSON *scene_get_typed(pctx *c, const cJSON *obj, const char *path, const 
         }
         return NULL;
     }
-    if (want_array ? !cJSON_IsArray(it) : !cJSON_IsObject(it)) {
+    READER(c);
+    if (sq_json_expect(&rd, it, p, want_array ? SQ_JSON_ARRAY : SQ_JSON_OBJECT)) {
         *bad = 1;
-        scene_fail(c, p, "expected %s, got %s; see docs/scenes.md", want_array ? "an array" : "an object", scene_type_name(it));
         return NULL;
     }
     return it;

@@ -6,7 +6,7 @@
 #   msh      Gmsh .msh 2.2 and 4.1 ASCII                   server/mesh/io.c
 #   medit    Medit .mesh                                   server/mesh/io.c
 #   tetgen   TetGen .node + .ele                           server/mesh/io.c
-#   scene    scene JSON: load, check, 3 frames stepped     server/scene/scene.c (+ sim, lod)
+#   scene    scene JSON: load, check, 3 frames stepped     server/scene/*.c (+ util, body, lod)
 # Seconds per harness: FUZZ_SECONDS if set (`make fuzz`: 600 each), else the short defaults
 # below (95 s of fuzzing in all). FUZZ_ONLY="msh scene" runs a subset. Seeds and
 # dictionaries: tests/fuzz/corpus/NAME, tests/fuzz/NAME.dict; new inputs are kept in
@@ -55,7 +55,7 @@ link() { # name source objects... [flags]
 built=""
 for n in $names; do
     case $n in
-        request) link request tests/fuzz/fuzz_request.c $(obj server/net/request.c server/net/errors.c server/util/util.c) ;;
+        request) link request tests/fuzz/fuzz_request.c $(obj server/net/request.c server/net/errors.c server/util/util.c server/util/json.c) ;;
         query) link query tests/fuzz/fuzz_query.c $(obj server/net/query.c server/render/options.c server/util/util.c) ;;
         msh) link msh tests/fuzz/fuzz_mesh.c $MESH_OBJ '-DFUZZ_EXT=".msh"' ;;
         medit) link medit tests/fuzz/fuzz_mesh.c $MESH_OBJ '-DFUZZ_EXT=".mesh"' ;;
