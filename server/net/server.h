@@ -10,7 +10,9 @@
  *   dispatch.c       request dispatch: rate limit, decode, checks, the lws-thread requests
  *   replies.c        replies: the JSON builders of both threads
  *   snapshot_http.c  GET /snapshot.png: requests waiting for their PNG
- * Session threads (session.c, jobs.c) meet this thread only through net/session.h.
+ * Session threads (session.c, jobs.c) meet this thread only through net/session.h. Pure
+ * parts, without state: request.c and rawtext.c (decoding, checks), errors.c (the error
+ * codes), query.c (URL queries, ids), codec.c (binary messages), limits.c, budget.c.
  */
 #ifndef SQ_NET_SERVER_H
 #define SQ_NET_SERVER_H
