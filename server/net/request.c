@@ -3,7 +3,9 @@
  * Pure functions: nothing here touches a session or a socket, so the fuzzer and the unit
  * tests call them directly. Every refusal names the field, the value and what to do.
  */
+#include "net/errors.h"
 #include "net/net.h"
+#include "net/rawtext.h"
 
 #include <cJSON.h>
 #include <math.h>
@@ -37,11 +39,11 @@ const char *sq_req_name(sq_req_type t)
     return (t > SQ_REQ_NONE && t < SQ_REQ_COUNT) ? req_names[t] : "";
 }
 
-static int fail(sq_net_error *err, const char *code, const char *fmt, ...)
+static int fail(sq_net_error *err, sq_net_code code, const char *fmt, ...)
     __attribute__((format(printf, 3, 4)));
-static int fail(sq_net_error *err, const char *code, const char *fmt, ...)
+static int fail(sq_net_error *err, sq_net_code code, const char *fmt, ...)
 {
-    err->code = code;
+    err->code = sq_net_code_name(code);
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(err->message, sizeof err->message, fmt, ap);
@@ -66,108 +68,105 @@ static void show(const cJSON *v, char *out, size_t n)
 
 static const char *json_kind(const cJSON *v)
 {
-    if (cJSON_IsNumber(v)) return "a number";
-    if (cJSON_IsString(v)) return "a string";
-    if (cJSON_IsBool(v)) return "a boolean";
-    if (cJSON_IsNull(v)) return "null";
-    if (cJSON_IsArray(v)) return "an array";
-    if (cJSON_IsObject(v)) return "an object";
-    return "invalid";
+    const char *k = sq_json_kind(v);
+    return k ? k : "invalid";
 }
+
+/* the protocol's wording of a refused field (util/json.c checks it): the path, the value,
+ * what to send; bad_field for a wrong JSON type or key, out_of_range for a wrong value */
+static int report(sq_json_reader *r, const sq_json_fault *f)
+{
+    sq_net_error *err = r->ctx;
+    const char *path = f->path;
+    char buf[48];
+    switch (f->kind) {
+    case SQ_JSON_WRONG_TYPE: {
+        static const char *const want[] = {
+            [SQ_JSON_NUMBER] = "a number", [SQ_JSON_STRING] = "a string",
+            [SQ_JSON_BOOL] = "true or false", [SQ_JSON_ARRAY] = "an array",
+            [SQ_JSON_OBJECT] = "an object", [SQ_JSON_VEC3] = "[x, y, z]"};
+        show(f->item, buf, sizeof buf);
+        return fail(err, SQ_CODE_BAD_FIELD, "%s: expected %s, got %s (%s)", path, want[f->want],
+                    json_kind(f->item), buf);
+    }
+    case SQ_JSON_NOT_FINITE:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is not a finite number; send a finite value",
+                    path, f->x);
+    case SQ_JSON_BAD_INT:
+    case SQ_JSON_OUT_OF_RANGE:
+        /* an integer outside [lo, hi] is refused as outside, before being whole */
+        if (f->kind == SQ_JSON_BAD_INT && f->in_range)
+            return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is not an integer; send a whole number", path,
+                        f->x);
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: %g is outside %s%g, %g]; send a value in range",
+                    path, f->x, f->lo_open ? "(" : "[", f->lo, f->hi);
+    case SQ_JSON_TOO_LONG:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: string of %zu bytes is too long (at most %zu)",
+                    path, f->len, f->cap - 1);
+    case SQ_JSON_CONTROL_CHAR:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: control character at byte %zu; send plain text",
+                    path, f->at);
+    case SQ_JSON_WRONG_LENGTH:
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: expected 3 numbers [x, y, z], got %d", path, f->n);
+    case SQ_JSON_UNKNOWN_KEY: {
+        char list[200] = "";
+        for (int i = 0; f->known[i]; i++) {
+            strncat(list, i ? ", " : "", sizeof list - strlen(list) - 1);
+            strncat(list, f->known[i], sizeof list - strlen(list) - 1);
+        }
+        return fail(err, SQ_CODE_BAD_FIELD, "%s: unknown field '%.40s'; known fields: %s", path,
+                    f->key, list);
+    }
+    case SQ_JSON_DUPLICATE_KEY:
+        return fail(err, SQ_CODE_BAD_FIELD, "%s.%.40s: given twice; give each field once", path,
+                    f->key);
+    }
+    return fail(err, SQ_CODE_INTERNAL, "%s: refused", path);
+}
+
+/* the readers of request fields, with the protocol's wording: a key given twice is refused
+ * where it first appears */
+#define READER(err) sq_json_reader rd = {report, err, 1}
 
 /* every child of obj must be named in allowed (NULL-terminated) and appear once */
 static int check_fields(const cJSON *obj, const char *path, const char *const *allowed,
                         sq_net_error *err)
 {
-    for (const cJSON *c = obj->child; c; c = c->next) {
-        const char *name = c->string ? c->string : "";
-        int ok = 0;
-        for (int i = 0; allowed[i]; i++)
-            if (!strcmp(name, allowed[i]))
-                ok = 1;
-        if (!ok) {
-            char list[200] = "";
-            for (int i = 0; allowed[i]; i++) {
-                strncat(list, i ? ", " : "", sizeof list - strlen(list) - 1);
-                strncat(list, allowed[i], sizeof list - strlen(list) - 1);
-            }
-            return fail(err, "bad_field", "%s: unknown field '%.40s'; known fields: %s", path,
-                        name, list);
-        }
-        for (const cJSON *d = c->next; d; d = d->next)
-            if (d->string && !strcmp(d->string, name))
-                return fail(err, "bad_field", "%s.%.40s: given twice; give each field once",
-                            path, name);
-    }
-    return 0;
+    READER(err);
+    return sq_json_keys(&rd, obj, path, allowed);
 }
 
 /* a finite number in [lo, hi] (open ends when lo_open/hi_open) */
 static int get_number(const cJSON *v, const char *path, double lo, double hi, int lo_open,
                       double *out, sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsNumber(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, "bad_field", "%s: expected a number, got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    double x = v->valuedouble;
-    if (!isfinite(x))
-        return fail(err, "out_of_range", "%s: %g is not a finite number; send a finite value",
-                    path, x);
-    if (x < lo || x > hi || (lo_open && x == lo))
-        return fail(err, "out_of_range", "%s: %g is outside %s%g, %g]; send a value in range",
-                    path, x, lo_open ? "(" : "[", lo, hi);
-    *out = x;
-    return 0;
+    READER(err);
+    return sq_json_number(&rd, v, path, lo, hi, lo_open, out);
 }
 
 static int get_int(const cJSON *v, const char *path, int lo, int hi, int *out,
                    sq_net_error *err)
 {
+    READER(err);
     double x = 0;
-    if (get_number(v, path, lo, hi, 0, &x, err))
+    if (sq_json_int(&rd, v, path, lo, hi, &x))
         return -1;
-    if (x != floor(x))
-        return fail(err, "out_of_range", "%s: %g is not an integer; send a whole number", path,
-                    x);
     *out = (int)x;
     return 0;
 }
 
 static int get_bool(const cJSON *v, const char *path, int *out, sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsBool(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, "bad_field", "%s: expected true or false, got %s (%s)", path,
-                    json_kind(v), buf);
-    }
-    *out = cJSON_IsTrue(v) ? 1 : 0;
-    return 0;
+    READER(err);
+    return sq_json_bool(&rd, v, path, out);
 }
 
 /* a string of at most cap - 1 bytes, without control characters */
 static int get_string(const cJSON *v, const char *path, char *out, size_t cap,
                       sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsString(v) || !v->valuestring) {
-        show(v, buf, sizeof buf);
-        return fail(err, "bad_field", "%s: expected a string, got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    size_t n = strlen(v->valuestring);
-    if (n >= cap)
-        return fail(err, "out_of_range", "%s: string of %zu bytes is too long (at most %zu)",
-                    path, n, cap - 1);
-    for (size_t i = 0; i < n; i++)
-        if ((unsigned char)v->valuestring[i] < 0x20)
-            return fail(err, "out_of_range", "%s: control character at byte %zu; send plain text",
-                        path, i);
-    memcpy(out, v->valuestring, n + 1);
-    return 0;
+    READER(err);
+    return sq_json_string(&rd, v, path, out, cap, 1);
 }
 
 /* one of the given words; returns its index */
@@ -176,8 +175,8 @@ static int get_enum(const cJSON *v, const char *path, const char *const *words, 
 {
     char s[32];
     if (get_string(v, path, s, sizeof s, err)) {
-        if (!strcmp(err->code, "out_of_range"))
-            err->code = "bad_field";
+        if (err->code == sq_net_code_name(SQ_CODE_OUT_OF_RANGE))
+            err->code = sq_net_code_name(SQ_CODE_BAD_FIELD);
         return -1;
     }
     char list[120] = "";
@@ -189,41 +188,21 @@ static int get_enum(const cJSON *v, const char *path, const char *const *words, 
         strncat(list, i ? "\", \"" : "\"", sizeof list - strlen(list) - 1);
         strncat(list, words[i], sizeof list - strlen(list) - 1);
     }
-    return fail(err, "out_of_range", "%s: \"%s\" is not one of %s\"", path, s, list);
+    return fail(err, SQ_CODE_OUT_OF_RANGE, "%s: \"%s\" is not one of %s\"", path, s, list);
 }
 
 /* [x, y, z], each finite in [lo, hi] (lo open when lo_open) */
 static int get_vec3(const cJSON *v, const char *path, double lo, double hi, int lo_open,
                     double out[3], sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsArray(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, "bad_field", "%s: expected [x, y, z], got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    int n = cJSON_GetArraySize(v);
-    if (n != 3)
-        return fail(err, "out_of_range", "%s: expected 3 numbers [x, y, z], got %d", path, n);
-    int i = 0;
-    for (const cJSON *c = v->child; c; c = c->next, i++) {
-        char p[64];
-        snprintf(p, sizeof p, "%s[%d]", path, i);
-        if (get_number(c, p, lo, hi, lo_open, &out[i], err))
-            return -1;
-    }
-    return 0;
+    READER(err);
+    return sq_json_vec3(&rd, v, path, lo, hi, lo_open, out);
 }
 
 static int expect_object(const cJSON *v, const char *path, sq_net_error *err)
 {
-    char buf[48];
-    if (!cJSON_IsObject(v)) {
-        show(v, buf, sizeof buf);
-        return fail(err, "bad_field", "%s: expected an object, got %s (%s)", path, json_kind(v),
-                    buf);
-    }
-    return 0;
+    READER(err);
+    return sq_json_expect(&rd, v, path, SQ_JSON_OBJECT);
 }
 
 static const char *const roles[] = {"control", "view", NULL};
@@ -279,7 +258,7 @@ static int decode_open(const cJSON *o, sq_request *r, sq_net_error *err)
         return -1;
     const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, "scene");
     if (!v)
-        return fail(err, "bad_field", "open.scene: missing; give a scene name from list_scenes");
+        return fail(err, SQ_CODE_BAD_FIELD, "open.scene: missing; give a scene name from list_scenes");
     return get_string(v, "open.scene", r->open.scene, sizeof r->open.scene, err);
 }
 
@@ -290,12 +269,12 @@ static int decode_join(const cJSON *o, sq_request *r, sq_net_error *err)
         return -1;
     const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, "session");
     if (!v)
-        return fail(err, "bad_field", "join.session: missing; give the session id from 'opened'");
+        return fail(err, SQ_CODE_BAD_FIELD, "join.session: missing; give the session id from 'opened'");
     double s;
     if (get_number(v, "join.session", 0, SQ_NET_SESSION_MAX, 0, &s, err))
         return -1;
     if (s != floor(s))
-        return fail(err, "out_of_range", "join.session: %g is not an integer session id", s);
+        return fail(err, SQ_CODE_OUT_OF_RANGE, "join.session: %g is not an integer session id", s);
     r->join.session = (uint64_t)s;
     if ((v = cJSON_GetObjectItemCaseSensitive(o, "role"))) {
         int e;
@@ -315,7 +294,7 @@ static int decode_tool(const cJSON *o, sq_request *r, sq_net_error *err)
         return -1;
     const cJSON *v = cJSON_GetObjectItemCaseSensitive(o, "id");
     if (!v)
-        return fail(err, "bad_field", "tool.id: missing; give an integer 0..%d",
+        return fail(err, SQ_CODE_BAD_FIELD, "tool.id: missing; give an integer 0..%d",
                     SQ_NET_MAX_TOOL_ID);
     if (get_int(v, "tool.id", 0, SQ_NET_MAX_TOOL_ID, &r->tool.id, err))
         return -1;
@@ -383,7 +362,7 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
              * step bound it cannot meet */
             if (cJSON_IsNumber(v) && isfinite(v->valuedouble) &&
                 !(v->valuedouble >= 0 && v->valuedouble < 0.5))
-                return fail(err, "out_of_range", "set.material.nu: %g is outside [0, 0.5); "
+                return fail(err, SQ_CODE_OUT_OF_RANGE, "set.material.nu: %g is outside [0, 0.5); "
                             "send a value in range", v->valuedouble);
             if (get_number(v, "set.material.nu", 0, 0.5, 0, &r->set.nu, err))
                 return -1;
@@ -463,7 +442,7 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
         }
     }
     if (!given)
-        return fail(err, "bad_field",
+        return fail(err, SQ_CODE_BAD_FIELD,
                     "set: nothing to change; give material, operator, elasticity, pressure, damping or lod");
     return 0;
 }
@@ -511,7 +490,7 @@ static int decode_simple(const cJSON *o, sq_request *r, sq_net_error *err)
         if (check_fields(o, name, fs, err))
             return -1;
         if (!(v = cJSON_GetObjectItemCaseSensitive(o, "frames")))
-            return fail(err, "bad_field", "step.frames: missing; give 1..%d", SQ_NET_MAX_STEP);
+            return fail(err, SQ_CODE_BAD_FIELD, "step.frames: missing; give 1..%d", SQ_NET_MAX_STEP);
         return get_int(v, "step.frames", 1, SQ_NET_MAX_STEP, &r->step.frames, err);
     case SQ_REQ_PING:
         if (check_fields(o, name, ft, err))
@@ -527,160 +506,6 @@ static int decode_simple(const cJSON *o, sq_request *r, sq_net_error *err)
     }
 }
 
-/* offset of the first byte that is not part of valid UTF-8 (RFC 3629: no overlong forms, no
- * surrogates, at most U+10FFFF), or len when all is valid */
-static size_t utf8_check(const unsigned char *s, size_t len)
-{
-    size_t i = 0;
-    while (i < len) {
-        unsigned c = s[i];
-        size_t n;
-        unsigned min;
-        if (c < 0x80) {
-            i++;
-            continue;
-        } else if ((c & 0xE0) == 0xC0) {
-            n = 1, min = 0x80, c &= 0x1F;
-        } else if ((c & 0xF0) == 0xE0) {
-            n = 2, min = 0x800, c &= 0x0F;
-        } else if ((c & 0xF8) == 0xF0) {
-            n = 3, min = 0x10000, c &= 0x07;
-        } else {
-            return i;
-        }
-        for (size_t k = 1; k <= n; k++) {
-            if (i + k >= len || (s[i + k] & 0xC0) != 0x80)
-                return i;
-            c = (c << 6) | (s[i + k] & 0x3F);
-        }
-        if (c < min || c > 0x10FFFF || (c >= 0xD800 && c <= 0xDFFF))
-            return i;
-        i += n + 1;
-    }
-    return len;
-}
-
-/* ---- ref recovery from text that is not valid JSON */
-
-static size_t skip_ws(const char *t, size_t i, size_t len)
-{
-    while (i < len && (t[i] == ' ' || t[i] == '\t' || t[i] == '\n' || t[i] == '\r'))
-        i++;
-    return i;
-}
-
-/* the JSON string starting at t[i] == '"': its end (index after the closing quote), or len
- * when unterminated. When out is given, the value is decoded into it: printable ASCII and
- * the simple escapes only (*ok = 0 for anything else or when it does not fit in cap - 1). */
-static size_t scan_string(const char *t, size_t i, size_t len, char *out, size_t cap, int *ok)
-{
-    size_t n = 0;
-    if (ok)
-        *ok = 1;
-    for (i++; i < len; i++) {
-        unsigned char ch = (unsigned char)t[i];
-        if (ch == '"') {
-            if (out)
-                out[n < cap ? n : cap - 1] = 0;
-            return i + 1;
-        }
-        if (ch == '\\') {
-            if (++i >= len)
-                break;
-            static const char esc[] = "\"\\/bfnrt", val[] = "\"\\/\b\f\n\r\t";
-            const char *e = strchr(esc, t[i]);
-            if (t[i] == 'u' || !e || !*e) {
-                if (ok)
-                    *ok = 0; /* \uXXXX (or a bad escape): not recovered */
-                continue;
-            }
-            ch = (unsigned char)val[e - esc];
-            if (ch < 0x20 && ok)
-                *ok = 0; /* control characters are refused in refs */
-        } else if (ch < 0x20 || ch > 0x7e) {
-            if (ok)
-                *ok = 0;
-        }
-        if (out && n + 1 < cap)
-            out[n] = (char)ch;
-        if (out && ++n >= cap && ok)
-            *ok = 0;
-    }
-    if (ok)
-        *ok = 0;
-    return len;
-}
-
-/* a top-level "ref" of an object in text that failed to parse: scanned with strings and
- * nesting tracked, so a "ref" inside a string or a nested object is not taken; the first
- * one found is used (as for valid JSON). Sets SQ_REF_STRING/NUMBER, else SQ_REF_NULL. */
-static void recover_ref(const char *t, size_t len, sq_request *req)
-{
-    req->ref_kind = SQ_REF_NULL;
-    if (!t)
-        return;
-    size_t i = skip_ws(t, 0, len);
-    if (i >= len || t[i] != '{')
-        return;
-    int depth = 0, expect_key = 0;
-    while (i < len) {
-        char ch = t[i];
-        if (ch == '"') {
-            if (depth == 1 && expect_key) {
-                char key[8];
-                int ok;
-                size_t e = scan_string(t, i, len, key, sizeof key, &ok);
-                expect_key = 0;
-                size_t v = skip_ws(t, e, len);
-                if (ok && e < len && !strcmp(key, "ref") && v < len && t[v] == ':') {
-                    v = skip_ws(t, v + 1, len);
-                    if (v < len && t[v] == '"') {
-                        char val[SQ_NET_NAME_MAX];
-                        scan_string(t, v, len, val, sizeof val, &ok);
-                        if (ok) {
-                            req->ref_kind = SQ_REF_STRING;
-                            memcpy(req->ref_str, val, sizeof val);
-                        }
-                        return;
-                    }
-                    /* a JSON number: -? digits [. digits] [e[+-] digits], then a delimiter */
-                    size_t k = v;
-                    char num[40];
-                    size_t n = 0;
-                    while (k < len && n < sizeof num - 1 && strchr("+-.eE0123456789", t[k]) && t[k])
-                        num[n++] = t[k++];
-                    num[n] = 0;
-                    size_t after = skip_ws(t, k, len);
-                    if (n && (after >= len || t[after] == ',' || t[after] == '}')) {
-                        char *end;
-                        double x = strtod(num, &end);
-                        int digit0 = num[0] == '-' ? num[1] : num[0];
-                        if (!*end && isfinite(x) && digit0 >= '0' && digit0 <= '9') {
-                            req->ref_kind = SQ_REF_NUMBER;
-                            req->ref_num = x;
-                        }
-                    }
-                    return;
-                }
-                i = e;
-                continue;
-            }
-            i = scan_string(t, i, len, NULL, 0, NULL);
-            continue;
-        }
-        if (ch == '{' || ch == '[') {
-            depth++;
-            expect_key = depth == 1 && ch == '{';
-        } else if (ch == '}' || ch == ']') {
-            if (--depth <= 0)
-                return; /* the top-level object ended without a ref */
-        } else if (ch == ',' && depth == 1) {
-            expect_key = 1;
-        }
-        i++;
-    }
-}
-
 int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *req,
                       sq_net_error *err)
 {
@@ -688,24 +513,24 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
     err->code = NULL;
     err->message[0] = 0;
     if (len > max_len) {
-        recover_ref(text, len, req);
-        return fail(err, "too_large", "message of %zu bytes exceeds the limit of %zu bytes; "
+        sq_recover_ref(text, len, req);
+        return fail(err, SQ_CODE_TOO_LARGE, "message of %zu bytes exceeds the limit of %zu bytes; "
                     "send smaller messages", len, max_len);
     }
     if (!text)
-        return fail(err, "bad_json", "empty message; send a JSON object with a \"type\"");
-    size_t bad = utf8_check((const unsigned char *)text, len);
+        return fail(err, SQ_CODE_BAD_JSON, "empty message; send a JSON object with a \"type\"");
+    size_t bad = sq_utf8_check((const unsigned char *)text, len);
     if (bad < len) {
-        recover_ref(text, len, req);
-        return fail(err, "bad_json", "text is not valid UTF-8 at byte %zu; send UTF-8 JSON", bad);
+        sq_recover_ref(text, len, req);
+        return fail(err, SQ_CODE_BAD_JSON, "text is not valid UTF-8 at byte %zu; send UTF-8 JSON", bad);
     }
 
     const char *end = NULL;
     cJSON *root = cJSON_ParseWithLengthOpts(text, len, &end, 0);
     if (!root) {
-        recover_ref(text, len, req);
+        sq_recover_ref(text, len, req);
         size_t at = (end && end >= text && end <= text + len) ? (size_t)(end - text) : 0;
-        return fail(err, "bad_json", "invalid JSON at byte %zu; send one JSON object", at);
+        return fail(err, SQ_CODE_BAD_JSON, "invalid JSON at byte %zu; send one JSON object", at);
     }
     /* only whitespace (or a NUL terminator) may follow the object */
     for (const char *p = end; p && p < text + len; p++) {
@@ -713,15 +538,15 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
             break;
         if (*p != ' ' && *p != '\t' && *p != '\n' && *p != '\r') {
             cJSON_Delete(root);
-            recover_ref(text, len, req);
-            return fail(err, "bad_json", "trailing bytes after the JSON value at byte %zu; "
+            sq_recover_ref(text, len, req);
+            return fail(err, SQ_CODE_BAD_JSON, "trailing bytes after the JSON value at byte %zu; "
                         "send exactly one JSON object", (size_t)(p - text));
         }
     }
     int rc = -1;
     if (!cJSON_IsObject(root)) {
         req->ref_kind = SQ_REF_NULL;
-        fail(err, "bad_json", "expected a JSON object with a \"type\", got %s", json_kind(root));
+        fail(err, SQ_CODE_BAD_JSON, "expected a JSON object with a \"type\", got %s", json_kind(root));
         goto out;
     }
 
@@ -736,7 +561,7 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
             req->ref_num = ref->valuedouble;
         } else {
             req->ref_kind = SQ_REF_NULL; /* given but unusable: the error says "ref": null */
-            fail(err, "bad_field", "ref: expected a string of at most %d bytes or a finite "
+            fail(err, SQ_CODE_BAD_FIELD, "ref: expected a string of at most %d bytes or a finite "
                  "number", SQ_NET_NAME_MAX - 1);
             goto out;
         }
@@ -744,19 +569,19 @@ int sq_request_decode(const char *text, size_t len, size_t max_len, sq_request *
 
     const cJSON *type = cJSON_GetObjectItemCaseSensitive(root, "type");
     if (!type) {
-        fail(err, "bad_type", "\"type\" missing; every message needs a \"type\" (see "
+        fail(err, SQ_CODE_BAD_TYPE, "\"type\" missing; every message needs a \"type\" (see "
              "docs/protocol.md)");
         goto out;
     }
     if (!cJSON_IsString(type) || !type->valuestring) {
-        fail(err, "bad_type", "\"type\" must be a string, got %s", json_kind(type));
+        fail(err, SQ_CODE_BAD_TYPE, "\"type\" must be a string, got %s", json_kind(type));
         goto out;
     }
     for (int t = SQ_REQ_NONE + 1; t < SQ_REQ_COUNT; t++)
         if (!strcmp(type->valuestring, req_names[t]))
             req->type = (sq_req_type)t;
     if (req->type == SQ_REQ_NONE) {
-        fail(err, "bad_type", "unknown type \"%.40s\"; known: hello, list_scenes, open, join, "
+        fail(err, SQ_CODE_BAD_TYPE, "unknown type \"%.40s\"; known: hello, list_scenes, open, join, "
              "leave, tool, set, pause, resume, reset, step, stats, subscribe, nodes, ping, "
              "take_control",
              type->valuestring);
@@ -797,19 +622,19 @@ int sq_request_check(const sq_request *r, const sq_client_ctx *c, sq_net_error *
 {
     const char *name = sq_req_name(r->type);
     if (r->type == SQ_REQ_NONE || r->type >= SQ_REQ_COUNT)
-        return fail(err, "bad_type", "no request type");
+        return fail(err, SQ_CODE_BAD_TYPE, "no request type");
     if (!c->greeted && r->type != SQ_REQ_HELLO)
-        return fail(err, "hello_required", "%s: send {\"type\":\"hello\"} first", name);
+        return fail(err, SQ_CODE_HELLO_REQUIRED, "%s: send {\"type\":\"hello\"} first", name);
     if (needs_session(r->type) && !c->in_session)
-        return fail(err, "no_session", "%s: not in a session; send open or join first", name);
+        return fail(err, SQ_CODE_NO_SESSION, "%s: not in a session; send open or join first", name);
     if (needs_control(r->type) && !c->is_controller)
-        return fail(err, "not_controller", "%s: this client only views the session; control "
+        return fail(err, SQ_CODE_NOT_CONTROLLER, "%s: this client only views the session; control "
                     "needs role \"control\" and a session without another controller", name);
     if (r->type == SQ_REQ_STEP && !c->lockstep)
-        return fail(err, "not_lockstep", "step: the server runs in real time; start it with "
+        return fail(err, SQ_CODE_NOT_LOCKSTEP, "step: the server runs in real time; start it with "
                     "--lockstep to step frames");
     if ((r->type == SQ_REQ_PAUSE || r->type == SQ_REQ_RESUME) && c->lockstep)
-        return fail(err, "lockstep", "%s: the server runs in lockstep mode (frames advance only "
+        return fail(err, SQ_CODE_LOCKSTEP, "%s: the server runs in lockstep mode (frames advance only "
                     "on step)", name);
 
     int body = -1;
@@ -817,7 +642,7 @@ int sq_request_check(const sq_request *r, const sq_client_ctx *c, sq_net_error *
     if (r->type == SQ_REQ_RESET) body = r->reset.body;
     if (r->type == SQ_REQ_NODES) body = r->nodes.body;
     if (body >= 0 && body >= c->nbodies)
-        return fail(err, "unknown_body", "%s.body: %d is not a body of this session (ids 0..%d)",
+        return fail(err, SQ_CODE_UNKNOWN_BODY, "%s.body: %d is not a body of this session (ids 0..%d)",
                     name, body, c->nbodies - 1);
 
     if (r->type == SQ_REQ_TOOL) {
@@ -827,10 +652,10 @@ int sq_request_check(const sq_request *r, const sq_client_ctx *c, sq_net_error *
                 known = 1;
         if (!known) {
             if (!r->tool.has_shape || !r->tool.has_pos)
-                return fail(err, "unknown_tool", "tool.id: %d is not a tool of this session; a "
+                return fail(err, SQ_CODE_UNKNOWN_TOOL, "tool.id: %d is not a tool of this session; a "
                             "new tool needs shape and pos", r->tool.id);
             if (c->ntools >= c->max_tools)
-                return fail(err, "too_many_tools", "tool.id: %d would be tool %d; a session has "
+                return fail(err, SQ_CODE_TOO_MANY_TOOLS, "tool.id: %d would be tool %d; a session has "
                             "at most %d tools: reuse an id", r->tool.id, c->ntools + 1,
                             c->max_tools);
         }

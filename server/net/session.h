@@ -14,6 +14,7 @@
 #include <pthread.h>
 
 #include "net/budget.h"
+#include "net/errors.h"
 #include "net/net.h"
 #include "net/snapshot.h"
 #include "scene/scene.h"
@@ -137,15 +138,38 @@ void sq_session_drop_jobs(sq_session *s, uint64_t client, sq_req_type type);
 /* take every outbox item (lws thread); *n items, caller frees the array and blob refs */
 sq_out *sq_session_take_outbox(sq_session *s, int *n);
 
-/* JSON helpers shared with server.c */
+/* ---- the session thread's own (session.c, jobs.c) */
+
 struct cJSON;
+
+/* append an outbox item (takes mu); realtime frames replace an unsent one */
+void sq_session_post(sq_session *s, sq_out_kind kind, uint64_t client, int body, sq_blob *blob);
+/* a text reply to one client (0: every member) */
+void sq_session_reply(sq_session *s, uint64_t client, struct cJSON *o);
+/* an error reply, counted by code for /metrics (code: a static string) */
+void sq_session_reply_error(sq_session *s, uint64_t client, const sq_request *req,
+                            sq_net_code code, const char *msg);
+/* refresh the tool ids requests are checked against (takes mu) */
+void sq_session_sync_tool_ids(sq_session *s);
+/* step one frame and post its messages as kind */
+void sq_session_step_frame(sq_session *s, sq_out_kind kind);
+/* the --frame-budget fraction (read atomically) */
+double sq_session_budget_frac(sq_session *s);
+/* jobs.c: apply one job; returns 1 if the visible state changed without a step */
+int sq_session_do_job(sq_session *s, const sq_job *j);
+
+/* ---- replies.c: JSON helpers of both threads */
 /* a reply object {"type": type} with the request's ref copied */
 struct cJSON *sq_reply_new(const char *type, const sq_request *req);
 /* print and free a JSON object into a text blob */
 sq_blob *sq_reply_blob(struct cJSON *o);
 /* an error reply */
-sq_blob *sq_error_blob(const char *code, const char *message, const sq_request *req);
+sq_blob *sq_error_blob(sq_net_code code, const char *message, const sq_request *req);
 /* the tools array of a snapshot */
 struct cJSON *sq_tools_json(const sq_tool *tools, int ntools);
+/* settings of body bi, as in docs/protocol.md; levels numbered as listed in the scene file */
+struct cJSON *sq_settings_json(const sq_world *w, int bi);
+/* the "bodies" array of opened/joined, printed (malloc) */
+char *sq_bodies_json(const sq_session *s);
 
 #endif

@@ -72,6 +72,24 @@ void sq_scene_free(sq_scene *s);
  * precomputation per body; sq_world_create reports the same errors. */
 int sq_scene_check(const sq_scene *s, sq_err *err);
 
+/* the scenes a server offers (dir.c), each with the name clients open it by */
+typedef struct sq_scene_list {
+    int n;
+    sq_scene **scenes;       /* owned */
+    char (*names)[64];       /* the scene's "name" ("default" for the built-in cube) */
+} sq_scene_list;
+
+/* add every *.json of dir, in name order, each loaded, validated and checked
+ * (sq_scene_check); a bad file, or one whose name is taken, is reported on stderr as
+ * "<who>: skipping scene ..." and skipped. -1 if dir cannot be read (nothing added). */
+int sq_scene_list_load_dir(sq_scene_list *l, const char *dir, const char *who);
+/* append sc (the list owns it) under name */
+void sq_scene_list_add(sq_scene_list *l, sq_scene *sc, const char *name);
+/* index of the scene called name, or -1 */
+int sq_scene_list_find(const sq_scene_list *l, const char *name);
+/* free the scenes and the arrays; the list is empty again */
+void sq_scene_list_free(sq_scene_list *l);
+
 /* pose of a scripted tool at simulated time t: position interpolated linearly between the
  * keyframes around t (held before the first and after the last); active taken from the last
  * keyframe at or before t (inactive before the first keyframe); while active, origin is the

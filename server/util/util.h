@@ -1,4 +1,5 @@
-/* util.h - small shared helpers: errors, timing, progress bar, growable arrays. */
+/* util.h - small shared helpers: errors, timing, progress bar, growable arrays; and the JSON
+ * field readers that scene files (server/scene) and protocol requests (server/net) share. */
 #ifndef SQ_UTIL_H
 #define SQ_UTIL_H
 
@@ -57,5 +58,75 @@ uint64_t sq_hash_bytes(uint64_t h, const void *data, size_t n);
 #define SQ_MIN(a, b) ((a) < (b) ? (a) : (b))
 #define SQ_MAX(a, b) ((a) > (b) ? (a) : (b))
 #define SQ_COUNTOF(a) (sizeof(a) / sizeof((a)[0]))
+
+/* ---------------------------------------------------------------- JSON field readers
+ * (util/json.c) The checks of one JSON value that scene files and protocol requests share:
+ * JSON type, finiteness, range, whole numbers, string length and control characters, arrays
+ * of 3, the keys of an object. A reader that refuses a value describes what is wrong in a
+ * sq_json_fault and hands it to the caller's report(), which words the message in its own
+ * terms (scene files: server/scene/fields.c, "see docs/scenes.md"; requests:
+ * server/net/request.c, with a protocol error code) and returns -1; the reader returns that.
+ * Values are written only on success. */
+struct cJSON;
+
+typedef enum sq_json_fault_kind {
+    SQ_JSON_WRONG_TYPE,      /* not of the JSON type wanted (want) */
+    SQ_JSON_NOT_FINITE,      /* a number that is not finite (x) */
+    SQ_JSON_OUT_OF_RANGE,    /* a number outside lo..hi (x; lo excluded when lo_open) */
+    SQ_JSON_BAD_INT,         /* an integer wanted: x not whole, or outside [lo, hi], or both */
+    SQ_JSON_TOO_LONG,        /* a string of len bytes, at most cap - 1 allowed */
+    SQ_JSON_CONTROL_CHAR,    /* a control character at byte at of a plain string */
+    SQ_JSON_WRONG_LENGTH,    /* an array of n items where 3 are wanted */
+    SQ_JSON_UNKNOWN_KEY,     /* key of an object not in known */
+    SQ_JSON_DUPLICATE_KEY    /* key given twice in an object */
+} sq_json_fault_kind;
+
+typedef enum sq_json_want {
+    SQ_JSON_NUMBER, SQ_JSON_STRING, SQ_JSON_BOOL, SQ_JSON_ARRAY, SQ_JSON_OBJECT, SQ_JSON_VEC3
+} sq_json_want;
+
+typedef struct sq_json_fault {
+    sq_json_fault_kind kind;
+    const struct cJSON *item;  /* the value at fault (the object, for key faults) */
+    const char *path;          /* its path: as given, or "<array path>[i]" for an element */
+    const char *array_path;    /* element of an array of 3: the array's path (index >= 0) */
+    int index;                 /* that element's index, else -1 */
+    sq_json_want want;         /* WRONG_TYPE */
+    double x, lo, hi;          /* numbers */
+    int lo_open;
+    int whole, in_range;       /* BAD_INT: which of the two failed (either or both 0) */
+    size_t len, cap, at;       /* strings */
+    int n;                     /* WRONG_LENGTH */
+    const char *key;           /* key faults */
+    const char *const *known;  /* UNKNOWN_KEY: the keys allowed (NULL-terminated) */
+} sq_json_fault;
+
+typedef struct sq_json_reader {
+    int (*report)(struct sq_json_reader *r, const sq_json_fault *f); /* words f; returns -1 */
+    void *ctx;                 /* the caller's (its error slot, label, ...) */
+    int dup_at_first;          /* a key given twice is refused where it first appears (before
+                                  later unknown keys; requests), else at its second (scene files) */
+} sq_json_reader;
+
+/* "a number", "a string", "a boolean", "null", "an array", "an object"; NULL if none */
+const char *sq_json_kind(const struct cJSON *v);
+/* a finite number in lo..hi (lo excluded when lo_open; +-INFINITY for no bound) */
+int sq_json_number(sq_json_reader *r, const struct cJSON *v, const char *path, double lo,
+                   double hi, int lo_open, double *out);
+/* a whole number in [lo, hi] */
+int sq_json_int(sq_json_reader *r, const struct cJSON *v, const char *path, double lo, double hi,
+                double *out);
+int sq_json_bool(sq_json_reader *r, const struct cJSON *v, const char *path, int *out);
+/* a string of at most cap - 1 bytes; plain: without control characters (< 0x20) */
+int sq_json_string(sq_json_reader *r, const struct cJSON *v, const char *path, char *out,
+                   size_t cap, int plain);
+/* [x, y, z], each a finite number in lo..hi (as sq_json_number) */
+int sq_json_vec3(sq_json_reader *r, const struct cJSON *v, const char *path, double lo,
+                 double hi, int lo_open, double out[3]);
+/* an object (want SQ_JSON_OBJECT) or an array (SQ_JSON_ARRAY) */
+int sq_json_expect(sq_json_reader *r, const struct cJSON *v, const char *path, sq_json_want want);
+/* every key of obj in known (NULL-terminated), none twice */
+int sq_json_keys(sq_json_reader *r, const struct cJSON *obj, const char *path,
+                 const char *const *known);
 
 #endif

@@ -1,4 +1,4 @@
-/* fuzz_scene.c - libFuzzer harness of the scene loader (server/scene/scene.c): parse the input
+/* fuzz_scene.c - libFuzzer harness of the scene loader (server/scene/): parse the input
  * as a scene file whose mesh paths resolve in a directory of small real meshes (copied from
  * tests/data at start), then, if it loads, check it, create a world and step a few frames.
  * Never a crash, a leak or undefined behaviour; every refusal is a message naming the scene.

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # fuzz stage: builds the libFuzzer harnesses of every parser a user or client can reach
 # (clang, fuzzer + ASan + UBSan), replays each seed corpus, then fuzzes each for a short time.
-#   request  WebSocket request decoder and state checks   server/net/request.c
+#   request  WebSocket request decoder and state checks   server/net/request.c (+ rawtext, errors, util)
 #   query    GET /snapshot.png query arguments, id rule    server/net/query.c
 #   msh      Gmsh .msh 2.2 and 4.1 ASCII                   server/mesh/io.c
 #   medit    Medit .mesh                                   server/mesh/io.c
 #   tetgen   TetGen .node + .ele                           server/mesh/io.c
-#   scene    scene JSON: load, check, 3 frames stepped     server/scene/scene.c (+ sim, lod)
+#   scene    scene JSON: load, check, 3 frames stepped     server/scene/*.c (+ util, body, lod)
 # Seconds per harness: FUZZ_SECONDS if set (`make fuzz`: 600 each), else the short defaults
 # below (95 s of fuzzing in all). FUZZ_ONLY="msh scene" runs a subset. Seeds and
 # dictionaries: tests/fuzz/corpus/NAME, tests/fuzz/NAME.dict; new inputs are kept in
@@ -32,7 +32,7 @@ LIBS="$(pkg-config --libs libcjson) -lm -lpthread"
 
 # library objects once (instrumented for coverage, not linked with the fuzzer's main)
 srcs=$(ls server/util/*.c server/mesh/*.c server/level/*.c server/body/*.c server/lod/*.c server/scene/*.c \
-       server/net/request.c server/net/query.c server/render/options.c)
+       server/net/request.c server/net/rawtext.c server/net/errors.c server/net/query.c server/render/options.c)
 build_obj() {
     local o="$out/obj/$(echo "$1" | tr / _).o"
     if [ ! -e "$o" ] || [ "$1" -nt "$o" ] || [ -n "$(find server -name '*.h' -newer "$o" | head -n 1)" ]; then
@@ -55,7 +55,7 @@ link() { # name source objects... [flags]
 built=""
 for n in $names; do
     case $n in
-        request) link request tests/fuzz/fuzz_request.c $(obj server/net/request.c) ;;
+        request) link request tests/fuzz/fuzz_request.c $(obj server/net/request.c server/net/rawtext.c server/net/errors.c server/util/util.c server/util/json.c) ;;
         query) link query tests/fuzz/fuzz_query.c $(obj server/net/query.c server/render/options.c server/util/util.c) ;;
         msh) link msh tests/fuzz/fuzz_mesh.c $MESH_OBJ '-DFUZZ_EXT=".msh"' ;;
         medit) link medit tests/fuzz/fuzz_mesh.c $MESH_OBJ '-DFUZZ_EXT=".mesh"' ;;

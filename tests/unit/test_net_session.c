@@ -1,5 +1,5 @@
 /* test_net_session.c - a session's simulation thread without the network
- * (server/net/session.c): start-up, lockstep steps, job replies, latest-wins outbox. */
+ * (server/net/session.c, jobs.c): start-up, lockstep steps, job replies, latest-wins outbox. */
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
