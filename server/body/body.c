@@ -119,13 +119,13 @@ static int ensure_level(sq_body *b, int k, sq_err *err)
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d (%d nodes)", b->name, k, b->def.levels[k]->nnodes);
     }
-    b->mask[k] = sq_malloc((size_t)L->n);
-    memset(b->mask[k], 1, (size_t)L->n);
-    b->hold_of[k] = sq_malloc(sizeof(int) * (size_t)L->n);
-    b->held[k] = sq_calloc((size_t)L->n, 1);
-    b->held_list[k] = sq_malloc(sizeof(int) * (size_t)L->n);
+    b->mask[k] = sq_malloc((size_t)L->model.n);
+    memset(b->mask[k], 1, (size_t)L->model.n);
+    b->hold_of[k] = sq_malloc(sizeof(int) * (size_t)L->model.n);
+    b->held[k] = sq_calloc((size_t)L->model.n, 1);
+    b->held_list[k] = sq_malloc(sizeof(int) * (size_t)L->model.n);
     b->nheld[k] = 0;
-    for (int i = 0; i < L->n; i++)
+    for (int i = 0; i < L->model.n; i++)
         b->hold_of[k][i] = -1;
     b->ready[k] = 1;
     return 0;
@@ -145,13 +145,13 @@ static void transfer_state(sq_body *b, int src, int dst)
     if (src == dst)
         return;
     sq_level *S = &b->level[src], *T = &b->level[dst];
-    for (int i = 0; i < T->n; i++) {
+    for (int i = 0; i < T->model.n; i++) {
         double bary[4];
-        int t = sq_mesh_locate(S->mesh, T->mesh->x + 3 * (size_t)i, bary);
+        int t = sq_mesh_locate(S->model.mesh, T->model.mesh->x + 3 * (size_t)i, bary);
         if (t < 0)
             continue;
-        interp3(S->mesh, S->d, t, bary, T->d + 3 * (size_t)i);
-        interp3(S->mesh, S->v, t, bary, T->v + 3 * (size_t)i);
+        interp3(S->model.mesh, S->d, t, bary, T->d + 3 * (size_t)i);
+        interp3(S->model.mesh, S->v, t, bary, T->v + 3 * (size_t)i);
     }
 }
 
@@ -319,9 +319,9 @@ sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
         sq_body_destroy(b);
         return NULL;
     }
-    if (b->level[b->cur].nfree == 0) {
+    if (b->level[b->cur].model.nfree == 0) {
         sq_err_set(err, "body '%s': the constraints fix all %d nodes of level %d, so nothing can move; "
-                        "shrink the fixed region", b->name, b->level[b->cur].n, b->cur);
+                        "shrink the fixed region", b->name, b->level[b->cur].model.n, b->cur);
         sq_body_destroy(b);
         return NULL;
     }
@@ -400,7 +400,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
             (b->def.sharp_step &&
              sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
                                         err) < 0)) {
-            if (fresh[k].n)
+            if (fresh[k].model.n)
                 sq_level_free(&fresh[k]);
             for (int j = 0; j < k; j++)
                 if (b->ready[j])
@@ -412,7 +412,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         if (!b->ready[k])
             continue;
-        size_t n3 = 3 * (size_t)b->level[k].n;
+        size_t n3 = 3 * (size_t)b->level[k].model.n;
         memcpy(fresh[k].d, b->level[k].d, sizeof(double) * n3);
         memcpy(fresh[k].v, b->level[k].v, sizeof(double) * n3);
         sq_level_corot_copy(&fresh[k], &b->level[k]);
@@ -455,7 +455,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
     } else {
         if (ensure_level(b, lod->level, err) < 0)
             return -1;
-        int from = was_adaptive ? b->fine : b->cur;
+        int from = sq_body_sim_level(b); /* the lod mode is still the old one */
         if (from != lod->level) {
             transfer_state(b, from, lod->level);
             sq_level_corot_converge(&b->level[lod->level]);
@@ -482,7 +482,7 @@ void sq_body_reset(sq_body *b)
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         if (!b->ready[k])
             continue;
-        size_t n3 = 3 * (size_t)b->level[k].n;
+        size_t n3 = 3 * (size_t)b->level[k].model.n;
         memset(b->level[k].d, 0, sizeof(double) * n3);
         memset(b->level[k].v, 0, sizeof(double) * n3);
         memset(b->level[k].f, 0, sizeof(double) * n3);
@@ -576,7 +576,7 @@ static const char *health(const sq_body *b, double *value)
         const sq_level *L = &b->level[k];
         double ke = 0, M = 0;
         /* adaptive: the active nodes (ghosts are combinations of them) */
-        int na = L->n;
+        int na = L->model.n;
         const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
         for (int r = 0; r < na; r++) {
             int i = al ? al[r] : r;
@@ -591,8 +591,8 @@ static const char *health(const sq_body *b, double *value)
                 *value = sqrt(dd);
                 return "displacement beyond 10 bounding-box diagonals";
             }
-            ke += 0.5 * L->mass[i] * vv;
-            M += L->mass[i];
+            ke += 0.5 * L->model.mass[i] * vv;
+            M += L->model.mass[i];
         }
         double vlim = 10 * b->diag / b->def.frame_dt;
         if (ke > 0.5 * M * vlim * vlim) {
@@ -614,30 +614,6 @@ static void mark_held(sq_body *b, int k, const sq_hold *holds, int nholds)
             b->held_list[k][b->nheld[k]++] = i;
         }
     }
-}
-
-/* residual of level L from its last force pass, over active nodes (the list active of
- * nactive nodes; all when NULL) that no tool held (held may be NULL): a held node's
- * unbalanced force is the tool's reaction */
-static double level_residual(const sq_level *L, const double g[3], const int *active, int nactive,
-                             const unsigned char *held)
-{
-    double gn = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
-    double r = 0;
-    int na = active ? nactive : L->n;
-    for (int q = 0; q < na; q++) {
-        int i = active ? active[q] : q;
-        if (L->fixed[i] == 7 || (held && held[i]))
-            continue;
-        double s = 0;
-        for (int c = 0; c < 3; c++)
-            if (!(L->fixed[i] & (1u << c)))
-                s += L->f[3 * i + c] * L->f[3 * i + c];
-        s = sqrt(s) / (L->mass[i] * (gn > 0 ? gn : 1));
-        if (s > r)
-            r = s;
-    }
-    return r;
 }
 
 static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools, double (*force)[3],
@@ -686,16 +662,14 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             b->khold[idx].target[c] += t[c];
         count[idx]++;
     }
-    /* held nodes: displacement set to the target, velocity to (target - old) / frame_dt */
+    /* held nodes: displacement set to the target, velocity to (target - old) / frame_dt, on the
+     * free axes (the one hold rule of both modes: sq_level_apply_hold) */
     for (int h = 0; h < nk; h++) {
         sq_hold *kh = &b->khold[h];
         int i = kh->node;
-        for (int c = 0; c < 3; c++) {
+        for (int c = 0; c < 3; c++)
             kh->target[c] /= count[h];
-            double old = L->d[3 * i + c];
-            L->d[3 * i + c] = kh->target[c];
-            L->v[3 * i + c] = (kh->target[c] - old) / b->def.frame_dt;
-        }
+        sq_level_apply_hold(L, i, kh->target, L->d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
         mask[i] = 0;
         hold_of[i] = -1;
     }
@@ -714,7 +688,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             int i = b->khold[h].node, t = b->khold[h].tool;
             if (force && t >= 0 && t < ntools)
                 for (int c = 0; c < 3; c++)
-                    force[t][c] += inv * (L->f[3 * i + c] - L->mass[i] * g[c]);
+                    force[t][c] += inv * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
         }
     }
     for (int h = 0; h < nk; h++)
@@ -722,10 +696,10 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     mark_held(b, b->cur, b->khold, nk);
 
     if (prof) {
-        prof->node_updates = (long)(L->n - nk) * nsub;
-        prof->active[b->cur] = L->n;
+        prof->node_updates = (long)(L->model.n - nk) * nsub;
+        prof->active[b->cur] = L->model.n;
         prof->substeps[b->cur] = nsub;
-        prof->awake_nodes = L->n;
+        prof->awake_nodes = L->model.n;
     }
 }
 
@@ -752,7 +726,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
 
     if (b->sleeping && nholds == 0) {
         prof->sleeping = 1;
-        prof->sleeping_nodes = b->level[b->cur].n;
+        prof->sleeping_nodes = b->level[b->cur].model.n;
         /* asleep, the resolution stays what it was: active nodes are reported as they stand
          * (nothing is updated: node_updates stays 0) */
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
@@ -763,7 +737,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
                 sq_lod_active_list(b->lod, k, &na);
                 prof->active[k] = na;
             } else if (k == b->cur) {
-                prof->active[k] = b->level[k].n;
+                prof->active[k] = b->level[k].model.n;
             }
         }
     } else {
@@ -795,11 +769,11 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
             if (!b->ready[k] || (b->def.lod.mode == SQ_LOD_FIXED && k != b->cur))
                 continue;
-            int na = b->level[k].n;
+            int na = b->level[k].model.n;
             const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
             for (int r = 0; r < na; r++)
-                M += b->level[k].mass[al ? al[r] : r];
-            res = SQ_MAX(res, level_residual(&b->level[k], b->def.gravity, al, na, NULL));
+                M += b->level[k].model.mass[al ? al[r] : r];
+            res = SQ_MAX(res, sq_level_residual(&b->level[k].model, b->level[k].f, b->def.gravity, al, na, NULL));
         }
         double vrms = M > 0 ? sqrt(2 * ke / M) : 0;
         int calm = nholds == 0 && vrms < b->sleep_ke_speed * b->diag && res < b->sleep_residual;
@@ -870,7 +844,7 @@ int sq_body_is_sleeping(const sq_body *b) { return b->sleeping; }
 
 int sq_body_inverted_tets(const sq_body *b)
 {
-    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    int k = sq_body_sim_level(b);
     return sq_level_corot_inverted(&b->level[k]);
 }
 
@@ -881,6 +855,8 @@ sq_level *sq_body_level(sq_body *b, int level)
 }
 
 int sq_body_fixed_level(const sq_body *b) { return b->cur; }
+
+int sq_body_sim_level(const sq_body *b) { return b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur; }
 
 void sq_body_surface_state(const sq_body *b, float *xyz, unsigned char *level)
 {
@@ -909,7 +885,7 @@ int sq_body_probe(const sq_body *b, const double p[3], double u[3])
     for (int k = 0; k < 4; k++)
         if (bary[k] < -1e-6)
             return -1;
-    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    int k = sq_body_sim_level(b);
     if (k != b->fine) {
         t = sq_mesh_locate(b->def.levels[k], p, bary);
         if (t < 0)
@@ -927,12 +903,12 @@ double sq_body_kinetic_energy(const sq_body *b)
         if (!b->ready[k] || (b->def.lod.mode == SQ_LOD_FIXED && k != b->cur))
             continue;
         const sq_level *L = &b->level[k];
-        int na = L->n;
+        int na = L->model.n;
         const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
         for (int r = 0; r < na; r++) {
             int i = al ? al[r] : r;
             const double *v = L->v + 3 * (size_t)i;
-            ke += 0.5 * L->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            ke += 0.5 * L->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         }
     }
     return ke;
@@ -946,10 +922,10 @@ double sq_level_elastic_energy(const sq_level *L)
     if (L->anp)
         return sq_level_anp_energy(L);
     double e = 0;
-    for (int i = 0; i < L->n; i++) {
+    for (int i = 0; i < L->model.n; i++) {
         const double *di = L->d + 3 * (size_t)i;
-        for (int p = L->row_start[i]; p < L->row_start[i + 1]; p++) {
-            const double *B = L->K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->col[p];
+        for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
+            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
             for (int r = 0; r < 3; r++)
                 e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
         }
@@ -960,31 +936,29 @@ double sq_level_elastic_energy(const sq_level *L)
 double sq_body_elastic_energy(const sq_body *b)
 {
     sq_lod_flush(b->lod);
-    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    int k = sq_body_sim_level(b);
     return sq_level_elastic_energy(&b->level[k]);
 }
 
 double sq_body_residual(const sq_body *b)
 {
-    /* fresh force pass on a copy of the simulated level's scratch (the state is unchanged) */
-    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    /* a fresh force pass of the simulated level into scratch of its own (state and the level's
+     * scratch are left as they are) */
+    int k = sq_body_sim_level(b);
     sq_lod_flush(b->lod);
-    sq_level L = b->level[k];
-    size_t n3 = 3 * (size_t)L.n;
-    L.f = sq_malloc(sizeof(double) * n3);
-    L.w = sq_malloc(sizeof(double) * n3);
-    L.acc = sq_calloc(n3 + 1, sizeof(double)); /* own accumulator: the body's is left untouched */
-    sq_level_forces(&L, &b->def.material, b->def.gravity, NULL);
-    double r = level_residual(&L, b->def.gravity, NULL, 0, b->held[k]);
-    free(L.f);
-    free(L.w);
-    free(L.acc);
+    const sq_level *L = &b->level[k];
+    size_t n3 = 3 * (size_t)L->model.n;
+    double *f = sq_malloc(sizeof(double) * n3), *acc = sq_calloc(n3 + 1, sizeof(double));
+    sq_level_forces_to(L, &b->def.material, b->def.gravity, NULL, f, acc);
+    double r = sq_level_residual(&L->model, f, b->def.gravity, NULL, 0, b->held[k]);
+    free(f);
+    free(acc);
     return r;
 }
 
 int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err)
 {
-    int k = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->fine : b->cur;
+    int k = sq_body_sim_level(b);
     sq_lod_flush(b->lod);
     const sq_mesh *m = b->def.levels[k];
     int *lev = sq_malloc(sizeof(int) * (size_t)m->nnodes);

@@ -133,6 +133,10 @@ int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err);
 sq_level *sq_body_level(sq_body *b, int level);
 /* the level simulated in fixed mode */
 int sq_body_fixed_level(const sq_body *b);
+/* the level that holds the simulated values: the fixed level, or in adaptive mode the finest
+ * loaded level (every region's values are pushed there); energies, residual, probes, VTK and
+ * the views of scene, net and app read this one */
+int sq_body_sim_level(const sq_body *b);
 /* sleep tolerances: calm for `frames` frames (0: never sleep) with rms speed below
  * ke_speed bbox diagonals per second and sq_body_residual below `residual` (defaults 25, 1e-4, 1e-4) */
 void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual);

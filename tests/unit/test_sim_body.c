@@ -127,13 +127,13 @@ SQ_TEST(sim_body_nan_resets_and_reports)
     TH_REQUIRE(b);
     sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
-    L->d[3 * (L->n - 1) + 2] = NAN;
+    L->d[3 * (L->model.n - 1) + 2] = NAN;
     sq_frame_profile prof;
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.reset == 1);
     CHECK_CONTAINS(prof.event, "blow-up detected");
     CHECK_CONTAINS(prof.event, "reset to rest");
-    for (int i = 0; i < 3 * L->n; i++)
+    for (int i = 0; i < 3 * L->model.n; i++)
         CHECK(L->d[i] == 0 && L->v[i] == 0);
     /* and it keeps going */
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
@@ -155,8 +155,8 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     for (int f = 0; f < 3; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
-    size_t n3 = 3 * (size_t)L->n;
-    double *d0 = malloc(sizeof(double) * n3), K0 = L->K[0], dt0 = L->dt;
+    size_t n3 = 3 * (size_t)L->model.n;
+    double *d0 = malloc(sizeof(double) * n3), K0 = L->model.K[0], dt0 = L->dt;
     memcpy(d0, L->d, sizeof(double) * n3);
     sq_material hard = def.material;
     CHECK(sq_material_from_E_nu(&hard, 1e18, 0.3, &e) == 0);
@@ -166,7 +166,7 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     CHECK_CONTAINS(e.msg, "E=1e+18");
     L = sq_body_level(b, 0);
     CHECK(memcmp(d0, L->d, sizeof(double) * n3) == 0);
-    CHECK(L->K[0] == K0 && L->dt == dt0);
+    CHECK(L->model.K[0] == K0 && L->dt == dt0);
     CHECK(sq_body_get_def(b)->material.mu == def.material.mu);
     /* a bad value names itself */
     sq_material bad = def.material;
@@ -280,8 +280,8 @@ SQ_TEST(sim_body_deterministic)
             sq_body_frame(b[k], &t, 1, NULL, NULL, 0);
         }
         const sq_level *L = sq_body_level(b[k], 0);
-        h[k] = sq_hash_bytes(SQ_HASH_INIT, L->d, sizeof(double) * 3 * L->n);
-        h[k] = sq_hash_bytes(h[k], L->v, sizeof(double) * 3 * L->n);
+        h[k] = sq_hash_bytes(SQ_HASH_INIT, L->d, sizeof(double) * 3 * L->model.n);
+        h[k] = sq_hash_bytes(h[k], L->v, sizeof(double) * 3 * L->model.n);
     }
     CHECK(h[0] == h[1]);
     CHECK(sq_body_kinetic_energy(b[0]) > 0);
