@@ -564,8 +564,8 @@ void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual)
 /* ---- the frame -------------------------------------------------------------------------- */
 
 /* health: non-finite values, displacement beyond 10 bbox diagonals, or kinetic energy above
- * 0.5 M (10 diag / frame_dt)^2 (a mean speed of ten diagonals per frame); returns a reason */
-static const char *health(const sq_body *b, double *value)
+ * 0.5 M (10 diag / frame_dt)^2 (a mean speed of ten diagonals per frame); returns the kind (SQ_HEALTH_NONE: healthy) */
+static sq_health_kind health(const sq_body *b, double *value)
 {
     double dlim2 = 100 * b->diag * b->diag;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
@@ -585,11 +585,11 @@ static const char *health(const sq_body *b, double *value)
             double vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
             if (!isfinite(dd) || !isfinite(vv)) {
                 *value = (double)i;
-                return "non-finite displacement or velocity";
+                return SQ_HEALTH_BLOWUP_NAN;
             }
             if (dd > dlim2) {
                 *value = sqrt(dd);
-                return "displacement beyond 10 bounding-box diagonals";
+                return SQ_HEALTH_BLOWUP_STRETCH;
             }
             ke += 0.5 * L->model.mass[i] * vv;
             M += L->model.mass[i];
@@ -597,10 +597,20 @@ static const char *health(const sq_body *b, double *value)
         double vlim = 10 * b->diag / b->def.frame_dt;
         if (ke > 0.5 * M * vlim * vlim) {
             *value = ke;
-            return "kinetic energy above 0.5 M (10 diag / frame_dt)^2";
+            return SQ_HEALTH_BLOWUP_SPEED;
         }
     }
-    return NULL;
+    return SQ_HEALTH_NONE;
+}
+
+/* count a health warning of this frame */
+static void count_health(sq_body *b, sq_health_kind k, double value)
+{
+    if (k <= SQ_HEALTH_NONE || k >= SQ_HEALTH_NKINDS)
+        return;
+    b->health[k].count++;
+    b->health[k].last_value = value;
+    b->health[k].last_frame = b->frames;
 }
 
 /* the nodes of level k held in the frame just done (hold list of that level) */
@@ -722,6 +732,9 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     int tool_nodes[SQ_MAX_TOOLS];
     int nholds = sq_body_tool_holds(b, tools, ntools, tool_nodes);
     double t1 = sq_now();
+    b->frames++;
+    if (b->sleeping && nholds > 0)
+        count_health(b, SQ_HEALTH_WAKE, nholds);
     prof->t_tools = t1 - t0;
 
     if (b->sleeping && nholds == 0) {
@@ -745,6 +758,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
             sq_lod_frame(b->lod, &b->def.material, b->def.gravity, b->def.frame_dt, b->holds, nholds, ntools,
                          force, prof, frame_budget_s);
+            count_health(b, prof->event_kind, prof->event_value[0]); /* budget warnings */
             mark_held(b, b->fine, b->holds, nholds);
             sq_lod_node_levels(b->lod, b->node_level);
         } else {
@@ -756,12 +770,12 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
 
     /* health */
     double value = 0;
-    const char *why = prof->sleeping ? NULL : health(b, &value);
-    if (why) {
+    sq_health_kind why = prof->sleeping ? SQ_HEALTH_NONE : health(b, &value);
+    if (why != SQ_HEALTH_NONE) {
         sq_body_reset(b);
         prof->reset = 1;
-        snprintf(prof->event, sizeof prof->event, "blow-up detected: %s (%.3g) in body '%.40s'; body reset to rest",
-                 why, value, b->name);
+        sq_frame_event(prof, why, value, 0, 0, 0, b->name);
+        count_health(b, why, value);
         memset(force, 0, sizeof force);
     } else if (!prof->sleeping) {
         /* sleep: calm (slow and balanced) with no tool for sleep_frames frames in a row */
@@ -780,7 +794,8 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         b->calm = calm ? b->calm + 1 : 0;
         if (b->sleep_frames > 0 && b->calm >= b->sleep_frames) {
             b->sleeping = 1;
-            snprintf(prof->event, sizeof prof->event, "body '%.60s' at rest: sleeping until touched", b->name);
+            sq_frame_event(prof, SQ_HEALTH_SLEEP, b->calm, 0, 0, 0, b->name);
+            count_health(b, SQ_HEALTH_SLEEP, b->calm);
         }
     }
     prof->t_health = sq_now() - t2;
@@ -841,6 +856,8 @@ const double *sq_body_velocity(const sq_body *b, int level)
 const unsigned char *sq_body_node_level(const sq_body *b) { return b->node_level; }
 const sq_mesh *sq_body_surface_mesh(const sq_body *b) { return b->def.levels[b->fine]; }
 int sq_body_is_sleeping(const sq_body *b) { return b->sleeping; }
+const sq_health_stat *sq_body_health(const sq_body *b) { return b->health; }
+long sq_body_frames(const sq_body *b) { return b->frames; }
 
 int sq_body_inverted_tets(const sq_body *b)
 {

@@ -122,6 +122,11 @@ double sq_body_elastic_energy(const sq_body *b);
 /* max over free nodes of |f_i| / (m_i |g|) (or / m_i if g = 0): residual force measure */
 double sq_body_residual(const sq_body *b);
 int sq_body_is_sleeping(const sq_body *b);
+/* health warnings since the body was created, indexed by sq_health_kind (SQ_HEALTH_NKINDS
+ * entries; level/level.h): count, last value, last frame (1-based count of sq_body_frame calls,
+ * sq_body_frames). A reset (blow-up, sq_body_reset) does not clear them */
+const sq_health_stat *sq_body_health(const sq_body *b);
+long sq_body_frames(const sq_body *b);
 /* tets of the simulated level with det F <= 0 (inverted or flat) */
 int sq_body_inverted_tets(const sq_body *b);
 

@@ -48,6 +48,10 @@ struct sq_body {
     int *held_list[SQ_MAX_LEVELS];         /* their indices (n_k capacity) */
     int nheld[SQ_MAX_LEVELS];
 
+    /* health: counters per kind (sq_body_health), the body's frame count */
+    sq_health_stat health[SQ_HEALTH_NKINDS];
+    long frames;
+
     /* sleep */
     int sleeping, calm;
     int sleep_frames;                      /* calm frames before sleeping (0: never sleep) */

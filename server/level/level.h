@@ -108,6 +108,34 @@ typedef struct sq_level {
     double dt_fixed;       /* frame_dt / nsub, s */
 } sq_level;
 
+/* health warnings (body/body.h counts them per kind; docs/physics.md "Health"): a kind and up
+ * to four values, the first of which is the one counted as "last value" */
+typedef enum sq_health_kind {
+    SQ_HEALTH_NONE = 0,
+    SQ_HEALTH_BLOWUP_NAN,       /* non-finite displacement or velocity; value: the node */
+    SQ_HEALTH_BLOWUP_STRETCH,   /* displacement beyond 10 bbox diagonals; value: |d|, m */
+    SQ_HEALTH_BLOWUP_SPEED,     /* kinetic energy above 0.5 M (10 diag / frame_dt)^2; value: J */
+    SQ_HEALTH_SLEEP,            /* calm long enough: the body sleeps; value: calm frames */
+    SQ_HEALTH_WAKE,             /* a tool touched a sleeping body (no sentence); value: holds */
+    SQ_HEALTH_BUDGET_COARSE,    /* adaptive: level 0 alone over budget; values: ms, nodes, steps, budget ms */
+    SQ_HEALTH_BUDGET_OVER,      /* adaptive: last frame over budget; values: ms, budget %, budget ms */
+    SQ_HEALTH_BUDGET_PREDICTED, /* adaptive: next frame predicted over; values: budget %, budget ms, updates */
+    SQ_HEALTH_NODE_CAP,         /* adaptive: node-update cap reached; value: the cap */
+    SQ_HEALTH_NKINDS
+} sq_health_kind;
+
+/* per-kind counter: how often, and the value and frame (1-based frame of the body) of the last */
+typedef struct sq_health_stat {
+    long count;
+    double last_value;
+    long last_frame;
+} sq_health_stat;
+
+/* short name of a kind ("blowup_nan", "sleep", ...: the keys of the stats reply) */
+const char *sq_health_kind_name(sq_health_kind k);
+/* the human sentence of a warning (empty for none and wake); body: the body's name */
+void sq_health_sentence(char *buf, size_t cap, sq_health_kind k, const double v[4], const char *body);
+
 /* a tool's hold on one node of the finest loaded level (the rendered surface's mesh):
  * the node's displacement is prescribed to `target` for this frame (paper section 5) */
 typedef struct sq_hold {

@@ -1750,23 +1750,16 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         prof->merges = ao.merges;
         prof->splits_refused = over_budget || ao.refused;
         if (coarse_ms > lod->def.budget * budget_s * 1e3)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: cannot run in real time even fully coarse: level 0 needs %.2f ms "
-                     "(%d nodes x %d steps), budget %.2f ms; splitting refused", coarse_ms,
-                     lod->lv[0].model.nfree, 1 << sub_log2(lod, 0), lod->def.budget * budget_s * 1e3);
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, coarse_ms, lod->lv[0].model.nfree, 1 << sub_log2(lod, 0),
+                           lod->def.budget * budget_s * 1e3, NULL);
         else if (over_budget)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: frame compute %.2f ms over %.0f%% of the %.2f ms budget: splitting "
-                     "refused, merging allowed", prev_time * 1e3, lod->def.budget * 100,
-                     budget_s * 1e3);
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_OVER, prev_time * 1e3, lod->def.budget * 100, budget_s * 1e3, 0,
+                           NULL);
         else if (ao.refused && cap_guard > 0 && cap_used == cap_guard)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: next frame predicted over %.0f%% of %.2f ms (%ld node updates fit): "
-                     "finest regions merged, splitting refused", lod->def.budget * 100, budget_s * 1e3,
-                     cap_guard);
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_PREDICTED, lod->def.budget * 100, budget_s * 1e3,
+                           (double)cap_guard, 0, NULL);
         else if (ao.refused)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: node-update cap %ld per frame reached: splitting refused", cap_user);
+            sq_frame_event(prof, SQ_HEALTH_NODE_CAP, (double)cap_user, 0, 0, 0, NULL);
     }
 }
 
