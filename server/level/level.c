@@ -717,3 +717,22 @@ void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double 
         L->d[3 * i + c] = goal[c];
     }
 }
+
+/* 0.5 d.K d of level k (the corotational energy with corotational elasticity) */
+double sq_level_elastic_energy(const sq_level *L)
+{
+    if (L->corot)
+        return sq_level_corot_energy(L);
+    if (L->anp)
+        return sq_level_anp_energy(L);
+    double e = 0;
+    for (int i = 0; i < L->model.n; i++) {
+        const double *di = L->d + 3 * (size_t)i;
+        for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
+            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
+            for (int r = 0; r < 3; r++)
+                e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
+        }
+    }
+    return 0.5 * e;
+}
