@@ -609,6 +609,16 @@ function onStats(m) {
     buildLegend(shown, Math.max(legendListed, m.active_nodes.length), m.active_nodes);
   }
   $('hud-updates').textContent = fmt(m.node_updates);
+  if (Array.isArray(m.bodies)) {
+    // health warnings by kind, summed over bodies (sleep and wake are routine: left out)
+    const sum = {};
+    for (const b of m.bodies)
+      for (const [k, h] of Object.entries((b && b.health) || {}))
+        if (k !== 'sleep' && k !== 'wake' && h && typeof h.count === 'number') sum[k] = (sum[k] || 0) + h.count;
+    const keys = Object.keys(sum).sort();
+    $('hud-health').textContent = keys.length ? keys.map((k) => `${k} ${sum[k]}`).join(', ') : 'none';
+    $('hud-health').className = keys.some((k) => k.startsWith('blowup')) ? 'bad' : '';
+  }
   if (m.sleeping !== undefined) $('hud-sleeping').textContent = typeof m.sleeping === 'boolean' ? (m.sleeping ? 'yes' : 'no') : fmt(m.sleeping);
   if (typeof m.paused === 'boolean') setPaused(m.paused);
   // viewers: the server's own count when it gives one, else the other clients of the session

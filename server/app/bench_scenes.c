@@ -117,8 +117,8 @@ static void *spmv_rows(void *arg)
     for (int rep = 0; rep < j->reps; rep++)
         for (int i = j->r0; i < j->r1; i++) {
             double a0 = 0, a1 = 0, a2 = 0;
-            for (int p = L->row_start[i]; p < L->row_start[i + 1]; p++) {
-                const double *B = L->K + 9 * (size_t)p, *xj = j->x + 3 * (size_t)L->col[p];
+            for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
+                const double *B = L->model.K + 9 * (size_t)p, *xj = j->x + 3 * (size_t)L->model.col[p];
                 a0 += B[0] * xj[0] + B[1] * xj[1] + B[2] * xj[2];
                 a1 += B[3] * xj[0] + B[4] * xj[1] + B[5] * xj[2];
                 a2 += B[6] * xj[0] + B[7] * xj[1] + B[8] * xj[2];
@@ -150,18 +150,18 @@ static void bench_spmv_threads(int cells)
         sq_mesh_free(m);
         return;
     }
-    double *x = sq_malloc(sizeof(double) * 3 * (size_t)L.n), *y = sq_malloc(sizeof(double) * 3 * (size_t)L.n);
-    for (int i = 0; i < 3 * L.n; i++)
+    double *x = sq_malloc(sizeof(double) * 3 * (size_t)L.model.n), *y = sq_malloc(sizeof(double) * 3 * (size_t)L.model.n);
+    for (int i = 0; i < 3 * L.model.n; i++)
         x[i] = 1e-3 * ((i * 7919) % 1000);
-    double bytes = (9.0 * 8 + 4) * L.nnz + (4 + 24 + 24) * (double)L.n; /* blocks, cols, rows, x once, y */
+    double bytes = (9.0 * 8 + 4) * L.model.nnz + (4 + 24 + 24) * (double)L.model.n; /* blocks, cols, rows, x once, y */
     double best[3] = {INFINITY, INFINITY, INFINITY};
     for (int trial = 0; trial < 5; trial++)
         for (int nt = 1; nt <= 2; nt++) {
-            spmv_job j[2] = {{&L, x, y, 0, L.n, 1}, {&L, x, y, 0, 0, 1}};
+            spmv_job j[2] = {{&L, x, y, 0, L.model.n, 1}, {&L, x, y, 0, 0, 1}};
             if (nt == 2) {
-                j[0].r1 = L.n / 2;
-                j[1].r0 = L.n / 2;
-                j[1].r1 = L.n;
+                j[0].r1 = L.model.n / 2;
+                j[1].r0 = L.model.n / 2;
+                j[1].r1 = L.model.n;
             }
             pthread_t th;
             double t0 = sq_now();
@@ -177,7 +177,7 @@ static void bench_spmv_threads(int cells)
         }
     printf("\nK x on a %d-node box (full CSR blocks, %.0f MB per pass, rows split between threads):\n"
            "  1 thread %.2f ms (%.1f GB/s), 2 threads %.2f ms (%.1f GB/s): x%.2f (best of 5)\n",
-           L.n, bytes / 1e6, 1e3 * best[1], bytes / best[1] / 1e9, 1e3 * best[2], bytes / best[2] / 1e9,
+           L.model.n, bytes / 1e6, 1e3 * best[1], bytes / best[1] / 1e9, 1e3 * best[2], bytes / best[2] / 1e9,
            best[1] / best[2]);
     free(x);
     free(y);

@@ -58,8 +58,8 @@ static double bytes_per_node_step(const sq_level *L)
     double per_entry = 9 * sizeof(double) + sizeof(int);
     double per_node = 4 + 96 + 48 + 24 + 8 + 1;
     if (L->corot) /* per tet: 3 gradients + volume + quaternion read, quaternion written, 4 indices */
-        return (14.0 * 8 + 4 * 8 + 16) * L->mesh->ntets / L->n + per_node;
-    return per_entry * L->up_start[L->n] / L->n + per_node;
+        return (14.0 * 8 + 4 * 8 + 16) * L->model.mesh->ntets / L->model.n + per_node;
+    return per_entry * L->model.up_start[L->model.n] / L->model.n + per_node;
 }
 
 /* measured streaming bandwidth of this thread (STREAM-like triad a = b + s c over 3 x 64 MB,
@@ -168,7 +168,7 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             double bps = bytes_per_node_step(&L);
             double bound = SQ_BENCH_BANDWIDTH / bps;
             printf("%-9s %8d %9d %6ld %8.3f %13.2f %8.2f %11.0f %10.2f %7.0f%% %8.0f%%\n", name,
-                   m->nnodes, L.nnz, steps, cpu, rate / 1e6, wall / 1e6, bps, bound / 1e6, 100 * rate / bound,
+                   m->nnodes, L.model.nnz, steps, cpu, rate / 1e6, wall / 1e6, bps, bound / 1e6, 100 * rate / bound,
                    100 * rate * bps / bw);
             if (variant == 0)
                 fem_cpu_rate = rate;
@@ -199,7 +199,7 @@ static int static_pair(const sq_mesh *m, const sq_material *mat, const sq_constr
             return -1;
         }
         double *d = sq_malloc(sizeof(double) * 3 * (size_t)m->nnodes);
-        int rc = sq_level_static_solve(&L, g, 1e-10, 50000, d, NULL, &err);
+        int rc = sq_level_static_solve(&L.model, g, 1e-10, 50000, d, NULL, &err);
         if (rc < 0)
             fprintf(stderr, "squish bench operators: %s\n", err.msg);
         out[op] = 0;

@@ -287,7 +287,7 @@ int sq_cmd_run(int argc, char **argv)
     fprintf(fs, "frame,time,node_updates,wall_ms");
     for (int k = 0; k < maxl; k++)
         fprintf(fs, ",active_l%d", k);
-    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,missed\n");
+    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,health,missed\n");
     write_probe_rows(fp, w);
 
     double mass[SQ_MAX_BODIES];
@@ -308,8 +308,12 @@ int sq_cmd_run(int argc, char **argv)
         long nu = 0;
         int active[SQ_MAX_LEVELS] = {0}, splits = 0, merges = 0, resets = 0, refused = 0;
         double ke = 0;
+        char health[96] = ""; /* the frame's health warning kinds, '+' between bodies */
         for (int b = 0; b < w->nbodies; b++) {
             const sq_frame_profile *pr = &w->profile[b];
+            if (pr->event_kind != SQ_HEALTH_NONE && strlen(health) + 24 < sizeof health)
+                snprintf(health + strlen(health), sizeof health - strlen(health), "%s%s", health[0] ? "+" : "",
+                         sq_health_kind_name(pr->event_kind));
             nu += pr->node_updates;
             for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
                 active[sq_world_listed_level(w, b, k)] += pr->active[k];
@@ -330,7 +334,8 @@ int sq_cmd_run(int argc, char **argv)
         fprintf(fs, "%ld,%.9e,%ld,%.3f", w->frame, w->time, nu, 1000.0 * w->last_frame_s);
         for (int k = 0; k < maxl; k++)
             fprintf(fs, ",%d", active[k]);
-        fprintf(fs, ",%d,%d,%d,%.9e,%d,%ld\n", splits, merges, resets, ke, refused, w->deadline_misses - missed0);
+        fprintf(fs, ",%d,%d,%d,%.9e,%d,%s,%ld\n", splits, merges, resets, ke, refused, health,
+                w->deadline_misses - missed0);
         write_probe_rows(fp, w);
         write_tool_rows(ft, w);
         sq_progress_update(&prog, (double)w->frame);

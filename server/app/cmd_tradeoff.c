@@ -212,7 +212,7 @@ static int build_grid(to_variant *v, int finest, double s0, int quick)
  * adaptive: the finest, which holds active or ghost values everywhere) */
 static int sampled_level(const sq_body *b)
 {
-    return sq_body_get_def(b)->lod.mode == SQ_LOD_ADAPTIVE ? sq_body_nlevels(b) - 1 : sq_body_fixed_level(b);
+    return sq_body_sim_level(b);
 }
 
 static void samples_init(to_samples *s, const sq_body *ref)

@@ -185,7 +185,7 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
  * with damping, changed only by the tools */
 static int values_level(const sq_body *b)
 {
-    return sq_body_get_def(b)->lod.mode == SQ_LOD_ADAPTIVE ? sq_body_nlevels(b) - 1 : sq_body_fixed_level(b);
+    return sq_body_sim_level(b);
 }
 
 static double total_energy(sq_body *b)
@@ -193,8 +193,8 @@ static double total_energy(sq_body *b)
     const sq_level *L = sq_body_level(b, values_level(b));
     const double *g = sq_body_get_def(b)->gravity;
     double ep = 0;
-    for (int i = 0; i < L->n; i++)
-        ep -= L->mass[i] * (g[0] * L->d[3 * i] + g[1] * L->d[3 * i + 1] + g[2] * L->d[3 * i + 2]);
+    for (int i = 0; i < L->model.n; i++)
+        ep -= L->model.mass[i] * (g[0] * L->d[3 * i] + g[1] * L->d[3 * i + 1] + g[2] * L->d[3 * i + 2]);
     return sq_body_kinetic_energy(b) + sq_body_elastic_energy(b) + ep;
 }
 
@@ -205,16 +205,16 @@ static void run_above_bound(sq_body *b, const sw_case *c, sw_result *r)
     sq_level *L = sq_body_level(b, sq_body_fixed_level(b));
     const sq_body_def *def = sq_body_get_def(b);
     double dt = c->above_bound * L->bound;
-    for (int i = 0; i < L->n; i++)
+    for (int i = 0; i < L->model.n; i++)
         for (int k = 0; k < 3; k++)
-            L->d[3 * i + k] = (L->fixed[i] & (1u << k)) ? 0 : 1e-6 * SW_SIZE * ((i + k) % 2 ? 1 : -1);
+            L->d[3 * i + k] = (L->model.fixed[i] & (1u << k)) ? 0 : 1e-6 * SW_SIZE * ((i + k) % 2 ? 1 : -1);
     double d0 = 1e-6 * SW_SIZE, dmax = 0;
     int steps = 4000, s;
     for (s = 0; s < steps; s++) {
         sq_level_forces(L, &def->material, def->gravity, NULL);
         sq_level_integrate(L, dt, NULL);
         dmax = 0;
-        for (int i = 0; i < 3 * L->n; i++)
+        for (int i = 0; i < 3 * L->model.n; i++)
             dmax = isfinite(L->d[i]) && isfinite(dmax) ? fmax(dmax, fabs(L->d[i])) : NAN;
         if (!isfinite(dmax) || dmax > 1e6 * SW_SIZE)
             break;
@@ -588,7 +588,7 @@ static double beam_ratio(double nu, int nx, int nh, sq_operator_kind op, double 
         else
             *substeps = -1;
         double grav[3] = {0, 0, -g}, *d = sq_malloc(sizeof(double) * 3 * (size_t)m->nnodes);
-        if (sq_level_static_solve(&L, grav, 1e-10, 20000, d, NULL, err) == 0) {
+        if (sq_level_static_solve(&L.model, grav, 1e-10, 20000, d, NULL, err) == 0) {
             /* mean z displacement of the tip face x = L */
             double s = 0;
             int cnt = 0;

@@ -125,6 +125,11 @@ int sq_body_is_sleeping(const sq_body *b);
 /* active nodes per loaded level as the resolution stands now (also before the first frame and
  * while asleep): fixed mode counts the simulated level whole, adaptive the active lists */
 void sq_body_active_nodes(const sq_body *b, int active[SQ_MAX_LEVELS]);
+/* health warnings since the body was created, indexed by sq_health_kind (SQ_HEALTH_NKINDS
+ * entries; level/level.h): count, last value, last frame (1-based count of sq_body_frame calls,
+ * sq_body_frames). A reset (blow-up, sq_body_reset) does not clear them */
+const sq_health_stat *sq_body_health(const sq_body *b);
+long sq_body_frames(const sq_body *b);
 /* tets of the simulated level with det F <= 0 (inverted or flat) */
 int sq_body_inverted_tets(const sq_body *b);
 
@@ -136,6 +141,10 @@ int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err);
 sq_level *sq_body_level(sq_body *b, int level);
 /* the level simulated in fixed mode */
 int sq_body_fixed_level(const sq_body *b);
+/* the level that holds the simulated values: the fixed level, or in adaptive mode the finest
+ * loaded level (every region's values are pushed there); energies, residual, probes, VTK and
+ * the views of scene, net and app read this one */
+int sq_body_sim_level(const sq_body *b);
 /* sleep tolerances: calm for `frames` frames (0: never sleep) with rms speed below
  * ke_speed bbox diagonals per second and sq_body_residual below `residual` (defaults 25, 1e-4, 1e-4) */
 void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual);

@@ -1,4 +1,4 @@
-/* body_internal.h - the body's private state, shared by body/body.c and body/tools.c. */
+/* body_internal.h - the body's private state and helpers, shared by the files of body/. */
 #ifndef SQ_BODY_INTERNAL_H
 #define SQ_BODY_INTERNAL_H
 
@@ -48,12 +48,44 @@ struct sq_body {
     int *held_list[SQ_MAX_LEVELS];         /* their indices (n_k capacity) */
     int nheld[SQ_MAX_LEVELS];
 
+    /* health: counters per kind (sq_body_health), the body's frame count */
+    sq_health_stat health[SQ_HEALTH_NKINDS];
+    long frames;
+
     /* sleep */
     int sleeping, calm;
     int sleep_frames;                      /* calm frames before sleeping (0: never sleep) */
     double sleep_ke_speed;                 /* rms speed below this many bbox diagonals per second */
     double sleep_residual;                 /* sq_body_residual-style measure below this */
 };
+
+/* Lanczos steps of the sharp step bound (fixed mode; docs/stability.md) */
+#define SQ_LANCZOS_ITERS 40
+
+/* ---- body.c: levels, state transfer, surface map, validation ---- */
+/* interpolate a per-node field (n x 3) of mesh m at tet t with barycentrics bary */
+void sq_body_interp3(const sq_mesh *m, const double *field, int t, const double bary[4], double out[3]);
+/* initialise level k if it is not yet (operator, step bounds, masks); state at rest */
+int sq_body_ensure_level(sq_body *b, int k, sq_err *err);
+/* forget which nodes of level k a tool held (released: reset or lod change) */
+void sq_body_clear_held(sq_body *b, int k);
+/* copy displacement and velocity from level src to level dst by interpolation */
+void sq_body_transfer_state(sq_body *b, int src, int dst);
+/* per finest surface vertex: tet and barycentrics in the fixed level, and its nearest node */
+void sq_body_prepare_surface_map(sq_body *b);
+/* node_level of every finest node = the fixed level */
+void sq_body_set_levels_fixed(sq_body *b);
+/* is this combination allowed? 0, or -1 + err naming it */
+int sq_body_check_pressure(int nodal, sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err);
+int sq_body_check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err);
+int sq_body_check_lod(const sq_body *b, const sq_lod_def *lod, sq_err *err);
+
+/* ---- health.c ---- */
+/* count a health warning (kind NONE: nothing) with its value at the body's current frame */
+void sq_body_count_health(sq_body *b, sq_health_kind k, double value);
+/* after the frame's steps: health (a blow-up resets the body to rest and returns 1) and the
+ * sleep test; sets prof's event */
+int sq_body_check_health(sq_body *b, sq_frame_profile *prof, int nholds);
 
 /* displacement of finest surface vertex s (interpolated from the fixed level when coarser) */
 void sq_body_surface_disp(const sq_body *b, int s, double u[3]);

@@ -25,13 +25,13 @@ int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op
     if (op != SQ_OPERATOR_FEM)
         return sq_err_set(err, "nodal pressure tets need the fem operator: use \"operator\": \"fem\" with "
                                "\"pressure\": \"nodal\", or \"pressure\": \"element\" with the paper operator");
-    const sq_mesh *m = L->mesh;
+    const sq_mesh *m = L->model.mesh;
     sq_anp *A = L->anp;
     if (!A) {
         A = sq_calloc(1, sizeof *A);
         A->grad = sq_malloc(sizeof(double) * 13 * (size_t)m->ntets);
-        A->theta = sq_malloc(sizeof(double) * (size_t)L->n);
-        A->w = sq_malloc(sizeof(double) * 3 * (size_t)L->n);
+        A->theta = sq_malloc(sizeof(double) * (size_t)L->model.n);
+        A->w = sq_malloc(sizeof(double) * 3 * (size_t)L->model.n);
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
             double V = sq_tet_gradients(m, t, a);
@@ -61,10 +61,10 @@ void sq_level_anp_free(sq_level *L)
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
 {
     const sq_anp *A = L->anp;
-    const sq_mesh *m = L->mesh;
+    const sq_mesh *m = L->model.mesh;
     const double mu = A->mu, kappa = A->kappa;
-    memset(A->theta, 0, sizeof(double) * (size_t)L->n);
-    memset(y, 0, sizeof(double) * 3 * (size_t)L->n);
+    memset(A->theta, 0, sizeof(double) * (size_t)L->model.n);
+    memset(y, 0, sizeof(double) * 3 * (size_t)L->model.n);
     for (int t = 0; t < m->ntets; t++) {
         const double *a = A->grad + 13 * (size_t)t;
         const int *tv = m->tets + 4 * (size_t)t;
@@ -74,8 +74,8 @@ void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
         for (int k = 0; k < 4; k++)
             A->theta[tv[k]] += a[12] / 4 * th;
     }
-    for (int i = 0; i < L->n; i++)
-        A->theta[i] /= L->vol[i];
+    for (int i = 0; i < L->model.n; i++)
+        A->theta[i] /= L->model.vol[i];
     for (int t = 0; t < m->ntets; t++) {
         const double *a = A->grad + 13 * (size_t)t;
         const int *tv = m->tets + 4 * (size_t)t;
@@ -97,21 +97,21 @@ void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
     }
 }
 
-void sq_level_anp_forces(sq_level *L, const sq_material *mat, const double g[3])
+void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
 {
     sq_anp *A = L->anp;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness, a = mat->rayleigh_mass;
-    size_t n3 = 3 * (size_t)L->n;
+    size_t n3 = 3 * (size_t)L->model.n;
     for (size_t k = 0; k < n3; k++)
         A->w[k] = L->d[k] + b * L->v[k];
-    sq_level_anp_apply(L, A->w, L->f); /* f = K_np (d + b v) */
-    for (int i = 0; i < L->n; i++) {
-        double *fi = L->f + 3 * (size_t)i;
+    sq_level_anp_apply(L, A->w, f); /* f = K_np (d + b v) */
+    for (int i = 0; i < L->model.n; i++) {
+        double *fi = f + 3 * (size_t)i;
         for (int c = 0; c < 3; c++)
-            fi[c] = L->mass[i] * (g[c] - a * L->v[3 * i + c]) - fi[c];
-        if (mat->use_viscosity && L->D) /* the paper's viscosities: the element-wise D blocks */
-            for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-                const double *B = L->D + 9 * (size_t)e, *vj = L->v + 3 * (size_t)L->col[e];
+            fi[c] = L->model.mass[i] * (g[c] - a * L->v[3 * i + c]) - fi[c];
+        if (mat->use_viscosity && L->model.D) /* the paper's viscosities: the element-wise D blocks */
+            for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+                const double *B = L->model.D + 9 * (size_t)e, *vj = L->v + 3 * (size_t)L->model.col[e];
                 for (int r = 0; r < 3; r++)
                     fi[r] -= B[3 * r] * vj[0] + B[3 * r + 1] * vj[1] + B[3 * r + 2] * vj[2];
             }
@@ -120,7 +120,7 @@ void sq_level_anp_forces(sq_level *L, const sq_material *mat, const double g[3])
 
 double sq_level_anp_energy(const sq_level *L)
 {
-    size_t n3 = 3 * (size_t)L->n;
+    size_t n3 = 3 * (size_t)L->model.n;
     double *y = sq_malloc(sizeof(double) * n3), e = 0;
     sq_level_anp_apply(L, L->d, y);
     for (size_t k = 0; k < n3; k++)

@@ -72,7 +72,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
                                "\"fem\" with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\"");
     if (sq_material_check(mat, err) < 0)
         return -1;
-    const sq_mesh *m = L->mesh;
+    const sq_mesh *m = L->model.mesh;
     sq_corot *C = L->corot;
     if (!C) {
         C = sq_calloc(1, sizeof *C);
@@ -81,7 +81,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C->g = sq_calloc(10 * CW * (size_t)C->nblocks, sizeof(double));
         C->q = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(double));
         C->tv = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
-        C->acc = sq_calloc(4 * (size_t)L->n + 4, sizeof(double));
+        C->acc = sq_calloc(4 * (size_t)L->model.n + 4, sizeof(double));
         L->corot = C;
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
@@ -264,7 +264,7 @@ static inline void add_stress(const double S[9], double s, double l, double diag
  * f = -R K_T (R^T (x + b v) - X): the elastic force plus b R K_T R^T v, with R the rotation of
  * I + grad(d + b v) (it differs from that of I + grad d by O(b |grad v|)). Viscosities (not
  * proportional to K): R from I + grad d, and R D_T R^T v added. */
-static void corot_tets(sq_level *L, const sq_material *mat, double *f, int iters, int store)
+static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int iters, int store)
 {
     sq_corot *C = L->corot;
     const double mu = C->mu, lam = C->lambda;
@@ -274,7 +274,7 @@ static void corot_tets(sq_level *L, const sq_material *mat, double *f, int iters
     for (int t = 0; t < C->ntets; t++) {
         double G[10], q[4], F[9], R[9], S[9], sig[9];
         tet_load(C, t, G, q);
-        const int *tv = L->mesh->tets + 4 * (size_t)t;
+        const int *tv = L->model.mesh->tets + 4 * (size_t)t;
         tet_grad(G, tv, d, v, b, F, 1.0);
         tet_rotation(q, F, iters, R);
         if (store)
@@ -504,15 +504,16 @@ static void corot_tets_simd(sq_level *L, double b)
 #endif
 
 /* f = m (g - a v) + element forces */
-static void corot_forces(sq_level *L, const sq_material *mat, const double g[3], int iters, int store)
+static void corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f, int iters,
+                         int store)
 {
     const double a = mat->rayleigh_mass;
-    for (int i = 0; i < L->n; i++) {
-        const double mi = L->mass[i];
+    for (int i = 0; i < L->model.n; i++) {
+        const double mi = L->model.mass[i];
         for (int c = 0; c < 3; c++)
-            L->f[3 * i + c] = mi * (g[c] - a * L->v[3 * i + c]);
+            f[3 * i + c] = mi * (g[c] - a * L->v[3 * i + c]);
     }
-    corot_tets(L, mat, L->f, iters, store);
+    corot_tets(L, mat, f, iters, store);
 }
 
 void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
@@ -525,9 +526,9 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
         /* forces, then symplectic Euler as in sq_level_integrate (same arithmetic) */
         const double a = mat->rayleigh_mass;
         double *restrict acc = C->acc, *restrict f = L->f, *restrict vv = L->v, *restrict dd = L->d;
-        const unsigned char *restrict fixed = L->fixed;
-        for (int i = 0; i < L->n; i++) {
-            const double mi = L->mass[i];
+        const unsigned char *restrict fixed = L->model.fixed;
+        for (int i = 0; i < L->model.n; i++) {
+            const double mi = L->model.mass[i];
             double fi[3], vi[3];
             for (int c = 0; c < 3; c++) {
                 fi[c] = acc[4 * i + c] + mi * (g[c] - a * vv[3 * i + c]);
@@ -548,14 +549,14 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
         return;
     }
 #endif
-    corot_forces(L, mat, g, 1, 1);
+    corot_forces(L, mat, g, L->f, 1, 1);
     sq_level_integrate(L, dt, mask);
 }
 
-void sq_level_corot_forces(sq_level *L, const sq_material *mat, const double g[3])
+void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
 {
     /* rotations iterated to convergence from the stored ones, not stored: the state is unchanged */
-    corot_forces(L, mat, g, 50, 0);
+    corot_forces(L, mat, g, f, 50, 0);
 }
 
 void sq_level_corot_converge(sq_level *L)
@@ -566,7 +567,7 @@ void sq_level_corot_converge(sq_level *L)
     for (int t = 0; t < C->ntets; t++) {
         double G[10], q[4], F[9], R[9];
         tet_load(C, t, G, q);
-        tet_grad(G, L->mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_grad(G, L->model.mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
         tet_rotation(q, F, 50, R);
         tet_store_q(C, t, q);
     }
@@ -579,7 +580,7 @@ double sq_level_corot_energy(const sq_level *L)
     for (int t = 0; t < C->ntets; t++) {
         double G[10], q[4], F[9], R[9], S[9];
         tet_load(C, t, G, q);
-        tet_grad(G, L->mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_grad(G, L->model.mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
         tet_rotation(q, F, 50, R);
         rt_mul(R, F, S);
         double e00 = S[0] - 1, e11 = S[4] - 1, e22 = S[8] - 1;
@@ -593,7 +594,7 @@ double sq_level_corot_energy(const sq_level *L)
 
 int sq_level_corot_inverted(const sq_level *L)
 {
-    const sq_mesh *m = L->mesh;
+    const sq_mesh *m = L->model.mesh;
     int n = 0;
     for (int t = 0; t < m->ntets; t++) {
         double a[4][3], G[10], F[9];

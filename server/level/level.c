@@ -53,13 +53,13 @@ static int constraint_selects(const sq_constraint *c, const double *x, double ep
 static int assemble(const sq_level *L, sq_operator_kind op, double s, double l, double *out,
                     double *lap, double *mass, double *vol, double density, sq_err *err)
 {
-    const sq_mesh *m = L->mesh;
-    memset(out, 0, sizeof(double) * 9 * (size_t)L->nnz);
+    const sq_mesh *m = L->model.mesh;
+    memset(out, 0, sizeof(double) * 9 * (size_t)L->model.nnz);
     if (lap)
-        memset(lap, 0, sizeof(double) * (size_t)L->nnz);
+        memset(lap, 0, sizeof(double) * (size_t)L->model.nnz);
     if (mass) {
-        memset(mass, 0, sizeof(double) * (size_t)L->n);
-        memset(vol, 0, sizeof(double) * (size_t)L->n);
+        memset(mass, 0, sizeof(double) * (size_t)L->model.n);
+        memset(vol, 0, sizeof(double) * (size_t)L->model.n);
     }
     for (int t = 0; t < m->ntets; t++) {
         double a[4][3];
@@ -76,7 +76,7 @@ static int assemble(const sq_level *L, sq_operator_kind op, double s, double l, 
             }
             for (int q = 0; q < 4; q++) {
                 int j = tv[q];
-                int e = csr_find(L->row_start, L->col, i, j);
+                int e = csr_find(L->model.row_start, L->model.col, i, j);
                 if (e < 0)
                     return sq_err_set(err, "%s: nodes %d and %d share tetrahedron %d but are not "
                                            "adjacent in the mesh topology; re-finalize the mesh",
@@ -105,19 +105,19 @@ static int assemble(const sq_level *L, sq_operator_kind op, double s, double l, 
 static double gershgorin(const sq_level *L, const double *A)
 {
     double best = 0;
-    for (int i = 0; i < L->n; i++) {
+    for (int i = 0; i < L->model.n; i++) {
         for (int r = 0; r < 3; r++) {
-            if (L->fixed[i] & (1u << r))
+            if (L->model.fixed[i] & (1u << r))
                 continue;
             double s = 0;
-            for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-                int j = L->col[e];
+            for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+                int j = L->model.col[e];
                 const double *B = A + 9 * (size_t)e + 3 * r;
                 for (int c = 0; c < 3; c++)
-                    if (!(L->fixed[j] & (1u << c)))
+                    if (!(L->model.fixed[j] & (1u << c)))
                         s += fabs(B[c]);
             }
-            s /= L->mass[i];
+            s /= L->model.mass[i];
             if (s > best)
                 best = s;
         }
@@ -131,18 +131,18 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     memset(L, 0, sizeof *L);
     if (!mesh || mesh->nnodes <= 0 || mesh->ntets <= 0 || !mesh->adj_start)
         return sq_err_set(err, "level mesh is empty or not finalized; load it with sq_mesh_load");
-    L->mesh = mesh;
-    L->n = mesh->nnodes;
-    L->row_start = mesh->adj_start;
-    L->col = mesh->adj;
-    L->nnz = mesh->adj_start[mesh->nnodes];
-    size_t n3 = 3 * (size_t)L->n;
-    L->K = sq_malloc(sizeof(double) * 9 * (size_t)L->nnz);
-    L->lap = sq_malloc(sizeof(double) * (size_t)L->nnz);
-    L->mass = sq_malloc(sizeof(double) * (size_t)L->n);
-    L->vol = sq_malloc(sizeof(double) * (size_t)L->n);
-    L->hbar = sq_calloc((size_t)L->n, sizeof(double));
-    L->fixed = sq_calloc((size_t)L->n, 1);
+    L->model.mesh = mesh;
+    L->model.n = mesh->nnodes;
+    L->model.row_start = mesh->adj_start;
+    L->model.col = mesh->adj;
+    L->model.nnz = mesh->adj_start[mesh->nnodes];
+    size_t n3 = 3 * (size_t)L->model.n;
+    L->model.K = sq_malloc(sizeof(double) * 9 * (size_t)L->model.nnz);
+    L->model.lap = sq_malloc(sizeof(double) * (size_t)L->model.nnz);
+    L->model.mass = sq_malloc(sizeof(double) * (size_t)L->model.n);
+    L->model.vol = sq_malloc(sizeof(double) * (size_t)L->model.n);
+    L->model.hbar = sq_calloc((size_t)L->model.n, sizeof(double));
+    L->model.fixed = sq_calloc((size_t)L->model.n, 1);
     /* one spare double after d, v and acc: the vector force pass loads 4 lanes per node */
     L->d = sq_calloc(n3 + 1, sizeof(double));
     L->v = sq_calloc(n3 + 1, sizeof(double));
@@ -155,21 +155,21 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     for (int k = 0; k < 3; k++)
         diag += (mesh->bbox_max[k] - mesh->bbox_min[k]) * (mesh->bbox_max[k] - mesh->bbox_min[k]);
     double eps = 1e-9 * sqrt(diag);
-    for (int i = 0; i < L->n; i++) {
+    for (int i = 0; i < L->model.n; i++) {
         const double *x = mesh->x + 3 * (size_t)i;
         for (int c = 0; c < ncons; c++)
             if (constraint_selects(&cons[c], x, eps))
-                L->fixed[i] |= (unsigned char)(cons[c].axes & 7u);
-        if (L->fixed[i] != 7)
-            L->nfree++;
+                L->model.fixed[i] |= (unsigned char)(cons[c].axes & 7u);
+        if (L->model.fixed[i] != 7)
+            L->model.nfree++;
     }
 
     /* mean 1-ring edge length */
-    for (int i = 0; i < L->n; i++) {
+    for (int i = 0; i < L->model.n; i++) {
         double s = 0;
         int cnt = 0;
-        for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-            int j = L->col[e];
+        for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+            int j = L->model.col[e];
             if (j == i)
                 continue;
             double dx = mesh->x[3 * j] - mesh->x[3 * i], dy = mesh->x[3 * j + 1] - mesh->x[3 * i + 1],
@@ -177,7 +177,7 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
             s += sqrt(dx * dx + dy * dy + dz * dz);
             cnt++;
         }
-        L->hbar[i] = cnt ? s / cnt : 0;
+        L->model.hbar[i] = cnt ? s / cnt : 0;
     }
 
     if (sq_level_set_material(L, mat, op, err) < 0) {
@@ -191,21 +191,21 @@ void sq_level_free(sq_level *L)
 {
     if (!L)
         return;
-    free(L->K);
-    free(L->D);
-    free(L->lap);
-    free(L->mass);
-    free(L->vol);
-    free(L->hbar);
-    free(L->fixed);
+    free(L->model.K);
+    free(L->model.D);
+    free(L->model.lap);
+    free(L->model.mass);
+    free(L->model.vol);
+    free(L->model.hbar);
+    free(L->model.fixed);
     free(L->d);
     free(L->v);
     free(L->f);
     free(L->w);
     free(L->acc);
-    free(L->up_start);
-    free(L->up_col);
-    free(L->Kup);
+    free(L->model.up_start);
+    free(L->model.up_col);
+    free(L->model.Kup);
     sq_level_corot_free(L);
     sq_level_anp_free(L);
     memset(L, 0, sizeof *L);
@@ -217,39 +217,39 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
         return -1;
     if (op != SQ_OPERATOR_FEM && op != SQ_OPERATOR_PAPER)
         return sq_err_set(err, "operator %d is unknown: use fem or paper", (int)op);
-    if (assemble(L, op, mat->mu, mat->lambda, L->K, L->lap, L->mass, L->vol, mat->density, err) < 0)
+    if (assemble(L, op, mat->mu, mat->lambda, L->model.K, L->model.lap, L->model.mass, L->model.vol, mat->density, err) < 0)
         return -1;
     if (mat->use_viscosity) {
-        if (!L->D)
-            L->D = sq_malloc(sizeof(double) * 9 * (size_t)L->nnz);
-        if (assemble(L, op, mat->phi, mat->psi, L->D, NULL, NULL, NULL, 0, err) < 0)
+        if (!L->model.D)
+            L->model.D = sq_malloc(sizeof(double) * 9 * (size_t)L->model.nnz);
+        if (assemble(L, op, mat->phi, mat->psi, L->model.D, NULL, NULL, NULL, 0, err) < 0)
             return -1;
     } else {
-        free(L->D);
-        L->D = NULL;
+        free(L->model.D);
+        L->model.D = NULL;
     }
     /* upper-half copy for the fast force pass */
-    if (!L->up_start) {
-        L->up_start = sq_malloc(sizeof(int) * ((size_t)L->n + 1));
+    if (!L->model.up_start) {
+        L->model.up_start = sq_malloc(sizeof(int) * ((size_t)L->model.n + 1));
         int h = 0;
-        for (int i = 0; i < L->n; i++)
-            for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++)
-                h += L->col[e] > i;
-        L->up_col = sq_malloc(sizeof(int) * (size_t)(h ? h : 1));
-        L->Kup = sq_calloc(9 * (size_t)h + 4, sizeof(double)); /* + 4: 4-lane loads of the last block */
+        for (int i = 0; i < L->model.n; i++)
+            for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++)
+                h += L->model.col[e] > i;
+        L->model.up_col = sq_malloc(sizeof(int) * (size_t)(h ? h : 1));
+        L->model.Kup = sq_calloc(9 * (size_t)h + 4, sizeof(double)); /* + 4: 4-lane loads of the last block */
     }
     int h = 0;
-    for (int i = 0; i < L->n; i++) {
-        L->up_start[i] = h;
-        for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++)
-            if (L->col[e] > i) {
-                L->up_col[h] = L->col[e];
-                memcpy(L->Kup + 9 * (size_t)h, L->K + 9 * (size_t)e, 9 * sizeof(double));
+    for (int i = 0; i < L->model.n; i++) {
+        L->model.up_start[i] = h;
+        for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++)
+            if (L->model.col[e] > i) {
+                L->model.up_col[h] = L->model.col[e];
+                memcpy(L->model.Kup + 9 * (size_t)h, L->model.K + 9 * (size_t)e, 9 * sizeof(double));
                 h++;
             }
     }
-    L->up_start[L->n] = h;
-    L->omega_max = sqrt(gershgorin(L, L->K));
+    L->model.up_start[L->model.n] = h;
+    L->omega_max = sqrt(gershgorin(L, L->model.K));
     return 0;
 }
 
@@ -263,8 +263,8 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
     double w = L->omega_max;
     /* damping rate of the fastest mode: c = a + b w^2 (Rayleigh) or a + lambda_max(M^-1 D) */
     double c = mat->rayleigh_mass;
-    if (mat->use_viscosity && L->D)
-        c += gershgorin(L, L->D);
+    if (mat->use_viscosity && L->model.D)
+        c += gershgorin(L, L->model.D);
     else
         c += mat->rayleigh_stiffness * w * w;
     /* symplectic Euler with damping is stable iff w^2 dt^2 + 2 c dt <= 4, i.e.
@@ -292,17 +292,17 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
 /* y = M^-1/2 K M^-1/2 x over the unconstrained axes (constrained components of y are zero) */
 static void scaled_matvec(const sq_level *L, const double *x, double *y)
 {
-    for (int i = 0; i < L->n; i++)
+    for (int i = 0; i < L->model.n; i++)
         for (int r = 0; r < 3; r++) {
             double s = 0;
-            if (!(L->fixed[i] & (1u << r)))
-                for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-                    int j = L->col[e];
-                    const double *B = L->K + 9 * (size_t)e + 3 * r;
+            if (!(L->model.fixed[i] & (1u << r)))
+                for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+                    int j = L->model.col[e];
+                    const double *B = L->model.K + 9 * (size_t)e + 3 * r;
                     for (int c = 0; c < 3; c++)
-                        s += B[c] * x[3 * j + c] / sqrt(L->mass[j]);
+                        s += B[c] * x[3 * j + c] / sqrt(L->model.mass[j]);
                 }
-            y[3 * i + r] = s / sqrt(L->mass[i]);
+            y[3 * i + r] = s / sqrt(L->model.mass[i]);
         }
 }
 
@@ -334,7 +334,7 @@ static double tridiag_max(const double *alpha, const double *beta, int m)
 
 double sq_level_lanczos_max(const sq_level *L, int iters)
 {
-    size_t n3 = 3 * (size_t)L->n;
+    size_t n3 = 3 * (size_t)L->model.n;
     double *q0 = sq_calloc(n3, sizeof(double)), *q = sq_malloc(n3 * sizeof(double)),
            *w = sq_malloc(n3 * sizeof(double));
     double *alpha = sq_malloc(sizeof(double) * (size_t)(iters + 1)),
@@ -344,7 +344,7 @@ double sq_level_lanczos_max(const sq_level *L, int iters)
     double nn = 0;
     for (size_t k = 0; k < n3; k++) {
         st ^= st << 13, st ^= st >> 7, st ^= st << 17;
-        q[k] = (L->fixed[k / 3] & (1u << (k % 3))) ? 0 : 0.5 + (double)(st >> 11) / 9007199254740992.0;
+        q[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? 0 : 0.5 + (double)(st >> 11) / 9007199254740992.0;
         nn += q[k] * q[k];
     }
     double theta = 0;
@@ -409,8 +409,8 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
     double w2 = fmin(g2, lz); /* Gershgorin is the ceiling */
     double w = sqrt(w2);
     double c = mat->rayleigh_mass;
-    if (mat->use_viscosity && L->D)
-        c += gershgorin(L, L->D);
+    if (mat->use_viscosity && L->model.D)
+        c += gershgorin(L, L->model.D);
     else
         c += mat->rayleigh_stiffness * w2;
     double bound = (w > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
@@ -428,28 +428,6 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
     return 0;
 }
 
-/* symplectic Euler for one node: v += h f (h = dt / m), constrained axes zeroed, d += dt v */
-static inline __attribute__((always_inline)) void euler_node(double *restrict v, double *restrict d, int i,
-                                                           double h, double dt, double f0, double f1,
-                                                           double f2, unsigned fx)
-{
-    double v0 = v[3 * i] + h * f0, v1 = v[3 * i + 1] + h * f1, v2 = v[3 * i + 2] + h * f2;
-    if (fx) {
-        if (fx & 1u)
-            v0 = 0;
-        if (fx & 2u)
-            v1 = 0;
-        if (fx & 4u)
-            v2 = 0;
-    }
-    v[3 * i] = v0;
-    v[3 * i + 1] = v1;
-    v[3 * i + 2] = v2;
-    d[3 * i] += dt * v0;
-    d[3 * i + 1] += dt * v1;
-    d[3 * i + 2] += dt * v2;
-}
-
 /* the hot loop: f_i = -sum_j K_ij w_j + m_i (g - a v_i), w = d + b v, for all nodes, from the
  * upper half of K, optionally fused with the symplectic Euler update (dt > 0).
  * With K_ii = -sum_{j != i} K_ij: f_i = sum_{j != i} K_ij (w_i - w_j), and each edge block
@@ -460,19 +438,16 @@ static inline __attribute__((always_inline)) void euler_node(double *restrict v,
  * The accumulator is cleared as it is consumed, so it is all zeros between calls.
  * A translation gives exactly zero force (the differences are exactly zero). */
 static inline __attribute__((always_inline)) void
-forces_pass(sq_level *L, const int damp, const double b, const double a, const double g[3], const double dt,
-            const unsigned char *restrict mask)
+forces_pass(const sq_level_model *M, double *restrict d, double *restrict v, double *restrict f,
+            double *restrict acc, const int damp, const double b, const double a, const double g[3],
+            const double dt, const unsigned char *restrict mask)
 {
-    const int n = L->n;
-    const int *restrict us = L->up_start;
-    const int *restrict uc = L->up_col;
-    const double *restrict A = L->Kup;
-    const double *restrict mass = L->mass;
-    const unsigned char *restrict fixed = L->fixed;
-    double *restrict d = L->d;
-    double *restrict v = L->v;
-    double *restrict f = L->f;
-    double *restrict acc = L->acc;
+    const int n = M->n;
+    const int *restrict us = M->up_start;
+    const int *restrict uc = M->up_col;
+    const double *restrict A = M->Kup;
+    const double *restrict mass = M->mass;
+    const unsigned char *restrict fixed = M->fixed;
     const double g0 = g[0], g1 = g[1], g2 = g[2];
     for (int i = 0; i < n; i++) {
         double wi0 = d[3 * i], wi1 = d[3 * i + 1], wi2 = d[3 * i + 2];
@@ -544,28 +519,31 @@ forces_pass(sq_level *L, const int damp, const double b, const double a, const d
         f[3 * i + 1] = f1;
         f[3 * i + 2] = f2;
         if (dt > 0 && (!mask || mask[i]))
-            euler_node(v, d, i, dt / m, dt, f0, f1, f2, fixed[i]);
+            sq_level_euler_node(v, d, i, dt / m, dt, f0, f1, f2, fixed[i]);
     }
 }
 
-/* the two specialisations (with and without stiffness damping) */
-static void forces_pass_damped(sq_level *L, double b, double a, const double g[3], double dt,
-                               const unsigned char *mask)
+/* the two specialisations (with and without stiffness damping); d and v are written only when
+ * dt > 0 (the force-only callers pass a level's state through a cast: it is left as it is) */
+static void forces_pass_damped(const sq_level_model *M, double *d, double *v, double *f, double *acc, double b,
+                               double a, const double g[3], double dt, const unsigned char *mask)
 {
-    forces_pass(L, 1, b, a, g, dt, mask);
+    forces_pass(M, d, v, f, acc, 1, b, a, g, dt, mask);
 }
 
-static void forces_pass_plain(sq_level *L, double a, const double g[3], double dt, const unsigned char *mask)
+static void forces_pass_plain(const sq_level_model *M, double *d, double *v, double *f, double *acc, double a,
+                              const double g[3], double dt, const unsigned char *mask)
 {
-    forces_pass(L, 0, 0, a, g, dt, mask);
+    forces_pass(M, d, v, f, acc, 0, 0, a, g, dt, mask);
 }
 
-static void forces_all(sq_level *L, double b, double a, const double g[3], double dt, const unsigned char *mask)
+static void forces_all(const sq_level_model *M, double *d, double *v, double *f, double *acc, double b, double a,
+                       const double g[3], double dt, const unsigned char *mask)
 {
     if (b != 0)
-        forces_pass_damped(L, b, a, g, dt, mask);
+        forces_pass_damped(M, d, v, f, acc, b, a, g, dt, mask);
     else
-        forces_pass_plain(L, a, g, dt, mask);
+        forces_pass_plain(M, d, v, f, acc, a, g, dt, mask);
 }
 
 void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
@@ -576,17 +554,18 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
         return;
     }
     if (L->anp) {
-        sq_level_anp_forces(L, mat, gravity);
+        sq_level_anp_forces(L, mat, gravity, L->f);
         sq_level_integrate(L, dt, mask);
         return;
     }
-    if (mat->use_viscosity && L->D) {
+    if (mat->use_viscosity && L->model.D) {
         /* the viscosity blocks are applied row by row: two passes */
         sq_level_forces(L, mat, gravity, NULL);
         sq_level_integrate(L, dt, mask);
         return;
     }
-    forces_all(L, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt, mask);
+    forces_all(&L->model, L->d, L->v, L->f, L->acc, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt,
+               mask);
 }
 
 /* f_i -= sum_j A_ij (d_j + b v_j) for one row */
@@ -594,9 +573,9 @@ static void block_row_damped(const sq_level *L, const double *A, const double *d
                              int i, double out[3])
 {
     double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
         const double *B = A + 9 * (size_t)e;
-        const size_t j = 3 * (size_t)L->col[e];
+        const size_t j = 3 * (size_t)L->model.col[e];
         const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
         f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
         f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
@@ -611,9 +590,9 @@ static void block_row_damped(const sq_level *L, const double *A, const double *d
 static void block_row(const sq_level *L, const double *A, const double *w, int i, double out[3])
 {
     double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
+    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
         const double *B = A + 9 * (size_t)e;
-        const double *wj = w + 3 * (size_t)L->col[e];
+        const double *wj = w + 3 * (size_t)L->model.col[e];
         f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
         f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
         f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
@@ -626,28 +605,35 @@ static void block_row(const sq_level *L, const double *A, const double *w, int i
 void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
                      const unsigned char *active)
 {
-    const int n = L->n;
+    sq_level_forces_to(L, mat, gravity, active, L->f, L->acc);
+}
+
+void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
+                        const unsigned char *active, double *f_out, double *acc)
+{
+    const int n = L->model.n;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     const double a = mat->rayleigh_mass;
     const double *restrict d = L->d;
     const double *restrict v = L->v;
-    const double *restrict mass = L->mass;
-    double *restrict f = L->f;
+    const double *restrict mass = L->model.mass;
+    double *restrict f = f_out;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
     if (L->corot) { /* all nodes (a superset of the active ones) */
-        sq_level_corot_forces(L, mat, gravity);
+        sq_level_corot_forces(L, mat, gravity, f);
         return;
     }
     if (L->anp) {
-        sq_level_anp_forces(L, mat, gravity);
+        sq_level_anp_forces(L, mat, gravity, f);
         return;
     }
     if (!active) {
-        forces_all(L, b, a, gravity, 0, NULL);
-        if (L->D && mat->use_viscosity)
+        /* dt = 0: the pass writes f and acc only (d and v are read) */
+        forces_all(&L->model, (double *)d, (double *)v, f, acc, b, a, gravity, 0, NULL);
+        if (L->model.D && mat->use_viscosity)
             for (int i = 0; i < n; i++)
-                block_row(L, L->D, v, i, f + 3 * (size_t)i);
+                block_row(L, L->model.D, v, i, f + 3 * (size_t)i);
         return;
     }
     /* masked: full rows of K for the active nodes only; d + b v formed per neighbour, so the
@@ -661,41 +647,92 @@ void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3
         fi[1] = m * (g1 - a * v[3 * i + 1]);
         fi[2] = m * (g2 - a * v[3 * i + 2]);
         if (b != 0)
-            block_row_damped(L, L->K, d, v, b, i, fi);
+            block_row_damped(L, L->model.K, d, v, b, i, fi);
         else
-            block_row(L, L->K, d, i, fi);
-        if (L->D && mat->use_viscosity)
-            block_row(L, L->D, v, i, fi);
+            block_row(L, L->model.K, d, i, fi);
+        if (L->model.D && mat->use_viscosity)
+            block_row(L, L->model.D, v, i, fi);
     }
 }
 
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
 {
-    const int n = L->n;
+    const int n = L->model.n;
     double *restrict d = L->d;
     double *restrict v = L->v;
     const double *restrict f = L->f;
-    const double *restrict mass = L->mass;
-    const unsigned char *restrict fixed = L->fixed;
+    const double *restrict mass = L->model.mass;
+    const unsigned char *restrict fixed = L->model.fixed;
     for (int i = 0; i < n; i++) {
         if (active && !active[i])
             continue;
-        euler_node(v, d, i, dt / mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2], fixed[i]);
+        sq_level_euler_node(v, d, i, dt / mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2], fixed[i]);
     }
 }
 
 void sq_level_laplacian(const sq_level *L, int i, double out[3])
 {
     double s0 = 0, s1 = 0, s2 = 0;
-    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-        const double *dj = L->d + 3 * (size_t)L->col[e];
-        double w = L->lap[e];
+    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+        const double *dj = L->d + 3 * (size_t)L->model.col[e];
+        double w = L->model.lap[e];
         s0 += w * dj[0];
         s1 += w * dj[1];
         s2 += w * dj[2];
     }
-    double iv = L->vol[i] > 0 ? -1.0 / L->vol[i] : 0;
+    double iv = L->model.vol[i] > 0 ? -1.0 / L->model.vol[i] : 0;
     out[0] = s0 * iv;
     out[1] = s1 * iv;
     out[2] = s2 * iv;
+}
+
+double sq_level_residual(const sq_level_model *M, const double *f, const double g[3], const int *active,
+                         int nactive, const unsigned char *held)
+{
+    double gn = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+    double r = 0;
+    int na = active ? nactive : M->n;
+    for (int q = 0; q < na; q++) {
+        int i = active ? active[q] : q;
+        if (M->fixed[i] == 7 || (held && held[i]))
+            continue;
+        double s = 0;
+        for (int c = 0; c < 3; c++)
+            if (!(M->fixed[i] & (1u << c)))
+                s += f[3 * i + c] * f[3 * i + c];
+        s = sqrt(s) / (M->mass[i] * (gn > 0 ? gn : 1));
+        if (s > r)
+            r = s;
+    }
+    return r;
+}
+
+void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double from[3], double span)
+{
+    const unsigned fx = L->model.fixed[i];
+    for (int c = 0; c < 3; c++) {
+        if (fx & (1u << c))
+            continue; /* the constraint wins: the axis stays at rest */
+        L->v[3 * i + c] = span > 0 ? (goal[c] - from[c]) / span : 0.0; /* before d: from may be d */
+        L->d[3 * i + c] = goal[c];
+    }
+}
+
+/* 0.5 d.K d of level k (the corotational energy with corotational elasticity) */
+double sq_level_elastic_energy(const sq_level *L)
+{
+    if (L->corot)
+        return sq_level_corot_energy(L);
+    if (L->anp)
+        return sq_level_anp_energy(L);
+    double e = 0;
+    for (int i = 0; i < L->model.n; i++) {
+        const double *di = L->d + 3 * (size_t)i;
+        for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
+            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
+            for (int r = 0; r < 3; r++)
+                e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
+        }
+    }
+    return 0.5 * e;
 }

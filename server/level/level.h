@@ -58,7 +58,10 @@ typedef struct sq_constraint {
 typedef struct sq_corot sq_corot;
 typedef struct sq_anp sq_anp;
 
-typedef struct sq_level {
+/* the constant model of one level: rest mesh, topology, operator blocks, masses and constrained
+ * axes. Built by sq_level_init and rebuilt only by sq_level_set_material; the step, the force
+ * passes, the residual and the static solver only read it (const sq_level_model *). */
+typedef struct sq_level_model {
     const sq_mesh *mesh;   /* rest mesh (borrowed) */
     int n;                 /* nodes */
     int nnz;               /* CSR entries = mesh->adj_start[n] */
@@ -71,24 +74,31 @@ typedef struct sq_level {
     double *vol;           /* nodal volume sum_T V/4 (n), m^3 */
     double *hbar;          /* mean 1-ring edge length (n), m */
     unsigned char *fixed;  /* constrained axes per node, bits x=1 y=2 z=4 (n) */
-
-    double *d;             /* displacement (n x 3), m */
-    double *v;             /* velocity (n x 3), m/s */
-    double *f;             /* scratch: total force of the last force pass (n x 3), N */
-    double *w;             /* scratch (n x 3); unused by the passes, which form d + b v on the fly */
-    double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
     int nfree;             /* nodes with at least one unconstrained axis */
     /* the strict upper half of K (j > i) for the all-nodes force pass: K_ji = K_ij^T and
      * K_ii = -sum_{j != i} K_ij, so f = -K d needs only these blocks, applied to d_j - d_i */
     int *up_start;         /* CSR rows (n+1) */
     int *up_col;           /* columns j > i (up_start[n]) */
     double *Kup;           /* blocks (up_start[n] x 9) */
+} sq_level_model;
+
+/* one level: its constant model, its state (d, v), the scratch of the force passes and the
+ * step settings chosen for it */
+typedef struct sq_level {
+    sq_level_model model;  /* constant part (owned; read-only outside init/set_material) */
+
+    double *d;             /* state: displacement (n x 3), m */
+    double *v;             /* state: velocity (n x 3), m/s */
+    double *f;             /* scratch: total force of the last force pass (n x 3), N */
+    double *w;             /* scratch (n x 3); unused by the passes, which form d + b v on the fly */
+    double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
 
     double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
     double bound;          /* stability bound on the step with damping, s */
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
-    sq_corot *corot;       /* corotational elasticity state (level/corot.c), NULL: linear */
+    /* rest data and state of the optional element models (kept together: see docs/physics.md) */
+    sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
     sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
      * as the ceiling), its bound, and any integer number of substeps per frame */
@@ -97,6 +107,34 @@ typedef struct sq_level {
     int nsub;              /* substeps per frame */
     double dt_fixed;       /* frame_dt / nsub, s */
 } sq_level;
+
+/* health warnings (body/body.h counts them per kind; docs/physics.md "Health"): a kind and up
+ * to four values, the first of which is the one counted as "last value" */
+typedef enum sq_health_kind {
+    SQ_HEALTH_NONE = 0,
+    SQ_HEALTH_BLOWUP_NAN,       /* non-finite displacement or velocity; value: the node */
+    SQ_HEALTH_BLOWUP_STRETCH,   /* displacement beyond 10 bbox diagonals; value: |d|, m */
+    SQ_HEALTH_BLOWUP_SPEED,     /* kinetic energy above 0.5 M (10 diag / frame_dt)^2; value: J */
+    SQ_HEALTH_SLEEP,            /* calm long enough: the body sleeps; value: calm frames */
+    SQ_HEALTH_WAKE,             /* a tool touched a sleeping body (no sentence); value: holds */
+    SQ_HEALTH_BUDGET_COARSE,    /* adaptive: level 0 alone over budget; values: ms, nodes, steps, budget ms */
+    SQ_HEALTH_BUDGET_OVER,      /* adaptive: last frame over budget; values: ms, budget %, budget ms */
+    SQ_HEALTH_BUDGET_PREDICTED, /* adaptive: next frame predicted over; values: budget %, budget ms, updates */
+    SQ_HEALTH_NODE_CAP,         /* adaptive: node-update cap reached; value: the cap */
+    SQ_HEALTH_NKINDS
+} sq_health_kind;
+
+/* per-kind counter: how often, and the value and frame (1-based frame of the body) of the last */
+typedef struct sq_health_stat {
+    long count;
+    double last_value;
+    long last_frame;
+} sq_health_stat;
+
+/* short name of a kind ("blowup_nan", "sleep", ...: the keys of the stats reply) */
+const char *sq_health_kind_name(sq_health_kind k);
+/* the human sentence of a warning (empty for none and wake); body: the body's name */
+void sq_health_sentence(char *buf, size_t cap, sq_health_kind k, const double v[4], const char *body);
 
 /* a tool's hold on one node of the finest loaded level (the rendered surface's mesh):
  * the node's displacement is prescribed to `target` for this frame (paper section 5) */
@@ -134,6 +172,47 @@ double sq_level_lanczos_max(const sq_level *L, int iters);
 void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
                      const unsigned char *active);
 
+/* the same forces of L's state written to f (n x 3) instead of L->f, with acc an all-zero
+ * scratch of 3 n + 1 doubles (left all zero): L (model and state) is only read */
+void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
+                        const unsigned char *active, double *f, double *acc);
+
+/* residual force measure of forces f (n x 3) over the listed nodes (the list active of nactive
+ * nodes; all when NULL) that are not fully constrained and not held (held may be NULL: a held
+ * node's unbalanced force is the tool's reaction): max |f_i| on free axes / (m_i |g|), or / m_i
+ * if g = 0 */
+double sq_level_residual(const sq_level_model *M, const double *f, const double g[3], const int *active,
+                         int nactive, const unsigned char *held);
+
+/* symplectic Euler for node i: v += h f (h = dt / m_i), constrained axes (bits of fx) zeroed,
+ * d += dt v. The one update of every integrator (level step, lod lists); inline: hot path */
+static inline __attribute__((always_inline)) void sq_level_euler_node(double *restrict v, double *restrict d,
+                                                                     int i, double h, double dt, double f0,
+                                                                     double f1, double f2, unsigned fx)
+{
+    double v0 = v[3 * i] + h * f0, v1 = v[3 * i + 1] + h * f1, v2 = v[3 * i + 2] + h * f2;
+    if (fx) {
+        if (fx & 1u)
+            v0 = 0;
+        if (fx & 2u)
+            v1 = 0;
+        if (fx & 4u)
+            v2 = 0;
+    }
+    v[3 * i] = v0;
+    v[3 * i + 1] = v1;
+    v[3 * i + 2] = v2;
+    d[3 * i] += dt * v0;
+    d[3 * i + 1] += dt * v1;
+    d[3 * i + 2] += dt * v2;
+}
+
+/* a tool's hold on node i for one frame (fixed and adaptive modes alike): on every free axis
+ * the displacement is set to goal and the velocity to (goal - from) / span (0 if span <= 0);
+ * a constrained axis is left as it is, at zero: a constraint wins over a tool
+ * (docs/physics.md) */
+void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double from[3], double span);
+
 /* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
 
@@ -150,12 +229,12 @@ void sq_level_laplacian(const sq_level *L, int i, double out[3]);
 /* static equilibrium K d = M g with the level's constraints (constrained axes zero), by
  * Jacobi-preconditioned conjugate gradients to relative residual tol; d (n x 3) receives
  * the solution; -1 + err if CG breaks down or does not converge in max_iter */
-int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
+int sq_level_static_solve(const sq_level_model *M, const double gravity[3], double tol, int max_iter,
                           double *d, int *iterations, sq_err *err);
 
 /* the same static solve with average nodal pressure tets (volumetric strain averaged at the
  * nodes; docs/physics.md section 10); mat gives mu and lambda */
-int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
+int sq_level_static_solve_nodal_pressure(const sq_level_model *M, const sq_material *mat, const double gravity[3],
                                          double tol, int max_iter, double *d, int *iterations, sq_err *err);
 
 /* average nodal pressure tets (level/anp.c; fem operator, linear elasticity, fixed mode): with
@@ -163,7 +242,7 @@ int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *m
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
 void sq_level_anp_free(sq_level *L);
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
-void sq_level_anp_forces(sq_level *L, const sq_material *mat, const double g[3]);
+void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
 double sq_level_anp_energy(const sq_level *L);
 
 /* 0.5 d.K d of the level's current displacement (J) */
@@ -180,7 +259,7 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: cop
 void sq_level_corot_converge(sq_level *L);                     /* rotations converged to the current d */
 void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
                          const unsigned char *mask);
-void sq_level_corot_forces(sq_level *L, const sq_material *mat, const double g[3]);
+void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
 double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
 int sq_level_corot_inverted(const sq_level *L);

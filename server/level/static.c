@@ -10,18 +10,18 @@
 #include "level/level.h"
 
 /* y = K x on unconstrained axes (constrained components of x are taken as zero) */
-static void matvec(const sq_level *L, const void *ctx, const double *x, double *y)
+static void matvec(const sq_level_model *M, const void *ctx, const double *x, double *y)
 {
     (void)ctx;
-    for (int i = 0; i < L->n; i++) {
+    for (int i = 0; i < M->n; i++) {
         double s[3] = {0, 0, 0};
-        for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-            const double *B = L->K + 9 * (size_t)e, *xj = x + 3 * (size_t)L->col[e];
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+            const double *B = M->K + 9 * (size_t)e, *xj = x + 3 * (size_t)M->col[e];
             for (int r = 0; r < 3; r++)
                 s[r] += B[3 * r] * xj[0] + B[3 * r + 1] * xj[1] + B[3 * r + 2] * xj[2];
         }
         for (int r = 0; r < 3; r++)
-            y[3 * i + r] = (L->fixed[i] & (1u << r)) ? 0 : s[r];
+            y[3 * i + r] = (M->fixed[i] & (1u << r)) ? 0 : s[r];
     }
 }
 
@@ -33,24 +33,24 @@ static double dot(const double *a, const double *b, size_t n)
     return s;
 }
 
-typedef void (*op_fn)(const sq_level *L, const void *ctx, const double *x, double *y);
+typedef void (*op_fn)(const sq_level_model *M, const void *ctx, const double *x, double *y);
 
-static int cg_solve(const sq_level *L, op_fn op, const void *ctx, const double gravity[3], double tol,
+static int cg_solve(const sq_level_model *M, op_fn op, const void *ctx, const double gravity[3], double tol,
                     int max_iter, double *d, int *iterations, sq_err *err)
 {
-    size_t n3 = 3 * (size_t)L->n;
+    size_t n3 = 3 * (size_t)M->n;
     double *r = sq_malloc(sizeof(double) * n3), *z = sq_malloc(sizeof(double) * n3);
     double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
     double *pre = sq_malloc(sizeof(double) * n3);
     /* right-hand side M g on free axes; Jacobi preconditioner from the diagonal blocks */
-    for (int i = 0; i < L->n; i++) {
-        int e = L->row_start[i];
-        while (L->col[e] != i)
+    for (int i = 0; i < M->n; i++) {
+        int e = M->row_start[i];
+        while (M->col[e] != i)
             e++;
         for (int c = 0; c < 3; c++) {
-            int fx = (L->fixed[i] >> c) & 1;
-            r[3 * i + c] = fx ? 0 : L->mass[i] * gravity[c];
-            double kd = L->K[9 * (size_t)e + 4 * c];
+            int fx = (M->fixed[i] >> c) & 1;
+            r[3 * i + c] = fx ? 0 : M->mass[i] * gravity[c];
+            double kd = M->K[9 * (size_t)e + 4 * c];
             pre[3 * i + c] = fx || !(kd > 0) ? 0 : 1.0 / kd;
         }
     }
@@ -65,12 +65,12 @@ static int cg_solve(const sq_level *L, op_fn op, const void *ctx, const double g
         for (it = 0; it < max_iter; it++) {
             if (sqrt(dot(r, r, n3)) <= tol * bnorm)
                 break;
-            op(L, ctx, p, q);
+            op(M, ctx, p, q);
             double pq = dot(p, q, n3);
             if (!(pq > 0)) {
                 rc = sq_err_set(err, "%s: conjugate gradients broke down (p.Kp = %g at iteration %d): "
                                      "the operator is not positive definite on the free axes; add constraints",
-                                L->mesh->source, pq, it);
+                                M->mesh->source, pq, it);
                 break;
             }
             double alpha = rz / pq;
@@ -88,7 +88,7 @@ static int cg_solve(const sq_level *L, op_fn op, const void *ctx, const double g
         }
         if (rc == 0 && it >= max_iter)
             rc = sq_err_set(err, "%s: conjugate gradients did not reach relative residual %g in %d iterations "
-                                 "(now %g)", L->mesh->source, tol, max_iter, sqrt(dot(r, r, n3)) / bnorm);
+                                 "(now %g)", M->mesh->source, tol, max_iter, sqrt(dot(r, r, n3)) / bnorm);
     }
     if (iterations)
         *iterations = it;
@@ -100,10 +100,10 @@ static int cg_solve(const sq_level *L, op_fn op, const void *ctx, const double g
     return rc;
 }
 
-int sq_level_static_solve(const sq_level *L, const double gravity[3], double tol, int max_iter,
+int sq_level_static_solve(const sq_level_model *M, const double gravity[3], double tol, int max_iter,
                           double *d, int *iterations, sq_err *err)
 {
-    return cg_solve(L, matvec, NULL, gravity, tol, max_iter, d, iterations, err);
+    return cg_solve(M, matvec, NULL, gravity, tol, max_iter, d, iterations, err);
 }
 
 /* ---- average nodal pressure tets (static solve; the step is level/anp.c) --------------------
@@ -117,34 +117,34 @@ typedef struct {
     double *theta; /* scratch, n */
 } anp_ctx;
 
-static void anp_matvec(const sq_level *L, const void *vctx, const double *x, double *y)
+static void anp_matvec(const sq_level_model *M, const void *vctx, const double *x, double *y)
 {
     const anp_ctx *c = vctx;
-    const sq_mesh *m = L->mesh;
+    const sq_mesh *m = M->mesh;
     const double mu = c->mat->mu, kappa = c->mat->lambda + 2.0 * c->mat->mu / 3.0;
-    memset(c->theta, 0, sizeof(double) * (size_t)L->n);
-    memset(y, 0, sizeof(double) * 3 * (size_t)L->n);
+    memset(c->theta, 0, sizeof(double) * (size_t)M->n);
+    memset(y, 0, sizeof(double) * 3 * (size_t)M->n);
     for (int t = 0; t < m->ntets; t++) {
         const double *a = c->grad + 13 * (size_t)t;
         double th = 0;
         for (int k = 0; k < 4; k++) {
             int i = m->tets[4 * t + k];
             for (int r = 0; r < 3; r++)
-                if (!(L->fixed[i] & (1u << r)))
+                if (!(M->fixed[i] & (1u << r)))
                     th += a[3 * k + r] * x[3 * i + r];
         }
         for (int k = 0; k < 4; k++)
             c->theta[m->tets[4 * t + k]] += a[12] / 4 * th;
     }
-    for (int i = 0; i < L->n; i++)
-        c->theta[i] /= L->vol[i];
+    for (int i = 0; i < M->n; i++)
+        c->theta[i] /= M->vol[i];
     for (int t = 0; t < m->ntets; t++) {
         const double *a = c->grad + 13 * (size_t)t;
         const int *tv = m->tets + 4 * t;
         double G[9] = {0};
         for (int k = 0; k < 4; k++)
             for (int r = 0; r < 3; r++) {
-                double u = (L->fixed[tv[k]] & (1u << r)) ? 0 : x[3 * tv[k] + r];
+                double u = (M->fixed[tv[k]] & (1u << r)) ? 0 : x[3 * tv[k] + r];
                 for (int cc = 0; cc < 3; cc++)
                     G[3 * r + cc] += u * a[3 * k + cc];
             }
@@ -161,17 +161,17 @@ static void anp_matvec(const sq_level *L, const void *vctx, const double *x, dou
                 y[3 * tv[k] + r] += a[12] * (sig[3 * r] * a[3 * k] + sig[3 * r + 1] * a[3 * k + 1] +
                                              sig[3 * r + 2] * a[3 * k + 2]);
     }
-    for (int i = 0; i < L->n; i++)
+    for (int i = 0; i < M->n; i++)
         for (int r = 0; r < 3; r++)
-            if (L->fixed[i] & (1u << r))
+            if (M->fixed[i] & (1u << r))
                 y[3 * i + r] = 0;
 }
 
-int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *mat, const double gravity[3],
+int sq_level_static_solve_nodal_pressure(const sq_level_model *M, const sq_material *mat, const double gravity[3],
                                          double tol, int max_iter, double *d, int *iterations, sq_err *err)
 {
-    const sq_mesh *m = L->mesh;
-    anp_ctx c = {mat, sq_malloc(sizeof(double) * 13 * (size_t)m->ntets), sq_malloc(sizeof(double) * (size_t)L->n)};
+    const sq_mesh *m = M->mesh;
+    anp_ctx c = {mat, sq_malloc(sizeof(double) * 13 * (size_t)m->ntets), sq_malloc(sizeof(double) * (size_t)M->n)};
     for (int t = 0; t < m->ntets; t++) {
         double a[4][3];
         double V = sq_tet_gradients(m, t, a);
@@ -180,7 +180,7 @@ int sq_level_static_solve_nodal_pressure(const sq_level *L, const sq_material *m
                 c.grad[13 * (size_t)t + 3 * k + r] = a[k][r];
         c.grad[13 * (size_t)t + 12] = V;
     }
-    int rc = cg_solve(L, anp_matvec, &c, gravity, tol, max_iter, d, iterations, err);
+    int rc = cg_solve(M, anp_matvec, &c, gravity, tol, max_iter, d, iterations, err);
     free(c.grad);
     free(c.theta);
     return rc;

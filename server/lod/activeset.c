@@ -91,7 +91,7 @@ static void need_node(sq_lod *lod, int k, int j)
     while (k >= 1 && lod->state[k][j] == ST_COARSE && !lod->inneed[k][j]) {
         lod->inneed[k][j] = 1;
         lod->need[k][lod->nneed[k]++] = j;
-        const int *tn = lod->lv[k - 1].mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
+        const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
         for (int q = 0; q < 3; q++)
             need_node(lod, k - 1, tn[q]);
         j = tn[3];
@@ -102,7 +102,7 @@ static void need_node(sq_lod *lod, int k, int j)
 /* corners of tet t of level m into the needed set */
 static void need_tet(sq_lod *lod, int m, int t)
 {
-    const int *tn = lod->lv[m].mesh->tets + 4 * t;
+    const int *tn = lod->lv[m].model.mesh->tets + 4 * t;
     for (int q = 0; q < 4; q++)
         need_node(lod, m, tn[q]);
 }
@@ -129,7 +129,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
         }
     }
     for (int m = 0; m < L; m++) {
-        sort_marked(lod->plist[m], lod->nplist[m], lod->mark[m], lod->lv[m].n);
+        sort_marked(lod->plist[m], lod->nplist[m], lod->mark[m], lod->lv[m].model.n);
         for (int r = 0; r < lod->nplist[m]; r++)
             lod->mark[m][lod->plist[m][r]] = 0;
     }
@@ -140,7 +140,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             lod->inneed[k][lod->need[k][r]] = 0;
         lod->nneed[k] = 0;
     }
-    const sq_mesh *fm = lod->lv[F].mesh;
+    const sq_mesh *fm = lod->lv[F].model.mesh;
     for (int s = 0; s < fm->nsurf; s++)
         need_node(lod, F, fm->surf_nodes[s]); /* the rendered surface, tool holds */
     for (int k = 0; k < L; k++)
@@ -158,8 +158,8 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             if (ln->child_start[i + 1] == ln->child_start[i]) {
                 /* a childless split node is judged on its own field: its neighbours */
                 const sq_level *Lk = &lod->lv[k];
-                for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++)
-                    need_node(lod, k, Lk->col[q]);
+                for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++)
+                    need_node(lod, k, Lk->model.col[q]);
             }
         }
         if (k < lod->top)
@@ -171,7 +171,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             }
     }
     for (int k = 0; k < L; k++)
-        sort_marked(lod->need[k], lod->nneed[k], lod->inneed[k], lod->lv[k].n);
+        sort_marked(lod->need[k], lod->nneed[k], lod->inneed[k], lod->lv[k].model.n);
     lod->lists_dirty = 0;
 }
 
@@ -180,9 +180,9 @@ static inline void row_damped(const sq_level *L, const double *restrict d, const
                               int i, double *out)
 {
     double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-        const double *B = L->K + 9 * (size_t)e;
-        const size_t j = 3 * (size_t)L->col[e];
+    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+        const double *B = L->model.K + 9 * (size_t)e;
+        const size_t j = 3 * (size_t)L->model.col[e];
         const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
         f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
         f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
@@ -197,9 +197,9 @@ static inline void row_damped(const sq_level *L, const double *restrict d, const
 static inline void row_plain(const sq_level *L, const double *restrict d, int i, double *out)
 {
     double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-        const double *B = L->K + 9 * (size_t)e;
-        const double *wj = d + 3 * (size_t)L->col[e];
+    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+        const double *B = L->model.K + 9 * (size_t)e;
+        const double *wj = d + 3 * (size_t)L->model.col[e];
         f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
         f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
         f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
@@ -221,7 +221,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     for (int r = 0; r < lod->nilist[k]; r++) {
         int i = il[r];
         double *fi = L->f + 3 * (size_t)i;
-        double m = L->mass[i];
+        double m = L->model.mass[i];
         fi[0] = m * (g0 - a * v[3 * i]);
         fi[1] = m * (g1 - a * v[3 * i + 1]);
         fi[2] = m * (g2 - a * v[3 * i + 2]);
@@ -232,7 +232,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
 }
 
-/* symplectic Euler of the listed nodes (level/level.c euler_node, same operations) */
+/* symplectic Euler of the listed nodes (sq_level_euler_node, as the level step) */
 void sq_lodx_integrate(sq_lod *lod, int k, double dt)
 {
     sq_level *L = &lod->lv[k];
@@ -241,24 +241,8 @@ void sq_lodx_integrate(sq_lod *lod, int k, double dt)
     const int *ml = lod->mlist[k];
     for (int r = 0; r < lod->nmlist[k]; r++) {
         int i = ml[r];
-        double h = dt / L->mass[i];
-        double v0 = v[3 * i] + h * f[3 * i], v1 = v[3 * i + 1] + h * f[3 * i + 1],
-               v2 = v[3 * i + 2] + h * f[3 * i + 2];
-        unsigned fx = L->fixed[i];
-        if (fx) {
-            if (fx & 1u)
-                v0 = 0;
-            if (fx & 2u)
-                v1 = 0;
-            if (fx & 4u)
-                v2 = 0;
-        }
-        v[3 * i] = v0;
-        v[3 * i + 1] = v1;
-        v[3 * i + 2] = v2;
-        d[3 * i] += dt * v0;
-        d[3 * i + 1] += dt * v1;
-        d[3 * i + 2] += dt * v2;
+        sq_level_euler_node(v, d, i, dt / L->model.mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2],
+                            L->model.fixed[i]);
     }
 }
 
@@ -333,7 +317,7 @@ void sq_lod_flush(sq_lod *lod)
             int j = lod->gc[k][r];
             if (lod->pstamp[k][j] == lod->cascade_no)
                 continue;
-            const int *tn = src->mesh->tets + 4 * ln->up_tet[j];
+            const int *tn = src->model.mesh->tets + 4 * ln->up_tet[j];
             const double *b = ln->up_bary + 4 * j;
             double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
             for (int m = 0; m < 4; m++) {
@@ -347,7 +331,7 @@ void sq_lod_flush(sq_lod *lod)
                     v[a] += b[m] * sv[a];
                 }
             }
-            unsigned char fx = dst->fixed[j];
+            unsigned char fx = dst->model.fixed[j];
             for (int a = 0; a < 3; a++) {
                 int free_axis = !(fx & (1u << a));
                 dst->d[3 * j + a] = free_axis ? d[a] : 0.0;
@@ -370,7 +354,7 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
         return;
     }
     const sq_lod_link *ln = &lod->h.link[k - 1];
-    const int *tn = lod->lv[k - 1].mesh->tets + 4 * ln->up_tet[j];
+    const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * ln->up_tet[j];
     const double *b = ln->up_bary + 4 * j;
     double sd[4][3], sv[4][3];
     for (int m = 0; m < 4; m++)
@@ -381,7 +365,7 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
             dd[a] += b[m] * sd[m][a];
             vv[a] += b[m] * sv[m][a];
         }
-    unsigned char fx = Lk->fixed[j];
+    unsigned char fx = Lk->model.fixed[j];
     for (int a = 0; a < 3; a++) {
         int free_axis = !(fx & (1u << a));
         d[a] = free_axis ? dd[a] : 0.0;
@@ -392,7 +376,7 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
 void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, const double *b)
 {
     const sq_level *src = &lod->lv[src_level];
-    const int *tn = src->mesh->tets + 4 * t;
+    const int *tn = src->model.mesh->tets + 4 * t;
     double sd[4][3], sv[4][3];
     for (int m = 0; m < 4; m++)
         sq_lodx_value(lod, src_level, tn[m], sd[m], sv[m]);
@@ -402,7 +386,7 @@ void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, con
             d[a] += b[m] * sd[m][a];
             v[a] += b[m] * sv[m][a];
         }
-    unsigned char fx = dst->fixed[i];
+    unsigned char fx = dst->model.fixed[i];
     for (int a = 0; a < 3; a++) {
         int free_axis = !(fx & (1u << a));
         dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
@@ -432,13 +416,13 @@ void sq_lodx_free(sq_lod *lod, int k)
  * body with no support has no equilibrium) is judged from zero displacement, as before. */
 void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
 {
-    if (lod->stat_done && lod->stat_k == lod->lv[0].K && !memcmp(lod->stat_g, gravity, sizeof lod->stat_g) &&
+    if (lod->stat_done && lod->stat_k == lod->lv[0].model.K && !memcmp(lod->stat_g, gravity, sizeof lod->stat_g) &&
         lod->stat_top == lod->top && (!lod->have_mat || !memcmp(&lod->stat_mat, &lod->mat, sizeof lod->mat)))
         return;
     lod->stat_done = 1;
     lod->stat_top = lod->top;
     lod->stat_mat = lod->mat;
-    lod->stat_k = lod->lv[0].K;
+    lod->stat_k = lod->lv[0].model.K;
     memcpy(lod->stat_g, gravity, sizeof lod->stat_g);
     int loaded = gravity[0] != 0 || gravity[1] != 0 || gravity[2] != 0;
     for (int k = 0; k < lod->L; k++) {
@@ -447,10 +431,10 @@ void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
         if (!loaded || k > lod->top)
             continue;
         const sq_level *Lk = &lod->lv[k];
-        double *d = sq_malloc(sizeof(double) * 3 * (size_t)SQ_MAX(Lk->n, 1));
+        double *d = sq_malloc(sizeof(double) * 3 * (size_t)SQ_MAX(Lk->model.n, 1));
         sq_err err = {{0}};
         int it = 0;
-        if (sq_level_static_solve(Lk, gravity, 1e-8, 20 * Lk->n + 1000, d, &it, &err) == 0)
+        if (sq_level_static_solve(&Lk->model, gravity, 1e-8, 20 * Lk->model.n + 1000, d, &it, &err) == 0)
             lod->dstat[k] = d;
         else
             free(d);

@@ -45,7 +45,7 @@ static int sub_log2(const sq_lod *lod, int k)
 /* recompute the active mask, the ghost lists and the integration mask of level k */
 static void rebuild_level(sq_lod *lod, int k)
 {
-    int n = lod->lv[k].n;
+    int n = lod->lv[k].model.n;
     int na = 0, nf = 0, nc = 0;
     for (int i = 0; i < n; i++) {
         unsigned char s = lod->state[k][i];
@@ -71,8 +71,8 @@ static void rebuild_level(sq_lod *lod, int k)
     int nr = 0, nfr = 0;
     for (int a = 0; a < na; a++) {
         int i = lod->alist[k][a], front = 0;
-        for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
-            int j = Lk->col[q];
+        for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++) {
+            int j = Lk->model.col[q];
             if (act[j])
                 continue;
             front = 1;
@@ -116,7 +116,7 @@ static void set_uniform_level(sq_lod *lod, int s)
 {
     for (int k = 0; k < lod->L; k++) {
         unsigned char st = k < s ? ST_SPLIT : (k == s ? ST_ACTIVE : ST_COARSE);
-        memset(lod->state[k], st, (size_t)lod->lv[k].n);
+        memset(lod->state[k], st, (size_t)lod->lv[k].model.n);
     }
     for (int k = 0; k < lod->L; k++)
         rebuild_level(lod, k);
@@ -189,7 +189,7 @@ void sq_lod_sync(sq_lod *lod)
     for (int k = 0; k < lod->L; k++) {
         lod->step_t0[k] = -1;
         lod->step_len[k] = 1;
-        size_t n3 = 3 * (size_t)lod->lv[k].n;
+        size_t n3 = 3 * (size_t)lod->lv[k].model.n;
         memcpy(lod->dprev[k], lod->lv[k].d, n3 * sizeof(double));
         memcpy(lod->vprev[k], lod->lv[k].v, n3 * sizeof(double));
     }
@@ -375,7 +375,7 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
 static void drop_tet_blocks(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        for (int t = 0; t < lod->lv[k].mesh->ntets && lod->ke_n[k] > 0; t++)
+        for (int t = 0; t < lod->lv[k].model.mesh->ntets && lod->ke_n[k] > 0; t++)
             lod->ke_slot[k][t] = -1;
         lod->ke_n[k] = 0;
     }
@@ -386,7 +386,7 @@ static void drop_tet_blocks(sq_lod *lod)
 static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight, double *restrict B,
                               double *restrict Bd)
 {
-    const sq_mesh *m = lod->lv[k].mesh;
+    const sq_mesh *m = lod->lv[k].model.mesh;
     const unsigned char *act = lod->active[k];
     int visc = Bd != NULL;
     for (int c = c0; c < c1; c++) {
@@ -409,14 +409,14 @@ static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight,
 static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
 {
     const sq_level *L = &lod->lv[0];
-    const sq_mesh *m = L->mesh;
+    const sq_mesh *m = L->model.mesh;
     /* a boundary node: the two operators differ there */
     int i = 0;
     while (i < m->nnodes && !m->on_boundary[i])
         i++;
     if (i == m->nnodes)
         return SQ_OPERATOR_FEM;
-    int n = L->row_start[i + 1] - L->row_start[i];
+    int n = L->model.row_start[i + 1] - L->model.row_start[i];
     double *row[2];
     double err[2] = {0, 0};
     for (int o = 0; o < 2; o++) {
@@ -429,12 +429,12 @@ static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
             while (m->tets[4 * t + p] != i)
                 p++;
             for (int q = 0; q < 4; q++) {
-                int e = adj_find(m, i, m->tets[4 * t + q]) - L->row_start[i];
+                int e = adj_find(m, i, m->tets[4 * t + q]) - L->model.row_start[i];
                 add_block((sq_operator_kind)o, V, a[p], a[q], mat->mu, mat->lambda, row[o] + 9 * e);
             }
         }
         for (int e = 0; e < 9 * n; e++)
-            err[o] += fabs(row[o][e] - L->K[9 * L->row_start[i] + e]);
+            err[o] += fabs(row[o][e] - L->model.K[9 * L->model.row_start[i] + e]);
         free(row[o]);
     }
     return err[SQ_OPERATOR_PAPER] < err[SQ_OPERATOR_FEM] ? SQ_OPERATOR_PAPER : SQ_OPERATOR_FEM;
@@ -447,11 +447,11 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
 {
     const sq_level *L = &lod->lv[k];
     const sq_material *mat = &lod->mat;
-    int visc = mat->use_viscosity && L->D;
+    int visc = mat->use_viscosity && L->model.D;
     int total = 0;
     for (int r = 0; r < nn; r++) {
         off[r] = total;
-        total += L->row_start[nodes[r] + 1] - L->row_start[nodes[r]];
+        total += L->model.row_start[nodes[r] + 1] - L->model.row_start[nodes[r]];
     }
     off[nn] = total;
     if (total > *bk_cap) {
@@ -481,7 +481,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
     for (int r = 0; r < nn; r++) {
         int j = nodes[r], start = off[r];
         off[r] = w;
-        for (int q = L->row_start[j], e = 0; q < L->row_start[j + 1]; q++, e++) {
+        for (int q = L->model.row_start[j], e = 0; q < L->model.row_start[j + 1]; q++, e++) {
             const double *B = *bk + 9 * (size_t)(start + e);
             int nz = 0;
             for (int c = 0; c < 9 && !nz; c++)
@@ -494,7 +494,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
             if (visc)
                 for (int x = 0; x < 9; x++)
                     (*bd)[9 * (size_t)w + x] = (*bd)[9 * (size_t)(start + e) + x];
-            col[w++] = L->col[q];
+            col[w++] = L->model.col[q];
         }
     }
     off[nn] = w;
@@ -514,7 +514,7 @@ static void build_ring_blocks(sq_lod *lod, int k)
     int total = 0;
     for (int r = 0; r < lod->nfront[k]; r++) {
         int i = lod->front[k][r];
-        total += L->row_start[i + 1] - L->row_start[i];
+        total += L->model.row_start[i + 1] - L->model.row_start[i];
     }
     if (total > lod->fm_cap[k]) {
         lod->fm_cap[k] = SQ_MAX(total, 2 * lod->fm_cap[k]);
@@ -522,10 +522,10 @@ static void build_ring_blocks(sq_lod *lod, int k)
     }
     double *M = lod->fm[k];
     for (int r = 0; r < lod->nfront[k]; r++) {
-        int i = lod->front[k][r], q0 = L->row_start[i], len = L->row_start[i + 1] - q0;
-        memcpy(M, L->K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
+        int i = lod->front[k][r], q0 = L->model.row_start[i], len = L->model.row_start[i + 1] - q0;
+        memcpy(M, L->model.K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
         for (int e = lod->fk_off[k][r]; e < lod->fk_off[k][r + 1]; e++) {
-            int pos = adj_find(L->mesh, i, lod->fk_col[k][e]) - q0;
+            int pos = adj_find(L->model.mesh, i, lod->fk_col[k][e]) - q0;
             for (int x = 0; x < 9; x++)
                 M[9 * pos + x] -= lod->fk[k][9 * (size_t)e + x];
         }
@@ -572,14 +572,14 @@ static void front_rows(sq_lod *lod, const sq_material *mat, const double gravity
     for (int r = 0; r < lod->nfront[k]; r++) {
         int i = lod->front[k][r];
         double f0 = 0, f1 = 0, f2 = 0;
-        for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++, M += 9) {
-            const size_t j = 3 * (size_t)L->col[q];
+        for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++, M += 9) {
+            const size_t j = 3 * (size_t)L->model.col[q];
             const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
             f0 += M[0] * w0 + M[1] * w1 + M[2] * w2;
             f1 += M[3] * w0 + M[4] * w1 + M[5] * w2;
             f2 += M[6] * w0 + M[7] * w1 + M[8] * w2;
         }
-        double m = L->mass[i], *fi = L->f + 3 * (size_t)i;
+        double m = L->model.mass[i], *fi = L->f + 3 * (size_t)i;
         fi[0] = m * (gravity[0] - a * v[3 * i]) - f0;
         fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - f1;
         fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - f2;
@@ -604,17 +604,17 @@ static void own_rows(sq_lod *lod)
     for (int k = 0; k < lod->L; k++) {
         const sq_level *L = &lod->lv[k];
         if (!lod->rowk[k])
-            lod->rowk[k] = sq_malloc(sizeof(double) * (size_t)L->n);
-        for (int i = 0; i < L->n; i++) {
+            lod->rowk[k] = sq_malloc(sizeof(double) * (size_t)L->model.n);
+        for (int i = 0; i < L->model.n; i++) {
             double s = 0;
-            for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++)
-                s += block_norm(L->K + 9 * (size_t)q);
+            for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++)
+                s += block_norm(L->model.K + 9 * (size_t)q);
             lod->rowk[k][i] = s;
         }
         double own = 0;
-        for (int i = 0; i < L->n; i++)
-            if (L->fixed[i] != 7)
-                own = fmax(own, lod->rowk[k][i] / L->mass[i]);
+        for (int i = 0; i < L->model.n; i++)
+            if (L->model.fixed[i] != 7)
+                own = fmax(own, lod->rowk[k][i] / L->model.mass[i]);
         lod->own_max[k] = own;
     }
 }
@@ -629,8 +629,8 @@ static void coupling_bound(sq_lod *lod)
     int L = lod->L;
     for (int k = 0; k < L; k++) {
         if (!lod->cpl[k])
-            lod->cpl[k] = sq_malloc(sizeof(double) * (size_t)lod->lv[k].n);
-        memset(lod->cpl[k], 0, sizeof(double) * (size_t)lod->lv[k].n);
+            lod->cpl[k] = sq_malloc(sizeof(double) * (size_t)lod->lv[k].model.n);
+        memset(lod->cpl[k], 0, sizeof(double) * (size_t)lod->lv[k].model.n);
     }
     for (int m = 0; m < L; m++) {
         for (int r = 0; r < lod->nring[m]; r++) {
@@ -659,9 +659,9 @@ static void coupling_bound(sq_lod *lod)
         double own = lod->own_max[k], coupled = 0;
         for (int a = 0; a < lod->nactive[k]; a++) {
             int i = lod->alist[k][a];
-            if (Lk->fixed[i] == 7)
+            if (Lk->model.fixed[i] == 7)
                 continue;
-            coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
+            coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->model.mass[i]);
         }
         int extra = 0;
         if (own > 0 && coupled > own)
@@ -673,10 +673,10 @@ static void coupling_bound(sq_lod *lod)
 static void update_ring_blocks(sq_lod *lod, const sq_material *mat)
 {
     int changed = 0;
-    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].K != lod->k_seen)) {
+    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->k_seen)) {
         lod->mat = *mat;
         lod->have_mat = 1;
-        lod->k_seen = lod->lv[0].K;
+        lod->k_seen = lod->lv[0].model.K;
         lod->op = infer_op(lod, mat);
         drop_tet_blocks(lod);
         own_rows(lod);
@@ -748,8 +748,8 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         return NULL;
     const sq_mesh *meshes[SQ_MAX_LEVELS];
     for (int k = 0; k < nlevels; k++) {
-        meshes[k] = levels[k].mesh;
-        if (!meshes[k] || levels[k].n != meshes[k]->nnodes) {
+        meshes[k] = levels[k].model.mesh;
+        if (!meshes[k] || levels[k].model.n != meshes[k]->nnodes) {
             sq_err_set(err, "lod: level %d has no mesh or a node count that does not match it", k);
             return NULL;
         }
@@ -766,7 +766,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
     }
     size_t nmax_nodes = 1;
     for (int k = 0; k < nlevels; k++) {
-        size_t n = (size_t)levels[k].n;
+        size_t n = (size_t)levels[k].model.n;
         lod->state[k] = sq_calloc(n, 1);
         lod->active[k] = sq_calloc(n, 1);
         lod->mask[k] = sq_calloc(n, 1);
@@ -783,7 +783,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->gf[k] = sq_malloc(sizeof(int) * n);
         lod->gc[k] = sq_malloc(sizeof(int) * n);
         lod->slot[k] = sq_malloc(sizeof(int) * n);
-        lod->clap[k] = criterion_weights(levels[k].mesh);
+        lod->clap[k] = criterion_weights(levels[k].model.mesh);
         lod->ring[k] = sq_malloc(sizeof(int) * n);
         lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
         lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
@@ -796,9 +796,9 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->front[k] = sq_malloc(sizeof(int) * n);
         lod->inner[k] = sq_calloc(n, 1);
         lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
-        node_tets(levels[k].mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
+        node_tets(levels[k].model.mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
         {
-            const sq_mesh *mm = levels[k].mesh;
+            const sq_mesh *mm = levels[k].model.mesh;
             int ninc = lod->node_tet_start[k][n];
             lod->ke_slot[k] = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
             for (int t = 0; t < mm->ntets; t++)
@@ -816,7 +816,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
                         lod->nt_e[k][4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
                 }
         }
-        const sq_mesh *mk = levels[k].mesh;
+        const sq_mesh *mk = levels[k].model.mesh;
         lod->tet_geom[k] = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
         for (int t = 0; t < mk->ntets; t++) {
             double a[4][3];
@@ -903,7 +903,7 @@ int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err)
     } else if (lod->top < old_top) {
         /* levels above the new top: merge their regions back down to it */
         for (int k = lod->top; k < lod->L; k++)
-            for (int i = 0; i < lod->lv[k].n; i++)
+            for (int i = 0; i < lod->lv[k].model.n; i++)
                 if (k == lod->top && lod->state[k][i] == ST_SPLIT)
                     lod->state[k][i] = ST_ACTIVE;
                 else if (k > lod->top)
@@ -965,8 +965,8 @@ static double delta_at(const sq_lod *lod, int k, int i)
     const unsigned *ps = lod->pstamp[k];
     int all_valid = lod->full_no == lod->cascade_no;
     const double *ds = lod->dstat[k];
-    for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++) {
-        int j = L->col[q];
+    for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
+        int j = L->model.col[q];
         const double *dj = L->d + 3 * j;
         double fresh[3], fv[3];
         if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->cascade_no) {
@@ -988,13 +988,13 @@ static double delta_at(const sq_lod *lod, int k, int i)
         s[1] += w[q] * dj[1];
         s[2] += w[q] * dj[2];
     }
-    double h2 = L->hbar[i] * L->hbar[i];
-    return h2 / L->vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+    double h2 = L->model.hbar[i] * L->model.hbar[i];
+    return h2 / L->model.vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
 }
 
 double sq_lod_delta(const sq_lod *lod, int level, int node)
 {
-    if (level < 0 || level >= lod->L || node < 0 || node >= lod->lv[level].n)
+    if (level < 0 || level >= lod->L || node < 0 || node >= lod->lv[level].model.n)
         return 0;
     sq_lod_flush((sq_lod *)lod); /* ghost values pushed on demand are part of the state */
     return delta_at(lod, level, node);
@@ -1038,7 +1038,7 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
 
     /* splits: active nodes of level k above the threshold */
     if (def->split < INFINITY) {
-        for (int i = 0; i < Lk->n; i++) {
+        for (int i = 0; i < Lk->model.n; i++) {
             if (lod->state[k][i] != ST_ACTIVE)
                 continue;
             if (!forced && !(delta_at(lod, k, i) > def->split))
@@ -1067,7 +1067,7 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
 
     /* merges: split nodes of level k whose children are all active and calm */
     if (!forced) {
-        for (int p = 0; p < Lk->n; p++) {
+        for (int p = 0; p < Lk->model.n; p++) {
             if (lod->state[k][p] != ST_SPLIT || lod->fresh[k][p])
                 continue;
             int ok = 1;
@@ -1094,7 +1094,7 @@ static void adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ada
             changed = 1;
         }
     }
-    for (int i = 0; i < Lk->n; i++)
+    for (int i = 0; i < Lk->model.n; i++)
         lod->fresh[k][i] = 0;
     if (changed) {
         out->changed[k] = out->changed[k + 1] = 1;
@@ -1110,7 +1110,7 @@ static void enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
     for (int k = lod->top - 1; k >= 0 && *projected > cap; k--) {
         const sq_lod_link *ln = &lod->h.link[k];
         long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
-        for (int p = 0; p < lod->lv[k].n && *projected > cap; p++) {
+        for (int p = 0; p < lod->lv[k].model.n && *projected > cap; p++) {
             if (lod->state[k][p] != ST_SPLIT)
                 continue;
             int ok = 1;
@@ -1193,13 +1193,14 @@ static void start_holds(sq_lod *lod, double T)
         E->pending = 0;
         sq_level *Lk = &lod->lv[E->level];
         double span = T - E->t_from;
-        unsigned char fx = Lk->fixed[E->node];
+        unsigned char fx = Lk->model.fixed[E->node];
+        double goal[3];
+        for (int c = 0; c < 3; c++)
+            goal[c] = E->gsum[c] / E->count;
+        sq_level_apply_hold(Lk, E->node, goal, E->from, span); /* constrained axes stay at rest */
         for (int c = 0; c < 3; c++) {
             if (fx & (1u << c))
                 continue;
-            double goal = E->gsum[c] / E->count;
-            Lk->d[3 * E->node + c] = goal;
-            Lk->v[3 * E->node + c] = span > 0 ? (goal - E->from[c]) / span : 0.0;
             lod->dprev[E->level][3 * E->node + c] = Lk->d[3 * E->node + c];
             lod->vprev[E->level][3 * E->node + c] = Lk->v[3 * E->node + c];
         }
@@ -1278,7 +1279,7 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_i
         t = lod->h.link[lev].down_tet[j];
         b = lod->h.link[lev].down_bary + 4 * j;
     }
-    const int *tn = lod->lv[m].mesh->tets + 4 * t;
+    const int *tn = lod->lv[m].model.mesh->tets + 4 * t;
     for (int q = 0; q < 4; q++)
         if (b[q] != 0)
             expand(lod, m, tn[q], w * b[q], depth + 1, buf, n, cap);
@@ -1410,7 +1411,7 @@ static void eval_ring(sq_lod *lod, int k, long t)
                 }
             }
         }
-        unsigned char fx = Lk->fixed[j];
+        unsigned char fx = Lk->model.fixed[j];
         for (int c = 0; c < 3; c++) {
             int free_axis = !(fx & (1u << c));
             Lk->d[3 * j + c] = free_axis ? d[c] : 0.0;
@@ -1490,7 +1491,7 @@ static void couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             continue;
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
-        unsigned char fx = Lk->fixed[j];
+        unsigned char fx = Lk->model.fixed[j];
         for (int c = 0; c < 3; c++)
             if (fx & (1u << c))
                 g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
@@ -1548,7 +1549,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         else
             cap_guard = 0;
         /* the cheapest layout: every region at level 0 */
-        coarse_ms = 1e3 * lod->cost_update * (double)((long)lod->lv[0].nfree << sub_log2(lod, 0));
+        coarse_ms = 1e3 * lod->cost_update * (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0));
     }
     /* coupling blocks and the substeps they need (which may push the cost over the cap:
      * merge first then), then the substep clock of the finest step */
@@ -1581,11 +1582,11 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
     for (int k = 0; k < L; k++) {
         lod->nmask[k] = lod->nactive[k];
-        memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].n);
+        memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].model.n);
     }
     for (int h = 0; h < nholds; h++) {
         lod->hold_entry_of[h] = -1;
-        if (holds[h].node < 0 || holds[h].node >= lod->lv[F].n || holds[h].tool < 0 ||
+        if (holds[h].node < 0 || holds[h].node >= lod->lv[F].model.n || holds[h].tool < 0 ||
             holds[h].tool >= ntools)
             continue; /* the body validates holds; ignore any that are out of range */
         map_hold(lod, &holds[h], h, 0.0);
@@ -1621,7 +1622,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                  * one, but computes ghost rows nobody reads and needs the frontier correction
                  * pass: use it once 60% of the level is active (with the frontier rows folded,
                  * 60% beat 40% by 5-8% CPU on the organ and 3.6% instructions on cube-poke) */
-                if (5 * lod->nactive[k] >= 3 * lod->lv[k].n) {
+                if (5 * lod->nactive[k] >= 3 * lod->lv[k].model.n) {
                     sq_level_forces(&lod->lv[k], mat, gravity, NULL);
                     front_correct(lod, mat, k);
                 } else if (mat->use_viscosity) {
@@ -1654,14 +1655,14 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                     continue;
                 int i = E->node;
                 for (int c = 0; c < 3; c++)
-                    E->fsum[c] += Lk->f[3 * i + c] - Lk->mass[i] * gravity[c];
+                    E->fsum[c] += Lk->f[3 * i + c] - Lk->model.mass[i] * gravity[c];
                 E->nf++;
             }
             /* finer levels read this level between its steps */
             sq_lodx_save_prev(lod, k);
             if (lod->nmask[k] > 0) {
                 double dtk = lod->extra[k] ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
-                if (lod->nmask[k] == Lk->n)
+                if (lod->nmask[k] == Lk->model.n)
                     sq_level_integrate(Lk, dtk, NULL);
                 else
                     sq_lodx_integrate(lod, k, dtk);
@@ -1714,7 +1715,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     clear_holds(lod);
     for (int k = 0; k < L; k++)
         if (lod->nmask[k] != lod->nactive[k]) {
-            memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].n);
+            memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].model.n);
             lod->nmask[k] = lod->nactive[k];
         }
 
@@ -1749,23 +1750,16 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         prof->merges = ao.merges;
         prof->splits_refused = over_budget || ao.refused;
         if (coarse_ms > lod->def.budget * budget_s * 1e3)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: cannot run in real time even fully coarse: level 0 needs %.2f ms "
-                     "(%d nodes x %d steps), budget %.2f ms; splitting refused", coarse_ms,
-                     lod->lv[0].nfree, 1 << sub_log2(lod, 0), lod->def.budget * budget_s * 1e3);
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, coarse_ms, lod->lv[0].model.nfree, 1 << sub_log2(lod, 0),
+                           lod->def.budget * budget_s * 1e3, NULL);
         else if (over_budget)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: frame compute %.2f ms over %.0f%% of the %.2f ms budget: splitting "
-                     "refused, merging allowed", prev_time * 1e3, lod->def.budget * 100,
-                     budget_s * 1e3);
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_OVER, prev_time * 1e3, lod->def.budget * 100, budget_s * 1e3, 0,
+                           NULL);
         else if (ao.refused && cap_guard > 0 && cap_used == cap_guard)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: next frame predicted over %.0f%% of %.2f ms (%ld node updates fit): "
-                     "finest regions merged, splitting refused", lod->def.budget * 100, budget_s * 1e3,
-                     cap_guard);
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_PREDICTED, lod->def.budget * 100, budget_s * 1e3,
+                           (double)cap_guard, 0, NULL);
         else if (ao.refused)
-            snprintf(prof->event, sizeof(prof->event),
-                     "warning: node-update cap %ld per frame reached: splitting refused", cap_user);
+            sq_frame_event(prof, SQ_HEALTH_NODE_CAP, (double)cap_user, 0, 0, 0, NULL);
     }
 }
 
@@ -1803,16 +1797,16 @@ void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
      * (the walk up from each finest node to its active ancestor, without repeating it) */
     int F = lod->L - 1;
     if (F == 0) {
-        memset(out, 0, (size_t)lod->lv[0].n);
+        memset(out, 0, (size_t)lod->lv[0].model.n);
         return;
     }
     unsigned char *prev = lod->nlv[0], *cur = lod->nlv[1];
-    memset(prev, 0, (size_t)lod->lv[0].n);
+    memset(prev, 0, (size_t)lod->lv[0].model.n);
     for (int k = 1; k <= F; k++) {
         unsigned char *dst = k == F ? out : cur;
         const unsigned char *st = lod->state[k];
         const int *par = lod->h.link[k - 1].parent;
-        for (int j = 0; j < lod->lv[k].n; j++)
+        for (int j = 0; j < lod->lv[k].model.n; j++)
             dst[j] = st[j] == ST_ACTIVE ? (unsigned char)k : prev[par[j]];
         unsigned char *t = prev;
         prev = cur;
@@ -1827,14 +1821,14 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
         const sq_level *Lk = &lod->lv[k];
         /* sum over the tets touching active nodes of their weighted elastic energy: full
          * rows on active nodes less the frontier correction, ring rows from the ring blocks */
-        for (int i = 0; i < Lk->n; i++) {
+        for (int i = 0; i < Lk->model.n; i++) {
             if (lod->state[k][i] != ST_ACTIVE)
                 continue;
             const double *v = Lk->v + 3 * i, *d = Lk->d + 3 * i;
-            ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            ek += 0.5 * Lk->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             double f[3] = {0, 0, 0};
-            for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
-                const double *K = Lk->K + 9 * q, *dl = Lk->d + 3 * Lk->col[q];
+            for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++) {
+                const double *K = Lk->model.K + 9 * q, *dl = Lk->d + 3 * Lk->model.col[q];
                 for (int r = 0; r < 3; r++)
                     f[r] += K[3 * r] * dl[0] + K[3 * r + 1] * dl[1] + K[3 * r + 2] * dl[2];
             }
@@ -1876,7 +1870,7 @@ int sq_lod_check(const sq_lod *lod, sq_err *err)
 {
     for (int k = 0; k < lod->L; k++) {
         int na = 0;
-        for (int i = 0; i < lod->lv[k].n; i++) {
+        for (int i = 0; i < lod->lv[k].model.n; i++) {
             unsigned char s = lod->state[k][i];
             if (s > ST_SPLIT)
                 return sq_err_set(err, "lod: level %d node %d has state %d", k, i, s);

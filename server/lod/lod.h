@@ -37,7 +37,21 @@ typedef struct sq_frame_profile {
     int awake_nodes, sleeping_nodes;
     int reset;                         /* 1 if a blow-up was detected and the body reset */
     char event[160];                   /* human-readable event of this frame, or empty */
+    sq_health_kind event_kind;         /* its kind (SQ_HEALTH_NONE: no event) */
+    double event_value[4];             /* its values (sq_health_sentence) */
 } sq_frame_profile;
+
+/* set the frame's health event: kind, values and the sentence built from them */
+static inline void sq_frame_event(sq_frame_profile *p, sq_health_kind k, double v0, double v1, double v2,
+                                  double v3, const char *body)
+{
+    p->event_kind = k;
+    p->event_value[0] = v0;
+    p->event_value[1] = v1;
+    p->event_value[2] = v2;
+    p->event_value[3] = v3;
+    sq_health_sentence(p->event, sizeof p->event, k, p->event_value, body);
+}
 
 
 /* links between level k and level k+1 */

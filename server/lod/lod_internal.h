@@ -133,7 +133,7 @@ struct sq_lod {
  * axes of the destination stay zero */
 static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
 {
-    const int *tn = src->mesh->tets + 4 * t;
+    const int *tn = src->model.mesh->tets + 4 * t;
     double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
     for (int m = 0; m < 4; m++) {
         const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
@@ -142,7 +142,7 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
             v[a] += b[m] * sv[a];
         }
     }
-    unsigned char fx = dst->fixed[i];
+    unsigned char fx = dst->model.fixed[i];
     for (int a = 0; a < 3; a++) {
         int free_axis = !(fx & (1u << a));
         dst->d[3 * i + a] = free_axis ? d[a] : 0.0;

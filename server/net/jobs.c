@@ -232,7 +232,7 @@ static void do_nodes(sq_session *s, const sq_job *j)
     const sq_body_def *d = sq_body_get_def(b);
     int nl = sq_body_nlevels(b);
     int fixed = d->lod.mode == SQ_LOD_FIXED || nl == 1;
-    int L = fixed ? SQ_MIN(SQ_MAX(d->lod.level, 0), nl - 1) : nl - 1;
+    int L = sq_body_sim_level(b);
     const sq_mesh *m = sq_body_mesh(b, L);
     const double *u = sq_body_displacement(b, L);
     const unsigned char *nlev = fixed ? NULL : sq_body_node_level(b);

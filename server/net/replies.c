@@ -253,6 +253,15 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
         cJSON_AddBoolToObject(e, "sleeping", p->sleeping[b]);
         cJSON_AddNumberToObject(e, "splits", p->splits[b]);
         cJSON_AddNumberToObject(e, "merges", p->merges[b]);
+        /* health warnings since the body was created, by kind (only kinds that occurred) */
+        cJSON *hw = cJSON_AddObjectToObject(e, "health");
+        for (int k = SQ_HEALTH_NONE + 1; k < SQ_HEALTH_NKINDS; k++)
+            if (p->health[b][k].count > 0) {
+                cJSON *hk = cJSON_AddObjectToObject(hw, sq_health_kind_name((sq_health_kind)k));
+                cJSON_AddNumberToObject(hk, "count", (double)p->health[b][k].count);
+                cJSON_AddNumberToObject(hk, "last_value", p->health[b][k].last_value);
+                cJSON_AddNumberToObject(hk, "last_frame", (double)p->health[b][k].last_frame);
+            }
         cJSON_AddItemToArray(ba, e);
     }
     pthread_mutex_unlock(&s->mu);

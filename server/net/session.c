@@ -165,6 +165,7 @@ static void snapshot_locked(sq_session *s, double frame_s)
         p->splits[b] = f->splits;
         p->merges[b] = f->merges;
         memcpy(p->feedback[b], w->feedback[b], sizeof p->feedback[b]);
+        memcpy(p->health[b], sq_body_health(w->bodies[b]), sizeof p->health[b]);
     }
     p->ntools = w->ntools;
     memcpy(p->tools, w->tools, sizeof p->tools);

@@ -64,6 +64,7 @@ typedef struct sq_snapshot {
     int ntools;
     sq_tool tools[SQ_MAX_TOOLS];
     sq_tool_feedback feedback[SQ_MAX_BODIES][SQ_MAX_TOOLS];
+    sq_health_stat health[SQ_MAX_BODIES][SQ_HEALTH_NKINDS]; /* sq_body_health per body */
 } sq_snapshot;
 
 typedef enum sq_session_state {

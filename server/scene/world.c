@@ -4,7 +4,7 @@
  * stepped the same number of frames gives bit-identical body states.
  */
 #include "scene/scene.h"
-#include "body/body.h" /* sq_body_fixed_level */
+#include "body/body.h" /* sq_body_sim_level */
 
 #include <math.h>
 #include <stdio.h>
@@ -276,7 +276,7 @@ int sq_world_write_vtk(const sq_world *w, int body, const char *path, sq_err *er
         return sq_err_set(err, "%s: no body %d in this world", path, body);
     const sq_body *b = w->bodies[body];
     int adaptive = sq_body_get_def(b)->lod.mode == SQ_LOD_ADAPTIVE;
-    int k = adaptive ? sq_body_nlevels(b) - 1 : sq_body_fixed_level(b);
+    int k = sq_body_sim_level(b);
     const sq_mesh *m = sq_body_mesh(b, k);
     const unsigned char *nl = sq_body_node_level(b);
     int *lev = sq_malloc(sizeof(int) * (size_t)m->nnodes);

@@ -87,6 +87,14 @@ test('tool (grab), frames carry the tool and its feedback force, stats shows it'
   assert.ok(Math.hypot(...fb.force) > 0, 'pulling gives a feedback force');
   assert.equal(s.clients, 1);
   assert.ok(s.bytes_sent > 0);
+  // typed health warnings per body: kinds that occurred, each counted with its last value and frame
+  for (const b of s.bodies) {
+    assert.equal(typeof b.health, 'object', 'bodies[].health');
+    for (const [k, h] of Object.entries(b.health)) {
+      assert.match(k, /^(blowup_(nan|stretch|speed)|sleep|wake|budget_(coarse|over|predicted)|node_cap)$/);
+      assert.ok(h.count >= 1 && h.last_frame >= 1 && h.last_frame <= s.frame && Number.isFinite(h.last_value), k);
+    }
+  }
   // a later tool update without shape for the known id is fine; the pulled surface moved up
   const top = c.lastFrame;
   assert.ok(Math.max(...top.displacement.filter((_, i) => i % 3 === 2)) > 0.01);

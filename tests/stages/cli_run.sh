@@ -25,8 +25,14 @@ check "probes.csv rows" [ "$(wc -l <"$TMP/a/probes.csv")" = 63 ]
 check "probes.csv number format" \
     bash -c "tail -n +2 '$TMP/a/probes.csv' | grep -Evq '^[0-9]+,[-0-9.e+]+,(corner|top),-?[0-9]\.[0-9]{9}e[-+][0-9]{2},-?[0-9]\.[0-9]{9}e[-+][0-9]{2},-?[0-9]\.[0-9]{9}e[-+][0-9]{2}$' && exit 1 || exit 0"
 check "stats.csv header" \
-    bash -c "head -n 1 '$TMP/a/stats.csv' | grep -q '^frame,time,node_updates,wall_ms,active_l0,splits,merges,resets,kinetic_energy,refused,missed$'"
+    bash -c "head -n 1 '$TMP/a/stats.csv' | grep -q '^frame,time,node_updates,wall_ms,active_l0,splits,merges,resets,kinetic_energy,refused,health,missed$'"
 check "stats.csv rows" [ "$(wc -l <"$TMP/a/stats.csv")" = 31 ]
+# the health column names the frame's warning kinds: the small cube falls asleep once, in the
+# frame the log reports it, and no other row has a warning
+"$SQUISH" run "$DATA/small-cube.json" --frames 400 --out "$TMP/h" >"$TMP/h.log" 2>&1
+hf=$(grep -oE '^frame [0-9]+ .*sleeping until touched' "$TMP/h.log" | grep -oE '^frame [0-9]+' | grep -oE '[0-9]+')
+check "stats.csv health column: sleep in the frame the log names, nothing else" bash -c "
+    [ -n '$hf' ] && [ \"\$(awk -F, 'NR > 1 && \$(NF-1) != \"\" { print \$1 \":\" \$(NF-1) }' '$TMP/h/stats.csv')\" = '$hf:sleep' ]"
 check "final.vtk is legacy VTK" bash -c "head -n 1 '$TMP/a/final.vtk' | grep -q '^# vtk DataFile Version'"
 # tools.csv: one row per frame (one tool, one body); the sphere presses at t = 0.2 s (frame 10):
 # it constrains nodes and the body pushes it up (fz > 0); released from frame 15 on (inactive)

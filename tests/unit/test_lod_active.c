@@ -137,7 +137,7 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
                     vv[c] += bb[q] * v[k - 1][3 * tn[q] + c];
                 }
             for (int c = 0; c < 3; c++) {
-                int fr = !(b->level[k].fixed[j] & (1u << c));
+                int fr = !(b->level[k].model.fixed[j] & (1u << c));
                 d[k][3 * j + c] = fr ? dd[c] : 0.0;
                 v[k][3 * j + c] = fr ? vv[c] : 0.0;
             }

@@ -76,7 +76,7 @@ SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
     /* a linear field (stretch, shear, translation) has zero criterion at every node, surface
      * nodes included: 1e-12 m is rounding for 1 cm displacements */
     for (int k = 0; k < 2; k++)
-        for (int i = 0; i < lv[k].n; i++) {
+        for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
             lv[k].d[3 * i] = 0.01 * x[0] + 0.003 * x[1] + 0.002;
             lv[k].d[3 * i + 1] = -0.004 * x[2];
@@ -84,23 +84,23 @@ SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
         }
     double worst = 0;
     for (int k = 0; k < 2; k++)
-        for (int i = 0; i < lv[k].n; i++)
+        for (int i = 0; i < lv[k].model.n; i++)
             worst = fmax(worst, sq_lod_delta(lod, k, i));
     CHECK(worst < 1e-12);
     /* d = (a x^2, 0, 0): Lap = 2a; on interior nodes of the regular level-0 box the
      * criterion is hbar^2 2a (the lumped FEM Laplacian is exact for quadratics on this
      * symmetric grid up to the lumping: 10%) */
     double a = 0.05;
-    for (int i = 0; i < lv[0].n; i++) {
+    for (int i = 0; i < lv[0].model.n; i++) {
         const double *x = m[0]->x + 3 * i;
         lv[0].d[3 * i] = a * x[0] * x[0];
         lv[0].d[3 * i + 1] = lv[0].d[3 * i + 2] = 0;
     }
     int checked = 0;
-    for (int i = 0; i < lv[0].n; i++) {
+    for (int i = 0; i < lv[0].model.n; i++) {
         if (m[0]->on_boundary[i])
             continue;
-        double expect = lv[0].hbar[i] * lv[0].hbar[i] * 2 * a;
+        double expect = lv[0].model.hbar[i] * lv[0].model.hbar[i] * 2 * a;
         CHECK_NEAR(sq_lod_delta(lod, 0, i), expect, 0.1 * expect);
         checked++;
     }
@@ -213,9 +213,9 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
     sq_lod_set_material(lod, &mat);
     /* bent: d_x = 0.02 z^2 (1 + 0.3 x), the same field sampled on both levels */
     for (int k = 0; k < 2; k++)
-        for (int i = 0; i < lv[k].n; i++) {
+        for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
-            lv[k].d[3 * i] = lv[k].fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
+            lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
         }
     sq_lod_sync(lod);
     double g[3] = {0, 0, 0}, E0 = sq_lod_energy(lod, NULL, NULL);
@@ -286,8 +286,8 @@ static void feedback_balance(double split, double merge, int want_mixed)
     for (int k = 0; k < 2; k++) {
         const sq_level *L = sq_body_level(b, k);
         const unsigned char *act = sq_lod_active(b->lod, k);
-        for (int i = 0; i < L->n; i++)
-            if (act[i] && L->fixed[i] == 7)
+        for (int i = 0; i < L->model.n; i++)
+            if (act[i] && L->model.fixed[i] == 7)
                 for (int c = 0; c < 3; c++)
                     R[c] += L->f[3 * i + c];
     }
@@ -472,9 +472,9 @@ SQ_TEST(lod_ring_blocks_follow_material_change)
         return;
     sq_lod_set_material(lod, &mat);
     for (int k = 0; k < 2; k++)
-        for (int i = 0; i < lv[k].n; i++) {
+        for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
-            lv[k].d[3 * i] = lv[k].fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
+            lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
         }
     sq_lod_sync(lod);
     int sp = 0, mg = 0;
@@ -482,9 +482,9 @@ SQ_TEST(lod_ring_blocks_follow_material_change)
     /* a mixed state: some finest nodes active, some not */
     int na = 0;
     const unsigned char *act = sq_lod_active(lod, 1);
-    for (int i = 0; i < lv[1].n; i++)
+    for (int i = 0; i < lv[1].model.n; i++)
         na += act[i];
-    CHECK(sp > 0 && na > 0 && na < lv[1].n);
+    CHECK(sp > 0 && na > 0 && na < lv[1].model.n);
     double e1 = 0, e2 = 0, e3 = 0;
     sq_lod_energy(lod, NULL, &e1);
     for (int k = 0; k < 2; k++)

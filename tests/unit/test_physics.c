@@ -43,7 +43,7 @@ static double column_error(int nz, sq_operator_kind op)
     double err = INFINITY;
     if (sq_level_init(&L, m, &mat, op, c, nc, &e) == 0) {
         double grav[3] = {0, 0, -g}, *d = malloc(sizeof(double) * 3 * m->nnodes);
-        if (sq_level_static_solve(&L, grav, 1e-12, 10000, d, NULL, &e) == 0) {
+        if (sq_level_static_solve(&L.model, grav, 1e-12, 10000, d, NULL, &e) == 0) {
             double k = mat.density * g / (mat.lambda + 2 * mat.mu), tip = k * H * H / 2;
             err = 0;
             for (int i = 0; i < m->nnodes; i++) {
@@ -106,7 +106,7 @@ SQ_TEST(physics_damped_run_settles_to_static_solution)
             sq_body_frame(b, NULL, 0, NULL, NULL, 0);
         sq_level *L = sq_body_level(b, 0);
         double *ds = malloc(sizeof(double) * 3 * m->nnodes);
-        CHECK(sq_level_static_solve(L, def.gravity, 1e-13, 10000, ds, NULL, &e) == 0);
+        CHECK(sq_level_static_solve(&L->model, def.gravity, 1e-13, 10000, ds, NULL, &e) == 0);
         double diff = 0, scale = 0;
         for (int i = 0; i < 3 * m->nnodes; i++) {
             diff = th_max(diff, fabs(L->d[i] - ds[i]));
@@ -127,18 +127,18 @@ SQ_TEST(physics_damped_run_settles_to_static_solution)
  * unconstrained axes by cyclic Jacobi rotations (dense; small meshes only) */
 static double true_omega_max(const sq_level *L)
 {
-    int n3 = 3 * L->n, *dof = malloc(sizeof(int) * n3), nf = 0;
+    int n3 = 3 * L->model.n, *dof = malloc(sizeof(int) * n3), nf = 0;
     for (int k = 0; k < n3; k++)
-        dof[k] = (L->fixed[k / 3] & (1u << (k % 3))) ? -1 : nf++;
+        dof[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? -1 : nf++;
     double *A = calloc((size_t)nf * nf, sizeof(double));
-    for (int i = 0; i < L->n; i++)
-        for (int e = L->row_start[i]; e < L->row_start[i + 1]; e++) {
-            int j = L->col[e];
+    for (int i = 0; i < L->model.n; i++)
+        for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
+            int j = L->model.col[e];
             for (int r = 0; r < 3; r++)
                 for (int c = 0; c < 3; c++) {
                     int p = dof[3 * i + r], q = dof[3 * j + c];
                     if (p >= 0 && q >= 0)
-                        A[(size_t)p * nf + q] = L->K[9 * e + 3 * r + c] / sqrt(L->mass[i] * L->mass[j]);
+                        A[(size_t)p * nf + q] = L->model.K[9 * e + 3 * r + c] / sqrt(L->model.mass[i] * L->model.mass[j]);
                 }
         }
     for (int sweep = 0; sweep < 50; sweep++) {
@@ -184,9 +184,9 @@ static double true_omega_max(const sq_level *L)
 static double run_at(sq_level *L, const sq_material *mat, double dt, int steps)
 {
     static const double zero[3] = {0, 0, 0};
-    size_t n3 = 3 * (size_t)L->n;
+    size_t n3 = 3 * (size_t)L->model.n;
     for (size_t k = 0; k < n3; k++) {
-        L->d[k] = (L->fixed[k / 3] & (1u << (k % 3))) ? 0 : 1e-6 * sin(3.0 + 1.37 * (double)k);
+        L->d[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? 0 : 1e-6 * sin(3.0 + 1.37 * (double)k);
         L->v[k] = 0;
     }
     for (int s = 0; s < steps; s++) {
@@ -266,19 +266,19 @@ SQ_TEST(physics_tool_force_balance_at_rest)
     sq_level *L = sq_body_level(b, 0);
     /* reactions: the support holds fixed nodes against their total force (which includes weight) */
     double R[3] = {0, 0, 0}, W[3] = {0, 0, 0}, Mh = 0, Mt = 0;
-    for (int i = 0; i < L->n; i++) {
-        Mt += L->mass[i];
-        if (L->fixed[i] == 7)
+    for (int i = 0; i < L->model.n; i++) {
+        Mt += L->model.mass[i];
+        if (L->model.fixed[i] == 7)
             for (int c = 0; c < 3; c++)
                 R[c] -= L->f[3 * i + c];
     }
     /* held nodes: those at the tool's surface (the tool holds them against f_int + weight) */
-    for (int i = 0; i < L->n; i++) {
+    for (int i = 0; i < L->model.n; i++) {
         const double *x = m->x + 3 * i;
         double p[3] = {x[0] + L->d[3 * i] - t.pos[0], x[1] + L->d[3 * i + 1] - t.pos[1],
                        x[2] + L->d[3 * i + 2] - t.pos[2]};
         if (m->on_boundary[i] && fabs(th_norm3(p) - t.radius) < 1e-12)
-            Mh += L->mass[i];
+            Mh += L->model.mass[i];
     }
     double sum[3];
     for (int c = 0; c < 3; c++) {
@@ -310,7 +310,7 @@ SQ_TEST(physics_viscosity_damps_and_tightens_bound)
     sq_err e = {{0}};
     CHECK(sq_level_init(&A, m, &plain, SQ_OPERATOR_FEM, &fixed, 1, &e) == 0);
     CHECK(sq_level_init(&B, m, &visc, SQ_OPERATOR_FEM, &fixed, 1, &e) == 0);
-    CHECK(B.D != NULL);
+    CHECK(B.model.D != NULL);
     CHECK(sq_level_choose_step(&A, &plain, 0.02, 0.9, &e) == 0);
     CHECK(sq_level_choose_step(&B, &visc, 0.02, 0.9, &e) == 0);
     CHECK(B.bound < A.bound); /* c > 0 shortens 4 / (c + sqrt(c^2 + 4 w^2)) */
@@ -320,15 +320,15 @@ SQ_TEST(physics_viscosity_damps_and_tightens_bound)
     const sq_material *mats[2] = {&plain, &visc};
     for (int k = 0; k < 2; k++) {
         sq_level *L = Ls[k];
-        for (int i = 0; i < L->n; i++)
-            if (!L->fixed[i])
+        for (int i = 0; i < L->model.n; i++)
+            if (!L->model.fixed[i])
                 L->v[3 * i] = 0.1 * m->x[3 * i + 2];
         int steps = (int)ceil(1.0 / B.dt);
         for (int s = 0; s < steps; s++)
             sq_level_step(L, mats[k], g, B.dt, NULL);
         double ke = 0;
-        for (int i = 0; i < L->n; i++)
-            ke += 0.5 * L->mass[i] * (L->v[3 * i] * L->v[3 * i] + L->v[3 * i + 1] * L->v[3 * i + 1] +
+        for (int i = 0; i < L->model.n; i++)
+            ke += 0.5 * L->model.mass[i] * (L->v[3 * i] * L->v[3 * i] + L->v[3 * i + 1] * L->v[3 * i + 1] +
                                       L->v[3 * i + 2] * L->v[3 * i + 2]);
         E[k] = ke + sq_level_elastic_energy(L);
     }
@@ -419,7 +419,7 @@ static double tip_ratio(const sq_mesh *m, double *split)
     for (int ax = 0; ax < 2; ax++) {
         double g[3] = {0, 0, 0};
         g[1 + ax] = -9.81;
-        if (sq_level_static_solve(&L, g, 1e-12, 20000, d, NULL, &e) < 0) {
+        if (sq_level_static_solve(&L.model, g, 1e-12, 20000, d, NULL, &e) < 0) {
             u[ax] = NAN;
             continue;
         }

@@ -24,7 +24,7 @@ static void rotate_disp(const sq_mesh *m, const double axis[3], double th, const
 static double max_force(const sq_level *L)
 {
     double s = 0;
-    for (int i = 0; i < L->n; i++)
+    for (int i = 0; i < L->model.n; i++)
         s = th_max(s, th_norm3(L->f + 3 * i));
     return s;
 }
@@ -237,8 +237,8 @@ static arc_result arc_run(int k, sq_elasticity_kind el, int hold)
     r.inverted = sq_body_inverted_tets(b);
     double M = 0;
     const sq_level *L = sq_body_level(b, 0);
-    for (int i = 0; i < L->n; i++)
-        M += L->mass[i];
+    for (int i = 0; i < L->model.n; i++)
+        M += L->model.mass[i];
     r.vrms = sqrt(2 * sq_body_kinetic_energy(b) / M);
     sq_body_destroy(b);
     sq_mesh_free(m);
@@ -404,7 +404,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     for (int f = 0; f < 20; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     const sq_level *L = sq_body_level(b, 1);
-    double tip = L->d[3 * (L->n - 1) + 2];
+    double tip = L->d[3 * (L->model.n - 1) + 2];
     CHECK(tip < 0);
     /* refusals leave everything as it was */
     sq_material mat = def.material;
@@ -417,7 +417,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     CHECK(sq_body_get_def(b)->elasticity == SQ_ELASTICITY_COROTATIONAL);
     CHECK(sq_body_get_def(b)->lod.mode == SQ_LOD_FIXED);
     CHECK(L->corot != NULL);
-    CHECK(L->d[3 * (L->n - 1) + 2] == tip);
+    CHECK(L->d[3 * (L->model.n - 1) + 2] == tip);
     /* a material change keeps the rotations and the corotational model */
     mat.mu *= 1.1;
     CHECK(sq_body_set_material(b, &mat, SQ_OPERATOR_FEM, &e) == 0);
@@ -446,13 +446,13 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     CHECK(L->corot != NULL);
     sq_body_reset(b);
     CHECK(sq_level_corot_energy(L) == 0);
-    CHECK(L->d[3 * (L->n - 1) + 2] == 0);
+    CHECK(L->d[3 * (L->model.n - 1) + 2] == 0);
     /* blow-up: a NaN (which poisons the rotations of its tets) is detected, the body and its
      * rotations are reset, and the next frames are finite and sag as before */
     for (int f = 0; f < 5; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
-    double sag5 = L->d[3 * (L->n - 1) + 2];
-    sq_body_level(b, 0)->d[3 * (L->n - 1)] = NAN;
+    double sag5 = L->d[3 * (L->model.n - 1) + 2];
+    sq_body_level(b, 0)->d[3 * (L->model.n - 1)] = NAN;
     sq_frame_profile prof;
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.reset == 1);
@@ -460,7 +460,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     for (int f = 0; f < 5; f++)
         sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(!prof.reset);
-    CHECK(L->d[3 * (L->n - 1) + 2] == sag5); /* bit for bit the run from rest */
+    CHECK(L->d[3 * (L->model.n - 1) + 2] == sag5); /* bit for bit the run from rest */
     sq_body_destroy(b);
     sq_mesh_free(m);
     sq_mesh_free(m2);
@@ -495,7 +495,7 @@ SQ_TEST(corot_vector_step_matches_scalar_forces)
         sq_level_corot_step(&L, &mat, g, 0, NULL);
     double *fv = malloc(sizeof(double) * 3 * m->nnodes);
     memcpy(fv, L.f, sizeof(double) * 3 * m->nnodes);
-    sq_level_corot_forces(&L, &mat, g);
+    sq_level_corot_forces(&L, &mat, g, L.f);
     double num = 0, den = 0;
     for (int i = 0; i < 3 * m->nnodes; i++) {
         num += (fv[i] - L.f[i]) * (fv[i] - L.f[i]);

@@ -16,8 +16,8 @@ static double beam_tip(const sq_mesh *m, double nu, int anp)
     if (sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, &clamp, 1, &e) < 0)
         return NAN;
     double g[3] = {0, 0, -9.81}, *d = malloc(sizeof(double) * 3 * m->nnodes), tip = 0;
-    int rc = anp ? sq_level_static_solve_nodal_pressure(&L, &mat, g, 1e-10, 200000, d, NULL, &e)
-                 : sq_level_static_solve(&L, g, 1e-10, 200000, d, NULL, &e);
+    int rc = anp ? sq_level_static_solve_nodal_pressure(&L.model, &mat, g, 1e-10, 200000, d, NULL, &e)
+                 : sq_level_static_solve(&L.model, g, 1e-10, 200000, d, NULL, &e);
     if (rc < 0) {
         fprintf(stderr, "    %s\n", e.msg);
         tip = NAN;
@@ -137,8 +137,8 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
     double *ds = malloc(sizeof(double) * 3 * m->nnodes), *dl = malloc(sizeof(double) * 3 * m->nnodes);
-    CHECK(sq_level_static_solve_nodal_pressure(L, &def.material, def.gravity, 1e-12, 100000, ds, NULL, &e) == 0);
-    CHECK(sq_level_static_solve(L, def.gravity, 1e-12, 100000, dl, NULL, &e) == 0);
+    CHECK(sq_level_static_solve_nodal_pressure(&L->model, &def.material, def.gravity, 1e-12, 100000, ds, NULL, &e) == 0);
+    CHECK(sq_level_static_solve(&L->model, def.gravity, 1e-12, 100000, dl, NULL, &e) == 0);
     double diff = 0, scale = 0, tl = 0;
     for (int i = 0; i < 3 * m->nnodes; i++) {
         diff = th_max(diff, fabs(L->d[i] - ds[i]));

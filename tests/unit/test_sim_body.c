@@ -127,13 +127,23 @@ SQ_TEST(sim_body_nan_resets_and_reports)
     TH_REQUIRE(b);
     sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
-    L->d[3 * (L->n - 1) + 2] = NAN;
+    L->d[3 * (L->model.n - 1) + 2] = NAN;
     sq_frame_profile prof;
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.reset == 1);
     CHECK_CONTAINS(prof.event, "blow-up detected");
     CHECK_CONTAINS(prof.event, "reset to rest");
-    for (int i = 0; i < 3 * L->n; i++)
+    /* typed: the kind, its value (the node) and the counter of the body */
+    CHECK(prof.event_kind == SQ_HEALTH_BLOWUP_NAN);
+    /* value: the first non-finite node (the NaN has spread to neighbours within the frame) */
+    CHECK(prof.event_value[0] >= 0 && prof.event_value[0] < L->model.n &&
+          prof.event_value[0] == floor(prof.event_value[0]));
+    const sq_health_stat *hs = sq_body_health(b);
+    CHECK(hs[SQ_HEALTH_BLOWUP_NAN].count == 1 && hs[SQ_HEALTH_BLOWUP_NAN].last_frame == 2);
+    CHECK(hs[SQ_HEALTH_BLOWUP_NAN].last_value == prof.event_value[0]);
+    CHECK(hs[SQ_HEALTH_BLOWUP_SPEED].count == 0 && hs[SQ_HEALTH_BLOWUP_STRETCH].count == 0);
+    CHECK(strcmp(sq_health_kind_name(SQ_HEALTH_BLOWUP_NAN), "blowup_nan") == 0);
+    for (int i = 0; i < 3 * L->model.n; i++)
         CHECK(L->d[i] == 0 && L->v[i] == 0);
     /* and it keeps going */
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
@@ -155,8 +165,8 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     for (int f = 0; f < 3; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
-    size_t n3 = 3 * (size_t)L->n;
-    double *d0 = malloc(sizeof(double) * n3), K0 = L->K[0], dt0 = L->dt;
+    size_t n3 = 3 * (size_t)L->model.n;
+    double *d0 = malloc(sizeof(double) * n3), K0 = L->model.K[0], dt0 = L->dt;
     memcpy(d0, L->d, sizeof(double) * n3);
     sq_material hard = def.material;
     CHECK(sq_material_from_E_nu(&hard, 1e18, 0.3, &e) == 0);
@@ -166,7 +176,7 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     CHECK_CONTAINS(e.msg, "E=1e+18");
     L = sq_body_level(b, 0);
     CHECK(memcmp(d0, L->d, sizeof(double) * n3) == 0);
-    CHECK(L->K[0] == K0 && L->dt == dt0);
+    CHECK(L->model.K[0] == K0 && L->dt == dt0);
     CHECK(sq_body_get_def(b)->material.mu == def.material.mu);
     /* a bad value names itself */
     sq_material bad = def.material;
@@ -240,6 +250,12 @@ SQ_TEST(sim_body_sleeps_and_wakes)
             slept = f;
     }
     CHECK(slept > 0);
+    /* the sleep warning: its sentence, counted once, at the frame it fell asleep */
+    CHECK(prof.event_kind == SQ_HEALTH_SLEEP);
+    CHECK(strcmp(prof.event, "body 'cube' at rest: sleeping until touched") == 0);
+    CHECK(sq_body_health(b)[SQ_HEALTH_SLEEP].count == 1);
+    CHECK(sq_body_health(b)[SQ_HEALTH_SLEEP].last_frame == slept + 1 && sq_body_frames(b) == slept + 1);
+    CHECK(sq_body_health(b)[SQ_HEALTH_WAKE].count == 0);
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.sleeping == 1 && prof.node_updates == 0);
     CHECK(sq_body_residual(b) < 1e-4);
@@ -253,6 +269,8 @@ SQ_TEST(sim_body_sleeps_and_wakes)
     CHECK(prof.sleeping == 0 && prof.node_updates > 0);
     CHECK(fb.nnodes >= 1);
     CHECK(fb.force[2] > 0); /* the body pushes back up on the tool */
+    CHECK(sq_body_health(b)[SQ_HEALTH_WAKE].count == 1 && sq_body_health(b)[SQ_HEALTH_WAKE].last_frame == slept + 3);
+    CHECK(prof.event_kind == SQ_HEALTH_NONE && prof.event[0] == 0); /* a wake has no sentence */
     sq_body_destroy(b);
     sq_mesh_free(m);
 }
@@ -280,8 +298,8 @@ SQ_TEST(sim_body_deterministic)
             sq_body_frame(b[k], &t, 1, NULL, NULL, 0);
         }
         const sq_level *L = sq_body_level(b[k], 0);
-        h[k] = sq_hash_bytes(SQ_HASH_INIT, L->d, sizeof(double) * 3 * L->n);
-        h[k] = sq_hash_bytes(h[k], L->v, sizeof(double) * 3 * L->n);
+        h[k] = sq_hash_bytes(SQ_HASH_INIT, L->d, sizeof(double) * 3 * L->model.n);
+        h[k] = sq_hash_bytes(h[k], L->v, sizeof(double) * 3 * L->model.n);
     }
     CHECK(h[0] == h[1]);
     CHECK(sq_body_kinetic_energy(b[0]) > 0);

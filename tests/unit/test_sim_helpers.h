@@ -49,8 +49,8 @@ static inline void th_elastic_force(sq_level *L, const sq_material *mat, const d
     sq_material m = *mat;
     m.rayleigh_mass = m.rayleigh_stiffness = 0;
     m.use_viscosity = 0;
-    memcpy(L->d, d, sizeof(double) * 3 * (size_t)L->n);
-    memset(L->v, 0, sizeof(double) * 3 * (size_t)L->n);
+    memcpy(L->d, d, sizeof(double) * 3 * (size_t)L->model.n);
+    memset(L->v, 0, sizeof(double) * 3 * (size_t)L->model.n);
     sq_level_forces(L, &m, zero, NULL);
 }
 
@@ -58,8 +58,8 @@ static inline void th_elastic_force(sq_level *L, const sq_material *mat, const d
 static inline double th_kmax(const sq_level *L)
 {
     double s = 0;
-    for (size_t k = 0; k < 9 * (size_t)L->nnz; k++)
-        s = th_max(s, fabs(L->K[k]));
+    for (size_t k = 0; k < 9 * (size_t)L->model.nnz; k++)
+        s = th_max(s, fabs(L->model.K[k]));
     return s;
 }
 

@@ -83,7 +83,7 @@ SQ_TEST(sim_operator_paper_fem_differ_only_on_boundary_edges)
             int j = m->adj[p];
             double diff = 0;
             for (int k = 0; k < 9; k++)
-                diff = th_max(diff, fabs(P.K[9 * p + k] - F.K[9 * p + k]));
+                diff = th_max(diff, fabs(P.model.K[9 * p + k] - F.model.K[9 * p + k]));
             if (m->on_boundary[i] && m->on_boundary[j])
                 outer = th_max(outer, diff);
             else
@@ -118,7 +118,7 @@ SQ_TEST(sim_operator_blocks_symmetric)
                     continue;
                 for (int r = 0; r < 3; r++)
                     for (int c = 0; c < 3; c++)
-                        worst = th_max(worst, fabs(L.K[9 * p + 3 * r + c] - L.K[9 * q + 3 * c + r]));
+                        worst = th_max(worst, fabs(L.model.K[9 * p + 3 * r + c] - L.model.K[9 * q + 3 * c + r]));
             }
         CHECK(worst <= 1e-12 * th_kmax(&L)); /* same sums in another order: rounding only */
         sq_level_free(&L);
@@ -162,13 +162,13 @@ SQ_TEST(sim_level_masses_sum_to_body_mass)
     sq_err e = {{0}};
     CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, NULL, 0, &e) == 0);
     double M = 0, V = 0;
-    for (int i = 0; i < L.n; i++) {
-        M += L.mass[i];
-        V += L.vol[i];
+    for (int i = 0; i < L.model.n; i++) {
+        M += L.model.mass[i];
+        V += L.model.vol[i];
     }
     CHECK_NEAR(V, 0.75, 1e-12);       /* exact up to rounding */
     CHECK_NEAR(M, 1200 * 0.75, 1e-9);
-    CHECK(L.hbar[0] > 0);
+    CHECK(L.model.hbar[0] > 0);
     sq_level_free(&L);
     sq_mesh_free(m);
 }
@@ -194,16 +194,16 @@ SQ_TEST(sim_level_constraints_mark_axes)
     sq_err e = {{0}};
     CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, c, 2, &e) == 0);
     int nbottom = 0, nroll = 0;
-    for (int i = 0; i < L.n; i++) {
+    for (int i = 0; i < L.model.n; i++) {
         const double *x = m->x + 3 * i;
         unsigned want = (x[2] == 0 ? 7u : 0u) | (x[0] == 1 ? 1u : 0u);
-        CHECK(L.fixed[i] == want);
+        CHECK(L.model.fixed[i] == want);
         nbottom += x[2] == 0;
         nroll += x[0] == 1 && x[2] != 0;
     }
     CHECK(nbottom == 9);
     CHECK(nroll == 6);
-    CHECK(L.nfree == 27 - 9);
+    CHECK(L.model.nfree == 27 - 9);
     sq_level_free(&L);
     sq_mesh_free(m);
 }
@@ -334,12 +334,12 @@ SQ_TEST(sim_operator_identities_on_shipped_meshes)
                 int j = m->adj[p];
                 if (!(m->on_boundary[i] && m->on_boundary[j]))
                     for (int c = 0; c < 9; c++)
-                        inner = th_max(inner, fabs(L[0].K[9 * p + c] - L[1].K[9 * p + c]));
+                        inner = th_max(inner, fabs(L[0].model.K[9 * p + c] - L[1].model.K[9 * p + c]));
                 for (int q = m->adj_start[j]; q < m->adj_start[j + 1]; q++)
                     if (m->adj[q] == i)
                         for (int r = 0; r < 3; r++)
                             for (int c = 0; c < 3; c++)
-                                asym = th_max(asym, fabs(L[0].K[9 * p + 3 * r + c] - L[0].K[9 * q + 3 * c + r]));
+                                asym = th_max(asym, fabs(L[0].model.K[9 * p + 3 * r + c] - L[0].model.K[9 * q + 3 * c + r]));
             }
         CHECK(inner <= 1e-12 * th_kmax(&L[0]));
         CHECK(asym <= 1e-12 * th_kmax(&L[0]));
@@ -349,4 +349,65 @@ SQ_TEST(sim_operator_identities_on_shipped_meshes)
         free(dr);
         sq_mesh_free(m);
     }
+}
+
+/* sq_level_forces_to (the residual's force pass) gives bit for bit the forces sq_level_forces
+ * writes to L->f, for the linear, viscous, corotational and nodal-pressure paths, and leaves the
+ * level as it was: state, L->f and the all-zero accumulator untouched (the level is only read) */
+SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
+{
+    sq_mesh *m = th_box(3, 2, 4, 1.0, 0.7, 1.3);
+    TH_REQUIRE(m);
+    sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-3}, 7};
+    const double g[3] = {0, 0, -9.81};
+    for (int path = 0; path < 4; path++) {
+        sq_material mat = th_material(40000, 100000, 1000);
+        mat.rayleigh_mass = 0.5;
+        mat.rayleigh_stiffness = path == 1 ? 0 : 1e-3;
+        if (path == 1) {
+            mat.use_viscosity = 1;
+            mat.phi = 2000;
+            mat.psi = 5000;
+        }
+        sq_level L;
+        sq_err e = {{0}};
+        CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, &fixed, 1, &e) == 0);
+        if (path == 2)
+            CHECK(sq_level_corot_enable(&L, &mat, SQ_OPERATOR_FEM, &e) == 0);
+        if (path == 3)
+            CHECK(sq_level_anp_enable(&L, &mat, SQ_OPERATOR_FEM, &e) == 0);
+        size_t n3 = 3 * (size_t)L.model.n;
+        uint64_t s = 12345;
+        for (size_t k = 0; k < n3; k++) {
+            s = s * 6364136223846793005ULL + 1442695040888963407ULL;
+            L.d[k] = 1e-2 * ((double)(s >> 11) / 9007199254740992.0 - 0.5);
+            L.v[k] = 1e-1 * ((double)((s * 3) >> 11) / 9007199254740992.0 - 0.5);
+        }
+        double *d0 = malloc(sizeof(double) * n3), *v0 = malloc(sizeof(double) * n3);
+        double *f = malloc(sizeof(double) * n3), *acc = calloc(n3 + 1, sizeof(double));
+        memcpy(d0, L.d, sizeof(double) * n3);
+        memcpy(v0, L.v, sizeof(double) * n3);
+        for (size_t k = 0; k < n3; k++)
+            L.f[k] = -7; /* a marker: forces_to must not write it */
+        sq_level_forces_to(&L, &mat, g, NULL, f, acc);
+        int fmark = 0, accz = 0;
+        for (size_t k = 0; k < n3; k++) {
+            fmark += L.f[k] == -7;
+            accz += acc[k] == 0;
+        }
+        CHECK(fmark == (int)n3 && accz == (int)n3);
+        CHECK(memcmp(d0, L.d, sizeof(double) * n3) == 0 && memcmp(v0, L.v, sizeof(double) * n3) == 0);
+        sq_level_forces(&L, &mat, g, NULL);
+        CHECK(memcmp(f, L.f, sizeof(double) * n3) == 0);
+        double fmax = 0;
+        for (size_t k = 0; k < n3; k++)
+            fmax = th_max(fmax, fabs(f[k]));
+        CHECK(fmax > 0); /* a real force, not zeros on both sides */
+        free(d0);
+        free(v0);
+        free(f);
+        free(acc);
+        sq_level_free(&L);
+    }
+    sq_mesh_free(m);
 }

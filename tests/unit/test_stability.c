@@ -38,8 +38,8 @@ static double total_energy(sq_body *b)
 {
     const sq_level *L = sq_body_level(b, sq_body_fixed_level(b));
     double ep = 0;
-    for (int i = 0; i < L->n; i++)
-        ep += L->mass[i] * 9.81 * L->d[3 * i + 2];
+    for (int i = 0; i < L->model.n; i++)
+        ep += L->model.mass[i] * 9.81 * L->d[3 * i + 2];
     return sq_body_kinetic_energy(b) + sq_body_elastic_energy(b) + ep;
 }
 
@@ -185,8 +185,8 @@ SQ_TEST(stability_above_bound_blows_up_test_only)
         double grow[2];
         static const double frac[2] = {1.0, 2.0};
         for (int k = 0; k < 2; k++) {
-            for (int i = 0; i < 3 * L->n; i++) {
-                L->d[i] = (L->fixed[i / 3] & (1u << (i % 3))) ? 0 : 1e-7 * (i % 2 ? 1 : -1);
+            for (int i = 0; i < 3 * L->model.n; i++) {
+                L->d[i] = (L->model.fixed[i / 3] & (1u << (i % 3))) ? 0 : 1e-7 * (i % 2 ? 1 : -1);
                 L->v[i] = 0;
             }
             double dmax = 0;
@@ -194,7 +194,7 @@ SQ_TEST(stability_above_bound_blows_up_test_only)
                 sq_level_forces(L, &mat, sq_body_get_def(b)->gravity, NULL);
                 sq_level_integrate(L, frac[k] * L->bound, NULL);
             }
-            for (int i = 0; i < 3 * L->n; i++)
+            for (int i = 0; i < 3 * L->model.n; i++)
                 dmax = th_max(dmax, fabs(L->d[i]));
             grow[k] = dmax;
         }

@@ -84,6 +84,9 @@ describe('viewer first visit', () => {
       await page.waitForFunction(() => window.squish.scene === 'cube-poke');
       // a scripted scene opened by the page waits 2 s before its tools move, then runs
       await page.waitForFunction(() => window.squish.lastFrame > 20, null, { timeout: 20000 });
+      // the HUD's health warnings, from the stats: 'none', or kinds with their counts
+      await page.waitForFunction(() => document.getElementById('hud-health').textContent !== '-', null, { timeout: 20000 });
+      assert.match(await page.locator('#hud-health').innerText(), /^(none|[a-z_]+ \d+(, [a-z_]+ \d+)*)$/);
       const iOpen = page.sent.indexOf('open'), iPause = page.sent.indexOf('pause'), iResume = page.sent.indexOf('resume');
       assert.ok(iOpen >= 0 && iPause > iOpen && iResume > iPause, `requests sent: ${page.sent.join(', ')}`);
       const replay = page.locator('#btn-replay');
