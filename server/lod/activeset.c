@@ -48,7 +48,7 @@ static void sort_marked(int *list, int cnt, const unsigned char *mark, int n)
     }
 }
 
-/* after rebuild_level filled alist (active nodes, increasing) and the inner mask */
+/* after sq_lodx_rebuild_level filled alist (active nodes, increasing) and the inner mask */
 void sq_lodx_level_lists(sq_lod *lod, int k)
 {
     int ni = 0;

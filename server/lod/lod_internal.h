@@ -1,6 +1,14 @@
-/* lod_internal.h - the adaptive state shared by the files of the lod module (adaptive.c: the
- * frame, coupling and split/merge; activeset.c: per-level index lists and the kernels that run
- * over them). Not part of the module's contract (lod.h).
+/* lod_internal.h - the adaptive state shared by the files of the lod module, one per stage:
+ *   state.c      creation, definition, reset, the level's state lists, ghost values (sync), check
+ *   criterion.c  the split/merge criterion, split/merge decisions, the node-update cap
+ *   coupling.c   the coupling blocks of the ring and frontier rows, the interface substeps
+ *   ring.c       the ring ghosts' sources, their values and their reactions
+ *   holds.c      tool holds onto active nodes
+ *   frame.c      sq_lod_frame: the frame as a list of timed stages
+ *   views.c      node levels, active lists, energy, projected updates
+ *   activeset.c  per-level index lists and the kernels that run over them
+ *   hierarchy.c  the links between consecutive levels
+ * Not part of the module's contract (lod.h).
  */
 #ifndef SQ_LOD_INTERNAL_H
 #define SQ_LOD_INTERNAL_H
@@ -150,6 +158,59 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
     }
 }
 
+/* substep exponent a level runs at in the adaptive frame */
+static inline int sub_log2(const sq_lod *lod, int k)
+{
+    return lod->lv[k].substeps_log2 + lod->extra[k];
+}
+
+/* position of column j in CSR row i of the mesh adjacency (sorted), or -1 */
+static inline int adj_find(const sq_mesh *m, int i, int j)
+{
+    int lo = m->adj_start[i], hi = m->adj_start[i + 1] - 1;
+    while (lo <= hi) {
+        int mid = (lo + hi) / 2;
+        if (m->adj[mid] == j)
+            return mid;
+        if (m->adj[mid] < j)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return -1;
+}
+
+/* counters of one frame's adaptation */
+typedef struct adapt_out {
+    int splits, merges, refused;
+    int changed[SQ_MAX_LEVELS];
+} adapt_out;
+
+
+/* state.c: recompute the active mask, the ghost lists and the integration mask of level k */
+void sq_lodx_rebuild_level(sq_lod *lod, int k);
+/* state.c: split ghosts of level k from their child tets in level k+1 */
+void sq_lodx_pull_level(sq_lod *lod, int k);
+/* state.c: the end-of-frame cascade (coarse ghosts pushed only where something reads them) */
+void sq_lodx_cascade_needed(sq_lod *lod);
+/* criterion.c: Laplacian weights of the criterion per CSR entry of the mesh adjacency */
+double *sq_lodx_criterion_weights(const sq_mesh *m);
+/* criterion.c: split/merge between levels k and k+1; merges until the node-update cap fits */
+void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out);
+void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
+/* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
+void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
+/* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
+void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
+void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
+/* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
+void sq_lodx_build_sources(sq_lod *lod);
+void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
+void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
+/* holds.c: map hold h onto its active node; prescribe the held nodes; forget the holds */
+void sq_lodx_map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now);
+void sq_lodx_start_holds(sq_lod *lod, double T);
+void sq_lodx_clear_holds(sq_lod *lod);
 
 /* activeset.c: per-level index lists (active, inner, integrated), the nodes whose values at
  * the start of a step are read, the coarse ghosts something reads (the rest are pushed only
@@ -161,7 +222,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
 void sq_lodx_integrate(sq_lod *lod, int k, double dt);
 void sq_lodx_save_prev(sq_lod *lod, int k);
 void sq_lodx_push_needed(sq_lod *lod);
-/* the cascade values of the ring ghosts, before eval_ring replaces them (for sq_lod_flush) */
+/* the cascade values of the ring ghosts, before sq_lodx_eval_ring replaces them (for sq_lod_flush) */
 void sq_lodx_save_cascade(sq_lod *lod);
 /* d and v of node j of level k for a read inside the frame: the stored value, except for a
  * coarse ghost outside the needed set, interpolated afresh from the coarser level */

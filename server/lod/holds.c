@@ -1,0 +1,102 @@
+/* holds.c - stage: tool holds onto the active nodes (docs/lod.md, "Tools").
+ *
+ * A hold arrives on a finest node; it goes to the node itself when it is active, else the
+ * same translation goes to its active ancestor (sq_lodx_map_hold); the held nodes are prescribed at
+ * the start of the frame (sq_lodx_start_holds) and not integrated; their internal force is summed over
+ * their level's substeps for the tool feedback; sq_lodx_clear_holds forgets them at the frame's end.
+ */
+#include "lod/lod.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lod/lod_internal.h"
+
+/* ---------------------------------------------------------------- tool holds */
+
+/* the active node standing for finest node j: itself or its active ancestor; -1 if none */
+static int active_of_finest(const sq_lod *lod, int j, int *level)
+{
+    int k = lod->L - 1, a = j;
+    while (lod->state[k][a] != ST_ACTIVE) {
+        if (k == 0)
+            return -1;
+        a = lod->h.link[k - 1].parent[a];
+        k--;
+    }
+    *level = k;
+    return a;
+}
+
+/* map hold h (at time t_now within the frame) onto its active node; adds to that node's entry */
+void sq_lodx_map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
+{
+    int F = lod->L - 1, k;
+    int a = active_of_finest(lod, hd->node, &k);
+    if (a < 0) {
+        lod->hold_entry_of[h] = -1;
+        return;
+    }
+    sq_level *Lk = &lod->lv[k];
+    const double *dj = lod->lv[F].d + 3 * hd->node;
+    int e = lod->slot[k][a];
+    if (e < 0) {
+        if (lod->nhe == lod->cap_he) {
+            lod->cap_he = lod->cap_he ? 2 * lod->cap_he : 64;
+            lod->he = sq_realloc(lod->he, sizeof(hold_entry) * (size_t)lod->cap_he);
+        }
+        e = lod->nhe++;
+        hold_entry *E = &lod->he[e];
+        memset(E, 0, sizeof(*E));
+        E->level = k;
+        E->node = a;
+        E->t_from = t_now;
+        memcpy(E->from, Lk->d + 3 * a, sizeof(E->from));
+        lod->slot[k][a] = e;
+        if (lod->mask[k][a]) {
+            lod->mask[k][a] = 0;
+            lod->nmask[k]--;
+        }
+    }
+    hold_entry *E = &lod->he[e];
+    /* the hold node itself takes its target; an ancestor the same translation */
+    for (int c = 0; c < 3; c++)
+        E->gsum[c] += (k == F && a == hd->node) ? hd->target[c]
+                                                : Lk->d[3 * a + c] + (hd->target[c] - dj[c]);
+    E->count++;
+    E->pending = 1;
+    lod->hold_entry_of[h] = e;
+}
+
+/* prescribe the nodes whose targets changed: d = mean target, v = (d - from) / time left */
+void sq_lodx_start_holds(sq_lod *lod, double T)
+{
+    for (int e = 0; e < lod->nhe; e++) {
+        hold_entry *E = &lod->he[e];
+        if (!E->pending || E->count == 0)
+            continue;
+        E->pending = 0;
+        sq_level *Lk = &lod->lv[E->level];
+        double span = T - E->t_from;
+        unsigned char fx = Lk->fixed[E->node];
+        for (int c = 0; c < 3; c++) {
+            if (fx & (1u << c))
+                continue;
+            double goal = E->gsum[c] / E->count;
+            Lk->d[3 * E->node + c] = goal;
+            Lk->v[3 * E->node + c] = span > 0 ? (goal - E->from[c]) / span : 0.0;
+            lod->dprev[E->level][3 * E->node + c] = Lk->d[3 * E->node + c];
+            lod->vprev[E->level][3 * E->node + c] = Lk->v[3 * E->node + c];
+        }
+    }
+}
+
+void sq_lodx_clear_holds(sq_lod *lod)
+{
+    for (int e = 0; e < lod->nhe; e++)
+        if (lod->slot[lod->he[e].level][lod->he[e].node] == e)
+            lod->slot[lod->he[e].level][lod->he[e].node] = -1;
+    lod->nhe = 0;
+}
