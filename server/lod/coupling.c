@@ -58,19 +58,20 @@ static inline void axpy9(double *restrict dst, double w, const double *restrict 
  * 16 blocks (p, q) of 9, then with viscosity 16 viscous ones */
 static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
 {
-    int sl = lod->ke_slot[k][t];
+    sq_lod_level *lk = &lod->lev[k];
+    int sl = lk->blocks_slot[t];
     size_t per = visc ? 288 : 144;
     if (sl >= 0)
-        return lod->ke[k] + per * (size_t)sl;
-    if (lod->ke_n[k] == lod->ke_cap[k]) {
-        lod->ke_cap[k] = lod->ke_cap[k] ? 2 * lod->ke_cap[k] : 256;
-        lod->ke[k] = sq_realloc(lod->ke[k], sizeof(double) * per * (size_t)lod->ke_cap[k]);
+        return lk->blocks_cache + per * (size_t)sl;
+    if (lk->blocks_used == lk->blocks_cap) {
+        lk->blocks_cap = lk->blocks_cap ? 2 * lk->blocks_cap : 256;
+        lk->blocks_cache = sq_realloc(lk->blocks_cache, sizeof(double) * per * (size_t)lk->blocks_cap);
     }
-    sl = lod->ke_n[k]++;
-    lod->ke_slot[k][t] = sl;
-    double *E = lod->ke[k] + per * (size_t)sl;
+    sl = lk->blocks_used++;
+    lk->blocks_slot[t] = sl;
+    double *E = lk->blocks_cache + per * (size_t)sl;
     memset(E, 0, sizeof(double) * per);
-    const double *g = lod->tet_geom[k] + 13 * (size_t)t;
+    const double *g = lk->tet_geom + 13 * (size_t)t;
     const sq_material *mat = &lod->mat;
     for (int p = 0; p < 4; p++)
         for (int q = 0; q < 4; q++) {
@@ -86,9 +87,9 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
 static void drop_tet_blocks(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        for (int t = 0; t < lod->lv[k].mesh->ntets && lod->ke_n[k] > 0; t++)
-            lod->ke_slot[k][t] = -1;
-        lod->ke_n[k] = 0;
+        for (int t = 0; t < lod->lv[k].mesh->ntets && lod->lev[k].blocks_used > 0; t++)
+            lod->lev[k].blocks_slot[t] = -1;
+        lod->lev[k].blocks_used = 0;
     }
 }
 
@@ -97,17 +98,18 @@ static void drop_tet_blocks(sq_lod *lod)
 static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight, double *restrict B,
                               double *restrict Bd)
 {
+    sq_lod_level *lk = &lod->lev[k];
     const sq_mesh *m = lod->lv[k].mesh;
-    const unsigned char *act = lod->active[k];
+    const unsigned char *act = lk->active;
     int visc = Bd != NULL;
     for (int c = c0; c < c1; c++) {
-        int t = lod->node_tet[k][c];
+        int t = lk->node_tet[c];
         const int *tv = m->tets + 4 * t;
         int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
         if (na == 0 || na == 4)
             continue;
-        const double *E = tet_blocks(lod, k, t, visc) + 36 * lod->nt_p[k][c];
-        const int *ev = lod->nt_e[k] + 4 * (size_t)c;
+        const double *E = tet_blocks(lod, k, t, visc) + 36 * lk->inc_corner[c];
+        const int *ev = lk->inc_block + 4 * (size_t)c;
         for (int q = 0; q < 4; q++) {
             axpy9(B + 9 * ev[q], weight, E + 9 * q);
             if (visc)
@@ -132,8 +134,8 @@ static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
     double err[2] = {0, 0};
     for (int o = 0; o < 2; o++) {
         row[o] = sq_calloc(9 * (size_t)n, sizeof(double));
-        for (int c = lod->node_tet_start[0][i]; c < lod->node_tet_start[0][i + 1]; c++) {
-            int t = lod->node_tet[0][c];
+        for (int c = lod->lev[0].node_tet_start[i]; c < lod->lev[0].node_tet_start[i + 1]; c++) {
+            int t = lod->lev[0].node_tet[c];
             double a[4][3];
             double V = sq_tet_gradients(m, t, a);
             int p = 0;
@@ -183,7 +185,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
         int j = nodes[r];
         double *B = *bk + 9 * (size_t)off[r];
         double *Bd = visc ? *bd + 9 * (size_t)off[r] : NULL;
-        row_blocks(lod, k, lod->node_tet_start[k][j], lod->node_tet_start[k][j + 1], weight, B, Bd);
+        row_blocks(lod, k, lod->lev[k].node_tet_start[j], lod->lev[k].node_tet_start[j + 1], weight, B, Bd);
     }
     /* keep the non-zero blocks only, with their column */
     int *col = sq_realloc(*cols, sizeof(int) * (size_t)SQ_MAX(total, 1));
@@ -215,50 +217,52 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
  * tets, given back) of level k */
 static void build_ring_blocks(sq_lod *lod, int k)
 {
-    build_blocks(lod, k, lod->ring[k], lod->nring[k], lod->rk_off[k], &lod->rk_col[k], &lod->rk[k], &lod->rk_cap[k],
-                 &lod->rd[k], &lod->rd_cap[k], MIXED_WEIGHT);
-    build_blocks(lod, k, lod->front[k], lod->nfront[k], lod->fk_off[k], &lod->fk_col[k], &lod->fk[k], &lod->fk_cap[k],
-                 &lod->fd[k], &lod->fd_cap[k], 1.0 - MIXED_WEIGHT);
+    sq_lod_level *lk = &lod->lev[k];
+    build_blocks(lod, k, lk->ring, lk->nring, lk->ring_off, &lk->ring_col, &lk->ring_K, &lk->ring_K_cap,
+                 &lk->ring_D, &lk->ring_D_cap, MIXED_WEIGHT);
+    build_blocks(lod, k, lk->frontier, lk->nfrontier, lk->front_off, &lk->front_col, &lk->front_K, &lk->front_K_cap,
+                 &lk->front_D, &lk->front_D_cap, 1.0 - MIXED_WEIGHT);
     /* merged frontier rows: the level's row less the correction the frontier pass adds back
-     * (sq_lodx_front_correct adds fk w; the force pass subtracts K w) */
+     * (sq_lodx_front_correct adds front_K w; the force pass subtracts K w) */
     const sq_level *L = &lod->lv[k];
     int total = 0;
-    for (int r = 0; r < lod->nfront[k]; r++) {
-        int i = lod->front[k][r];
+    for (int r = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r];
         total += L->row_start[i + 1] - L->row_start[i];
     }
-    if (total > lod->fm_cap[k]) {
-        lod->fm_cap[k] = SQ_MAX(total, 2 * lod->fm_cap[k]);
-        lod->fm[k] = sq_realloc(lod->fm[k], sizeof(double) * 9 * (size_t)lod->fm_cap[k]);
+    if (total > lk->front_merged_cap) {
+        lk->front_merged_cap = SQ_MAX(total, 2 * lk->front_merged_cap);
+        lk->front_merged = sq_realloc(lk->front_merged, sizeof(double) * 9 * (size_t)lk->front_merged_cap);
     }
-    double *M = lod->fm[k];
-    for (int r = 0; r < lod->nfront[k]; r++) {
-        int i = lod->front[k][r], q0 = L->row_start[i], len = L->row_start[i + 1] - q0;
+    double *M = lk->front_merged;
+    for (int r = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r], q0 = L->row_start[i], len = L->row_start[i + 1] - q0;
         memcpy(M, L->K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
-        for (int e = lod->fk_off[k][r]; e < lod->fk_off[k][r + 1]; e++) {
-            int pos = adj_find(L->mesh, i, lod->fk_col[k][e]) - q0;
+        for (int e = lk->front_off[r]; e < lk->front_off[r + 1]; e++) {
+            int pos = adj_find(L->mesh, i, lk->front_col[e]) - q0;
             for (int x = 0; x < 9; x++)
-                M[9 * pos + x] -= lod->fk[k][9 * (size_t)e + x];
+                M[9 * pos + x] -= lk->front_K[9 * (size_t)e + x];
         }
         M += 9 * (size_t)len;
     }
-    lod->rk_dirty[k] = 0;
+    lk->blocks_dirty = 0;
 }
 
 /* frontier correction of level k after its full-row forces: f_i += (1 - w) sum over mixed
  * tets of K^T (d + b v) (+ D^T v) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
 {
+    sq_lod_level *lk = &lod->lev[k];
     sq_level *L = &lod->lv[k];
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    int visc = mat->use_viscosity && lod->fd[k];
-    for (int r = 0; r < lod->nfront[k]; r++) {
-        int i = lod->front[k][r];
-        const double *B = lod->fk[k];
-        const double *Bd = visc ? lod->fd[k] : NULL;
+    int visc = mat->use_viscosity && lk->front_D;
+    for (int r = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r];
+        const double *B = lk->front_K;
+        const double *Bd = visc ? lk->front_D : NULL;
         double *fi = L->f + 3 * i;
-        for (int e = lod->fk_off[k][r]; e < lod->fk_off[k][r + 1]; e++) {
-            int l = lod->fk_col[k][e];
+        for (int e = lk->front_off[r]; e < lk->front_off[r + 1]; e++) {
+            int l = lk->front_col[e];
             const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
             double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
             for (int rr = 0; rr < 3; rr++)
@@ -276,12 +280,13 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
  * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity */
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
 {
+    sq_lod_level *lk = &lod->lev[k];
     sq_level *L = &lod->lv[k];
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
-    const double *M = lod->fm[k];
-    for (int r = 0; r < lod->nfront[k]; r++) {
-        int i = lod->front[k][r];
+    const double *M = lk->front_merged;
+    for (int r = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r];
         double f0 = 0, f1 = 0, f2 = 0;
         for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++, M += 9) {
             const size_t j = 3 * (size_t)L->col[q];
@@ -314,19 +319,19 @@ static void own_rows(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
         const sq_level *L = &lod->lv[k];
-        if (!lod->rowk[k])
-            lod->rowk[k] = sq_malloc(sizeof(double) * (size_t)L->n);
+        if (!lod->lev[k].own_rowsum)
+            lod->lev[k].own_rowsum = sq_malloc(sizeof(double) * (size_t)L->n);
         for (int i = 0; i < L->n; i++) {
             double s = 0;
             for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++)
                 s += block_norm(L->K + 9 * (size_t)q);
-            lod->rowk[k][i] = s;
+            lod->lev[k].own_rowsum[i] = s;
         }
         double own = 0;
         for (int i = 0; i < L->n; i++)
             if (L->fixed[i] != 7)
-                own = fmax(own, lod->rowk[k][i] / L->mass[i]);
-        lod->own_max[k] = own;
+                own = fmax(own, lod->lev[k].own_rowsum[i] / L->mass[i]);
+        lod->lev[k].own_rate = own;
     }
 }
 
@@ -339,45 +344,46 @@ static void coupling_bound(sq_lod *lod)
 {
     int L = lod->L;
     for (int k = 0; k < L; k++) {
-        if (!lod->cpl[k])
-            lod->cpl[k] = sq_malloc(sizeof(double) * (size_t)lod->lv[k].n);
-        memset(lod->cpl[k], 0, sizeof(double) * (size_t)lod->lv[k].n);
+        if (!lod->lev[k].coupled_rowsum)
+            lod->lev[k].coupled_rowsum = sq_malloc(sizeof(double) * (size_t)lod->lv[k].n);
+        memset(lod->lev[k].coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].n);
     }
     for (int m = 0; m < L; m++) {
-        for (int r = 0; r < lod->nring[m]; r++) {
-            int a = lod->fs_start[m][r], b = lod->fs_start[m][r + 1];
+        for (int r = 0; r < lod->lev[m].nring; r++) {
+            int a = lod->lev[m].src_start[r], b = lod->lev[m].src_start[r + 1];
             if (a == b)
                 continue;
             double R = 0;
-            for (int e = lod->rk_off[m][r]; e < lod->rk_off[m][r + 1]; e++) {
-                int l = lod->rk_col[m][e];
+            for (int e = lod->lev[m].ring_off[r]; e < lod->lev[m].ring_off[r + 1]; e++) {
+                int l = lod->lev[m].ring_col[e];
                 double scale = 1;
-                if (!lod->active[m][l]) {
-                    int rl = lod->ring_index[m][l];
+                if (!lod->lev[m].active[l]) {
+                    int rl = lod->lev[m].ring_index[l];
                     scale = 0;
                     if (rl >= 0)
-                        for (int q = lod->fs_start[m][rl]; q < lod->fs_start[m][rl + 1]; q++)
-                            scale += fabs(lod->fs_w[m][q]);
+                        for (int q = lod->lev[m].src_start[rl]; q < lod->lev[m].src_start[rl + 1]; q++)
+                            scale += fabs(lod->lev[m].src_weight[q]);
                 }
-                R += block_norm(lod->rk[m] + 9 * (size_t)e) * scale;
+                R += block_norm(lod->lev[m].ring_K + 9 * (size_t)e) * scale;
             }
             for (int q = a; q < b; q++)
-                lod->cpl[lod->fs_level[m][q]][lod->fs_node[m][q]] += fabs(lod->fs_w[m][q]) * R;
+                lod->lev[lod->lev[m].src_level[q]].coupled_rowsum[lod->lev[m].src_node[q]] +=
+                    fabs(lod->lev[m].src_weight[q]) * R;
         }
     }
     for (int k = 0; k < L; k++) {
         const sq_level *Lk = &lod->lv[k];
-        double own = lod->own_max[k], coupled = 0;
-        for (int a = 0; a < lod->nactive[k]; a++) {
-            int i = lod->alist[k][a];
+        double own = lod->lev[k].own_rate, coupled = 0;
+        for (int a = 0; a < lod->lev[k].nactive; a++) {
+            int i = lod->lev[k].active_list[a];
             if (Lk->fixed[i] == 7)
                 continue;
-            coupled = fmax(coupled, (lod->rowk[k][i] + lod->cpl[k][i]) / Lk->mass[i]);
+            coupled = fmax(coupled, (lod->lev[k].own_rowsum[i] + lod->lev[k].coupled_rowsum[i]) / Lk->mass[i]);
         }
         int extra = 0;
         if (own > 0 && coupled > own)
             extra = (int)ceil(0.5 * log2(coupled / own) - 1e-12);
-        lod->extra[k] = SQ_MIN(SQ_MAX(extra, 0), 6);
+        lod->lev[k].extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
     }
 }
 
@@ -392,12 +398,12 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         drop_tet_blocks(lod);
         own_rows(lod);
         for (int k = 0; k < lod->L; k++)
-            lod->rk_dirty[k] = 1;
+            lod->lev[k].blocks_dirty = 1;
     }
     if (!lod->have_mat)
         return;
     for (int k = 0; k < lod->L; k++)
-        if (lod->rk_dirty[k]) {
+        if (lod->lev[k].blocks_dirty) {
             build_ring_blocks(lod, k);
             changed = 1;
         }

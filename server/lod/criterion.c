@@ -92,13 +92,14 @@ double *sq_lodx_criterion_weights(const sq_mesh *m)
 /* delta_i = hbar_i^2 |Lap(d)_i| at node i of level k (boundary-corrected Laplacian) */
 static double delta_at(const sq_lod *lod, int k, int i)
 {
+    const sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
-    const double *w = lod->clap[k];
+    const double *w = lk->crit_weight;
     double s[3] = {0, 0, 0};
-    const unsigned char *st = lod->state[k];
-    const unsigned *ps = lod->pstamp[k];
+    const unsigned char *st = lk->state;
+    const unsigned *ps = lk->push_stamp;
     int all_valid = lod->full_no == lod->cascade_no;
-    const double *ds = lod->dstat[k];
+    const double *ds = lk->d_static;
     for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++) {
         int j = L->col[q];
         const double *dj = L->d + 3 * j;
@@ -136,14 +137,15 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
 
 static void merge_node(sq_lod *lod, int k, int p)
 {
+    sq_lod_level *lk = &lod->lev[k];
     const sq_lod_link *ln = &lod->h.link[k];
-    lod->state[k][p] = ST_ACTIVE;
+    lk->state[p] = ST_ACTIVE;
     /* the merged node starts from its interpolated value (pulled from its child tet) */
     sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
-        lod->state[k + 1][ln->child[c]] = ST_COARSE;
-    memcpy(lod->dprev[k] + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
-    memcpy(lod->vprev[k] + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
+        lod->lev[k + 1].state[ln->child[c]] = ST_COARSE;
+    memcpy(lk->d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
+    memcpy(lk->v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
     /* children become coarse ghosts and take their parent-tet value at once */
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
         int j = ln->child[c];
@@ -155,6 +157,7 @@ static void merge_node(sq_lod *lod, int k, int p)
  * budget; the node-update cap refuses splits that would exceed it */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out)
 {
+    sq_lod_level *lk = &lod->lev[k];
     if (k >= lod->top)
         return;
     const sq_lod_def *def = &lod->def;
@@ -167,7 +170,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
     /* splits: active nodes of level k above the threshold */
     if (def->split < INFINITY) {
         for (int i = 0; i < Lk->n; i++) {
-            if (lod->state[k][i] != ST_ACTIVE)
+            if (lk->state[i] != ST_ACTIVE)
                 continue;
             if (!forced && !(delta_at(lod, k, i) > def->split))
                 continue;
@@ -178,14 +181,14 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 continue;
             }
             /* children start from their interpolated d and v (parent tet, values now) */
-            lod->state[k][i] = ST_SPLIT;
-            lod->fresh[k][i] = 1;
+            lk->state[i] = ST_SPLIT;
+            lk->fresh[i] = 1;
             for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
                 int j = ln->child[c];
-                lod->state[k + 1][j] = ST_ACTIVE;
+                lod->lev[k + 1].state[j] = ST_ACTIVE;
                 sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-                memcpy(lod->dprev[k + 1] + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
-                memcpy(lod->vprev[k + 1] + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
             }
             *projected += extra;
             out->splits++;
@@ -196,12 +199,12 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
     /* merges: split nodes of level k whose children are all active and calm */
     if (!forced) {
         for (int p = 0; p < Lk->n; p++) {
-            if (lod->state[k][p] != ST_SPLIT || lod->fresh[k][p])
+            if (lk->state[p] != ST_SPLIT || lk->fresh[p])
                 continue;
             int ok = 1;
             int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
             for (int c = c0; c < c1 && ok; c++)
-                if (lod->state[k + 1][ln->child[c]] != ST_ACTIVE)
+                if (lod->lev[k + 1].state[ln->child[c]] != ST_ACTIVE)
                     ok = 0;
             if (!ok)
                 continue;
@@ -223,7 +226,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         }
     }
     for (int i = 0; i < Lk->n; i++)
-        lod->fresh[k][i] = 0;
+        lk->fresh[i] = 0;
     if (changed) {
         out->changed[k] = out->changed[k + 1] = 1;
     }
@@ -239,11 +242,11 @@ void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
         const sq_lod_link *ln = &lod->h.link[k];
         long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
         for (int p = 0; p < lod->lv[k].n && *projected > cap; p++) {
-            if (lod->state[k][p] != ST_SPLIT)
+            if (lod->lev[k].state[p] != ST_SPLIT)
                 continue;
             int ok = 1;
             for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
-                if (lod->state[k + 1][ln->child[c]] != ST_ACTIVE)
+                if (lod->lev[k + 1].state[ln->child[c]] != ST_ACTIVE)
                     ok = 0;
             if (!ok)
                 continue;

@@ -90,8 +90,8 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         lod->hold_entry_of = sq_realloc(lod->hold_entry_of, sizeof(int) * (size_t)nholds);
     }
     for (int k = 0; k < L; k++) {
-        lod->nmask[k] = lod->nactive[k];
-        memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].n);
+        lod->lev[k].nintegrated = lod->lev[k].nactive;
+        memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].n);
     }
     for (int h = 0; h < nholds; h++) {
         lod->hold_entry_of[h] = -1;
@@ -107,8 +107,8 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         sq_lodx_refresh_lists(lod);
 
     for (int k = 0; k < L; k++) {
-        lod->step_t0[k] = -stride[k]; /* the previous frame's last step ended at tick 0 */
-        lod->step_len[k] = stride[k];
+        lod->lev[k].step_start = -stride[k]; /* the previous frame's last step ended at tick 0 */
+        lod->lev[k].step_len = stride[k];
     }
     for (long t = 0; t < nticks; t++) {
         if ((t & 15) == 15 && sq_cancelled())
@@ -117,8 +117,8 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
          * nodes, finest simulated level included) */
         double t0 = sq_now();
         for (int k = 0; k < L; k++) {
-            lod->due[k] = t % stride[k] == 0;
-            if (lod->due[k] && lod->nactive[k] > 0)
+            lod->lev[k].due = t % stride[k] == 0;
+            if (lod->lev[k].due && lod->lev[k].nactive > 0)
                 sq_lodx_eval_ring(lod, k, t);
         }
         double t1 = sq_now();
@@ -126,16 +126,16 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         /* (2) forces of every due level from the state at this tick, the coupling reactions
          * between levels, then integration of the free active nodes */
         for (int k = 0; k < L; k++)
-            if (lod->due[k] && lod->nactive[k] > 0) {
+            if (lod->lev[k].due && lod->lev[k].nactive > 0) {
                 /* the all-nodes force pass is vectorised, faster per node than the masked
                  * one, but computes ghost rows nobody reads and needs the frontier correction
                  * pass: use it once 60% of the level is active (with the frontier rows folded,
                  * 60% beat 40% by 5-8% CPU on the organ and 3.6% instructions on cube-poke) */
-                if (5 * lod->nactive[k] >= 3 * lod->lv[k].n) {
+                if (5 * lod->lev[k].nactive >= 3 * lod->lv[k].n) {
                     sq_level_forces(&lod->lv[k], mat, gravity, NULL);
                     sq_lodx_front_correct(lod, mat, k);
                 } else if (mat->use_viscosity) {
-                    sq_level_forces(&lod->lv[k], mat, gravity, lod->active[k]);
+                    sq_level_forces(&lod->lv[k], mat, gravity, lod->lev[k].active);
                     sq_lodx_front_correct(lod, mat, k);
                 } else {
                     /* interior rows by the level's pass, frontier rows with their
@@ -145,17 +145,17 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
                 }
             }
         for (int k = 0; k < L; k++)
-            if (lod->nactive[k] > 0 && lod->nring[k] > 0) {
-                if (!lod->due[k])
+            if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
+                if (!lod->lev[k].due)
                     sq_lodx_eval_ring(lod, k, t);
                 sq_lodx_couple_out(lod, mat, k, t);
             }
         for (int k = 0; k < L; k++) {
-            if (!lod->due[k])
+            if (!lod->lev[k].due)
                 continue;
             sq_level *Lk = &lod->lv[k];
-            lod->step_t0[k] = t;
-            if (lod->nactive[k] == 0)
+            lod->lev[k].step_start = t;
+            if (lod->lev[k].nactive == 0)
                 continue;
             /* feedback of the held nodes */
             for (int e = 0; e < lod->nhe; e++) {
@@ -169,14 +169,14 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             }
             /* finer levels read this level between its steps */
             sq_lodx_save_prev(lod, k);
-            if (lod->nmask[k] > 0) {
-                double dtk = lod->extra[k] ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
-                if (lod->nmask[k] == Lk->n)
+            if (lod->lev[k].nintegrated > 0) {
+                double dtk = lod->lev[k].extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
+                if (lod->lev[k].nintegrated == Lk->n)
                     sq_level_integrate(Lk, dtk, NULL);
                 else
                     sq_lodx_integrate(lod, k, dtk);
             }
-            updates += lod->nmask[k];
+            updates += lod->lev[k].nintegrated;
         }
         double t2 = sq_now();
         t_int += t2 - t1;
@@ -223,9 +223,9 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     }
     sq_lodx_clear_holds(lod);
     for (int k = 0; k < L; k++)
-        if (lod->nmask[k] != lod->nactive[k]) {
-            memcpy(lod->mask[k], lod->active[k], (size_t)lod->lv[k].n);
-            lod->nmask[k] = lod->nactive[k];
+        if (lod->lev[k].nintegrated != lod->lev[k].nactive) {
+            memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].n);
+            lod->lev[k].nintegrated = lod->lev[k].nactive;
         }
 
     double t_end = sq_now(), c_end = thread_cpu();
@@ -252,7 +252,7 @@ void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         prof->t_total = t_end - t_start;
         prof->node_updates = updates;
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-            prof->active[k] = k < L ? lod->nactive[k] : 0;
+            prof->active[k] = k < L ? lod->lev[k].nactive : 0;
             prof->substeps[k] = k < L ? 1 << sub_log2(lod, k) : 0;
         }
         prof->splits = ao.splits;

@@ -20,7 +20,7 @@
 static int active_of_finest(const sq_lod *lod, int j, int *level)
 {
     int k = lod->L - 1, a = j;
-    while (lod->state[k][a] != ST_ACTIVE) {
+    while (lod->lev[k].state[a] != ST_ACTIVE) {
         if (k == 0)
             return -1;
         a = lod->h.link[k - 1].parent[a];
@@ -41,7 +41,7 @@ void sq_lodx_map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
     }
     sq_level *Lk = &lod->lv[k];
     const double *dj = lod->lv[F].d + 3 * hd->node;
-    int e = lod->slot[k][a];
+    int e = lod->lev[k].hold_of[a];
     if (e < 0) {
         if (lod->nhe == lod->cap_he) {
             lod->cap_he = lod->cap_he ? 2 * lod->cap_he : 64;
@@ -54,10 +54,10 @@ void sq_lodx_map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
         E->node = a;
         E->t_from = t_now;
         memcpy(E->from, Lk->d + 3 * a, sizeof(E->from));
-        lod->slot[k][a] = e;
-        if (lod->mask[k][a]) {
-            lod->mask[k][a] = 0;
-            lod->nmask[k]--;
+        lod->lev[k].hold_of[a] = e;
+        if (lod->lev[k].integrated[a]) {
+            lod->lev[k].integrated[a] = 0;
+            lod->lev[k].nintegrated--;
         }
     }
     hold_entry *E = &lod->he[e];
@@ -87,8 +87,8 @@ void sq_lodx_start_holds(sq_lod *lod, double T)
             double goal = E->gsum[c] / E->count;
             Lk->d[3 * E->node + c] = goal;
             Lk->v[3 * E->node + c] = span > 0 ? (goal - E->from[c]) / span : 0.0;
-            lod->dprev[E->level][3 * E->node + c] = Lk->d[3 * E->node + c];
-            lod->vprev[E->level][3 * E->node + c] = Lk->v[3 * E->node + c];
+            lod->lev[E->level].d_start[3 * E->node + c] = Lk->d[3 * E->node + c];
+            lod->lev[E->level].v_start[3 * E->node + c] = Lk->v[3 * E->node + c];
         }
     }
 }
@@ -96,7 +96,7 @@ void sq_lodx_start_holds(sq_lod *lod, double T)
 void sq_lodx_clear_holds(sq_lod *lod)
 {
     for (int e = 0; e < lod->nhe; e++)
-        if (lod->slot[lod->he[e].level][lod->he[e].node] == e)
-            lod->slot[lod->he[e].level][lod->he[e].node] = -1;
+        if (lod->lev[lod->he[e].level].hold_of[lod->he[e].node] == e)
+            lod->lev[lod->he[e].level].hold_of[lod->he[e].node] = -1;
     lod->nhe = 0;
 }

@@ -52,7 +52,7 @@ static int cmp_src(const void *pa, const void *pb)
 static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_item **buf, int *n,
                    int *cap)
 {
-    unsigned char st = lod->state[lev][j];
+    unsigned char st = lod->lev[lev].state[j];
     if (st == ST_ACTIVE) {
         if (*n == *cap) {
             *cap = *cap ? 2 * *cap : 256;
@@ -91,10 +91,10 @@ void sq_lodx_build_sources(sq_lod *lod)
     int cap = 0;
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
-        lod->fs_start[k][0] = 0;
-        for (int r = 0; r < lod->nring[k]; r++) {
+        lod->lev[k].src_start[0] = 0;
+        for (int r = 0; r < lod->lev[k].nring; r++) {
             int n = 0;
-            expand(lod, k, lod->ring[k][r], 1.0, 0, &buf, &n, &cap);
+            expand(lod, k, lod->lev[k].ring[r], 1.0, 0, &buf, &n, &cap);
             for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
                 src_item x = buf[i];
                 int q = i - 1;
@@ -139,23 +139,24 @@ void sq_lodx_build_sources(sq_lod *lod)
             }
             if (!(fabs(sum) > 1e-3))
                 u = 0; /* no active source: the ghost keeps its value and takes no force */
-            if (total + u > lod->fs_cap[k]) {
-                lod->fs_cap[k] = SQ_MAX(2 * lod->fs_cap[k], total + u + 1024);
-                lod->fs_level[k] = sq_realloc(lod->fs_level[k], sizeof(int) * (size_t)lod->fs_cap[k]);
-                lod->fs_node[k] = sq_realloc(lod->fs_node[k], sizeof(int) * (size_t)lod->fs_cap[k]);
-                lod->fs_w[k] = sq_realloc(lod->fs_w[k], sizeof(double) * (size_t)lod->fs_cap[k]);
+            if (total + u > lod->lev[k].src_cap) {
+                lod->lev[k].src_cap = SQ_MAX(2 * lod->lev[k].src_cap, total + u + 1024);
+                size_t scap = (size_t)lod->lev[k].src_cap;
+                lod->lev[k].src_level = sq_realloc(lod->lev[k].src_level, sizeof(int) * scap);
+                lod->lev[k].src_node = sq_realloc(lod->lev[k].src_node, sizeof(int) * scap);
+                lod->lev[k].src_weight = sq_realloc(lod->lev[k].src_weight, sizeof(double) * scap);
             }
             for (int i = 0; i < u; i++) {
-                lod->fs_level[k][total + i] = buf[i].level;
-                lod->fs_node[k][total + i] = buf[i].node;
-                lod->fs_w[k][total + i] = buf[i].w / sum;
+                lod->lev[k].src_level[total + i] = buf[i].level;
+                lod->lev[k].src_node[total + i] = buf[i].node;
+                lod->lev[k].src_weight[total + i] = buf[i].w / sum;
             }
             unsigned char bits = 0;
             for (int i = 0; i < u; i++)
                 bits |= (unsigned char)(1u << buf[i].level);
-            lod->fs_levels[k][r] = bits;
+            lod->lev[k].src_levels[r] = bits;
             total += u;
-            lod->fs_start[k][r + 1] = total;
+            lod->lev[k].src_start[r + 1] = total;
         }
     }
     free(buf);
@@ -165,23 +166,24 @@ void sq_lodx_build_sources(sq_lod *lod)
  * taken linearly in time over that step */
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
 {
+    sq_lod_level *lk = &lod->lev[k];
     sq_level *Lk = &lod->lv[k];
     double fr[SQ_MAX_LEVELS];
     const double *dcur[SQ_MAX_LEVELS], *vcur[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++) {
-        double f = (double)(t - lod->step_t0[m]) / (double)lod->step_len[m];
+        double f = (double)(t - lod->lev[m].step_start) / (double)lod->lev[m].step_len;
         fr[m] = f < 0 ? 0 : (f > 1 ? 1 : f);
         dcur[m] = lod->lv[m].d;
         vcur[m] = lod->lv[m].v;
     }
-    for (int r = 0; r < lod->nring[k]; r++) {
-        int j = lod->ring[k][r];
-        int a = lod->fs_start[k][r], b = lod->fs_start[k][r + 1];
+    for (int r = 0; r < lk->nring; r++) {
+        int j = lk->ring[r];
+        int a = lk->src_start[r], b = lk->src_start[r + 1];
         if (a == b)
             continue;
         double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-        const int *fl = lod->fs_level[k], *fn = lod->fs_node[k];
-        const double *fw = lod->fs_w[k];
+        const int *fl = lk->src_level, *fn = lk->src_node;
+        const double *fw = lk->src_weight;
         /* the sources are sorted by level: one run per level, its time fraction hoisted */
         for (int q = a; q < b;) {
             int m = fl[q];
@@ -199,7 +201,7 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
                 }
                 continue;
             }
-            const double *D0 = lod->dprev[m], *V0 = lod->vprev[m];
+            const double *D0 = lod->lev[m].d_start, *V0 = lod->lev[m].v_start;
             for (; q < b && fl[q] == m; q++) {
                 const double w = fw[q];
                 const double *d1 = D1 + 3 * fn[q], *v1 = V1 + 3 * fn[q];
@@ -223,18 +225,19 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
  * (D v)_j, with the active nodes of level k taken at fraction fr of its current step */
 static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, double fr, double g[3])
 {
+    const sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
-    const unsigned char *act = lod->active[k];
+    const unsigned char *act = lk->active;
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    const double *Bd = mat->use_viscosity ? lod->rd[k] : NULL;
+    const double *Bd = mat->use_viscosity ? lk->ring_D : NULL;
     g[0] = g[1] = g[2] = 0;
     if (fr >= 1 && !Bd) {
         /* the level at the end of its step (the common case): its current values, same sums */
         const double *restrict d = L->d, *restrict v = L->v;
         double g0 = 0, g1 = 0, g2 = 0;
-        for (int e = lod->rk_off[k][r]; e < lod->rk_off[k][r + 1]; e++) {
-            const size_t j = 3 * (size_t)lod->rk_col[k][e];
-            const double *K = lod->rk[k] + 9 * (size_t)e;
+        for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
+            const size_t j = 3 * (size_t)lk->ring_col[e];
+            const double *K = lk->ring_K + 9 * (size_t)e;
             const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
             g0 -= K[0] * w0 + K[1] * w1 + K[2] * w2;
             g1 -= K[3] * w0 + K[4] * w1 + K[5] * w2;
@@ -245,8 +248,8 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         g[2] = g2;
         return;
     }
-    for (int e = lod->rk_off[k][r]; e < lod->rk_off[k][r + 1]; e++) {
-        int l = lod->rk_col[k][e];
+    for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
+        int l = lk->ring_col[e];
         double dl[3], vl[3];
         for (int c = 0; c < 3; c++) {
             dl[c] = L->d[3 * l + c];
@@ -254,11 +257,11 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         }
         if (fr < 1 && act[l])
             for (int c = 0; c < 3; c++) {
-                double d0 = lod->dprev[k][3 * l + c], v0 = lod->vprev[k][3 * l + c];
+                double d0 = lk->d_start[3 * l + c], v0 = lk->v_start[3 * l + c];
                 dl[c] = d0 + fr * (dl[c] - d0);
                 vl[c] = v0 + fr * (vl[c] - v0);
             }
-        const double *K = lod->rk[k] + 9 * (size_t)e;
+        const double *K = lk->ring_K + 9 * (size_t)e;
         double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
         for (int rr = 0; rr < 3; rr++)
             g[rr] -= K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
@@ -277,16 +280,17 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
  * Reactions for a coarser level are sampled at its own steps. */
 void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
 {
+    sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
-    double fr = (double)(t - lod->step_t0[k]) / (double)lod->step_len[k];
+    double fr = (double)(t - lk->step_start) / (double)lk->step_len;
     fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
     unsigned due_bits = 0;
     for (int m = 0; m < lod->L; m++)
-        due_bits |= lod->due[m] ? 1u << m : 0u;
-    for (int r = 0; r < lod->nring[k]; r++) {
-        int j = lod->ring[k][r];
-        int a = lod->fs_start[k][r], b = lod->fs_start[k][r + 1];
-        if (!(lod->fs_levels[k][r] & due_bits))
+        due_bits |= lod->lev[m].due ? 1u << m : 0u;
+    for (int r = 0; r < lk->nring; r++) {
+        int j = lk->ring[r];
+        int a = lk->src_start[r], b = lk->src_start[r + 1];
+        if (!(lk->src_levels[r] & due_bits))
             continue;
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
@@ -295,8 +299,8 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             if (fx & (1u << c))
                 g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
         /* one run of sources per level (sorted by level); levels not stepping now skipped */
-        const int *fl = lod->fs_level[k], *fn = lod->fs_node[k];
-        const double *fw = lod->fs_w[k];
+        const int *fl = lk->src_level, *fn = lk->src_node;
+        const double *fw = lk->src_weight;
         for (int q = a; q < b;) {
             int m = fl[q];
             if (!(due_bits & (1u << m))) {

@@ -27,69 +27,70 @@
 /* recompute the active mask, the ghost lists and the integration mask of level k */
 void sq_lodx_rebuild_level(sq_lod *lod, int k)
 {
+    sq_lod_level *lk = &lod->lev[k];
     int n = lod->lv[k].n;
     int na = 0, nf = 0, nc = 0;
     for (int i = 0; i < n; i++) {
-        unsigned char s = lod->state[k][i];
-        lod->active[k][i] = (s == ST_ACTIVE);
-        lod->mask[k][i] = (s == ST_ACTIVE);
+        unsigned char s = lk->state[i];
+        lk->active[i] = (s == ST_ACTIVE);
+        lk->integrated[i] = (s == ST_ACTIVE);
         if (s == ST_ACTIVE)
-            lod->alist[k][na++] = i;
+            lk->active_list[na++] = i;
         else if (s == ST_SPLIT)
-            lod->gf[k][nf++] = i;
+            lk->split_ghost[nf++] = i;
         else
-            lod->gc[k][nc++] = i;
+            lk->coarse_ghost[nc++] = i;
     }
-    lod->nactive[k] = na;
-    lod->ngf[k] = nf;
-    lod->ngc[k] = nc;
+    lk->nactive = na;
+    lk->nsplit_ghost = nf;
+    lk->ncoarse_ghost = nc;
     /* the ring (ghosts with an active neighbour) and the frontier (active nodes with a ghost
      * neighbour), found from the active nodes' rows, so the cost follows the active set; the
      * ring is kept in increasing node order */
     const sq_level *Lk = &lod->lv[k];
-    const unsigned char *act = lod->active[k];
-    for (int r = 0; r < lod->nring[k]; r++)
-        lod->ring_index[k][lod->ring[k][r]] = -1;
+    const unsigned char *act = lk->active;
+    for (int r = 0; r < lk->nring; r++)
+        lk->ring_index[lk->ring[r]] = -1;
     int nr = 0, nfr = 0;
     for (int a = 0; a < na; a++) {
-        int i = lod->alist[k][a], front = 0;
+        int i = lk->active_list[a], front = 0;
         for (int q = Lk->row_start[i]; q < Lk->row_start[i + 1]; q++) {
             int j = Lk->col[q];
             if (act[j])
                 continue;
             front = 1;
-            if (lod->ring_index[k][j] < 0) {
-                lod->ring_index[k][j] = 0;
-                lod->ring[k][nr++] = j;
+            if (lk->ring_index[j] < 0) {
+                lk->ring_index[j] = 0;
+                lk->ring[nr++] = j;
             }
         }
         if (front)
-            lod->front[k][nfr++] = i;
+            lk->frontier[nfr++] = i;
     }
     if ((long)nr * 32 > n) { /* a sizeable ring: a scan of the marks beats a sort */
         nr = 0;
         for (int i = 0; i < n; i++)
-            if (lod->ring_index[k][i] >= 0)
-                lod->ring[k][nr++] = i;
+            if (lk->ring_index[i] >= 0)
+                lk->ring[nr++] = i;
     } else {
-        sq_lodx_sort_ints(lod->ring[k], nr);
+        sq_lodx_sort_ints(lk->ring, nr);
     }
     for (int r = 0; r < nr; r++)
-        lod->ring_index[k][lod->ring[k][r]] = r;
-    lod->nring[k] = nr;
-    lod->nfront[k] = nfr;
-    memcpy(lod->inner[k], lod->active[k], (size_t)SQ_MAX(n, 0));
+        lk->ring_index[lk->ring[r]] = r;
+    lk->nring = nr;
+    lk->nfrontier = nfr;
+    memcpy(lk->inner, lk->active, (size_t)SQ_MAX(n, 0));
     for (int r = 0; r < nfr; r++)
-        lod->inner[k][lod->front[k][r]] = 0;
-    lod->rk_dirty[k] = 1;
+        lk->inner[lk->frontier[r]] = 0;
+    lk->blocks_dirty = 1;
     /* held nodes are prescribed, not integrated */
     int nm = na;
     for (int e = 0; e < lod->nhe; e++)
-        if (lod->he[e].level == k && lod->he[e].count > 0 && lod->mask[k][lod->he[e].node]) {
-            lod->mask[k][lod->he[e].node] = 0;
+        if (lod->he[e].level == k && lod->he[e].count > 0 && lk->integrated[lod->he[e].node]) {
+            lk->integrated[lod->he[e].node] = 0;
             nm--;
         }
-    lod->nmask[k] = nm;
+    lk->nintegrated = nm;
     sq_lodx_level_lists(lod, k);
 }
 
@@ -98,7 +99,7 @@ static void set_uniform_level(sq_lod *lod, int s)
 {
     for (int k = 0; k < lod->L; k++) {
         unsigned char st = k < s ? ST_SPLIT : (k == s ? ST_ACTIVE : ST_COARSE);
-        memset(lod->state[k], st, (size_t)lod->lv[k].n);
+        memset(lod->lev[k].state, st, (size_t)lod->lv[k].n);
     }
     for (int k = 0; k < lod->L; k++)
         sq_lodx_rebuild_level(lod, k);
@@ -113,8 +114,8 @@ void sq_lodx_pull_level(sq_lod *lod, int k)
         return;
     const sq_lod_link *ln = &lod->h.link[k];
     sq_level *dst = &lod->lv[k];
-    for (int g = 0; g < lod->ngf[k]; g++) {
-        int i = lod->gf[k][g];
+    for (int g = 0; g < lod->lev[k].nsplit_ghost; g++) {
+        int i = lod->lev[k].split_ghost[g];
         sq_lodx_interp(lod, dst, i, k + 1, ln->down_tet[i], ln->down_bary + 4 * i);
     }
 }
@@ -127,8 +128,8 @@ static void push_level(sq_lod *lod, int k)
     const sq_lod_link *ln = &lod->h.link[k - 1];
     sq_level *dst = &lod->lv[k];
     const sq_level *src = &lod->lv[k - 1];
-    for (int g = 0; g < lod->ngc[k]; g++) {
-        int j = lod->gc[k][g];
+    for (int g = 0; g < lod->lev[k].ncoarse_ghost; g++) {
+        int j = lod->lev[k].coarse_ghost[g];
         interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
     }
 }
@@ -145,7 +146,7 @@ static void cascade(sq_lod *lod)
     lod->stale = 0;
     lod->full_no = ++lod->cascade_no;
     for (int k = 0; k < lod->L; k++)
-        sq_lodx_eval_ring(lod, k, lod->step_t0[k] + lod->step_len[k]);
+        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
 }
 
 /* the end-of-frame cascade: as cascade(), but coarse ghosts are pushed only where something
@@ -159,17 +160,17 @@ void sq_lodx_cascade_needed(sq_lod *lod)
     sq_lodx_push_needed(lod);
     sq_lodx_save_cascade(lod);
     for (int k = 0; k < lod->L; k++)
-        sq_lodx_eval_ring(lod, k, lod->step_t0[k] + lod->step_len[k]);
+        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
 }
 
 void sq_lod_sync(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        lod->step_t0[k] = -1;
-        lod->step_len[k] = 1;
+        lod->lev[k].step_start = -1;
+        lod->lev[k].step_len = 1;
         size_t n3 = 3 * (size_t)lod->lv[k].n;
-        memcpy(lod->dprev[k], lod->lv[k].d, n3 * sizeof(double));
-        memcpy(lod->vprev[k], lod->lv[k].v, n3 * sizeof(double));
+        memcpy(lod->lev[k].d_start, lod->lv[k].d, n3 * sizeof(double));
+        memcpy(lod->lev[k].v_start, lod->lv[k].v, n3 * sizeof(double));
     }
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, NULL);
@@ -262,65 +263,65 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
     size_t nmax_nodes = 1;
     for (int k = 0; k < nlevels; k++) {
         size_t n = (size_t)levels[k].n;
-        lod->state[k] = sq_calloc(n, 1);
-        lod->active[k] = sq_calloc(n, 1);
-        lod->mask[k] = sq_calloc(n, 1);
-        lod->fresh[k] = sq_calloc(n, 1);
-        lod->alist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->ilist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->mlist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->plist[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->need[k] = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->inneed[k] = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->mark[k] = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->pstamp[k] = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
+        lod->lev[k].state = sq_calloc(n, 1);
+        lod->lev[k].active = sq_calloc(n, 1);
+        lod->lev[k].integrated = sq_calloc(n, 1);
+        lod->lev[k].fresh = sq_calloc(n, 1);
+        lod->lev[k].active_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].inner_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].integrated_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].read_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].needed = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].in_needed = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].push_stamp = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
         nmax_nodes = SQ_MAX(nmax_nodes, n);
-        lod->gf[k] = sq_malloc(sizeof(int) * n);
-        lod->gc[k] = sq_malloc(sizeof(int) * n);
-        lod->slot[k] = sq_malloc(sizeof(int) * n);
-        lod->clap[k] = sq_lodx_criterion_weights(levels[k].mesh);
-        lod->ring[k] = sq_malloc(sizeof(int) * n);
-        lod->dprev[k] = sq_calloc(3 * n, sizeof(double));
-        lod->vprev[k] = sq_calloc(3 * n, sizeof(double));
-        lod->fs_start[k] = sq_calloc(n + 1, sizeof(int));
-        lod->fs_levels[k] = sq_calloc(n + 1, 1);
-        lod->rk_off[k] = sq_calloc(n + 1, sizeof(int));
-        lod->ring_index[k] = sq_malloc(sizeof(int) * n);
+        lod->lev[k].split_ghost = sq_malloc(sizeof(int) * n);
+        lod->lev[k].coarse_ghost = sq_malloc(sizeof(int) * n);
+        lod->lev[k].hold_of = sq_malloc(sizeof(int) * n);
+        lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].mesh);
+        lod->lev[k].ring = sq_malloc(sizeof(int) * n);
+        lod->lev[k].d_start = sq_calloc(3 * n, sizeof(double));
+        lod->lev[k].v_start = sq_calloc(3 * n, sizeof(double));
+        lod->lev[k].src_start = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].src_levels = sq_calloc(n + 1, 1);
+        lod->lev[k].ring_off = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].ring_index = sq_malloc(sizeof(int) * n);
         for (size_t i = 0; i < n; i++)
-            lod->ring_index[k][i] = -1;
-        lod->front[k] = sq_malloc(sizeof(int) * n);
-        lod->inner[k] = sq_calloc(n, 1);
-        lod->fk_off[k] = sq_calloc(n + 1, sizeof(int));
-        node_tets(levels[k].mesh, &lod->node_tet_start[k], &lod->node_tet[k]);
+            lod->lev[k].ring_index[i] = -1;
+        lod->lev[k].frontier = sq_malloc(sizeof(int) * n);
+        lod->lev[k].inner = sq_calloc(n, 1);
+        lod->lev[k].front_off = sq_calloc(n + 1, sizeof(int));
+        node_tets(levels[k].mesh, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
         {
             const sq_mesh *mm = levels[k].mesh;
-            int ninc = lod->node_tet_start[k][n];
-            lod->ke_slot[k] = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
+            int ninc = lod->lev[k].node_tet_start[n];
+            lod->lev[k].blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
             for (int t = 0; t < mm->ntets; t++)
-                lod->ke_slot[k][t] = -1;
-            lod->nt_p[k] = sq_malloc((size_t)SQ_MAX(ninc, 1));
-            lod->nt_e[k] = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
+                lod->lev[k].blocks_slot[t] = -1;
+            lod->lev[k].inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
+            lod->lev[k].inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
             for (int j = 0; j < (int)n; j++)
-                for (int c = lod->node_tet_start[k][j]; c < lod->node_tet_start[k][j + 1]; c++) {
-                    const int *tv = mm->tets + 4 * lod->node_tet[k][c];
+                for (int c = lod->lev[k].node_tet_start[j]; c < lod->lev[k].node_tet_start[j + 1]; c++) {
+                    const int *tv = mm->tets + 4 * lod->lev[k].node_tet[c];
                     int p = 0;
                     while (tv[p] != j)
                         p++;
-                    lod->nt_p[k][c] = (unsigned char)p;
+                    lod->lev[k].inc_corner[c] = (unsigned char)p;
                     for (int q = 0; q < 4; q++)
-                        lod->nt_e[k][4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
+                        lod->lev[k].inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
                 }
         }
         const sq_mesh *mk = levels[k].mesh;
-        lod->tet_geom[k] = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
+        lod->lev[k].tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
         for (int t = 0; t < mk->ntets; t++) {
             double a[4][3];
-            double *g = lod->tet_geom[k] + 13 * (size_t)t;
+            double *g = lod->lev[k].tet_geom + 13 * (size_t)t;
             g[0] = sq_tet_gradients(mk, t, a);
             memcpy(g + 1, a, sizeof(a));
         }
         for (size_t i = 0; i < n; i++)
-            lod->slot[k][i] = -1;
+            lod->lev[k].hold_of[i] = -1;
     }
     lod->nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
     lod->nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
@@ -334,44 +335,44 @@ void sq_lod_destroy(sq_lod *lod)
     if (!lod)
         return;
     for (int k = 0; k < lod->L; k++) {
-        free(lod->state[k]);
-        free(lod->active[k]);
-        free(lod->mask[k]);
-        free(lod->fresh[k]);
+        free(lod->lev[k].state);
+        free(lod->lev[k].active);
+        free(lod->lev[k].integrated);
+        free(lod->lev[k].fresh);
         sq_lodx_free(lod, k);
-        free(lod->gf[k]);
-        free(lod->gc[k]);
-        free(lod->slot[k]);
-        free(lod->clap[k]);
-        free(lod->ring[k]);
-        free(lod->dprev[k]);
-        free(lod->vprev[k]);
-        free(lod->fs_start[k]);
-        free(lod->fs_levels[k]);
-        free(lod->rk_off[k]);
-        free(lod->ring_index[k]);
-        free(lod->rowk[k]);
-        free(lod->cpl[k]);
-        free(lod->rk_col[k]);
-        free(lod->fk_col[k]);
-        free(lod->front[k]);
-        free(lod->inner[k]);
-        free(lod->fm[k]);
-        free(lod->fk_off[k]);
-        free(lod->fk[k]);
-        free(lod->fd[k]);
-        free(lod->rk[k]);
-        free(lod->rd[k]);
-        free(lod->node_tet_start[k]);
-        free(lod->node_tet[k]);
-        free(lod->nt_p[k]);
-        free(lod->ke_slot[k]);
-        free(lod->ke[k]);
-        free(lod->nt_e[k]);
-        free(lod->tet_geom[k]);
-        free(lod->fs_level[k]);
-        free(lod->fs_node[k]);
-        free(lod->fs_w[k]);
+        free(lod->lev[k].split_ghost);
+        free(lod->lev[k].coarse_ghost);
+        free(lod->lev[k].hold_of);
+        free(lod->lev[k].crit_weight);
+        free(lod->lev[k].ring);
+        free(lod->lev[k].d_start);
+        free(lod->lev[k].v_start);
+        free(lod->lev[k].src_start);
+        free(lod->lev[k].src_levels);
+        free(lod->lev[k].ring_off);
+        free(lod->lev[k].ring_index);
+        free(lod->lev[k].own_rowsum);
+        free(lod->lev[k].coupled_rowsum);
+        free(lod->lev[k].ring_col);
+        free(lod->lev[k].front_col);
+        free(lod->lev[k].frontier);
+        free(lod->lev[k].inner);
+        free(lod->lev[k].front_merged);
+        free(lod->lev[k].front_off);
+        free(lod->lev[k].front_K);
+        free(lod->lev[k].front_D);
+        free(lod->lev[k].ring_K);
+        free(lod->lev[k].ring_D);
+        free(lod->lev[k].node_tet_start);
+        free(lod->lev[k].node_tet);
+        free(lod->lev[k].inc_corner);
+        free(lod->lev[k].blocks_slot);
+        free(lod->lev[k].blocks_cache);
+        free(lod->lev[k].inc_block);
+        free(lod->lev[k].tet_geom);
+        free(lod->lev[k].src_level);
+        free(lod->lev[k].src_node);
+        free(lod->lev[k].src_weight);
     }
     free(lod->nlv[0]);
     free(lod->nlv[1]);
@@ -399,10 +400,10 @@ int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err)
         /* levels above the new top: merge their regions back down to it */
         for (int k = lod->top; k < lod->L; k++)
             for (int i = 0; i < lod->lv[k].n; i++)
-                if (k == lod->top && lod->state[k][i] == ST_SPLIT)
-                    lod->state[k][i] = ST_ACTIVE;
+                if (k == lod->top && lod->lev[k].state[i] == ST_SPLIT)
+                    lod->lev[k].state[i] = ST_ACTIVE;
                 else if (k > lod->top)
-                    lod->state[k][i] = ST_COARSE;
+                    lod->lev[k].state[i] = ST_COARSE;
         for (int k = lod->top; k < lod->L; k++)
             sq_lodx_rebuild_level(lod, k);
         sq_lod_sync(lod);
@@ -423,7 +424,7 @@ int sq_lod_check(const sq_lod *lod, sq_err *err)
     for (int k = 0; k < lod->L; k++) {
         int na = 0;
         for (int i = 0; i < lod->lv[k].n; i++) {
-            unsigned char s = lod->state[k][i];
+            unsigned char s = lod->lev[k].state[i];
             if (s > ST_SPLIT)
                 return sq_err_set(err, "lod: level %d node %d has state %d", k, i, s);
             if (k == 0 && s == ST_COARSE)
@@ -432,17 +433,17 @@ int sq_lod_check(const sq_lod *lod, sq_err *err)
                 return sq_err_set(err, "lod: node %d of level %d (top %d) is split", i, k, lod->top);
             if (k > 0) {
                 int p = lod->h.link[k - 1].parent[i];
-                int parent_split = lod->state[k - 1][p] == ST_SPLIT;
+                int parent_split = lod->lev[k - 1].state[p] == ST_SPLIT;
                 if (parent_split != (s != ST_COARSE))
                     return sq_err_set(err, "lod: level %d node %d has state %d but its parent %d has "
-                                      "state %d", k, i, s, p, lod->state[k - 1][p]);
+                                      "state %d", k, i, s, p, lod->lev[k - 1].state[p]);
             }
-            if (lod->active[k][i] != (s == ST_ACTIVE))
+            if (lod->lev[k].active[i] != (s == ST_ACTIVE))
                 return sq_err_set(err, "lod: level %d node %d: active mask out of date", k, i);
             na += s == ST_ACTIVE;
         }
-        if (na != lod->nactive[k])
-            return sq_err_set(err, "lod: level %d counts %d active nodes, has %d", k, lod->nactive[k], na);
+        if (na != lod->lev[k].nactive)
+            return sq_err_set(err, "lod: level %d counts %d active nodes, has %d", k, lod->lev[k].nactive, na);
     }
     return 0;
 }

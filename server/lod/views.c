@@ -22,7 +22,7 @@ const unsigned char *sq_lod_active(const sq_lod *lod, int level)
 {
     if (level < 0 || level >= lod->L)
         return NULL;
-    return lod->active[level];
+    return lod->lev[level].active;
 }
 
 const int *sq_lod_active_list(const sq_lod *lod, int level, int *n)
@@ -31,15 +31,15 @@ const int *sq_lod_active_list(const sq_lod *lod, int level, int *n)
         *n = 0;
         return NULL;
     }
-    *n = lod->nactive[level];
-    return lod->alist[level];
+    *n = lod->lev[level].nactive;
+    return lod->lev[level].active_list;
 }
 
 long sq_lod_projected_updates(const sq_lod *lod)
 {
     long u = 0;
     for (int k = 0; k < lod->L; k++)
-        u += (long)lod->nactive[k] << sub_log2(lod, k);
+        u += (long)lod->lev[k].nactive << sub_log2(lod, k);
     return u;
 }
 
@@ -63,7 +63,7 @@ void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
     memset(prev, 0, (size_t)lod->lv[0].n);
     for (int k = 1; k <= F; k++) {
         unsigned char *dst = k == F ? out : cur;
-        const unsigned char *st = lod->state[k];
+        const unsigned char *st = lod->lev[k].state;
         const int *par = lod->h.link[k - 1].parent;
         for (int j = 0; j < lod->lv[k].n; j++)
             dst[j] = st[j] == ST_ACTIVE ? (unsigned char)k : prev[par[j]];
@@ -81,7 +81,7 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
         /* sum over the tets touching active nodes of their weighted elastic energy: full
          * rows on active nodes less the frontier correction, ring rows from the ring blocks */
         for (int i = 0; i < Lk->n; i++) {
-            if (lod->state[k][i] != ST_ACTIVE)
+            if (lod->lev[k].state[i] != ST_ACTIVE)
                 continue;
             const double *v = Lk->v + 3 * i, *d = Lk->d + 3 * i;
             ek += 0.5 * Lk->mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
@@ -93,25 +93,25 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
             }
             ee += 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
         }
-        if (!lod->have_mat || lod->rk_dirty[k])
+        if (!lod->have_mat || lod->lev[k].blocks_dirty)
             continue;
-        for (int r = 0; r < lod->nfront[k]; r++) {
-            int i = lod->front[k][r];
+        for (int r = 0; r < lod->lev[k].nfrontier; r++) {
+            int i = lod->lev[k].frontier[r];
             const double *d = Lk->d + 3 * i;
             double f[3] = {0, 0, 0};
-            for (int e = lod->fk_off[k][r]; e < lod->fk_off[k][r + 1]; e++) {
-                const double *K = lod->fk[k] + 9 * (size_t)e, *dl = Lk->d + 3 * lod->fk_col[k][e];
+            for (int e = lod->lev[k].front_off[r]; e < lod->lev[k].front_off[r + 1]; e++) {
+                const double *K = lod->lev[k].front_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].front_col[e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
             ee -= 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
         }
-        for (int r = 0; r < lod->nring[k]; r++) {
-            int j = lod->ring[k][r];
+        for (int r = 0; r < lod->lev[k].nring; r++) {
+            int j = lod->lev[k].ring[r];
             const double *d = Lk->d + 3 * j;
             double f[3] = {0, 0, 0};
-            for (int e = lod->rk_off[k][r]; e < lod->rk_off[k][r + 1]; e++) {
-                const double *K = lod->rk[k] + 9 * (size_t)e, *dl = Lk->d + 3 * lod->rk_col[k][e];
+            for (int e = lod->lev[k].ring_off[r]; e < lod->lev[k].ring_off[r + 1]; e++) {
+                const double *K = lod->lev[k].ring_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].ring_col[e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
