@@ -769,8 +769,10 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     } else {
         b->sleeping = 0;
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
-            sq_lod_frame(b->lod, &b->def.material, b->def.gravity, b->def.frame_dt, b->holds, nholds, ntools,
-                         force, prof, frame_budget_s);
+            sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
+                                  .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s};
+            memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
+            sq_lod_frame(b->lod, &in, force, prof);
             mark_held(b, b->fine, b->holds, nholds);
             sq_lod_node_levels(b->lod, b->node_level);
         } else {

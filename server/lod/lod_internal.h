@@ -223,10 +223,12 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
 void sq_lodx_build_sources(sq_lod *lod);
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
 void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
-/* holds.c: map hold h onto its active node; prescribe the held nodes; forget the holds */
-void sq_lodx_map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now);
-void sq_lodx_start_holds(sq_lod *lod, double T);
-void sq_lodx_clear_holds(sq_lod *lod);
+/* holds.c: the frame's holds onto active nodes (held nodes prescribed over frame_dt, left out
+ * of the integrated lists); the internal force on the held nodes of level k at its step;
+ * the tool feedback into force[tool] (may be NULL) and the holds released */
+void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntools, double frame_dt);
+void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3]);
+void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*force)[3]);
 
 /* activeset.c: per-level index lists (active, inner, integrated), the nodes whose values at
  * the start of a step are read, the coarse ghosts something reads (the rest are pushed only
