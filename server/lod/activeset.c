@@ -90,9 +90,10 @@ static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 /* coarse ghost j of level k into the needed set (with its parent corners, recursively) */
 static void need_node(sq_lod *lod, int k, int j)
 {
-    while (k >= 1 && lod->lev[k].state[j] == ST_COARSE && !lod->lev[k].in_needed[j]) {
-        lod->lev[k].in_needed[j] = 1;
-        lod->lev[k].needed[lod->lev[k].nneeded++] = j;
+    sq_lod_level *lk;
+    while (k >= 1 && (lk = &lod->lev[k])->state[j] == ST_COARSE && !lk->in_needed[j]) {
+        lk->in_needed[j] = 1;
+        lk->needed[lk->nneeded++] = j;
         const int *tn = lod->lv[k - 1].mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
         for (int q = 0; q < 3; q++)
             need_node(lod, k - 1, tn[q]);
@@ -269,8 +270,9 @@ void sq_lodx_save_prev(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     const double *d = lod->lv[k].d, *v = lod->lv[k].v;
     double *dp = lk->d_start, *vp = lk->v_start;
-    for (int r = 0; r < lk->nread_list; r++) {
-        size_t i = 3 * (size_t)lk->read_list[r];
+    const int n = lk->nread_list, *list = lk->read_list;
+    for (int r = 0; r < n; r++) {
+        size_t i = 3 * (size_t)list[r];
         dp[i] = d[i];
         dp[i + 1] = d[i + 1];
         dp[i + 2] = d[i + 2];

@@ -235,13 +235,16 @@ static void build_ring_blocks(sq_lod *lod, int k)
         lk->front_merged = sq_realloc(lk->front_merged, sizeof(double) * 9 * (size_t)lk->front_merged_cap);
     }
     double *M = lk->front_merged;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r], q0 = L->row_start[i], len = L->row_start[i + 1] - q0;
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
+    const int *front_col = lk->front_col;
+    const double *front_K = lk->front_K;
+    for (int r = 0; r < nfrontier; r++) {
+        int i = frontier[r], q0 = L->row_start[i], len = L->row_start[i + 1] - q0;
         memcpy(M, L->K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
-        for (int e = lk->front_off[r]; e < lk->front_off[r + 1]; e++) {
-            int pos = adj_find(L->mesh, i, lk->front_col[e]) - q0;
+        for (int e = front_off[r]; e < front_off[r + 1]; e++) {
+            int pos = adj_find(L->mesh, i, front_col[e]) - q0;
             for (int x = 0; x < 9; x++)
-                M[9 * pos + x] -= lk->front_K[9 * (size_t)e + x];
+                M[9 * pos + x] -= front_K[9 * (size_t)e + x];
         }
         M += 9 * (size_t)len;
     }
@@ -256,13 +259,16 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
     sq_level *L = &lod->lv[k];
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     int visc = mat->use_viscosity && lk->front_D;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    /* the lists in locals: the force stores would make the compiler reload them */
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
+    const int *front_col = lk->front_col;
+    for (int r = 0; r < nfrontier; r++) {
+        int i = frontier[r];
         const double *B = lk->front_K;
         const double *Bd = visc ? lk->front_D : NULL;
         double *fi = L->f + 3 * i;
-        for (int e = lk->front_off[r]; e < lk->front_off[r + 1]; e++) {
-            int l = lk->front_col[e];
+        for (int e = front_off[r]; e < front_off[r + 1]; e++) {
+            int l = front_col[e];
             const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
             double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
             for (int rr = 0; rr < 3; rr++)
@@ -285,8 +291,10 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
     const double *M = lk->front_merged;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    /* the list in locals: the force stores would make the compiler reload it */
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
+    for (int r = 0; r < nfrontier; r++) {
+        int i = frontier[r];
         double f0 = 0, f1 = 0, f2 = 0;
         for (int q = L->row_start[i]; q < L->row_start[i + 1]; q++, M += 9) {
             const size_t j = 3 * (size_t)L->col[q];
@@ -349,26 +357,35 @@ static void coupling_bound(sq_lod *lod)
         memset(lod->lev[k].coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].n);
     }
     for (int m = 0; m < L; m++) {
-        for (int r = 0; r < lod->lev[m].nring; r++) {
-            int a = lod->lev[m].src_start[r], b = lod->lev[m].src_start[r + 1];
+        /* level m's lists in locals (the row-sum stores would make the compiler reload them) */
+        const sq_lod_level *lm = &lod->lev[m];
+        const int nring = lm->nring, *src_start = lm->src_start, *ring_off = lm->ring_off;
+        const int *ring_col = lm->ring_col, *ring_index = lm->ring_index;
+        const int *src_level = lm->src_level, *src_node = lm->src_node;
+        const unsigned char *active = lm->active;
+        const double *src_weight = lm->src_weight, *ring_K = lm->ring_K;
+        double *rowsum[SQ_MAX_LEVELS];
+        for (int k = 0; k < L; k++)
+            rowsum[k] = lod->lev[k].coupled_rowsum;
+        for (int r = 0; r < nring; r++) {
+            int a = src_start[r], b = src_start[r + 1];
             if (a == b)
                 continue;
             double R = 0;
-            for (int e = lod->lev[m].ring_off[r]; e < lod->lev[m].ring_off[r + 1]; e++) {
-                int l = lod->lev[m].ring_col[e];
+            for (int e = ring_off[r]; e < ring_off[r + 1]; e++) {
+                int l = ring_col[e];
                 double scale = 1;
-                if (!lod->lev[m].active[l]) {
-                    int rl = lod->lev[m].ring_index[l];
+                if (!active[l]) {
+                    int rl = ring_index[l];
                     scale = 0;
                     if (rl >= 0)
-                        for (int q = lod->lev[m].src_start[rl]; q < lod->lev[m].src_start[rl + 1]; q++)
-                            scale += fabs(lod->lev[m].src_weight[q]);
+                        for (int q = src_start[rl]; q < src_start[rl + 1]; q++)
+                            scale += fabs(src_weight[q]);
                 }
-                R += block_norm(lod->lev[m].ring_K + 9 * (size_t)e) * scale;
+                R += block_norm(ring_K + 9 * (size_t)e) * scale;
             }
             for (int q = a; q < b; q++)
-                lod->lev[lod->lev[m].src_level[q]].coupled_rowsum[lod->lev[m].src_node[q]] +=
-                    fabs(lod->lev[m].src_weight[q]) * R;
+                rowsum[src_level[q]][src_node[q]] += fabs(src_weight[q]) * R;
         }
     }
     for (int k = 0; k < L; k++) {

@@ -176,14 +176,16 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
         dcur[m] = lod->lv[m].d;
         vcur[m] = lod->lv[m].v;
     }
-    for (int r = 0; r < lk->nring; r++) {
-        int j = lk->ring[r];
-        int a = lk->src_start[r], b = lk->src_start[r + 1];
+    /* the level's lists in locals (the value stores below would make the compiler reload them) */
+    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
+    const int *fl = lk->src_level, *fn = lk->src_node;
+    const double *fw = lk->src_weight;
+    for (int r = 0; r < nring; r++) {
+        int j = ring[r];
+        int a = src_start[r], b = src_start[r + 1];
         if (a == b)
             continue;
         double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-        const int *fl = lk->src_level, *fn = lk->src_node;
-        const double *fw = lk->src_weight;
         /* the sources are sorted by level: one run per level, its time fraction hoisted */
         for (int q = a; q < b;) {
             int m = fl[q];
@@ -287,10 +289,16 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     unsigned due_bits = 0;
     for (int m = 0; m < lod->L; m++)
         due_bits |= lod->lev[m].due ? 1u << m : 0u;
-    for (int r = 0; r < lk->nring; r++) {
-        int j = lk->ring[r];
-        int a = lk->src_start[r], b = lk->src_start[r + 1];
-        if (!(lk->src_levels[r] & due_bits))
+    /* the level's lists in locals: the force stores below could otherwise alias them for the
+     * compiler, which would reload them at every ring ghost */
+    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
+    const unsigned char *src_levels = lk->src_levels;
+    const int *fl = lk->src_level, *fn = lk->src_node;
+    const double *fw = lk->src_weight;
+    for (int r = 0; r < nring; r++) {
+        int j = ring[r];
+        int a = src_start[r], b = src_start[r + 1];
+        if (!(src_levels[r] & due_bits))
             continue;
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
@@ -299,8 +307,6 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             if (fx & (1u << c))
                 g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
         /* one run of sources per level (sorted by level); levels not stepping now skipped */
-        const int *fl = lk->src_level, *fn = lk->src_node;
-        const double *fw = lk->src_weight;
         for (int q = a; q < b;) {
             int m = fl[q];
             if (!(due_bits & (1u << m))) {
