@@ -139,24 +139,13 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         /* asleep, the resolution stays what it was: active nodes are reported as they stand
          * (nothing is updated: node_updates stays 0) */
         sq_body_active_nodes(b, prof->active);
-        /* asleep, the resolution stays what it was: active nodes are reported as they stand
-         * (nothing is updated: node_updates stays 0) */
-        for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-            if (!b->ready[k])
-                continue;
-            if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
-                int na = 0;
-                sq_lod_active_list(b->lod, k, &na);
-                prof->active[k] = na;
-            } else if (k == b->cur) {
-                prof->active[k] = b->level[k].model.n;
-            }
-        }
     } else {
         b->sleeping = 0;
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
-            sq_lod_frame(b->lod, &b->def.material, b->def.gravity, b->def.frame_dt, b->holds, nholds, ntools,
-                         force, prof, frame_budget_s);
+            sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
+                                  .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s};
+            memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
+            sq_lod_frame(b->lod, &in, force, prof);
             sq_body_count_health(b, prof->event_kind, prof->event_value[0]); /* budget warnings */
             mark_held(b, b->fine, b->holds, nholds);
             sq_lod_node_levels(b->lod, b->node_level);

@@ -3,13 +3,13 @@
  * "Cost that follows the active set").
  *
  * Lists, rebuilt only when a level's states change (a split or merge):
- *   alist   active nodes, increasing;
- *   ilist   inner active nodes (no ghost neighbour), whose rows are the level's own rows;
- *   mlist   active nodes integrated this frame (the held ones left out);
- *   plist   nodes whose values at the start of their level's step are read between two of
+ *   active_list      active nodes, increasing;
+ *   inner_list       inner active nodes (no ghost neighbour), whose rows are the level's own rows;
+ *   integrated_list  active nodes integrated this frame (the held ones left out);
+ *   read_list        nodes whose values at the start of their level's step are read between two of
  *           its steps (sources of ring ghosts, active columns of ring rows): only those are
  *           saved before a step, not the whole level;
- *   need    coarse ghosts something reads every frame: the rendered (finest) surface, ring
+ *   needed           coarse ghosts something reads every frame: the rendered (finest) surface, ring
  *           ghosts, the corners split ghosts are pulled from and split or merged nodes start
  *           from, and the parent corners of all of those. The end-of-frame push updates these
  *           only; the rest are pushed on demand (sq_lod_flush, sq_lodx_value), with the same
@@ -48,17 +48,18 @@ static void sort_marked(int *list, int cnt, const unsigned char *mark, int n)
     }
 }
 
-/* after rebuild_level filled alist (active nodes, increasing) and the inner mask */
+/* after sq_lodx_rebuild_level filled active_list (active nodes, increasing) and the inner mask */
 void sq_lodx_level_lists(sq_lod *lod, int k)
 {
+    sq_lod_level *lk = &lod->lev[k];
     int ni = 0;
-    const unsigned char *inner = lod->inner[k];
-    for (int r = 0; r < lod->nactive[k]; r++) {
-        int i = lod->alist[k][r];
+    const unsigned char *inner = lk->inner;
+    for (int r = 0; r < lk->nactive; r++) {
+        int i = lk->active_list[r];
         if (inner[i])
-            lod->ilist[k][ni++] = i;
+            lk->inner_list[ni++] = i;
     }
-    lod->nilist[k] = ni;
+    lk->ninner_list = ni;
     lod->lists_dirty = 1;
     lod->gen++;
     sq_lodx_mask_list(lod, k);
@@ -66,21 +67,22 @@ void sq_lodx_level_lists(sq_lod *lod, int k)
 
 void sq_lodx_mask_list(sq_lod *lod, int k)
 {
+    sq_lod_level *lk = &lod->lev[k];
     int nm = 0;
-    const unsigned char *mask = lod->mask[k];
-    for (int r = 0; r < lod->nactive[k]; r++) {
-        int i = lod->alist[k][r];
+    const unsigned char *mask = lk->integrated;
+    for (int r = 0; r < lk->nactive; r++) {
+        int i = lk->active_list[r];
         if (mask[i])
-            lod->mlist[k][nm++] = i;
+            lk->integrated_list[nm++] = i;
     }
-    lod->nmlist[k] = nm;
+    lk->nintegrated_list = nm;
 }
 
-/* add node i of level k to a list once (marks in lod->mark[k]) */
+/* add node i of level k to a list once (marks in lod->lev[k].mark) */
 static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 {
-    if (!lod->mark[k][i]) {
-        lod->mark[k][i] = 1;
+    if (!lod->lev[k].mark[i]) {
+        lod->lev[k].mark[i] = 1;
         list[(*n)++] = i;
     }
 }
@@ -88,9 +90,10 @@ static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 /* coarse ghost j of level k into the needed set (with its parent corners, recursively) */
 static void need_node(sq_lod *lod, int k, int j)
 {
-    while (k >= 1 && lod->state[k][j] == ST_COARSE && !lod->inneed[k][j]) {
-        lod->inneed[k][j] = 1;
-        lod->need[k][lod->nneed[k]++] = j;
+    sq_lod_level *lk;
+    while (k >= 1 && (lk = &lod->lev[k])->state[j] == ST_COARSE && !lk->in_needed[j]) {
+        lk->in_needed[j] = 1;
+        lk->needed[lk->nneeded++] = j;
         const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
         for (int q = 0; q < 3; q++)
             need_node(lod, k - 1, tn[q]);
@@ -110,48 +113,48 @@ static void need_tet(sq_lod *lod, int m, int t)
 void sq_lodx_refresh_lists(sq_lod *lod)
 {
     int L = lod->L, F = L - 1;
-    /* plist: sources of every ring ghost (any level), active columns of each level's ring rows */
+    /* read_list: sources of every ring ghost (any level), active columns of each level's ring rows */
     for (int m = 0; m < L; m++)
-        lod->nplist[m] = 0;
+        lod->lev[m].nread_list = 0;
     for (int k = 0; k < L; k++) {
-        int ns = lod->fs_start[k][lod->nring[k]];
+        int ns = lod->lev[k].src_start[lod->lev[k].nring];
         for (int q = 0; q < ns; q++) {
-            int m = lod->fs_level[k][q];
-            add_once(lod, m, lod->fs_node[k][q], lod->plist[m], &lod->nplist[m]);
+            int m = lod->lev[k].src_level[q];
+            add_once(lod, m, lod->lev[k].src_node[q], lod->lev[m].read_list, &lod->lev[m].nread_list);
         }
-        if (!lod->rk_dirty[k] && lod->rk_col[k]) {
-            int ne = lod->rk_off[k][lod->nring[k]];
+        if (!lod->lev[k].blocks_dirty && lod->lev[k].ring_col) {
+            int ne = lod->lev[k].ring_off[lod->lev[k].nring];
             for (int e = 0; e < ne; e++) {
-                int l = lod->rk_col[k][e];
-                if (lod->active[k][l])
-                    add_once(lod, k, l, lod->plist[k], &lod->nplist[k]);
+                int l = lod->lev[k].ring_col[e];
+                if (lod->lev[k].active[l])
+                    add_once(lod, k, l, lod->lev[k].read_list, &lod->lev[k].nread_list);
             }
         }
     }
     for (int m = 0; m < L; m++) {
-        sort_marked(lod->plist[m], lod->nplist[m], lod->mark[m], lod->lv[m].model.n);
-        for (int r = 0; r < lod->nplist[m]; r++)
-            lod->mark[m][lod->plist[m][r]] = 0;
+        sort_marked(lod->lev[m].read_list, lod->lev[m].nread_list, lod->lev[m].mark, lod->lv[m].model.n);
+        for (int r = 0; r < lod->lev[m].nread_list; r++)
+            lod->lev[m].mark[lod->lev[m].read_list[r]] = 0;
     }
 
-    /* need: clear the previous set, then mark what is read */
+    /* needed: clear the previous set, then mark what is read */
     for (int k = 0; k < L; k++) {
-        for (int r = 0; r < lod->nneed[k]; r++)
-            lod->inneed[k][lod->need[k][r]] = 0;
-        lod->nneed[k] = 0;
+        for (int r = 0; r < lod->lev[k].nneeded; r++)
+            lod->lev[k].in_needed[lod->lev[k].needed[r]] = 0;
+        lod->lev[k].nneeded = 0;
     }
     const sq_mesh *fm = lod->lv[F].model.mesh;
     for (int s = 0; s < fm->nsurf; s++)
         need_node(lod, F, fm->surf_nodes[s]); /* the rendered surface, tool holds */
     for (int k = 0; k < L; k++)
-        for (int r = 0; r < lod->nring[k]; r++)
-            need_node(lod, k, lod->ring[k][r]); /* a ring ghost without sources keeps its push */
+        for (int r = 0; r < lod->lev[k].nring; r++)
+            need_node(lod, k, lod->lev[k].ring[r]); /* a ring ghost without sources keeps its push */
     for (int k = 0; k + 1 < L; k++) {
         const sq_lod_link *ln = &lod->h.link[k];
         /* split ghosts are pulled from their child tets; active nodes may split (their child
          * tets are read then, and their children start from their parent tets) */
-        for (int r = 0; r < lod->ngf[k]; r++) {
-            int i = lod->gf[k][r];
+        for (int r = 0; r < lod->lev[k].nsplit_ghost; r++) {
+            int i = lod->lev[k].split_ghost[r];
             need_tet(lod, k + 1, ln->down_tet[i]);
             for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
                 need_tet(lod, k, ln->up_tet[ln->child[c]]);
@@ -163,15 +166,15 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             }
         }
         if (k < lod->top)
-            for (int r = 0; r < lod->nactive[k]; r++) {
-                int i = lod->alist[k][r];
+            for (int r = 0; r < lod->lev[k].nactive; r++) {
+                int i = lod->lev[k].active_list[r];
                 need_tet(lod, k + 1, ln->down_tet[i]);
                 for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
                     need_tet(lod, k, ln->up_tet[ln->child[c]]);
             }
     }
     for (int k = 0; k < L; k++)
-        sort_marked(lod->need[k], lod->nneed[k], lod->inneed[k], lod->lv[k].model.n);
+        sort_marked(lod->lev[k].needed, lod->lev[k].nneeded, lod->lev[k].in_needed, lod->lv[k].model.n);
     lod->lists_dirty = 0;
 }
 
@@ -217,8 +220,8 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
-    const int *il = lod->ilist[k];
-    for (int r = 0; r < lod->nilist[k]; r++) {
+    const int *il = lod->lev[k].inner_list;
+    for (int r = 0; r < lod->lev[k].ninner_list; r++) {
         int i = il[r];
         double *fi = L->f + 3 * (size_t)i;
         double m = L->model.mass[i];
@@ -238,8 +241,8 @@ void sq_lodx_integrate(sq_lod *lod, int k, double dt)
     sq_level *L = &lod->lv[k];
     double *restrict d = L->d, *restrict v = L->v;
     const double *restrict f = L->f;
-    const int *ml = lod->mlist[k];
-    for (int r = 0; r < lod->nmlist[k]; r++) {
+    const int *ml = lod->lev[k].integrated_list;
+    for (int r = 0; r < lod->lev[k].nintegrated_list; r++) {
         int i = ml[r];
         sq_level_euler_node(v, d, i, dt / L->model.mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2],
                             L->model.fixed[i]);
@@ -248,10 +251,12 @@ void sq_lodx_integrate(sq_lod *lod, int k, double dt)
 
 void sq_lodx_save_prev(sq_lod *lod, int k)
 {
+    sq_lod_level *lk = &lod->lev[k];
     const double *d = lod->lv[k].d, *v = lod->lv[k].v;
-    double *dp = lod->dprev[k], *vp = lod->vprev[k];
-    for (int r = 0; r < lod->nplist[k]; r++) {
-        size_t i = 3 * (size_t)lod->plist[k][r];
+    double *dp = lk->d_start, *vp = lk->v_start;
+    const int n = lk->nread_list, *list = lk->read_list;
+    for (int r = 0; r < n; r++) {
+        size_t i = 3 * (size_t)list[r];
         dp[i] = d[i];
         dp[i + 1] = d[i + 1];
         dp[i + 2] = d[i + 2];
@@ -269,12 +274,12 @@ void sq_lodx_push_needed(sq_lod *lod)
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
         const sq_level *src = &lod->lv[k - 1];
-        for (int r = 0; r < lod->nneed[k]; r++) {
-            int j = lod->need[k][r];
+        for (int r = 0; r < lod->lev[k].nneeded; r++) {
+            int j = lod->lev[k].needed[r];
             interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
-            lod->pstamp[k][j] = no;
+            lod->lev[k].push_stamp[j] = no;
         }
-        stale |= lod->nneed[k] < lod->ngc[k];
+        stale |= lod->lev[k].nneeded < lod->lev[k].ncoarse_ghost;
     }
     lod->stale = stale;
 }
@@ -282,15 +287,16 @@ void sq_lodx_push_needed(sq_lod *lod)
 void sq_lodx_save_cascade(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        int nr = lod->nring[k];
-        if (nr > lod->cv_cap[k]) {
-            lod->cv_cap[k] = SQ_MAX(nr, 2 * lod->cv_cap[k]);
-            lod->cv[k] = sq_realloc(lod->cv[k], sizeof(double) * 6 * (size_t)lod->cv_cap[k]);
+        int nr = lod->lev[k].nring;
+        if (nr > lod->lev[k].cascade_value_cap) {
+            lod->lev[k].cascade_value_cap = SQ_MAX(nr, 2 * lod->lev[k].cascade_value_cap);
+            lod->lev[k].cascade_value = sq_realloc(lod->lev[k].cascade_value,
+                                                   sizeof(double) * 6 * (size_t)lod->lev[k].cascade_value_cap);
         }
         const double *d = lod->lv[k].d, *v = lod->lv[k].v;
         for (int r = 0; r < nr; r++) {
-            size_t j = 3 * (size_t)lod->ring[k][r];
-            double *c = lod->cv[k] + 6 * (size_t)r;
+            size_t j = 3 * (size_t)lod->lev[k].ring[r];
+            double *c = lod->lev[k].cascade_value + 6 * (size_t)r;
             c[0] = d[j];
             c[1] = d[j + 1];
             c[2] = d[j + 2];
@@ -312,10 +318,10 @@ void sq_lod_flush(sq_lod *lod)
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
         const sq_level *src = &lod->lv[k - 1];
-        const int *ri = lod->ring_index[k - 1];
-        for (int r = 0; r < lod->ngc[k]; r++) {
-            int j = lod->gc[k][r];
-            if (lod->pstamp[k][j] == lod->cascade_no)
+        const int *ri = lod->lev[k - 1].ring_index;
+        for (int r = 0; r < lod->lev[k].ncoarse_ghost; r++) {
+            int j = lod->lev[k].coarse_ghost[r];
+            if (lod->lev[k].push_stamp[j] == lod->cascade_no)
                 continue;
             const int *tn = src->model.mesh->tets + 4 * ln->up_tet[j];
             const double *b = ln->up_bary + 4 * j;
@@ -323,7 +329,7 @@ void sq_lod_flush(sq_lod *lod)
             for (int m = 0; m < 4; m++) {
                 const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
                 if (ri[tn[m]] >= 0) {
-                    sd = lod->cv[k - 1] + 6 * (size_t)ri[tn[m]];
+                    sd = lod->lev[k - 1].cascade_value + 6 * (size_t)ri[tn[m]];
                     sv = sd + 3;
                 }
                 for (int a = 0; a < 3; a++) {
@@ -347,8 +353,8 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
     const sq_level *Lk = &lod->lv[k];
     /* a coarse ghost the last cascade did not push is always interpolated afresh (whether or
      * not a flush brought its stored value up to date), so a flush never changes the trajectory */
-    if (k == 0 || lod->state[k][j] != ST_COARSE || lod->full_no == lod->cascade_no ||
-        lod->pstamp[k][j] == lod->cascade_no) {
+    if (k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->full_no == lod->cascade_no ||
+        lod->lev[k].push_stamp[j] == lod->cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         memcpy(v, Lk->v + 3 * (size_t)j, 3 * sizeof(double));
         return;
@@ -396,16 +402,17 @@ void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, con
 
 void sq_lodx_free(sq_lod *lod, int k)
 {
-    free(lod->alist[k]);
-    free(lod->ilist[k]);
-    free(lod->mlist[k]);
-    free(lod->plist[k]);
-    free(lod->need[k]);
-    free(lod->inneed[k]);
-    free(lod->mark[k]);
-    free(lod->cv[k]);
-    free(lod->pstamp[k]);
-    free(lod->dstat[k]);
+    sq_lod_level *lk = &lod->lev[k];
+    free(lk->active_list);
+    free(lk->inner_list);
+    free(lk->integrated_list);
+    free(lk->read_list);
+    free(lk->needed);
+    free(lk->in_needed);
+    free(lk->mark);
+    free(lk->cascade_value);
+    free(lk->push_stamp);
+    free(lk->d_static);
 }
 
 /* The criterion measures curvature of the displacement; a body sagging under its own weight
@@ -426,8 +433,8 @@ void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
     memcpy(lod->stat_g, gravity, sizeof lod->stat_g);
     int loaded = gravity[0] != 0 || gravity[1] != 0 || gravity[2] != 0;
     for (int k = 0; k < lod->L; k++) {
-        free(lod->dstat[k]);
-        lod->dstat[k] = NULL;
+        free(lod->lev[k].d_static);
+        lod->lev[k].d_static = NULL;
         if (!loaded || k > lod->top)
             continue;
         const sq_level *Lk = &lod->lv[k];
@@ -435,7 +442,7 @@ void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
         sq_err err = {{0}};
         int it = 0;
         if (sq_level_static_solve(&Lk->model, gravity, 1e-8, 20 * Lk->model.n + 1000, d, &it, &err) == 0)
-            lod->dstat[k] = d;
+            lod->lev[k].d_static = d;
         else
             free(d);
     }

@@ -25,9 +25,27 @@ typedef struct sq_lod_def {
     long max_node_updates;/* hard cap on node updates per frame (0 = none) */
 } sq_lod_def;
 
+/* the stages of an adaptive frame, in the order sq_lod_frame runs them (lod/frame.c); the
+ * pull and step stages run at every tick of the finest substep clock, their times summed */
+typedef enum sq_lod_stage {
+    SQ_LOD_STAGE_GUARD,      /* the budget: splits allowed, the node-update cap that fits */
+    SQ_LOD_STAGE_LAYOUT,     /* coupling blocks and substeps, merges the cap asks for, clock */
+    SQ_LOD_STAGE_HOLDS,      /* tool holds onto active nodes */
+    SQ_LOD_STAGE_PULL,       /* ring ghost values of the due levels (prof t_pull) */
+    SQ_LOD_STAGE_STEP,       /* forces, coupling reactions, integration (lod's t_integrate) */
+    SQ_LOD_STAGE_CRITERION,  /* split/merge decisions at the frame's end */
+    SQ_LOD_STAGE_ADAPT,      /* changed levels and coupling rebuilt (t_adapt: with criterion) */
+    SQ_LOD_STAGE_PUSH,       /* ghosts up to date for the viewer and the next frame (t_push) */
+    SQ_LOD_STAGE_FEEDBACK,   /* tool forces from the held nodes, holds released */
+    SQ_LOD_STAGES
+} sq_lod_stage;
+/* short lower-case name of a stage ("guard", "pull", ...), "?" out of range */
+const char *sq_lod_stage_name(int stage);
+
 /* per-frame profile (one body); times in seconds */
 typedef struct sq_frame_profile {
     double t_pull, t_integrate, t_push, t_adapt, t_tools, t_health, t_total;
+    double t_stage[SQ_LOD_STAGES];     /* adaptive frames: wall time of each sq_lod_stage (0 fixed) */
     long node_updates;                 /* active-node integrations this frame */
     int active[SQ_MAX_LEVELS];         /* active nodes per level */
     int substeps[SQ_MAX_LEVELS];       /* 2^n steps per frame per level */
@@ -98,16 +116,25 @@ const sq_hierarchy *sq_lod_hierarchy(const sq_lod *lod);
 /* active mask of a level (1 = active, 0 = ghost) */
 const unsigned char *sq_lod_active(const sq_lod *lod, int level);
 
-/* one adaptive frame of frame_dt: each level steps at its own dt (level->dt), in the paper's
- * order. Holds are applied to the node itself when it is active, else the same translation
- * goes to its closest active node (its active ancestor). force[t] receives the feedback
- * force of tool t (sum over its held nodes of the elastic reaction), ntools entries zeroed
- * first. Splits are refused when the previous frame's compute time exceeded
- * def.budget * budget_s (budget_s = 0: no limit). Fills prof (active counts, updates,
- * splits/merges, stage times). */
-void sq_lod_frame(sq_lod *lod, const sq_material *mat, const double gravity[3], double frame_dt,
-                  const sq_hold *holds, int nholds, int ntools, double (*force)[3],
-                  sq_frame_profile *prof, double budget_s);
+/* what one adaptive frame is given */
+typedef struct sq_lod_frame_in {
+    const sq_material *mat;  /* the body's material */
+    double gravity[3];       /* m/s^2 */
+    double frame_dt;         /* s */
+    const sq_hold *holds;    /* tool holds on finest nodes (nholds of them) */
+    int nholds;
+    int ntools;              /* tools the holds name (force has ntools entries) */
+    double budget_s;         /* frame period of the budget, s (0 = no limit) */
+} sq_lod_frame_in;
+
+/* one adaptive frame of in->frame_dt: each level steps at its own dt (level->dt), in the
+ * paper's order, as the stages of sq_lod_stage. Holds are applied to the node itself when it
+ * is active, else the same translation goes to its closest active node (its active
+ * ancestor). force[t] (may be NULL) receives the feedback force of tool t (sum over its held
+ * nodes of the elastic reaction), in->ntools entries zeroed first. Splits are refused when
+ * the previous frame's compute time exceeded def.budget * in->budget_s. Fills prof (may be
+ * NULL: active counts, updates, splits/merges, stage times). */
+void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq_frame_profile *prof);
 
 /* level active at each node of the finest level (out has n_finest entries); the walk is
  * skipped when the states did not change since the last call with the same buffer */

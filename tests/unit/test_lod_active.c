@@ -63,7 +63,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
         /* the node levels (computed level by level) against the walk up to the active ancestor */
         for (int j = 0; j < m[3]->nnodes; j++) {
             int k = 3, x = j;
-            while (k > 0 && b[1]->lod->state[k][x] != 1) {
+            while (k > 0 && b[1]->lod->lev[k].state[x] != 1) {
                 x = b[1]->lod->h.link[k - 1].parent[x];
                 k--;
             }
@@ -112,10 +112,11 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
     int F = 3, nF = m[F]->nnodes, nsurf = m[F]->nsurf;
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "coarse frame: pushed %d / %d / %d of %d / %d / %d nodes (finest surface %d)\n",
-                lod->nneed[1], lod->nneed[2], lod->nneed[3], m[1]->nnodes, m[2]->nnodes, nF, nsurf);
+                lod->lev[1].nneeded, lod->lev[2].nneeded, lod->lev[3].nneeded, m[1]->nnodes, m[2]->nnodes, nF,
+                nsurf);
     CHECK(lod->stale);
-    CHECK(lod->nneed[F] == nsurf); /* exactly the rendered surface at the finest level */
-    CHECK(lod->nneed[F] < nF / 2);
+    CHECK(lod->lev[F].nneeded == nsurf); /* exactly the rendered surface at the finest level */
+    CHECK(lod->lev[F].nneeded < nF / 2);
     /* the eager cascade by hand, on copies */
     double *d[4], *v[4];
     for (int k = 0; k < 4; k++) {
@@ -185,26 +186,26 @@ SQ_TEST(lod_static_sag_splits_nothing)
     sq_body *b = sq_body_create(&def, &e);
     TH_REQUIRE(b);
     sq_lod *lod = b->lod;
-    CHECK(lod->dstat[0] != NULL && lod->dstat[1] != NULL); /* solved at creation */
-    if (!lod->dstat[0] || !lod->dstat[1])
+    CHECK(lod->lev[0].d_static != NULL && lod->lev[1].d_static != NULL); /* solved at creation */
+    if (!lod->lev[0].d_static || !lod->lev[1].d_static)
         return;
     /* every level at its own static equilibrium */
     for (int k = 0; k < 2; k++)
-        memcpy(b->level[k].d, lod->dstat[k], sizeof(double) * 3 * (size_t)m[k]->nnodes);
+        memcpy(b->level[k].d, lod->lev[k].d_static, sizeof(double) * 3 * (size_t)m[k]->nnodes);
     double filt = 0, raw = 0, sag = 0;
     for (int i = 0; i < m[0]->nnodes; i++) {
         filt = fmax(filt, sq_lod_delta(lod, 0, i));
         sag = fmax(sag, fabs(b->level[0].d[3 * i + 2]));
     }
-    double *keep = lod->dstat[0];
-    lod->dstat[0] = NULL;
+    double *keep = lod->lev[0].d_static;
+    lod->lev[0].d_static = NULL;
     int raw_over = 0;
     for (int i = 0; i < m[0]->nnodes; i++) {
         double d = sq_lod_delta(lod, 0, i);
         raw = fmax(raw, d);
         raw_over += d > split;
     }
-    lod->dstat[0] = keep;
+    lod->lev[0].d_static = keep;
     int splits = -1, merges = -1;
     sq_lod_adapt(lod, 1, &splits, &merges);
     if (getenv("SQ_LOD_VERBOSE"))

@@ -1,6 +1,7 @@
 /* test_lod_adaptive.c - the adaptive frame: criterion, a scripted poke that refines near the
- * tool and merges back, energy across split/merge and over a long undamped run, the frame
- * budget and the node-update cap, sleep, tool feedback at equilibrium. */
+ * tool and merges back, energy across split/merge and over a long undamped run, the times of
+ * the frame's stages, the frame budget and the node-update cap, sleep, tool feedback at
+ * equilibrium. */
 #include <float.h>
 #include <stdint.h>
 
@@ -234,7 +235,8 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
         nsplit += sp;
         nmerge += mg;
         CHECK(sq_lod_check(lod, &e) == 0);
-        sq_lod_frame(lod, &mat, g, 0.02, NULL, 0, 0, NULL, NULL, 0);
+        sq_lod_frame_in in = {.mat = &mat, .gravity = {g[0], g[1], g[2]}, .frame_dt = 0.02};
+        sq_lod_frame(lod, &in, NULL, NULL);
         worst_drift = fmax(worst_drift, fabs(sq_lod_energy(lod, NULL, NULL) - E0) / E0);
     }
     if (getenv("SQ_LOD_VERBOSE"))
@@ -250,6 +252,65 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
     for (int k = 0; k < 2; k++)
         sq_level_free(&lv[k]);
     free_meshes(m, 2);
+}
+
+/* the frame's stages: each one's time is recorded, the named profile times are those stages
+ * (t_pull the pull stage, t_push the push stage, t_adapt criterion + adapt), and together they
+ * fit in the body's frame time; exact comparisons, the profile copies the stage sums */
+SQ_TEST(lod_frame_stage_times_add_up)
+{
+    sq_mesh *m[3];
+    if (!poke_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    CHECK(b != NULL);
+    if (!b) {
+        free_meshes(m, 3);
+        return;
+    }
+    int bad = 0, frames_adapting = 0, step_timed = 0, frames_updating = 0;
+    for (int f = 0; f < 40; f++) {
+        sq_tool tool = poke_tool(f * def.frame_dt);
+        sq_frame_profile prof;
+        sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+        double sum = 0;
+        for (int s = 0; s < SQ_LOD_STAGES; s++) {
+            bad += !(prof.t_stage[s] >= 0);
+            sum += prof.t_stage[s];
+        }
+        bad += !(sum <= prof.t_total);
+        bad += prof.t_pull != prof.t_stage[SQ_LOD_STAGE_PULL];
+        bad += prof.t_push != prof.t_stage[SQ_LOD_STAGE_PUSH];
+        bad += prof.t_adapt != prof.t_stage[SQ_LOD_STAGE_CRITERION] + prof.t_stage[SQ_LOD_STAGE_ADAPT];
+        if (prof.node_updates > 0) {
+            frames_updating++;
+            step_timed += prof.t_stage[SQ_LOD_STAGE_STEP] > 0;
+        }
+        if (prof.splits + prof.merges > 0)
+            frames_adapting += prof.t_stage[SQ_LOD_STAGE_ADAPT] > 0;
+        if (getenv("SQ_LOD_VERBOSE") && f % 10 == 9) {
+            fprintf(stderr, "frame %d:", f);
+            for (int s = 0; s < SQ_LOD_STAGES; s++)
+                fprintf(stderr, " %s %.3f ms", sq_lod_stage_name(s), 1e3 * prof.t_stage[s]);
+            fprintf(stderr, " (total %.3f ms)\n", 1e3 * prof.t_total);
+        }
+    }
+    CHECK(bad == 0);
+    CHECK(frames_updating == 40 && step_timed == 40);
+    CHECK(frames_adapting > 0); /* the poke splits: those frames rebuild */
+    for (int s = 0; s < SQ_LOD_STAGES; s++)
+        for (int r = s + 1; r < SQ_LOD_STAGES; r++)
+            CHECK(strcmp(sq_lod_stage_name(s), sq_lod_stage_name(r)) != 0);
+    CHECK(strcmp(sq_lod_stage_name(SQ_LOD_STAGES), "?") == 0);
+    CHECK(strcmp(sq_lod_stage_name(SQ_LOD_STAGE_PULL), "pull") == 0);
+    sq_body_destroy(b);
+    free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ tool feedback */

@@ -1,0 +1,434 @@
+/* coupling.c - stage: the coupling blocks between levels (docs/lod.md, "Coupling the levels").
+ *
+ * The element blocks of the mixed tets (active and ghost corners, half weight): the ring rows
+ * (forces on the ring ghosts, handed back to their sources in ring.c) and the frontier
+ * corrections (the other half given back to the active rows, folded into merged rows); the
+ * Gershgorin bound of the coupled operator and the extra substeps a level needs at an
+ * interface (coupling_bound); all rebuilt by sq_lodx_update_ring_blocks after a layout or
+ * material change.
+ */
+#include "lod/lod.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lod/lod_internal.h"
+
+/* ---------------------------------------------------------------- ring blocks */
+
+/* weight of a tet with both active and ghost corners in its level's energy: the band where
+ * two levels meet is covered by the mixed tets of both, so each counts half */
+#define MIXED_WEIGHT 0.5
+
+/* block (i, j) of one tet's operator (level/level.c, PHYSICS.md section 2) with shear-like
+ * coefficient s and volume-like l, added to B */
+static void add_block(sq_operator_kind op, double V, const double *ai, const double *aj, double s,
+                      double l, double *B)
+{
+    double dot = ai[0] * aj[0] + ai[1] * aj[1] + ai[2] * aj[2];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double v = (r == c ? s * dot : 0);
+            if (op == SQ_OPERATOR_PAPER)
+                v += (l + s) * ai[r] * aj[c];
+            else
+                v += s * aj[r] * ai[c] + l * ai[r] * aj[c];
+            B[3 * r + c] += V * v;
+        }
+}
+
+/* dst += w src over one 3x3 block */
+static inline void axpy9(double *restrict dst, double w, const double *restrict src)
+{
+    /* written out so the compiler packs it into vector operations */
+    dst[0] += w * src[0];
+    dst[1] += w * src[1];
+    dst[2] += w * src[2];
+    dst[3] += w * src[3];
+    dst[4] += w * src[4];
+    dst[5] += w * src[5];
+    dst[6] += w * src[6];
+    dst[7] += w * src[7];
+    dst[8] += w * src[8];
+}
+
+/* cached element blocks of tet t of level k (built on first use for the current material):
+ * 16 blocks (p, q) of 9, then with viscosity 16 viscous ones */
+static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    int sl = lk->blocks_slot[t];
+    size_t per = visc ? 288 : 144;
+    if (sl >= 0)
+        return lk->blocks_cache + per * (size_t)sl;
+    if (lk->blocks_used == lk->blocks_cap) {
+        lk->blocks_cap = lk->blocks_cap ? 2 * lk->blocks_cap : 256;
+        lk->blocks_cache = sq_realloc(lk->blocks_cache, sizeof(double) * per * (size_t)lk->blocks_cap);
+    }
+    sl = lk->blocks_used++;
+    lk->blocks_slot[t] = sl;
+    double *E = lk->blocks_cache + per * (size_t)sl;
+    memset(E, 0, sizeof(double) * per);
+    const double *g = lk->tet_geom + 13 * (size_t)t;
+    const sq_material *mat = &lod->mat;
+    for (int p = 0; p < 4; p++)
+        for (int q = 0; q < 4; q++) {
+            add_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
+            if (visc)
+                add_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
+                          E + 144 + 9 * (4 * p + q));
+        }
+    return E;
+}
+
+/* forget the cached element blocks (material or operator changed) */
+static void drop_tet_blocks(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        for (int t = 0; t < lod->lv[k].model.mesh->ntets && lod->lev[k].blocks_used > 0; t++)
+            lod->lev[k].blocks_slot[t] = -1;
+        lod->lev[k].blocks_used = 0;
+    }
+}
+
+/* the mixed-tet blocks of row j (incidences c0..c1) into B (and Bd), times weight (a power
+ * of two, so the products equal those of the blocks built with weight * V) */
+static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight, double *restrict B,
+                              double *restrict Bd)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_mesh *m = lod->lv[k].model.mesh;
+    const unsigned char *act = lk->active;
+    int visc = Bd != NULL;
+    for (int c = c0; c < c1; c++) {
+        int t = lk->node_tet[c];
+        const int *tv = m->tets + 4 * t;
+        int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
+        if (na == 0 || na == 4)
+            continue;
+        const double *E = tet_blocks(lod, k, t, visc) + 36 * lk->inc_corner[c];
+        const int *ev = lk->inc_block + 4 * (size_t)c;
+        for (int q = 0; q < 4; q++) {
+            axpy9(B + 9 * ev[q], weight, E + 9 * q);
+            if (visc)
+                axpy9(Bd + 9 * ev[q], weight, E + 144 + 9 * q);
+        }
+    }
+}
+
+/* which operator the level's K was built with: rebuild one row both ways, keep the closer */
+static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
+{
+    const sq_level *L = &lod->lv[0];
+    const sq_mesh *m = L->model.mesh;
+    /* a boundary node: the two operators differ there */
+    int i = 0;
+    while (i < m->nnodes && !m->on_boundary[i])
+        i++;
+    if (i == m->nnodes)
+        return SQ_OPERATOR_FEM;
+    int n = L->model.row_start[i + 1] - L->model.row_start[i];
+    double *row[2];
+    double err[2] = {0, 0};
+    for (int o = 0; o < 2; o++) {
+        row[o] = sq_calloc(9 * (size_t)n, sizeof(double));
+        for (int c = lod->lev[0].node_tet_start[i]; c < lod->lev[0].node_tet_start[i + 1]; c++) {
+            int t = lod->lev[0].node_tet[c];
+            double a[4][3];
+            double V = sq_tet_gradients(m, t, a);
+            int p = 0;
+            while (m->tets[4 * t + p] != i)
+                p++;
+            for (int q = 0; q < 4; q++) {
+                int e = adj_find(m, i, m->tets[4 * t + q]) - L->model.row_start[i];
+                add_block((sq_operator_kind)o, V, a[p], a[q], mat->mu, mat->lambda, row[o] + 9 * e);
+            }
+        }
+        for (int e = 0; e < 9 * n; e++)
+            err[o] += fabs(row[o][e] - L->model.K[9 * L->model.row_start[i] + e]);
+        free(row[o]);
+    }
+    return err[SQ_OPERATOR_PAPER] < err[SQ_OPERATOR_FEM] ? SQ_OPERATOR_PAPER : SQ_OPERATOR_FEM;
+}
+
+/* blocks of node list nodes[0..nn) of level k (aligned with their adjacency rows), summed
+ * over their tets that touch an active node and have a ghost corner, times weight */
+static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off, int **cols, double **bk,
+                         int *bk_cap, double **bd, int *bd_cap, double weight)
+{
+    const sq_level *L = &lod->lv[k];
+    const sq_material *mat = &lod->mat;
+    int visc = mat->use_viscosity && L->model.D;
+    int total = 0;
+    for (int r = 0; r < nn; r++) {
+        off[r] = total;
+        total += L->model.row_start[nodes[r] + 1] - L->model.row_start[nodes[r]];
+    }
+    off[nn] = total;
+    if (total > *bk_cap) {
+        *bk_cap = SQ_MAX(total, 2 * *bk_cap);
+        *bk = sq_realloc(*bk, sizeof(double) * 9 * (size_t)*bk_cap);
+    }
+    if (total > 0)
+        memset(*bk, 0, sizeof(double) * 9 * (size_t)total);
+    if (visc) {
+        if (total > *bd_cap) {
+            *bd_cap = SQ_MAX(total, 2 * *bd_cap);
+            *bd = sq_realloc(*bd, sizeof(double) * 9 * (size_t)*bd_cap);
+        }
+        if (total > 0)
+            memset(*bd, 0, sizeof(double) * 9 * (size_t)total);
+    }
+    for (int r = 0; r < nn; r++) {
+        int j = nodes[r];
+        double *B = *bk + 9 * (size_t)off[r];
+        double *Bd = visc ? *bd + 9 * (size_t)off[r] : NULL;
+        row_blocks(lod, k, lod->lev[k].node_tet_start[j], lod->lev[k].node_tet_start[j + 1], weight, B, Bd);
+    }
+    /* keep the non-zero blocks only, with their column */
+    int *col = sq_realloc(*cols, sizeof(int) * (size_t)SQ_MAX(total, 1));
+    *cols = col;
+    int w = 0;
+    for (int r = 0; r < nn; r++) {
+        int j = nodes[r], start = off[r];
+        off[r] = w;
+        for (int q = L->model.row_start[j], e = 0; q < L->model.row_start[j + 1]; q++, e++) {
+            const double *B = *bk + 9 * (size_t)(start + e);
+            int nz = 0;
+            for (int c = 0; c < 9 && !nz; c++)
+                nz = B[c] != 0 || (visc && (*bd)[9 * (size_t)(start + e) + c] != 0);
+            if (!nz)
+                continue;
+            /* w <= start + e: moving down in place, block by block */
+            for (int x = 0; x < 9; x++)
+                (*bk)[9 * (size_t)w + x] = B[x];
+            if (visc)
+                for (int x = 0; x < 9; x++)
+                    (*bd)[9 * (size_t)w + x] = (*bd)[9 * (size_t)(start + e) + x];
+            col[w++] = L->model.col[q];
+        }
+    }
+    off[nn] = w;
+}
+
+/* ring rows (half of the mixed tets) and frontier corrections (the other half of the mixed
+ * tets, given back) of level k */
+static void build_ring_blocks(sq_lod *lod, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    build_blocks(lod, k, lk->ring, lk->nring, lk->ring_off, &lk->ring_col, &lk->ring_K, &lk->ring_K_cap,
+                 &lk->ring_D, &lk->ring_D_cap, MIXED_WEIGHT);
+    build_blocks(lod, k, lk->frontier, lk->nfrontier, lk->front_off, &lk->front_col, &lk->front_K, &lk->front_K_cap,
+                 &lk->front_D, &lk->front_D_cap, 1.0 - MIXED_WEIGHT);
+    /* merged frontier rows: the level's row less the correction the frontier pass adds back
+     * (sq_lodx_front_correct adds front_K w; the force pass subtracts K w) */
+    const sq_level *L = &lod->lv[k];
+    int total = 0;
+    for (int r = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r];
+        total += L->model.row_start[i + 1] - L->model.row_start[i];
+    }
+    if (total > lk->front_merged_cap) {
+        lk->front_merged_cap = SQ_MAX(total, 2 * lk->front_merged_cap);
+        lk->front_merged = sq_realloc(lk->front_merged, sizeof(double) * 9 * (size_t)lk->front_merged_cap);
+    }
+    double *M = lk->front_merged;
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
+    const int *front_col = lk->front_col;
+    const double *front_K = lk->front_K;
+    for (int r = 0; r < nfrontier; r++) {
+        int i = frontier[r], q0 = L->model.row_start[i], len = L->model.row_start[i + 1] - q0;
+        memcpy(M, L->model.K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
+        for (int e = front_off[r]; e < front_off[r + 1]; e++) {
+            int pos = adj_find(L->model.mesh, i, front_col[e]) - q0;
+            for (int x = 0; x < 9; x++)
+                M[9 * pos + x] -= front_K[9 * (size_t)e + x];
+        }
+        M += 9 * (size_t)len;
+    }
+    lk->blocks_dirty = 0;
+}
+
+/* frontier correction of level k after its full-row forces: f_i += (1 - w) sum over mixed
+ * tets of K^T (d + b v) (+ D^T v) */
+void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    sq_level *L = &lod->lv[k];
+    double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
+    int visc = mat->use_viscosity && lk->front_D;
+    /* the lists in locals: the force stores would make the compiler reload them */
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
+    const int *front_col = lk->front_col;
+    for (int r = 0; r < nfrontier; r++) {
+        int i = frontier[r];
+        const double *B = lk->front_K;
+        const double *Bd = visc ? lk->front_D : NULL;
+        double *fi = L->f + 3 * i;
+        for (int e = front_off[r]; e < front_off[r + 1]; e++) {
+            int l = front_col[e];
+            const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
+            double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
+            for (int rr = 0; rr < 3; rr++)
+                fi[rr] += K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
+            if (Bd) {
+                const double *D = Bd + 9 * e;
+                for (int rr = 0; rr < 3; rr++)
+                    fi[rr] += D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
+            }
+        }
+    }
+}
+
+/* forces of the frontier nodes of level k from their merged rows (the masked force pass
+ * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity */
+void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    sq_level *L = &lod->lv[k];
+    const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
+    const double *restrict d = L->d, *restrict v = L->v;
+    const double *M = lk->front_merged;
+    /* the list in locals: the force stores would make the compiler reload it */
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
+    for (int r = 0; r < nfrontier; r++) {
+        int i = frontier[r];
+        double f0 = 0, f1 = 0, f2 = 0;
+        for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++, M += 9) {
+            const size_t j = 3 * (size_t)L->model.col[q];
+            const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
+            f0 += M[0] * w0 + M[1] * w1 + M[2] * w2;
+            f1 += M[3] * w0 + M[4] * w1 + M[5] * w2;
+            f2 += M[6] * w0 + M[7] * w1 + M[8] * w2;
+        }
+        double m = L->model.mass[i], *fi = L->f + 3 * (size_t)i;
+        fi[0] = m * (gravity[0] - a * v[3 * i]) - f0;
+        fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - f1;
+        fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - f2;
+    }
+}
+
+/* ring blocks up to date for material mat (NULL: the last one seen) */
+/* largest absolute row sum of a 3x3 block */
+static double block_norm(const double *B)
+{
+    double m = 0;
+    for (int r = 0; r < 3; r++) {
+        double x = fabs(B[3 * r]) + fabs(B[3 * r + 1]) + fabs(B[3 * r + 2]);
+        m = x > m ? x : m; /* fmax without the call (a NaN row is skipped, as fmax does) */
+    }
+    return m;
+}
+
+/* Gershgorin row sums of each level's own operator (material dependent) */
+static void own_rows(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        const sq_level *L = &lod->lv[k];
+        if (!lod->lev[k].own_rowsum)
+            lod->lev[k].own_rowsum = sq_malloc(sizeof(double) * (size_t)L->model.n);
+        for (int i = 0; i < L->model.n; i++) {
+            double s = 0;
+            for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++)
+                s += block_norm(L->model.K + 9 * (size_t)q);
+            lod->lev[k].own_rowsum[i] = s;
+        }
+        double own = 0;
+        for (int i = 0; i < L->model.n; i++)
+            if (L->model.fixed[i] != 7)
+                own = fmax(own, lod->lev[k].own_rowsum[i] / L->model.mass[i]);
+        lod->lev[k].own_rate = own;
+    }
+}
+
+/* the coupling hands a ring ghost's stiffness to its sources: near an interface a node can
+ * be stiffer than anything in its own level (a coarse tet acting on a light fine node through
+ * the interpolation). Bound the coupled operator row by row (Gershgorin on W^T B W plus the
+ * own row) and give each level the extra substeps that keep its step within the same fraction
+ * of the bound its own step was chosen at. */
+static void coupling_bound(sq_lod *lod)
+{
+    int L = lod->L;
+    for (int k = 0; k < L; k++) {
+        if (!lod->lev[k].coupled_rowsum)
+            lod->lev[k].coupled_rowsum = sq_malloc(sizeof(double) * (size_t)lod->lv[k].model.n);
+        memset(lod->lev[k].coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].model.n);
+    }
+    for (int m = 0; m < L; m++) {
+        /* level m's lists in locals (the row-sum stores would make the compiler reload them) */
+        const sq_lod_level *lm = &lod->lev[m];
+        const int nring = lm->nring, *src_start = lm->src_start, *ring_off = lm->ring_off;
+        const int *ring_col = lm->ring_col, *ring_index = lm->ring_index;
+        const int *src_level = lm->src_level, *src_node = lm->src_node;
+        const unsigned char *active = lm->active;
+        const double *src_weight = lm->src_weight, *ring_K = lm->ring_K;
+        double *rowsum[SQ_MAX_LEVELS];
+        for (int k = 0; k < L; k++)
+            rowsum[k] = lod->lev[k].coupled_rowsum;
+        for (int r = 0; r < nring; r++) {
+            int a = src_start[r], b = src_start[r + 1];
+            if (a == b)
+                continue;
+            double R = 0;
+            for (int e = ring_off[r]; e < ring_off[r + 1]; e++) {
+                int l = ring_col[e];
+                double scale = 1;
+                if (!active[l]) {
+                    int rl = ring_index[l];
+                    scale = 0;
+                    if (rl >= 0)
+                        for (int q = src_start[rl]; q < src_start[rl + 1]; q++)
+                            scale += fabs(src_weight[q]);
+                }
+                R += block_norm(ring_K + 9 * (size_t)e) * scale;
+            }
+            for (int q = a; q < b; q++)
+                rowsum[src_level[q]][src_node[q]] += fabs(src_weight[q]) * R;
+        }
+    }
+    for (int k = 0; k < L; k++) {
+        const sq_level *Lk = &lod->lv[k];
+        double own = lod->lev[k].own_rate, coupled = 0;
+        for (int a = 0; a < lod->lev[k].nactive; a++) {
+            int i = lod->lev[k].active_list[a];
+            if (Lk->model.fixed[i] == 7)
+                continue;
+            coupled = fmax(coupled, (lod->lev[k].own_rowsum[i] + lod->lev[k].coupled_rowsum[i]) / Lk->model.mass[i]);
+        }
+        int extra = 0;
+        if (own > 0 && coupled > own)
+            extra = (int)ceil(0.5 * log2(coupled / own) - 1e-12);
+        lod->lev[k].extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
+    }
+}
+
+void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
+{
+    int changed = 0;
+    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->k_seen)) {
+        lod->mat = *mat;
+        lod->have_mat = 1;
+        lod->k_seen = lod->lv[0].model.K;
+        lod->op = infer_op(lod, mat);
+        drop_tet_blocks(lod);
+        own_rows(lod);
+        for (int k = 0; k < lod->L; k++)
+            lod->lev[k].blocks_dirty = 1;
+    }
+    if (!lod->have_mat)
+        return;
+    for (int k = 0; k < lod->L; k++)
+        if (lod->lev[k].blocks_dirty) {
+            build_ring_blocks(lod, k);
+            changed = 1;
+        }
+    if (changed)
+        coupling_bound(lod);
+}
+
+void sq_lod_set_material(sq_lod *lod, const sq_material *mat)
+{
+    sq_lodx_update_ring_blocks(lod, mat);
+}

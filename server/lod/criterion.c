@@ -1,0 +1,280 @@
+/* criterion.c - stage: the split/merge criterion and the decisions it drives.
+ *
+ * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian,
+ * judged from each level's static equilibrium; splits of active nodes above lod.split,
+ * merges of split nodes whose children are all below lod.merge, the node-update cap
+ * (sq_lodx_enforce_cap), and the stand-alone pass sq_lod_adapt. The frame runs this at its end, when
+ * every level is at the same time (frame.c, tick_adapt).
+ */
+#include "lod/lod.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lod/lod_internal.h"
+
+/* ---------------------------------------------------------------- criterion operator */
+
+static int cmp_tri(const void *pa, const void *pb)
+{
+    const int *a = pa, *b = pb;
+    for (int c = 0; c < 3; c++)
+        if (a[c] != b[c])
+            return a[c] < b[c] ? -1 : 1;
+    return 0;
+}
+
+static void sort3(int *t)
+{
+    int a;
+    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
+    if (t[1] > t[2]) { a = t[1]; t[1] = t[2]; t[2] = a; }
+    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
+}
+
+/* weights w_ij (CSR of the mesh adjacency) with Lap(d)_i = -(1/vol_i) sum_j w_ij d_j.
+ * Interior rows are the lumped FEM Laplacian sum_T V a_i . a_j. On boundary rows that
+ * operator also holds the boundary flux (a linear field gets a Laplacian of order
+ * |grad d| / h there, which would split every surface node of a body that merely sags),
+ * so the flux of the tet's own gradient through the node's boundary faces is removed:
+ * for the face opposite q of tet T, A n = -3 V a_q, and each of its three nodes i gets
+ * (A/3) (grad d . n) = -V sum_m (a_m . a_q) d_m. A linear field then has zero Laplacian at
+ * every node, and the criterion measures only curvature, as the paper intends. */
+double *sq_lodx_criterion_weights(const sq_mesh *m)
+{
+    int nnz = m->adj_start[m->nnodes];
+    double *w = sq_calloc((size_t)SQ_MAX(nnz, 1), sizeof(double));
+    int *keys = sq_malloc(sizeof(int) * 3 * (size_t)SQ_MAX(m->ntris, 1));
+    for (int t = 0; t < m->ntris; t++) {
+        memcpy(keys + 3 * t, m->tris + 3 * t, 3 * sizeof(int));
+        sort3(keys + 3 * t);
+    }
+    qsort(keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri);
+    for (int t = 0; t < m->ntets; t++) {
+        const int *tn = m->tets + 4 * t;
+        double a[4][3];
+        double V = fabs(sq_tet_gradients(m, t, a));
+        for (int i = 0; i < 4; i++)
+            for (int j = 0; j < 4; j++) {
+                int s = adj_find(m, tn[i], tn[j]);
+                if (s >= 0)
+                    w[s] += V * (a[i][0] * a[j][0] + a[i][1] * a[j][1] + a[i][2] * a[j][2]);
+            }
+        for (int q = 0; q < 4; q++) {
+            int face[3], nf = 0;
+            for (int i = 0; i < 4; i++)
+                if (i != q)
+                    face[nf++] = tn[i];
+            if (!m->on_boundary[face[0]] || !m->on_boundary[face[1]] || !m->on_boundary[face[2]])
+                continue;
+            sort3(face);
+            if (!bsearch(face, keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri))
+                continue;
+            for (int i = 0; i < 4; i++) {
+                if (i == q)
+                    continue;
+                for (int mm = 0; mm < 4; mm++) {
+                    int s = adj_find(m, tn[i], tn[mm]);
+                    if (s >= 0)
+                        w[s] += V * (a[mm][0] * a[q][0] + a[mm][1] * a[q][1] + a[mm][2] * a[q][2]);
+                }
+            }
+        }
+    }
+    free(keys);
+    return w;
+}
+
+/* ---------------------------------------------------------------- split / merge */
+
+/* delta_i = hbar_i^2 |Lap(d)_i| at node i of level k (boundary-corrected Laplacian) */
+static double delta_at(const sq_lod *lod, int k, int i)
+{
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *L = &lod->lv[k];
+    const double *w = lk->crit_weight;
+    double s[3] = {0, 0, 0};
+    const unsigned char *st = lk->state;
+    const unsigned *ps = lk->push_stamp;
+    int all_valid = lod->full_no == lod->cascade_no;
+    const double *ds = lk->d_static;
+    for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
+        int j = L->model.col[q];
+        const double *dj = L->d + 3 * j;
+        double fresh[3], fv[3];
+        if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->cascade_no) {
+            /* a neighbour the last cascade did not push (a node that just became active in
+             * this split pass sees beyond the old ring): its value now, on demand */
+            sq_lodx_value(lod, k, j, fresh, fv);
+            dj = fresh;
+        }
+        if (ds) {
+            /* the motion from the static equilibrium (the sag alone has no curvature here) */
+            if (dj != fresh)
+                memcpy(fresh, dj, sizeof fresh);
+            fresh[0] -= ds[3 * j];
+            fresh[1] -= ds[3 * j + 1];
+            fresh[2] -= ds[3 * j + 2];
+            dj = fresh;
+        }
+        s[0] += w[q] * dj[0];
+        s[1] += w[q] * dj[1];
+        s[2] += w[q] * dj[2];
+    }
+    double h2 = L->model.hbar[i] * L->model.hbar[i];
+    return h2 / L->model.vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+}
+
+double sq_lod_delta(const sq_lod *lod, int level, int node)
+{
+    if (level < 0 || level >= lod->L || node < 0 || node >= lod->lv[level].model.n)
+        return 0;
+    sq_lod_flush((sq_lod *)lod); /* ghost values pushed on demand are part of the state */
+    return delta_at(lod, level, node);
+}
+
+static void merge_node(sq_lod *lod, int k, int p)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    lk->state[p] = ST_ACTIVE;
+    /* the merged node starts from its interpolated value (pulled from its child tet) */
+    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
+        lod->lev[k + 1].state[ln->child[c]] = ST_COARSE;
+    memcpy(lk->d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
+    memcpy(lk->v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
+    /* children become coarse ghosts and take their parent-tet value at once */
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
+        int j = ln->child[c];
+        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+    }
+}
+
+/* split/merge between levels k and k+1 (both at the same time); `allow_split` from the
+ * budget; the node-update cap refuses splits that would exceed it */
+void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    if (k >= lod->top)
+        return;
+    const sq_lod_def *def = &lod->def;
+    const sq_lod_link *ln = &lod->h.link[k];
+    sq_level *Lk = &lod->lv[k], *Lf = &lod->lv[k + 1];
+    int forced = def->split <= 0;
+    long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
+    int changed = 0;
+
+    /* splits: active nodes of level k above the threshold */
+    if (def->split < INFINITY) {
+        for (int i = 0; i < Lk->model.n; i++) {
+            if (lk->state[i] != ST_ACTIVE)
+                continue;
+            if (!forced && !(delta_at(lod, k, i) > def->split))
+                continue;
+            int nch = ln->child_start[i + 1] - ln->child_start[i];
+            long extra = nch * cost_f - cost_k;
+            if (!allow_split || (def->max_node_updates > 0 && *projected + extra > def->max_node_updates)) {
+                out->refused = 1;
+                continue;
+            }
+            /* children start from their interpolated d and v (parent tet, values now) */
+            lk->state[i] = ST_SPLIT;
+            lk->fresh[i] = 1;
+            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
+                int j = ln->child[c];
+                lod->lev[k + 1].state[j] = ST_ACTIVE;
+                sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+                memcpy(lod->lev[k + 1].d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
+            }
+            *projected += extra;
+            out->splits++;
+            changed = 1;
+        }
+    }
+
+    /* merges: split nodes of level k whose children are all active and calm */
+    if (!forced) {
+        for (int p = 0; p < Lk->model.n; p++) {
+            if (lk->state[p] != ST_SPLIT || lk->fresh[p])
+                continue;
+            int ok = 1;
+            int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
+            for (int c = c0; c < c1 && ok; c++)
+                if (lod->lev[k + 1].state[ln->child[c]] != ST_ACTIVE)
+                    ok = 0;
+            if (!ok)
+                continue;
+            if (c1 == c0) {
+                /* no child: judge the node on its own (interpolated) field */
+                if (!(delta_at(lod, k, p) < def->merge))
+                    continue;
+            } else {
+                for (int c = c0; c < c1 && ok; c++)
+                    if (!(delta_at(lod, k + 1, ln->child[c]) < def->merge))
+                        ok = 0;
+                if (!ok)
+                    continue;
+            }
+            merge_node(lod, k, p);
+            *projected -= (long)(c1 - c0) * cost_f - cost_k;
+            out->merges++;
+            changed = 1;
+        }
+    }
+    for (int i = 0; i < Lk->model.n; i++)
+        lk->fresh[i] = 0;
+    if (changed) {
+        out->changed[k] = out->changed[k + 1] = 1;
+    }
+}
+
+/* hard cap: merge the finest mergeable regions until the projected cost fits */
+void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
+{
+    long cap = lod->def.max_node_updates;
+    if (cap <= 0 || *projected <= cap)
+        return;
+    for (int k = lod->top - 1; k >= 0 && *projected > cap; k--) {
+        const sq_lod_link *ln = &lod->h.link[k];
+        long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
+        for (int p = 0; p < lod->lv[k].model.n && *projected > cap; p++) {
+            if (lod->lev[k].state[p] != ST_SPLIT)
+                continue;
+            int ok = 1;
+            for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
+                if (lod->lev[k + 1].state[ln->child[c]] != ST_ACTIVE)
+                    ok = 0;
+            if (!ok)
+                continue;
+            merge_node(lod, k, p);
+            *projected -= (long)(ln->child_start[p + 1] - ln->child_start[p]) * cost_f - cost_k;
+            out->merges++;
+            out->changed[k] = out->changed[k + 1] = 1;
+        }
+    }
+}
+
+int sq_lod_adapt(sq_lod *lod, int allow_split, int *splits, int *merges)
+{
+    adapt_out ao;
+    memset(&ao, 0, sizeof(ao));
+    long projected = sq_lod_projected_updates(lod);
+    for (int k = lod->L - 2; k >= 0; k--)
+        sq_lodx_pull_level(lod, k);
+    for (int k = 0; k + 1 < lod->L; k++)
+        sq_lodx_adapt_pair(lod, k, allow_split, &projected, &ao);
+    sq_lodx_enforce_cap(lod, &projected, &ao);
+    for (int k = 0; k < lod->L; k++)
+        if (ao.changed[k])
+            sq_lodx_rebuild_level(lod, k);
+    sq_lod_sync(lod);
+    if (splits)
+        *splits = ao.splits;
+    if (merges)
+        *merges = ao.merges;
+    return ao.refused;
+}

@@ -1,0 +1,449 @@
+/* state.c - stage: the adaptive state itself (sections 4.2-4.3 of the paper).
+ *
+ * Every node of every level is in one of three states:
+ *   active        integrated at its level's own step;
+ *   split ghost   its region is simulated finer: value interpolated from its child tet;
+ *   coarse ghost  its region is simulated coarser: value interpolated from its parent tet.
+ * A level-0 node is active unless split; a level-(k+1) node is a coarse ghost exactly when
+ * its parent is not split. Splitting an active node makes it a split ghost and its children
+ * active (they start from their interpolated displacement and velocity); merging does the
+ * reverse when all children are calm.
+ *
+ * Here: creation and destruction, the definition (set_def) and reset, the bookkeeping of a
+ * level's states (its ghost, ring and frontier lists), ghost values brought up to date from
+ * the active nodes (pull, push, cascade, sync), and the consistency check of the tree.
+ */
+#include "lod/lod.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lod/lod_internal.h"
+
+/* ---------------------------------------------------------------- state bookkeeping */
+
+/* recompute the active mask, the ghost lists and the integration mask of level k */
+void sq_lodx_rebuild_level(sq_lod *lod, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    int n = lod->lv[k].model.n;
+    int na = 0, nf = 0, nc = 0;
+    for (int i = 0; i < n; i++) {
+        unsigned char s = lk->state[i];
+        lk->active[i] = (s == ST_ACTIVE);
+        lk->integrated[i] = (s == ST_ACTIVE);
+        if (s == ST_ACTIVE)
+            lk->active_list[na++] = i;
+        else if (s == ST_SPLIT)
+            lk->split_ghost[nf++] = i;
+        else
+            lk->coarse_ghost[nc++] = i;
+    }
+    lk->nactive = na;
+    lk->nsplit_ghost = nf;
+    lk->ncoarse_ghost = nc;
+    /* the ring (ghosts with an active neighbour) and the frontier (active nodes with a ghost
+     * neighbour), found from the active nodes' rows, so the cost follows the active set; the
+     * ring is kept in increasing node order */
+    const sq_level *Lk = &lod->lv[k];
+    const unsigned char *act = lk->active;
+    for (int r = 0; r < lk->nring; r++)
+        lk->ring_index[lk->ring[r]] = -1;
+    int nr = 0, nfr = 0;
+    for (int a = 0; a < na; a++) {
+        int i = lk->active_list[a], front = 0;
+        for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++) {
+            int j = Lk->model.col[q];
+            if (act[j])
+                continue;
+            front = 1;
+            if (lk->ring_index[j] < 0) {
+                lk->ring_index[j] = 0;
+                lk->ring[nr++] = j;
+            }
+        }
+        if (front)
+            lk->frontier[nfr++] = i;
+    }
+    if ((long)nr * 32 > n) { /* a sizeable ring: a scan of the marks beats a sort */
+        nr = 0;
+        for (int i = 0; i < n; i++)
+            if (lk->ring_index[i] >= 0)
+                lk->ring[nr++] = i;
+    } else {
+        sq_lodx_sort_ints(lk->ring, nr);
+    }
+    for (int r = 0; r < nr; r++)
+        lk->ring_index[lk->ring[r]] = r;
+    lk->nring = nr;
+    lk->nfrontier = nfr;
+    memcpy(lk->inner, lk->active, (size_t)SQ_MAX(n, 0));
+    for (int r = 0; r < nfr; r++)
+        lk->inner[lk->frontier[r]] = 0;
+    lk->blocks_dirty = 1;
+    /* held nodes are prescribed, not integrated */
+    int nm = na;
+    for (int e = 0; e < lod->nhe; e++)
+        if (lod->he[e].level == k && lod->he[e].count > 0 && lk->integrated[lod->he[e].node]) {
+            lk->integrated[lod->he[e].node] = 0;
+            nm--;
+        }
+    lk->nintegrated = nm;
+    sq_lodx_level_lists(lod, k);
+}
+
+/* all levels below s split, level s active, finer levels coarse ghosts */
+static void set_uniform_level(sq_lod *lod, int s)
+{
+    for (int k = 0; k < lod->L; k++) {
+        unsigned char st = k < s ? ST_SPLIT : (k == s ? ST_ACTIVE : ST_COARSE);
+        memset(lod->lev[k].state, st, (size_t)lod->lv[k].model.n);
+    }
+    for (int k = 0; k < lod->L; k++)
+        sq_lodx_rebuild_level(lod, k);
+}
+
+/* ---------------------------------------------------------------- ghost interpolation */
+
+/* split ghosts of level k from their child tets in level k+1 */
+void sq_lodx_pull_level(sq_lod *lod, int k)
+{
+    if (k + 1 >= lod->L)
+        return;
+    const sq_lod_link *ln = &lod->h.link[k];
+    sq_level *dst = &lod->lv[k];
+    for (int g = 0; g < lod->lev[k].nsplit_ghost; g++) {
+        int i = lod->lev[k].split_ghost[g];
+        sq_lodx_interp(lod, dst, i, k + 1, ln->down_tet[i], ln->down_bary + 4 * i);
+    }
+}
+
+/* coarse ghosts of level k from their parent tets in level k-1 */
+static void push_level(sq_lod *lod, int k)
+{
+    if (k < 1 || k >= lod->L)
+        return;
+    const sq_lod_link *ln = &lod->h.link[k - 1];
+    sq_level *dst = &lod->lv[k];
+    const sq_level *src = &lod->lv[k - 1];
+    for (int g = 0; g < lod->lev[k].ncoarse_ghost; g++) {
+        int j = lod->lev[k].coarse_ghost[g];
+        interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
+    }
+}
+
+/* every ghost value from the active nodes: split ghosts pulled fine to coarse, coarse ghosts
+ * pushed coarse to fine (the rendered finest level included), then the ring ghosts as their
+ * exact combinations of active nodes */
+static void cascade(sq_lod *lod)
+{
+    for (int k = lod->L - 2; k >= 0; k--)
+        sq_lodx_pull_level(lod, k);
+    for (int k = 1; k < lod->L; k++)
+        push_level(lod, k);
+    lod->stale = 0;
+    lod->full_no = ++lod->cascade_no;
+    for (int k = 0; k < lod->L; k++)
+        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
+}
+
+/* the end-of-frame cascade: as cascade(), but coarse ghosts are pushed only where something
+ * reads them (the needed set, activeset.c); the others are pushed on demand */
+void sq_lodx_cascade_needed(sq_lod *lod)
+{
+    for (int k = lod->L - 2; k >= 0; k--)
+        sq_lodx_pull_level(lod, k);
+    if (lod->lists_dirty)
+        sq_lodx_refresh_lists(lod);
+    sq_lodx_push_needed(lod);
+    sq_lodx_save_cascade(lod);
+    for (int k = 0; k < lod->L; k++)
+        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
+}
+
+void sq_lod_sync(sq_lod *lod)
+{
+    for (int k = 0; k < lod->L; k++) {
+        lod->lev[k].step_start = -1;
+        lod->lev[k].step_len = 1;
+        size_t n3 = 3 * (size_t)lod->lv[k].model.n;
+        memcpy(lod->lev[k].d_start, lod->lv[k].d, n3 * sizeof(double));
+        memcpy(lod->lev[k].v_start, lod->lv[k].v, n3 * sizeof(double));
+    }
+    sq_lodx_build_sources(lod);
+    sq_lodx_update_ring_blocks(lod, NULL);
+    cascade(lod);
+}
+
+/* ---------------------------------------------------------------- creation */
+
+/* tets around each node (CSR) */
+static void node_tets(const sq_mesh *m, int **start, int **list)
+{
+    int *st = sq_calloc((size_t)m->nnodes + 1, sizeof(int));
+    for (int t = 0; t < 4 * m->ntets; t++)
+        st[m->tets[t] + 1]++;
+    for (int i = 0; i < m->nnodes; i++)
+        st[i + 1] += st[i];
+    int *fill = sq_malloc(sizeof(int) * (size_t)SQ_MAX(m->nnodes, 1));
+    memcpy(fill, st, sizeof(int) * (size_t)m->nnodes);
+    int *ls = sq_malloc(sizeof(int) * 4 * (size_t)m->ntets);
+    for (int t = 0; t < m->ntets; t++)
+        for (int q = 0; q < 4; q++)
+            ls[fill[m->tets[4 * t + q]]++] = t;
+    free(fill);
+    *start = st;
+    *list = ls;
+}
+
+/* effective top level of a definition over L levels (max_level beyond the last = every level) */
+static int top_of(const sq_lod_def *def, int L)
+{
+    if (def->max_level >= 0 && def->max_level < L - 1)
+        return def->max_level;
+    return L - 1;
+}
+
+static int check_def(const sq_lod_def *def, int L, sq_err *err)
+{
+    if (isnan(def->split) || def->split < 0)
+        return sq_err_set(err, "lod.split = %g: must be >= 0 (0 forces the finest level, a huge value "
+                          "keeps the coarsest)", def->split);
+    if (!isfinite(def->merge) || def->merge < 0)
+        return sq_err_set(err, "lod.merge = %g: must be a finite value >= 0", def->merge);
+    if (def->split > 0 && !(def->merge < def->split))
+        return sq_err_set(err, "lod.merge = %g must be below lod.split = %g (hysteresis); "
+                          "try merge = split / 8", def->merge, def->split);
+    if (!isfinite(def->budget) || def->budget <= 0 || def->budget > 1)
+        return sq_err_set(err, "lod.budget = %g: must be a fraction of the frame period in (0, 1] "
+                          "(0.95 is usual)", def->budget);
+    if (def->max_node_updates < 0)
+        return sq_err_set(err, "lod.max_node_updates = %ld: must be >= 0 (0 = no cap)",
+                          def->max_node_updates);
+    if (def->level < 0 || def->level > top_of(def, L))
+        return sq_err_set(err, "lod.level = %d: the starting level must be in [0, %d]", def->level,
+                          top_of(def, L));
+    return 0;
+}
+
+/* the starting layout of a definition: forced finest (split 0) starts at the top level */
+static int start_level(const sq_lod *lod)
+{
+    return lod->def.split <= 0 ? lod->top : lod->def.level;
+}
+
+sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_err *err)
+{
+    if (nlevels < 1 || nlevels > SQ_MAX_LEVELS) {
+        sq_err_set(err, "lod: %d levels given, need 1 to %d", nlevels, SQ_MAX_LEVELS);
+        return NULL;
+    }
+    if (check_def(def, nlevels, err))
+        return NULL;
+    const sq_mesh *meshes[SQ_MAX_LEVELS];
+    for (int k = 0; k < nlevels; k++) {
+        meshes[k] = levels[k].model.mesh;
+        if (!meshes[k] || levels[k].model.n != meshes[k]->nnodes) {
+            sq_err_set(err, "lod: level %d has no mesh or a node count that does not match it", k);
+            return NULL;
+        }
+    }
+    sq_lod *lod = sq_calloc(1, sizeof(*lod));
+    lod->lv = levels;
+    lod->L = nlevels;
+    lod->def = *def;
+    lod->top = top_of(def, nlevels);
+    lod->nl_gen = -1;
+    if (sq_hierarchy_build(&lod->h, meshes, nlevels, err)) {
+        free(lod);
+        return NULL;
+    }
+    size_t nmax_nodes = 1;
+    for (int k = 0; k < nlevels; k++) {
+        size_t n = (size_t)levels[k].model.n;
+        lod->lev[k].state = sq_calloc(n, 1);
+        lod->lev[k].active = sq_calloc(n, 1);
+        lod->lev[k].integrated = sq_calloc(n, 1);
+        lod->lev[k].fresh = sq_calloc(n, 1);
+        lod->lev[k].active_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].inner_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].integrated_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].read_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].needed = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].in_needed = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].push_stamp = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
+        nmax_nodes = SQ_MAX(nmax_nodes, n);
+        lod->lev[k].split_ghost = sq_malloc(sizeof(int) * n);
+        lod->lev[k].coarse_ghost = sq_malloc(sizeof(int) * n);
+        lod->lev[k].hold_of = sq_malloc(sizeof(int) * n);
+        lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
+        lod->lev[k].ring = sq_malloc(sizeof(int) * n);
+        lod->lev[k].d_start = sq_calloc(3 * n, sizeof(double));
+        lod->lev[k].v_start = sq_calloc(3 * n, sizeof(double));
+        lod->lev[k].src_start = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].src_levels = sq_calloc(n + 1, 1);
+        lod->lev[k].ring_off = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].ring_index = sq_malloc(sizeof(int) * n);
+        for (size_t i = 0; i < n; i++)
+            lod->lev[k].ring_index[i] = -1;
+        lod->lev[k].frontier = sq_malloc(sizeof(int) * n);
+        lod->lev[k].inner = sq_calloc(n, 1);
+        lod->lev[k].front_off = sq_calloc(n + 1, sizeof(int));
+        node_tets(levels[k].model.mesh, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
+        {
+            const sq_mesh *mm = levels[k].model.mesh;
+            int ninc = lod->lev[k].node_tet_start[n];
+            lod->lev[k].blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
+            for (int t = 0; t < mm->ntets; t++)
+                lod->lev[k].blocks_slot[t] = -1;
+            lod->lev[k].inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
+            lod->lev[k].inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
+            for (int j = 0; j < (int)n; j++)
+                for (int c = lod->lev[k].node_tet_start[j]; c < lod->lev[k].node_tet_start[j + 1]; c++) {
+                    const int *tv = mm->tets + 4 * lod->lev[k].node_tet[c];
+                    int p = 0;
+                    while (tv[p] != j)
+                        p++;
+                    lod->lev[k].inc_corner[c] = (unsigned char)p;
+                    for (int q = 0; q < 4; q++)
+                        lod->lev[k].inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
+                }
+        }
+        const sq_mesh *mk = levels[k].model.mesh;
+        lod->lev[k].tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
+        for (int t = 0; t < mk->ntets; t++) {
+            double a[4][3];
+            double *g = lod->lev[k].tet_geom + 13 * (size_t)t;
+            g[0] = sq_tet_gradients(mk, t, a);
+            memcpy(g + 1, a, sizeof(a));
+        }
+        for (size_t i = 0; i < n; i++)
+            lod->lev[k].hold_of[i] = -1;
+    }
+    lod->nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    set_uniform_level(lod, start_level(lod));
+    sq_lod_sync(lod);
+    return lod;
+}
+
+void sq_lod_destroy(sq_lod *lod)
+{
+    if (!lod)
+        return;
+    for (int k = 0; k < lod->L; k++) {
+        free(lod->lev[k].state);
+        free(lod->lev[k].active);
+        free(lod->lev[k].integrated);
+        free(lod->lev[k].fresh);
+        sq_lodx_free(lod, k);
+        free(lod->lev[k].split_ghost);
+        free(lod->lev[k].coarse_ghost);
+        free(lod->lev[k].hold_of);
+        free(lod->lev[k].crit_weight);
+        free(lod->lev[k].ring);
+        free(lod->lev[k].d_start);
+        free(lod->lev[k].v_start);
+        free(lod->lev[k].src_start);
+        free(lod->lev[k].src_levels);
+        free(lod->lev[k].ring_off);
+        free(lod->lev[k].ring_index);
+        free(lod->lev[k].own_rowsum);
+        free(lod->lev[k].coupled_rowsum);
+        free(lod->lev[k].ring_col);
+        free(lod->lev[k].front_col);
+        free(lod->lev[k].frontier);
+        free(lod->lev[k].inner);
+        free(lod->lev[k].front_merged);
+        free(lod->lev[k].front_off);
+        free(lod->lev[k].front_K);
+        free(lod->lev[k].front_D);
+        free(lod->lev[k].ring_K);
+        free(lod->lev[k].ring_D);
+        free(lod->lev[k].node_tet_start);
+        free(lod->lev[k].node_tet);
+        free(lod->lev[k].inc_corner);
+        free(lod->lev[k].blocks_slot);
+        free(lod->lev[k].blocks_cache);
+        free(lod->lev[k].inc_block);
+        free(lod->lev[k].tet_geom);
+        free(lod->lev[k].src_level);
+        free(lod->lev[k].src_node);
+        free(lod->lev[k].src_weight);
+    }
+    free(lod->nlv[0]);
+    free(lod->nlv[1]);
+    free(lod->he);
+    free(lod->hold_entry_of);
+    sq_hierarchy_free(&lod->h);
+    free(lod);
+}
+
+int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err)
+{
+    if (check_def(def, lod->L, err))
+        return -1;
+    int old_top = lod->top;
+    int was_forced = lod->def.split <= 0;
+    lod->def = *def;
+    lod->top = top_of(def, lod->L);
+    if (def->split <= 0) {
+        /* forced finest: every region to the top level at once */
+        if (!was_forced || old_top != lod->top) {
+            set_uniform_level(lod, lod->top);
+            sq_lod_sync(lod);
+        }
+    } else if (lod->top < old_top) {
+        /* levels above the new top: merge their regions back down to it */
+        for (int k = lod->top; k < lod->L; k++)
+            for (int i = 0; i < lod->lv[k].model.n; i++)
+                if (k == lod->top && lod->lev[k].state[i] == ST_SPLIT)
+                    lod->lev[k].state[i] = ST_ACTIVE;
+                else if (k > lod->top)
+                    lod->lev[k].state[i] = ST_COARSE;
+        for (int k = lod->top; k < lod->L; k++)
+            sq_lodx_rebuild_level(lod, k);
+        sq_lod_sync(lod);
+    }
+    lod->last_time = 0;
+    return 0;
+}
+
+void sq_lod_reset(sq_lod *lod)
+{
+    set_uniform_level(lod, start_level(lod));
+    lod->last_time = 0;
+    sq_lod_sync(lod);
+}
+
+int sq_lod_check(const sq_lod *lod, sq_err *err)
+{
+    for (int k = 0; k < lod->L; k++) {
+        int na = 0;
+        for (int i = 0; i < lod->lv[k].model.n; i++) {
+            unsigned char s = lod->lev[k].state[i];
+            if (s > ST_SPLIT)
+                return sq_err_set(err, "lod: level %d node %d has state %d", k, i, s);
+            if (k == 0 && s == ST_COARSE)
+                return sq_err_set(err, "lod: level-0 node %d is a coarse ghost", i);
+            if (k >= lod->top && s == ST_SPLIT)
+                return sq_err_set(err, "lod: node %d of level %d (top %d) is split", i, k, lod->top);
+            if (k > 0) {
+                int p = lod->h.link[k - 1].parent[i];
+                int parent_split = lod->lev[k - 1].state[p] == ST_SPLIT;
+                if (parent_split != (s != ST_COARSE))
+                    return sq_err_set(err, "lod: level %d node %d has state %d but its parent %d has "
+                                      "state %d", k, i, s, p, lod->lev[k - 1].state[p]);
+            }
+            if (lod->lev[k].active[i] != (s == ST_ACTIVE))
+                return sq_err_set(err, "lod: level %d node %d: active mask out of date", k, i);
+            na += s == ST_ACTIVE;
+        }
+        if (na != lod->lev[k].nactive)
+            return sq_err_set(err, "lod: level %d counts %d active nodes, has %d", k, lod->lev[k].nactive, na);
+    }
+    return 0;
+}
