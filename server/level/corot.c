@@ -30,10 +30,24 @@ struct sq_corot {
     double *g;             /* per block: [10][CW] a_1, a_2, a_3 (rest gradients of the first three
                               basis functions, x y z each), V (tet_lane, tet_block) */
     double *q;             /* per block: [4][CW] rotation as a unit quaternion (w, x, y, z) */
-    int *tv;               /* per block: [4][CW] node indices (padding: node 0) */
-    double *acc;           /* force accumulator of the vector pass, n x 4, zero between calls */
+    int *to;               /* per block: [4][CW] node offsets 4 i into u and acc (padding: node 0) */
+    double *u;             /* the vector pass's gather source: d + b v per node, n x 4 (lane 3
+                              unused), 64-byte aligned so a node's row never straddles a cache line */
+    double *acc;           /* force accumulator of the vector pass, n x 4 (aligned as u), zero
+                              between calls */
     double mu, lambda;
 };
+
+/* zeroed, 64-byte aligned; released with free() */
+static double *calloc_aligned(size_t count)
+{
+    size_t bytes = (count * sizeof(double) + 63) / 64 * 64;
+    double *p = aligned_alloc(64, bytes);
+    if (!p)
+        return sq_calloc(count, sizeof(double));
+    memset(p, 0, bytes);
+    return p;
+}
 
 #define CW 4 /* tets per block */
 
@@ -80,8 +94,9 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C->nblocks = (m->ntets + CW * CK - 1) / (CW * CK) * CK;
         C->g = sq_calloc(10 * CW * (size_t)C->nblocks, sizeof(double));
         C->q = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(double));
-        C->tv = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
-        C->acc = sq_calloc(4 * (size_t)L->n + 4, sizeof(double));
+        C->to = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
+        C->u = calloc_aligned(4 * (size_t)L->n + 4);
+        C->acc = calloc_aligned(4 * (size_t)L->n + 4);
         L->corot = C;
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
@@ -91,13 +106,13 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
                 return sq_err_set(err, "%s: tetrahedron %d has volume %g: repair the mesh", m->source, t, V);
             }
             double *gb = C->g + 10 * CW * (size_t)tet_block(t);
-            int *tb = C->tv + 4 * CW * (size_t)tet_block(t);
+            int *tb = C->to + 4 * CW * (size_t)tet_block(t);
             for (int k = 0; k < 3; k++)
                 for (int c = 0; c < 3; c++)
                     gb[CW * (3 * k + c) + tet_lane(t)] = a[k][c];
             gb[CW * 9 + tet_lane(t)] = V;
             for (int k = 0; k < 4; k++)
-                tb[CW * k + tet_lane(t)] = m->tets[4 * t + k];
+                tb[CW * k + tet_lane(t)] = 4 * m->tets[4 * t + k];
         }
         sq_level_corot_reset(L);
     }
@@ -112,7 +127,8 @@ void sq_level_corot_free(sq_level *L)
         return;
     free(L->corot->g);
     free(L->corot->q);
-    free(L->corot->tv);
+    free(L->corot->to);
+    free(L->corot->u);
     free(L->corot->acc);
     free(L->corot);
     L->corot = NULL;
@@ -347,33 +363,44 @@ static inline void transpose_out(vd x, vd y, vd z, vd out[4])
     out[3] = _mm256_permute2f128_pd(t1, t3, 0x31);
 }
 
-/* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
- * update), CW tets per iteration in vector lanes, into C->acc (n x 4) */
-static void corot_tets_simd(sq_level *L, double b)
+/* u = d + b v per node into C->u (n x 4; lane 3 is whatever follows, never used): the tet
+ * pass then gathers one aligned row per node instead of two unaligned ones and a multiply-add
+ * (the same fma, so the same values) */
+static void corot_gather_source(sq_level *L, double b)
 {
     sq_corot *C = L->corot;
-    const double *d = L->d, *v = L->v;
+    const double *restrict d = L->d, *restrict v = L->v;
+    double *restrict u = C->u;
+    const vd vb = VSET1(b);
+    if (b != 0)
+        for (int i = 0; i < L->n; i++)
+            _mm256_store_pd(u + 4 * (size_t)i, VFMA(vb, _mm256_loadu_pd(v + 3 * (size_t)i), _mm256_loadu_pd(d + 3 * (size_t)i)));
+    else
+        for (int i = 0; i < L->n; i++)
+            _mm256_store_pd(u + 4 * (size_t)i, _mm256_loadu_pd(d + 3 * (size_t)i));
+}
+
+/* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
+ * update), CW tets per iteration in vector lanes, into C->acc (n x 4); C->u holds d + b v */
+static void corot_tets_simd(sq_level *L)
+{
+    sq_corot *C = L->corot;
+    const double *u = C->u;
     double *acc = C->acc;
-    const vd one = VSET1(1.0), half = VSET1(0.5), two = VSET1(2.0), vb = VSET1(b);
+    const vd one = VSET1(1.0), half = VSET1(0.5), two = VSET1(2.0);
     const vd m2 = VSET1(2 * C->mu), lam = VSET1(C->lambda);
     const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
     const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
     for (int blk = 0; blk < C->nblocks; blk++) {
         const double *gb = C->g + 10 * CW * (size_t)blk;
         double *qb = C->q + 4 * CW * (size_t)blk;
-        const int *tb = C->tv + 4 * CW * (size_t)blk;
+        const int *tb = C->to + 4 * CW * (size_t)blk;
         /* u = d + b v of the 4 nodes of the 4 tets, as x/y/z lane vectors per node slot */
         vd ux[4], uy[4], uz[4];
-        for (int k = 0; k < 4; k++) {
-            vd r[4];
-            for (int l = 0; l < 4; l++) {
-                size_t i = 3 * (size_t)tb[CW * k + l];
-                r[l] = _mm256_loadu_pd(d + i);
-                if (b != 0)
-                    r[l] = VFMA(vb, _mm256_loadu_pd(v + i), r[l]);
-            }
-            transpose_in(r[0], r[1], r[2], r[3], &ux[k], &uy[k], &uz[k]);
-        }
+        for (int k = 0; k < 4; k++)
+            transpose_in(_mm256_load_pd(u + tb[CW * k]), _mm256_load_pd(u + tb[CW * k + 1]),
+                         _mm256_load_pd(u + tb[CW * k + 2]), _mm256_load_pd(u + tb[CW * k + 3]), &ux[k], &uy[k],
+                         &uz[k]);
         vd a[9];
         for (int k = 0; k < 9; k++)
             a[k] = _mm256_loadu_pd(gb + CW * k);
@@ -494,9 +521,9 @@ static void corot_tets_simd(sq_level *L, double b)
             vd rows[4];
             transpose_out(fx[k], fy[k], fz[k], rows);
             for (int l = 0; l < 4; l++) {
-                double *ai = acc + 4 * (size_t)tb[CW * k + l];
-                vd cur = _mm256_loadu_pd(ai);
-                _mm256_storeu_pd(ai, k < 3 ? VSUB(cur, rows[l]) : VADD(cur, rows[l]));
+                double *ai = acc + tb[CW * k + l];
+                vd cur = _mm256_load_pd(ai);
+                _mm256_store_pd(ai, k < 3 ? VSUB(cur, rows[l]) : VADD(cur, rows[l]));
             }
         }
     }
@@ -521,28 +548,33 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
         sq_corot *C = L->corot;
-        corot_tets_simd(L, mat->rayleigh_stiffness);
-        /* forces, then symplectic Euler as in sq_level_integrate (same arithmetic) */
-        const double a = mat->rayleigh_mass;
+        corot_gather_source(L, mat->rayleigh_stiffness);
+        corot_tets_simd(L);
+        /* forces, then symplectic Euler as in sq_level_integrate (the same operations per
+         * component, so the same values; lane 3 is never stored) */
         double *restrict acc = C->acc, *restrict f = L->f, *restrict vv = L->v, *restrict dd = L->d;
         const unsigned char *restrict fixed = L->fixed;
+        const vd va = VSET1(mat->rayleigh_mass), vg = _mm256_setr_pd(g[0], g[1], g[2], 0), vdt = VSET1(dt);
+        const vd zero = _mm256_setzero_pd();
+        /* lanes of the constrained axes of fixed bits 0..7, all ones */
+        static const long long fixlanes[8][4] = {{0, 0, 0, 0},   {-1, 0, 0, 0},  {0, -1, 0, 0},  {-1, -1, 0, 0},
+                                                 {0, 0, -1, 0},  {-1, 0, -1, 0}, {0, -1, -1, 0}, {-1, -1, -1, 0}};
         for (int i = 0; i < L->n; i++) {
             const double mi = L->mass[i];
-            double fi[3], vi[3];
-            for (int c = 0; c < 3; c++) {
-                fi[c] = acc[4 * i + c] + mi * (g[c] - a * vv[3 * i + c]);
-                f[3 * i + c] = fi[c];
-                acc[4 * i + c] = 0;
-            }
+            double *ai = acc + 4 * (size_t)i, *fi = f + 3 * (size_t)i, *vi = vv + 3 * (size_t)i, *di = dd + 3 * (size_t)i;
+            const vd v0 = _mm256_loadu_pd(vi); /* lane 3: the next node's (or the padding) */
+            const vd fv = VADD(_mm256_load_pd(ai), VMUL(VSET1(mi), VSUB(vg, VMUL(va, v0))));
+            _mm256_store_pd(ai, zero);
+            _mm_storeu_pd(fi, _mm256_castpd256_pd128(fv));
+            _mm_store_sd(fi + 2, _mm256_extractf128_pd(fv, 1));
             if (dt > 0 && (!mask || mask[i])) {
-                const double h = dt / mi;
-                for (int c = 0; c < 3; c++) {
-                    vi[c] = vv[3 * i + c] + h * fi[c];
-                    if (fixed[i] & (1u << c))
-                        vi[c] = 0;
-                    vv[3 * i + c] = vi[c];
-                    dd[3 * i + c] += dt * vi[c];
-                }
+                vd v1 = VADD(v0, VMUL(VSET1(dt / mi), fv));
+                v1 = _mm256_andnot_pd(_mm256_castsi256_pd(_mm256_loadu_si256((const __m256i *)fixlanes[fixed[i] & 7])), v1);
+                const vd d1 = VADD(_mm256_loadu_pd(di), VMUL(vdt, v1));
+                _mm_storeu_pd(vi, _mm256_castpd256_pd128(v1));
+                _mm_store_sd(vi + 2, _mm256_extractf128_pd(v1, 1));
+                _mm_storeu_pd(di, _mm256_castpd256_pd128(d1));
+                _mm_store_sd(di + 2, _mm256_extractf128_pd(d1, 1));
             }
         }
         return;
