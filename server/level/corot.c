@@ -92,8 +92,8 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C = sq_calloc(1, sizeof *C);
         C->ntets = m->ntets;
         C->nblocks = (m->ntets + CW * CK - 1) / (CW * CK) * CK;
-        C->g = sq_calloc(10 * CW * (size_t)C->nblocks, sizeof(double));
-        C->q = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(double));
+        C->g = calloc_aligned(10 * CW * (size_t)C->nblocks);
+        C->q = calloc_aligned(4 * CW * (size_t)C->nblocks);
         C->to = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
         C->u = calloc_aligned(4 * (size_t)L->n + 4);
         C->acc = calloc_aligned(4 * (size_t)L->n + 4);
@@ -381,7 +381,13 @@ static void corot_gather_source(sq_level *L, double b)
 }
 
 /* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
- * update), CW tets per iteration in vector lanes, into C->acc (n x 4); C->u holds d + b v */
+ * update), CW tets per vector lane group, into C->acc (n x 4); C->u holds d + b v.
+ * The work of CK blocks at a time is split into three loops (gather and F; rotation and
+ * strain; stress, forces and scatter) that hand over through small L1-resident buffers: one
+ * loop body holding all of it needs more than the 16 vector registers (a hundred spills per
+ * block) and its dependency chain (F, R, S, a Newton solve with a division, the quaternion
+ * update, R and S again, stress, forces) is longer than the out-of-order window, so blocks did
+ * not overlap. Each expression is the one of the single-loop form: the values are the same. */
 static void corot_tets_simd(sq_level *L)
 {
     sq_corot *C = L->corot;
@@ -391,139 +397,162 @@ static void corot_tets_simd(sq_level *L)
     const vd m2 = VSET1(2 * C->mu), lam = VSET1(C->lambda);
     const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
     const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
-    for (int blk = 0; blk < C->nblocks; blk++) {
-        const double *gb = C->g + 10 * CW * (size_t)blk;
-        double *qb = C->q + 4 * CW * (size_t)blk;
-        const int *tb = C->to + 4 * CW * (size_t)blk;
-        /* u = d + b v of the 4 nodes of the 4 tets, as x/y/z lane vectors per node slot */
-        vd ux[4], uy[4], uz[4];
-        for (int k = 0; k < 4; k++)
-            transpose_in(_mm256_load_pd(u + tb[CW * k]), _mm256_load_pd(u + tb[CW * k + 1]),
-                         _mm256_load_pd(u + tb[CW * k + 2]), _mm256_load_pd(u + tb[CW * k + 3]), &ux[k], &uy[k],
-                         &uz[k]);
-        vd a[9];
-        for (int k = 0; k < 9; k++)
-            a[k] = _mm256_loadu_pd(gb + CW * k);
-        /* F = I + sum_k (u_k - u_3) a_k^T */
-        vd F[9];
-        for (int r = 0; r < 9; r++)
-            F[r] = _mm256_setzero_pd();
-        for (int k = 0; k < 3; k++) {
-            vd e[3] = {VSUB(ux[k], ux[3]), VSUB(uy[k], uy[3]), VSUB(uz[k], uz[3])};
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++)
-                    F[3 * r + c] = VFMA(e[r], a[3 * k + c], F[3 * r + c]);
+    /* per block of the chunk: F (9); then R (9) and S's diagonal and symmetric sums (6) */
+    vd Fb[CK][9], Rb[CK][9], Sb[CK][6];
+    for (int b0 = 0; b0 < C->nblocks; b0 += CK) {
+        /* 1. gather u of the 4 nodes of the 4 tets (x/y/z lane vectors per node slot) and
+         * F = I + sum_k (u_k - u_3) a_k^T */
+        for (int j = 0; j < CK; j++) {
+            const double *gb = C->g + 10 * CW * (size_t)(b0 + j);
+            const int *tb = C->to + 4 * CW * (size_t)(b0 + j);
+            /* node slot 3 first, then slots 0-2 one at a time into F: 15 live vectors */
+            vd ux3, uy3, uz3;
+            transpose_in(_mm256_load_pd(u + tb[CW * 3]), _mm256_load_pd(u + tb[CW * 3 + 1]),
+                         _mm256_load_pd(u + tb[CW * 3 + 2]), _mm256_load_pd(u + tb[CW * 3 + 3]), &ux3, &uy3, &uz3);
+            vd F[9];
+            for (int r = 0; r < 9; r++)
+                F[r] = _mm256_setzero_pd();
+            for (int k = 0; k < 3; k++) {
+                vd ux, uy, uz;
+                transpose_in(_mm256_load_pd(u + tb[CW * k]), _mm256_load_pd(u + tb[CW * k + 1]),
+                             _mm256_load_pd(u + tb[CW * k + 2]), _mm256_load_pd(u + tb[CW * k + 3]), &ux, &uy, &uz);
+                vd e[3] = {VSUB(ux, ux3), VSUB(uy, uy3), VSUB(uz, uz3)};
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        F[3 * r + c] = VFMA(e[r], _mm256_load_pd(gb + CW * (3 * k + c)), F[3 * r + c]);
+            }
+            F[0] = VADD(F[0], one);
+            F[4] = VADD(F[4], one);
+            F[8] = VADD(F[8], one);
+            for (int r = 0; r < 9; r++)
+                Fb[j][r] = F[r];
         }
-        F[0] = VADD(F[0], one);
-        F[4] = VADD(F[4], one);
-        F[8] = VADD(F[8], one);
-        /* R = R(q) from the last substep, S = R^T F; one Newton (or fallback) step in the body
-         * frame, R <- R exp([w]) with (tr(S) I - sym(S)) w = axial(S - S^T); then R and S again
-         * for this substep's stress. (Using the old rotation for the stress instead saves a
-         * quarter of the work but is unstable: the lag acts as a negative damping of order
+        /* 2. R = R(q) from the last substep, S = R^T F; one Newton (or fallback) step in the
+         * body frame, R <- R exp([w]) with (tr(S) I - sym(S)) w = axial(S - S^T); then R and S
+         * again for this substep's stress. (Using the old rotation for the stress instead saves
+         * a quarter of the work but is unstable: the lag acts as a negative damping of order
          * dt |stress| on the fastest modes; the arc-drag beam blew up at 15 degrees.) */
-        vd qw = _mm256_loadu_pd(qb), qx = _mm256_loadu_pd(qb + CW), qy = _mm256_loadu_pd(qb + 2 * CW),
-           qz = _mm256_loadu_pd(qb + 3 * CW);
-        vd R[9], S[9];
-        for (int pass = 0; pass < 2; pass++) {
-            vd xx = VMUL(qx, qx), yy = VMUL(qy, qy), zz = VMUL(qz, qz);
-            vd xy = VMUL(qx, qy), xz = VMUL(qx, qz), yz = VMUL(qy, qz);
-            vd wx = VMUL(qw, qx), wy = VMUL(qw, qy), wz = VMUL(qw, qz);
-            R[0] = VFNMA(two, VADD(yy, zz), one);
-            R[1] = VMUL(two, VSUB(xy, wz));
-            R[2] = VMUL(two, VADD(xz, wy));
-            R[3] = VMUL(two, VADD(xy, wz));
-            R[4] = VFNMA(two, VADD(xx, zz), one);
-            R[5] = VMUL(two, VSUB(yz, wx));
-            R[6] = VMUL(two, VSUB(xz, wy));
-            R[7] = VMUL(two, VADD(yz, wx));
-            R[8] = VFNMA(two, VADD(xx, yy), one);
+        for (int j = 0; j < CK; j++) {
+            double *qb = C->q + 4 * CW * (size_t)(b0 + j);
+            const vd *F = Fb[j];
+            vd qw = _mm256_load_pd(qb), qx = _mm256_load_pd(qb + CW), qy = _mm256_load_pd(qb + 2 * CW),
+               qz = _mm256_load_pd(qb + 3 * CW);
+            vd R[9], S[9];
+            for (int pass = 0; pass < 2; pass++) {
+                vd xx = VMUL(qx, qx), yy = VMUL(qy, qy), zz = VMUL(qz, qz);
+                vd xy = VMUL(qx, qy), xz = VMUL(qx, qz), yz = VMUL(qy, qz);
+                vd wx = VMUL(qw, qx), wy = VMUL(qw, qy), wz = VMUL(qw, qz);
+                R[0] = VFNMA(two, VADD(yy, zz), one);
+                R[1] = VMUL(two, VSUB(xy, wz));
+                R[2] = VMUL(two, VADD(xz, wy));
+                R[3] = VMUL(two, VADD(xy, wz));
+                R[4] = VFNMA(two, VADD(xx, zz), one);
+                R[5] = VMUL(two, VSUB(yz, wx));
+                R[6] = VMUL(two, VSUB(xz, wy));
+                R[7] = VMUL(two, VADD(yz, wx));
+                R[8] = VFNMA(two, VADD(xx, yy), one);
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        S[3 * r + c] = VFMA(R[r], F[c], VFMA(R[3 + r], F[3 + c], VMUL(R[6 + r], F[6 + c])));
+                if (pass == 1)
+                    break;
+                vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
+                vd tr = VADD(VADD(S[0], S[4]), S[8]);
+                vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
+                vd h01 = VMUL(half, VADD(S[1], S[3])), h02 = VMUL(half, VADD(S[2], S[6])),
+                   h12 = VMUL(half, VADD(S[5], S[7])); /* the negated off-diagonals of H */
+                /* cofactors of H = [[h00, -h01, -h02], [-h01, h11, -h12], [-h02, -h12, h22]] */
+                vd c00 = VFNMA(h12, h12, VMUL(h11, h22));
+                vd c01 = VFMA(h01, h22, VMUL(h02, h12));
+                vd c02 = VFMA(h02, h11, VMUL(h01, h12));
+                vd c11 = VFNMA(h02, h02, VMUL(h00, h22));
+                vd c12 = VFMA(h00, h12, VMUL(h01, h02));
+                vd c22 = VFNMA(h01, h01, VMUL(h00, h11));
+                vd det = VFNMA(h02, c02, VFNMA(h01, c01, VMUL(h00, c00)));
+                vd ht = VADD(VADD(h00, h11), h22);
+                vd ok = _mm256_and_pd(_mm256_cmp_pd(h00, _mm256_setzero_pd(), _CMP_GT_OQ),
+                                      _mm256_cmp_pd(c22, _mm256_setzero_pd(), _CMP_GT_OQ));
+                ok = _mm256_and_pd(ok, _mm256_cmp_pd(det, VMUL(thr, VMUL(ht, VMUL(ht, ht))), _CMP_GT_OQ));
+                /* Newton: w = adj(H) g / det; fallback: g / (|tr| + tiny) */
+                vd s = _mm256_div_pd(one, _mm256_blendv_pd(VADD(_mm256_and_pd(tr, absmask), tiny), det, ok));
+                vd n0 = VFMA(c00, g0, VFMA(c01, g1, VMUL(c02, g2)));
+                vd n1 = VFMA(c01, g0, VFMA(c11, g1, VMUL(c12, g2)));
+                vd n2 = VFMA(c02, g0, VFMA(c12, g1, VMUL(c22, g2)));
+                vd w0 = VMUL(_mm256_blendv_pd(g0, n0, ok), s), w1 = VMUL(_mm256_blendv_pd(g1, n1, ok), s),
+                   w2 = VMUL(_mm256_blendv_pd(g2, n2, ok), s);
+                /* cap |w| at 1 rad, then q <- normalise(q (1, w/2)) */
+                vd wn2 = VFMA(w0, w0, VFMA(w1, w1, VMUL(w2, w2)));
+                vd cap = half;
+                if (_mm256_movemask_pd(_mm256_cmp_pd(wn2, one, _CMP_GT_OQ)))
+                    cap = _mm256_div_pd(half, _mm256_max_pd(one, _mm256_sqrt_pd(wn2)));
+                vd hw0 = VMUL(w0, cap), hw1 = VMUL(w1, cap), hw2 = VMUL(w2, cap);
+                vd nw = VFNMA(qx, hw0, VFNMA(qy, hw1, VFNMA(qz, hw2, qw)));
+                vd nx = VFMA(qw, hw0, VFMA(qy, hw2, VFNMA(qz, hw1, qx)));
+                vd ny = VFMA(qw, hw1, VFMA(qz, hw0, VFNMA(qx, hw2, qy)));
+                vd nz = VFMA(qw, hw2, VFMA(qx, hw1, VFNMA(qy, hw0, qz)));
+                /* 1 / |n|: |n|^2 = (1 + |w/2|^2) |q|^2 is 1 + O(1e-8) in a normal step, where
+                 * (3 - x) / 2 is exact to ~1e-16; otherwise divide */
+                vd nn = VFMA(nw, nw, VFMA(nx, nx, VFMA(ny, ny, VMUL(nz, nz))));
+                vd in = VFNMA(half, nn, VSET1(1.5));
+                if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
+                    in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
+                qw = VMUL(nw, in), qx = VMUL(nx, in), qy = VMUL(ny, in), qz = VMUL(nz, in);
+            }
+            _mm256_store_pd(qb, qw);
+            _mm256_store_pd(qb + CW, qx);
+            _mm256_store_pd(qb + 2 * CW, qy);
+            _mm256_store_pd(qb + 3 * CW, qz);
+            for (int r = 0; r < 9; r++)
+                Rb[j][r] = R[r];
+            vd *Sj = Sb[j];
+            Sj[0] = S[0];
+            Sj[1] = S[4];
+            Sj[2] = S[8];
+            Sj[3] = VADD(S[1], S[3]);
+            Sj[4] = VADD(S[2], S[6]);
+            Sj[5] = VADD(S[5], S[7]);
+        }
+        /* 3. sigma = 2 mu sym(S - I) + lambda tr(S - I) I, P = R (V sigma); node k < 3 gets
+         * -P a_k, node 3 the sum, scattered lane by lane */
+        for (int j = 0; j < CK; j++) {
+            const double *gb = C->g + 10 * CW * (size_t)(b0 + j);
+            const int *tb = C->to + 4 * CW * (size_t)(b0 + j);
+            const vd *R = Rb[j], *Sj = Sb[j];
+            vd V = _mm256_load_pd(gb + 9 * CW);
+            vd e00 = VSUB(Sj[0], one), e11 = VSUB(Sj[1], one), e22 = VSUB(Sj[2], one);
+            vd vm2 = VMUL(V, m2), vhm = VMUL(half, vm2);
+            vd t = VMUL(VMUL(V, lam), VADD(VADD(e00, e11), e22));
+            vd sg[9];
+            sg[0] = VFMA(vm2, e00, t);
+            sg[4] = VFMA(vm2, e11, t);
+            sg[8] = VFMA(vm2, e22, t);
+            sg[1] = sg[3] = VMUL(vhm, Sj[3]);
+            sg[2] = sg[6] = VMUL(vhm, Sj[4]);
+            sg[5] = sg[7] = VMUL(vhm, Sj[5]);
+            vd P[9];
             for (int r = 0; r < 3; r++)
                 for (int c = 0; c < 3; c++)
-                    S[3 * r + c] = VFMA(R[r], F[c], VFMA(R[3 + r], F[3 + c], VMUL(R[6 + r], F[6 + c])));
-            if (pass == 1)
-                break;
-            vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
-            vd tr = VADD(VADD(S[0], S[4]), S[8]);
-            vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
-            vd h01 = VMUL(half, VADD(S[1], S[3])), h02 = VMUL(half, VADD(S[2], S[6])),
-               h12 = VMUL(half, VADD(S[5], S[7])); /* the negated off-diagonals of H */
-            /* cofactors of H = [[h00, -h01, -h02], [-h01, h11, -h12], [-h02, -h12, h22]] */
-            vd c00 = VFNMA(h12, h12, VMUL(h11, h22));
-            vd c01 = VFMA(h01, h22, VMUL(h02, h12));
-            vd c02 = VFMA(h02, h11, VMUL(h01, h12));
-            vd c11 = VFNMA(h02, h02, VMUL(h00, h22));
-            vd c12 = VFMA(h00, h12, VMUL(h01, h02));
-            vd c22 = VFNMA(h01, h01, VMUL(h00, h11));
-            vd det = VFNMA(h02, c02, VFNMA(h01, c01, VMUL(h00, c00)));
-            vd ht = VADD(VADD(h00, h11), h22);
-            vd ok = _mm256_and_pd(_mm256_cmp_pd(h00, _mm256_setzero_pd(), _CMP_GT_OQ),
-                                  _mm256_cmp_pd(c22, _mm256_setzero_pd(), _CMP_GT_OQ));
-            ok = _mm256_and_pd(ok, _mm256_cmp_pd(det, VMUL(thr, VMUL(ht, VMUL(ht, ht))), _CMP_GT_OQ));
-            /* Newton: w = adj(H) g / det; fallback: g / (|tr| + tiny) */
-            vd s = _mm256_div_pd(one, _mm256_blendv_pd(VADD(_mm256_and_pd(tr, absmask), tiny), det, ok));
-            vd n0 = VFMA(c00, g0, VFMA(c01, g1, VMUL(c02, g2)));
-            vd n1 = VFMA(c01, g0, VFMA(c11, g1, VMUL(c12, g2)));
-            vd n2 = VFMA(c02, g0, VFMA(c12, g1, VMUL(c22, g2)));
-            vd w0 = VMUL(_mm256_blendv_pd(g0, n0, ok), s), w1 = VMUL(_mm256_blendv_pd(g1, n1, ok), s),
-               w2 = VMUL(_mm256_blendv_pd(g2, n2, ok), s);
-            /* cap |w| at 1 rad, then q <- normalise(q (1, w/2)) */
-            vd wn2 = VFMA(w0, w0, VFMA(w1, w1, VMUL(w2, w2)));
-            vd cap = half;
-            if (_mm256_movemask_pd(_mm256_cmp_pd(wn2, one, _CMP_GT_OQ)))
-                cap = _mm256_div_pd(half, _mm256_max_pd(one, _mm256_sqrt_pd(wn2)));
-            vd hw0 = VMUL(w0, cap), hw1 = VMUL(w1, cap), hw2 = VMUL(w2, cap);
-            vd nw = VFNMA(qx, hw0, VFNMA(qy, hw1, VFNMA(qz, hw2, qw)));
-            vd nx = VFMA(qw, hw0, VFMA(qy, hw2, VFNMA(qz, hw1, qx)));
-            vd ny = VFMA(qw, hw1, VFMA(qz, hw0, VFNMA(qx, hw2, qy)));
-            vd nz = VFMA(qw, hw2, VFMA(qx, hw1, VFNMA(qy, hw0, qz)));
-            /* 1 / |n|: |n|^2 = (1 + |w/2|^2) |q|^2 is 1 + O(1e-8) in a normal step, where
-             * (3 - x) / 2 is exact to ~1e-16; otherwise divide */
-            vd nn = VFMA(nw, nw, VFMA(nx, nx, VFMA(ny, ny, VMUL(nz, nz))));
-            vd in = VFNMA(half, nn, VSET1(1.5));
-            if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
-                in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
-            qw = VMUL(nw, in), qx = VMUL(nx, in), qy = VMUL(ny, in), qz = VMUL(nz, in);
-        }
-        _mm256_storeu_pd(qb, qw);
-        _mm256_storeu_pd(qb + CW, qx);
-        _mm256_storeu_pd(qb + 2 * CW, qy);
-        _mm256_storeu_pd(qb + 3 * CW, qz);
-        /* sigma = 2 mu sym(S - I) + lambda tr(S - I) I, P = R (V sigma) */
-        vd V = _mm256_loadu_pd(gb + 9 * CW);
-        vd e00 = VSUB(S[0], one), e11 = VSUB(S[4], one), e22 = VSUB(S[8], one);
-        vd vm2 = VMUL(V, m2), vhm = VMUL(half, vm2);
-        vd t = VMUL(VMUL(V, lam), VADD(VADD(e00, e11), e22));
-        vd sg[9];
-        sg[0] = VFMA(vm2, e00, t);
-        sg[4] = VFMA(vm2, e11, t);
-        sg[8] = VFMA(vm2, e22, t);
-        sg[1] = sg[3] = VMUL(vhm, VADD(S[1], S[3]));
-        sg[2] = sg[6] = VMUL(vhm, VADD(S[2], S[6]));
-        sg[5] = sg[7] = VMUL(vhm, VADD(S[5], S[7]));
-        vd P[9];
-        for (int r = 0; r < 3; r++)
-            for (int c = 0; c < 3; c++)
-                P[3 * r + c] = VFMA(R[3 * r], sg[c], VFMA(R[3 * r + 1], sg[3 + c], VMUL(R[3 * r + 2], sg[6 + c])));
-        /* forces: node k < 3 gets -P a_k, node 3 the sum; scattered lane by lane */
-        vd fx[4], fy[4], fz[4];
-        fx[3] = fy[3] = fz[3] = _mm256_setzero_pd();
-        for (int k = 0; k < 3; k++) {
-            const vd *ak = a + 3 * k;
-            fx[k] = VFMA(P[0], ak[0], VFMA(P[1], ak[1], VMUL(P[2], ak[2])));
-            fy[k] = VFMA(P[3], ak[0], VFMA(P[4], ak[1], VMUL(P[5], ak[2])));
-            fz[k] = VFMA(P[6], ak[0], VFMA(P[7], ak[1], VMUL(P[8], ak[2])));
-            fx[3] = VADD(fx[3], fx[k]);
-            fy[3] = VADD(fy[3], fy[k]);
-            fz[3] = VADD(fz[3], fz[k]);
-        }
-        for (int k = 0; k < 4; k++) {
-            vd rows[4];
-            transpose_out(fx[k], fy[k], fz[k], rows);
-            for (int l = 0; l < 4; l++) {
-                double *ai = acc + tb[CW * k + l];
-                vd cur = _mm256_load_pd(ai);
-                _mm256_store_pd(ai, k < 3 ? VSUB(cur, rows[l]) : VADD(cur, rows[l]));
+                    P[3 * r + c] = VFMA(R[3 * r], sg[c], VFMA(R[3 * r + 1], sg[3 + c], VMUL(R[3 * r + 2], sg[6 + c])));
+            vd fx[4], fy[4], fz[4];
+            fx[3] = fy[3] = fz[3] = _mm256_setzero_pd();
+            for (int k = 0; k < 3; k++) {
+                const double *ak = gb + CW * 3 * k;
+                const vd a0 = _mm256_load_pd(ak), a1 = _mm256_load_pd(ak + CW), a2 = _mm256_load_pd(ak + 2 * CW);
+                fx[k] = VFMA(P[0], a0, VFMA(P[1], a1, VMUL(P[2], a2)));
+                fy[k] = VFMA(P[3], a0, VFMA(P[4], a1, VMUL(P[5], a2)));
+                fz[k] = VFMA(P[6], a0, VFMA(P[7], a1, VMUL(P[8], a2)));
+                fx[3] = VADD(fx[3], fx[k]);
+                fy[3] = VADD(fy[3], fy[k]);
+                fz[3] = VADD(fz[3], fz[k]);
+            }
+            for (int k = 0; k < 4; k++) {
+                vd rows[4];
+                transpose_out(fx[k], fy[k], fz[k], rows);
+                for (int l = 0; l < 4; l++) {
+                    double *ai = acc + tb[CW * k + l];
+                    vd cur = _mm256_load_pd(ai);
+                    _mm256_store_pd(ai, k < 3 ? VSUB(cur, rows[l]) : VADD(cur, rows[l]));
+                }
             }
         }
     }
