@@ -408,12 +408,13 @@ static void corot_gather_source(sq_level *L, double b)
 
 /* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
  * update), CW tets per vector lane group, into C->acc (n x 4); C->u holds d + b v.
- * The work of CK blocks at a time is split into three loops (gather and F; rotation and
- * strain; stress, forces and scatter) that hand over through small L1-resident buffers: one
- * loop body holding all of it needs more than the 16 vector registers (a hundred spills per
- * block) and its dependency chain (F, R, S, a Newton solve with a division, the quaternion
- * update, R and S again, stress, forces) is longer than the out-of-order window, so blocks did
- * not overlap. Each expression is the one of the single-loop form: the values are the same. */
+ * The work of CK blocks at a time is split into four loops (gather and F; the rotation
+ * update; R and S of the updated rotation; stress, forces and scatter) that hand over through
+ * small L1-resident buffers: one loop body holding all of it needs more than the 16 vector
+ * registers (~90 stack loads and stores in its compiled body, ~20 when split) and its
+ * dependency chain (F, R, S, a Newton solve with a division, the quaternion update, R and S
+ * again, stress, forces) is longer than the out-of-order window. Each expression is the one of
+ * the single-loop form: the values are the same. */
 static void corot_tets_simd(sq_level *L)
 {
     sq_corot *C = L->corot;
