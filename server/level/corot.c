@@ -30,10 +30,24 @@ struct sq_corot {
     double *g;             /* per block: [10][CW] a_1, a_2, a_3 (rest gradients of the first three
                               basis functions, x y z each), V (tet_lane, tet_block) */
     double *q;             /* per block: [4][CW] rotation as a unit quaternion (w, x, y, z) */
-    int *tv;               /* per block: [4][CW] node indices (padding: node 0) */
-    double *acc;           /* force accumulator of the vector pass, n x 4, zero between calls */
+    int *to;               /* per block: [4][CW] node offsets 4 i into u and acc (padding: node 0) */
+    double *u;             /* the vector pass's gather source: d + b v per node, n x 4 (lane 3
+                              unused), 64-byte aligned so a node's row never straddles a cache line */
+    double *acc;           /* force accumulator of the vector pass, n x 4 (aligned as u), zero
+                              between calls */
     double mu, lambda;
 };
+
+/* zeroed, 64-byte aligned; released with free() */
+static double *calloc_aligned(size_t count)
+{
+    size_t bytes = (count * sizeof(double) + 63) / 64 * 64;
+    double *p = aligned_alloc(64, bytes);
+    if (!p)
+        return sq_calloc(count, sizeof(double));
+    memset(p, 0, bytes);
+    return p;
+}
 
 #define CW 4 /* tets per block */
 
@@ -78,10 +92,11 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C = sq_calloc(1, sizeof *C);
         C->ntets = m->ntets;
         C->nblocks = (m->ntets + CW * CK - 1) / (CW * CK) * CK;
-        C->g = sq_calloc(10 * CW * (size_t)C->nblocks, sizeof(double));
-        C->q = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(double));
-        C->tv = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
-        C->acc = sq_calloc(4 * (size_t)L->model.n + 4, sizeof(double));
+        C->g = calloc_aligned(10 * CW * (size_t)C->nblocks);
+        C->q = calloc_aligned(4 * CW * (size_t)C->nblocks);
+        C->to = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
+        C->u = calloc_aligned(4 * (size_t)L->model.n + 4);
+        C->acc = calloc_aligned(4 * (size_t)L->model.n + 4);
         L->corot = C;
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
@@ -91,13 +106,13 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
                 return sq_err_set(err, "%s: tetrahedron %d has volume %g: repair the mesh", m->source, t, V);
             }
             double *gb = C->g + 10 * CW * (size_t)tet_block(t);
-            int *tb = C->tv + 4 * CW * (size_t)tet_block(t);
+            int *tb = C->to + 4 * CW * (size_t)tet_block(t);
             for (int k = 0; k < 3; k++)
                 for (int c = 0; c < 3; c++)
                     gb[CW * (3 * k + c) + tet_lane(t)] = a[k][c];
             gb[CW * 9 + tet_lane(t)] = V;
             for (int k = 0; k < 4; k++)
-                tb[CW * k + tet_lane(t)] = m->tets[4 * t + k];
+                tb[CW * k + tet_lane(t)] = 4 * m->tets[4 * t + k];
         }
         sq_level_corot_reset(L);
     }
@@ -112,7 +127,8 @@ void sq_level_corot_free(sq_level *L)
         return;
     free(L->corot->g);
     free(L->corot->q);
-    free(L->corot->tv);
+    free(L->corot->to);
+    free(L->corot->u);
     free(L->corot->acc);
     free(L->corot);
     L->corot = NULL;
@@ -347,75 +363,109 @@ static inline void transpose_out(vd x, vd y, vd z, vd out[4])
     out[3] = _mm256_permute2f128_pd(t1, t3, 0x31);
 }
 
-/* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
- * update), CW tets per iteration in vector lanes, into C->acc (n x 4) */
-static void corot_tets_simd(sq_level *L, double b)
+/* R (row-major) of unit quaternions (w, x, y, z), 4 lanes */
+static inline void quat_mat_v(vd qw, vd qx, vd qy, vd qz, vd R[9])
+{
+    const vd one = VSET1(1.0), two = VSET1(2.0);
+    vd xx = VMUL(qx, qx), yy = VMUL(qy, qy), zz = VMUL(qz, qz);
+    vd xy = VMUL(qx, qy), xz = VMUL(qx, qz), yz = VMUL(qy, qz);
+    vd wx = VMUL(qw, qx), wy = VMUL(qw, qy), wz = VMUL(qw, qz);
+    R[0] = VFNMA(two, VADD(yy, zz), one);
+    R[1] = VMUL(two, VSUB(xy, wz));
+    R[2] = VMUL(two, VADD(xz, wy));
+    R[3] = VMUL(two, VADD(xy, wz));
+    R[4] = VFNMA(two, VADD(xx, zz), one);
+    R[5] = VMUL(two, VSUB(yz, wx));
+    R[6] = VMUL(two, VSUB(xz, wy));
+    R[7] = VMUL(two, VADD(yz, wx));
+    R[8] = VFNMA(two, VADD(xx, yy), one);
+}
+
+/* S = R^T F, 4 lanes */
+static inline void rt_mul_v(const vd R[9], const vd F[9], vd S[9])
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            S[3 * r + c] = VFMA(R[r], F[c], VFMA(R[3 + r], F[3 + c], VMUL(R[6 + r], F[6 + c])));
+}
+
+/* u = d + b v per node into C->u (n x 4; lane 3 is whatever follows, never used): the tet
+ * pass then gathers one aligned row per node instead of two unaligned ones and a multiply-add
+ * (the same fma, so the same values) */
+static void corot_gather_source(sq_level *L, double b)
 {
     sq_corot *C = L->corot;
-    const double *d = L->d, *v = L->v;
+    const double *restrict d = L->d, *restrict v = L->v;
+    double *restrict u = C->u;
+    const vd vb = VSET1(b);
+    if (b != 0)
+        for (int i = 0; i < L->model.n; i++)
+            _mm256_store_pd(u + 4 * (size_t)i, VFMA(vb, _mm256_loadu_pd(v + 3 * (size_t)i), _mm256_loadu_pd(d + 3 * (size_t)i)));
+    else
+        for (int i = 0; i < L->model.n; i++)
+            _mm256_store_pd(u + 4 * (size_t)i, _mm256_loadu_pd(d + 3 * (size_t)i));
+}
+
+/* the same element forces as corot_tets (Rayleigh or no stiffness damping, one rotation
+ * update), CW tets per vector lane group, into C->acc (n x 4); C->u holds d + b v.
+ * The work of CK blocks at a time is split into four loops (gather and F; the rotation
+ * update; R and S of the updated rotation; stress, forces and scatter) that hand over through
+ * small L1-resident buffers: one loop body holding all of it needs more than the 16 vector
+ * registers (~90 stack loads and stores in its compiled body, ~20 when split) and its
+ * dependency chain (F, R, S, a Newton solve with a division, the quaternion update, R and S
+ * again, stress, forces) is longer than the out-of-order window. Each expression is the one of
+ * the single-loop form: the values are the same. */
+static void corot_tets_simd(sq_level *L)
+{
+    sq_corot *C = L->corot;
+    const double *u = C->u;
     double *acc = C->acc;
-    const vd one = VSET1(1.0), half = VSET1(0.5), two = VSET1(2.0), vb = VSET1(b);
-    const vd m2 = VSET1(2 * C->mu), lam = VSET1(C->lambda);
+    const vd one = VSET1(1.0), half = VSET1(0.5);
+    const vd m2n = VSET1(-2 * C->mu), lamn = VSET1(-C->lambda);
     const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
     const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
-    for (int blk = 0; blk < C->nblocks; blk++) {
-        const double *gb = C->g + 10 * CW * (size_t)blk;
-        double *qb = C->q + 4 * CW * (size_t)blk;
-        const int *tb = C->tv + 4 * CW * (size_t)blk;
-        /* u = d + b v of the 4 nodes of the 4 tets, as x/y/z lane vectors per node slot */
-        vd ux[4], uy[4], uz[4];
-        for (int k = 0; k < 4; k++) {
-            vd r[4];
-            for (int l = 0; l < 4; l++) {
-                size_t i = 3 * (size_t)tb[CW * k + l];
-                r[l] = _mm256_loadu_pd(d + i);
-                if (b != 0)
-                    r[l] = VFMA(vb, _mm256_loadu_pd(v + i), r[l]);
+    /* per block of the chunk: F (9); then R (9) and S's diagonal and symmetric sums (6) */
+    vd Fb[CK][9], Rb[CK][9], Sb[CK][6];
+    for (int b0 = 0; b0 < C->nblocks; b0 += CK) {
+        /* 1. gather u of the 4 nodes of the 4 tets (x/y/z lane vectors per node slot) and
+         * F = I + sum_k (u_k - u_3) a_k^T */
+        for (int j = 0; j < CK; j++) {
+            const double *gb = C->g + 10 * CW * (size_t)(b0 + j);
+            const int *tb = C->to + 4 * CW * (size_t)(b0 + j);
+            /* node slot 3 first, then slots 0-2 one at a time into F: 15 live vectors */
+            vd ux3, uy3, uz3;
+            transpose_in(_mm256_load_pd(u + tb[CW * 3]), _mm256_load_pd(u + tb[CW * 3 + 1]),
+                         _mm256_load_pd(u + tb[CW * 3 + 2]), _mm256_load_pd(u + tb[CW * 3 + 3]), &ux3, &uy3, &uz3);
+            vd F[9];
+            for (int r = 0; r < 9; r++)
+                F[r] = _mm256_setzero_pd();
+            for (int k = 0; k < 3; k++) {
+                vd ux, uy, uz;
+                transpose_in(_mm256_load_pd(u + tb[CW * k]), _mm256_load_pd(u + tb[CW * k + 1]),
+                             _mm256_load_pd(u + tb[CW * k + 2]), _mm256_load_pd(u + tb[CW * k + 3]), &ux, &uy, &uz);
+                vd e[3] = {VSUB(ux, ux3), VSUB(uy, uy3), VSUB(uz, uz3)};
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        F[3 * r + c] = VFMA(e[r], _mm256_load_pd(gb + CW * (3 * k + c)), F[3 * r + c]);
             }
-            transpose_in(r[0], r[1], r[2], r[3], &ux[k], &uy[k], &uz[k]);
+            F[0] = VADD(F[0], one);
+            F[4] = VADD(F[4], one);
+            F[8] = VADD(F[8], one);
+            for (int r = 0; r < 9; r++)
+                Fb[j][r] = F[r];
         }
-        vd a[9];
-        for (int k = 0; k < 9; k++)
-            a[k] = _mm256_loadu_pd(gb + CW * k);
-        /* F = I + sum_k (u_k - u_3) a_k^T */
-        vd F[9];
-        for (int r = 0; r < 9; r++)
-            F[r] = _mm256_setzero_pd();
-        for (int k = 0; k < 3; k++) {
-            vd e[3] = {VSUB(ux[k], ux[3]), VSUB(uy[k], uy[3]), VSUB(uz[k], uz[3])};
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++)
-                    F[3 * r + c] = VFMA(e[r], a[3 * k + c], F[3 * r + c]);
-        }
-        F[0] = VADD(F[0], one);
-        F[4] = VADD(F[4], one);
-        F[8] = VADD(F[8], one);
-        /* R = R(q) from the last substep, S = R^T F; one Newton (or fallback) step in the body
-         * frame, R <- R exp([w]) with (tr(S) I - sym(S)) w = axial(S - S^T); then R and S again
-         * for this substep's stress. (Using the old rotation for the stress instead saves a
-         * quarter of the work but is unstable: the lag acts as a negative damping of order
+        /* 2. R = R(q) from the last substep, S = R^T F; one Newton (or fallback) step in the
+         * body frame, R <- R exp([w]) with (tr(S) I - sym(S)) w = axial(S - S^T); then R and S
+         * again for this substep's stress. (Using the old rotation for the stress instead saves
+         * a quarter of the work but is unstable: the lag acts as a negative damping of order
          * dt |stress| on the fastest modes; the arc-drag beam blew up at 15 degrees.) */
-        vd qw = _mm256_loadu_pd(qb), qx = _mm256_loadu_pd(qb + CW), qy = _mm256_loadu_pd(qb + 2 * CW),
-           qz = _mm256_loadu_pd(qb + 3 * CW);
-        vd R[9], S[9];
-        for (int pass = 0; pass < 2; pass++) {
-            vd xx = VMUL(qx, qx), yy = VMUL(qy, qy), zz = VMUL(qz, qz);
-            vd xy = VMUL(qx, qy), xz = VMUL(qx, qz), yz = VMUL(qy, qz);
-            vd wx = VMUL(qw, qx), wy = VMUL(qw, qy), wz = VMUL(qw, qz);
-            R[0] = VFNMA(two, VADD(yy, zz), one);
-            R[1] = VMUL(two, VSUB(xy, wz));
-            R[2] = VMUL(two, VADD(xz, wy));
-            R[3] = VMUL(two, VADD(xy, wz));
-            R[4] = VFNMA(two, VADD(xx, zz), one);
-            R[5] = VMUL(two, VSUB(yz, wx));
-            R[6] = VMUL(two, VSUB(xz, wy));
-            R[7] = VMUL(two, VADD(yz, wx));
-            R[8] = VFNMA(two, VADD(xx, yy), one);
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++)
-                    S[3 * r + c] = VFMA(R[r], F[c], VFMA(R[3 + r], F[3 + c], VMUL(R[6 + r], F[6 + c])));
-            if (pass == 1)
-                break;
+        for (int j = 0; j < CK; j++) { /* 2a: the rotation update */
+            double *qb = C->q + 4 * CW * (size_t)(b0 + j);
+            vd qw = _mm256_load_pd(qb), qx = _mm256_load_pd(qb + CW), qy = _mm256_load_pd(qb + 2 * CW),
+               qz = _mm256_load_pd(qb + 3 * CW);
+            vd R[9], S[9];
+            quat_mat_v(qw, qx, qy, qz, R);
+            rt_mul_v(R, Fb[j], S);
             vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
             vd tr = VADD(VADD(S[0], S[4]), S[8]);
             vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
@@ -456,47 +506,67 @@ static void corot_tets_simd(sq_level *L, double b)
             vd in = VFNMA(half, nn, VSET1(1.5));
             if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
                 in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
-            qw = VMUL(nw, in), qx = VMUL(nx, in), qy = VMUL(ny, in), qz = VMUL(nz, in);
+            _mm256_store_pd(qb, VMUL(nw, in));
+            _mm256_store_pd(qb + CW, VMUL(nx, in));
+            _mm256_store_pd(qb + 2 * CW, VMUL(ny, in));
+            _mm256_store_pd(qb + 3 * CW, VMUL(nz, in));
         }
-        _mm256_storeu_pd(qb, qw);
-        _mm256_storeu_pd(qb + CW, qx);
-        _mm256_storeu_pd(qb + 2 * CW, qy);
-        _mm256_storeu_pd(qb + 3 * CW, qz);
-        /* sigma = 2 mu sym(S - I) + lambda tr(S - I) I, P = R (V sigma) */
-        vd V = _mm256_loadu_pd(gb + 9 * CW);
-        vd e00 = VSUB(S[0], one), e11 = VSUB(S[4], one), e22 = VSUB(S[8], one);
-        vd vm2 = VMUL(V, m2), vhm = VMUL(half, vm2);
-        vd t = VMUL(VMUL(V, lam), VADD(VADD(e00, e11), e22));
-        vd sg[9];
-        sg[0] = VFMA(vm2, e00, t);
-        sg[4] = VFMA(vm2, e11, t);
-        sg[8] = VFMA(vm2, e22, t);
-        sg[1] = sg[3] = VMUL(vhm, VADD(S[1], S[3]));
-        sg[2] = sg[6] = VMUL(vhm, VADD(S[2], S[6]));
-        sg[5] = sg[7] = VMUL(vhm, VADD(S[5], S[7]));
-        vd P[9];
-        for (int r = 0; r < 3; r++)
-            for (int c = 0; c < 3; c++)
-                P[3 * r + c] = VFMA(R[3 * r], sg[c], VFMA(R[3 * r + 1], sg[3 + c], VMUL(R[3 * r + 2], sg[6 + c])));
-        /* forces: node k < 3 gets -P a_k, node 3 the sum; scattered lane by lane */
-        vd fx[4], fy[4], fz[4];
-        fx[3] = fy[3] = fz[3] = _mm256_setzero_pd();
-        for (int k = 0; k < 3; k++) {
-            const vd *ak = a + 3 * k;
-            fx[k] = VFMA(P[0], ak[0], VFMA(P[1], ak[1], VMUL(P[2], ak[2])));
-            fy[k] = VFMA(P[3], ak[0], VFMA(P[4], ak[1], VMUL(P[5], ak[2])));
-            fz[k] = VFMA(P[6], ak[0], VFMA(P[7], ak[1], VMUL(P[8], ak[2])));
-            fx[3] = VADD(fx[3], fx[k]);
-            fy[3] = VADD(fy[3], fy[k]);
-            fz[3] = VADD(fz[3], fz[k]);
+        for (int j = 0; j < CK; j++) { /* 2b: R and S of the updated rotation */
+            const double *qb = C->q + 4 * CW * (size_t)(b0 + j);
+            vd *R = Rb[j], S[9];
+            quat_mat_v(_mm256_load_pd(qb), _mm256_load_pd(qb + CW), _mm256_load_pd(qb + 2 * CW),
+                       _mm256_load_pd(qb + 3 * CW), R);
+            rt_mul_v(R, Fb[j], S);
+            vd *Sj = Sb[j];
+            Sj[0] = S[0];
+            Sj[1] = S[4];
+            Sj[2] = S[8];
+            Sj[3] = VADD(S[1], S[3]);
+            Sj[4] = VADD(S[2], S[6]);
+            Sj[5] = VADD(S[5], S[7]);
         }
-        for (int k = 0; k < 4; k++) {
-            vd rows[4];
-            transpose_out(fx[k], fy[k], fz[k], rows);
-            for (int l = 0; l < 4; l++) {
-                double *ai = acc + 4 * (size_t)tb[CW * k + l];
-                vd cur = _mm256_loadu_pd(ai);
-                _mm256_storeu_pd(ai, k < 3 ? VSUB(cur, rows[l]) : VADD(cur, rows[l]));
+        /* 3. sigma = 2 mu sym(S - I) + lambda tr(S - I) I, P = R (V sigma); node k < 3 gets
+         * -P a_k, node 3 the sum, scattered lane by lane. Computed negated (-2 mu, -lambda:
+         * exact), so the three nodes k < 3 add with the accumulator as a memory operand */
+        for (int j = 0; j < CK; j++) {
+            const double *gb = C->g + 10 * CW * (size_t)(b0 + j);
+            const int *tb = C->to + 4 * CW * (size_t)(b0 + j);
+            const vd *R = Rb[j], *Sj = Sb[j];
+            vd V = _mm256_load_pd(gb + 9 * CW);
+            vd e00 = VSUB(Sj[0], one), e11 = VSUB(Sj[1], one), e22 = VSUB(Sj[2], one);
+            vd vm2 = VMUL(V, m2n), vhm = VMUL(half, vm2);
+            vd t = VMUL(VMUL(V, lamn), VADD(VADD(e00, e11), e22));
+            vd sg[9];
+            sg[0] = VFMA(vm2, e00, t);
+            sg[4] = VFMA(vm2, e11, t);
+            sg[8] = VFMA(vm2, e22, t);
+            sg[1] = sg[3] = VMUL(vhm, Sj[3]);
+            sg[2] = sg[6] = VMUL(vhm, Sj[4]);
+            sg[5] = sg[7] = VMUL(vhm, Sj[5]);
+            vd P[9];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    P[3 * r + c] = VFMA(R[3 * r], sg[c], VFMA(R[3 * r + 1], sg[3 + c], VMUL(R[3 * r + 2], sg[6 + c])));
+            vd fx[4], fy[4], fz[4];
+            fx[3] = fy[3] = fz[3] = _mm256_setzero_pd();
+            for (int k = 0; k < 3; k++) {
+                const double *ak = gb + CW * 3 * k;
+                const vd a0 = _mm256_load_pd(ak), a1 = _mm256_load_pd(ak + CW), a2 = _mm256_load_pd(ak + 2 * CW);
+                fx[k] = VFMA(P[0], a0, VFMA(P[1], a1, VMUL(P[2], a2)));
+                fy[k] = VFMA(P[3], a0, VFMA(P[4], a1, VMUL(P[5], a2)));
+                fz[k] = VFMA(P[6], a0, VFMA(P[7], a1, VMUL(P[8], a2)));
+                fx[3] = VADD(fx[3], fx[k]);
+                fy[3] = VADD(fy[3], fy[k]);
+                fz[3] = VADD(fz[3], fz[k]);
+            }
+            for (int k = 0; k < 4; k++) {
+                vd rows[4];
+                transpose_out(fx[k], fy[k], fz[k], rows);
+                for (int l = 0; l < 4; l++) {
+                    double *ai = acc + tb[CW * k + l];
+                    vd cur = _mm256_load_pd(ai);
+                    _mm256_store_pd(ai, k < 3 ? VADD(rows[l], cur) : VSUB(cur, rows[l]));
+                }
             }
         }
     }
@@ -522,28 +592,33 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
         sq_corot *C = L->corot;
-        corot_tets_simd(L, mat->rayleigh_stiffness);
-        /* forces, then symplectic Euler as in sq_level_integrate (same arithmetic) */
-        const double a = mat->rayleigh_mass;
+        corot_gather_source(L, mat->rayleigh_stiffness);
+        corot_tets_simd(L);
+        /* forces, then symplectic Euler as in sq_level_integrate (the same operations per
+         * component, so the same values; lane 3 is never stored) */
         double *restrict acc = C->acc, *restrict f = L->f, *restrict vv = L->v, *restrict dd = L->d;
         const unsigned char *restrict fixed = L->model.fixed;
+        const vd va = VSET1(mat->rayleigh_mass), vg = _mm256_setr_pd(g[0], g[1], g[2], 0), vdt = VSET1(dt);
+        const vd zero = _mm256_setzero_pd();
+        /* lanes of the constrained axes of fixed bits 0..7, all ones */
+        static const long long fixlanes[8][4] = {{0, 0, 0, 0},   {-1, 0, 0, 0},  {0, -1, 0, 0},  {-1, -1, 0, 0},
+                                                 {0, 0, -1, 0},  {-1, 0, -1, 0}, {0, -1, -1, 0}, {-1, -1, -1, 0}};
         for (int i = 0; i < L->model.n; i++) {
             const double mi = L->model.mass[i];
-            double fi[3], vi[3];
-            for (int c = 0; c < 3; c++) {
-                fi[c] = acc[4 * i + c] + mi * (g[c] - a * vv[3 * i + c]);
-                f[3 * i + c] = fi[c];
-                acc[4 * i + c] = 0;
-            }
+            double *ai = acc + 4 * (size_t)i, *fi = f + 3 * (size_t)i, *vi = vv + 3 * (size_t)i, *di = dd + 3 * (size_t)i;
+            const vd v0 = _mm256_loadu_pd(vi); /* lane 3: the next node's (or the padding) */
+            const vd fv = VADD(_mm256_load_pd(ai), VMUL(VSET1(mi), VSUB(vg, VMUL(va, v0))));
+            _mm256_store_pd(ai, zero);
+            _mm_storeu_pd(fi, _mm256_castpd256_pd128(fv));
+            _mm_store_sd(fi + 2, _mm256_extractf128_pd(fv, 1));
             if (dt > 0 && (!mask || mask[i])) {
-                const double h = dt / mi;
-                for (int c = 0; c < 3; c++) {
-                    vi[c] = vv[3 * i + c] + h * fi[c];
-                    if (fixed[i] & (1u << c))
-                        vi[c] = 0;
-                    vv[3 * i + c] = vi[c];
-                    dd[3 * i + c] += dt * vi[c];
-                }
+                vd v1 = VADD(v0, VMUL(VSET1(dt / mi), fv));
+                v1 = _mm256_andnot_pd(_mm256_castsi256_pd(_mm256_loadu_si256((const __m256i *)fixlanes[fixed[i] & 7])), v1);
+                const vd d1 = VADD(_mm256_loadu_pd(di), VMUL(vdt, v1));
+                _mm_storeu_pd(vi, _mm256_castpd256_pd128(v1));
+                _mm_store_sd(vi + 2, _mm256_extractf128_pd(v1, 1));
+                _mm_storeu_pd(di, _mm256_castpd256_pd128(d1));
+                _mm_store_sd(di + 2, _mm256_extractf128_pd(d1, 1));
             }
         }
         return;
