@@ -31,5 +31,20 @@ plant "a folder outside the order" util/util.c '#include "extra/extra.h"' "no mo
 mkdir -p "$tmp/x"; rm -rf "$tmp/server"; cp -r server "$tmp/server"; mkdir "$tmp/server/extra"; touch "$tmp/server/extra/extra.c"
 if bash tests/layers.sh "$tmp/server" 2>&1 | grep -q "not in the module order"; then ok "a new folder must be placed in the order"; else bad "a new folder outside the order passes"; fi
 
+# docs/architecture.md matches the tree: every .c file of server/ is named in its module's
+# section of "## Files", and every file named there exists
+arch=docs/architecture.md
+miss=$(for f in server/*/*.c; do
+    m=$(basename "$(dirname "$f")"); b=$(basename "$f")
+    awk -v m="$m" -v b="$b" '/^### /{sec=$2} sec==m && index($0, "`" b "`"){found=1} END{exit !found}' "$arch" || echo "$f"
+done)
+if [ -z "$miss" ]; then ok "docs/architecture.md names every .c file of server/ in its module's section"
+else bad "docs/architecture.md does not name: $(echo $miss)"; fi
+gone=$(awk '/^## /{infiles=($2=="Files")} /^### /{sec=$2; next} infiles && sec!="" {
+        while (match($0, /`[A-Za-z0-9_]+\.[ch]`/)) { print sec "/" substr($0, RSTART+1, RLENGTH-2); $0=substr($0, RSTART+RLENGTH) } }' "$arch" |
+    while read -r f; do [ -e "server/$f" ] || echo "server/$f"; done)
+if [ -z "$gone" ]; then ok "every file docs/architecture.md names exists"
+else bad "docs/architecture.md names files that do not exist: $(echo $gone)"; fi
+
 echo "layers: $pass passed, $fail failed"
 [ "$fail" = 0 ]
