@@ -28,6 +28,7 @@ typedef struct pctx {
     const char *label;
     const char *base_dir;
     sq_err *err;
+    char made_by[64];      /* "meshes_made_by": how a scene's generated meshes are made */
 } pctx;
 
 static int fail(pctx *c, const char *path, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
@@ -596,6 +597,10 @@ static int parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char
         char full[1024];
         resolve(full, sizeof full, c->base_dir, files[i]);
         struct stat st;
+        if (stat(full, &st) != 0 && errno == ENOENT && c->made_by[0])
+            return fail(c, p, "mesh file \"%s\" (resolved to %s): " SQ_SCENE_MESHES_NOT_MADE
+                              ": this scene's meshes are generated, not shipped; run `%s` first (meshes/README.md)",
+                        files[i], full, c->made_by);
         if (stat(full, &st) != 0)
             return fail(c, p, "mesh file \"%s\" (resolved to %s) cannot be read: %s; paths are relative "
                               "to the scene file's directory", files[i], full, strerror(errno));
@@ -1036,15 +1041,16 @@ static int parse_list(pctx *c, sq_scene *s, const cJSON *root, const char *key, 
 
 static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 {
-    static const char *const keys[] = {"name", "description", "gravity", "frame_rate", "duration",
-                                       "bodies", "tools", "probes", NULL};
+    static const char *const keys[] = {"name", "description", "meshes_made_by", "gravity", "frame_rate",
+                                       "duration", "bodies", "tools", "probes", NULL};
     if (!cJSON_IsObject(root))
         return fail(c, "", "the top level is %s; a scene is a JSON object {\"name\": ..., \"bodies\": [...]}",
                     type_name(root));
     if (check_keys(c, root, "", keys))
         return -1;
     if (get_string(c, root, "", "name", s->name, sizeof s->name, NULL) || check_name(c, "name", s->name) ||
-        get_string(c, root, "", "description", s->description, sizeof s->description, NULL))
+        get_string(c, root, "", "description", s->description, sizeof s->description, NULL) ||
+        get_string(c, root, "", "meshes_made_by", c->made_by, sizeof c->made_by, NULL))
         return -1;
     s->gravity[0] = s->gravity[1] = 0;
     s->gravity[2] = -9.81;
@@ -1095,7 +1101,7 @@ static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 
 sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *label, sq_err *err)
 {
-    pctx c = {label && label[0] ? label : "scene", base_dir, err};
+    pctx c = {label && label[0] ? label : "scene", base_dir, err, ""};
     sq_err local = {{0}};
     if (!c.err)
         c.err = &local;

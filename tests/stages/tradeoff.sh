@@ -58,8 +58,10 @@ check "summary names the headline" grep -q '^headline: ' "$TMP/to/summary.txt"
 "$SQUISH" tradeoff --bench --frames 5 --spmv-cells 4 >"$TMP/bench.log" 2>&1
 rc=$?
 check "tradeoff --bench exits 0" [ "$rc" = 0 ]
-check "bench: a headroom row per shipped scene" \
-    bash -c "[ \$(grep -Ec '^[^# ]+ +5 +[0-9]+ +[0-9.]+ ' '$TMP/bench.log') = \$(ls meshes/scenes/*.json | wc -l) ]"
+# (a scene whose meshes are generated, box-big, is skipped with a line naming `make meshes` when
+# they are missing: a fresh clone)
+check "bench: a headroom row per shipped scene, or a skip naming make meshes" \
+    bash -c "[ \$((\$(grep -Ec '^[^# ]+ +5 +[0-9]+ +[0-9.]+ ' '$TMP/bench.log') + \$(grep -Ec '^[^# ]+ +skipped: .*run .make meshes. first' '$TMP/bench.log'))) = \$(ls meshes/scenes/*.json | wc -l) ]"
 check "bench: 1 vs 2 threads and the K x pass reported" \
     bash -c "grep -q '^1 vs 2 threads' '$TMP/bench.log' && grep -q '^K x on a' '$TMP/bench.log'"
 "$SQUISH" tradeoff --bench --scenes "$TMP/none" >"$TMP/bench2.log" 2>&1
