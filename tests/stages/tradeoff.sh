@@ -54,6 +54,16 @@ check "tradeoff.png is a PNG" bash -c "head -c 8 '$TMP/to/tradeoff.png' | od -An
 check "tradeoff.png not tiny" [ "$(stat -c %s "$TMP/to/tradeoff.png")" -gt 10000 ]
 check "summary names the headline" grep -q '^headline: ' "$TMP/to/summary.txt"
 
+# --reference-step 0.9: the reference is the fixed finest run itself, reused for the fixed L2 row
+# (same cost, zero error), and the header says which step the reference took
+"$SQUISH" tradeoff meshes/scenes/cube-poke.json --quick --frames 40 --reference-step 0.9 --out "$TMP/to9" >"$TMP/to9.log" 2>&1
+check "tradeoff --reference-step 0.9 exits 0" [ $? = 0 ]
+check "reference step named" grep -q 'reference: fixed L2, fem, step 0.9 x bound' "$TMP/to9.log"
+check "fixed L2 row is the reference (same node updates, zero error)" \
+    bash -c "awk -F, '/^\"reference\",/ {r = \$11} /^\"fixed L2\",fixed,/ {f = \$11; e = \$13} END {exit !(r > 0 && f == r && e == 0)}' '$TMP/to9/tradeoff.csv'"
+"$SQUISH" tradeoff meshes/scenes/cube-poke.json --reference-step 0 >"$TMP/u5.log" 2>&1
+check "tradeoff bad --reference-step: exit 2, named" bash -c "[ $? = 2 ] && grep -q -- '--reference-step needs' '$TMP/u5.log'"
+
 # ---- the scene benchmark, shortened: every shipped scene gets a headroom row
 "$SQUISH" tradeoff --bench --frames 5 --spmv-cells 4 >"$TMP/bench.log" 2>&1
 rc=$?
