@@ -51,6 +51,7 @@ static const det_pin pins[] = {
 #else
 static const det_pin pins[] = {
     {"beam", "scene", 0xd5eb77ac63a545efull},
+    {"box-big", "scene", 0x991da0b6a7fce189ull}, /* only once `make meshes` has made its meshes */
     {"column", "scene", 0x20c81c236dd2af9full},
     {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
     {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
