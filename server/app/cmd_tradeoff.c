@@ -117,14 +117,36 @@ static int body_finest(const cJSON *body, int override)
     return n - 1;
 }
 
-/* scene text of a variant: every body gets the variant's lod, operator and step fraction */
-static char *variant_text(cJSON *root, const to_variant *v, int finest_override)
+/* each body's lod.max_node_updates in the scene as given (0: none), read before the variants
+ * replace the lod objects */
+static void scene_caps(const cJSON *root, double caps[SQ_MAX_BODIES])
+{
+    int b = 0;
+    const cJSON *body;
+    cJSON_ArrayForEach(body, cJSON_GetObjectItemCaseSensitive(root, "bodies"))
+    {
+        if (b == SQ_MAX_BODIES)
+            break;
+        const cJSON *lod = cJSON_GetObjectItemCaseSensitive(body, "lod");
+        const cJSON *cap = lod ? cJSON_GetObjectItemCaseSensitive(lod, "max_node_updates") : NULL;
+        caps[b++] = cJSON_IsNumber(cap) ? cap->valuedouble : 0;
+    }
+}
+
+/* scene text of a variant: every body gets the variant's lod, operator and step fraction; an
+ * adaptive variant keeps the body's max_node_updates (caps[]): the scene's deterministic
+ * per-frame cap, a stand-in for the live budget, which the trade-off does not run (it is not
+ * deterministic) */
+static char *variant_text(cJSON *root, const to_variant *v, int finest_override, const double caps[SQ_MAX_BODIES])
 {
     cJSON *bodies = cJSON_GetObjectItemCaseSensitive(root, "bodies");
     cJSON *body;
+    int bi = 0;
     cJSON_ArrayForEach(body, bodies)
     {
         int fin = body_finest(body, finest_override);
+        double cap_v = bi < SQ_MAX_BODIES ? caps[bi] : 0;
+        bi++;
         cJSON *lod = cJSON_CreateObject();
         cJSON_AddStringToObject(lod, "mode", v->adaptive ? "adaptive" : "fixed");
         cJSON_AddNumberToObject(lod, "max_level", fin);
@@ -136,6 +158,8 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override)
                 cJSON_AddNumberToObject(lod, "split", v->split);
                 cJSON_AddNumberToObject(lod, "merge", 0.4 * v->split);
             }
+            if (cap_v > 0)
+                cJSON_AddNumberToObject(lod, "max_node_updates", cap_v);
         }
         set_item(body, "lod", lod);
         set_item(body, "operator", cJSON_CreateString(v->op == SQ_OPERATOR_PAPER ? "paper" : "fem"));
@@ -591,6 +615,8 @@ int sq_cmd_tradeoff(int argc, char **argv)
     static to_result r[TO_MAX_VARIANTS];
     memset(r, 0, sizeof r);
     int n = build_grid(v, finest, s0, quick, ref_fraction);
+    double caps[SQ_MAX_BODIES] = {0};
+    scene_caps(root, caps);
     if (sq_mkdir_p(out)) {
         fprintf(stderr, "squish tradeoff: cannot create output directory %s: %s; choose another --out\n", out,
                 strerror(errno));
@@ -618,7 +644,7 @@ int sq_cmd_tradeoff(int argc, char **argv)
             sq_progress_update(&prog, done);
             continue;
         }
-        char *vt = variant_text(root, &v[i], finest_override);
+        char *vt = variant_text(root, &v[i], finest_override, caps);
         char label[600];
         snprintf(label, sizeof label, "%s [%s]", scene_path, v[i].name);
         sq_scene *s = sq_scene_parse(vt, dir, label, &err);

@@ -61,6 +61,14 @@ check "tradeoff --reference-step 0.9 exits 0" [ $? = 0 ]
 check "reference step named" grep -q 'reference: fixed L2, fem, step 0.9 x bound' "$TMP/to9.log"
 check "fixed L2 row is the reference (same node updates, zero error)" \
     bash -c "awk -F, '/^\"reference\",/ {r = \$11} /^\"fixed L2\",fixed,/ {f = \$11; e = \$13} END {exit !(r > 0 && f == r && e == 0)}' '$TMP/to9/tradeoff.csv'"
+# a scene's lod.max_node_updates (deterministic per-frame cap) stays with its adaptive settings:
+# cube-poke capped at 600 updates per frame: every adaptive row at most 600 x 50 per second
+# (uncapped, the split-0.0015 row needs about 10x that)
+sed -e 's#"\.\./cube/#"'"$PWD"'/meshes/cube/#g' \
+    -e 's#"merge": 0.002 }#"merge": 0.002, "max_node_updates": 600 }#' meshes/scenes/cube-poke.json >"$TMP/capped.json"
+"$SQUISH" tradeoff "$TMP/capped.json" --quick --frames 75 --out "$TMP/tocap" >"$TMP/tocap.log" 2>&1
+check "tradeoff keeps the scene's max_node_updates on adaptive rows" \
+    bash -c "awk -F, '/,adaptive,fem,adaptive,/ {n++; if (\$11 > 600 * 50) bad = 1} END {exit !(n == 3 && !bad)}' '$TMP/tocap/tradeoff.csv'"
 "$SQUISH" tradeoff meshes/scenes/cube-poke.json --reference-step 0 >"$TMP/u5.log" 2>&1
 check "tradeoff bad --reference-step: exit 2, named" bash -c "[ $? = 2 ] && grep -q -- '--reference-step needs' '$TMP/u5.log'"
 
