@@ -15,10 +15,14 @@ static void usage(FILE *f)
             "  squish mesh info FILE\n"
             "      counts, volume, surface area, edge lengths, dihedral angles, worst aspect ratio,\n"
             "      smallest tet height\n"
-            "  squish mesh box NX NY NZ [--size X Y Z] [--origin X Y Z] --out FILE\n"
-            "      structured box of NX*NY*NZ cells, 6 tets each (default size 1 1 1, origin 0 0 0)\n"
-            "  squish mesh convert IN OUT\n"
+            "  squish mesh box NX NY NZ [--size X Y Z] [--origin X Y Z] [--renumber] --out FILE\n"
+            "      structured box of NX*NY*NZ cells, 6 tets each (default size 1 1 1, origin 0 0 0);\n"
+            "      nodes numbered lexicographically (x fastest)\n"
+            "  squish mesh convert IN OUT [--renumber]\n"
             "      read any supported format, validate, write another\n"
+            "  --renumber: number the nodes by reverse Cuthill-McKee (neighbours close together, tets\n"
+            "      sorted by their first node) before writing: faster steps on meshes whose numbering\n"
+            "      is not local (Gmsh's); prints the bandwidth before and after\n"
             "\n"
             "formats (by extension): .msh (Gmsh 2.2 or 4.1 ASCII; written as 2.2), .node/.ele (TetGen),\n"
             ".mesh (Medit), .vtk (legacy VTK, write only).\n"
@@ -96,14 +100,35 @@ static int cmd_info(int argc, char **argv)
     return 0;
 }
 
+/* --renumber: replace *m by its RCM renumbering, printing the bandwidths; -1 on failure */
+static int renumber(sq_mesh **m, const char *who)
+{
+    sq_err err = {0};
+    double t0 = sq_now();
+    int before = sq_mesh_bandwidth(*m);
+    sq_mesh *r = sq_mesh_renumber(*m, &err);
+    if (!r) {
+        fprintf(stderr, "squish mesh %s: %s\n", who, err.msg);
+        return -1;
+    }
+    printf("renumbered (reverse Cuthill-McKee): bandwidth %d -> %d (%.3f s)\n", before, sq_mesh_bandwidth(r),
+           sq_now() - t0);
+    sq_mesh_free(*m);
+    *m = r;
+    return 0;
+}
+
 static int cmd_box(int argc, char **argv)
 {
     int n[3], npos = 0;
     double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
     const char *out = NULL;
+    int renum = 0;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
-        if (!strcmp(a, "--size") || !strcmp(a, "--origin")) {
+        if (!strcmp(a, "--renumber")) {
+            renum = 1;
+        } else if (!strcmp(a, "--size") || !strcmp(a, "--origin")) {
             double *dst = !strcmp(a, "--size") ? size : origin;
             if (i + 3 >= argc)
                 return usage_error("%s needs three numbers X Y Z", a);
@@ -139,6 +164,10 @@ static int cmd_box(int argc, char **argv)
         fprintf(stderr, "squish mesh box: %s\n", err.msg);
         return 2;
     }
+    if (renum && renumber(&m, "box") < 0) {
+        sq_mesh_free(m);
+        return 1;
+    }
     double t1 = sq_now();
     if (sq_mesh_save(m, out, &err) < 0) {
         fprintf(stderr, "squish mesh box: %s\n", err.msg);
@@ -153,21 +182,37 @@ static int cmd_box(int argc, char **argv)
 
 static int cmd_convert(int argc, char **argv)
 {
-    if (argc != 3)
+    const char *io[2] = {NULL, NULL};
+    int nio = 0, renum = 0;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--renumber"))
+            renum = 1;
+        else if (argv[i][0] == '-' && argv[i][1])
+            return usage_error("unknown option '%s'", argv[i]);
+        else if (nio == 2)
+            return usage_error("convert takes IN and OUT%s", "");
+        else
+            io[nio++] = argv[i];
+    }
+    if (nio != 2)
         return usage_error("convert takes IN and OUT%s", "");
     sq_err err = {0};
-    sq_mesh *m = sq_mesh_load(argv[1], &err);
+    sq_mesh *m = sq_mesh_load(io[0], &err);
     if (!m) {
         fprintf(stderr, "squish mesh convert: %s\n", err.msg);
         return 1;
     }
-    if (sq_mesh_save(m, argv[2], &err) < 0) {
+    if (renum && renumber(&m, "convert") < 0) {
+        sq_mesh_free(m);
+        return 1;
+    }
+    if (sq_mesh_save(m, io[1], &err) < 0) {
         fprintf(stderr, "squish mesh convert: %s\n", err.msg);
         sq_mesh_free(m);
         /* an unknown output extension is a usage error */
         return strstr(err.msg, "unknown output format") ? 2 : 1;
     }
-    printf("wrote %s: %d nodes, %d tets\n", argv[2], m->nnodes, m->ntets);
+    printf("wrote %s: %d nodes, %d tets\n", io[1], m->nnodes, m->ntets);
     sq_mesh_free(m);
     return 0;
 }

@@ -1,11 +1,13 @@
 /* cmd_tradeoff.c - squish tradeoff: the speed/accuracy trade of a scene (issue 7).
  *
- *   squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K]
+ *   squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K] [--reference-step F]
  *   squish tradeoff --bench [...]          (bench_scenes.c)
  *
  * Runs the scene, with its scripted tools, under a grid of settings: every fixed level, the
  * adaptive method at several split thresholds, both operators, several step fractions of the
- * stability bound. The reference is the finest level, fem operator, step fraction 0.25.
+ * stability bound. The reference is the finest level, fem operator, step fraction 0.25 (or F:
+ * at 0.9 it is the fixed finest run itself, which is then not run twice: for scenes whose finest
+ * level is too slow to run four times over).
  * Every variant is compared with it at the same points: the rest positions of the reference's
  * surface vertices (displacement interpolated in the variant's simulated level, so coarse
  * levels are compared where the user sees them) and the scene's probes, every frame.
@@ -69,6 +71,7 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K]\n"
+            "                                  [--reference-step F]\n"
             "       squish tradeoff --bench [--scenes DIR] [--frames N]\n"
             "\n"
             "  Runs the scene (its scripted tools included) under a grid of settings and measures\n"
@@ -78,6 +81,8 @@ static void usage(FILE *f)
             "  --frames N   frames per run (default: the scene's duration)\n"
             "  --quick      a smaller grid (fixed levels, three thresholds, paper at the finest)\n"
             "  --finest K   listed level index used as the finest (default: each body's max_level)\n"
+            "  --reference-step F  step fraction of the reference (default 0.25; 0.9: the fixed finest\n"
+            "               run is the reference, for large scenes; the finer-step rows give its noise)\n"
             "  --bench      frame-budget headroom of the shipped scenes and 1 vs 2 threads\n");
 }
 
@@ -112,14 +117,36 @@ static int body_finest(const cJSON *body, int override)
     return n - 1;
 }
 
-/* scene text of a variant: every body gets the variant's lod, operator and step fraction */
-static char *variant_text(cJSON *root, const to_variant *v, int finest_override)
+/* each body's lod.max_node_updates in the scene as given (0: none), read before the variants
+ * replace the lod objects */
+static void scene_caps(const cJSON *root, double caps[SQ_MAX_BODIES])
+{
+    int b = 0;
+    const cJSON *body;
+    cJSON_ArrayForEach(body, cJSON_GetObjectItemCaseSensitive(root, "bodies"))
+    {
+        if (b == SQ_MAX_BODIES)
+            break;
+        const cJSON *lod = cJSON_GetObjectItemCaseSensitive(body, "lod");
+        const cJSON *cap = lod ? cJSON_GetObjectItemCaseSensitive(lod, "max_node_updates") : NULL;
+        caps[b++] = cJSON_IsNumber(cap) ? cap->valuedouble : 0;
+    }
+}
+
+/* scene text of a variant: every body gets the variant's lod, operator and step fraction; an
+ * adaptive variant keeps the body's max_node_updates (caps[]): the scene's deterministic
+ * per-frame cap, a stand-in for the live budget, which the trade-off does not run (it is not
+ * deterministic) */
+static char *variant_text(cJSON *root, const to_variant *v, int finest_override, const double caps[SQ_MAX_BODIES])
 {
     cJSON *bodies = cJSON_GetObjectItemCaseSensitive(root, "bodies");
     cJSON *body;
+    int bi = 0;
     cJSON_ArrayForEach(body, bodies)
     {
         int fin = body_finest(body, finest_override);
+        double cap_v = bi < SQ_MAX_BODIES ? caps[bi] : 0;
+        bi++;
         cJSON *lod = cJSON_CreateObject();
         cJSON_AddStringToObject(lod, "mode", v->adaptive ? "adaptive" : "fixed");
         cJSON_AddNumberToObject(lod, "max_level", fin);
@@ -131,6 +158,8 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override)
                 cJSON_AddNumberToObject(lod, "split", v->split);
                 cJSON_AddNumberToObject(lod, "merge", 0.4 * v->split);
             }
+            if (cap_v > 0)
+                cJSON_AddNumberToObject(lod, "max_node_updates", cap_v);
         }
         set_item(body, "lod", lod);
         set_item(body, "operator", cJSON_CreateString(v->op == SQ_OPERATOR_PAPER ? "paper" : "fem"));
@@ -150,11 +179,11 @@ static double scene_split(const cJSON *root)
     return cJSON_IsNumber(sp) && sp->valuedouble > 0 ? sp->valuedouble : 0.005;
 }
 
-static int build_grid(to_variant *v, int finest, double s0, int quick)
+static int build_grid(to_variant *v, int finest, double s0, int quick, double ref_fraction)
 {
     int n = 0;
     /* the reference first */
-    v[n++] = (to_variant){"reference", "reference", 0, finest, 0, SQ_OPERATOR_FEM, 0.25};
+    v[n++] = (to_variant){"reference", "reference", 0, finest, 0, SQ_OPERATOR_FEM, ref_fraction};
     for (int k = 0; k <= finest; k++) {
         v[n] = (to_variant){"", "fixed", 0, k, 0, SQ_OPERATOR_FEM, 0.9};
         snprintf(v[n].name, sizeof v[n].name, "fixed L%d", k);
@@ -462,7 +491,7 @@ static int write_plot(const char *dir, const char *scene_name, const to_variant 
     fprintf(f,
             "set terminal pngcairo size 1000,700 font 'sans,10'\n"
             "set output '%s'\n"
-            "set title \"%s: RMS surface error vs cost (reference: finest level, fem, step 0.25 x bound)\"\n"
+            "set title \"%s: RMS surface error vs cost (reference: finest level, fem, step %g x bound)\"\n"
             "set logscale xy\n"
             "set xlabel 'node updates per simulated second'\n"
             "set ylabel 'RMS surface displacement error (m)'\n"
@@ -477,7 +506,7 @@ static int write_plot(const char *dir, const char *scene_name, const to_variant 
             "     '' index 1 using 1:2:3 with labels offset 1,-0.7 left font ',8' tc rgb '#d62728' notitle, \\\n"
             "     '' index 2 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#2ca02c' notitle, \\\n"
             "     '' index 3 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#9467bd' notitle\n",
-            png, scene_name, dat);
+            png, scene_name, v[0].fraction, dat);
     fclose(f);
     char cmd[2400];
     snprintf(cmd, sizeof cmd, "gnuplot '%s' 2>&1", gp);
@@ -503,6 +532,7 @@ int sq_cmd_tradeoff(int argc, char **argv)
     const char *scene_path = NULL, *out = "squish-tradeoff";
     long frames = -1;
     int quick = 0, finest_override = -1;
+    double ref_fraction = 0.25;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
@@ -512,6 +542,13 @@ int sq_cmd_tradeoff(int argc, char **argv)
             return sq_bench_scenes(argc - i, argv + i);
         } else if (!strcmp(a, "--quick")) {
             quick = 1;
+        } else if (!strcmp(a, "--reference-step")) {
+            char *end = NULL;
+            double f = i + 1 < argc ? strtod(argv[i + 1], &end) : 0;
+            if (i + 1 >= argc || *end || !(f > 0 && f <= 1))
+                return usage_error("--reference-step needs a step fraction of the bound in (0, 1]", NULL);
+            ref_fraction = f;
+            i++;
         } else if (!strcmp(a, "--out")) {
             if (i + 1 >= argc || !argv[i + 1][0])
                 return usage_error("--out needs a directory", NULL);
@@ -577,16 +614,18 @@ int sq_cmd_tradeoff(int argc, char **argv)
     to_variant v[TO_MAX_VARIANTS];
     static to_result r[TO_MAX_VARIANTS];
     memset(r, 0, sizeof r);
-    int n = build_grid(v, finest, s0, quick);
+    int n = build_grid(v, finest, s0, quick, ref_fraction);
+    double caps[SQ_MAX_BODIES] = {0};
+    scene_caps(root, caps);
     if (sq_mkdir_p(out)) {
         fprintf(stderr, "squish tradeoff: cannot create output directory %s: %s; choose another --out\n", out,
                 strerror(errno));
         cJSON_Delete(root);
         return 1;
     }
-    printf("tradeoff %s: %d settings x %ld frames (%.3g s simulated each); reference: fixed L%d, fem, step 0.25 "
+    printf("tradeoff %s: %d settings x %ld frames (%.3g s simulated each); reference: fixed L%d, fem, step %.3g "
            "x bound; adaptive thresholds around the scene's split %.3g m\n",
-           scene_name, n, nframes, nframes / frame_rate, finest, s0);
+           scene_name, n, nframes, nframes / frame_rate, finest, ref_fraction, s0);
     fflush(stdout);
 
     to_ref ref;
@@ -597,7 +636,15 @@ int sq_cmd_tradeoff(int argc, char **argv)
     double done = 0;
     int rc = 0;
     for (int i = 0; i < n; i++) {
-        char *vt = variant_text(root, &v[i], finest_override);
+        if (i > 0 && !strcmp(v[i].kind, "fixed") && v[i].level == finest && v[i].fraction == v[0].fraction &&
+            r[0].ok) {
+            /* the same run as the reference (--reference-step 0.9): its numbers, zero error */
+            r[i] = r[0];
+            done += nframes;
+            sq_progress_update(&prog, done);
+            continue;
+        }
+        char *vt = variant_text(root, &v[i], finest_override, caps);
         char label[600];
         snprintf(label, sizeof label, "%s [%s]", scene_path, v[i].name);
         sq_scene *s = sq_scene_parse(vt, dir, label, &err);

@@ -57,6 +57,15 @@ sq_mesh *sq_mesh_box(int nx, int ny, int nz, const double size[3], const double 
 
 void sq_mesh_free(sq_mesh *m);
 
+/* the same mesh with its nodes renumbered by reverse Cuthill-McKee (breadth-first from a
+ * pseudo-peripheral node, reversed; ties to the lower index: deterministic) and its tets sorted
+ * by their smallest node: neighbours get close indices, so the step kernel's row reads stay in
+ * cache. NULL + err on failure (out of memory) */
+sq_mesh *sq_mesh_renumber(const sq_mesh *m, sq_err *err);
+
+/* largest |i - j| over neighbouring nodes i, j */
+int sq_mesh_bandwidth(const sq_mesh *m);
+
 /* compute boundary, adjacency and bounding box (called by the loaders) */
 int sq_mesh_finalize(sq_mesh *m, sq_err *err);
 

@@ -332,6 +332,10 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
         char full[1024];
         resolve(full, sizeof full, c->base_dir, files[i]);
         struct stat st;
+        if (stat(full, &st) != 0 && errno == ENOENT && c->made_by[0])
+            return scene_fail(c, p, "mesh file \"%s\" (resolved to %s): " SQ_SCENE_MESHES_NOT_MADE
+                              ": this scene's meshes are generated, not shipped; run `%s` first (meshes/README.md)",
+                              files[i], full, c->made_by);
         if (stat(full, &st) != 0)
             return scene_fail(c, p, "mesh file \"%s\" (resolved to %s) cannot be read: %s; paths are relative "
                               "to the scene file's directory", files[i], full, strerror(errno));

@@ -54,15 +54,16 @@ static int parse_list(pctx *c, sq_scene *s, const cJSON *root, const char *key, 
 
 static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 {
-    static const char *const keys[] = {"name", "description", "gravity", "frame_rate", "duration",
-                                       "bodies", "tools", "probes", NULL};
+    static const char *const keys[] = {"name", "description", "meshes_made_by", "gravity", "frame_rate",
+                                       "duration", "bodies", "tools", "probes", NULL};
     if (!cJSON_IsObject(root))
         return scene_fail(c, "", "the top level is %s; a scene is a JSON object {\"name\": ..., \"bodies\": [...]}",
                     scene_type_name(root));
     if (scene_check_keys(c, root, "", keys))
         return -1;
     if (scene_get_string(c, root, "", "name", s->name, sizeof s->name, NULL) || scene_check_name(c, "name", s->name) ||
-        scene_get_string(c, root, "", "description", s->description, sizeof s->description, NULL))
+        scene_get_string(c, root, "", "description", s->description, sizeof s->description, NULL) ||
+        scene_get_string(c, root, "", "meshes_made_by", c->made_by, sizeof c->made_by, NULL))
         return -1;
     s->gravity[0] = s->gravity[1] = 0;
     s->gravity[2] = -9.81;
@@ -113,7 +114,7 @@ static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 
 sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *label, sq_err *err)
 {
-    pctx c = {label && label[0] ? label : "scene", base_dir, err};
+    pctx c = {label && label[0] ? label : "scene", base_dir, err, ""};
     sq_err local = {{0}};
     if (!c.err)
         c.err = &local;

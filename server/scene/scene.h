@@ -57,6 +57,11 @@ typedef struct sq_scene {
     int level_index[SQ_MAX_BODIES][SQ_MAX_LEVELS]; /* listed index of each loaded level */
 } sq_scene;
 
+/* the phrase a load error contains when a mesh file is missing and the scene says how its
+ * meshes are made ("meshes_made_by", e.g. "make meshes"): callers that iterate the shipped
+ * scenes skip such a scene (strstr(err.msg, SQ_SCENE_MESHES_NOT_MADE)) instead of failing */
+#define SQ_SCENE_MESHES_NOT_MADE "meshes not made yet"
+
 /* load and validate a scene file; unknown keys and wrong types are errors naming the JSON
  * path (e.g. "bodies[0].material.nu: must be in [0, 0.5)") */
 sq_scene *sq_scene_load(const char *path, sq_err *err);

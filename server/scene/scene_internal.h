@@ -27,6 +27,7 @@ typedef struct pctx {
     const char *label;
     const char *base_dir;
     sq_err *err;
+    char made_by[64];      /* "meshes_made_by": how a scene's generated meshes are made */
 } pctx;
 
 /* ---- fields.c: readers. Each returns 0, or -1 with c->err set to "<label>: <path>: <what>";

@@ -28,6 +28,7 @@
 #include "sq_test.h"
 
 #define DET_FRAMES 40
+#define DET_MAX_FIXED_NODES 50000 /* the "fixed" mode is skipped above this finest level size */
 
 typedef struct det_pin {
     const char *scene;
@@ -38,6 +39,7 @@ typedef struct det_pin {
 #if defined(__AVX2__) && defined(__FMA__)
 static const det_pin pins[] = {
     {"beam", "scene", 0x70502495c8492e9aull},
+    {"box-big", "scene", 0xc2bde76208971135ull}, /* only once `make meshes` has made its meshes */
     {"column", "scene", 0x2655479d8adb8706ull},
     {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
     {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
@@ -49,6 +51,7 @@ static const det_pin pins[] = {
 #else
 static const det_pin pins[] = {
     {"beam", "scene", 0xd5eb77ac63a545efull},
+    {"box-big", "scene", 0x991da0b6a7fce189ull}, /* only once `make meshes` has made its meshes */
     {"column", "scene", 0x20c81c236dd2af9full},
     {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
     {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
@@ -75,6 +78,13 @@ static uint64_t run_and_hash(const char *path, int force_fixed, int *skipped)
     sq_err e = {{0}};
     *skipped = 0;
     sq_scene *sc = sq_scene_load(path, &e);
+    if (!sc && strstr(e.msg, SQ_SCENE_MESHES_NOT_MADE)) {
+        /* a scene whose meshes `make meshes` generates (box-big), in a tree where it has not run */
+        if (!force_fixed)
+            fprintf(stderr, "determinism: skipping %s: %s\n", path, e.msg);
+        *skipped = 1;
+        return 0;
+    }
     if (!sc) {
         sq_test_fail(__FILE__, __LINE__, "%s: %s", path, e.msg);
         return 0;
@@ -82,6 +92,13 @@ static uint64_t run_and_hash(const char *path, int force_fixed, int *skipped)
     if (force_fixed) {
         int any = 0;
         for (int b = 0; b < sc->nbodies; b++) {
+            /* a finest level too large to run fixed in the suite (box-big: 117,649 nodes at 128
+             * substeps, 53 CPU s for these 40 frames: what its adaptive run exists to avoid) */
+            if (sc->meshes[b][sc->bodies[b].nlevels - 1] &&
+                sc->meshes[b][sc->bodies[b].nlevels - 1]->nnodes > DET_MAX_FIXED_NODES) {
+                any = 0;
+                break;
+            }
             if (sc->bodies[b].lod.mode == SQ_LOD_ADAPTIVE) {
                 sc->bodies[b].lod.mode = SQ_LOD_FIXED;
                 sc->bodies[b].lod.level = sc->bodies[b].nlevels - 1;

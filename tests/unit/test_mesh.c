@@ -359,3 +359,80 @@ SQ_TEST(mesh_box_large_finalize)
     CHECK(m->adj_start[mid + 1] - m->adj_start[mid] == 15);
     sq_mesh_free(m);
 }
+
+/* RCM renumbering: a box with its nodes shuffled gets a bandwidth near the lexicographic one
+ * back; the mesh is the same (positions, tets as sets of positions, volume), and the result is
+ * deterministic */
+SQ_TEST(mesh_renumber_rcm)
+{
+    sq_err err = {{0}};
+    sq_mesh *b = sq_mesh_box(8, 6, 5, NULL, NULL, &err);
+    CHECK(b != NULL);
+    if (!b)
+        return;
+    int n = b->nnodes;
+    /* a fixed pseudo-random permutation */
+    int *perm = malloc(sizeof *perm * (size_t)n);
+    for (int i = 0; i < n; i++)
+        perm[i] = i;
+    unsigned s = 12345;
+    for (int i = n - 1; i > 0; i--) {
+        s = s * 1103515245u + 12345u;
+        int j = (int)((s >> 8) % (unsigned)(i + 1)), t = perm[i];
+        perm[i] = perm[j];
+        perm[j] = t;
+    }
+    double *x = malloc(sizeof *x * 3 * (size_t)n);
+    int *tets = malloc(sizeof *tets * 4 * (size_t)b->ntets);
+    for (int i = 0; i < n; i++)
+        memcpy(x + 3 * perm[i], b->x + 3 * i, 3 * sizeof *x);
+    for (int t = 0; t < 4 * b->ntets; t++)
+        tets[t] = perm[b->tets[t]];
+    sq_mesh *sh = sq_mesh_from_arrays(n, x, b->ntets, tets, "shuffled", &err);
+    CHECK(sh != NULL);
+    sq_mesh *r = sh ? sq_mesh_renumber(sh, &err) : NULL;
+    CHECK(r != NULL);
+    if (r) {
+        int bw_box = sq_mesh_bandwidth(b), bw_sh = sq_mesh_bandwidth(sh), bw_r = sq_mesh_bandwidth(r);
+        /* lexicographic: (nx+1)(ny+1) + (nx+1) + 1 = 73; shuffled: most of n = 378 */
+        CHECK(bw_sh > 4 * bw_box);
+        CHECK(bw_r <= 2 * bw_box);
+        CHECK(r->nnodes == n && r->ntets == b->ntets && r->ntris == b->ntris);
+        sq_mesh_info ib, ir;
+        sq_mesh_measure(b, &ib);
+        sq_mesh_measure(r, &ir);
+        CHECK_NEAR(ir.volume, ib.volume, 1e-12);
+        /* the same positions (a permutation of them): sums of coordinates and of squares */
+        double s1[2] = {0, 0}, s2[2] = {0, 0};
+        for (int i = 0; i < 3 * n; i++) {
+            s1[0] += b->x[i];
+            s1[1] += r->x[i];
+            s2[0] += b->x[i] * b->x[i] * (1 + i % 3);
+            s2[1] += r->x[i] * r->x[i] * (1 + i % 3);
+        }
+        CHECK_NEAR(s1[1], s1[0], 1e-9);
+        CHECK_NEAR(s2[1], s2[0], 1e-9);
+        /* tets sorted by their smallest node */
+        int sorted = 1;
+        for (int t = 1; t < r->ntets && sorted; t++) {
+            int a = n, c = n;
+            for (int k = 0; k < 4; k++) {
+                a = SQ_MIN(a, r->tets[4 * (t - 1) + k]);
+                c = SQ_MIN(c, r->tets[4 * t + k]);
+            }
+            sorted = a <= c;
+        }
+        CHECK(sorted);
+        /* deterministic */
+        sq_mesh *r2 = sq_mesh_renumber(sh, &err);
+        CHECK(r2 && !memcmp(r2->x, r->x, sizeof(double) * 3 * (size_t)n) &&
+              !memcmp(r2->tets, r->tets, sizeof(int) * 4 * (size_t)r->ntets));
+        sq_mesh_free(r2);
+    }
+    sq_mesh_free(r);
+    sq_mesh_free(sh);
+    sq_mesh_free(b);
+    free(perm);
+    free(x);
+    free(tets);
+}
