@@ -80,7 +80,7 @@ static long work_per_frame(const sq_world *w)
             const sq_level *l = &body->level[k];
             if (l->substeps_log2 > 24)
                 return LONG_MAX;
-            work += (long)l->n << l->substeps_log2;
+            work += (long)l->model.n << l->substeps_log2;
         }
     }
     return work;

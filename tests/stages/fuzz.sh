@@ -3,9 +3,9 @@
 # (clang, fuzzer + ASan + UBSan), replays each seed corpus, then fuzzes each for a short time.
 #   request  WebSocket request decoder and state checks   server/net/request.c (+ rawtext, errors, util)
 #   query    GET /snapshot.png query arguments, id rule    server/net/query.c
-#   msh      Gmsh .msh 2.2 and 4.1 ASCII                   server/mesh/io.c
-#   medit    Medit .mesh                                   server/mesh/io.c
-#   tetgen   TetGen .node + .ele                           server/mesh/io.c
+#   msh      Gmsh .msh 2.2 and 4.1 ASCII                   server/mesh/read_formats.c
+#   medit    Medit .mesh                                   server/mesh/read_formats.c
+#   tetgen   TetGen .node + .ele                           server/mesh/read_formats.c
 #   scene    scene JSON: load, check, 3 frames stepped     server/scene/*.c (+ util, body, lod)
 # Seconds per harness: FUZZ_SECONDS if set (`make fuzz`: 600 each), else the short defaults
 # below (95 s of fuzzing in all). FUZZ_ONLY="msh scene" runs a subset. Seeds and
@@ -45,7 +45,7 @@ if ! printf '%s\n' $srcs | xargs -P 2 -I{} bash -c 'build_obj {}'; then
     echo "fuzz: library objects do not build"; echo "fuzz: $pass passed, 1 failed"; exit 1
 fi
 obj() { for s in "$@"; do echo "$out/obj/$(echo "$s" | tr / _).o"; done; }
-MESH_OBJ=$(obj server/util/util.c server/mesh/io.c server/mesh/mesh.c server/mesh/locate.c)
+MESH_OBJ=$(obj server/util/util.c $(ls server/mesh/*.c))
 SCENE_OBJ=$(obj $(ls server/util/*.c server/mesh/*.c server/level/*.c server/body/*.c server/lod/*.c server/scene/*.c))
 link() { # name source objects... [flags]
     local name=$1 src=$2
