@@ -1,5 +1,6 @@
 // render.js - WebGL2 drawing of the bodies, nodes, tools, force arrows and floor.
-// Building what to draw (main.js keeps the state) is kept apart from drawing it (here).
+// Building what to draw (the viewer's other modules keep the state: state.js, session.js) is
+// kept apart from drawing it (here).
 
 import { alignZ, translateScale, len } from './camera.js';
 
