@@ -125,6 +125,13 @@ typedef struct sq_lod_level {
     int *read_list, nread_list; /* nodes whose step-start values are read */
     int *needed, nneeded;       /* coarse ghosts pushed every frame */
     unsigned char *in_needed;   /* 1 if in needed (n) */
+    int *ncnt;                  /* reasons a node is needed: seeds (below) plus needed coarse ghosts of
+                                 * the next finer level whose parent tet has it as a corner (n); a
+                                 * node is needed iff it is a coarse ghost (level >= 1) with ncnt > 0 */
+    unsigned char *seed_state;  /* the states the counts were made for (n) */
+    int *schg, nschg;           /* nodes whose state differs from seed_state (n) */
+    unsigned char *schg_mark;   /* 1 if in schg (n) */
+    int *seed_ring, nseed_ring; /* the ring the counts were made for (n) */
     unsigned char *mark;        /* scratch marks (n), all zero between uses */
     double *cascade_value;      /* d, v of each ring ghost as the cascade pushed or pulled it,
                                  * before its ring value replaced it (nring x 6) */
@@ -157,6 +164,9 @@ struct sq_lod {
                                           * reference the incremental rebuild is checked against) */
     /* ghost values pushed on demand (activeset.c) */
     int lists_dirty;                     /* read_list / needed out of date */
+    int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring, needed_top */
+    int needed_top;
+    long needed_counts[2];               /* needed sets made from scratch / by changes only */
     unsigned cascade_no;                 /* cascades run (the end-of-frame push counts one) */
     unsigned full_no;                    /* the last one that pushed every coarse ghost */
     int stale;                           /* coarse ghosts outside `needed` not pushed since the last frame */

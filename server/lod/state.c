@@ -48,6 +48,10 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
             lk->chg[lk->nchg++] = i;
         }
         lk->active[i] = a;
+        if (s != lk->seed_state[i] && !lk->schg_mark[i]) {
+            lk->schg_mark[i] = 1;
+            lk->schg[lk->nschg++] = i;
+        }
         lk->integrated[i] = (s == ST_ACTIVE);
         if (s == ST_ACTIVE)
             lk->active_list[na++] = i;
@@ -309,6 +313,11 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->lev[k].prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
         lod->lev[k].chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
         lod->lev[k].chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].ncnt = sq_calloc(SQ_MAX(n, 1), sizeof(int));
+        lod->lev[k].seed_state = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].schg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].schg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].seed_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
         lod->lev[k].ring_off2 = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].front_off2 = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].inner = sq_calloc(n, 1);
@@ -381,6 +390,11 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].prev_frontier);
         free(lod->lev[k].chg);
         free(lod->lev[k].chg_mark);
+        free(lod->lev[k].ncnt);
+        free(lod->lev[k].seed_state);
+        free(lod->lev[k].schg);
+        free(lod->lev[k].schg_mark);
+        free(lod->lev[k].seed_ring);
         free(lod->lev[k].ring_off2);
         free(lod->lev[k].ring_col2);
         free(lod->lev[k].ring_K2);

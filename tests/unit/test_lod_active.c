@@ -357,12 +357,14 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
             }
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "incremental rebuild (%s): %ld splits %ld merges, finest active up to %ld; rows "
-                    "computed %ld of %ld (full: %ld of %ld); %ld frames differ\n", visc ? "viscosities" : "b K",
-                    splits, merges, max_fine, computed[0], built[0], computed[1], built[1], bad_frames);
+                    "computed %ld of %ld (full: %ld of %ld); needed set by changes %ld times, from scratch %ld; %ld frames "
+                    "differ\n", visc ? "viscosities" : "b K", splits, merges, max_fine, computed[0], built[0],
+                    computed[1], built[1], b[0]->lod->needed_counts[1], b[0]->lod->needed_counts[0], bad_frames);
         CHECK(splits > 0 && merges > 0 && max_fine > 0); /* down to level 3 and back */
         CHECK(bad_frames == 0);
         CHECK(built[0] == built[1] && computed[1] == built[1]); /* the reference rebuilt every row */
         CHECK(computed[0] < built[0] / 2);                      /* the incremental one far fewer */
+        CHECK(b[0]->lod->needed_counts[1] > 10 * b[0]->lod->needed_counts[0]); /* needed set by changes */
         sq_body_destroy(b[0]);
         sq_body_destroy(b[1]);
     }
