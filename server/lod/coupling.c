@@ -330,13 +330,20 @@ static void build_ring_blocks(sq_lod *lod, int k)
                      &lk->front_K, &lk->front_K_cap, &lk->front_D, &lk->front_D_cap, 1.0 - MIXED_WEIGHT);
         lk->rows_computed += lk->nring + lk->nfrontier;
     } else {
-        /* rows with a changed node among their tets' corners (the node's adjacency row) */
+        /* rows with a tet that became mixed or stopped being mixed (a row sums the blocks of
+         * its mixed tets in incidence order, so with the same mixed tets it is the same row):
+         * only tets around a changed node can */
         unsigned char *dirty = lk->mark;
+        const unsigned char *act = lk->active, *was = lk->blk_active;
         for (int c = 0; c < lk->nchg; c++) {
             int i = lk->chg[c];
-            dirty[i] = 1;
-            for (int q = mesh->adj_start[i]; q < mesh->adj_start[i + 1]; q++)
-                dirty[mesh->adj[q]] = 1;
+            for (int e = lk->node_tet_start[i]; e < lk->node_tet_start[i + 1]; e++) {
+                const int *tv = mesh->tets + 4 * lk->node_tet[e];
+                int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
+                int nw = was[tv[0]] + was[tv[1]] + was[tv[2]] + was[tv[3]];
+                if ((na > 0 && na < 4) != (nw > 0 && nw < 4))
+                    dirty[tv[0]] = dirty[tv[1]] = dirty[tv[2]] = dirty[tv[3]] = 1;
+            }
         }
         int *from = sq_malloc(sizeof(int) * (size_t)SQ_MAX(SQ_MAX(lk->nring, lk->nfrontier), 1));
         int redone = build_blocks_incr(lod, k, lk->ring, lk->nring, lk->prev_ring, lk->nprev_ring, dirty,
@@ -364,9 +371,8 @@ static void build_ring_blocks(sq_lod *lod, int k)
         lk->rows_computed += redone;
         for (int c = 0; c < lk->nchg; c++) {
             int i = lk->chg[c];
-            dirty[i] = 0;
             for (int q = mesh->adj_start[i]; q < mesh->adj_start[i + 1]; q++)
-                dirty[mesh->adj[q]] = 0;
+                dirty[mesh->adj[q]] = 0; /* every corner of the tets around i */
         }
         /* merged rows: the copied frontier rows from the previous merged rows */
         int total = 0;
@@ -400,8 +406,10 @@ static void build_ring_blocks(sq_lod *lod, int k)
         lk->blocks_dirty = 0;
         lk->blocks_valid = 1;
         lk->prev_saved = 0;
-        for (int c = 0; c < lk->nchg; c++)
+        for (int c = 0; c < lk->nchg; c++) {
             lk->chg_mark[lk->chg[c]] = 0;
+            lk->blk_active[lk->chg[c]] = lk->active[lk->chg[c]];
+        }
         lk->nchg = 0;
         return;
     }
@@ -428,6 +436,7 @@ static void build_ring_blocks(sq_lod *lod, int k)
     for (int c = 0; c < lk->nchg; c++)
         lk->chg_mark[lk->chg[c]] = 0;
     lk->nchg = 0;
+    memcpy(lk->blk_active, lk->active, (size_t)n);
 }
 
 /* frontier correction of level k after its full-row forces: f_i += (1 - w) sum over mixed

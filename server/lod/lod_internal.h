@@ -74,6 +74,7 @@ typedef struct sq_lod_level {
     int prev_saved;             /* prev_ring / prev_frontier hold the lists of the built blocks */
     int *chg, nchg;             /* nodes whose active flag changed since the blocks were built (n) */
     unsigned char *chg_mark;    /* 1 if in chg (n) */
+    unsigned char *blk_active;  /* the active flags the blocks were built for (n) */
     long rows_computed, rows_built; /* ring + frontier rows computed / built, over all block builds */
 
     /* --- ring rows: -(K x) on a ring ghost over its half-weighted tets, aligned with the mesh

@@ -313,6 +313,7 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->lev[k].prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
         lod->lev[k].chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
         lod->lev[k].chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].blk_active = sq_calloc(SQ_MAX(n, 1), 1);
         lod->lev[k].ncnt = sq_calloc(SQ_MAX(n, 1), sizeof(int));
         lod->lev[k].seed_state = sq_calloc(SQ_MAX(n, 1), 1);
         lod->lev[k].schg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
@@ -390,6 +391,7 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].prev_frontier);
         free(lod->lev[k].chg);
         free(lod->lev[k].chg_mark);
+        free(lod->lev[k].blk_active);
         free(lod->lev[k].ncnt);
         free(lod->lev[k].seed_state);
         free(lod->lev[k].schg);
