@@ -110,9 +110,12 @@ static void need_tet(sq_lod *lod, int m, int t)
         need_node(lod, m, tn[q]);
 }
 
+static void needed_full(sq_lod *lod);
+static void needed_counted(sq_lod *lod);
+
 void sq_lodx_refresh_lists(sq_lod *lod)
 {
-    int L = lod->L, F = L - 1;
+    int L = lod->L;
     /* read_list: sources of every ring ghost (any level), active columns of each level's ring rows */
     for (int m = 0; m < L; m++)
         lod->lev[m].nread_list = 0;
@@ -137,7 +140,19 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             lod->lev[m].mark[lod->lev[m].read_list[r]] = 0;
     }
 
-    /* needed: clear the previous set, then mark what is read */
+    if (lod->full_rebuild)
+        needed_full(lod);
+    else
+        needed_counted(lod);
+    lod->lists_dirty = 0;
+}
+
+/* the needed set from scratch, by a walk from everything that is read (the reference the
+ * counted maintenance below is checked against) */
+static void needed_full(sq_lod *lod)
+{
+    int L = lod->L, F = L - 1;
+    /* clear the previous set, then mark what is read */
     for (int k = 0; k < L; k++) {
         for (int r = 0; r < lod->lev[k].nneeded; r++)
             lod->lev[k].in_needed[lod->lev[k].needed[r]] = 0;
@@ -175,7 +190,148 @@ void sq_lodx_refresh_lists(sq_lod *lod)
     }
     for (int k = 0; k < L; k++)
         sort_marked(lod->lev[k].needed, lod->lev[k].nneeded, lod->lev[k].in_needed, lod->lv[k].model.n);
-    lod->lists_dirty = 0;
+    /* the counts no longer describe this set */
+    lod->needed_valid = 0;
+    for (int k = 0; k < L; k++) {
+        for (int c = 0; c < lod->lev[k].nschg; c++)
+            lod->lev[k].schg_mark[lod->lev[k].schg[c]] = 0;
+        lod->lev[k].nschg = 0;
+    }
+}
+
+/* ---- the needed set maintained by counts: node j of level k is needed iff it is a coarse
+ * ghost (k >= 1) with ncnt > 0, ncnt counting its seeds (the finest surface, ring ghosts, the
+ * corners a split or active node reads) and the needed coarse ghosts of level k + 1 whose parent
+ * tet has j as a corner. Links go from level k + 1 to level k only, so the set is the one the
+ * walk from the seeds finds (needed_full); after a split/merge pass only the seeds of the nodes
+ * whose state changed and of the old and new rings are counted in or out, and a change of a
+ * node's status passes to its parent corners. */
+
+static void count_node(sq_lod *lod, int k, int j, int d);
+
+/* node j of level k: needed status from its state and count, passed on to its parent corners */
+static void fix_node(sq_lod *lod, int k, int j)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    unsigned char want = lk->state[j] == ST_COARSE && lk->ncnt[j] > 0;
+    if (want == lk->in_needed[j])
+        return;
+    lk->in_needed[j] = want;
+    lk->nneeded += want ? 1 : -1;
+    const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
+    for (int q = 0; q < 4; q++)
+        count_node(lod, k - 1, tn[q], want ? 1 : -1);
+}
+
+static void count_node(sq_lod *lod, int k, int j, int d)
+{
+    if (k < 1)
+        return; /* level 0 has no coarse ghosts */
+    lod->lev[k].ncnt[j] += d;
+    fix_node(lod, k, j);
+}
+
+static void count_tet(sq_lod *lod, int m, int t, int d)
+{
+    const int *tn = lod->lv[m].model.mesh->tets + 4 * t;
+    for (int q = 0; q < 4; q++)
+        count_node(lod, m, tn[q], d);
+}
+
+/* the seeds of node i of level k in state st (as needed_full finds them) counted d times */
+static void count_seeds(sq_lod *lod, int k, int i, unsigned char st, int d)
+{
+    if (!((st == ST_SPLIT && k + 1 < lod->L) || (st == ST_ACTIVE && k + 1 < lod->L && k < lod->top)))
+        return;
+    const sq_lod_link *ln = &lod->h.link[k];
+    count_tet(lod, k + 1, ln->down_tet[i], d);
+    for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
+        count_tet(lod, k, ln->up_tet[ln->child[c]], d);
+    if (st == ST_SPLIT && ln->child_start[i + 1] == ln->child_start[i]) {
+        const sq_level *Lk = &lod->lv[k];
+        for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++)
+            count_node(lod, k, Lk->model.col[q], d);
+    }
+}
+
+static void needed_counted(sq_lod *lod)
+{
+    int L = lod->L, F = L - 1;
+    long nchg = 0, ntot = 0;
+    for (int k = 0; k < L; k++) {
+        nchg += lod->lev[k].nschg;
+        ntot += lod->lv[k].model.n;
+    }
+    if (!lod->needed_valid || lod->needed_top != lod->top || nchg * 8 > ntot) {
+        /* from scratch: every seed counted once */
+        lod->needed_counts[0]++;
+        for (int k = 0; k < L; k++) {
+            sq_lod_level *lk = &lod->lev[k];
+            int n = lod->lv[k].model.n;
+            memset(lk->ncnt, 0, sizeof(int) * (size_t)n);
+            memset(lk->in_needed, 0, (size_t)n);
+            lk->nneeded = 0;
+        }
+        const sq_mesh *fm = lod->lv[F].model.mesh;
+        for (int s = 0; s < fm->nsurf; s++)
+            count_node(lod, F, fm->surf_nodes[s], 1);
+        for (int k = 0; k < L; k++) {
+            sq_lod_level *lk = &lod->lev[k];
+            for (int r = 0; r < lk->nsplit_ghost; r++)
+                count_seeds(lod, k, lk->split_ghost[r], ST_SPLIT, 1);
+            for (int r = 0; r < lk->nactive; r++)
+                count_seeds(lod, k, lk->active_list[r], ST_ACTIVE, 1);
+        }
+    } else {
+        /* the new seeds in first, then the old ones out (no count drops to zero on the way
+         * when a seed stays) */
+        lod->needed_counts[1]++;
+        for (int k = 0; k < L; k++) {
+            sq_lod_level *lk = &lod->lev[k];
+            for (int c = 0; c < lk->nschg; c++)
+                count_seeds(lod, k, lk->schg[c], lk->state[lk->schg[c]], 1);
+            for (int r = 0; r < lk->nring; r++)
+                count_node(lod, k, lk->ring[r], 1);
+        }
+        for (int k = 0; k < L; k++) {
+            sq_lod_level *lk = &lod->lev[k];
+            for (int c = 0; c < lk->nschg; c++)
+                count_seeds(lod, k, lk->schg[c], lk->seed_state[lk->schg[c]], -1);
+            for (int r = 0; r < lk->nseed_ring; r++)
+                count_node(lod, k, lk->seed_ring[r], -1);
+            /* a change of state alone (coarse ghost or not) changes the status */
+            for (int c = 0; c < lk->nschg; c++)
+                if (k >= 1)
+                    fix_node(lod, k, lk->schg[c]);
+        }
+        /* the ring seeds were counted above; fall through to the common end */
+        goto lists;
+    }
+    for (int k = 0; k < L; k++)
+        for (int r = 0; r < lod->lev[k].nring; r++)
+            count_node(lod, k, lod->lev[k].ring[r], 1); /* a ring ghost without sources keeps its push */
+lists:
+    for (int k = 0; k < L; k++) {
+        sq_lod_level *lk = &lod->lev[k];
+        int n = lod->lv[k].model.n;
+        if (lod->needed_valid && lod->needed_top == lod->top && nchg * 8 <= ntot)
+            for (int c = 0; c < lk->nschg; c++)
+                lk->seed_state[lk->schg[c]] = lk->state[lk->schg[c]];
+        else
+            memcpy(lk->seed_state, lk->state, (size_t)n);
+        for (int c = 0; c < lk->nschg; c++)
+            lk->schg_mark[lk->schg[c]] = 0;
+        lk->nschg = 0;
+        memcpy(lk->seed_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
+        lk->nseed_ring = lk->nring;
+        /* the list in increasing order, from the marks */
+        int w = 0;
+        for (int i = 0; i < n && w < lk->nneeded; i++)
+            if (lk->in_needed[i])
+                lk->needed[w++] = i;
+    }
+    lod->needed_valid = 1;
+    lod->needed_top = lod->top;
 }
 
 /* f_i -= sum_j K_ij (d_j + b v_j) (level/level.c block_row_damped) */

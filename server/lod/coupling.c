@@ -155,8 +155,8 @@ static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
 
 /* blocks of node list nodes[0..nn) of level k (aligned with their adjacency rows), summed
  * over their tets that touch an active node and have a ghost corner, times weight */
-static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off, int **cols, double **bk,
-                         int *bk_cap, double **bd, int *bd_cap, double weight)
+static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off, int **cols, int *col_cap,
+                         double **bk, int *bk_cap, double **bd, int *bd_cap, double weight)
 {
     const sq_level *L = &lod->lv[k];
     const sq_material *mat = &lod->mat;
@@ -190,6 +190,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
     /* keep the non-zero blocks only, with their column */
     int *col = sq_realloc(*cols, sizeof(int) * (size_t)SQ_MAX(total, 1));
     *cols = col;
+    *col_cap = SQ_MAX(total, 1);
     int w = 0;
     for (int r = 0; r < nn; r++) {
         int j = nodes[r], start = off[r];
@@ -213,18 +214,207 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
     off[nn] = w;
 }
 
+/* the rows of node list nodes[0..nn) as build_blocks makes them, into the spare arrays (off,
+ * cols, bk, bd), with the rows of the nodes that were in the previous list pnodes[0..pn) (both
+ * increasing) and have no changed node in their tets (dirty[j] == 0) copied from the previous
+ * arrays (poff, pcol, pk, pd): a row's blocks depend only on the active flags of its tets'
+ * corners, so the copy is what build_blocks would compute. from[r]: the previous row copied
+ * into row r, or -1 if it was computed; returns the rows computed. */
+static int build_blocks_incr(sq_lod *lod, int k, const int *nodes, int nn, const int *pnodes, int pn,
+                             const unsigned char *dirty, const int *poff, const int *pcol, const double *pk,
+                             const double *pd, int *off, int **cols, int *col_cap, double **bk, int *bk_cap,
+                             double **bd, int *bd_cap, double weight, int *from)
+{
+    const sq_level *L = &lod->lv[k];
+    const sq_material *mat = &lod->mat;
+    int visc = mat->use_viscosity && L->model.D;
+    int total = 0, maxlen = 0;
+    for (int r = 0; r < nn; r++) {
+        int len = L->model.row_start[nodes[r] + 1] - L->model.row_start[nodes[r]];
+        total += len;
+        maxlen = SQ_MAX(maxlen, len);
+    }
+    if (total > *bk_cap) {
+        *bk_cap = SQ_MAX(total, 2 * *bk_cap);
+        *bk = sq_realloc(*bk, sizeof(double) * 9 * (size_t)*bk_cap);
+    }
+    if (visc && total > *bd_cap) {
+        *bd_cap = SQ_MAX(total, 2 * *bd_cap);
+        *bd = sq_realloc(*bd, sizeof(double) * 9 * (size_t)*bd_cap);
+    }
+    if (total > *col_cap || !*cols) {
+        *col_cap = SQ_MAX(SQ_MAX(total, 2 * *col_cap), 1);
+        *cols = sq_realloc(*cols, sizeof(int) * (size_t)*col_cap);
+    }
+    double *tk = sq_malloc(sizeof(double) * 9 * (size_t)SQ_MAX(maxlen, 1) * (visc ? 2 : 1));
+    double *td = visc ? tk + 9 * (size_t)SQ_MAX(maxlen, 1) : NULL;
+    int *col = *cols, w = 0, p = 0, computed = 0;
+    double *K = *bk, *D = visc ? *bd : NULL;
+    for (int r = 0; r < nn; r++) {
+        int j = nodes[r];
+        off[r] = w;
+        while (p < pn && pnodes[p] < j)
+            p++;
+        if (p < pn && pnodes[p] == j && !dirty[j]) {
+            int b0 = poff[p], nb = poff[p + 1] - b0;
+            memcpy(col + w, pcol + b0, sizeof(int) * (size_t)nb);
+            memcpy(K + 9 * (size_t)w, pk + 9 * (size_t)b0, sizeof(double) * 9 * (size_t)nb);
+            if (visc)
+                memcpy(D + 9 * (size_t)w, pd + 9 * (size_t)b0, sizeof(double) * 9 * (size_t)nb);
+            w += nb;
+            from[r] = p;
+            continue;
+        }
+        from[r] = -1;
+        computed++;
+        int q0 = L->model.row_start[j], len = L->model.row_start[j + 1] - q0;
+        memset(tk, 0, sizeof(double) * 9 * (size_t)len);
+        if (visc)
+            memset(td, 0, sizeof(double) * 9 * (size_t)len);
+        row_blocks(lod, k, lod->lev[k].node_tet_start[j], lod->lev[k].node_tet_start[j + 1], weight, tk, td);
+        for (int e = 0; e < len; e++) {
+            const double *B = tk + 9 * (size_t)e;
+            int nz = 0;
+            for (int c = 0; c < 9 && !nz; c++)
+                nz = B[c] != 0 || (visc && td[9 * (size_t)e + c] != 0);
+            if (!nz)
+                continue;
+            memcpy(K + 9 * (size_t)w, B, sizeof(double) * 9);
+            if (visc)
+                memcpy(D + 9 * (size_t)w, td + 9 * (size_t)e, sizeof(double) * 9);
+            col[w++] = L->model.col[q0 + e];
+        }
+    }
+    off[nn] = w;
+    free(tk);
+    return computed;
+}
+
+/* merged frontier row r of level k (node i): the level's row less the correction */
+static void merged_row(const sq_lod *lod, int k, int r, int i, double *M)
+{
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *L = &lod->lv[k];
+    int q0 = L->model.row_start[i], len = L->model.row_start[i + 1] - q0;
+    memcpy(M, L->model.K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
+    for (int e = lk->front_off[r]; e < lk->front_off[r + 1]; e++) {
+        int pos = adj_find(L->model.mesh, i, lk->front_col[e]) - q0;
+        for (int x = 0; x < 9; x++)
+            M[9 * pos + x] -= lk->front_K[9 * (size_t)e + x];
+    }
+}
+
+#define SWAP(T, a, b)                                                                                              \
+    do {                                                                                                           \
+        T swap_tmp_ = (a);                                                                                         \
+        (a) = (b);                                                                                                 \
+        (b) = swap_tmp_;                                                                                           \
+    } while (0)
+
 /* ring rows (half of the mixed tets) and frontier corrections (the other half of the mixed
- * tets, given back) of level k */
+ * tets, given back) of level k, and the merged frontier rows: every row (the first build for a
+ * material, lod->full_rebuild, or many changed nodes), else only the rows with a changed node
+ * in their tets, the others copied (build_blocks_incr); the same arrays either way */
 static void build_ring_blocks(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
-    build_blocks(lod, k, lk->ring, lk->nring, lk->ring_off, &lk->ring_col, &lk->ring_K, &lk->ring_K_cap,
-                 &lk->ring_D, &lk->ring_D_cap, MIXED_WEIGHT);
-    build_blocks(lod, k, lk->frontier, lk->nfrontier, lk->front_off, &lk->front_col, &lk->front_K, &lk->front_K_cap,
-                 &lk->front_D, &lk->front_D_cap, 1.0 - MIXED_WEIGHT);
+    const sq_level *L = &lod->lv[k];
+    const sq_mesh *mesh = L->model.mesh;
+    int n = L->model.n;
+    int incr = lk->blocks_valid && lk->prev_saved && !lod->full_rebuild && (long)lk->nchg * 8 < n;
+    lk->rows_built += lk->nring + lk->nfrontier;
+    if (!incr) {
+        build_blocks(lod, k, lk->ring, lk->nring, lk->ring_off, &lk->ring_col, &lk->ring_col_cap, &lk->ring_K,
+                     &lk->ring_K_cap, &lk->ring_D, &lk->ring_D_cap, MIXED_WEIGHT);
+        build_blocks(lod, k, lk->frontier, lk->nfrontier, lk->front_off, &lk->front_col, &lk->front_col_cap,
+                     &lk->front_K, &lk->front_K_cap, &lk->front_D, &lk->front_D_cap, 1.0 - MIXED_WEIGHT);
+        lk->rows_computed += lk->nring + lk->nfrontier;
+    } else {
+        /* rows with a tet that became mixed or stopped being mixed (a row sums the blocks of
+         * its mixed tets in incidence order, so with the same mixed tets it is the same row):
+         * only tets around a changed node can */
+        unsigned char *dirty = lk->mark;
+        const unsigned char *act = lk->active, *was = lk->blk_active;
+        for (int c = 0; c < lk->nchg; c++) {
+            int i = lk->chg[c];
+            for (int e = lk->node_tet_start[i]; e < lk->node_tet_start[i + 1]; e++) {
+                const int *tv = mesh->tets + 4 * lk->node_tet[e];
+                int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
+                int nw = was[tv[0]] + was[tv[1]] + was[tv[2]] + was[tv[3]];
+                if ((na > 0 && na < 4) != (nw > 0 && nw < 4))
+                    dirty[tv[0]] = dirty[tv[1]] = dirty[tv[2]] = dirty[tv[3]] = 1;
+            }
+        }
+        int *from = sq_malloc(sizeof(int) * (size_t)SQ_MAX(SQ_MAX(lk->nring, lk->nfrontier), 1));
+        int redone = build_blocks_incr(lod, k, lk->ring, lk->nring, lk->prev_ring, lk->nprev_ring, dirty,
+                                       lk->ring_off, lk->ring_col, lk->ring_K, lk->ring_D, lk->ring_off2,
+                                       &lk->ring_col2, &lk->ring_col2_cap, &lk->ring_K2, &lk->ring_K2_cap,
+                                       &lk->ring_D2, &lk->ring_D2_cap, MIXED_WEIGHT, from);
+        SWAP(int *, lk->ring_off, lk->ring_off2);
+        SWAP(int *, lk->ring_col, lk->ring_col2);
+        SWAP(int, lk->ring_col_cap, lk->ring_col2_cap);
+        SWAP(double *, lk->ring_K, lk->ring_K2);
+        SWAP(int, lk->ring_K_cap, lk->ring_K2_cap);
+        SWAP(double *, lk->ring_D, lk->ring_D2);
+        SWAP(int, lk->ring_D_cap, lk->ring_D2_cap);
+        redone += build_blocks_incr(lod, k, lk->frontier, lk->nfrontier, lk->prev_frontier, lk->nprev_frontier,
+                                    dirty, lk->front_off, lk->front_col, lk->front_K, lk->front_D, lk->front_off2,
+                                    &lk->front_col2, &lk->front_col2_cap, &lk->front_K2, &lk->front_K2_cap,
+                                    &lk->front_D2, &lk->front_D2_cap, 1.0 - MIXED_WEIGHT, from);
+        SWAP(int *, lk->front_off, lk->front_off2);
+        SWAP(int *, lk->front_col, lk->front_col2);
+        SWAP(int, lk->front_col_cap, lk->front_col2_cap);
+        SWAP(double *, lk->front_K, lk->front_K2);
+        SWAP(int, lk->front_K_cap, lk->front_K2_cap);
+        SWAP(double *, lk->front_D, lk->front_D2);
+        SWAP(int, lk->front_D_cap, lk->front_D2_cap);
+        lk->rows_computed += redone;
+        for (int c = 0; c < lk->nchg; c++) {
+            int i = lk->chg[c];
+            for (int q = mesh->adj_start[i]; q < mesh->adj_start[i + 1]; q++)
+                dirty[mesh->adj[q]] = 0; /* every corner of the tets around i */
+        }
+        /* merged rows: the copied frontier rows from the previous merged rows */
+        int total = 0;
+        for (int r = 0; r < lk->nfrontier; r++) {
+            int i = lk->frontier[r];
+            total += L->model.row_start[i + 1] - L->model.row_start[i];
+        }
+        if (total > lk->front_merged2_cap) {
+            lk->front_merged2_cap = SQ_MAX(total, 2 * lk->front_merged2_cap);
+            lk->front_merged2 = sq_realloc(lk->front_merged2, sizeof(double) * 9 * (size_t)lk->front_merged2_cap);
+        }
+        int *poff = sq_malloc(sizeof(int) * (size_t)(lk->nprev_frontier + 1));
+        poff[0] = 0;
+        for (int p = 0; p < lk->nprev_frontier; p++) {
+            int i = lk->prev_frontier[p];
+            poff[p + 1] = poff[p] + L->model.row_start[i + 1] - L->model.row_start[i];
+        }
+        double *M = lk->front_merged2;
+        for (int r = 0; r < lk->nfrontier; r++) {
+            int i = lk->frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
+            if (from[r] >= 0)
+                memcpy(M, lk->front_merged + 9 * (size_t)poff[from[r]], sizeof(double) * 9 * (size_t)len);
+            else
+                merged_row(lod, k, r, i, M);
+            M += 9 * (size_t)len;
+        }
+        SWAP(double *, lk->front_merged, lk->front_merged2);
+        SWAP(int, lk->front_merged_cap, lk->front_merged2_cap);
+        free(poff);
+        free(from);
+        lk->blocks_dirty = 0;
+        lk->blocks_valid = 1;
+        lk->prev_saved = 0;
+        for (int c = 0; c < lk->nchg; c++) {
+            lk->chg_mark[lk->chg[c]] = 0;
+            lk->blk_active[lk->chg[c]] = lk->active[lk->chg[c]];
+        }
+        lk->nchg = 0;
+        return;
+    }
     /* merged frontier rows: the level's row less the correction the frontier pass adds back
      * (sq_lodx_front_correct adds front_K w; the force pass subtracts K w) */
-    const sq_level *L = &lod->lv[k];
     int total = 0;
     for (int r = 0; r < lk->nfrontier; r++) {
         int i = lk->frontier[r];
@@ -235,20 +425,18 @@ static void build_ring_blocks(sq_lod *lod, int k)
         lk->front_merged = sq_realloc(lk->front_merged, sizeof(double) * 9 * (size_t)lk->front_merged_cap);
     }
     double *M = lk->front_merged;
-    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
-    const int *front_col = lk->front_col;
-    const double *front_K = lk->front_K;
-    for (int r = 0; r < nfrontier; r++) {
-        int i = frontier[r], q0 = L->model.row_start[i], len = L->model.row_start[i + 1] - q0;
-        memcpy(M, L->model.K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
-        for (int e = front_off[r]; e < front_off[r + 1]; e++) {
-            int pos = adj_find(L->model.mesh, i, front_col[e]) - q0;
-            for (int x = 0; x < 9; x++)
-                M[9 * pos + x] -= front_K[9 * (size_t)e + x];
-        }
-        M += 9 * (size_t)len;
+    for (int r = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r];
+        merged_row(lod, k, r, i, M);
+        M += 9 * (size_t)(L->model.row_start[i + 1] - L->model.row_start[i]);
     }
     lk->blocks_dirty = 0;
+    lk->blocks_valid = 1;
+    lk->prev_saved = 0;
+    for (int c = 0; c < lk->nchg; c++)
+        lk->chg_mark[lk->chg[c]] = 0;
+    lk->nchg = 0;
+    memcpy(lk->blk_active, lk->active, (size_t)n);
 }
 
 /* frontier correction of level k after its full-row forces: f_i += (1 - w) sum over mixed
@@ -414,8 +602,10 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         lod->op = infer_op(lod, mat);
         drop_tet_blocks(lod);
         own_rows(lod);
-        for (int k = 0; k < lod->L; k++)
+        for (int k = 0; k < lod->L; k++) {
             lod->lev[k].blocks_dirty = 1;
+            lod->lev[k].blocks_valid = 0; /* every row again for the new material */
+        }
     }
     if (!lod->have_mat)
         return;

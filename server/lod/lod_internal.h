@@ -67,6 +67,15 @@ typedef struct sq_lod_level {
     int blocks_used, blocks_cap;/* slots in use, slots allocated */
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
+    int blocks_valid;           /* 1: the blocks were built for the current material (a later
+                                 * rebuild may then redo only the rows near changed nodes) */
+    int *prev_ring, nprev_ring; /* the ring and frontier the blocks were last built for (n) */
+    int *prev_frontier, nprev_frontier;
+    int prev_saved;             /* prev_ring / prev_frontier hold the lists of the built blocks */
+    int *chg, nchg;             /* nodes whose active flag changed since the blocks were built (n) */
+    unsigned char *chg_mark;    /* 1 if in chg (n) */
+    unsigned char *blk_active;  /* the active flags the blocks were built for (n) */
+    long rows_computed, rows_built; /* ring + frontier rows computed / built, over all block builds */
 
     /* --- ring rows: -(K x) on a ring ghost over its half-weighted tets, aligned with the mesh
      * adjacency row of each ring ghost, zero blocks dropped */
@@ -85,6 +94,16 @@ typedef struct sq_lod_level {
     double *front_merged;       /* frontier rows with the correction folded in (K - correction),
                                  * full adjacency rows, N/m */
     int front_merged_cap;
+    /* the same arrays of the previous build: an incremental build copies its clean rows from
+     * there and the two sets are swapped (capacities with them) */
+    int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
+    double *ring_K2, *ring_D2;
+    int ring_K2_cap, ring_D2_cap;
+    int *front_off2, *front_col2, front_col2_cap, front_col_cap;
+    double *front_K2, *front_D2;
+    int front_K2_cap, front_D2_cap;
+    double *front_merged2;
+    int front_merged2_cap;
 
     /* --- time: this level's clock within the frame, in ticks of the finest substep */
     int due;                    /* 1 if the level steps at the current tick */
@@ -107,6 +126,13 @@ typedef struct sq_lod_level {
     int *read_list, nread_list; /* nodes whose step-start values are read */
     int *needed, nneeded;       /* coarse ghosts pushed every frame */
     unsigned char *in_needed;   /* 1 if in needed (n) */
+    int *ncnt;                  /* reasons a node is needed: seeds (below) plus needed coarse ghosts of
+                                 * the next finer level whose parent tet has it as a corner (n); a
+                                 * node is needed iff it is a coarse ghost (level >= 1) with ncnt > 0 */
+    unsigned char *seed_state;  /* the states the counts were made for (n) */
+    int *schg, nschg;           /* nodes whose state differs from seed_state (n) */
+    unsigned char *schg_mark;   /* 1 if in schg (n) */
+    int *seed_ring, nseed_ring; /* the ring the counts were made for (n) */
     unsigned char *mark;        /* scratch marks (n), all zero between uses */
     double *cascade_value;      /* d, v of each ring ghost as the cascade pushed or pulled it,
                                  * before its ring value replaced it (nring x 6) */
@@ -135,8 +161,13 @@ struct sq_lod {
     double last_time;                    /* CPU time of the previous frame, s */
     double cost_update;                  /* CPU s per node update, last frame with updates (0: none yet) */
     double cost_fixed;                   /* CPU s of a frame's rest (rebuilds, end-of-frame ghosts) */
+    int full_rebuild;                    /* 1: every block row rebuilt after a split/merge pass (the
+                                          * reference the incremental rebuild is checked against) */
     /* ghost values pushed on demand (activeset.c) */
     int lists_dirty;                     /* read_list / needed out of date */
+    int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring, needed_top */
+    int needed_top;
+    long needed_counts[2];               /* needed sets made from scratch / by changes only */
     unsigned cascade_no;                 /* cascades run (the end-of-frame push counts one) */
     unsigned full_no;                    /* the last one that pushed every coarse ghost */
     int stale;                           /* coarse ghosts outside `needed` not pushed since the last frame */

@@ -30,9 +30,28 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     int n = lod->lv[k].model.n;
     int na = 0, nf = 0, nc = 0;
+    /* the first rebuild since the blocks were built keeps the lists they were built for, and
+     * every rebuild records the nodes whose active flag changes: the next block build redoes
+     * only the rows next to those (coupling.c) */
+    if (!lk->blocks_dirty && lk->blocks_valid && !lk->prev_saved) {
+        memcpy(lk->prev_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
+        lk->nprev_ring = lk->nring;
+        memcpy(lk->prev_frontier, lk->frontier, sizeof(int) * (size_t)lk->nfrontier);
+        lk->nprev_frontier = lk->nfrontier;
+        lk->prev_saved = 1;
+    }
     for (int i = 0; i < n; i++) {
         unsigned char s = lk->state[i];
-        lk->active[i] = (s == ST_ACTIVE);
+        unsigned char a = (s == ST_ACTIVE);
+        if (a != lk->active[i] && !lk->chg_mark[i]) {
+            lk->chg_mark[i] = 1;
+            lk->chg[lk->nchg++] = i;
+        }
+        lk->active[i] = a;
+        if (s != lk->seed_state[i] && !lk->schg_mark[i]) {
+            lk->schg_mark[i] = 1;
+            lk->schg[lk->nschg++] = i;
+        }
         lk->integrated[i] = (s == ST_ACTIVE);
         if (s == ST_ACTIVE)
             lk->active_list[na++] = i;
@@ -290,6 +309,18 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         for (size_t i = 0; i < n; i++)
             lod->lev[k].ring_index[i] = -1;
         lod->lev[k].frontier = sq_malloc(sizeof(int) * n);
+        lod->lev[k].prev_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].blk_active = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].ncnt = sq_calloc(SQ_MAX(n, 1), sizeof(int));
+        lod->lev[k].seed_state = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].schg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].schg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].seed_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].ring_off2 = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].front_off2 = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].inner = sq_calloc(n, 1);
         lod->lev[k].front_off = sq_calloc(n + 1, sizeof(int));
         node_tets(levels[k].model.mesh, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
@@ -356,6 +387,25 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].ring_col);
         free(lod->lev[k].front_col);
         free(lod->lev[k].frontier);
+        free(lod->lev[k].prev_ring);
+        free(lod->lev[k].prev_frontier);
+        free(lod->lev[k].chg);
+        free(lod->lev[k].chg_mark);
+        free(lod->lev[k].blk_active);
+        free(lod->lev[k].ncnt);
+        free(lod->lev[k].seed_state);
+        free(lod->lev[k].schg);
+        free(lod->lev[k].schg_mark);
+        free(lod->lev[k].seed_ring);
+        free(lod->lev[k].ring_off2);
+        free(lod->lev[k].ring_col2);
+        free(lod->lev[k].ring_K2);
+        free(lod->lev[k].ring_D2);
+        free(lod->lev[k].front_off2);
+        free(lod->lev[k].front_col2);
+        free(lod->lev[k].front_K2);
+        free(lod->lev[k].front_D2);
+        free(lod->lev[k].front_merged2);
         free(lod->lev[k].inner);
         free(lod->lev[k].front_merged);
         free(lod->lev[k].front_off);
