@@ -568,40 +568,6 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
                mask);
 }
 
-/* f_i -= sum_j A_ij (d_j + b v_j) for one row */
-static void block_row_damped(const sq_level *L, const double *A, const double *d, const double *v, double b,
-                             int i, double out[3])
-{
-    double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-        const double *B = A + 9 * (size_t)e;
-        const size_t j = 3 * (size_t)L->model.col[e];
-        const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
-        f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
-        f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
-        f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
-    }
-    out[0] -= f0;
-    out[1] -= f1;
-    out[2] -= f2;
-}
-
-/* f_i -= sum_j A_ij w_j for one row */
-static void block_row(const sq_level *L, const double *A, const double *w, int i, double out[3])
-{
-    double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-        const double *B = A + 9 * (size_t)e;
-        const double *wj = w + 3 * (size_t)L->model.col[e];
-        f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
-        f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
-        f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
-    }
-    out[0] -= f0;
-    out[1] -= f1;
-    out[2] -= f2;
-}
-
 void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
                      const unsigned char *active)
 {
@@ -633,7 +599,7 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
         forces_all(&L->model, (double *)d, (double *)v, f, acc, b, a, gravity, 0, NULL);
         if (L->model.D && mat->use_viscosity)
             for (int i = 0; i < n; i++)
-                block_row(L, L->model.D, v, i, f + 3 * (size_t)i);
+                sq_level_row(&L->model, L->model.D, v, i, f + 3 * (size_t)i);
         return;
     }
     /* masked: full rows of K for the active nodes only; d + b v formed per neighbour, so the
@@ -647,11 +613,11 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
         fi[1] = m * (g1 - a * v[3 * i + 1]);
         fi[2] = m * (g2 - a * v[3 * i + 2]);
         if (b != 0)
-            block_row_damped(L, L->model.K, d, v, b, i, fi);
+            sq_level_row_damped(&L->model, L->model.K, d, v, b, i, fi);
         else
-            block_row(L, L->model.K, d, i, fi);
+            sq_level_row(&L->model, L->model.K, d, i, fi);
         if (L->model.D && mat->use_viscosity)
-            block_row(L, L->model.D, v, i, fi);
+            sq_level_row(&L->model, L->model.D, v, i, fi);
     }
 }
 

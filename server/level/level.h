@@ -167,6 +167,41 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
 /* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2 */
 double sq_level_lanczos_max(const sq_level *L, int iters);
 
+/* one row of a block operator A (K or D, CSR over the model's adjacency), for the kernels of
+ * level.c and lod (inline: the hot loops of both): out_i -= sum_j A_ij (d_j + b v_j) */
+static inline void sq_level_row_damped(const sq_level_model *M, const double *A, const double *d, const double *v,
+                                       double b, int i, double out[3])
+{
+    double f0 = 0, f1 = 0, f2 = 0;
+    for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+        const double *B = A + 9 * (size_t)e;
+        const size_t j = 3 * (size_t)M->col[e];
+        const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
+        f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
+        f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
+        f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
+    }
+    out[0] -= f0;
+    out[1] -= f1;
+    out[2] -= f2;
+}
+
+/* out_i -= sum_j A_ij w_j for one row */
+static inline void sq_level_row(const sq_level_model *M, const double *A, const double *w, int i, double out[3])
+{
+    double f0 = 0, f1 = 0, f2 = 0;
+    for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+        const double *B = A + 9 * (size_t)e;
+        const double *wj = w + 3 * (size_t)M->col[e];
+        f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
+        f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
+        f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
+    }
+    out[0] -= f0;
+    out[1] -= f1;
+    out[2] -= f2;
+}
+
 /* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
  * NULL), reading d and v of all neighbours (ghost values included) */
 void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],

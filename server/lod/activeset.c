@@ -334,40 +334,6 @@ lists:
     lod->needed_top = lod->top;
 }
 
-/* f_i -= sum_j K_ij (d_j + b v_j) (level/level.c block_row_damped) */
-static inline void row_damped(const sq_level *L, const double *restrict d, const double *restrict v, double b,
-                              int i, double *out)
-{
-    double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-        const double *B = L->model.K + 9 * (size_t)e;
-        const size_t j = 3 * (size_t)L->model.col[e];
-        const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
-        f0 += B[0] * w0 + B[1] * w1 + B[2] * w2;
-        f1 += B[3] * w0 + B[4] * w1 + B[5] * w2;
-        f2 += B[6] * w0 + B[7] * w1 + B[8] * w2;
-    }
-    out[0] -= f0;
-    out[1] -= f1;
-    out[2] -= f2;
-}
-
-/* f_i -= sum_j K_ij d_j (level/level.c block_row) */
-static inline void row_plain(const sq_level *L, const double *restrict d, int i, double *out)
-{
-    double f0 = 0, f1 = 0, f2 = 0;
-    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-        const double *B = L->model.K + 9 * (size_t)e;
-        const double *wj = d + 3 * (size_t)L->model.col[e];
-        f0 += B[0] * wj[0] + B[1] * wj[1] + B[2] * wj[2];
-        f1 += B[3] * wj[0] + B[4] * wj[1] + B[5] * wj[2];
-        f2 += B[6] * wj[0] + B[7] * wj[1] + B[8] * wj[2];
-    }
-    out[0] -= f0;
-    out[1] -= f1;
-    out[2] -= f2;
-}
-
 /* forces of the inner active nodes of level k (no viscosity): sq_level_forces with the inner
  * mask, over the list */
 void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
@@ -385,9 +351,9 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
         fi[1] = m * (g1 - a * v[3 * i + 1]);
         fi[2] = m * (g2 - a * v[3 * i + 2]);
         if (b != 0)
-            row_damped(L, d, v, b, i, fi);
+            sq_level_row_damped(&L->model, L->model.K, d, v, b, i, fi);
         else
-            row_plain(L, d, i, fi);
+            sq_level_row(&L->model, L->model.K, d, i, fi);
     }
 }
 
