@@ -83,16 +83,7 @@ static int assemble(const sq_level *L, sq_operator_kind op, double s, double l, 
                                       m->source, i, j, t);
                 const double *ai = a[p], *aj = a[q];
                 double dot = ai[0] * aj[0] + ai[1] * aj[1] + ai[2] * aj[2];
-                double *B = out + 9 * (size_t)e;
-                for (int r = 0; r < 3; r++)
-                    for (int c = 0; c < 3; c++) {
-                        double v = (r == c ? s * dot : 0);
-                        if (op == SQ_OPERATOR_PAPER)
-                            v += (l + s) * ai[r] * aj[c];
-                        else
-                            v += s * aj[r] * ai[c] + l * ai[r] * aj[c];
-                        B[3 * r + c] += V * v;
-                    }
+                sq_level_tet_block(op, V, ai, aj, s, l, out + 9 * (size_t)e);
                 if (lap)
                     lap[e] += V * dot;
             }
@@ -582,7 +573,6 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
     const double a = mat->rayleigh_mass;
     const double *restrict d = L->d;
     const double *restrict v = L->v;
-    const double *restrict mass = L->model.mass;
     double *restrict f = f_out;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
@@ -608,14 +598,7 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
         if (!active[i])
             continue;
         double *fi = f + 3 * (size_t)i;
-        double m = mass[i];
-        fi[0] = m * (g0 - a * v[3 * i]);
-        fi[1] = m * (g1 - a * v[3 * i + 1]);
-        fi[2] = m * (g2 - a * v[3 * i + 2]);
-        if (b != 0)
-            sq_level_row_damped(&L->model, L->model.K, d, v, b, i, fi);
-        else
-            sq_level_row(&L->model, L->model.K, d, i, fi);
+        sq_level_node_force(&L->model, d, v, a, b, g0, g1, g2, i, fi);
         if (L->model.D && mat->use_viscosity)
             sq_level_row(&L->model, L->model.D, v, i, fi);
     }

@@ -202,6 +202,39 @@ static inline void sq_level_row(const sq_level_model *M, const double *A, const 
     out[2] -= f2;
 }
 
+/* the force on node i from gravity, mass damping and the stiffness row (Rayleigh b K with
+ * b != 0): f_i = m_i (g - a v_i) - sum_j K_ij (d_j + b v_j); viscosity blocks are not included */
+static inline void sq_level_node_force(const sq_level_model *M, const double *d, const double *v, double a, double b,
+                                       double g0, double g1, double g2, int i, double fi[3])
+{
+    double m = M->mass[i];
+    fi[0] = m * (g0 - a * v[3 * i]);
+    fi[1] = m * (g1 - a * v[3 * i + 1]);
+    fi[2] = m * (g2 - a * v[3 * i + 2]);
+    if (b != 0)
+        sq_level_row_damped(M, M->K, d, v, b, i, fi);
+    else
+        sq_level_row(M, M->K, d, i, fi);
+}
+
+/* block (i, j) of one tet's operator (PHYSICS.md section 2) from the rest gradients ai, aj of
+ * its corners and its volume V, with shear-like coefficient s and volume-like l (mu, lambda for
+ * K; phi, psi for the viscosity blocks D), added to B (row-major 3x3) */
+static inline void sq_level_tet_block(sq_operator_kind op, double V, const double *ai, const double *aj, double s,
+                                      double l, double *B)
+{
+    double dot = ai[0] * aj[0] + ai[1] * aj[1] + ai[2] * aj[2];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            double v = (r == c ? s * dot : 0);
+            if (op == SQ_OPERATOR_PAPER)
+                v += (l + s) * ai[r] * aj[c];
+            else
+                v += s * aj[r] * ai[c] + l * ai[r] * aj[c];
+            B[3 * r + c] += V * v;
+        }
+}
+
 /* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
  * NULL), reading d and v of all neighbours (ghost values included) */
 void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],

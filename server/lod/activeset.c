@@ -345,15 +345,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     const int *il = lod->lev[k].inner_list;
     for (int r = 0; r < lod->lev[k].ninner_list; r++) {
         int i = il[r];
-        double *fi = L->f + 3 * (size_t)i;
-        double m = L->model.mass[i];
-        fi[0] = m * (g0 - a * v[3 * i]);
-        fi[1] = m * (g1 - a * v[3 * i + 1]);
-        fi[2] = m * (g2 - a * v[3 * i + 2]);
-        if (b != 0)
-            sq_level_row_damped(&L->model, L->model.K, d, v, b, i, fi);
-        else
-            sq_level_row(&L->model, L->model.K, d, i, fi);
+        sq_level_node_force(&L->model, d, v, a, b, g0, g1, g2, i, L->f + 3 * (size_t)i);
     }
 }
 

@@ -22,22 +22,6 @@
  * two levels meet is covered by the mixed tets of both, so each counts half */
 #define MIXED_WEIGHT 0.5
 
-/* block (i, j) of one tet's operator (level/level.c, PHYSICS.md section 2) with shear-like
- * coefficient s and volume-like l, added to B */
-static void add_block(sq_operator_kind op, double V, const double *ai, const double *aj, double s,
-                      double l, double *B)
-{
-    double dot = ai[0] * aj[0] + ai[1] * aj[1] + ai[2] * aj[2];
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++) {
-            double v = (r == c ? s * dot : 0);
-            if (op == SQ_OPERATOR_PAPER)
-                v += (l + s) * ai[r] * aj[c];
-            else
-                v += s * aj[r] * ai[c] + l * ai[r] * aj[c];
-            B[3 * r + c] += V * v;
-        }
-}
 
 /* dst += w src over one 3x3 block */
 static inline void axpy9(double *restrict dst, double w, const double *restrict src)
@@ -75,9 +59,9 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
     const sq_material *mat = &lod->mat;
     for (int p = 0; p < 4; p++)
         for (int q = 0; q < 4; q++) {
-            add_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
+            sq_level_tet_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
             if (visc)
-                add_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
+                sq_level_tet_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
                           E + 144 + 9 * (4 * p + q));
         }
     return E;
@@ -143,7 +127,7 @@ static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
                 p++;
             for (int q = 0; q < 4; q++) {
                 int e = adj_find(m, i, m->tets[4 * t + q]) - L->model.row_start[i];
-                add_block((sq_operator_kind)o, V, a[p], a[q], mat->mu, mat->lambda, row[o] + 9 * e);
+                sq_level_tet_block((sq_operator_kind)o, V, a[p], a[q], mat->mu, mat->lambda, row[o] + 9 * e);
             }
         }
         for (int e = 0; e < 9 * n; e++)
