@@ -244,10 +244,10 @@ export class SquishClient extends Emitter {
       (e) => this.emit('problem', e));
   }
 
+  // decoded without the rest shape: in browsers a frame can be decoded before the topology
+  // ahead of it has been handled, so positions are added in _handle, in arrival order
   _decode(data) {
-    const h = parseHeader(data);
-    const body = this.bodies.get(h.body);
-    return decodeMessage(data, h.kind === KIND_FRAME && body ? body.rest : undefined);
+    return decodeMessage(data);
   }
 
   _handle(data, isBinary, decoded) {
@@ -266,6 +266,8 @@ export class SquishClient extends Emitter {
         this.bodies.set(m.body, { rest: m.rest, triangles: m.triangles });
         this.emit('topology', m);
       } else if (m.kind === KIND_FRAME) {
+        const body = this.bodies.get(m.body);
+        if (body && body.rest && body.rest.length === m.displacement.length) m.positions = positionsOf(body.rest, m.displacement);
         this.framesReceived++;
         this.lastFrame = m;
         this.frames.set(m.body, m);

@@ -65,4 +65,39 @@ describe('client library in a browser and in Node', () => {
       await page.close();
     }
   });
+
+  it('a frame decoded before its topology was handled still gets positions (browser decode is async)', async () => {
+    const page = await browser.newPage();
+    const ws = `ws://127.0.0.1:${server.port}/ws`;
+    try {
+      await page.goto(`${server.url}favicon.png`);
+      const got = await page.evaluate(async (url) => {
+        const { SquishClient } = await import('/squish-client.js');
+        const c = await SquishClient.connect(url, { client: 'page' });
+        const raw = [];
+        c.on('binary', (d) => raw.push(new Uint8Array(d)));
+        await c.open('paper-cube');
+        const st = await c.step(2);
+        await c.waitFrame(st.frame);
+        c.leave();
+        // replay topology and frames into a second client in one tick: every frame's decode
+        // starts before the topology ahead of it is handled, as when they arrive back to back
+        const r = await SquishClient.connect(url, { client: 'replay' });
+        for (const d of raw) r._receive(d, true);
+        const f = await r.waitFrame(st.frame);
+        const body = r.bodies.get(0);
+        await r.close();
+        await c.close();
+        return { messages: raw.length, has: !!f.positions, n: f.positions ? f.positions.length : -1,
+          rest: body ? body.rest.length : -1,
+          first: f.positions ? f.positions[0] : null, want: body ? Math.fround(body.rest[0] + f.displacement[0]) : null };
+      }, ws);
+      assert.ok(got.messages >= 2, `a topology and at least one frame were received (${got.messages})`);
+      assert.ok(got.has, 'the replayed frame has positions');
+      assert.equal(got.n, got.rest, 'one position per rest coordinate');
+      assert.equal(got.first, got.want, 'position = rest + displacement');
+    } finally {
+      await page.close();
+    }
+  });
 });
