@@ -23,6 +23,10 @@ pass=$(grep -E '^# pass [0-9]+' "$out" | tail -n 1 | grep -oE '[0-9]+')
 fail=$(grep -E '^# fail [0-9]+' "$out" | tail -n 1 | grep -oE '[0-9]+')
 cancelled=$(grep -E '^# cancelled [0-9]+' "$out" | tail -n 1 | grep -oE '[0-9]+')
 pass=${pass:-0}
+# the failing tests' errors again at the end, where a truncated log still shows them
+awk '/not ok/ {keep = 1; n = 0; print "FAILED: " $0; next}
+     keep && /failureType: .subtestsFailed/ {keep = 0}
+     keep {print "  " $0; if (++n >= 14 || $0 ~ /^ *\.\.\.$/) keep = 0}' "$out" | grep -v "subtestsFailed" || true
 fail=$(( ${fail:-0} + ${cancelled:-0} ))
 if [ "$rc" != 0 ] && [ "$fail" = 0 ]; then fail=1; fi
 echo "web: $pass passed, $fail failed"
