@@ -4,6 +4,7 @@
 
 import { len } from './camera.js';
 import { app, view, $, STATS_POLL_MS } from './state.js';
+import { autoScaleState, nextScale, MIN_PICTURE_RATE } from './autoscale.js';
 
 // one role notice at a time: kind 'demoted' | 'viewer' | 'left' | 'taken' | 'control' | 'nosession' | null
 export function setNotice(kind, text, take = false) {
@@ -117,12 +118,11 @@ export function tick() {
 
 // ---------------------------------------------------------------- automatic resolution
 
-// below this many pictures per second (with frames waiting to be drawn) the resolution drops
-const MIN_PICTURE_RATE = 20;
-const AUTO_SCALES = [0.5, 0.35];
-export const pictures = { count: 0, busyMs: 0, since: 0, slowSeconds: 0 };
+export const pictures = { count: 0, busyMs: 0, since: 0 };
+const scaleRule = autoScaleState();
 
-// once a second: pictures drawn while frames kept arriving; two slow seconds lower the scale
+// once a second: pictures drawn while frames kept arriving; the rule of autoscale.js lowers
+// the resolution when drawing is too slow and brings it back when it has room again
 function pictureCheck() {
   const now = performance.now();
   const dt = now - (pictures.since || now);
@@ -142,18 +142,17 @@ function pictureCheck() {
   if (app.autoScale !== null) text += ' (auto)';
   $('hud-pictures').textContent = text;
   $('hud-pictures').className = demanded && rate < MIN_PICTURE_RATE ? 'bad' : '';
-  if (!view.renderer || view.userScale || !demanded) { pictures.slowSeconds = 0; return; }
-  pictures.slowSeconds = rate < MIN_PICTURE_RATE ? pictures.slowSeconds + 1 : 0;
-  if (pictures.slowSeconds < 2) return;
-  const next = AUTO_SCALES.find((s) => s < scale - 1e-6);
-  if (next === undefined) return;
-  pictures.slowSeconds = 0;
+  if (!view.renderer || view.userScale) return;
+  const next = nextScale(scaleRule, rate, demanded, scale);
+  if (next === scale) return;
   view.renderer.pixelScale = next;
-  app.autoScale = next;
+  app.autoScale = next < 1 ? next : null;
   view.dirty = true;
-  const note = `${rate.toFixed(0)} pictures/s: resolution lowered to ${Math.round(next * 100)} % (?scale=1 keeps full resolution)`;
+  const note = next < scale
+    ? `${rate.toFixed(0)} pictures/s: resolution lowered to ${Math.round(next * 100)} % (?scale=1 keeps full resolution)`
+    : `${rate.toFixed(0)} pictures/s: resolution raised to ${Math.round(next * 100)} %`;
   $('res-note').textContent = note;
-  $('res-note').hidden = false;
+  $('res-note').hidden = next >= 1;
   showEvent(note);
 }
 

@@ -263,7 +263,7 @@ describe('viewer resolution', () => {
     if (server) await server.stop();
   });
 
-  it('lowers the render scale when pictures drop below 20/s, and says so', async (t) => {
+  it('lowers the render scale when pictures drop below 20/s, says so, and raises it again when they are fast', async (t) => {
     // a small window draws fast enough here; then every picture is made to take 80 ms
     const page = await openViewer(browser, server.url, { autoScale: true, viewport: { width: 400, height: 300 } });
     const probe = () => page.evaluate(() => ({ auto: window.squish.autoScale, rate: window.squish.pictureRate,
@@ -293,6 +293,13 @@ describe('viewer resolution', () => {
       assert.match(await page.locator('#res-note').innerText(), /resolution lowered to 35 %/);
       await page.waitForTimeout(3000);
       assert.equal(await page.evaluate(() => window.squish.autoScale), 0.35);
+      // the pictures are fast again: the scale comes back up, one step after a few good seconds
+      await page.evaluate(() => { window.squish.debugDrawDelayMs = 0; });
+      await page.waitForFunction(() => window.squish.autoScale === 0.5, null, { timeout: 15000 });
+      await page.waitForFunction(() => window.squish.autoScale === null, null, { timeout: 15000 });
+      const s3 = await probe();
+      assert.equal(s3.w, s3.cw, 'full resolution again');
+      assert.ok(await page.locator('#res-note').isHidden(), 'the lowered-resolution note is gone');
       // ?scale= chooses the resolution by hand: no automatic change
       await page.goto(`${server.url}?scale=1`);
       await waitFrames(page, 3);
