@@ -48,6 +48,8 @@ static void usage(FILE *f)
             "  --max-conns N       open connections, server-wide (default 2000)\n"
             "  --max-conns-per-addr N  open connections from one address (default 500)\n"
             "  --idle-timeout S    close a WebSocket silent for S seconds (default 300)\n"
+            "  --max-sessions-per-addr N  sessions that clients without the token at one address\n"
+            "                      may have running (default 0: no cap; not behind a proxy)\n"
             "  --verbose           log sessions and connections\n"
             "  --instance K        1..99: this server is instance K behind a proxy; every session\n"
             "                      id ends in K's two digits (docs/deploy.md, docker/nginx.conf)\n"
@@ -148,7 +150,8 @@ static int is_value_flag(const char *a)
     static const char *const flags[] = {"--host", "--port", "--scenes", "--web", "--token", "--origin",
                                         "--max-sessions", "--max-clients", "--max-message", "--rate",
                                         "--grace", "--precision", "--instance", "--frame-budget",
-                                        "--max-conns", "--max-conns-per-addr", "--idle-timeout", NULL};
+                                        "--max-conns", "--max-conns-per-addr", "--idle-timeout",
+                                        "--max-sessions-per-addr", NULL};
     for (int i = 0; flags[i]; i++)
         if (!strcmp(a, flags[i]))
             return 1;
@@ -228,6 +231,8 @@ int sq_cmd_serve(int argc, char **argv)
             rc = int_arg(a, v, 1, 1000000, &o.max_conns);
         } else if (!strcmp(a, "--max-conns-per-addr")) {
             rc = int_arg(a, v, 1, 1000000, &o.max_conns_per_addr);
+        } else if (!strcmp(a, "--max-sessions-per-addr")) {
+            rc = int_arg(a, v, 0, 1024, &o.max_sessions_per_addr);
         } else if (!strcmp(a, "--idle-timeout")) {
             rc = num_arg(a, v, 1, 86400, &o.idle_timeout);
         } else {

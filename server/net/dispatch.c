@@ -47,6 +47,14 @@ static void do_open_or_join(client *c, const sq_request *req)
             for (int i = 0; i < srv->nslots && idx < 0; i++)
                 if (!srv->slots[i].s)
                     idx = i;
+        int mine = c->token_ok ? 0 : net_sessions_opened_from(srv, c->addr);
+        if (idx >= 0 && srv->opt->max_sessions_per_addr > 0 && mine >= srv->opt->max_sessions_per_addr) {
+            snprintf(m, sizeof m, "%d sessions opened from %s are running (--max-sessions-per-addr "
+                     "%d); join one, or wait until an empty one ends (--grace)", mine, c->addr,
+                     srv->opt->max_sessions_per_addr);
+            net_send_error(c, req, SQ_CODE_SERVER_FULL, m);
+            return;
+        }
         if (idx < 0) {
             if (limit < srv->opt->max_sessions)
                 snprintf(m, sizeof m, "%d sessions are running; the other %d of --max-sessions are "
@@ -70,6 +78,7 @@ static void do_open_or_join(client *c, const sq_request *req)
         r->s->snapshotter = srv->snapshotter;
         __atomic_store(&r->s->budget.frac, &srv->opt->frame_budget, __ATOMIC_RELAXED);
         r->last_snapshot = 0;
+        snprintf(r->opener, sizeof r->opener, "%s", c->token_ok ? "" : c->addr);
         if (srv->opt->verbose)
             fprintf(stderr, "squish serve: session %llu opened (scene %s)\n",
                     (unsigned long long)id, srv->scenes.names[sc]);

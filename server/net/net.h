@@ -269,6 +269,9 @@ typedef struct sq_serve_options {
     int max_conns_per_addr;  /* open connections from one address, 500 (a classroom behind
                                 one NAT shares an address) */
     double idle_timeout;     /* s without a message before a WebSocket is closed, 300 */
+    int max_sessions_per_addr; /* sessions opened without the token from one address that may
+                                  run at once, 0 = no cap (behind a proxy every client shares
+                                  the proxy's address) */
 } sq_serve_options;
 
 sq_serve_options sq_serve_options_default(void);

@@ -49,6 +49,14 @@ int net_reserved_sessions(const server *srv)
     return srv->opt->token ? SQ_MAX(1, srv->opt->max_sessions / 4) : 0;
 }
 
+int net_sessions_opened_from(const server *srv, const char *addr)
+{
+    int n = 0;
+    for (int i = 0; i < srv->nslots; i++)
+        n += srv->slots[i].s != NULL && srv->slots[i].opener[0] && !strcmp(srv->slots[i].opener, addr);
+    return n;
+}
+
 int net_live_sessions(const server *srv)
 {
     int n = 0;

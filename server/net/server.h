@@ -107,6 +107,8 @@ typedef struct srec {
     long seen_frame;                 /* frame number at progress_at */
     double progress_at;              /* when the session last finished a frame (or had no
                                         reason to: paused, idle, starting) */
+    char opener[SQ_ADDR_MAX];        /* address of the client that opened it without the
+                                        token ("" when the opener had it) */
 } srec;
 
 typedef struct server {
@@ -153,6 +155,8 @@ srec *net_find_session(server *srv, uint64_t id);
 uint64_t net_new_generation(uint64_t old, uint64_t mask);
 int net_reserved_sessions(const server *srv);
 int net_live_sessions(const server *srv);
+/* live sessions opened without the token by a client at addr */
+int net_sessions_opened_from(const server *srv, const char *addr);
 void net_end_session(server *srv, srec *r);
 void net_release_tools(client *c, srec *r);
 void net_control_event(srec *r, const char *reason);

@@ -210,6 +210,32 @@ test('SIGTERM within 2 s while a 16 s frame is being computed (the frame is aban
   assert.ok(ms < 2000, `SIGTERM took ${ms} ms`);
 });
 
+test('sessions per address: --max-sessions-per-addr caps what one address opens without the token', async () => {
+  const srv = await startServer(['--token', 'sesame', '--max-sessions', '16', '--grace', '30',
+    '--max-sessions-per-addr', '2']);
+  try {
+    // one client opens and leaves sessions as fast as it can: each stays, empty, for the grace time
+    const v = await SquishClient.connect(srv.url, { role: 'view' });
+    const ids = [];
+    let refused = null;
+    for (let i = 0; i < 6 && !refused; i++)
+      await v.open('default').then(o => ids.push(o.session), e => { refused = e; });
+    assert.equal(ids.length, 2, 'two sessions from 127.0.0.1, then refused');
+    assert.equal(refused.code, 'server_full');
+    assert.match(refused.message, /2 sessions opened from 127\.0\.0\.1 are running \(--max-sessions-per-addr 2\)/);
+    // another connection from the same address is under the same cap, and may still join
+    const w = await SquishClient.connect(srv.url, { role: 'view' });
+    await assert.rejects(w.open('default'), e => e.code === 'server_full');
+    assert.equal((await w.join(ids[0])).session, ids[0]);
+    // the token holder is not counted against the address
+    const t = await SquishClient.connect(srv.url, { token: 'sesame' });
+    for (let i = 0; i < 3; i++) assert.ok((await t.open('default')).session > 0);
+    await Promise.all([v, w, t].map(c => c.close()));
+  } finally {
+    await srv.stop();
+  }
+});
+
 test('session slots: a client without the token cannot take the slots kept for token holders', async () => {
   const srv = await startServer(['--token', 'sesame', '--max-sessions', '4', '--grace', '30']);
   try {
