@@ -125,6 +125,8 @@ int sq_body_is_sleeping(const sq_body *b);
 /* active nodes per loaded level as the resolution stands now (also before the first frame and
  * while asleep): fixed mode counts the simulated level whole, adaptive the active lists */
 void sq_body_active_nodes(const sq_body *b, int active[SQ_MAX_LEVELS]);
+/* steps per frame of each loaded level as the body stands (what a frame stepped now runs) */
+void sq_body_substeps(const sq_body *b, int substeps[SQ_MAX_LEVELS]);
 /* health warnings since the body was created, indexed by sq_health_kind (SQ_HEALTH_NKINDS
  * entries; level/level.h): count, last value, last frame (1-based count of sq_body_frame calls,
  * sq_body_frames). A reset (blow-up, sq_body_reset) does not clear them */

@@ -80,6 +80,13 @@ int sq_body_check_pressure(int nodal, sq_elasticity_kind e, sq_operator_kind op,
 int sq_body_check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err);
 int sq_body_check_lod(const sq_body *b, const sq_lod_def *lod, sq_err *err);
 
+/* substeps per frame of a fixed level: 2^n at the Gershgorin bound, or with sharp_step the
+ * sharp bound's any integer count (adaptive mode keeps 2^n per level) */
+static inline int sq_body_fixed_nsub(const sq_body *b, const sq_level *L)
+{
+    return b->def.sharp_step ? L->nsub : 1 << L->substeps_log2;
+}
+
 /* ---- health.c ---- */
 /* count a health warning (kind NONE: nothing) with its value at the body's current frame */
 void sq_body_count_health(sq_body *b, sq_health_kind k, double value);

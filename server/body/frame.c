@@ -81,9 +81,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     }
 
     /* substeps: forces on all nodes, feedback on held nodes, integrate the others */
-    /* substeps: 2^n at the Gershgorin bound, or with sharp_step the sharp bound's step, any
-     * integer count (adaptive mode keeps 2^n per level) */
-    int nsub = b->def.sharp_step ? L->nsub : 1 << L->substeps_log2;
+    int nsub = sq_body_fixed_nsub(b, L);
     double sdt = b->def.sharp_step ? L->dt_fixed : L->dt;
     double inv = 1.0 / nsub;
     for (int s = 0; s < nsub; s++) {

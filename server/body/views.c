@@ -59,6 +59,18 @@ void sq_body_active_nodes(const sq_body *b, int active[SQ_MAX_LEVELS])
             active[k] = b->level[k].model.n;
     }
 }
+void sq_body_substeps(const sq_body *b, int substeps[SQ_MAX_LEVELS])
+{
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        substeps[k] = 0;
+    if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
+        sq_lod_substeps(b->lod, substeps);
+        return;
+    }
+    const sq_level *L = &b->level[b->cur];
+    substeps[b->cur] = sq_body_fixed_nsub(b, L);
+}
+
 const sq_health_stat *sq_body_health(const sq_body *b) { return b->health; }
 long sq_body_frames(const sq_body *b) { return b->frames; }
 

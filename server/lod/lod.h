@@ -166,6 +166,10 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic);
 /* node updates one frame of the current active sets costs: sum_k active_k 2^n_k */
 long sq_lod_projected_updates(const sq_lod *lod);
 
+/* steps per frame of each level as the layout stands (the profile's substeps of a frame
+ * stepped now), 0 past the loaded levels */
+void sq_lod_substeps(const sq_lod *lod, int out[SQ_MAX_LEVELS]);
+
 /* the split/merge criterion delta = hbar^2 |Lap(d)| at a node of a level, from the level's
  * current values. The Laplacian is the lumped FEM one with the boundary flux of the local
  * gradient removed on surface nodes, so any linear field gives 0 everywhere (m). */

@@ -35,6 +35,12 @@ const int *sq_lod_active_list(const sq_lod *lod, int level, int *n)
     return lod->lev[level].active_list;
 }
 
+void sq_lod_substeps(const sq_lod *lod, int out[SQ_MAX_LEVELS])
+{
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        out[k] = k < lod->L ? 1 << sub_log2(lod, k) : 0;
+}
+
 long sq_lod_projected_updates(const sq_lod *lod)
 {
     long u = 0;

@@ -304,6 +304,9 @@ static int setup(sq_session *s)
     s->cur = sq_malloc(sizeof(float) * 3 * (size_t)maxs);
     s->lev = sq_malloc((size_t)maxs);
     char *bj = sq_bodies_json(s);
+    /* frame 0 is kept before the session says it is ready: every client gets it with its
+     * opened/joined (published after READY, a client served in between had no frame 0) */
+    publish(s, -1, 0);
     pthread_mutex_lock(&s->mu);
     s->nbodies = w->nbodies;
     for (int b = 0; b < w->nbodies; b++)
@@ -314,7 +317,6 @@ static int setup(sq_session *s)
     s->state = SQ_SESSION_READY;
     sq_session_post_locked(s, SQ_OUT_READY, 0, 0, NULL);
     pthread_mutex_unlock(&s->mu);
-    publish(s, -1, 0); /* frame 0, sent to every client with opened/joined */
     s->wake(s->wake_arg);
     return 0;
 }

@@ -72,11 +72,14 @@ static void grab_fallbacks(sq_world *w)
     }
 }
 
-/* before any frame, the profiles already say which nodes are active (stats read them) */
+/* before any frame, the profiles already say which nodes are active and the steps per frame
+ * of each level (stats read them) */
 static void profile_at_rest(sq_world *w)
 {
-    for (int b = 0; b < w->nbodies; b++)
+    for (int b = 0; b < w->nbodies; b++) {
         sq_body_active_nodes(w->bodies[b], w->profile[b].active);
+        sq_body_substeps(w->bodies[b], w->profile[b].substeps);
+    }
 }
 
 int sq_scene_check(const sq_scene *s, sq_err *err)

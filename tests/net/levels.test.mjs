@@ -90,7 +90,7 @@ test('a body asleep keeps reporting its active nodes (and no node updates)', asy
   await c.close();
 });
 
-test('before its first frame a session already reports its active nodes (lockstep, no step)', async () => {
+test('before its first frame a session already reports its active nodes and substeps (lockstep, no step)', async () => {
   const ls = await startServer(['--scenes', path.join(ROOT, 'meshes/scenes'), '--grace', '0', '--lockstep']);
   try {
     const c = await SquishClient.connect(ls.url);
@@ -98,6 +98,17 @@ test('before its first frame a session already reports its active nodes (lockste
     const s = await c.stats();
     assert.equal(s.frame, 0, 'nothing stepped');
     assert.equal(s.active_nodes[2], o.bodies[0].levels[0].nodes);
+    // the steps the level runs per frame, as the first stepped frame then reports them
+    const sub0 = s.bodies[0].substeps;
+    assert.ok(sub0[2] >= 1 && sub0[0] === 0, `substeps before any step: ${sub0}`);
+    await c.step(1);
+    assert.deepEqual((await c.stats()).bodies[0].substeps, sub0);
+    // an adaptive body: its coarsest level's steps (nothing is refined yet)
+    const a = await c.open('cube-poke');
+    const sa = await c.stats();
+    assert.equal(sa.frame, 0);
+    assert.ok(sa.bodies[0].substeps[0] >= 1, `adaptive substeps before any step: ${sa.bodies[0].substeps}`);
+    assert.ok(a.session > 0);
     await c.close();
   } finally {
     await ls.stop();
