@@ -454,31 +454,52 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
     }
 }
 
+/* nb row-major 3x3 blocks into column form: per block the columns (B0 B3 B6), (B1 B4 B7),
+ * (B2 B5 B8), each padded to 4 lanes with a zero */
+void sq_lodx_transpose_blocks(const double *src, int nb, double **dst, int *cap)
+{
+    if (nb > *cap || !*dst) {
+        *cap = SQ_MAX(SQ_MAX(nb, 2 * *cap), 1);
+        *dst = sq_realloc(*dst, sizeof(double) * 12 * (size_t)*cap);
+    }
+    double *T = *dst;
+    for (int e = 0; e < nb; e++, src += 9, T += 12)
+        for (int c = 0; c < 3; c++) {
+            T[4 * c] = src[c];
+            T[4 * c + 1] = src[3 + c];
+            T[4 * c + 2] = src[6 + c];
+            T[4 * c + 3] = 0;
+        }
+}
+
 /* forces of the frontier nodes of level k from their merged rows (the masked force pass
- * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity */
+ * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity.
+ * The three rows of a block in the lanes of one vector (the merged rows in column form),
+ * each lane summed as the scalar rows were: f_r += (M_r0 w0 + M_r1 w1) + M_r2 w2 */
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     sq_level *L = &lod->lv[k];
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
-    const double *M = lk->front_merged;
-    /* the list in locals: the force stores would make the compiler reload it */
+    const double *T = lk->front_T;
+    const sq_v4 bb = v4_set1(b);
+    /* the lists in locals: the force stores would make the compiler reload them */
     const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
+    const int *row_start = L->model.row_start, *col = L->model.col;
+    const double *mass = L->model.mass;
+    double *f = L->f;
     for (int r = 0; r < nfrontier; r++) {
         int i = frontier[r];
-        double f0 = 0, f1 = 0, f2 = 0;
-        for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++, M += 9) {
-            const size_t j = 3 * (size_t)L->model.col[q];
-            const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
-            f0 += M[0] * w0 + M[1] * w1 + M[2] * w2;
-            f1 += M[3] * w0 + M[4] * w1 + M[5] * w2;
-            f2 += M[6] * w0 + M[7] * w1 + M[8] * w2;
+        sq_v4 acc = {0, 0, 0, 0};
+        for (int q = row_start[i]; q < row_start[i + 1]; q++, T += 12) {
+            const size_t j = 3 * (size_t)col[q];
+            acc += v4_block(T, v4_load(d + j) + bb * v4_load(v + j));
         }
-        double m = L->model.mass[i], *fi = L->f + 3 * (size_t)i;
-        fi[0] = m * (gravity[0] - a * v[3 * i]) - f0;
-        fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - f1;
-        fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - f2;
+        double m = mass[i], *fi = f + 3 * (size_t)i;
+        fi[0] = m * (gravity[0] - a * v[3 * i]) - acc[0];
+        fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - acc[1];
+        fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - acc[2];
     }
 }
 
@@ -595,7 +616,14 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         return;
     for (int k = 0; k < lod->L; k++)
         if (lod->lev[k].blocks_dirty) {
+            sq_lod_level *lk = &lod->lev[k];
             build_ring_blocks(lod, k);
+            /* the column forms the tick's kernels read */
+            sq_lodx_transpose_blocks(lk->ring_K, lk->ring_off[lk->nring], &lk->ring_T, &lk->ring_T_cap);
+            int nm = 0;
+            for (int r = 0; r < lk->nfrontier; r++)
+                nm += lod->lv[k].model.row_start[lk->frontier[r] + 1] - lod->lv[k].model.row_start[lk->frontier[r]];
+            sq_lodx_transpose_blocks(lk->front_merged, nm, &lk->front_T, &lk->front_T_cap);
             changed = 1;
         }
     if (changed)

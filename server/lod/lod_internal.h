@@ -15,6 +15,8 @@
 
 #include "lod/lod.h"
 
+#include <string.h>
+
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
 
 /* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
@@ -53,6 +55,7 @@ typedef struct sq_lod_level {
     unsigned char *src_levels;  /* per ring ghost: bit m set if a source is on level m (nring) */
     int *src_level, *src_node;  /* level and node of each source, sorted by level (src_cap) */
     double *src_weight;         /* weight of each source, the weights of a ghost sum to 1 (src_cap) */
+    int *src_rend;              /* end of the run of sources on the same level as this one (src_cap) */
     int src_cap;                /* capacity of the three source arrays */
 
     /* --- element blocks of the mixed tets (tets with active and ghost corners) */
@@ -94,6 +97,11 @@ typedef struct sq_lod_level {
     double *front_merged;       /* frontier rows with the correction folded in (K - correction),
                                  * full adjacency rows, N/m */
     int front_merged_cap;
+    /* the ring rows and merged frontier rows again, each block as its 3 columns padded to 4
+     * lanes (12 doubles), for the vector kernels of the tick (sq_lodx_transpose_blocks, after
+     * every build of the blocks above) */
+    double *ring_T, *front_T;
+    int ring_T_cap, front_T_cap;
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -205,6 +213,37 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
     }
 }
 
+/* 4-lane vectors (lane 3 unused) for the kernels of the tick: a node's 3 components are
+ * loaded as 4 lanes, so arrays read that way have one spare double after the last node. The
+ * lanes are computed with the same multiplications and additions, in the same order, as the
+ * scalar code they replace (-std=c11 contracts nothing into fma), so the results are bitwise
+ * those of the scalar code, in every build */
+typedef double sq_v4 __attribute__((vector_size(32)));
+typedef long long sq_v4i __attribute__((vector_size(32)));
+
+static inline sq_v4 v4_load(const double *p)
+{
+    sq_v4 x;
+    memcpy(&x, p, sizeof x);
+    return x;
+}
+
+static inline sq_v4 v4_set1(double a)
+{
+    return (sq_v4){a, a, a, a};
+}
+
+/* lane c of x in every lane */
+#define V4_LANE(x, c) __builtin_shuffle((x), (sq_v4i){(c), (c), (c), (c)})
+
+/* one 3x3 block in column form (T: 3 columns of 4) times w: ((c0 w0 + c1 w1) + c2 w2) in
+ * every row, the order of the scalar row sums */
+static inline sq_v4 v4_block(const double *T, sq_v4 w)
+{
+    sq_v4 t = v4_load(T) * V4_LANE(w, 0) + v4_load(T + 4) * V4_LANE(w, 1);
+    return t + v4_load(T + 8) * V4_LANE(w, 2);
+}
+
 /* substep exponent a level runs at in the adaptive frame */
 static inline int sub_log2(const sq_lod *lod, int k)
 {
@@ -250,6 +289,8 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
+/* coupling.c: nb row-major 3x3 blocks src into column form (12 doubles each) in *dst */
+void sq_lodx_transpose_blocks(const double *src, int nb, double **dst, int *cap);
 /* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
 void sq_lodx_build_sources(sq_lod *lod);
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
