@@ -220,6 +220,7 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
  * those of the scalar code, in every build */
 typedef double sq_v4 __attribute__((vector_size(32)));
 typedef long long sq_v4i __attribute__((vector_size(32)));
+typedef double sq_v2 __attribute__((vector_size(16)));
 
 static inline sq_v4 v4_load(const double *p)
 {

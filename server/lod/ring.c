@@ -332,9 +332,11 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
         unsigned char fx = Lk->model.fixed[j];
-        for (int c = 0; c < 3; c++)
-            if (fx & (1u << c))
-                g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
+        if (fx)
+            for (int c = 0; c < 3; c++)
+                if (fx & (1u << c))
+                    g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
+        const sq_v2 g01 = {g[0], g[1]};
         /* one run of sources per level (sorted by level); levels not stepping now skipped */
         for (int q = a; q < b;) {
             const int m = fl[q], qe = rend[q];
@@ -344,9 +346,12 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             }
             double *F = lod->lv[m].f;
             for (; q < qe; q++) {
-                double w = fw[q], *dst = F + 3 * fn[q];
-                dst[0] += w * g[0];
-                dst[1] += w * g[1];
+                /* dst[c] += w g[c]: x and y as one 2-lane vector */
+                double w = fw[q], *dst = F + 3 * (size_t)fn[q];
+                sq_v2 xy;
+                memcpy(&xy, dst, sizeof xy);
+                xy += (sq_v2){w, w} * g01;
+                memcpy(dst, &xy, sizeof xy);
                 dst[2] += w * g[2];
             }
         }
