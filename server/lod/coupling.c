@@ -618,6 +618,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         if (lod->lev[k].blocks_dirty) {
             sq_lod_level *lk = &lod->lev[k];
             build_ring_blocks(lod, k);
+            lk->hot_valid = 0;
             /* the column forms the tick's kernels read */
             sq_lodx_transpose_blocks(lk->ring_K, lk->ring_off[lk->nring], &lk->ring_T, &lk->ring_T_cap);
             int nm = 0;

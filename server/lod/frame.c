@@ -179,8 +179,16 @@ static void tick_step(lod_frame *fr)
         }
     for (int k = 0; k < L; k++)
         if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
-            if (!lod->lev[k].due)
-                sq_lodx_eval_ring(lod, k, t);
+            if (!lod->lev[k].due) {
+                /* between two of its steps only the ring rows with a source on a level that
+                 * steps more often are used (the reactions the finer levels need now): only
+                 * the ghosts they read are evaluated (the others are not read before the
+                 * level's next step or the frame's end, which evaluate every ghost) */
+                unsigned faster = 0;
+                for (int m = 0; m < L; m++)
+                    faster |= fr->stride[m] < fr->stride[k] ? 1u << m : 0u;
+                sq_lodx_eval_ring_hot(lod, k, t, faster);
+            }
             sq_lodx_couple_out(lod, mat, k, t);
         }
     for (int k = 0; k < L; k++) {

@@ -57,6 +57,11 @@ typedef struct sq_lod_level {
     double *src_weight;         /* weight of each source, the weights of a ghost sum to 1 (src_cap) */
     int *src_rend;              /* end of the run of sources on the same level as this one (src_cap) */
     int src_cap;                /* capacity of the three source arrays */
+    int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
+                                 * level in hot_mask read: those evaluated between two steps of the
+                                 * level, where only those rows are used (n) */
+    unsigned hot_mask;
+    int hot_valid;              /* hot is up to date with the ring, sources and blocks */
 
     /* --- element blocks of the mixed tets (tets with active and ghost corners) */
     int *node_tet_start, *node_tet; /* tets around each node (CSR, n + 1 and 4 x ntets) */
@@ -295,6 +300,8 @@ void sq_lodx_transpose_blocks(const double *src, int nb, double **dst, int *cap)
 /* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
 void sq_lodx_build_sources(sq_lod *lod);
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
+/* ring.c: only the ring ghosts read by the ring rows with a source on a level in mask */
+void sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
 void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
 /* holds.c: the frame's holds onto active nodes (held nodes prescribed over frame_dt, left out
  * of the integrated lists); the internal force on the held nodes of level k at its step;

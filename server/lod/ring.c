@@ -92,6 +92,7 @@ void sq_lodx_build_sources(sq_lod *lod)
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
         lod->lev[k].src_start[0] = 0;
+        lod->lev[k].hot_valid = 0;
         for (int r = 0; r < lod->lev[k].nring; r++) {
             int n = 0;
             expand(lod, k, lod->lev[k].ring[r], 1.0, 0, &buf, &n, &cap);
@@ -168,7 +169,7 @@ void sq_lodx_build_sources(sq_lod *lod)
 
 /* the ring ghosts of level k at tick t: sources of a level between two of its steps are
  * taken linearly in time over that step */
-void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
+static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, long t, const int *list, int n)
 {
     sq_lod_level *lk = &lod->lev[k];
     sq_level *Lk = &lod->lv[k];
@@ -181,12 +182,13 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
         vcur[m] = lod->lv[m].v;
     }
     /* the level's lists in locals (the value stores below would make the compiler reload them) */
-    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
+    const int *ring = lk->ring, *src_start = lk->src_start;
     const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
     const double *fw = lk->src_weight;
     double *restrict Dk = Lk->d, *restrict Vk = Lk->v;
     const unsigned char *fixed = Lk->model.fixed;
-    for (int r = 0; r < nring; r++) {
+    for (int x = 0; x < n; x++) {
+        const int r = list ? list[x] : x;
         int j = ring[r];
         int a = src_start[r], b = src_start[r + 1];
         if (a == b)
@@ -232,6 +234,45 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
             vj[c] = free_axis ? v[c] : 0.0;
         }
     }
+}
+
+void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
+{
+    eval_list(lod, k, t, NULL, lod->lev[k].nring);
+}
+
+/* the ring ghosts of level k that the ring rows with a source on a level in `mask` read (the
+ * ghost columns of those rows), increasing ring order: lk->hot, made once per layout */
+static void hot_list(sq_lod *lod, int k, unsigned mask)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    if (lk->hot_valid && lk->hot_mask == mask)
+        return;
+    if (!lk->hot)
+        lk->hot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
+    unsigned char *mark = lk->mark; /* all zero between uses */
+    for (int r = 0; r < lk->nring; r++)
+        if (lk->src_levels[r] & mask)
+            for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
+                int l = lk->ring_index[lk->ring_col[e]];
+                if (l >= 0)
+                    mark[l] = 1;
+            }
+    int nh = 0;
+    for (int r = 0; r < lk->nring; r++)
+        if (mark[r]) {
+            lk->hot[nh++] = r;
+            mark[r] = 0;
+        }
+    lk->nhot = nh;
+    lk->hot_mask = mask;
+    lk->hot_valid = 1;
+}
+
+void sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask)
+{
+    hot_list(lod, k, mask);
+    eval_list(lod, k, t, lod->lev[k].hot, lod->lev[k].nhot);
 }
 
 /* force on ring ghost r (node j) of level k from the tets touching active nodes, -(K w)_j -

@@ -425,6 +425,7 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].tet_geom);
         free(lod->lev[k].src_level);
         free(lod->lev[k].src_rend);
+        free(lod->lev[k].hot);
         free(lod->lev[k].src_node);
         free(lod->lev[k].src_weight);
     }
