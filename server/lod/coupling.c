@@ -288,6 +288,34 @@ static void merged_row(const sq_lod *lod, int k, int r, int i, double *M)
     }
 }
 
+/* room for nb blocks in column form (12 doubles each) in *dst */
+static double *col_room(double **dst, int *cap, int nb)
+{
+    if (nb > *cap || !*dst) {
+        *cap = SQ_MAX(SQ_MAX(nb, 2 * *cap), 1);
+        *dst = sq_realloc(*dst, sizeof(double) * 12 * (size_t)*cap);
+    }
+    return *dst;
+}
+
+/* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
+ * (B2 B5 B8), each padded to 4 lanes with a zero */
+static void to_columns(const double *src, int nb, double *T)
+{
+    for (int e = 0; e < nb; e++, src += 9, T += 12)
+        for (int c = 0; c < 3; c++) {
+            T[4 * c] = src[c];
+            T[4 * c + 1] = src[3 + c];
+            T[4 * c + 2] = src[6 + c];
+            T[4 * c + 3] = 0;
+        }
+}
+
+static void transpose_blocks(const double *src, int nb, double **dst, int *cap)
+{
+    to_columns(src, nb, col_room(dst, cap, nb));
+}
+
 #define SWAP(T, a, b)                                                                                              \
     do {                                                                                                           \
         T swap_tmp_ = (a);                                                                                         \
@@ -341,6 +369,20 @@ static void build_ring_blocks(sq_lod *lod, int k)
         SWAP(int, lk->ring_K_cap, lk->ring_K2_cap);
         SWAP(double *, lk->ring_D, lk->ring_D2);
         SWAP(int, lk->ring_D_cap, lk->ring_D2_cap);
+        /* the column forms likewise: a copied row's from the previous ones (ring_off2 now) */
+        {
+            double *T = col_room(&lk->ring_T2, &lk->ring_T2_cap, lk->ring_off[lk->nring]);
+            for (int r = 0; r < lk->nring; r++) {
+                int b0 = lk->ring_off[r], nb = lk->ring_off[r + 1] - b0;
+                if (from[r] >= 0)
+                    memcpy(T + 12 * (size_t)b0, lk->ring_T + 12 * (size_t)lk->ring_off2[from[r]],
+                           sizeof(double) * 12 * (size_t)nb);
+                else
+                    to_columns(lk->ring_K + 9 * (size_t)b0, nb, T + 12 * (size_t)b0);
+            }
+            SWAP(double *, lk->ring_T, lk->ring_T2);
+            SWAP(int, lk->ring_T_cap, lk->ring_T2_cap);
+        }
         redone += build_blocks_incr(lod, k, lk->frontier, lk->nfrontier, lk->prev_frontier, lk->nprev_frontier,
                                     dirty, lk->front_off, lk->front_col, lk->front_K, lk->front_D, lk->front_off2,
                                     &lk->front_col2, &lk->front_col2_cap, &lk->front_K2, &lk->front_K2_cap,
@@ -375,16 +417,23 @@ static void build_ring_blocks(sq_lod *lod, int k)
             poff[p + 1] = poff[p] + L->model.row_start[i + 1] - L->model.row_start[i];
         }
         double *M = lk->front_merged2;
+        double *T = col_room(&lk->front_T2, &lk->front_T2_cap, total);
         for (int r = 0; r < lk->nfrontier; r++) {
             int i = lk->frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
-            if (from[r] >= 0)
+            if (from[r] >= 0) {
                 memcpy(M, lk->front_merged + 9 * (size_t)poff[from[r]], sizeof(double) * 9 * (size_t)len);
-            else
+                memcpy(T, lk->front_T + 12 * (size_t)poff[from[r]], sizeof(double) * 12 * (size_t)len);
+            } else {
                 merged_row(lod, k, r, i, M);
+                to_columns(M, len, T);
+            }
             M += 9 * (size_t)len;
+            T += 12 * (size_t)len;
         }
         SWAP(double *, lk->front_merged, lk->front_merged2);
         SWAP(int, lk->front_merged_cap, lk->front_merged2_cap);
+        SWAP(double *, lk->front_T, lk->front_T2);
+        SWAP(int, lk->front_T_cap, lk->front_T2_cap);
         free(poff);
         free(from);
         lk->blocks_dirty = 0;
@@ -414,6 +463,9 @@ static void build_ring_blocks(sq_lod *lod, int k)
         merged_row(lod, k, r, i, M);
         M += 9 * (size_t)(L->model.row_start[i + 1] - L->model.row_start[i]);
     }
+    /* the column forms the tick's kernels read */
+    transpose_blocks(lk->ring_K, lk->ring_off[lk->nring], &lk->ring_T, &lk->ring_T_cap);
+    transpose_blocks(lk->front_merged, total, &lk->front_T, &lk->front_T_cap);
     lk->blocks_dirty = 0;
     lk->blocks_valid = 1;
     lk->prev_saved = 0;
@@ -454,23 +506,6 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
     }
 }
 
-/* nb row-major 3x3 blocks into column form: per block the columns (B0 B3 B6), (B1 B4 B7),
- * (B2 B5 B8), each padded to 4 lanes with a zero */
-void sq_lodx_transpose_blocks(const double *src, int nb, double **dst, int *cap)
-{
-    if (nb > *cap || !*dst) {
-        *cap = SQ_MAX(SQ_MAX(nb, 2 * *cap), 1);
-        *dst = sq_realloc(*dst, sizeof(double) * 12 * (size_t)*cap);
-    }
-    double *T = *dst;
-    for (int e = 0; e < nb; e++, src += 9, T += 12)
-        for (int c = 0; c < 3; c++) {
-            T[4 * c] = src[c];
-            T[4 * c + 1] = src[3 + c];
-            T[4 * c + 2] = src[6 + c];
-            T[4 * c + 3] = 0;
-        }
-}
 
 /* forces of the frontier nodes of level k from their merged rows (the masked force pass
  * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity.
@@ -616,15 +651,8 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         return;
     for (int k = 0; k < lod->L; k++)
         if (lod->lev[k].blocks_dirty) {
-            sq_lod_level *lk = &lod->lev[k];
             build_ring_blocks(lod, k);
-            lk->hot_valid = 0;
-            /* the column forms the tick's kernels read */
-            sq_lodx_transpose_blocks(lk->ring_K, lk->ring_off[lk->nring], &lk->ring_T, &lk->ring_T_cap);
-            int nm = 0;
-            for (int r = 0; r < lk->nfrontier; r++)
-                nm += lod->lv[k].model.row_start[lk->frontier[r] + 1] - lod->lv[k].model.row_start[lk->frontier[r]];
-            sq_lodx_transpose_blocks(lk->front_merged, nm, &lk->front_T, &lk->front_T_cap);
+            lod->lev[k].hot_valid = 0;
             changed = 1;
         }
     if (changed)

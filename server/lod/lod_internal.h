@@ -103,10 +103,12 @@ typedef struct sq_lod_level {
                                  * full adjacency rows, N/m */
     int front_merged_cap;
     /* the ring rows and merged frontier rows again, each block as its 3 columns padded to 4
-     * lanes (12 doubles), for the vector kernels of the tick (sq_lodx_transpose_blocks, after
-     * every build of the blocks above) */
+     * lanes (12 doubles), for the vector kernels of the tick (built with the blocks above,
+     * the rows an incremental build copies copied here too) */
     double *ring_T, *front_T;
     int ring_T_cap, front_T_cap;
+    double *ring_T2, *front_T2; /* the previous build's (an incremental build copies from them) */
+    int ring_T2_cap, front_T2_cap;
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -295,8 +297,6 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-/* coupling.c: nb row-major 3x3 blocks src into column form (12 doubles each) in *dst */
-void sq_lodx_transpose_blocks(const double *src, int nb, double **dst, int *cap);
 /* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
 void sq_lodx_build_sources(sq_lod *lod);
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);

@@ -410,6 +410,8 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].inner);
         free(lod->lev[k].front_merged);
         free(lod->lev[k].ring_T);
+        free(lod->lev[k].ring_T2);
+        free(lod->lev[k].front_T2);
         free(lod->lev[k].front_T);
         free(lod->lev[k].front_off);
         free(lod->lev[k].front_K);
