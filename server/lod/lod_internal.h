@@ -300,9 +300,10 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
 /* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
 void sq_lodx_build_sources(sq_lod *lod);
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
-/* ring.c: only the ring ghosts read by the ring rows with a source on a level in mask */
-void sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
-void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
+/* ring.c: only the ring ghosts read by the ring rows with a source on a level in mask; returns
+ * how many */
+int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
+int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* returns the rows */
 /* holds.c: the frame's holds onto active nodes (held nodes prescribed over frame_dt, left out
  * of the integrated lists); the internal force on the held nodes of level k at its step;
  * the tool feedback into force[tool] (may be NULL) and the holds released */

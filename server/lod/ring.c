@@ -269,10 +269,11 @@ static void hot_list(sq_lod *lod, int k, unsigned mask)
     lk->hot_valid = 1;
 }
 
-void sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask)
+int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask)
 {
     hot_list(lod, k, mask);
     eval_list(lod, k, t, lod->lev[k].hot, lod->lev[k].nhot);
+    return lod->lev[k].nhot;
 }
 
 /* force on ring ghost r (node j) of level k from the tets touching active nodes, -(K w)_j -
@@ -350,8 +351,9 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
  * hands its reactions to the finer levels stepping now, from its values at this tick: those
  * reactions depend on the finer nodes themselves, so they must follow them step by step.
  * Reactions for a coarser level are sampled at its own steps. */
-void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
+int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
 {
+    int rows = 0;
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
     double fr = (double)(t - lk->step_start) / (double)lk->step_len;
@@ -372,6 +374,7 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             continue;
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
+        rows++;
         unsigned char fx = Lk->model.fixed[j];
         if (fx)
             for (int c = 0; c < 3; c++)
@@ -397,4 +400,5 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             }
         }
     }
+    return rows;
 }
