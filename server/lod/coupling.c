@@ -71,6 +71,10 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
 static void drop_tet_blocks(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
+        /* and the column-form rows of the inner nodes (activeset.c) */
+        for (int i = 0; i < lod->lv[k].model.n && lod->lev[k].krow_used > 0 && lod->lev[k].krow_at; i++)
+            lod->lev[k].krow_at[i] = -1;
+        lod->lev[k].krow_used = 0;
         for (int t = 0; t < lod->lv[k].model.mesh->ntets && lod->lev[k].blocks_used > 0; t++)
             lod->lev[k].blocks_slot[t] = -1;
         lod->lev[k].blocks_used = 0;
@@ -298,18 +302,7 @@ static double *col_room(double **dst, int *cap, int nb)
     return *dst;
 }
 
-/* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
- * (B2 B5 B8), each padded to 4 lanes with a zero */
-static void to_columns(const double *src, int nb, double *T)
-{
-    for (int e = 0; e < nb; e++, src += 9, T += 12)
-        for (int c = 0; c < 3; c++) {
-            T[4 * c] = src[c];
-            T[4 * c + 1] = src[3 + c];
-            T[4 * c + 2] = src[6 + c];
-            T[4 * c + 3] = 0;
-        }
-}
+#define to_columns sq_lodx_to_columns
 
 static void transpose_blocks(const double *src, int nb, double **dst, int *cap)
 {

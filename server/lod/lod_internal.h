@@ -109,6 +109,12 @@ typedef struct sq_lod_level {
     int ring_T_cap, front_T_cap;
     double *ring_T2, *front_T2; /* the previous build's (an incremental build copies from them) */
     int ring_T2_cap, front_T2_cap;
+    /* the level's own rows of K in column form for the inner rows, made on a node's first use
+     * as an inner node for the current material (so the memory follows the refined region,
+     * like the element blocks) */
+    int *krow_at;               /* block offset of node i's row in krow_cache, or -1 (n) */
+    double *krow_cache;         /* 12 doubles per block */
+    long krow_used, krow_cap;   /* blocks in use, allocated */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -250,6 +256,19 @@ static inline sq_v4 v4_block(const double *T, sq_v4 w)
 {
     sq_v4 t = v4_load(T) * V4_LANE(w, 0) + v4_load(T + 4) * V4_LANE(w, 1);
     return t + v4_load(T + 8) * V4_LANE(w, 2);
+}
+
+/* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
+ * (B2 B5 B8), each padded to 4 lanes with a zero */
+static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
+{
+    for (int e = 0; e < nb; e++, src += 9, T += 12)
+        for (int c = 0; c < 3; c++) {
+            T[4 * c] = src[c];
+            T[4 * c + 1] = src[3 + c];
+            T[4 * c + 2] = src[6 + c];
+            T[4 * c + 3] = 0;
+        }
 }
 
 /* substep exponent a level runs at in the adaptive frame */
