@@ -30,6 +30,7 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     int n = lod->lv[k].model.n;
     int na = 0, nf = 0, nc = 0;
+    lk->hot_valid = 0; /* the ring changes: its hot list is made again (ring.c) */
     /* the first rebuild since the blocks were built keeps the lists they were built for, and
      * every rebuild records the nodes whose active flag changes: the next block build redoes
      * only the rows next to those (coupling.c) */
