@@ -235,28 +235,36 @@ typedef double sq_v4 __attribute__((vector_size(32)));
 typedef long long sq_v4i __attribute__((vector_size(32)));
 typedef double sq_v2 __attribute__((vector_size(16)));
 
-static inline sq_v4 v4_load(const double *p)
-{
-    sq_v4 x;
-    memcpy(&x, p, sizeof x);
-    return x;
-}
+/* the helpers are macros (statement expressions), not functions: a 32-byte vector passed to or
+ * returned from a function has no fixed calling convention without AVX (the ASan build) */
 
-static inline sq_v4 v4_set1(double a)
-{
-    return (sq_v4){a, a, a, a};
-}
+/* 4 doubles from p (any alignment) */
+#define v4_load(p)                                                                                                 \
+    ({                                                                                                             \
+        sq_v4 v4l_;                                                                                                \
+        memcpy(&v4l_, (p), sizeof v4l_);                                                                           \
+        v4l_;                                                                                                      \
+    })
+
+/* a in every lane */
+#define v4_set1(a)                                                                                                 \
+    ({                                                                                                             \
+        const double v4s_ = (a);                                                                                   \
+        (sq_v4){v4s_, v4s_, v4s_, v4s_};                                                                           \
+    })
 
 /* lane c of x in every lane */
 #define V4_LANE(x, c) __builtin_shuffle((x), (sq_v4i){(c), (c), (c), (c)})
 
 /* one 3x3 block in column form (T: 3 columns of 4) times w: ((c0 w0 + c1 w1) + c2 w2) in
  * every row, the order of the scalar row sums */
-static inline sq_v4 v4_block(const double *T, sq_v4 w)
-{
-    sq_v4 t = v4_load(T) * V4_LANE(w, 0) + v4_load(T + 4) * V4_LANE(w, 1);
-    return t + v4_load(T + 8) * V4_LANE(w, 2);
-}
+#define v4_block(T, w)                                                                                             \
+    ({                                                                                                             \
+        const double *v4T_ = (T);                                                                                  \
+        const sq_v4 v4w_ = (w);                                                                                    \
+        const sq_v4 v4t_ = v4_load(v4T_) * V4_LANE(v4w_, 0) + v4_load(v4T_ + 4) * V4_LANE(v4w_, 1);               \
+        v4t_ + v4_load(v4T_ + 8) * V4_LANE(v4w_, 2);                                                               \
+    })
 
 /* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
  * (B2 B5 B8), each padded to 4 lanes with a zero */
