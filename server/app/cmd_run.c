@@ -300,6 +300,7 @@ int sq_cmd_run(int argc, char **argv)
     sq_progress_begin(&prog, "squish run", (double)nframes);
     double wall0 = sq_now();
     long updates = 0;
+    long iface[3] = {0, 0, 0}; /* ring values, ring rows, frontier rows (adaptive bodies) */
     int at_rest = 0;
     double rest_ke_seen = 0, rest_res_seen = 0;
     while (w->frame < nframes) {
@@ -315,6 +316,9 @@ int sq_cmd_run(int argc, char **argv)
                 snprintf(health + strlen(health), sizeof health - strlen(health), "%s%s", health[0] ? "+" : "",
                          sq_health_kind_name(pr->event_kind));
             nu += pr->node_updates;
+            iface[0] += pr->ring_values;
+            iface[1] += pr->ring_rows;
+            iface[2] += pr->frontier_rows;
             for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
                 active[sq_world_listed_level(w, b, k)] += pr->active[k];
             splits += pr->splits;
@@ -396,6 +400,12 @@ int sq_cmd_run(int argc, char **argv)
            "(%.3g node-steps/s), %ld resets\n",
            w->frame, w->time, wall, wall > 0 ? w->time / wall : 0, updates, wall > 0 ? updates / wall : 0,
            w->resets);
+    if (iface[0] + iface[1] + iface[2] > 0)
+        printf("interface (adaptive bodies): %ld ring values, %ld ring rows, %ld frontier rows (per node update "
+               "%.3g, %.3g, %.3g)\n",
+               iface[0], iface[1], iface[2], updates > 0 ? (double)iface[0] / (double)updates : 0,
+               updates > 0 ? (double)iface[1] / (double)updates : 0,
+               updates > 0 ? (double)iface[2] / (double)updates : 0);
     if (realtime)
         printf("realtime: %ld of %ld frames over the %.4g s period (%.2f%%)\n", w->deadline_misses, w->frame, budget,
                w->frame > 0 ? 100.0 * (double)w->deadline_misses / (double)w->frame : 0.0);

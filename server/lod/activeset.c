@@ -334,18 +334,59 @@ lists:
     lod->needed_top = lod->top;
 }
 
+/* node i's row of K in column form (made on first use for the current material) */
+static const double *krow(sq_lod *lod, int k, int i)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_level_model *M = &lod->lv[k].model;
+    if (!lk->krow_at) {
+        lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
+        for (int j = 0; j < M->n; j++)
+            lk->krow_at[j] = -1;
+    }
+    if (lk->krow_at[i] < 0) {
+        int len = M->row_start[i + 1] - M->row_start[i];
+        if (lk->krow_used + len > lk->krow_cap) {
+            lk->krow_cap = SQ_MAX(2 * lk->krow_cap, lk->krow_used + len + 1024);
+            lk->krow_cache = sq_realloc(lk->krow_cache, sizeof(double) * 12 * (size_t)lk->krow_cap);
+        }
+        sq_lodx_to_columns(M->K + 9 * (size_t)M->row_start[i], len, lk->krow_cache + 12 * (size_t)lk->krow_used);
+        lk->krow_at[i] = (int)lk->krow_used;
+        lk->krow_used += len;
+    }
+    return lk->krow_cache + 12 * (size_t)lk->krow_at[i];
+}
+
 /* forces of the inner active nodes of level k (no viscosity): sq_level_forces with the inner
- * mask, over the list */
+ * mask, over the list; the rows in column form, the three rows of a block in the lanes of one
+ * vector, each lane summed as sq_level_node_force's rows (same products and sums) */
 void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
 {
     sq_level *L = &lod->lv[k];
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
-    const int *il = lod->lev[k].inner_list;
-    for (int r = 0; r < lod->lev[k].ninner_list; r++) {
-        int i = il[r];
-        sq_level_node_force(&L->model, d, v, a, b, g0, g1, g2, i, L->f + 3 * (size_t)i);
+    const int *il = lod->lev[k].inner_list, n = lod->lev[k].ninner_list;
+    const int *row_start = L->model.row_start, *col = L->model.col;
+    const double *mass = L->model.mass;
+    const sq_v4 bb = v4_set1(b);
+    for (int r = 0; r < n; r++) {
+        const int i = il[r], e0 = row_start[i], e1 = row_start[i + 1];
+        const double *T = krow(lod, k, i);
+        sq_v4 acc = {0, 0, 0, 0};
+        if (b != 0)
+            for (int e = e0; e < e1; e++, T += 12) {
+                const size_t j = 3 * (size_t)col[e];
+                acc += v4_block(T, v4_load(d + j) + bb * v4_load(v + j));
+            }
+        else /* sq_level_row reads d itself */
+            for (int e = e0; e < e1; e++, T += 12)
+                acc += v4_block(T, v4_load(d + 3 * (size_t)col[e]));
+        const double m = mass[i];
+        double *fi = L->f + 3 * (size_t)i;
+        fi[0] = m * (g0 - a * v[3 * i]) - acc[0];
+        fi[1] = m * (g1 - a * v[3 * i + 1]) - acc[1];
+        fi[2] = m * (g2 - a * v[3 * i + 2]) - acc[2];
     }
 }
 
@@ -517,6 +558,8 @@ void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, con
 void sq_lodx_free(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
+    free(lk->krow_at);
+    free(lk->krow_cache);
     free(lk->active_list);
     free(lk->inner_list);
     free(lk->integrated_list);

@@ -71,6 +71,10 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
 static void drop_tet_blocks(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
+        /* and the column-form rows of the inner nodes (activeset.c) */
+        for (int i = 0; i < lod->lv[k].model.n && lod->lev[k].krow_used > 0 && lod->lev[k].krow_at; i++)
+            lod->lev[k].krow_at[i] = -1;
+        lod->lev[k].krow_used = 0;
         for (int t = 0; t < lod->lv[k].model.mesh->ntets && lod->lev[k].blocks_used > 0; t++)
             lod->lev[k].blocks_slot[t] = -1;
         lod->lev[k].blocks_used = 0;
@@ -288,6 +292,23 @@ static void merged_row(const sq_lod *lod, int k, int r, int i, double *M)
     }
 }
 
+/* room for nb blocks in column form (12 doubles each) in *dst */
+static double *col_room(double **dst, int *cap, int nb)
+{
+    if (nb > *cap || !*dst) {
+        *cap = SQ_MAX(SQ_MAX(nb, 2 * *cap), 1);
+        *dst = sq_realloc(*dst, sizeof(double) * 12 * (size_t)*cap);
+    }
+    return *dst;
+}
+
+#define to_columns sq_lodx_to_columns
+
+static void transpose_blocks(const double *src, int nb, double **dst, int *cap)
+{
+    to_columns(src, nb, col_room(dst, cap, nb));
+}
+
 #define SWAP(T, a, b)                                                                                              \
     do {                                                                                                           \
         T swap_tmp_ = (a);                                                                                         \
@@ -341,6 +362,20 @@ static void build_ring_blocks(sq_lod *lod, int k)
         SWAP(int, lk->ring_K_cap, lk->ring_K2_cap);
         SWAP(double *, lk->ring_D, lk->ring_D2);
         SWAP(int, lk->ring_D_cap, lk->ring_D2_cap);
+        /* the column forms likewise: a copied row's from the previous ones (ring_off2 now) */
+        {
+            double *T = col_room(&lk->ring_T2, &lk->ring_T2_cap, lk->ring_off[lk->nring]);
+            for (int r = 0; r < lk->nring; r++) {
+                int b0 = lk->ring_off[r], nb = lk->ring_off[r + 1] - b0;
+                if (from[r] >= 0)
+                    memcpy(T + 12 * (size_t)b0, lk->ring_T + 12 * (size_t)lk->ring_off2[from[r]],
+                           sizeof(double) * 12 * (size_t)nb);
+                else
+                    to_columns(lk->ring_K + 9 * (size_t)b0, nb, T + 12 * (size_t)b0);
+            }
+            SWAP(double *, lk->ring_T, lk->ring_T2);
+            SWAP(int, lk->ring_T_cap, lk->ring_T2_cap);
+        }
         redone += build_blocks_incr(lod, k, lk->frontier, lk->nfrontier, lk->prev_frontier, lk->nprev_frontier,
                                     dirty, lk->front_off, lk->front_col, lk->front_K, lk->front_D, lk->front_off2,
                                     &lk->front_col2, &lk->front_col2_cap, &lk->front_K2, &lk->front_K2_cap,
@@ -375,16 +410,23 @@ static void build_ring_blocks(sq_lod *lod, int k)
             poff[p + 1] = poff[p] + L->model.row_start[i + 1] - L->model.row_start[i];
         }
         double *M = lk->front_merged2;
+        double *T = col_room(&lk->front_T2, &lk->front_T2_cap, total);
         for (int r = 0; r < lk->nfrontier; r++) {
             int i = lk->frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
-            if (from[r] >= 0)
+            if (from[r] >= 0) {
                 memcpy(M, lk->front_merged + 9 * (size_t)poff[from[r]], sizeof(double) * 9 * (size_t)len);
-            else
+                memcpy(T, lk->front_T + 12 * (size_t)poff[from[r]], sizeof(double) * 12 * (size_t)len);
+            } else {
                 merged_row(lod, k, r, i, M);
+                to_columns(M, len, T);
+            }
             M += 9 * (size_t)len;
+            T += 12 * (size_t)len;
         }
         SWAP(double *, lk->front_merged, lk->front_merged2);
         SWAP(int, lk->front_merged_cap, lk->front_merged2_cap);
+        SWAP(double *, lk->front_T, lk->front_T2);
+        SWAP(int, lk->front_T_cap, lk->front_T2_cap);
         free(poff);
         free(from);
         lk->blocks_dirty = 0;
@@ -414,6 +456,9 @@ static void build_ring_blocks(sq_lod *lod, int k)
         merged_row(lod, k, r, i, M);
         M += 9 * (size_t)(L->model.row_start[i + 1] - L->model.row_start[i]);
     }
+    /* the column forms the tick's kernels read */
+    transpose_blocks(lk->ring_K, lk->ring_off[lk->nring], &lk->ring_T, &lk->ring_T_cap);
+    transpose_blocks(lk->front_merged, total, &lk->front_T, &lk->front_T_cap);
     lk->blocks_dirty = 0;
     lk->blocks_valid = 1;
     lk->prev_saved = 0;
@@ -454,31 +499,35 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
     }
 }
 
+
 /* forces of the frontier nodes of level k from their merged rows (the masked force pass
- * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity */
+ * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity.
+ * The three rows of a block in the lanes of one vector (the merged rows in column form),
+ * each lane summed as the scalar rows were: f_r += (M_r0 w0 + M_r1 w1) + M_r2 w2 */
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     sq_level *L = &lod->lv[k];
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
-    const double *M = lk->front_merged;
-    /* the list in locals: the force stores would make the compiler reload it */
+    const double *T = lk->front_T;
+    const sq_v4 bb = v4_set1(b);
+    /* the lists in locals: the force stores would make the compiler reload them */
     const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
+    const int *row_start = L->model.row_start, *col = L->model.col;
+    const double *mass = L->model.mass;
+    double *f = L->f;
     for (int r = 0; r < nfrontier; r++) {
         int i = frontier[r];
-        double f0 = 0, f1 = 0, f2 = 0;
-        for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++, M += 9) {
-            const size_t j = 3 * (size_t)L->model.col[q];
-            const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
-            f0 += M[0] * w0 + M[1] * w1 + M[2] * w2;
-            f1 += M[3] * w0 + M[4] * w1 + M[5] * w2;
-            f2 += M[6] * w0 + M[7] * w1 + M[8] * w2;
+        sq_v4 acc = {0, 0, 0, 0};
+        for (int q = row_start[i]; q < row_start[i + 1]; q++, T += 12) {
+            const size_t j = 3 * (size_t)col[q];
+            acc += v4_block(T, v4_load(d + j) + bb * v4_load(v + j));
         }
-        double m = L->model.mass[i], *fi = L->f + 3 * (size_t)i;
-        fi[0] = m * (gravity[0] - a * v[3 * i]) - f0;
-        fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - f1;
-        fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - f2;
+        double m = mass[i], *fi = f + 3 * (size_t)i;
+        fi[0] = m * (gravity[0] - a * v[3 * i]) - acc[0];
+        fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - acc[1];
+        fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - acc[2];
     }
 }
 
@@ -596,6 +645,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
     for (int k = 0; k < lod->L; k++)
         if (lod->lev[k].blocks_dirty) {
             build_ring_blocks(lod, k);
+            lod->lev[k].hot_valid = 0;
             changed = 1;
         }
     if (changed)

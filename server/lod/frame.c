@@ -57,6 +57,7 @@ typedef struct lod_frame {
     long nticks, tick;               /* finest substeps of the frame; the current one */
     long stride[SQ_MAX_LEVELS];      /* level k steps every stride[k] ticks */
     long updates;                    /* node integrations so far */
+    long ring_values, ring_rows, frontier_rows; /* the interface's work so far (profile) */
 } lod_frame;
 
 /* run one stage and add its wall time to its entry */
@@ -143,8 +144,10 @@ static void tick_pull(lod_frame *fr)
     long t = fr->tick;
     for (int k = 0; k < lod->L; k++) {
         lod->lev[k].due = t % fr->stride[k] == 0;
-        if (lod->lev[k].due && lod->lev[k].nactive > 0)
+        if (lod->lev[k].due && lod->lev[k].nactive > 0) {
             sq_lodx_eval_ring(lod, k, t);
+            fr->ring_values += lod->lev[k].nring;
+        }
     }
 }
 
@@ -160,6 +163,7 @@ static void tick_step(lod_frame *fr)
     long t = fr->tick;
     for (int k = 0; k < L; k++)
         if (lod->lev[k].due && lod->lev[k].nactive > 0) {
+            fr->frontier_rows += lod->lev[k].nfrontier;
             /* the all-nodes force pass is vectorised, faster per node than the masked
              * one, but computes ghost rows nobody reads and needs the frontier correction
              * pass: use it once 60% of the level is active (with the frontier rows folded,
@@ -179,9 +183,17 @@ static void tick_step(lod_frame *fr)
         }
     for (int k = 0; k < L; k++)
         if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
-            if (!lod->lev[k].due)
-                sq_lodx_eval_ring(lod, k, t);
-            sq_lodx_couple_out(lod, mat, k, t);
+            if (!lod->lev[k].due) {
+                /* between two of its steps only the ring rows with a source on a level that
+                 * steps more often are used (the reactions the finer levels need now): only
+                 * the ghosts they read are evaluated (the others are not read before the
+                 * level's next step or the frame's end, which evaluate every ghost) */
+                unsigned faster = 0;
+                for (int m = 0; m < L; m++)
+                    faster |= fr->stride[m] < fr->stride[k] ? 1u << m : 0u;
+                fr->ring_values += sq_lodx_eval_ring_hot(lod, k, t, faster);
+            }
+            fr->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
         }
     for (int k = 0; k < L; k++) {
         if (!lod->lev[k].due)
@@ -284,6 +296,9 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         prof->t_total = t_end - fr->t_start;
         memcpy(prof->t_stage, fr->t, sizeof prof->t_stage);
         prof->node_updates = updates;
+        prof->ring_values = fr->ring_values;
+        prof->ring_rows = fr->ring_rows;
+        prof->frontier_rows = fr->frontier_rows;
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
             prof->active[k] = k < L ? lod->lev[k].nactive : 0;
             prof->substeps[k] = k < L ? 1 << sub_log2(lod, k) : 0;

@@ -47,6 +47,10 @@ typedef struct sq_frame_profile {
     double t_pull, t_integrate, t_push, t_adapt, t_tools, t_health, t_total;
     double t_stage[SQ_LOD_STAGES];     /* adaptive frames: wall time of each sq_lod_stage (0 fixed) */
     long node_updates;                 /* active-node integrations this frame */
+    /* adaptive frames, the interface's work beside the node updates (0 fixed): ring ghost
+     * values evaluated (a combination of ~7 active sources each), ring rows (a ghost's force
+     * handed back to its sources), frontier rows (active rows with half of the mixed tets) */
+    long ring_values, ring_rows, frontier_rows;
     int active[SQ_MAX_LEVELS];         /* active nodes per level */
     int substeps[SQ_MAX_LEVELS];       /* 2^n steps per frame per level */
     int splits, merges;

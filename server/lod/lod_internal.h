@@ -15,6 +15,8 @@
 
 #include "lod/lod.h"
 
+#include <string.h>
+
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
 
 /* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
@@ -53,7 +55,13 @@ typedef struct sq_lod_level {
     unsigned char *src_levels;  /* per ring ghost: bit m set if a source is on level m (nring) */
     int *src_level, *src_node;  /* level and node of each source, sorted by level (src_cap) */
     double *src_weight;         /* weight of each source, the weights of a ghost sum to 1 (src_cap) */
+    int *src_rend;              /* end of the run of sources on the same level as this one (src_cap) */
     int src_cap;                /* capacity of the three source arrays */
+    int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
+                                 * level in hot_mask read: those evaluated between two steps of the
+                                 * level, where only those rows are used (n) */
+    unsigned hot_mask;
+    int hot_valid;              /* hot is up to date with the ring, sources and blocks */
 
     /* --- element blocks of the mixed tets (tets with active and ghost corners) */
     int *node_tet_start, *node_tet; /* tets around each node (CSR, n + 1 and 4 x ntets) */
@@ -94,6 +102,19 @@ typedef struct sq_lod_level {
     double *front_merged;       /* frontier rows with the correction folded in (K - correction),
                                  * full adjacency rows, N/m */
     int front_merged_cap;
+    /* the ring rows and merged frontier rows again, each block as its 3 columns padded to 4
+     * lanes (12 doubles), for the vector kernels of the tick (built with the blocks above,
+     * the rows an incremental build copies copied here too) */
+    double *ring_T, *front_T;
+    int ring_T_cap, front_T_cap;
+    double *ring_T2, *front_T2; /* the previous build's (an incremental build copies from them) */
+    int ring_T2_cap, front_T2_cap;
+    /* the level's own rows of K in column form for the inner rows, made on a node's first use
+     * as an inner node for the current material (so the memory follows the refined region,
+     * like the element blocks) */
+    int *krow_at;               /* block offset of node i's row in krow_cache, or -1 (n) */
+    double *krow_cache;         /* 12 doubles per block */
+    long krow_used, krow_cap;   /* blocks in use, allocated */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -205,6 +226,59 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
     }
 }
 
+/* 4-lane vectors (lane 3 unused) for the kernels of the tick: a node's 3 components are
+ * loaded as 4 lanes, so arrays read that way have one spare double after the last node. The
+ * lanes are computed with the same multiplications and additions, in the same order, as the
+ * scalar code they replace (-std=c11 contracts nothing into fma), so the results are bitwise
+ * those of the scalar code, in every build */
+typedef double sq_v4 __attribute__((vector_size(32)));
+typedef long long sq_v4i __attribute__((vector_size(32)));
+typedef double sq_v2 __attribute__((vector_size(16)));
+
+/* the helpers are macros (statement expressions), not functions: a 32-byte vector passed to or
+ * returned from a function has no fixed calling convention without AVX (the ASan build) */
+
+/* 4 doubles from p (any alignment) */
+#define v4_load(p)                                                                                                 \
+    ({                                                                                                             \
+        sq_v4 v4l_;                                                                                                \
+        memcpy(&v4l_, (p), sizeof v4l_);                                                                           \
+        v4l_;                                                                                                      \
+    })
+
+/* a in every lane */
+#define v4_set1(a)                                                                                                 \
+    ({                                                                                                             \
+        const double v4s_ = (a);                                                                                   \
+        (sq_v4){v4s_, v4s_, v4s_, v4s_};                                                                           \
+    })
+
+/* lane c of x in every lane */
+#define V4_LANE(x, c) __builtin_shuffle((x), (sq_v4i){(c), (c), (c), (c)})
+
+/* one 3x3 block in column form (T: 3 columns of 4) times w: ((c0 w0 + c1 w1) + c2 w2) in
+ * every row, the order of the scalar row sums */
+#define v4_block(T, w)                                                                                             \
+    ({                                                                                                             \
+        const double *v4T_ = (T);                                                                                  \
+        const sq_v4 v4w_ = (w);                                                                                    \
+        const sq_v4 v4t_ = v4_load(v4T_) * V4_LANE(v4w_, 0) + v4_load(v4T_ + 4) * V4_LANE(v4w_, 1);               \
+        v4t_ + v4_load(v4T_ + 8) * V4_LANE(v4w_, 2);                                                               \
+    })
+
+/* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
+ * (B2 B5 B8), each padded to 4 lanes with a zero */
+static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
+{
+    for (int e = 0; e < nb; e++, src += 9, T += 12)
+        for (int c = 0; c < 3; c++) {
+            T[4 * c] = src[c];
+            T[4 * c + 1] = src[3 + c];
+            T[4 * c + 2] = src[6 + c];
+            T[4 * c + 3] = 0;
+        }
+}
+
 /* substep exponent a level runs at in the adaptive frame */
 static inline int sub_log2(const sq_lod *lod, int k)
 {
@@ -253,7 +327,10 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
 /* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
 void sq_lodx_build_sources(sq_lod *lod);
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
-void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
+/* ring.c: only the ring ghosts read by the ring rows with a source on a level in mask; returns
+ * how many */
+int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
+int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* returns the rows */
 /* holds.c: the frame's holds onto active nodes (held nodes prescribed over frame_dt, left out
  * of the integrated lists); the internal force on the held nodes of level k at its step;
  * the tool feedback into force[tool] (may be NULL) and the holds released */

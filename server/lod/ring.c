@@ -92,6 +92,7 @@ void sq_lodx_build_sources(sq_lod *lod)
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
         lod->lev[k].src_start[0] = 0;
+        lod->lev[k].hot_valid = 0;
         for (int r = 0; r < lod->lev[k].nring; r++) {
             int n = 0;
             expand(lod, k, lod->lev[k].ring[r], 1.0, 0, &buf, &n, &cap);
@@ -145,12 +146,16 @@ void sq_lodx_build_sources(sq_lod *lod)
                 lod->lev[k].src_level = sq_realloc(lod->lev[k].src_level, sizeof(int) * scap);
                 lod->lev[k].src_node = sq_realloc(lod->lev[k].src_node, sizeof(int) * scap);
                 lod->lev[k].src_weight = sq_realloc(lod->lev[k].src_weight, sizeof(double) * scap);
+                lod->lev[k].src_rend = sq_realloc(lod->lev[k].src_rend, sizeof(int) * scap);
             }
             for (int i = 0; i < u; i++) {
                 lod->lev[k].src_level[total + i] = buf[i].level;
                 lod->lev[k].src_node[total + i] = buf[i].node;
                 lod->lev[k].src_weight[total + i] = buf[i].w / sum;
             }
+            for (int i = u - 1; i >= 0; i--) /* each source's run of its level ends at */
+                lod->lev[k].src_rend[total + i] =
+                    i + 1 < u && buf[i + 1].level == buf[i].level ? lod->lev[k].src_rend[total + i + 1] : total + i + 1;
             unsigned char bits = 0;
             for (int i = 0; i < u; i++)
                 bits |= (unsigned char)(1u << buf[i].level);
@@ -164,7 +169,7 @@ void sq_lodx_build_sources(sq_lod *lod)
 
 /* the ring ghosts of level k at tick t: sources of a level between two of its steps are
  * taken linearly in time over that step */
-void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
+static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, long t, const int *list, int n)
 {
     sq_lod_level *lk = &lod->lev[k];
     sq_level *Lk = &lod->lv[k];
@@ -177,50 +182,98 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
         vcur[m] = lod->lv[m].v;
     }
     /* the level's lists in locals (the value stores below would make the compiler reload them) */
-    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
-    const int *fl = lk->src_level, *fn = lk->src_node;
+    const int *ring = lk->ring, *src_start = lk->src_start;
+    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
     const double *fw = lk->src_weight;
-    for (int r = 0; r < nring; r++) {
+    double *restrict Dk = Lk->d, *restrict Vk = Lk->v;
+    const unsigned char *fixed = Lk->model.fixed;
+    for (int x = 0; x < n; x++) {
+        const int r = list ? list[x] : x;
         int j = ring[r];
         int a = src_start[r], b = src_start[r + 1];
         if (a == b)
             continue;
-        double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+        /* a node's d and v as 4 lanes (lane 3 unused), each lane summed as the scalar sums
+         * were: d += w * d1, or d += w * (d0 + f (d1 - d0)) */
+        sq_v4 d = {0, 0, 0, 0}, v = {0, 0, 0, 0};
         /* the sources are sorted by level: one run per level, its time fraction hoisted */
         for (int q = a; q < b;) {
-            int m = fl[q];
+            const int m = fl[q], qe = rend[q];
             double f = fr[m];
             const double *D1 = dcur[m], *V1 = vcur[m];
             if (f == 1) {
                 /* a source level at the end of its step (the common case): its values */
-                for (; q < b && fl[q] == m; q++) {
-                    const double w = fw[q];
-                    const double *d1 = D1 + 3 * fn[q], *v1 = V1 + 3 * fn[q];
-                    for (int c = 0; c < 3; c++) {
-                        d[c] += w * d1[c];
-                        v[c] += w * v1[c];
-                    }
+                for (; q < qe; q++) {
+                    const sq_v4 w = v4_set1(fw[q]);
+                    const size_t n3 = 3 * (size_t)fn[q];
+                    d += w * v4_load(D1 + n3);
+                    v += w * v4_load(V1 + n3);
                 }
                 continue;
             }
             const double *D0 = lod->lev[m].d_start, *V0 = lod->lev[m].v_start;
-            for (; q < b && fl[q] == m; q++) {
-                const double w = fw[q];
-                const double *d1 = D1 + 3 * fn[q], *v1 = V1 + 3 * fn[q];
-                const double *d0 = D0 + 3 * fn[q], *v0 = V0 + 3 * fn[q];
-                for (int c = 0; c < 3; c++) {
-                    d[c] += w * (d0[c] + f * (d1[c] - d0[c]));
-                    v[c] += w * (v0[c] + f * (v1[c] - v0[c]));
-                }
+            const sq_v4 fv = v4_set1(f);
+            for (; q < qe; q++) {
+                const sq_v4 w = v4_set1(fw[q]);
+                const size_t n3 = 3 * (size_t)fn[q];
+                const sq_v4 d0 = v4_load(D0 + n3), v0 = v4_load(V0 + n3);
+                d += w * (d0 + fv * (v4_load(D1 + n3) - d0));
+                v += w * (v0 + fv * (v4_load(V1 + n3) - v0));
             }
         }
-        unsigned char fx = Lk->model.fixed[j];
+        unsigned char fx = fixed[j];
+        double *dj = Dk + 3 * (size_t)j, *vj = Vk + 3 * (size_t)j;
+        if (!fx) {
+            dj[0] = d[0], dj[1] = d[1], dj[2] = d[2];
+            vj[0] = v[0], vj[1] = v[1], vj[2] = v[2];
+            continue;
+        }
         for (int c = 0; c < 3; c++) {
             int free_axis = !(fx & (1u << c));
-            Lk->d[3 * j + c] = free_axis ? d[c] : 0.0;
-            Lk->v[3 * j + c] = free_axis ? v[c] : 0.0;
+            dj[c] = free_axis ? d[c] : 0.0;
+            vj[c] = free_axis ? v[c] : 0.0;
         }
     }
+}
+
+void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
+{
+    eval_list(lod, k, t, NULL, lod->lev[k].nring);
+}
+
+/* the ring ghosts of level k that the ring rows with a source on a level in `mask` read (the
+ * ghost columns of those rows), increasing ring order: lk->hot, made once per layout */
+static void hot_list(sq_lod *lod, int k, unsigned mask)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    if (lk->hot_valid && lk->hot_mask == mask)
+        return;
+    if (!lk->hot)
+        lk->hot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
+    unsigned char *mark = lk->mark; /* all zero between uses */
+    for (int r = 0; r < lk->nring; r++)
+        if (lk->src_levels[r] & mask)
+            for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
+                int l = lk->ring_index[lk->ring_col[e]];
+                if (l >= 0)
+                    mark[l] = 1;
+            }
+    int nh = 0;
+    for (int r = 0; r < lk->nring; r++)
+        if (mark[r]) {
+            lk->hot[nh++] = r;
+            mark[r] = 0;
+        }
+    lk->nhot = nh;
+    lk->hot_mask = mask;
+    lk->hot_valid = 1;
+}
+
+int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask)
+{
+    hot_list(lod, k, mask);
+    eval_list(lod, k, t, lod->lev[k].hot, lod->lev[k].nhot);
+    return lod->lev[k].nhot;
 }
 
 /* force on ring ghost r (node j) of level k from the tets touching active nodes, -(K w)_j -
@@ -233,21 +286,41 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     const double *Bd = mat->use_viscosity ? lk->ring_D : NULL;
     g[0] = g[1] = g[2] = 0;
-    if (fr >= 1 && !Bd) {
-        /* the level at the end of its step (the common case): its current values, same sums */
+    if (!Bd) {
+        /* no viscosity: the three rows of a block in the lanes of one vector (the ring rows in
+         * column form), each lane summed as the scalar rows were: g_r -= (K_r0 w0 + K_r1 w1)
+         * + K_r2 w2 */
         const double *restrict d = L->d, *restrict v = L->v;
-        double g0 = 0, g1 = 0, g2 = 0;
-        for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
-            const size_t j = 3 * (size_t)lk->ring_col[e];
-            const double *K = lk->ring_K + 9 * (size_t)e;
-            const double w0 = d[j] + b * v[j], w1 = d[j + 1] + b * v[j + 1], w2 = d[j + 2] + b * v[j + 2];
-            g0 -= K[0] * w0 + K[1] * w1 + K[2] * w2;
-            g1 -= K[3] * w0 + K[4] * w1 + K[5] * w2;
-            g2 -= K[6] * w0 + K[7] * w1 + K[8] * w2;
+        const double *T = lk->ring_T;
+        const int *col = lk->ring_col;
+        const sq_v4 bb = v4_set1(b);
+        sq_v4 acc = {0, 0, 0, 0};
+        const int e0 = lk->ring_off[r], e1 = lk->ring_off[r + 1];
+        if (fr >= 1) {
+            /* the level at the end of its step (the common case): its current values */
+            for (int e = e0; e < e1; e++) {
+                const size_t j = 3 * (size_t)col[e];
+                acc -= v4_block(T + 12 * (size_t)e, v4_load(d + j) + bb * v4_load(v + j));
+            }
+        } else {
+            /* active nodes of the level between two of its steps, at fraction fr */
+            const double *restrict d0s = lk->d_start, *restrict v0s = lk->v_start;
+            const sq_v4 fv = v4_set1(fr);
+            for (int e = e0; e < e1; e++) {
+                const int l = col[e];
+                const size_t j = 3 * (size_t)l;
+                sq_v4 dl = v4_load(d + j), vl = v4_load(v + j);
+                if (act[l]) {
+                    const sq_v4 d0 = v4_load(d0s + j), v0 = v4_load(v0s + j);
+                    dl = d0 + fv * (dl - d0);
+                    vl = v0 + fv * (vl - v0);
+                }
+                acc -= v4_block(T + 12 * (size_t)e, dl + bb * vl);
+            }
         }
-        g[0] = g0;
-        g[1] = g1;
-        g[2] = g2;
+        g[0] = acc[0];
+        g[1] = acc[1];
+        g[2] = acc[2];
         return;
     }
     for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
@@ -267,11 +340,9 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
         for (int rr = 0; rr < 3; rr++)
             g[rr] -= K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
-        if (Bd) {
-            const double *D = Bd + 9 * (size_t)e;
-            for (int rr = 0; rr < 3; rr++)
-                g[rr] -= D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
-        }
+        const double *D = Bd + 9 * (size_t)e;
+        for (int rr = 0; rr < 3; rr++)
+            g[rr] -= D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
     }
 }
 
@@ -280,8 +351,9 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
  * hands its reactions to the finer levels stepping now, from its values at this tick: those
  * reactions depend on the finer nodes themselves, so they must follow them step by step.
  * Reactions for a coarser level are sampled at its own steps. */
-void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
+int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
 {
+    int rows = 0;
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
     double fr = (double)(t - lk->step_start) / (double)lk->step_len;
@@ -293,7 +365,7 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
      * compiler, which would reload them at every ring ghost */
     const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
     const unsigned char *src_levels = lk->src_levels;
-    const int *fl = lk->src_level, *fn = lk->src_node;
+    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
     const double *fw = lk->src_weight;
     for (int r = 0; r < nring; r++) {
         int j = ring[r];
@@ -302,25 +374,31 @@ void sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
             continue;
         double g[3];
         ring_force(lod, mat, k, r, fr, g);
+        rows++;
         unsigned char fx = Lk->model.fixed[j];
-        for (int c = 0; c < 3; c++)
-            if (fx & (1u << c))
-                g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
+        if (fx)
+            for (int c = 0; c < 3; c++)
+                if (fx & (1u << c))
+                    g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
+        const sq_v2 g01 = {g[0], g[1]};
         /* one run of sources per level (sorted by level); levels not stepping now skipped */
         for (int q = a; q < b;) {
-            int m = fl[q];
+            const int m = fl[q], qe = rend[q];
             if (!(due_bits & (1u << m))) {
-                while (q < b && fl[q] == m)
-                    q++;
+                q = qe;
                 continue;
             }
             double *F = lod->lv[m].f;
-            for (; q < b && fl[q] == m; q++) {
-                double w = fw[q], *dst = F + 3 * fn[q];
-                dst[0] += w * g[0];
-                dst[1] += w * g[1];
+            for (; q < qe; q++) {
+                /* dst[c] += w g[c]: x and y as one 2-lane vector */
+                double w = fw[q], *dst = F + 3 * (size_t)fn[q];
+                sq_v2 xy;
+                memcpy(&xy, dst, sizeof xy);
+                xy += (sq_v2){w, w} * g01;
+                memcpy(dst, &xy, sizeof xy);
                 dst[2] += w * g[2];
             }
         }
     }
+    return rows;
 }

@@ -30,6 +30,7 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     int n = lod->lv[k].model.n;
     int na = 0, nf = 0, nc = 0;
+    lk->hot_valid = 0; /* the ring changes: its hot list is made again (ring.c) */
     /* the first rebuild since the blocks were built keeps the lists they were built for, and
      * every rebuild records the nodes whose active flag changes: the next block build redoes
      * only the rows next to those (coupling.c) */
@@ -300,8 +301,9 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->lev[k].hold_of = sq_malloc(sizeof(int) * n);
         lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
         lod->lev[k].ring = sq_malloc(sizeof(int) * n);
-        lod->lev[k].d_start = sq_calloc(3 * n, sizeof(double));
-        lod->lev[k].v_start = sq_calloc(3 * n, sizeof(double));
+        /* one spare double: the ring kernels load 4 lanes per node */
+        lod->lev[k].d_start = sq_calloc(3 * n + 1, sizeof(double));
+        lod->lev[k].v_start = sq_calloc(3 * n + 1, sizeof(double));
         lod->lev[k].src_start = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].src_levels = sq_calloc(n + 1, 1);
         lod->lev[k].ring_off = sq_calloc(n + 1, sizeof(int));
@@ -408,6 +410,10 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].front_merged2);
         free(lod->lev[k].inner);
         free(lod->lev[k].front_merged);
+        free(lod->lev[k].ring_T);
+        free(lod->lev[k].ring_T2);
+        free(lod->lev[k].front_T2);
+        free(lod->lev[k].front_T);
         free(lod->lev[k].front_off);
         free(lod->lev[k].front_K);
         free(lod->lev[k].front_D);
@@ -421,6 +427,8 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].inc_block);
         free(lod->lev[k].tet_geom);
         free(lod->lev[k].src_level);
+        free(lod->lev[k].src_rend);
+        free(lod->lev[k].hot);
         free(lod->lev[k].src_node);
         free(lod->lev[k].src_weight);
     }

@@ -284,7 +284,7 @@ static int same_level(const sq_lod *a, const sq_lod *b, int k)
              SAME(needed, x->nneeded) && SAME(coupled_rowsum, n);
     ok = ok && SAME(src_start, x->nring + 1) && SAME(src_levels, x->nring);
     int ns = x->src_start[x->nring];
-    ok = ok && SAME(src_level, ns) && SAME(src_node, ns) && SAME(src_weight, ns);
+    ok = ok && SAME(src_level, ns) && SAME(src_node, ns) && SAME(src_weight, ns) && SAME(src_rend, ns);
     if (!ok || x->blocks_dirty)
         return ok;
     ok = SAME(ring_off, x->nring + 1) && SAME(front_off, x->nfrontier + 1);
@@ -294,7 +294,7 @@ static int same_level(const sq_lod *a, const sq_lod *b, int k)
     for (int r = 0; r < x->nfrontier; r++)
         nm += L->model.row_start[x->frontier[r] + 1] - L->model.row_start[x->frontier[r]];
     ok = SAME(ring_col, nr) && SAME(front_col, nf) && SAME(ring_K, 9 * nr) && SAME(front_K, 9 * nf) &&
-         SAME(front_merged, 9 * nm);
+         SAME(front_merged, 9 * nm) && SAME(ring_T, 12 * nr) && SAME(front_T, 12 * nm);
     if (L->model.D)
         ok = ok && SAME(ring_D, 9 * nr) && SAME(front_D, 9 * nf);
 #undef SAME
