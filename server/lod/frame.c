@@ -127,6 +127,8 @@ static void stage_layout(lod_frame *fr)
         lod->lev[k].step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
         lod->lev[k].step_len = fr->stride[k];
     }
+    if (sq_lodx_corot_on(lod))
+        sq_lodx_corot_layout(lod, mat); /* corotational levels: tet lists of the layout */
 }
 
 /* tool holds onto active nodes (holds.c) */
@@ -159,7 +161,9 @@ static void tick_step(lod_frame *fr)
     int L = lod->L;
     long t = fr->tick;
     for (int k = 0; k < L; k++)
-        if (lod->lev[k].due && lod->lev[k].nactive > 0) {
+        if (lod->lev[k].due && lod->lev[k].nactive > 0 && lod->lv[k].corot) {
+            sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
+        } else if (lod->lev[k].due && lod->lev[k].nactive > 0) {
             /* the all-nodes force pass is vectorised, faster per node than the masked
              * one, but computes ghost rows nobody reads and needs the frontier correction
              * pass: use it once 60% of the level is active (with the frontier rows folded,
@@ -181,7 +185,10 @@ static void tick_step(lod_frame *fr)
         if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
             if (!lod->lev[k].due)
                 sq_lodx_eval_ring(lod, k, t);
-            sq_lodx_couple_out(lod, mat, k, t);
+            if (lod->lv[k].corot)
+                sq_lodx_corot_couple_out(lod, mat, k, t);
+            else
+                sq_lodx_couple_out(lod, mat, k, t);
         }
     for (int k = 0; k < L; k++) {
         if (!lod->lev[k].due)

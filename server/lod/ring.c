@@ -160,6 +160,8 @@ void sq_lodx_build_sources(sq_lod *lod)
         }
     }
     free(buf);
+    if (sq_lodx_corot_on(lod))
+        sq_lodx_corot_affine_sources(lod); /* corotational levels: weights exact for affine fields */
 }
 
 /* the ring ghosts of level k at tick t: sources of a level between two of its steps are
