@@ -340,6 +340,11 @@ void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, 
                               int iters, int store, double *f4);
 double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4);
 void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const double g[3]);
+/* four tets t[0..3] at once (t[l] < 0: an empty lane, zero force), one rotation update each:
+ * corner values d, v and forces f laid out tet after tet (12 per tet); the vector pass's
+ * arithmetic in AVX2 builds (without viscosity), else the per-tet one */
+void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
+                               const double *v, int store, double *f);
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
 int sq_level_corot_inverted(const sq_level *L);
 
