@@ -80,10 +80,10 @@ SQ_TEST(lod_corot_forced_finest_and_coarsest_match_fixed_runs)
     double *df = run_corot(m, 3, fixed, frames, 2, 0, 0.2);
     double *da = run_corot(m, 3, adaptive, frames, 2, 0, 0.2);
     double dmax, diff = max_diff(df, da, 3 * m[2]->nnodes, &dmax);
-    /* the tet-by-tet path of mixed layouts on the same all-active level: the scalar pass's
-     * arithmetic per tet, summed in tet order, against the fixed step. The AVX2 build's
-     * vector pass rounds differently (~1e-16 m a frame here), so 1e-9 of the largest
-     * displacement over 30 frames; the sanitizer build runs the scalar pass in both. With the
+    /* the tet-by-tet path of mixed layouts on the same all-active level (four tets at a time,
+     * the vector pass's arithmetic in AVX2 builds, the scalar pass's otherwise), summed in tet
+     * order, against the fixed step, which sums in its block order: rounding (~1e-16 m a frame
+     * here), so 1e-9 of the largest displacement over 30 frames. With the
      * 0.2 m push the release leaves tets under the tool with I + grad(d + b v) nearly
      * inverted, where the two roundings pick different rotations (0.035 m apart a frame
      * later; expected of the fixed vector against the fixed scalar pass too, not measured): compared
