@@ -164,7 +164,8 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         set_item(body, "lod", lod);
         set_item(body, "operator", cJSON_CreateString(v->op == SQ_OPERATOR_PAPER ? "paper" : "fem"));
         set_item(body, "step_fraction", cJSON_CreateNumber(v->fraction));
-        /* one model for every variant: adaptive lod and the paper operator run linear elasticity only */
+        /* one model for every variant (the paper operator runs linear elasticity only): linear,
+         * whatever the scene chose, so every row's error is discretisation, not model */
         set_item(body, "elasticity", cJSON_CreateString("linear"));
     }
     return cJSON_PrintUnformatted(root);

@@ -198,10 +198,6 @@ void sq_body_set_levels_fixed(sq_body *b)
 
 /* ---- validation ------------------------------------------------------------------------- */
 
-#define COROT_ADAPTIVE_MSG                                                                                 \
-    "corotational elasticity runs in fixed lod mode only (adaptive mode does not support it yet): use "    \
-    "\"lod\": {\"mode\": \"fixed\"} with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" " \
-    "with adaptive lod"
 #define COROT_PAPER_MSG                                                                                    \
     "corotational elasticity needs the fem operator (the paper operator has no corotational form here): "  \
     "use \"operator\": \"fem\" with \"elasticity\": \"corotational\", or \"elasticity\": \"linear\" with "  \
@@ -222,12 +218,11 @@ int sq_body_check_pressure(int nodal, sq_elasticity_kind e, sq_operator_kind op,
 /* is elasticity e allowed with operator op and lod mode? 0, or -1 + err naming the combination */
 int sq_body_check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
 {
+    (void)mode; /* both lod modes run either elasticity (corotational adaptive: lod/corotational.c) */
     if (e != SQ_ELASTICITY_LINEAR && e != SQ_ELASTICITY_COROTATIONAL)
         return sq_err_set(err, "elasticity %d is unknown: use linear or corotational", (int)e);
     if (e == SQ_ELASTICITY_COROTATIONAL && op != SQ_OPERATOR_FEM)
         return sq_err_set(err, COROT_PAPER_MSG);
-    if (e == SQ_ELASTICITY_COROTATIONAL && mode == SQ_LOD_ADAPTIVE)
-        return sq_err_set(err, COROT_ADAPTIVE_MSG);
     return 0;
 }
 

@@ -23,20 +23,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "level/level.h"
-
-struct sq_corot {
-    int ntets, nblocks;    /* tets, blocks of CW tets (padded with V = 0 tets at node 0) */
-    double *g;             /* per block: [10][CW] a_1, a_2, a_3 (rest gradients of the first three
-                              basis functions, x y z each), V (tet_lane, tet_block) */
-    double *q;             /* per block: [4][CW] rotation as a unit quaternion (w, x, y, z) */
-    int *to;               /* per block: [4][CW] node offsets 4 i into u and acc (padding: node 0) */
-    double *u;             /* the vector pass's gather source: d + b v per node, n x 4 (lane 3
-                              unused), 64-byte aligned so a node's row never straddles a cache line */
-    double *acc;           /* force accumulator of the vector pass, n x 4 (aligned as u), zero
-                              between calls */
-    double mu, lambda;
-};
+#include "level/corot_impl.h"
 
 /* zeroed, 64-byte aligned; released with free() */
 static double *calloc_aligned(size_t count)
@@ -47,35 +34,6 @@ static double *calloc_aligned(size_t count)
         return sq_calloc(count, sizeof(double));
     memset(p, 0, bytes);
     return p;
-}
-
-#define CW 4 /* tets per block */
-
-/* lane and block of tet t: groups of CW * CK consecutive tets fill CK blocks, lane l taking
- * the l-th run of CK tets, so the lanes of a block are CK tets apart (a few cells in a
- * structured mesh: they rarely share a node) while a block's nodes stay close in memory */
-#define CK 16
-static inline int tet_lane(int t) { return (t % (CW * CK)) / CK; }
-static inline int tet_block(int t) { return (t / (CW * CK)) * CK + t % CK; }
-
-/* a tet's gradients and volume (G[10]) and rotation (q[4]) out of / into the block layout */
-static inline void tet_load(const sq_corot *C, int t, double G[10], double q[4])
-{
-    const double *gb = C->g + 10 * CW * (size_t)tet_block(t);
-    const double *qb = C->q + 4 * CW * (size_t)tet_block(t);
-    int l = tet_lane(t);
-    for (int k = 0; k < 10; k++)
-        G[k] = gb[CW * k + l];
-    if (q)
-        for (int k = 0; k < 4; k++)
-            q[k] = qb[CW * k + l];
-}
-
-static inline void tet_store_q(sq_corot *C, int t, const double q[4])
-{
-    double *qb = C->q + 4 * CW * (size_t)tet_block(t);
-    for (int k = 0; k < 4; k++)
-        qb[CW * k + tet_lane(t)] = q[k];
 }
 
 int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err)
@@ -152,128 +110,6 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src)
         memcpy(dst->corot->q, src->corot->q, sizeof(double) * 4 * CW * (size_t)src->corot->nblocks);
 }
 
-/* R (row-major) of a unit quaternion */
-static inline void quat_mat(const double *q, double R[9])
-{
-    const double w = q[0], x = q[1], y = q[2], z = q[3];
-    R[0] = 1 - 2 * (y * y + z * z);
-    R[1] = 2 * (x * y - w * z);
-    R[2] = 2 * (x * z + w * y);
-    R[3] = 2 * (x * y + w * z);
-    R[4] = 1 - 2 * (x * x + z * z);
-    R[5] = 2 * (y * z - w * x);
-    R[6] = 2 * (x * z - w * y);
-    R[7] = 2 * (y * z + w * x);
-    R[8] = 1 - 2 * (x * x + y * y);
-}
-
-/* one improvement of the rotation q towards argmax tr(R^T F); R = R(q) on entry; returns |w| */
-static inline double rot_iterate(double *q, const double R[9], const double F[9])
-{
-    /* B = F R^T */
-    double B[9];
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            B[3 * r + c] = F[3 * r] * R[3 * c] + F[3 * r + 1] * R[3 * c + 1] + F[3 * r + 2] * R[3 * c + 2];
-    const double g0 = B[7] - B[5], g1 = B[2] - B[6], g2 = B[3] - B[1];
-    const double tr = B[0] + B[4] + B[8];
-    /* H = tr(B) I - sym(B) */
-    const double h00 = tr - B[0], h11 = tr - B[4], h22 = tr - B[8];
-    const double h01 = -0.5 * (B[1] + B[3]), h02 = -0.5 * (B[2] + B[6]), h12 = -0.5 * (B[5] + B[7]);
-    const double c00 = h11 * h22 - h12 * h12, c01 = h02 * h12 - h01 * h22, c02 = h01 * h12 - h02 * h11;
-    const double det = h00 * c00 + h01 * c01 + h02 * c02;
-    const double ht = h00 + h11 + h22;
-    double w0, w1, w2;
-    if (h00 > 0 && h00 * h11 - h01 * h01 > 0 && det > 1e-3 * ht * ht * ht / 27) {
-        const double c11 = h00 * h22 - h02 * h02, c12 = h01 * h02 - h00 * h12, c22 = h00 * h11 - h01 * h01;
-        const double id = 1.0 / det;
-        w0 = id * (c00 * g0 + c01 * g1 + c02 * g2);
-        w1 = id * (c01 * g0 + c11 * g1 + c12 * g2);
-        w2 = id * (c02 * g0 + c12 * g1 + c22 * g2);
-    } else {
-        const double s = 1.0 / (fabs(tr) + 1e-12);
-        w0 = s * g0;
-        w1 = s * g1;
-        w2 = s * g2;
-    }
-    double wn = sqrt(w0 * w0 + w1 * w1 + w2 * w2);
-    if (wn > 1) {
-        w0 /= wn;
-        w1 /= wn;
-        w2 /= wn;
-    }
-    /* q <- normalise((1, w/2) q): a rotation by 2 atan(|w|/2) about w, then q */
-    const double hw0 = 0.5 * w0, hw1 = 0.5 * w1, hw2 = 0.5 * w2;
-    const double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-    double nw = qw - (hw0 * qx + hw1 * qy + hw2 * qz);
-    double nx = qx + qw * hw0 + (hw1 * qz - hw2 * qy);
-    double ny = qy + qw * hw1 + (hw2 * qx - hw0 * qz);
-    double nz = qz + qw * hw2 + (hw0 * qy - hw1 * qx);
-    const double in = 1.0 / sqrt(nw * nw + nx * nx + ny * ny + nz * nz);
-    q[0] = nw * in;
-    q[1] = nx * in;
-    q[2] = ny * in;
-    q[3] = nz * in;
-    return wn;
-}
-
-/* F = diag I + sum_{k<3} (u_k - u_3) a_k^T of a tet with u = d + b v (b = 0: u = d; d = NULL:
- * u = v, for the displacement-rate gradient) */
-static inline void tet_grad(const double *G, const int *tv, const double *d, const double *v, double b,
-                            double F[9], double diag)
-{
-    double u[4][3];
-    for (int k = 0; k < 4; k++)
-        for (int c = 0; c < 3; c++) {
-            size_t i = 3 * (size_t)tv[k] + c;
-            u[k][c] = d ? (b != 0 ? d[i] + b * v[i] : d[i]) : v[i];
-        }
-    for (int r = 0; r < 9; r++)
-        F[r] = 0;
-    for (int k = 0; k < 3; k++) {
-        const double e0 = u[k][0] - u[3][0], e1 = u[k][1] - u[3][1], e2 = u[k][2] - u[3][2];
-        const double *a = G + 3 * k;
-        for (int c = 0; c < 3; c++) {
-            F[c] += e0 * a[c];
-            F[3 + c] += e1 * a[c];
-            F[6 + c] += e2 * a[c];
-        }
-    }
-    F[0] += diag;
-    F[4] += diag;
-    F[8] += diag;
-}
-
-/* S = R^T A */
-static inline void rt_mul(const double R[9], const double A[9], double S[9])
-{
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            S[3 * r + c] = R[r] * A[c] + R[3 + r] * A[3 + c] + R[6 + r] * A[6 + c];
-}
-
-/* rotation of F from q: iters improvements (stopping when converged), R = R(q) on return */
-static inline void tet_rotation(double q[4], const double F[9], int iters, double R[9])
-{
-    for (int it = 0; it < iters; it++) {
-        quat_mat(q, R);
-        if (rot_iterate(q, R, F) < 1e-15)
-            break;
-    }
-    quat_mat(q, R);
-}
-
-/* sigma = 2 s sym(S - I) + l tr(S - I) I, added to sig (or set when add == 0) */
-static inline void add_stress(const double S[9], double s, double l, double diag, double sig[9], int add)
-{
-    double e00 = S[0] - diag, e11 = S[4] - diag, e22 = S[8] - diag;
-    double t = l * (e00 + e11 + e22), s2 = 2 * s;
-    double x01 = s * (S[1] + S[3]), x02 = s * (S[2] + S[6]), x12 = s * (S[5] + S[7]);
-    double o[9] = {s2 * e00 + t, x01, x02, x01, s2 * e11 + t, x12, x02, x12, s2 * e22 + t};
-    for (int k = 0; k < 9; k++)
-        sig[k] = add ? sig[k] + o[k] : o[k];
-}
-
 /* elastic (+ damping) element forces of every tet added into f (n x 3), one tet at a time;
  * iters rotation updates per tet; store: write the updated rotations back (else they are only
  * used). Rayleigh damping: the rotation and the stress come from F = I + grad(d + b v), i.e.
@@ -330,64 +166,7 @@ static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int
     }
 }
 
-#if defined(__AVX2__) && defined(__FMA__)
-#include <immintrin.h>
-#define COROT_SIMD 1
-typedef __m256d vd;
-#define VADD _mm256_add_pd
-#define VSUB _mm256_sub_pd
-#define VMUL _mm256_mul_pd
-#define VFMA _mm256_fmadd_pd   /* a b + c */
-#define VFNMA _mm256_fnmadd_pd /* c - a b */
-#define VSET1 _mm256_set1_pd
-
-/* 4 nodes' (x, y, z, .) rows -> x, y, z vectors (lane l = row l) */
-static inline void transpose_in(vd r0, vd r1, vd r2, vd r3, vd *x, vd *y, vd *z)
-{
-    vd t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
-    vd t2 = _mm256_unpacklo_pd(r2, r3), t3 = _mm256_unpackhi_pd(r2, r3);
-    *x = _mm256_permute2f128_pd(t0, t2, 0x20);
-    *y = _mm256_permute2f128_pd(t1, t3, 0x20);
-    *z = _mm256_permute2f128_pd(t0, t2, 0x31);
-}
-
-/* x, y, z vectors -> 4 rows (x, y, z, 0) */
-static inline void transpose_out(vd x, vd y, vd z, vd out[4])
-{
-    vd zero = _mm256_setzero_pd();
-    vd t0 = _mm256_unpacklo_pd(x, y), t1 = _mm256_unpackhi_pd(x, y);
-    vd t2 = _mm256_unpacklo_pd(z, zero), t3 = _mm256_unpackhi_pd(z, zero);
-    out[0] = _mm256_permute2f128_pd(t0, t2, 0x20);
-    out[1] = _mm256_permute2f128_pd(t1, t3, 0x20);
-    out[2] = _mm256_permute2f128_pd(t0, t2, 0x31);
-    out[3] = _mm256_permute2f128_pd(t1, t3, 0x31);
-}
-
-/* R (row-major) of unit quaternions (w, x, y, z), 4 lanes */
-static inline void quat_mat_v(vd qw, vd qx, vd qy, vd qz, vd R[9])
-{
-    const vd one = VSET1(1.0), two = VSET1(2.0);
-    vd xx = VMUL(qx, qx), yy = VMUL(qy, qy), zz = VMUL(qz, qz);
-    vd xy = VMUL(qx, qy), xz = VMUL(qx, qz), yz = VMUL(qy, qz);
-    vd wx = VMUL(qw, qx), wy = VMUL(qw, qy), wz = VMUL(qw, qz);
-    R[0] = VFNMA(two, VADD(yy, zz), one);
-    R[1] = VMUL(two, VSUB(xy, wz));
-    R[2] = VMUL(two, VADD(xz, wy));
-    R[3] = VMUL(two, VADD(xy, wz));
-    R[4] = VFNMA(two, VADD(xx, zz), one);
-    R[5] = VMUL(two, VSUB(yz, wx));
-    R[6] = VMUL(two, VSUB(xz, wy));
-    R[7] = VMUL(two, VADD(yz, wx));
-    R[8] = VFNMA(two, VADD(xx, yy), one);
-}
-
-/* S = R^T F, 4 lanes */
-static inline void rt_mul_v(const vd R[9], const vd F[9], vd S[9])
-{
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            S[3 * r + c] = VFMA(R[r], F[c], VFMA(R[3 + r], F[3 + c], VMUL(R[6 + r], F[6 + c])));
-}
+#ifdef COROT_SIMD
 
 /* u = d + b v per node into C->u (n x 4; lane 3 is whatever follows, never used): the tet
  * pass then gathers one aligned row per node instead of two unaligned ones and a multiply-add
@@ -683,4 +462,15 @@ int sq_level_corot_inverted(const sq_level *L)
         n += det <= 0;
     }
     return n;
+}
+
+void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const double g[3])
+{
+#ifdef COROT_SIMD
+    if (!mat->use_viscosity) {
+        sq_level_corot_step(L, mat, g, 0, NULL); /* dt = 0: forces into L->f, rotations stored, no update */
+        return;
+    }
+#endif
+    corot_forces(L, mat, g, L->f, 1, 1);
 }

@@ -39,7 +39,7 @@ typedef enum sq_operator_kind {
 } sq_operator_kind;
 
 /* elastic model: linear (the paper's, small-strain) or corotational (rotation-invariant:
- * f = R K_T (R^T x - X) per tet; fem operator, fixed lod mode only; docs/physics.md) */
+ * f = R K_T (R^T x - X) per tet; fem operator, fixed or adaptive lod; docs/physics.md) */
 typedef enum sq_elasticity_kind {
     SQ_ELASTICITY_LINEAR = 0,
     SQ_ELASTICITY_COROTATIONAL = 1
@@ -316,7 +316,7 @@ double sq_level_anp_energy(const sq_level *L);
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);
 
-/* corotational elasticity (level/corot.c; fem operator, fixed mode): per-tet rest gradients and
+/* corotational elasticity (level/corot.c; fem operator; fixed mode, and adaptive through lod/): per-tet rest gradients and
  * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
  * operator. With L->corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
  * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
@@ -329,6 +329,22 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
                          const unsigned char *mask);
 void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
 double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
+/* the adaptive frame's pieces (lod/corotational.c): the element force of tet t (elastic and
+ * stiffness or viscous damping; no mass damping, no gravity) from corner values d4, v4 (4 x 3,
+ * the tet's corners in mesh order) into f4 (4 x 3), the stored rotation improved iters times
+ * (stopping once converged) and stored back if store (the scalar pass's arithmetic); the
+ * energy of tet t at corner displacements d4 (rotation converged, not stored); and the step's
+ * force pass alone (into L->f, one rotation update per tet, stored: the values
+ * sq_level_corot_step integrates) */
+void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, const double *d4, const double *v4,
+                              int iters, int store, double *f4);
+double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4);
+void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const double g[3]);
+/* four tets t[0..3] at once (t[l] < 0: an empty lane, zero force), one rotation update each:
+ * corner values d, v and forces f laid out tet after tet (12 per tet); the vector pass's
+ * arithmetic in AVX2 builds (without viscosity), else the per-tet one */
+void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
+                               const double *v, int store, double *f);
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
 int sq_level_corot_inverted(const sq_level *L);
 

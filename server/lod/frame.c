@@ -128,6 +128,8 @@ static void stage_layout(lod_frame *fr)
         lod->lev[k].step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
         lod->lev[k].step_len = fr->stride[k];
     }
+    if (sq_lodx_corot_on(lod))
+        sq_lodx_corot_layout(lod, mat); /* corotational levels: tet lists of the layout */
 }
 
 /* tool holds onto active nodes (holds.c) */
@@ -162,7 +164,9 @@ static void tick_step(lod_frame *fr)
     int L = lod->L;
     long t = fr->tick;
     for (int k = 0; k < L; k++)
-        if (lod->lev[k].due && lod->lev[k].nactive > 0) {
+        if (lod->lev[k].due && lod->lev[k].nactive > 0 && lod->lv[k].corot) {
+            sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
+        } else if (lod->lev[k].due && lod->lev[k].nactive > 0) {
             fr->frontier_rows += lod->lev[k].nfrontier;
             /* the all-nodes force pass is vectorised, faster per node than the masked
              * one, but computes ghost rows nobody reads and needs the frontier correction
@@ -183,7 +187,10 @@ static void tick_step(lod_frame *fr)
         }
     for (int k = 0; k < L; k++)
         if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
-            if (!lod->lev[k].due) {
+            if (!lod->lev[k].due && lod->lv[k].corot) {
+                /* the tet-by-tet reactions read every ring ghost */
+                sq_lodx_eval_ring(lod, k, t);
+            } else if (!lod->lev[k].due) {
                 /* between two of its steps only the ring rows with a source on a level that
                  * steps more often are used (the reactions the finer levels need now): only
                  * the ghosts they read are evaluated (the others are not read before the
@@ -193,7 +200,10 @@ static void tick_step(lod_frame *fr)
                     faster |= fr->stride[m] < fr->stride[k] ? 1u << m : 0u;
                 fr->ring_values += sq_lodx_eval_ring_hot(lod, k, t, faster);
             }
-            fr->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
+            if (lod->lv[k].corot)
+                sq_lodx_corot_couple_out(lod, mat, k, t);
+            else
+                fr->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
         }
     for (int k = 0; k < L; k++) {
         if (!lod->lev[k].due)

@@ -8,6 +8,7 @@
  *   views.c      node levels, active lists, energy, projected updates
  *   activeset.c  per-level index lists and the kernels that run over them
  *   hierarchy.c  the links between consecutive levels
+ *   corotational.c  corotational levels: forces and ring reactions tet by tet
  * Not part of the module's contract (lod.h).
  */
 #ifndef SQ_LOD_INTERNAL_H
@@ -22,6 +23,9 @@ enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
 /* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
  * the node jumps to its target when the hold starts, with velocity (target - old) / time left,
  * and is not integrated; its feedback is the mean over its level's substeps of f - m g) */
+/* corotational.c: a level's tet lists, ring ghost forces and step-start copies */
+typedef struct sq_lod_corot sq_lod_corot;
+
 typedef struct hold_entry {
     int level, node;
     int count;        /* holds mapped to it (0: dead, its node stopped being active) */
@@ -159,6 +163,9 @@ typedef struct sq_lod_level {
                                  * before its ring value replaced it (nring x 6) */
     int cascade_value_cap;
     unsigned *push_stamp;       /* cascade a coarse ghost was last pushed at (n) */
+
+    /* --- corotational elasticity (corotational.c), NULL for a linear level */
+    sq_lod_corot *corot;
 } sq_lod_level;
 
 struct sq_lod {
@@ -182,6 +189,8 @@ struct sq_lod {
     double last_time;                    /* CPU time of the previous frame, s */
     double cost_update;                  /* CPU s per node update, last frame with updates (0: none yet) */
     double cost_fixed;                   /* CPU s of a frame's rest (rebuilds, end-of-frame ghosts) */
+    int corot_tets_always;               /* 1: corotational levels run the tet-by-tet pass even when
+                                          * all their nodes are active (tests compare it) */
     int full_rebuild;                    /* 1: every block row rebuilt after a split/merge pass (the
                                           * reference the incremental rebuild is checked against) */
     /* ghost values pushed on demand (activeset.c) */
@@ -359,5 +368,18 @@ void sq_lodx_free(sq_lod *lod, int k);
 /* static equilibria of the levels up to the top for gravity (once per gravity and material) */
 void sq_lodx_static_loads(sq_lod *lod, const double gravity[3]);
 void sq_lodx_sort_ints(int *a, int n);
+
+/* corotational.c (levels with lv[k].corot): the frame's force pass of a due level k and the
+ * ring reactions of level k at tick t computed tet by tet instead of from the linear blocks;
+ * the tet lists brought up to the layout (a no-op unless it changed); the weighted energy */
+int sq_lodx_corot_on(const sq_lod *lod);
+void sq_lodx_corot_layout(sq_lod *lod, const sq_material *mat);
+void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
+void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
+double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic);
+void sq_lodx_corot_free(sq_lod *lod, int k);
+/* corotational.c: the ring weights of corotational levels made exact for affine fields (a
+ * rigid motion of the body gives no force), at the end of sq_lodx_build_sources */
+void sq_lodx_corot_affine_sources(sq_lod *lod);
 
 #endif

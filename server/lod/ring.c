@@ -85,6 +85,19 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_i
 }
 
 /* the active sources of every ring ghost of every level */
+/* src_rend of every ring ghost's sources: where the run of consecutive sources on the same
+ * level as source q ends (the value and reaction loops take one run per level) */
+static void source_runs(sq_lod_level *lk)
+{
+    if (lk->nring == 0)
+        return;
+    lk->src_rend = sq_realloc(lk->src_rend, sizeof(int) * (size_t)SQ_MAX(lk->src_cap, 1));
+    for (int r = 0; r < lk->nring; r++)
+        for (int q = lk->src_start[r + 1] - 1; q >= lk->src_start[r]; q--)
+            lk->src_rend[q] = q + 1 < lk->src_start[r + 1] && lk->src_level[q + 1] == lk->src_level[q]
+                                  ? lk->src_rend[q + 1] : q + 1;
+}
+
 void sq_lodx_build_sources(sq_lod *lod)
 {
     src_item *buf = NULL;
@@ -165,6 +178,12 @@ void sq_lodx_build_sources(sq_lod *lod)
         }
     }
     free(buf);
+    if (sq_lodx_corot_on(lod)) {
+        sq_lodx_corot_affine_sources(lod); /* corotational levels: weights exact for affine fields */
+        /* it rewrites the source lists (and may add sources): their level runs again */
+        for (int k = 0; k < lod->L; k++)
+            source_runs(&lod->lev[k]);
+    }
 }
 
 /* the ring ghosts of level k at tick t: sources of a level between two of its steps are

@@ -373,6 +373,7 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].integrated);
         free(lod->lev[k].fresh);
         sq_lodx_free(lod, k);
+        sq_lodx_corot_free(lod, k);
         free(lod->lev[k].split_ghost);
         free(lod->lev[k].coarse_ghost);
         free(lod->lev[k].hold_of);

@@ -81,6 +81,8 @@ void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
 
 double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
 {
+    if (sq_lodx_corot_on(lod))
+        return sq_lodx_corot_energy(lod, kinetic, elastic);
     double ek = 0, ee = 0;
     for (int k = 0; k < lod->L; k++) {
         const sq_level *Lk = &lod->lv[k];

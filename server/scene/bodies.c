@@ -379,7 +379,7 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
         def->elasticity = SQ_ELASTICITY_COROTATIONAL;
     else
         return scene_fail(c, p, "\"%.40s\" is not an elasticity; use \"linear\" (small strain, the paper's) or "
-                          "\"corotational\" (large rotations; fem operator, fixed lod)", el->valuestring);
+                          "\"corotational\" (large rotations; fem operator)", el->valuestring);
 
     /* step bound: gershgorin (default, 2^n substeps) or sharp (fixed lod: Lanczos, any count) */
     const cJSON *sb = scene_get(obj, "step_bound");
@@ -547,7 +547,7 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
                             m->bbox_min[1], m->bbox_min[2], m->bbox_max[0], m->bbox_max[1], m->bbox_max[2]);
             }
         }
-    /* corotational elasticity: fem operator and fixed lod only (docs/physics.md section 9) */
+    /* corotational elasticity: fem operator (fixed or adaptive lod; docs/physics.md section 9) */
     scene_join(p, sizeof p, path, "elasticity");
     if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->op != SQ_OPERATOR_FEM)
         return scene_fail(c, p, "\"corotational\" needs \"operator\": \"fem\" (the paper operator has no corotational "
@@ -558,9 +558,5 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
         return scene_fail(c, p, "\"nodal\" runs with \"operator\": \"fem\", \"elasticity\": \"linear\" and fixed lod only; "
                           "use those, or \"pressure\": \"element\"");
     }
-    if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->lod.mode == SQ_LOD_ADAPTIVE)
-        return scene_fail(c, p, "\"corotational\" runs in fixed lod mode only (adaptive mode does not support it yet): "
-                          "use \"lod\": {\"mode\": \"fixed\"} with \"corotational\", or \"elasticity\": "
-                          "\"linear\" with adaptive lod");
     return 0;
 }

@@ -47,16 +47,19 @@ test('set elasticity: default linear, corotational on, refusals change nothing',
   await c.close();
 });
 
-test('set elasticity: adaptive lod refuses corotational (sphere-grab ships corotational, fixed)', async () => {
+test('set elasticity: corotational runs in adaptive lod too (sphere-grab ships corotational, fixed)', async () => {
   const c = await SquishClient.connect(srv.url);
   await c.open('sphere-grab');
   let a = await c.set({ damping: { mass: 1.5 } });
   assert.equal(a.bodies[0].settings.elasticity, 'corotational');
-  await assert.rejects(c.set({ lod: { mode: 'adaptive' } }), refused(/fixed lod mode only/));
-  a = await c.set({ elasticity: 'linear', lod: { mode: 'adaptive' } });
+  a = await c.set({ lod: { mode: 'adaptive' } });
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
+  assert.equal(a.bodies[0].settings.lod.mode, 'adaptive');
+  a = await c.set({ elasticity: 'linear' });
   assert.equal(a.bodies[0].settings.elasticity, 'linear');
   assert.equal(a.bodies[0].settings.lod.mode, 'adaptive');
-  await assert.rejects(c.set({ elasticity: 'corotational' }), refused(/fixed lod mode only/));
+  a = await c.set({ elasticity: 'corotational' });
+  assert.equal(a.bodies[0].settings.elasticity, 'corotational');
   a = await c.set({ lod: { mode: 'fixed' }, elasticity: 'corotational' });
   assert.equal(a.bodies[0].settings.elasticity, 'corotational');
   assert.equal(a.bodies[0].settings.lod.mode, 'fixed');

@@ -1,0 +1,236 @@
+/* corot_tets.c - corotational elasticity per tet, for the adaptive frame (lod/corotational.c):
+ * one tet's element force from corner values the caller gathers (the scalar pass's
+ * arithmetic), four at once (the vector pass's), and one tet's energy. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "level/corot_impl.h"
+
+/* ---------------------------------------------------------------- per tet, for the adaptive frame
+ *
+ * lod/ couples levels tet by tet (docs/lod.md, "Corotational elasticity"): it gathers a tet's
+ * corner values itself (active nodes, ghost values, values interpolated in time) and weights
+ * the element force. These give it the element force of one tet from given corner values with
+ * the arithmetic of the scalar pass (corot_tets), four at once with the vector pass's. */
+
+void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, const double *d4, const double *v4,
+                              int iters, int store, double *f4)
+{
+    static const int tv[4] = {0, 1, 2, 3};
+    sq_corot *C = L->corot;
+    const double mu = C->mu, lam = C->lambda;
+    const int visc = mat->use_viscosity;
+    const double b = visc ? 0 : mat->rayleigh_stiffness;
+    double G[10], q[4], F[9], R[9], S[9], sig[9];
+    tet_load(C, t, G, q);
+    tet_grad(G, tv, d4, v4, b, F, 1.0);
+    tet_rotation(q, F, iters, R);
+    if (store)
+        tet_store_q(C, t, q);
+    rt_mul(R, F, S);
+    add_stress(S, mu, lam, 1.0, sig, 0);
+    if (visc) {
+        double Lv[9];
+        tet_grad(G, tv, NULL, v4, 0, Lv, 0.0);
+        rt_mul(R, Lv, S);
+        add_stress(S, mat->phi, mat->psi, 0.0, sig, 1);
+    }
+    const double V = G[9];
+    double P[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
+    double s0 = 0, s1 = 0, s2 = 0;
+    for (int k = 0; k < 3; k++) {
+        const double *a = G + 3 * k;
+        const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
+        const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
+        const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
+        f4[3 * k] = -f0;
+        f4[3 * k + 1] = -f1;
+        f4[3 * k + 2] = -f2;
+        s0 += f0;
+        s1 += f1;
+        s2 += f2;
+    }
+    f4[9] = s0;
+    f4[10] = s1;
+    f4[11] = s2;
+}
+
+double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4)
+{
+    static const int tv[4] = {0, 1, 2, 3};
+    const sq_corot *C = L->corot;
+    double G[10], q[4], F[9], R[9], S[9];
+    tet_load(C, t, G, q);
+    tet_grad(G, tv, d4, NULL, 0, F, 1.0);
+    tet_rotation(q, F, 50, R);
+    rt_mul(R, F, S);
+    double e00 = S[0] - 1, e11 = S[4] - 1, e22 = S[8] - 1;
+    double e01 = 0.5 * (S[1] + S[3]), e02 = 0.5 * (S[2] + S[6]), e12 = 0.5 * (S[5] + S[7]);
+    double tr = e00 + e11 + e22;
+    double ee = e00 * e00 + e11 * e11 + e22 * e22 + 2 * (e01 * e01 + e02 * e02 + e12 * e12);
+    return G[9] * (C->mu * ee + 0.5 * C->lambda * tr * tr);
+}
+
+#ifdef COROT_SIMD
+/* four tets at once (lanes; t[l] < 0: an empty lane), Rayleigh or no stiffness damping: the
+ * vector pass's arithmetic (corot_tets_simd) on corner values gathered by the caller */
+static void tet_force4_simd(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
+                            const double *v, int store, double *f)
+{
+    sq_corot *C = L->corot;
+    const double b = mat->rayleigh_stiffness;
+    const vd one = VSET1(1.0), half = VSET1(0.5);
+    const vd m2n = VSET1(-2 * C->mu), lamn = VSET1(-C->lambda);
+    const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
+    const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
+    double gl[10][4] __attribute__((aligned(32))), ql[4][4] __attribute__((aligned(32)));
+    double ul[4][3][4] __attribute__((aligned(32))); /* corner, component, lane */
+    for (int l = 0; l < 4; l++) {
+        double G[10], q[4];
+        if (t[l] >= 0) {
+            tet_load(C, t[l], G, q);
+        } else {
+            memset(G, 0, sizeof G);
+            q[0] = 1;
+            q[1] = q[2] = q[3] = 0;
+        }
+        for (int k = 0; k < 10; k++)
+            gl[k][l] = G[k];
+        for (int k = 0; k < 4; k++)
+            ql[k][l] = q[k];
+        for (int k = 0; k < 4; k++)
+            for (int c = 0; c < 3; c++) {
+                size_t i = 12 * (size_t)l + 3 * (size_t)k + (size_t)c;
+                ul[k][c][l] = t[l] < 0 ? 0 : (b != 0 ? fma(b, v[i], d[i]) : d[i]); /* as corot_gather_source */
+            }
+    }
+    vd F[9];
+    for (int r = 0; r < 9; r++)
+        F[r] = _mm256_setzero_pd();
+    for (int k = 0; k < 3; k++) {
+        vd e[3];
+        for (int r = 0; r < 3; r++)
+            e[r] = VSUB(_mm256_load_pd(ul[k][r]), _mm256_load_pd(ul[3][r]));
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)
+                F[3 * r + c] = VFMA(e[r], _mm256_load_pd(gl[3 * k + c]), F[3 * r + c]);
+    }
+    F[0] = VADD(F[0], one);
+    F[4] = VADD(F[4], one);
+    F[8] = VADD(F[8], one);
+    /* the rotation update (as corot_tets_simd, 2a) */
+    vd qw = _mm256_load_pd(ql[0]), qx = _mm256_load_pd(ql[1]), qy = _mm256_load_pd(ql[2]), qz = _mm256_load_pd(ql[3]);
+    vd R[9], S[9];
+    quat_mat_v(qw, qx, qy, qz, R);
+    rt_mul_v(R, F, S);
+    vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
+    vd tr = VADD(VADD(S[0], S[4]), S[8]);
+    vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
+    vd h01 = VMUL(half, VADD(S[1], S[3])), h02 = VMUL(half, VADD(S[2], S[6])), h12 = VMUL(half, VADD(S[5], S[7]));
+    vd c00 = VFNMA(h12, h12, VMUL(h11, h22));
+    vd c01 = VFMA(h01, h22, VMUL(h02, h12));
+    vd c02 = VFMA(h02, h11, VMUL(h01, h12));
+    vd c11 = VFNMA(h02, h02, VMUL(h00, h22));
+    vd c12 = VFMA(h00, h12, VMUL(h01, h02));
+    vd c22 = VFNMA(h01, h01, VMUL(h00, h11));
+    vd det = VFNMA(h02, c02, VFNMA(h01, c01, VMUL(h00, c00)));
+    vd ht = VADD(VADD(h00, h11), h22);
+    vd ok = _mm256_and_pd(_mm256_cmp_pd(h00, _mm256_setzero_pd(), _CMP_GT_OQ),
+                          _mm256_cmp_pd(c22, _mm256_setzero_pd(), _CMP_GT_OQ));
+    ok = _mm256_and_pd(ok, _mm256_cmp_pd(det, VMUL(thr, VMUL(ht, VMUL(ht, ht))), _CMP_GT_OQ));
+    vd sdiv = _mm256_div_pd(one, _mm256_blendv_pd(VADD(_mm256_and_pd(tr, absmask), tiny), det, ok));
+    vd n0 = VFMA(c00, g0, VFMA(c01, g1, VMUL(c02, g2)));
+    vd n1 = VFMA(c01, g0, VFMA(c11, g1, VMUL(c12, g2)));
+    vd n2 = VFMA(c02, g0, VFMA(c12, g1, VMUL(c22, g2)));
+    vd w0 = VMUL(_mm256_blendv_pd(g0, n0, ok), sdiv), w1 = VMUL(_mm256_blendv_pd(g1, n1, ok), sdiv),
+       w2 = VMUL(_mm256_blendv_pd(g2, n2, ok), sdiv);
+    vd wn2 = VFMA(w0, w0, VFMA(w1, w1, VMUL(w2, w2)));
+    vd cap = half;
+    if (_mm256_movemask_pd(_mm256_cmp_pd(wn2, one, _CMP_GT_OQ)))
+        cap = _mm256_div_pd(half, _mm256_max_pd(one, _mm256_sqrt_pd(wn2)));
+    vd hw0 = VMUL(w0, cap), hw1 = VMUL(w1, cap), hw2 = VMUL(w2, cap);
+    vd nw = VFNMA(qx, hw0, VFNMA(qy, hw1, VFNMA(qz, hw2, qw)));
+    vd nx = VFMA(qw, hw0, VFMA(qy, hw2, VFNMA(qz, hw1, qx)));
+    vd ny = VFMA(qw, hw1, VFMA(qz, hw0, VFNMA(qx, hw2, qy)));
+    vd nz = VFMA(qw, hw2, VFMA(qx, hw1, VFNMA(qy, hw0, qz)));
+    vd nn = VFMA(nw, nw, VFMA(nx, nx, VFMA(ny, ny, VMUL(nz, nz))));
+    vd in = VFNMA(half, nn, VSET1(1.5));
+    if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
+        in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
+    qw = VMUL(nw, in);
+    qx = VMUL(nx, in);
+    qy = VMUL(ny, in);
+    qz = VMUL(nz, in);
+    if (store) {
+        _mm256_store_pd(ql[0], qw);
+        _mm256_store_pd(ql[1], qx);
+        _mm256_store_pd(ql[2], qy);
+        _mm256_store_pd(ql[3], qz);
+        for (int l = 0; l < 4; l++)
+            if (t[l] >= 0) {
+                double q[4] = {ql[0][l], ql[1][l], ql[2][l], ql[3][l]};
+                tet_store_q(C, t[l], q);
+            }
+    }
+    /* R and S of the updated rotation, stress (negated), forces (as corot_tets_simd, 2b and 3) */
+    quat_mat_v(qw, qx, qy, qz, R);
+    rt_mul_v(R, F, S);
+    vd V = _mm256_load_pd(gl[9]);
+    vd e00 = VSUB(S[0], one), e11 = VSUB(S[4], one), e22 = VSUB(S[8], one);
+    vd vm2 = VMUL(V, m2n), vhm = VMUL(half, vm2);
+    vd tt = VMUL(VMUL(V, lamn), VADD(VADD(e00, e11), e22));
+    vd sg[9];
+    sg[0] = VFMA(vm2, e00, tt);
+    sg[4] = VFMA(vm2, e11, tt);
+    sg[8] = VFMA(vm2, e22, tt);
+    sg[1] = sg[3] = VMUL(vhm, VADD(S[1], S[3]));
+    sg[2] = sg[6] = VMUL(vhm, VADD(S[2], S[6]));
+    sg[5] = sg[7] = VMUL(vhm, VADD(S[5], S[7]));
+    vd P[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            P[3 * r + c] = VFMA(R[3 * r], sg[c], VFMA(R[3 * r + 1], sg[3 + c], VMUL(R[3 * r + 2], sg[6 + c])));
+    double fo[4][3][4] __attribute__((aligned(32))); /* corner, component, lane */
+    vd sx = _mm256_setzero_pd(), sy = sx, sz = sx;
+    for (int k = 0; k < 3; k++) {
+        const vd a0 = _mm256_load_pd(gl[3 * k]), a1 = _mm256_load_pd(gl[3 * k + 1]), a2 = _mm256_load_pd(gl[3 * k + 2]);
+        vd fx = VFMA(P[0], a0, VFMA(P[1], a1, VMUL(P[2], a2)));
+        vd fy = VFMA(P[3], a0, VFMA(P[4], a1, VMUL(P[5], a2)));
+        vd fz = VFMA(P[6], a0, VFMA(P[7], a1, VMUL(P[8], a2)));
+        _mm256_store_pd(fo[k][0], fx);
+        _mm256_store_pd(fo[k][1], fy);
+        _mm256_store_pd(fo[k][2], fz);
+        sx = VADD(sx, fx);
+        sy = VADD(sy, fy);
+        sz = VADD(sz, fz);
+    }
+    const vd zero = _mm256_setzero_pd();
+    _mm256_store_pd(fo[3][0], VSUB(zero, sx));
+    _mm256_store_pd(fo[3][1], VSUB(zero, sy));
+    _mm256_store_pd(fo[3][2], VSUB(zero, sz));
+    for (int l = 0; l < 4; l++)
+        for (int k = 0; k < 4; k++)
+            for (int c = 0; c < 3; c++)
+                f[12 * l + 3 * k + c] = fo[k][c][l];
+}
+#endif
+
+void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
+                               const double *v, int store, double *f)
+{
+#ifdef COROT_SIMD
+    if (!mat->use_viscosity) {
+        tet_force4_simd(L, mat, t, d, v, store, f);
+        return;
+    }
+#endif
+    for (int l = 0; l < 4; l++)
+        if (t[l] >= 0)
+            sq_level_corot_tet_force(L, mat, t[l], d + 12 * l, v + 12 * l, 1, store, f + 12 * l);
+        else
+            memset(f + 12 * l, 0, 12 * sizeof(double));
+}
