@@ -99,6 +99,9 @@ const sq_mesh *sq_body_mesh(const sq_body *b, int level);
 /* the step used at a level (dt_frame / 2^n) and its stability bound */
 double sq_body_level_dt(const sq_body *b, int level);
 double sq_body_level_bound(const sq_body *b, int level);
+/* adaptive "step_bound": "sharp": the Lanczos estimates made (one per level with active nodes
+ * per rebuild) and their thread CPU time; zeros otherwise */
+void sq_body_step_bound_cost(const sq_body *b, long *estimates, double *cpu_s);
 /* displacement and velocity of a level's nodes (active or ghost values) */
 const double *sq_body_displacement(const sq_body *b, int level);
 const double *sq_body_velocity(const sq_body *b, int level);
