@@ -4,10 +4,11 @@
  * The coupled operator of the adaptive frame is A = sum_m P_m^T K_m P_m over the active nodes of
  * every level (P_m: identity on level m's active nodes, the ring interpolation on its ring ghosts;
  * K_m: the level's tets touching an active node, mixed ones at half weight). Split A into the
- * blocks of the levels, A = D + O (D = diag(A_kk), O the blocks between levels). With C the
- * diagonal of the row sums of |O| (per node, the largest axis row), C - O is diagonally dominant,
- * so A <= D + C: the block-diagonal majorant, level k's block A_kk + C_k. Each level takes its
- * step from lambda_max(M_k^-1 (A_kk + C_k)) over its active free axes, estimated by Lanczos
+ * blocks of the levels in the mass-scaled frame, S = M^-1/2 A M^-1/2 = D + O (D = diag(S_kk), O
+ * the blocks between levels). With C the diagonal of the row sums of |O| (per node, bounding each
+ * axis row), C - O is diagonally dominant, so S <= D + C: the block-diagonal majorant, level k's
+ * block S_kk + C_k (one C for every level, so the inequality holds for the whole system at once).
+ * Each level takes its step from lambda_max(S_kk + C_k) over its active free axes, estimated by Lanczos
  * (Rayleigh quotient of the Ritz vector plus its residual, computed with one more product),
  * capped by the Gershgorin row sums of the full coupled row, damped as in docs/physics.md
  * section 3, and rounded to 2^n substeps per frame. The Lanczos starts from the level's previous
@@ -64,39 +65,33 @@ typedef struct op_ctx {
     int *idx;            /* active index of a level-k node, or -1 (n_k) */
     int *fpos;           /* per active index: offset (blocks) of its merged frontier row, -1 inner */
     double *isq;         /* per active index: 1 / sqrt(mass) */
-    double *off;         /* per active index: row sum of |O| (C_k), N/m */
+    double *off;         /* per active index: scaled row sum of |O| (C_k), 1/s^2 */
     double *u[SQ_MAX_LEVELS]; /* values of each level's nodes under the product (3 n_m) */
     double *y;           /* unscaled product, compact */
 } op_ctx;
 
-/* sum of |w| of ring ghost r of level m's sources on level k (in) and elsewhere (out) */
-static void src_split(const sq_lod_level *lm, int r, int k, double *in, double *out)
-{
-    *in = *out = 0;
-    for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++) {
-        if (lm->src_level[q] == k)
-            *in += fabs(lm->src_weight[q]);
-        else
-            *out += fabs(lm->src_weight[q]);
-    }
-}
-
-/* coupling of column l of level m, seen from level k: weight on level k (in) and elsewhere (out) */
+/* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
+ * reaches: on level k (in) and elsewhere (out); a ring ghost through its sources */
 static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double *out)
 {
     const sq_lod_level *lm = &lod->lev[m];
+    *in = *out = 0;
     if (lm->active[l]) {
-        *in = m == k;
-        *out = m != k;
+        double s = 1 / sqrt(lod->lv[m].model.mass[l]);
+        *(m == k ? in : out) = s;
         return;
     }
     int rl = lm->ring_index[l];
-    *in = *out = 0;
-    if (rl >= 0)
-        src_split(lm, rl, k, in, out);
+    if (rl < 0)
+        return;
+    for (int q = lm->src_start[rl]; q < lm->src_start[rl + 1]; q++) {
+        double s = fabs(lm->src_weight[q]) / sqrt(lod->lv[lm->src_level[q]].model.mass[lm->src_node[q]]);
+        *(lm->src_level[q] == k ? in : out) += s;
+    }
 }
 
-/* the off-level row sums (C_k) and the Gershgorin ceiling of the full coupled rows */
+/* the off-level row sums of the scaled operator M^-1/2 A M^-1/2 (C_k, 1/s^2) and the
+ * Gershgorin ceiling of its full rows (which bounds the rows of the majorant's block) */
 static double row_sums(op_ctx *c)
 {
     sq_lod *lod = c->lod;
@@ -111,8 +106,8 @@ static double row_sums(op_ctx *c)
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
             col_split(lod, k, Lk->model.col[e], k, &in, &out);
-            tot[a] += bn * (in + out);
-            c->off[a] += bn * out;
+            tot[a] += bn * (in + out) * c->isq[a];
+            c->off[a] += bn * out * c->isq[a];
         }
     }
     for (int m = 0; m < lod->L; m++) {
@@ -130,7 +125,7 @@ static double row_sums(op_ctx *c)
             for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
                 if (lm->src_level[q] == k) {
                     int a = c->idx[lm->src_node[q]];
-                    double w = fabs(lm->src_weight[q]);
+                    double w = fabs(lm->src_weight[q]) * c->isq[a];
                     tot[a] += w * (rin + rout);
                     c->off[a] += w * rout;
                 }
@@ -140,7 +135,7 @@ static double row_sums(op_ctx *c)
     for (int a = 0; a < c->nact; a++) {
         int i = lk->active_list[a];
         if (Lk->model.fixed[i] != 7)
-            g = fmax(g, tot[a] * c->isq[a] * c->isq[a]);
+            g = fmax(g, tot[a]);
     }
     free(tot);
     return g;
@@ -188,9 +183,9 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
             f1 += R[3] * w[0] + R[4] * w[1] + R[5] * w[2];
             f2 += R[6] * w[0] + R[7] * w[1] + R[8] * w[2];
         }
-        c->y[3 * a] = f0 + c->off[a] * uk[3 * i];
-        c->y[3 * a + 1] = f1 + c->off[a] * uk[3 * i + 1];
-        c->y[3 * a + 2] = f2 + c->off[a] * uk[3 * i + 2];
+        c->y[3 * a] = f0;
+        c->y[3 * a + 1] = f1;
+        c->y[3 * a + 2] = f2;
     }
     /* ring rows handed back to their level-k sources (as sq_lodx_couple_out) */
     for (int m = 0; m < lod->L; m++) {
@@ -220,7 +215,7 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     for (int a = 0; a < c->nact; a++) {
         unsigned char fx = Lk->model.fixed[lk->active_list[a]];
         for (int x = 0; x < 3; x++)
-            yc[3 * a + x] = fx & (1u << x) ? 0.0 : c->y[3 * a + x] * c->isq[a];
+            yc[3 * a + x] = fx & (1u << x) ? 0.0 : c->y[3 * a + x] * c->isq[a] + c->off[a] * xc[3 * a + x];
     }
 }
 
@@ -320,8 +315,8 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done)
     return est;
 }
 
-/* the upper estimate of lambda_max(M^-1 (A_kk + C_k)) of level k (1/s^2), its ceiling in *gersh */
-static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *gersh)
+/* the operator of level k: lists, masses, the off-level row sums; returns the Gershgorin ceiling */
+static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
@@ -351,7 +346,30 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     }
     for (int m = 0; m < lod->L; m++)
         c.u[m] = sq_calloc(3 * (size_t)lod->lv[m].model.n, sizeof(double));
-    *gersh = row_sums(&c);
+    double g = row_sums(&c);
+    *cc = c;
+    return g;
+}
+
+static void ctx_free(op_ctx *c)
+{
+    for (int m = 0; m < c->lod->L; m++)
+        free(c->u[m]);
+    free(c->idx);
+    free(c->fpos);
+    free(c->isq);
+    free(c->off);
+    free(c->y);
+}
+
+/* the upper estimate of lambda_max(M^-1 (A_kk + C_k)) of level k (1/s^2), its ceiling in *gersh */
+static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *gersh)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    int n = Lk->model.n, nact = lk->nactive;
+    op_ctx c;
+    *gersh = ctx_init(&c, lod, k);
     /* start: the previous Ritz vector on the nodes still active, plus a fixed pseudo-random
      * part (1% of it, all of it the first time) so that new regions are reached */
     size_t N = 3 * (size_t)nact;
@@ -395,14 +413,31 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     }
     S->iters[k] = done;
     free(q);
-    for (int m = 0; m < lod->L; m++)
-        free(c.u[m]);
-    free(c.idx);
-    free(c.fpos);
-    free(c.isq);
-    free(c.off);
-    free(c.y);
+    ctx_free(&c);
     return fmin(est, *gersh);
+}
+
+double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
+{
+    op_ctx c;
+    ctx_init(&c, lod, k);
+    size_t N = 3 * (size_t)c.nact;
+    double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
+    double *y = sq_malloc(sizeof(double) * N);
+    for (size_t j = 0; j < N; j++) {
+        x[j] = 1;
+        op_apply(&c, x, y);
+        x[j] = 0;
+        for (size_t i = 0; i < N; i++)
+            A[i * N + j] = y[i];
+    }
+    *off = sq_malloc(sizeof(double) * N);
+    for (size_t i = 0; i < N; i++)
+        (*off)[i] = c.off[i / 3];
+    free(x);
+    free(y);
+    ctx_free(&c);
+    return A;
 }
 
 /* the sharp substeps of every level with active nodes (after coupling_bound's Gershgorin ones):

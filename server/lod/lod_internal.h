@@ -254,6 +254,10 @@ void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
 void sq_lodx_sharp_bound(sq_lod *lod);
 void sq_lodx_sharp_free(sq_lod *lod);
+/* for tests: the scaled operator M^-1/2 (A_kk + C_k) M^-1/2 of level k as bound.c applies it,
+ * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
+ * and the scaled diagonal C_k (*off, same order); both to free */
+double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
