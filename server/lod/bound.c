@@ -19,6 +19,7 @@
 #include "lod/lod.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -468,6 +469,9 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         if (n > 20 || !(w2 >= 0))
             continue; /* keep the Gershgorin substeps */
         lod->lev[k].extra_log2 = n - Lk->substeps_log2;
+        if (getenv("SQ_SHARP_TRACE"))
+            fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d\n", k,
+                    lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
     }
     S->cpu_s += thread_cpu() - t0;
 }

@@ -350,3 +350,52 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
         sq_mesh_free(m[k]);
     }
 }
+
+/* forced finest (split 0): no interface, so the operator is the finest level's own and the
+ * sharp adaptive estimate is fixed mode's sharp one (Lanczos on the same operator, within 2%); the
+ * exponent is the smallest 2^n at or above fixed mode's integer count (fixed sharp runs any
+ * count, so the runs differ: lod_forced_finest_and_coarsest_match_fixed_runs compares the
+ * Gershgorin rule both ways) */
+SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
+{
+    sq_material mat = {0};
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    mat.rayleigh_mass = 2;
+    mat.rayleigh_stiffness = 1e-3;
+    sq_mesh *m[3] = {NULL, NULL, NULL};
+    sq_level lv[3];
+    memset(lv, 0, sizeof lv);
+    sq_lod *lod = bent_lod(m, lv, &mat);
+    CHECK(lod != NULL);
+    if (!lod)
+        return;
+    sq_err e = {{0}};
+    sq_lod_def finest = lh_lod(SQ_LOD_ADAPTIVE, 0, 0);
+    CHECK(sq_lod_set_def(lod, &finest, &e) == 0);
+    for (int pass = 0; pass < 4; pass++) {
+        int sp = 0, mg = 0;
+        sq_lod_adapt(lod, 1, &sp, &mg);
+    }
+    CHECK(lod->lev[2].nactive == lv[2].model.n && lod->lev[2].nfrontier == 0);
+    double lest = 0, gersh = 0;
+    int iters = 0;
+    CHECK(sq_lod_sharp_info(lod, 2, &lest, &gersh, &iters) == 1);
+    double l400 = sq_level_lanczos_max(&lv[2], 400);
+    CHECK(sq_level_choose_step_sharp(&lv[2], &mat, 0.02, 0.9, 40, &e) == 0);
+    int sub = lv[2].substeps_log2 + lod->lev[2].extra_log2;
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "forced finest: estimate %.8g, fixed Lanczos (400 steps) %.8g (ratio %.8f), %d steps; "
+                "2^%d substeps, fixed sharp %d, Gershgorin 2^%d\n", lest, l400, lest / l400, iters, sub, lv[2].nsub,
+                lv[2].substeps_log2);
+    CHECK(lest >= l400 * (1 - 1e-9));
+    CHECK(lest <= l400 * 1.02); /* warm-started: the residual keeps it on the safe side, 0.7% here */
+    CHECK((1 << sub) >= lv[2].nsub && (1 << (sub - 1)) < lv[2].nsub);
+    CHECK(sub <= lv[2].substeps_log2);
+    sq_lod_destroy(lod);
+    for (int k = 0; k < 3; k++) {
+        sq_level_free(&lv[k]);
+        sq_mesh_free(m[k]);
+    }
+}
