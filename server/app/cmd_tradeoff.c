@@ -164,6 +164,10 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         set_item(body, "lod", lod);
         set_item(body, "operator", cJSON_CreateString(v->op == SQ_OPERATOR_PAPER ? "paper" : "fem"));
         set_item(body, "step_fraction", cJSON_CreateNumber(v->fraction));
+        /* fixed rows (the reference among them) at the Gershgorin 2^n rule whatever the scene's
+         * "step_bound": the reference stays the same run; adaptive rows keep the scene's rule */
+        if (!v->adaptive)
+            set_item(body, "step_bound", cJSON_CreateString("gershgorin"));
         /* one model for every variant: adaptive lod and the paper operator run linear elasticity only */
         set_item(body, "elasticity", cJSON_CreateString("linear"));
     }
