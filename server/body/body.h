@@ -30,8 +30,9 @@ typedef struct sq_body_def {
     double frame_dt;      /* frame period, s (1 / frame_rate) */
     double step_fraction; /* fraction of the stability bound to run at (default 0.9) */
     sq_elasticity_kind elasticity; /* linear (default) or corotational */
-    int sharp_step;       /* fixed mode: 1 = step from the Lanczos estimate of the bound (Gershgorin
-                             as ceiling), any integer substep count; 0 (default) = Gershgorin, 2^n */
+    int sharp_step;       /* 1 = step from a Lanczos estimate of the bound (Gershgorin as ceiling):
+                             fixed mode any integer substep count, adaptive mode 2^n per level from
+                             the coupled operator (lod/bound.c); 0 (default) = Gershgorin, 2^n */
     int nodal_pressure;   /* 1: average nodal pressure tets (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
