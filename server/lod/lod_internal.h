@@ -254,7 +254,7 @@ void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
 void sq_lodx_sharp_bound(sq_lod *lod);
 void sq_lodx_sharp_free(sq_lod *lod);
-/* for tests: the scaled operator M^-1/2 (A_kk + C_k) M^-1/2 of level k as bound.c applies it,
+/* for tests: level k's block S_kk + C_k of the majorant (S = M^-1/2 A M^-1/2) as bound.c applies it,
  * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
  * and the scaled diagonal C_k (*off, same order); both to free */
 double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off);
