@@ -303,6 +303,8 @@ int sq_cmd_run(int argc, char **argv)
     long iface[3] = {0, 0, 0}; /* ring values, ring rows, frontier rows (adaptive bodies) */
     int at_rest = 0;
     double rest_ke_seen = 0, rest_res_seen = 0;
+    double sub_sum[SQ_MAX_LEVELS] = {0};
+    long sub_frames[SQ_MAX_LEVELS] = {0};
     while (w->frame < nframes) {
         long missed0 = w->deadline_misses;
         sq_world_step(w, budget);
@@ -319,8 +321,13 @@ int sq_cmd_run(int argc, char **argv)
             iface[0] += pr->ring_values;
             iface[1] += pr->ring_rows;
             iface[2] += pr->frontier_rows;
-            for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
+            for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++) {
                 active[sq_world_listed_level(w, b, k)] += pr->active[k];
+                if (pr->active[k] > 0) {
+                    sub_sum[sq_world_listed_level(w, b, k)] += pr->substeps[k];
+                    sub_frames[sq_world_listed_level(w, b, k)]++;
+                }
+            }
             splits += pr->splits;
             refused += pr->splits_refused;
             merges += pr->merges;
@@ -406,6 +413,21 @@ int sq_cmd_run(int argc, char **argv)
                iface[0], iface[1], iface[2], updates > 0 ? (double)iface[0] / (double)updates : 0,
                updates > 0 ? (double)iface[1] / (double)updates : 0,
                updates > 0 ? (double)iface[2] / (double)updates : 0);
+    if (sub_frames[0] + sub_frames[1] > 0) {
+        printf("substeps per frame by level (mean over the frames the level has active nodes):");
+        for (int k = 0; k < SQ_MAX_LEVELS; k++)
+            if (sub_frames[k] > 0)
+                printf(" L%d %.2f (%ld frames)", k, sub_sum[k] / (double)sub_frames[k], sub_frames[k]);
+        printf("\n");
+    }
+    for (int b = 0; b < w->nbodies; b++) {
+        long nest;
+        double cpu;
+        sq_body_step_bound_cost(w->bodies[b], &nest, &cpu);
+        if (nest > 0)
+            printf("body %s: sharp step bound: %ld estimates, %.4g s thread CPU (%.3g ms each)\n",
+                   scene->body_names[b], nest, cpu, 1e3 * cpu / (double)nest);
+    }
     if (realtime)
         printf("realtime: %ld of %ld frames over the %.4g s period (%.2f%%)\n", w->deadline_misses, w->frame, budget,
                w->frame > 0 ? 100.0 * (double)w->deadline_misses / (double)w->frame : 0.0);

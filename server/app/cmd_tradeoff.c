@@ -137,7 +137,8 @@ static void scene_caps(const cJSON *root, double caps[SQ_MAX_BODIES])
  * adaptive variant keeps the body's max_node_updates (caps[]): the scene's deterministic
  * per-frame cap, a stand-in for the live budget, which the trade-off does not run (it is not
  * deterministic) */
-static char *variant_text(cJSON *root, const to_variant *v, int finest_override, const double caps[SQ_MAX_BODIES])
+static char *variant_text(cJSON *root, const to_variant *v, int finest_override, const double caps[SQ_MAX_BODIES],
+                          const int sharp[SQ_MAX_BODIES])
 {
     cJSON *bodies = cJSON_GetObjectItemCaseSensitive(root, "bodies");
     cJSON *body;
@@ -146,6 +147,7 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
     {
         int fin = body_finest(body, finest_override);
         double cap_v = bi < SQ_MAX_BODIES ? caps[bi] : 0;
+        int sharp_v = bi < SQ_MAX_BODIES && sharp[bi];
         bi++;
         cJSON *lod = cJSON_CreateObject();
         cJSON_AddStringToObject(lod, "mode", v->adaptive ? "adaptive" : "fixed");
@@ -164,6 +166,9 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         set_item(body, "lod", lod);
         set_item(body, "operator", cJSON_CreateString(v->op == SQ_OPERATOR_PAPER ? "paper" : "fem"));
         set_item(body, "step_fraction", cJSON_CreateNumber(v->fraction));
+        /* fixed rows (the reference among them) at the Gershgorin 2^n rule whatever the scene's
+         * "step_bound": the reference stays the same run; adaptive rows keep the scene's rule */
+        set_item(body, "step_bound", cJSON_CreateString(v->adaptive && sharp_v ? "sharp" : "gershgorin"));
         /* one model for every variant (the paper operator runs linear elasticity only): linear,
          * whatever the scene chose, so every row's error is discretisation, not model */
         set_item(body, "elasticity", cJSON_CreateString("linear"));
@@ -610,6 +615,9 @@ int sq_cmd_tradeoff(int argc, char **argv)
     char scene_name[64];
     snprintf(scene_name, sizeof scene_name, "%s", base->name);
     double frame_rate = base->frame_rate;
+    int sharp[SQ_MAX_BODIES] = {0}; /* each body's "step_bound" as the scene gives it */
+    for (int b = 0; b < base->nbodies && b < SQ_MAX_BODIES; b++)
+        sharp[b] = base->bodies[b].sharp_step;
     sq_scene_free(base);
 
     to_variant v[TO_MAX_VARIANTS];
@@ -645,7 +653,7 @@ int sq_cmd_tradeoff(int argc, char **argv)
             sq_progress_update(&prog, done);
             continue;
         }
-        char *vt = variant_text(root, &v[i], finest_override, caps);
+        char *vt = variant_text(root, &v[i], finest_override, caps, sharp);
         char label[600];
         snprintf(label, sizeof label, "%s [%s]", scene_path, v[i].name);
         sq_scene *s = sq_scene_parse(vt, dir, label, &err);

@@ -333,6 +333,7 @@ sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
             return NULL;
         }
         sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity); /* set-up before frame 1 */
+        sq_lod_set_step_rule(b->lod, b->def.sharp_step, b->def.step_fraction);
         sq_lod_node_levels(b->lod, b->node_level);
     } else {
         sq_body_prepare_surface_map(b);

@@ -30,8 +30,9 @@ typedef struct sq_body_def {
     double frame_dt;      /* frame period, s (1 / frame_rate) */
     double step_fraction; /* fraction of the stability bound to run at (default 0.9) */
     sq_elasticity_kind elasticity; /* linear (default) or corotational */
-    int sharp_step;       /* fixed mode: 1 = step from the Lanczos estimate of the bound (Gershgorin
-                             as ceiling), any integer substep count; 0 (default) = Gershgorin, 2^n */
+    int sharp_step;       /* 1 = step from a Lanczos estimate of the bound (Gershgorin as ceiling):
+                             fixed mode any integer substep count, adaptive mode 2^n per level from
+                             the coupled operator (lod/bound.c); 0 (default) = Gershgorin, 2^n */
     int nodal_pressure;   /* 1: average nodal pressure tets (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
@@ -99,6 +100,9 @@ const sq_mesh *sq_body_mesh(const sq_body *b, int level);
 /* the step used at a level (dt_frame / 2^n) and its stability bound */
 double sq_body_level_dt(const sq_body *b, int level);
 double sq_body_level_bound(const sq_body *b, int level);
+/* adaptive "step_bound": "sharp": the Lanczos estimates made (one per level with active nodes
+ * per rebuild) and their thread CPU time; zeros otherwise */
+void sq_body_step_bound_cost(const sq_body *b, long *estimates, double *cpu_s);
 /* displacement and velocity of a level's nodes (active or ghost values) */
 const double *sq_body_displacement(const sq_body *b, int level);
 const double *sq_body_velocity(const sq_body *b, int level);

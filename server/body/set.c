@@ -82,6 +82,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
             sq_body_reset(b);
         }
         sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity);
+        sq_lod_set_step_rule(b->lod, b->def.sharp_step, b->def.step_fraction);
         b->def.lod = *lod;
         sq_lod_node_levels(b->lod, b->node_level);
     } else {

@@ -31,6 +31,14 @@ double sq_body_level_bound(const sq_body *b, int level)
                                                                  : b->level[level].bound;
 }
 
+void sq_body_step_bound_cost(const sq_body *b, long *estimates, double *cpu_s)
+{
+    *estimates = 0;
+    *cpu_s = 0;
+    if (b->lod)
+        sq_lod_sharp_cost(b->lod, estimates, cpu_s);
+}
+
 const double *sq_body_displacement(const sq_body *b, int level)
 {
     sq_lod_flush(b->lod); /* ghosts nothing read during the frame, pushed now (no-op if fixed) */

@@ -623,6 +623,12 @@ static void coupling_bound(sq_lod *lod)
             extra = (int)ceil(0.5 * log2(coupled / own) - 1e-12);
         lod->lev[k].extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
     }
+    sq_lodx_sharp_bound(lod); /* with "step_bound": "sharp", the Lanczos substeps instead */
+}
+
+void sq_lodx_coupling_bound(sq_lod *lod)
+{
+    coupling_bound(lod);
 }
 
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)

@@ -161,6 +161,18 @@ void sq_lod_set_material(sq_lod *lod, const sq_material *mat);
  * alone refines nothing) are set up here instead of in the first frame */
 void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[3]);
 
+/* the step rule ("step_bound": docs/stability.md, docs/lod.md "Coupling the levels"): sharp = 0
+ * (default) gives each level its own Gershgorin exponent plus the interface extra; sharp = 1
+ * the smallest 2^n at step_fraction of the damped bound from a Lanczos estimate of the
+ * block-diagonal majorant of the coupled operator (bound.c), recomputed after each rebuild;
+ * without viscosity only (with it the Gershgorin rule stays). Recomputes when it changes. */
+void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction);
+/* sharp rule on: level k's estimate of lambda_max (1/s^2; 0 without active nodes), its
+ * Gershgorin ceiling and the Lanczos steps of the last estimate; returns 0 when the rule is off */
+int sq_lod_sharp_info(const sq_lod *lod, int k, double *lambda, double *gersh, int *iters);
+/* estimates made so far (one per level with active nodes per rebuild) and their thread CPU time */
+void sq_lod_sharp_cost(const sq_lod *lod, long *calls, double *cpu_s);
+
 /* energy (J) of the simulated state, the quantity the adaptive frame conserves without
  * damping: kinetic 1/2 m_i |v_i|^2 over the active nodes of every level, and elastic energy
  * of every tet touching an active node (ghost corners at their interpolated values); either

@@ -7,6 +7,7 @@
  *   frame.c      sq_lod_frame: the frame as a list of timed stages
  *   views.c      node levels, active lists, energy, projected updates
  *   activeset.c  per-level index lists and the kernels that run over them
+ *   bound.c      the sharp per-level step (Lanczos on the coupled operator)
  *   hierarchy.c  the links between consecutive levels
  *   corotational.c  corotational levels: forces and ring reactions tet by tet
  * Not part of the module's contract (lod.h).
@@ -212,6 +213,7 @@ struct sq_lod {
     long nl_gen;                         /* gen the node levels were last given out at */
     const unsigned char *nl_out;         /* ... and the buffer they went to */
     unsigned char *nlv[2];               /* scratch of sq_lod_node_levels (largest level) */
+    struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
 
 /* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
@@ -330,6 +332,15 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 /* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
+/* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
+void sq_lodx_coupling_bound(sq_lod *lod);
+/* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
+void sq_lodx_sharp_bound(sq_lod *lod);
+void sq_lodx_sharp_free(sq_lod *lod);
+/* for tests: level k's block S_kk + C_k of the majorant (S = M^-1/2 A M^-1/2) as bound.c applies it,
+ * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
+ * and the scaled diagonal C_k (*off, same order); both to free */
+double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);

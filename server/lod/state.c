@@ -367,6 +367,7 @@ void sq_lod_destroy(sq_lod *lod)
 {
     if (!lod)
         return;
+    sq_lodx_sharp_free(lod);
     for (int k = 0; k < lod->L; k++) {
         free(lod->lev[k].state);
         free(lod->lev[k].active);

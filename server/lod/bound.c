@@ -1,0 +1,521 @@
+/* bound.c - stage: the sharp per-level step of adaptive mode ("step_bound": "sharp";
+ * docs/lod.md "Coupling the levels", docs/stability.md).
+ *
+ * The coupled operator of the adaptive frame is A = sum_m P_m^T K_m P_m over the active nodes of
+ * every level (P_m: identity on level m's active nodes, the ring interpolation on its ring ghosts;
+ * K_m: the level's tets touching an active node, mixed ones at half weight). Split A into the
+ * blocks of the levels in the mass-scaled frame, S = M^-1/2 A M^-1/2 = D + O (D = diag(S_kk), O
+ * the blocks between levels). With C the diagonal of the row sums of |O| (per node, bounding each
+ * axis row), C - O is diagonally dominant, so S <= D + C: the block-diagonal majorant, level k's
+ * block S_kk + C_k (one C for every level, so the inequality holds for the whole system at once).
+ * Each level takes its step from lambda_max(S_kk + C_k) over its active free axes, estimated by Lanczos
+ * (Rayleigh quotient of the Ritz vector plus its residual, computed with one more product),
+ * capped by the Gershgorin row sums of the full coupled row, damped as in docs/physics.md
+ * section 3, and rounded to 2^n substeps per frame. The Lanczos starts from the level's previous
+ * Ritz vector after a rebuild (few iterations), from a fixed pseudo-random vector the first time.
+ * The products read the assembled rows: the level's K rows (inner nodes), the merged frontier
+ * rows, and every level's ring rows with their sources, as the frame's step stage applies them.
+ */
+#include "lod/lod.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "lod/lod_internal.h"
+
+#define ITERS_COLD 40  /* Lanczos steps without a previous Ritz vector (as fixed mode) */
+#define ITERS_WARM 16  /* from the previous Ritz vector */
+#define BASIS_MAX_DOUBLES (8L << 20) /* Krylov basis kept for the Ritz vector: at most 64 MB */
+
+struct lod_sharp {
+    int on;
+    double step_fraction;
+    double *ritz[SQ_MAX_LEVELS];   /* last Ritz vector per level, node-indexed, scaled (3n) */
+    double lambda[SQ_MAX_LEVELS];  /* the upper estimate used, 1/s^2 (0: no active node) */
+    double gersh[SQ_MAX_LEVELS];   /* its Gershgorin ceiling, 1/s^2 */
+    int iters[SQ_MAX_LEVELS];      /* Lanczos steps of the last estimate */
+    long calls;                    /* estimates made (one per level per rebuild) */
+    double cpu_s;                  /* their thread CPU time, s */
+};
+
+static double thread_cpu(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* largest absolute row sum of a 3x3 block */
+static double bnorm(const double *B)
+{
+    double m = 0;
+    for (int r = 0; r < 3; r++) {
+        double x = fabs(B[3 * r]) + fabs(B[3 * r + 1]) + fabs(B[3 * r + 2]);
+        m = x > m ? x : m;
+    }
+    return m;
+}
+
+/* the operator of level k over its active nodes (compact: 3 per active node) */
+typedef struct op_ctx {
+    sq_lod *lod;
+    int k, nact;
+    int *idx;            /* active index of a level-k node, or -1 (n_k) */
+    int *fpos;           /* per active index: offset (blocks) of its merged frontier row, -1 inner */
+    double *isq;         /* per active index: 1 / sqrt(mass) */
+    double *off;         /* per active index: scaled row sum of |O| (C_k), 1/s^2 */
+    double *u[SQ_MAX_LEVELS]; /* values of each level's nodes under the product (3 n_m) */
+    double *y;           /* unscaled product, compact */
+} op_ctx;
+
+/* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
+ * reaches: on level k (in) and elsewhere (out); a ring ghost through its sources */
+static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double *out)
+{
+    const sq_lod_level *lm = &lod->lev[m];
+    *in = *out = 0;
+    if (lm->active[l]) {
+        double s = 1 / sqrt(lod->lv[m].model.mass[l]);
+        *(m == k ? in : out) = s;
+        return;
+    }
+    int rl = lm->ring_index[l];
+    if (rl < 0)
+        return;
+    for (int q = lm->src_start[rl]; q < lm->src_start[rl + 1]; q++) {
+        double s = fabs(lm->src_weight[q]) / sqrt(lod->lv[lm->src_level[q]].model.mass[lm->src_node[q]]);
+        *(lm->src_level[q] == k ? in : out) += s;
+    }
+}
+
+/* the off-level row sums of the scaled operator M^-1/2 A M^-1/2 (C_k, 1/s^2) and the
+ * Gershgorin ceiling of its full rows (which bounds the rows of the majorant's block) */
+static double row_sums(op_ctx *c)
+{
+    sq_lod *lod = c->lod;
+    int k = c->k;
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    double *tot = sq_calloc((size_t)c->nact, sizeof(double));
+    for (int a = 0; a < c->nact; a++) {
+        int i = lk->active_list[a];
+        const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
+                                          : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
+        for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
+            double bn = bnorm(R + 9 * (size_t)x), in, out;
+            col_split(lod, k, Lk->model.col[e], k, &in, &out);
+            tot[a] += bn * (in + out) * c->isq[a];
+            c->off[a] += bn * out * c->isq[a];
+        }
+    }
+    for (int m = 0; m < lod->L; m++) {
+        const sq_lod_level *lm = &lod->lev[m];
+        for (int r = 0; r < lm->nring; r++) {
+            if (!(lm->src_levels[r] & (1u << k)))
+                continue;
+            double rin = 0, rout = 0;
+            for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
+                double bn = bnorm(lm->ring_K + 9 * (size_t)e), in, out;
+                col_split(lod, m, lm->ring_col[e], k, &in, &out);
+                rin += bn * in;
+                rout += bn * out;
+            }
+            for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
+                if (lm->src_level[q] == k) {
+                    int a = c->idx[lm->src_node[q]];
+                    double w = fabs(lm->src_weight[q]) * c->isq[a];
+                    tot[a] += w * (rin + rout);
+                    c->off[a] += w * rout;
+                }
+        }
+    }
+    double g = 0;
+    for (int a = 0; a < c->nact; a++) {
+        int i = lk->active_list[a];
+        if (Lk->model.fixed[i] != 7)
+            g = fmax(g, tot[a]);
+    }
+    free(tot);
+    return g;
+}
+
+/* yc = M^-1/2 (A_kk + C_k) M^-1/2 xc over the free axes of level k's active nodes */
+static void op_apply(op_ctx *c, const double *xc, double *yc)
+{
+    sq_lod *lod = c->lod;
+    int k = c->k;
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    double *uk = c->u[k];
+    for (int a = 0; a < c->nact; a++) {
+        int i = lk->active_list[a];
+        for (int x = 0; x < 3; x++)
+            uk[3 * i + x] = xc[3 * a + x] * c->isq[a];
+    }
+    /* ring ghost values from their level-k sources (constrained axes zero, as sq_lodx_eval_ring) */
+    for (int m = 0; m < lod->L; m++) {
+        const sq_lod_level *lm = &lod->lev[m];
+        for (int r = 0; r < lm->nring; r++) {
+            if (!(lm->src_levels[r] & (1u << k)))
+                continue;
+            double v[3] = {0, 0, 0};
+            for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
+                if (lm->src_level[q] == k)
+                    for (int x = 0; x < 3; x++)
+                        v[x] += lm->src_weight[q] * uk[3 * lm->src_node[q] + x];
+            int g = lm->ring[r];
+            unsigned char fx = lod->lv[m].model.fixed[g];
+            for (int x = 0; x < 3; x++)
+                c->u[m][3 * g + x] = fx & (1u << x) ? 0.0 : v[x];
+        }
+    }
+    /* own rows: K rows of inner nodes, merged rows of frontier nodes */
+    for (int a = 0; a < c->nact; a++) {
+        int i = lk->active_list[a];
+        const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
+                                          : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
+        double f0 = 0, f1 = 0, f2 = 0;
+        for (int e = Lk->model.row_start[i]; e < Lk->model.row_start[i + 1]; e++, R += 9) {
+            const double *w = uk + 3 * (size_t)Lk->model.col[e];
+            f0 += R[0] * w[0] + R[1] * w[1] + R[2] * w[2];
+            f1 += R[3] * w[0] + R[4] * w[1] + R[5] * w[2];
+            f2 += R[6] * w[0] + R[7] * w[1] + R[8] * w[2];
+        }
+        c->y[3 * a] = f0;
+        c->y[3 * a + 1] = f1;
+        c->y[3 * a + 2] = f2;
+    }
+    /* ring rows handed back to their level-k sources (as sq_lodx_couple_out) */
+    for (int m = 0; m < lod->L; m++) {
+        const sq_lod_level *lm = &lod->lev[m];
+        const double *um = c->u[m];
+        for (int r = 0; r < lm->nring; r++) {
+            if (!(lm->src_levels[r] & (1u << k)))
+                continue;
+            double g[3] = {0, 0, 0};
+            for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
+                const double *B = lm->ring_K + 9 * (size_t)e, *w = um + 3 * (size_t)lm->ring_col[e];
+                for (int x = 0; x < 3; x++)
+                    g[x] += B[3 * x] * w[0] + B[3 * x + 1] * w[1] + B[3 * x + 2] * w[2];
+            }
+            unsigned char fx = lod->lv[m].model.fixed[lm->ring[r]];
+            for (int x = 0; x < 3; x++)
+                if (fx & (1u << x))
+                    g[x] = 0;
+            for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
+                if (lm->src_level[q] == k) {
+                    int a = c->idx[lm->src_node[q]];
+                    for (int x = 0; x < 3; x++)
+                        c->y[3 * a + x] += lm->src_weight[q] * g[x];
+                }
+        }
+    }
+    for (int a = 0; a < c->nact; a++) {
+        unsigned char fx = Lk->model.fixed[lk->active_list[a]];
+        for (int x = 0; x < 3; x++)
+            yc[3 * a + x] = fx & (1u << x) ? 0.0 : c->y[3 * a + x] * c->isq[a] + c->off[a] * xc[3 * a + x];
+    }
+}
+
+/* largest eigenvalue of the tridiagonal (alpha, beta) of size m (bisection on the Sturm count) */
+static double tridiag_max(const double *alpha, const double *beta, int m)
+{
+    double lo = INFINITY, hi = -INFINITY;
+    for (int i = 0; i < m; i++) {
+        double r = (i > 0 ? fabs(beta[i - 1]) : 0) + (i < m - 1 ? fabs(beta[i]) : 0);
+        lo = fmin(lo, alpha[i] - r);
+        hi = fmax(hi, alpha[i] + r);
+    }
+    for (int it = 0; it < 200 && hi - lo > 1e-15 * fmax(fabs(hi), fabs(lo)); it++) {
+        double x = 0.5 * (lo + hi), q = 1;
+        int above = 0;
+        for (int i = 0; i < m; i++) {
+            q = alpha[i] - x - (i > 0 ? beta[i - 1] * beta[i - 1] / q : 0);
+            if (q == 0)
+                q = 1e-300;
+            above += q > 0;
+        }
+        if (above > 0)
+            lo = x;
+        else
+            hi = x;
+    }
+    return hi;
+}
+
+static double dot(const double *a, const double *b, size_t n)
+{
+    double s = 0;
+    for (size_t i = 0; i < n; i++)
+        s += a[i] * b[i];
+    return s;
+}
+
+/* upper estimate of lambda_max of the operator from start vector q (unit, free axes only):
+ * Lanczos, then the Ritz vector (into q), its Rayleigh quotient plus its residual norm */
+static double lanczos(op_ctx *c, double *q, int iters, int *done)
+{
+    size_t N = 3 * (size_t)c->nact;
+    if ((long)N * iters > BASIS_MAX_DOUBLES)
+        iters = (int)SQ_MAX(BASIS_MAX_DOUBLES / (long)N, 4);
+    double *Q = sq_malloc(sizeof(double) * N * (size_t)iters), *w = sq_malloc(sizeof(double) * N);
+    double alpha[ITERS_COLD + 1], beta[ITERS_COLD + 1];
+    memcpy(Q, q, sizeof(double) * N);
+    int m = 0;
+    double bprev = 0;
+    for (int j = 0; j < iters; j++) {
+        double *qj = Q + N * (size_t)j;
+        op_apply(c, qj, w);
+        double a = dot(w, qj, N), b = 0;
+        for (size_t i = 0; i < N; i++) {
+            w[i] -= a * qj[i] + (j > 0 ? bprev * Q[N * (size_t)(j - 1) + i] : 0);
+            b += w[i] * w[i];
+        }
+        b = sqrt(b);
+        alpha[m] = a;
+        beta[m] = b;
+        m++;
+        if (!(b > 1e-12 * fabs(a)) || j + 1 == iters)
+            break;
+        for (size_t i = 0; i < N; i++)
+            Q[N * (size_t)(j + 1) + i] = w[i] / b;
+        bprev = b;
+    }
+    *done = m;
+    double theta = tridiag_max(alpha, beta, m);
+    /* eigenvector s of T for theta (recurrence), the Ritz vector Q s */
+    double s[ITERS_COLD + 1];
+    s[0] = 1;
+    if (m > 1)
+        s[1] = (theta - alpha[0]) / beta[0];
+    for (int i = 1; i + 1 < m; i++)
+        s[i + 1] = ((theta - alpha[i]) * s[i] - beta[i - 1] * s[i - 1]) / beta[i];
+    memset(q, 0, sizeof(double) * N);
+    for (int j = 0; j < m; j++)
+        for (size_t i = 0; i < N; i++)
+            q[i] += s[j] * Q[N * (size_t)j + i];
+    double nq = sqrt(dot(q, q, N)), est = INFINITY;
+    if (isfinite(nq) && nq > 0) {
+        for (size_t i = 0; i < N; i++)
+            q[i] /= nq;
+        op_apply(c, q, w);
+        double rho = dot(q, w, N), r2 = 0;
+        for (size_t i = 0; i < N; i++) {
+            double r = w[i] - rho * q[i];
+            r2 += r * r;
+        }
+        est = rho + sqrt(r2);
+        if (!isfinite(est))
+            est = INFINITY; /* the ceiling decides */
+    }
+    free(Q);
+    free(w);
+    return est;
+}
+
+/* the operator of level k: lists, masses, the off-level row sums; returns the Gershgorin ceiling */
+static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    int n = Lk->model.n, nact = lk->nactive;
+    op_ctx c;
+    memset(&c, 0, sizeof c);
+    c.lod = lod;
+    c.k = k;
+    c.nact = nact;
+    c.idx = sq_malloc(sizeof(int) * (size_t)n);
+    for (int i = 0; i < n; i++)
+        c.idx[i] = -1;
+    c.fpos = sq_malloc(sizeof(int) * (size_t)nact);
+    c.isq = sq_malloc(sizeof(double) * (size_t)nact);
+    c.off = sq_calloc((size_t)nact, sizeof(double));
+    c.y = sq_malloc(sizeof(double) * 3 * (size_t)nact);
+    for (int a = 0; a < nact; a++) {
+        int i = lk->active_list[a];
+        c.idx[i] = a;
+        c.fpos[a] = -1;
+        c.isq[a] = 1.0 / sqrt(Lk->model.mass[i]);
+    }
+    for (int r = 0, pos = 0; r < lk->nfrontier; r++) {
+        int i = lk->frontier[r];
+        c.fpos[c.idx[i]] = pos;
+        pos += Lk->model.row_start[i + 1] - Lk->model.row_start[i];
+    }
+    for (int m = 0; m < lod->L; m++)
+        c.u[m] = sq_calloc(3 * (size_t)lod->lv[m].model.n, sizeof(double));
+    double g = row_sums(&c);
+    *cc = c;
+    return g;
+}
+
+static void ctx_free(op_ctx *c)
+{
+    for (int m = 0; m < c->lod->L; m++)
+        free(c->u[m]);
+    free(c->idx);
+    free(c->fpos);
+    free(c->isq);
+    free(c->off);
+    free(c->y);
+}
+
+/* the upper estimate of lambda_max(M^-1 (A_kk + C_k)) of level k (1/s^2), its ceiling in *gersh */
+static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *gersh)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    int n = Lk->model.n, nact = lk->nactive;
+    op_ctx c;
+    *gersh = ctx_init(&c, lod, k);
+    /* start: the previous Ritz vector on the nodes still active, plus a fixed pseudo-random
+     * part (1% of it, all of it the first time) so that new regions are reached */
+    size_t N = 3 * (size_t)nact;
+    double *q = sq_malloc(sizeof(double) * N);
+    unsigned long long st = 88172645463325252ULL;
+    double nr = 0;
+    int warm = S->ritz[k] != NULL;
+    for (int a = 0; a < nact; a++) {
+        int i = lk->active_list[a];
+        for (int x = 0; x < 3; x++) {
+            st ^= st << 13, st ^= st >> 7, st ^= st << 17;
+            double rnd = 0.5 + (double)(st >> 11) / 9007199254740992.0;
+            q[3 * a + x] = (Lk->model.fixed[i] & (1u << x)) ? 0 : rnd;
+            if (warm)
+                nr += S->ritz[k][3 * i + x] * S->ritz[k][3 * i + x];
+        }
+    }
+    double nrand = sqrt(dot(q, q, N));
+    warm = warm && nr > 0 && nrand > 0;
+    if (warm) {
+        double scale = 0.01 * sqrt(nr) / nrand;
+        for (int a = 0; a < nact; a++) {
+            int i = lk->active_list[a];
+            for (int x = 0; x < 3; x++)
+                if (!(Lk->model.fixed[i] & (1u << x)))
+                    q[3 * a + x] = S->ritz[k][3 * i + x] + scale * q[3 * a + x];
+        }
+    }
+    double nq = sqrt(dot(q, q, N)), est = 0;
+    int done = 0;
+    if (nq > 0) {
+        for (size_t i = 0; i < N; i++)
+            q[i] /= nq;
+        est = lanczos(&c, q, warm ? ITERS_WARM : ITERS_COLD, &done);
+        if (!S->ritz[k])
+            S->ritz[k] = sq_malloc(sizeof(double) * 3 * (size_t)n);
+        memset(S->ritz[k], 0, sizeof(double) * 3 * (size_t)n);
+        for (int a = 0; a < nact; a++)
+            for (int x = 0; x < 3; x++)
+                S->ritz[k][3 * lk->active_list[a] + x] = isfinite(q[3 * a + x]) ? q[3 * a + x] : 0;
+    }
+    S->iters[k] = done;
+    free(q);
+    ctx_free(&c);
+    return fmin(est, *gersh);
+}
+
+double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
+{
+    op_ctx c;
+    ctx_init(&c, lod, k);
+    size_t N = 3 * (size_t)c.nact;
+    double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
+    double *y = sq_malloc(sizeof(double) * N);
+    for (size_t j = 0; j < N; j++) {
+        x[j] = 1;
+        op_apply(&c, x, y);
+        x[j] = 0;
+        for (size_t i = 0; i < N; i++)
+            A[i * N + j] = y[i];
+    }
+    *off = sq_malloc(sizeof(double) * N);
+    for (size_t i = 0; i < N; i++)
+        (*off)[i] = c.off[i / 3];
+    free(x);
+    free(y);
+    ctx_free(&c);
+    return A;
+}
+
+/* the sharp substeps of every level with active nodes (after coupling_bound's Gershgorin ones):
+ * extra_log2 becomes the sharp exponent less the level's own, negative when the sharp step is
+ * longer than the level's own Gershgorin step */
+void sq_lodx_sharp_bound(sq_lod *lod)
+{
+    struct lod_sharp *S = lod->sharp;
+    if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
+        return;
+    double t0 = thread_cpu();
+    const sq_material *mat = &lod->mat;
+    for (int k = 0; k < lod->L; k++) {
+        S->lambda[k] = S->gersh[k] = 0;
+        if (lod->lev[k].nactive == 0)
+            continue;
+        const sq_level *Lk = &lod->lv[k];
+        double w2 = level_estimate(lod, S, k, &S->gersh[k]);
+        S->lambda[k] = w2;
+        S->calls++;
+        /* damping as docs/physics.md section 3: c = a + b omega^2 */
+        double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
+        double bound = (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+        double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
+        int n = 0;
+        while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
+            n++;
+        if (n > 20 || !(w2 >= 0))
+            continue; /* keep the Gershgorin substeps */
+        lod->lev[k].extra_log2 = n - Lk->substeps_log2;
+        if (getenv("SQ_SHARP_TRACE"))
+            fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d\n", k,
+                    lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
+    }
+    S->cpu_s += thread_cpu() - t0;
+}
+
+void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)
+{
+    if (!lod->sharp)
+        lod->sharp = sq_calloc(1, sizeof(struct lod_sharp));
+    struct lod_sharp *S = lod->sharp;
+    int changed = S->on != (sharp != 0) || S->step_fraction != step_fraction;
+    S->on = sharp != 0;
+    S->step_fraction = step_fraction;
+    if (changed && lod->have_mat)
+        sq_lodx_coupling_bound(lod); /* Gershgorin substeps, then the sharp ones if on */
+}
+
+int sq_lod_sharp_info(const sq_lod *lod, int k, double *lambda, double *gersh, int *iters)
+{
+    const struct lod_sharp *S = lod->sharp;
+    if (!S || !S->on || k < 0 || k >= lod->L)
+        return 0;
+    if (lambda)
+        *lambda = S->lambda[k];
+    if (gersh)
+        *gersh = S->gersh[k];
+    if (iters)
+        *iters = S->iters[k];
+    return 1;
+}
+
+void sq_lod_sharp_cost(const sq_lod *lod, long *calls, double *cpu_s)
+{
+    const struct lod_sharp *S = lod->sharp;
+    *calls = S ? S->calls : 0;
+    *cpu_s = S ? S->cpu_s : 0;
+}
+
+void sq_lodx_sharp_free(sq_lod *lod)
+{
+    struct lod_sharp *S = lod->sharp;
+    if (!S)
+        return;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        free(S->ritz[k]);
+    free(S);
+    lod->sharp = NULL;
+}
