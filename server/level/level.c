@@ -297,8 +297,7 @@ static void scaled_matvec(const sq_level *L, const double *x, double *y)
         }
 }
 
-/* largest eigenvalue of the tridiagonal (alpha, beta) of size m by bisection on the Sturm count */
-static double tridiag_max(const double *alpha, const double *beta, int m)
+double sq_level_tridiag_max(const double *alpha, const double *beta, int m)
 {
     double lo = INFINITY, hi = -INFINITY;
     for (int i = 0; i < m; i++) {
@@ -366,7 +365,7 @@ double sq_level_lanczos_max(const sq_level *L, int iters)
             }
             bprev = b;
         }
-        theta = tridiag_max(alpha, beta, m);
+        theta = sq_level_tridiag_max(alpha, beta, m);
         /* residual of the Ritz pair: beta_m |s_m|, s the eigenvector of T for theta (recurrence) */
         double s0 = 1, s1 = m > 1 ? (theta - alpha[0]) / beta[0] : 0, ns = 1 + s1 * s1, last = m > 1 ? s1 : s0;
         for (int i = 1; i + 1 < m; i++) {

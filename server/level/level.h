@@ -166,6 +166,9 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
                                int iters, sq_err *err);
 /* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2 */
 double sq_level_lanczos_max(const sq_level *L, int iters);
+/* largest eigenvalue of the symmetric tridiagonal (alpha diagonal, beta off-diagonal) of
+ * size m, by bisection on the Sturm count (to 1e-15 relative): a Lanczos run's Ritz value */
+double sq_level_tridiag_max(const double *alpha, const double *beta, int m);
 
 /* one row of a block operator A (K or D, CSR over the model's adjacency), for the kernels of
  * level.c and lod (inline: the hot loops of both): out_i -= sum_j A_ij (d_j + b v_j) */

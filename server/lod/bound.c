@@ -220,32 +220,6 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     }
 }
 
-/* largest eigenvalue of the tridiagonal (alpha, beta) of size m (bisection on the Sturm count) */
-static double tridiag_max(const double *alpha, const double *beta, int m)
-{
-    double lo = INFINITY, hi = -INFINITY;
-    for (int i = 0; i < m; i++) {
-        double r = (i > 0 ? fabs(beta[i - 1]) : 0) + (i < m - 1 ? fabs(beta[i]) : 0);
-        lo = fmin(lo, alpha[i] - r);
-        hi = fmax(hi, alpha[i] + r);
-    }
-    for (int it = 0; it < 200 && hi - lo > 1e-15 * fmax(fabs(hi), fabs(lo)); it++) {
-        double x = 0.5 * (lo + hi), q = 1;
-        int above = 0;
-        for (int i = 0; i < m; i++) {
-            q = alpha[i] - x - (i > 0 ? beta[i - 1] * beta[i - 1] / q : 0);
-            if (q == 0)
-                q = 1e-300;
-            above += q > 0;
-        }
-        if (above > 0)
-            lo = x;
-        else
-            hi = x;
-    }
-    return hi;
-}
-
 static double dot(const double *a, const double *b, size_t n)
 {
     double s = 0;
@@ -285,7 +259,7 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done)
         bprev = b;
     }
     *done = m;
-    double theta = tridiag_max(alpha, beta, m);
+    double theta = sq_level_tridiag_max(alpha, beta, m);
     /* eigenvector s of T for theta (recurrence), the Ritz vector Q s */
     double s[ITERS_COLD + 1];
     s[0] = 1;
