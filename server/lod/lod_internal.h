@@ -264,8 +264,13 @@ typedef double sq_v2 __attribute__((vector_size(16)));
         (sq_v4){v4s_, v4s_, v4s_, v4s_};                                                                           \
     })
 
-/* lane c of x in every lane */
+/* lane c of x in every lane (gcc's and clang's spellings of the same shuffle; the fuzzers
+ * build with clang) */
+#if defined(__clang__)
+#define V4_LANE(x, c) __builtin_shufflevector((x), (x), (c), (c), (c), (c))
+#else
 #define V4_LANE(x, c) __builtin_shuffle((x), (sq_v4i){(c), (c), (c), (c)})
+#endif
 
 /* one 3x3 block in column form (T: 3 columns of 4) times w: ((c0 w0 + c1 w1) + c2 w2) in
  * every row, the order of the scalar row sums */
