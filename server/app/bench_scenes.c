@@ -14,20 +14,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "app/tradeoff.h"
 #include "scene/scene.h"
 #include "body/body.h"
-
-/* CPU time of the calling thread, s: unlike wall time it does not count the time other
- * processes hold the core, so it shows what a frame costs on an idle machine */
-static double thread_cpu(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return ts.tv_sec + 1e-9 * ts.tv_nsec;
-}
 
 static int cmp_double(const void *a, const void *b)
 {
@@ -55,11 +45,11 @@ static void *run_world(void *arg)
     sq_world *w = sq_world_create(j->scene, &err);
     if (!w)
         return NULL;
-    double t0 = sq_now(), c0 = thread_cpu();
+    double t0 = sq_now(), c0 = sq_thread_cpu();
     for (long f = 0; f < j->frames; f++)
         sq_world_step(w, 0);
     j->wall = sq_now() - t0;
-    j->cpu = thread_cpu() - c0;
+    j->cpu = sq_thread_cpu() - c0;
     j->ok = 1;
     sq_world_destroy(w);
     return NULL;
@@ -277,10 +267,10 @@ int sq_bench_scenes(int argc, char **argv)
             nodes += sq_body_surface_mesh(w->bodies[b])->nnodes;
         double period = 1.0 / s->frame_rate;
         for (long f = 0; f < nf; f++) {
-            double t0 = sq_now(), c0 = thread_cpu();
+            double t0 = sq_now(), c0 = sq_thread_cpu();
             sq_world_step(w, period); /* live budget: splits stop above lod.budget x period */
             t[f] = sq_now() - t0;
-            tc[f] = thread_cpu() - c0;
+            tc[f] = sq_thread_cpu() - c0;
         }
         /* after the first frame (which may carry one-off set-up): the slowest frame in CPU time,
          * the frames over the period in CPU time, and CPU seconds per simulated second */

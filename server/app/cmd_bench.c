@@ -9,7 +9,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "app/commands.h"
 #include "body/body.h"
@@ -34,13 +33,6 @@ static int usage(FILE *f)
     return f == stdout ? 0 : 2;
 }
 
-/* CPU time of this thread, s: the rate stays meaningful when other work shares the cores */
-static double thread_cpu(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* cells per side of a cube box mesh with about `nodes` nodes */
 static int cells_for(double nodes)
@@ -72,10 +64,10 @@ static double measure_bandwidth(void)
         a[k] = 0, b[k] = (double)k, c[k] = 1.0 / (double)(k + 1);
     double best = 0;
     for (int r = 0; r < 5; r++) {
-        double t0 = thread_cpu();
+        double t0 = sq_thread_cpu();
         for (size_t k = 0; k < n; k++)
             a[k] = b[k] + 0.5 * c[k];
-        double t = thread_cpu() - t0;
+        double t = sq_thread_cpu() - t0;
         if (t > 0 && 24.0 * (double)n / t > best)
             best = 24.0 * (double)n / t;
         b[r] = a[n - 1 - r]; /* keep the loop */
@@ -154,7 +146,7 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             sq_level_step(&L, &def.material, g, L.dt, NULL);
             long steps = 0;
             int batch = SQ_MAX(1, (int)(2e6 / m->nnodes));
-            double t0 = sq_now(), c0 = thread_cpu(), t = 0;
+            double t0 = sq_now(), c0 = sq_thread_cpu(), t = 0;
             while (t < seconds) {
                 for (int k = 0; k < batch; k++)
                     sq_level_step(&L, &def.material, g, L.dt, NULL);
@@ -163,7 +155,7 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
                 sq_progress_update(&pr, t);
             }
             sq_progress_end(&pr);
-            double cpu = thread_cpu() - c0;
+            double cpu = sq_thread_cpu() - c0;
             double rate = (double)m->nnodes * steps / cpu, wall = (double)m->nnodes * steps / t;
             double bps = bytes_per_node_step(&L);
             double bound = SQ_BENCH_BANDWIDTH / bps;

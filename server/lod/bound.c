@@ -22,7 +22,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 
 #include "lod/lod_internal.h"
 
@@ -41,12 +40,6 @@ struct lod_sharp {
     double cpu_s;                  /* their thread CPU time, s */
 };
 
-static double thread_cpu(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* largest absolute row sum of a 3x3 block */
 static double bnorm(const double *B)
@@ -423,7 +416,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
     struct lod_sharp *S = lod->sharp;
     if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
         return;
-    double t0 = thread_cpu();
+    double t0 = sq_thread_cpu();
     const sq_material *mat = &lod->mat;
     for (int k = 0; k < lod->L; k++) {
         S->lambda[k] = S->gersh[k] = 0;
@@ -447,7 +440,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
             fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d\n", k,
                     lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
     }
-    S->cpu_s += thread_cpu() - t0;
+    S->cpu_s += sq_thread_cpu() - t0;
 }
 
 void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)

@@ -25,15 +25,7 @@
 
 #include "lod/lod_internal.h"
 
-#include <time.h>
 
-/* CPU time of the calling thread (s): what the frame costs on an idle core */
-static double thread_cpu(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 /* ---------------------------------------------------------------- the frame context */
 
@@ -282,7 +274,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     double t_pull = fr->t[SQ_LOD_STAGE_PULL], t_int = fr->t[SQ_LOD_STAGE_STEP];
     long updates = fr->updates, cap_user = fr->cap_user, cap_guard = fr->cap_guard;
     const adapt_out ao = fr->ao;
-    double t_end = sq_now(), c_end = thread_cpu();
+    double t_end = sq_now(), c_end = sq_thread_cpu();
     lod->last_time = c_end - fr->c_start;
     if (updates > 0) {
         /* a decaying maximum: a frame with a rebuild costs more per update than a quiet one,
@@ -347,7 +339,7 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     fr.in = in;
     fr.force = force;
     fr.t_start = sq_now();
-    fr.c_start = thread_cpu();
+    fr.c_start = sq_thread_cpu();
     fr.mark = fr.t_start;
     for (int t = 0; force && t < in->ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;

@@ -3,14 +3,6 @@
 
 #include <math.h>
 #include <stdio.h>
-#include <time.h>
-
-double sq_thread_cpu(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
-}
 
 void sq_budget_predict(const sq_budget *g, const sq_world *w, double period,
                        sq_budget_prediction *p)

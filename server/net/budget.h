@@ -39,9 +39,6 @@ typedef struct sq_budget_prediction {
 void sq_budget_predict(const sq_budget *g, const sq_world *w, double period,
                        sq_budget_prediction *p);
 
-/* CPU time of the calling thread, s */
-double sq_thread_cpu(void);
-
 /* account one stepped frame of cpu seconds and `updates` node updates; returns 1 if the
  * session must pause (msg says why) */
 int sq_budget_frame(sq_budget *g, double frac, double period, double cpu, double updates,

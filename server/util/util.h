@@ -18,6 +18,9 @@ int sq_err_prefix(sq_err *err, const char *fmt, ...) __attribute__((format(print
 
 /* monotonic wall clock in seconds */
 double sq_now(void);
+/* CPU time of the calling thread in seconds: what a piece of work costs on an idle core,
+ * meaningful when other work shares the cores */
+double sq_thread_cpu(void);
 
 /* cancellation of a long computation: a thread points sq_cancel_flag at an int another
  * thread sets (atomically) to ask it to stop; the frame loops poll sq_cancelled() every few
