@@ -17,8 +17,9 @@ export const SQUISH = process.env.SQUISH || path.join(ROOT, 'build/squish');
 export const CHROMIUM = process.env.CHROMIUM || '/usr/bin/chromium';
 /** scenes of the browser tests (an adaptive cube) */
 export const TEST_SCENES = path.join(ROOT, 'tests/web/scenes');
-/** where the suite keeps its screenshots for the docs */
-export const IMG_DIR = path.join(ROOT, 'docs/img');
+/** where the suite saves its screenshots: build/screenshots, so a test run leaves the tree
+ * clean; SQUISH_SHOTS=docs/img refreshes the docs' pictures (docs/viewer.md) */
+export const IMG_DIR = path.resolve(ROOT, process.env.SQUISH_SHOTS || 'build/screenshots');
 
 const CHROMIUM_ARGS = ['--enable-unsafe-swiftshader', '--disable-background-networking',
   '--disable-component-update', '--disable-sync', '--disable-quic', '--no-first-run'];
@@ -233,7 +234,7 @@ export async function dragFrom(page, x, y, dx, dy, { steps = 12, shift = false, 
   if (shift) await page.keyboard.up('Shift');
 }
 
-/** save a screenshot for the docs (the suite keeps them current) */
+/** save a screenshot under IMG_DIR (the docs' pictures when SQUISH_SHOTS=docs/img) */
 export async function docShot(target, name) {
   fs.mkdirSync(IMG_DIR, { recursive: true });
   await target.screenshot({ path: path.join(IMG_DIR, name) });
