@@ -107,7 +107,7 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     if ((b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
          sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) ||
-        (b->def.nodal_pressure && sq_level_anp_enable(L, &b->def.material, b->def.op, err) < 0)) {
+        (b->def.nodal_pressure && sq_level_anp_enable(L, &b->def.material, b->def.op, b->def.nodal_pressure, err) < 0)) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     }

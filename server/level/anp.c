@@ -1,11 +1,26 @@
-/* anp.c - average nodal pressure tets (docs/physics.md section 10): the fem operator with the
- * volumetric strain averaged at the nodes, on the same nodes and tets (fixed mode, linear).
+/* anp.c - average nodal pressure tets, and the same with face-smoothed deviatoric strain
+ * (docs/physics.md section 10): the fem operator on the same nodes and tets (fixed mode, linear).
  *
- * Energy sum_T V_T mu |dev eps_T|^2 + sum_i (kappa/2) W_i theta_i^2, kappa = lambda + 2 mu / 3,
- * W_i the nodal volume, theta_i = sum_{T ni i} (V_T / 4) tr(eps_T) / W_i; a tet's pressure is
- * kappa times the mean theta of its nodes. Symmetric and never stiffer than the element-wise
- * operator (Jensen), so that operator's step bound is safe for it. Forces are evaluated
- * matrix-free in two passes over the tets (nodal theta, then the stresses).
+ * Nodal pressure ("pressure": "nodal", mode SQ_PRESSURE_NODAL): energy
+ *     sum_T V_T mu |dev eps_T|^2 + sum_i (kappa/2) W_i theta_i^2,
+ * kappa = lambda + 2 mu / 3, W_i the nodal volume, theta_i = sum_{T ni i} (V_T / 4) tr(eps_T) / W_i;
+ * a tet's pressure is kappa times the mean theta of its nodes.
+ *
+ * Smoothed ("pressure": "smoothed", mode SQ_PRESSURE_SMOOTHED; selective face-based smoothed FEM,
+ * FS-FEM-T4 for the deviatoric part and node-based smoothing for the volumetric part, after
+ * Nguyen-Thoi, Liu et al. 2009): the deviatoric strain is averaged over face domains. The domain
+ * of face f is the two tets sharing it, each contributing a quarter of its volume (the sub-tet
+ * of the face and the tet's centroid), one tet for a boundary face; eps_f = sum_{T ni f} V_T
+ * eps_T / sum_{T ni f} V_T, W_f = sum_{T ni f} V_T / 4 (every tet's volume is shared out over its
+ * four faces). Energy
+ *     sum_f W_f mu |dev eps_f|^2 + sum_i (kappa/2) W_i theta_i^2.
+ *
+ * Both are quadratic energies of the displacement, so the operators are symmetric; both are never
+ * stiffer than the element-wise operator (the averaged strain's square is below the mean of the
+ * squares: Jensen, for the face and the node averages alike), so that operator's step bounds
+ * (Gershgorin and the Lanczos estimate) are safe for them. Forces are evaluated matrix-free: a
+ * pass over the tets (gradients, nodal theta), a node pass, a pass over the tets (the face
+ * averages, through each tet's four neighbours across its faces, and the stresses).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -14,87 +29,213 @@
 #include "level/level.h"
 
 struct sq_anp {
+    int mode;       /* SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED */
+    int ntets, n;
     double *grad;   /* per tet: a_0..a_3 (12) and V */
+    int *nb;        /* smoothed: per tet, the tet across the face opposite corner k, -1 on the boundary (4) */
+    double *G;      /* smoothed: scratch displacement gradient per tet (9) */
     double *theta;  /* nodal volumetric strain scratch (n) */
     double *w;      /* scratch u = d + b v (3n) */
     double mu, kappa;
 };
 
-int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err)
+/* the four faces of a tet: corners other than k */
+typedef struct {
+    int v[3];
+    int t, k;
+} face_key;
+
+static int face_cmp(const void *pa, const void *pb)
 {
-    if (op != SQ_OPERATOR_FEM)
-        return sq_err_set(err, "nodal pressure tets need the fem operator: use \"operator\": \"fem\" with "
-                               "\"pressure\": \"nodal\", or \"pressure\": \"element\" with the paper operator");
-    const sq_mesh *m = L->model.mesh;
-    sq_anp *A = L->anp;
-    if (!A) {
-        A = sq_calloc(1, sizeof *A);
-        A->grad = sq_malloc(sizeof(double) * 13 * (size_t)m->ntets);
-        A->theta = sq_malloc(sizeof(double) * (size_t)L->model.n);
-        A->w = sq_malloc(sizeof(double) * 3 * (size_t)L->model.n);
-        for (int t = 0; t < m->ntets; t++) {
-            double a[4][3];
-            double V = sq_tet_gradients(m, t, a);
+    const face_key *a = pa, *b = pb;
+    for (int c = 0; c < 3; c++)
+        if (a->v[c] != b->v[c])
+            return a->v[c] < b->v[c] ? -1 : 1;
+    return a->t < b->t ? -1 : a->t > b->t;
+}
+
+/* neighbours across faces: sort the 4 ntets faces by their sorted corners, pair equal ones */
+static void tet_neighbours(const sq_mesh *m, int *nb)
+{
+    size_t nf = 4 * (size_t)m->ntets;
+    face_key *f = sq_malloc(sizeof *f * nf);
+    for (int t = 0; t < m->ntets; t++)
+        for (int k = 0; k < 4; k++) {
+            face_key *q = &f[4 * (size_t)t + k];
+            int c = 0;
+            for (int j = 0; j < 4; j++)
+                if (j != k)
+                    q->v[c++] = m->tets[4 * (size_t)t + j];
+            for (int a = 0; a < 2; a++) /* sort three */
+                for (int b = 0; b < 2 - a; b++)
+                    if (q->v[b] > q->v[b + 1]) {
+                        int s = q->v[b];
+                        q->v[b] = q->v[b + 1];
+                        q->v[b + 1] = s;
+                    }
+            q->t = t;
+            q->k = k;
+            nb[4 * (size_t)t + k] = -1;
+        }
+    qsort(f, nf, sizeof *f, face_cmp);
+    for (size_t i = 0; i + 1 < nf; i++)
+        if (!memcmp(f[i].v, f[i + 1].v, sizeof f[i].v)) {
+            nb[4 * (size_t)f[i].t + f[i].k] = f[i + 1].t;
+            nb[4 * (size_t)f[i + 1].t + f[i + 1].k] = f[i].t;
+            i++;
+        }
+    free(f);
+}
+
+sq_anp *sq_anp_create(const sq_mesh *m, int n, int mode)
+{
+    sq_anp *A = sq_calloc(1, sizeof *A);
+    A->mode = mode;
+    A->ntets = m->ntets;
+    A->n = n;
+    A->grad = sq_malloc(sizeof(double) * 13 * (size_t)m->ntets);
+    A->theta = sq_malloc(sizeof(double) * (size_t)n);
+    A->w = sq_malloc(sizeof(double) * 3 * (size_t)n);
+    for (int t = 0; t < m->ntets; t++) {
+        double a[4][3];
+        double V = sq_tet_gradients(m, t, a);
+        for (int k = 0; k < 4; k++)
+            for (int r = 0; r < 3; r++)
+                A->grad[13 * (size_t)t + 3 * k + r] = a[k][r];
+        A->grad[13 * (size_t)t + 12] = V;
+    }
+    if (mode == SQ_PRESSURE_SMOOTHED) {
+        A->nb = sq_malloc(sizeof(int) * 4 * (size_t)m->ntets);
+        A->G = sq_malloc(sizeof(double) * 9 * (size_t)m->ntets);
+        tet_neighbours(m, A->nb);
+    }
+    return A;
+}
+
+void sq_anp_set_moduli(sq_anp *A, double mu, double lambda)
+{
+    A->mu = mu;
+    A->kappa = lambda + 2.0 * mu / 3.0;
+}
+
+int sq_anp_mode(const sq_anp *A)
+{
+    return A->mode;
+}
+
+void sq_anp_destroy(sq_anp *A)
+{
+    if (!A)
+        return;
+    free(A->grad);
+    free(A->nb);
+    free(A->G);
+    free(A->theta);
+    free(A->w);
+    free(A);
+}
+
+/* y = K x (all nodes; vol: the nodal volumes W_i) */
+void sq_anp_apply(const sq_anp *A, const sq_mesh *m, const double *vol, const double *x, double *y)
+{
+    const double mu = A->mu, kappa = A->kappa;
+    const int smooth = A->mode == SQ_PRESSURE_SMOOTHED;
+    memset(A->theta, 0, sizeof(double) * (size_t)A->n);
+    memset(y, 0, sizeof(double) * 3 * (size_t)A->n);
+    for (int t = 0; t < m->ntets; t++) {
+        const double *a = A->grad + 13 * (size_t)t;
+        const int *tv = m->tets + 4 * (size_t)t;
+        double th = 0;
+        if (smooth) {
+            double *G = A->G + 9 * (size_t)t;
+            for (int q = 0; q < 9; q++)
+                G[q] = 0;
             for (int k = 0; k < 4; k++)
                 for (int r = 0; r < 3; r++)
-                    A->grad[13 * (size_t)t + 3 * k + r] = a[k][r];
-            A->grad[13 * (size_t)t + 12] = V;
+                    for (int c = 0; c < 3; c++)
+                        G[3 * r + c] += x[3 * tv[k] + r] * a[3 * k + c];
+            th = G[0] + G[4] + G[8];
+        } else {
+            for (int k = 0; k < 4; k++)
+                th += a[3 * k] * x[3 * tv[k]] + a[3 * k + 1] * x[3 * tv[k] + 1] + a[3 * k + 2] * x[3 * tv[k] + 2];
         }
-        L->anp = A;
+        for (int k = 0; k < 4; k++)
+            A->theta[tv[k]] += a[12] / 4 * th;
     }
-    A->mu = mat->mu;
-    A->kappa = mat->lambda + 2.0 * mat->mu / 3.0;
+    for (int i = 0; i < A->n; i++)
+        A->theta[i] /= vol[i];
+    for (int t = 0; t < m->ntets; t++) {
+        const double *a = A->grad + 13 * (size_t)t;
+        const int *tv = m->tets + 4 * (size_t)t;
+        const double V = a[12];
+        double G[9] = {0};
+        double sig[9];
+        const double tbar = 0.25 * (A->theta[tv[0]] + A->theta[tv[1]] + A->theta[tv[2]] + A->theta[tv[3]]);
+        if (smooth) {
+            /* deviatoric stress: sum over the tet's four face domains of (V / 4) 2 mu dev sym eps_f */
+            const double *Gt = A->G + 9 * (size_t)t;
+            double S[9] = {0};
+            for (int k = 0; k < 4; k++) {
+                int o = A->nb[4 * (size_t)t + k];
+                double Gf[9];
+                if (o < 0) {
+                    memcpy(Gf, Gt, sizeof Gf);
+                } else {
+                    const double Vo = A->grad[13 * (size_t)o + 12], wt = V / (V + Vo), wo = Vo / (V + Vo);
+                    const double *Go = A->G + 9 * (size_t)o;
+                    for (int q = 0; q < 9; q++)
+                        Gf[q] = wt * Gt[q] + wo * Go[q];
+                }
+                double trf = Gf[0] + Gf[4] + Gf[8];
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        S[3 * r + c] += Gf[3 * r + c] + Gf[3 * c + r] - (r == c ? 2.0 * trf / 3.0 : 0);
+            }
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    sig[3 * r + c] = V * (0.25 * mu * S[3 * r + c] + (r == c ? kappa * tbar : 0));
+        } else {
+            for (int k = 0; k < 4; k++)
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        G[3 * r + c] += x[3 * tv[k] + r] * a[3 * k + c];
+            double tr = G[0] + G[4] + G[8];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    sig[3 * r + c] = V * (mu * (G[3 * r + c] + G[3 * c + r]) +
+                                          (r == c ? kappa * tbar - 2.0 * mu * tr / 3.0 : 0));
+        }
+        for (int k = 0; k < 4; k++)
+            for (int r = 0; r < 3; r++)
+                y[3 * tv[k] + r] += sig[3 * r] * a[3 * k] + sig[3 * r + 1] * a[3 * k + 1] + sig[3 * r + 2] * a[3 * k + 2];
+    }
+}
+
+int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err)
+{
+    if (op != SQ_OPERATOR_FEM)
+        return sq_err_set(err, "nodal pressure and smoothed tets need the fem operator: use \"operator\": \"fem\" "
+                               "with \"pressure\": \"nodal\" or \"smoothed\", or \"pressure\": \"element\" with "
+                               "the paper operator");
+    if (mode != SQ_PRESSURE_NODAL && mode != SQ_PRESSURE_SMOOTHED)
+        return sq_err_set(err, "pressure mode %d is unknown: use element, nodal or smoothed", mode);
+    if (L->anp && L->anp->mode != mode)
+        sq_level_anp_free(L);
+    if (!L->anp)
+        L->anp = sq_anp_create(L->model.mesh, L->model.n, mode);
+    sq_anp_set_moduli(L->anp, mat->mu, mat->lambda);
     return 0;
 }
 
 void sq_level_anp_free(sq_level *L)
 {
-    if (!L->anp)
-        return;
-    free(L->anp->grad);
-    free(L->anp->theta);
-    free(L->anp->w);
-    free(L->anp);
+    sq_anp_destroy(L->anp);
     L->anp = NULL;
 }
 
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
 {
-    const sq_anp *A = L->anp;
-    const sq_mesh *m = L->model.mesh;
-    const double mu = A->mu, kappa = A->kappa;
-    memset(A->theta, 0, sizeof(double) * (size_t)L->model.n);
-    memset(y, 0, sizeof(double) * 3 * (size_t)L->model.n);
-    for (int t = 0; t < m->ntets; t++) {
-        const double *a = A->grad + 13 * (size_t)t;
-        const int *tv = m->tets + 4 * (size_t)t;
-        double th = 0;
-        for (int k = 0; k < 4; k++)
-            th += a[3 * k] * x[3 * tv[k]] + a[3 * k + 1] * x[3 * tv[k] + 1] + a[3 * k + 2] * x[3 * tv[k] + 2];
-        for (int k = 0; k < 4; k++)
-            A->theta[tv[k]] += a[12] / 4 * th;
-    }
-    for (int i = 0; i < L->model.n; i++)
-        A->theta[i] /= L->model.vol[i];
-    for (int t = 0; t < m->ntets; t++) {
-        const double *a = A->grad + 13 * (size_t)t;
-        const int *tv = m->tets + 4 * (size_t)t;
-        double G[9] = {0};
-        for (int k = 0; k < 4; k++)
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++)
-                    G[3 * r + c] += x[3 * tv[k] + r] * a[3 * k + c];
-        double tr = G[0] + G[4] + G[8], tbar = 0.25 * (A->theta[tv[0]] + A->theta[tv[1]] + A->theta[tv[2]] +
-                                                     A->theta[tv[3]]);
-        double sig[9];
-        for (int r = 0; r < 3; r++)
-            for (int c = 0; c < 3; c++)
-                sig[3 * r + c] = a[12] * (mu * (G[3 * r + c] + G[3 * c + r]) +
-                                          (r == c ? kappa * tbar - 2.0 * mu * tr / 3.0 : 0));
-        for (int k = 0; k < 4; k++)
-            for (int r = 0; r < 3; r++)
-                y[3 * tv[k] + r] += sig[3 * r] * a[3 * k] + sig[3 * r + 1] * a[3 * k + 1] + sig[3 * r + 2] * a[3 * k + 2];
-    }
+    sq_anp_apply(L->anp, L->model.mesh, L->model.vol, x, y);
 }
 
 void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)

@@ -16,8 +16,9 @@ static double beam_tip(const sq_mesh *m, double nu, int anp)
     if (sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, &clamp, 1, &e) < 0)
         return NAN;
     double g[3] = {0, 0, -9.81}, *d = malloc(sizeof(double) * 3 * m->nnodes), tip = 0;
-    int rc = anp ? sq_level_static_solve_nodal_pressure(&L.model, &mat, g, 1e-10, 200000, d, NULL, &e)
-                 : sq_level_static_solve(&L.model, g, 1e-10, 200000, d, NULL, &e);
+    int rc = anp == 2 ? sq_level_static_solve_pressure(&L.model, &mat, SQ_PRESSURE_SMOOTHED, g, 1e-10, 200000, d, NULL, &e)
+             : anp    ? sq_level_static_solve_nodal_pressure(&L.model, &mat, g, 1e-10, 200000, d, NULL, &e)
+                      : sq_level_static_solve(&L.model, g, 1e-10, 200000, d, NULL, &e);
     if (rc < 0) {
         fprintf(stderr, "    %s\n", e.msg);
         tip = NAN;
@@ -165,4 +166,28 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
     free(dl);
     sq_body_destroy(b);
     sq_mesh_free(m);
+}
+
+SQ_TEST(locking_smoothed_probe)
+{
+    static const double nus[3] = {0.3, 0.45, 0.49};
+    const double ref = eb_tip(1, 0.1);
+    for (int k = 0; k < 6; k++) {
+        sq_mesh *m = NULL;
+        if (k < 4) {
+            char path[600];
+            snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l%d.msh", sq_test_data(), k);
+            sq_err e = {{0}};
+            m = sq_mesh_load(path, &e);
+        } else {
+            int c = k == 4 ? 2 : 4;
+            m = th_box(10 * c, c, c, 1, 0.1, 0.1);
+        }
+        TH_REQUIRE(m);
+        double r[3];
+        for (int j = 0; j < 3; j++)
+            r[j] = beam_tip(m, nus[j], 2) / ref;
+        fprintf(stderr, "    %5d nodes: smoothed %.3f %.3f %.3f\n", m->nnodes, r[0], r[1], r[2]);
+        sq_mesh_free(m);
+    }
 }
