@@ -1,7 +1,10 @@
 /* test_physics_locking.c - locking of linear tets and the average nodal pressure option
  * (sq_level_static_solve_nodal_pressure; docs/physics.md section 10): the clamped beam's static
  * tip under its own weight against beam theory, today's tets and the option side by side. */
+#include "net/net.h"
+#include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 #include "test_sim_helpers.h"
 
 /* mean tip-face u_z of the cantilever (clamped at x = 0) under gravity -z; anp: nodal pressure */
@@ -168,26 +171,216 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
     sq_mesh_free(m);
 }
 
-SQ_TEST(locking_smoothed_probe)
+
+/* the smoothed operator (level/anp.c, SQ_PRESSURE_SMOOTHED) on an irregular mesh: symmetric
+ * (x.Ky = y.Kx), rigid motions (translation, infinitesimal rotation) give no force, never
+ * stiffer than the element-wise operator nor than nodal pressure tets (x.Kx; Jensen: both
+ * average strains over domains), positive on strain; its face domains are found (an interior
+ * face is shared by two tets) */
+SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
 {
-    static const double nus[3] = {0.3, 0.45, 0.49};
-    const double ref = eb_tip(1, 0.1);
-    for (int k = 0; k < 6; k++) {
-        sq_mesh *m = NULL;
-        if (k < 4) {
-            char path[600];
-            snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l%d.msh", sq_test_data(), k);
-            sq_err e = {{0}};
-            m = sq_mesh_load(path, &e);
-        } else {
-            int c = k == 4 ? 2 : 4;
-            m = th_box(10 * c, c, c, 1, 0.1, 0.1);
-        }
-        TH_REQUIRE(m);
-        double r[3];
-        for (int j = 0; j < 3; j++)
-            r[j] = beam_tip(m, nus[j], 2) / ref;
-        fprintf(stderr, "    %5d nodes: smoothed %.3f %.3f %.3f\n", m->nnodes, r[0], r[1], r[2]);
-        sq_mesh_free(m);
+    char path[600];
+    snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l1.msh", sq_test_data());
+    sq_err e = {{0}};
+    sq_mesh *m = sq_mesh_load(path, &e);
+    TH_REQUIRE(m);
+    sq_material mat = th_material(1, 1, 1000);
+    CHECK(sq_material_from_E_nu(&mat, 1e7, 0.45, NULL) == 0);
+    sq_level L;
+    int rc = sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, NULL, 0, &e);
+    CHECK(rc == 0);
+    if (rc)
+        return;
+    size_t n3 = 3 * (size_t)m->nnodes;
+    double *x = malloc(sizeof(double) * n3), *y = malloc(sizeof(double) * n3);
+    double *kx = malloc(sizeof(double) * n3), *ky = malloc(sizeof(double) * n3);
+    uint64_t st = 777;
+    for (size_t k = 0; k < n3; k++) {
+        st = st * 6364136223846793005ULL + 1442695040888963407ULL;
+        x[k] = (double)(st >> 11) / 9007199254740992.0 - 0.5;
+        st = st * 6364136223846793005ULL + 1442695040888963407ULL;
+        y[k] = (double)(st >> 11) / 9007199254740992.0 - 0.5;
     }
+    double ex[3]; /* x.Kx: element-wise, nodal pressure, smoothed */
+    for (int mode = 0; mode < 3; mode++) {
+        if (mode == 0) {
+            memcpy(L.d, x, sizeof(double) * n3);
+            ex[0] = 2 * sq_level_elastic_energy(&L);
+            continue;
+        }
+        CHECK(sq_level_anp_enable(&L, &mat, SQ_OPERATOR_FEM, mode, &e) == 0);
+        sq_level_anp_apply(&L, x, kx);
+        sq_level_anp_apply(&L, y, ky);
+        double xky = 0, ykx = 0, xkx = 0, scale = 0;
+        for (size_t k = 0; k < n3; k++) {
+            xky += x[k] * ky[k];
+            ykx += y[k] * kx[k];
+            xkx += x[k] * kx[k];
+            scale = th_max(scale, fabs(kx[k]));
+        }
+        ex[mode] = xkx;
+        CHECK(fabs(xky - ykx) <= 1e-12 * fabs(xkx));
+        /* rigid motion: translation (1, -2, 0.5) plus small rotation w x X, w = (0.3, -0.2, 0.1) */
+        const double w[3] = {0.3, -0.2, 0.1};
+        for (int i = 0; i < m->nnodes; i++) {
+            const double *X = m->x + 3 * (size_t)i;
+            y[3 * i] = 1 + w[1] * X[2] - w[2] * X[1];
+            y[3 * i + 1] = -2 + w[2] * X[0] - w[0] * X[2];
+            y[3 * i + 2] = 0.5 + w[0] * X[1] - w[1] * X[0];
+        }
+        sq_level_anp_apply(&L, y, ky);
+        double rig = 0;
+        for (size_t k = 0; k < n3; k++)
+            rig = th_max(rig, fabs(ky[k]));
+        fprintf(stderr, "    mode %d: x.Kx %.6g, |x.Ky - y.Kx| / x.Kx %.2g, rigid force / |Kx| %.2g\n", mode, xkx,
+                fabs(xky - ykx) / xkx, rig / scale);
+        CHECK(rig <= 1e-12 * scale);
+        for (size_t k = 0; k < n3; k++) { /* y back to random for the next mode */
+            st = st * 6364136223846793005ULL + 1442695040888963407ULL;
+            y[k] = (double)(st >> 11) / 9007199254740992.0 - 0.5;
+        }
+    }
+    fprintf(stderr, "    x.Kx element %.6g, nodal %.6g, smoothed %.6g\n", ex[0], ex[1], ex[2]);
+    CHECK(ex[2] > 0 && ex[2] < ex[1] && ex[1] < ex[0]);
+    CHECK(sq_anp_mode(L.anp) == SQ_PRESSURE_SMOOTHED);
+    free(x);
+    free(y);
+    free(kx);
+    free(ky);
+    sq_level_free(&L);
+    sq_mesh_free(m);
+}
+
+/* the simulation with "pressure": "smoothed": the damped run settles to the smoothed static
+ * solution (relative 1e-6: the step uses that operator), softer than nodal pressure and than
+ * today's tets; the refused combinations, run-time switching between the three, the scene key
+ * and the protocol's set */
+SQ_TEST(locking_smoothed_body_settles_and_refuses)
+{
+    sq_mesh *m = th_box(20, 2, 2, 1, 0.1, 0.1);
+    TH_REQUIRE(m);
+    sq_body_def def = sq_body_def_default();
+    def.nlevels = 1;
+    def.levels[0] = m;
+    CHECK(sq_material_from_E_nu(&def.material, 1e7, 0.45, NULL) == 0);
+    def.material.density = 1000;
+    def.material.rayleigh_mass = 40;
+    def.material.rayleigh_stiffness = 1e-5; /* both damping terms: the stiffness one uses the smoothed operator */
+    def.gravity[2] = -9.81;
+    def.nconstraints = 1;
+    def.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {1e-3, 1, 1}, 7};
+    def.nodal_pressure = SQ_PRESSURE_SMOOTHED;
+    sq_err e = {{0}};
+    def.elasticity = SQ_ELASTICITY_COROTATIONAL;
+    CHECK(sq_body_create(&def, &e) == NULL);
+    CHECK_CONTAINS(e.msg, "smoothed tets");
+    CHECK_CONTAINS(e.msg, "fem operator, linear elasticity and fixed lod");
+    def.elasticity = SQ_ELASTICITY_LINEAR;
+    def.op = SQ_OPERATOR_PAPER;
+    CHECK(sq_body_create(&def, &e) == NULL);
+    CHECK_CONTAINS(e.msg, "smoothed tets");
+    def.op = SQ_OPERATOR_FEM;
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_body_set_sleep(b, 0, 0, 0);
+    for (int f = 0; f < 250; f++)
+        sq_body_frame(b, NULL, 0, NULL, NULL, 0);
+    sq_level *L = sq_body_level(b, 0);
+    TH_REQUIRE(L->anp);
+    CHECK(sq_anp_mode(L->anp) == SQ_PRESSURE_SMOOTHED);
+    size_t n3 = 3 * (size_t)m->nnodes;
+    double *ds = malloc(sizeof(double) * n3), *dn = malloc(sizeof(double) * n3), *dl = malloc(sizeof(double) * n3);
+    CHECK(sq_level_static_solve_pressure(&L->model, &def.material, SQ_PRESSURE_SMOOTHED, def.gravity, 1e-12, 100000, ds,
+                                         NULL, &e) == 0);
+    CHECK(sq_level_static_solve_pressure(&L->model, &def.material, SQ_PRESSURE_NODAL, def.gravity, 1e-12, 100000, dn,
+                                         NULL, &e) == 0);
+    CHECK(sq_level_static_solve(&L->model, def.gravity, 1e-12, 100000, dl, NULL, &e) == 0);
+    double diff = 0, scale = 0, tn = 0, tl = 0;
+    for (size_t i = 0; i < n3; i++) {
+        diff = th_max(diff, fabs(L->d[i] - ds[i]));
+        scale = th_max(scale, fabs(ds[i]));
+        tn = th_max(tn, fabs(dn[i]));
+        tl = th_max(tl, fabs(dl[i]));
+    }
+    fprintf(stderr, "    settled vs smoothed static: %.3g relative; max |d| smoothed %.4g m, nodal %.4g m, element %.4g m\n",
+            diff / scale, scale, tn, tl);
+    CHECK(diff <= 1e-6 * scale);
+    CHECK(scale > 1.1 * tn && scale > 2.2 * tl);
+    CHECK(sq_body_residual(b) < 1e-6);
+    /* refusals while smoothed: corotational, paper, adaptive lod; naming the combination */
+    CHECK(sq_body_set_elasticity(b, SQ_ELASTICITY_COROTATIONAL, &e) < 0);
+    CHECK_CONTAINS(e.msg, "smoothed tets");
+    CHECK(sq_body_set_material(b, &def.material, SQ_OPERATOR_PAPER, &e) < 0);
+    CHECK_CONTAINS(e.msg, "smoothed tets");
+    sq_lod_def lod = sq_body_get_def(b)->lod;
+    lod.mode = SQ_LOD_ADAPTIVE;
+    CHECK(sq_body_set_lod(b, &lod, &e) < 0);
+    CHECK_CONTAINS(e.msg, "smoothed tets");
+    CHECK(sq_body_set_pressure(b, 3, &e) < 0);
+    CHECK_CONTAINS(e.msg, "use element, nodal or smoothed");
+    CHECK(sq_body_get_def(b)->nodal_pressure == SQ_PRESSURE_SMOOTHED);
+    /* switching keeps the state; the same state costs more energy nodal, more again element-wise */
+    double e_sm = sq_body_elastic_energy(b);
+    CHECK(sq_body_set_pressure(b, SQ_PRESSURE_NODAL, &e) == 0);
+    CHECK(sq_anp_mode(sq_body_level(b, 0)->anp) == SQ_PRESSURE_NODAL);
+    double e_np = sq_body_elastic_energy(b);
+    CHECK(sq_body_set_pressure(b, SQ_PRESSURE_ELEMENT, &e) == 0);
+    CHECK(sq_body_level(b, 0)->anp == NULL);
+    double e_el = sq_body_elastic_energy(b);
+    CHECK(e_sm < e_np && e_np < e_el);
+    CHECK(sq_body_set_pressure(b, SQ_PRESSURE_SMOOTHED, &e) == 0);
+    CHECK(sq_anp_mode(sq_body_level(b, 0)->anp) == SQ_PRESSURE_SMOOTHED);
+    CHECK(fabs(sq_body_elastic_energy(b) - e_sm) <= 1e-12 * e_sm);
+    free(ds);
+    free(dn);
+    free(dl);
+    sq_body_destroy(b);
+    sq_mesh_free(m);
+
+    /* the scene key: "smoothed" accepted; refused with corotational / paper / adaptive, naming
+     * the supported combination; a wrong value lists the three */
+    char dir[300];
+    snprintf(dir, sizeof dir, "%s/locking-scene", sq_test_tmpdir());
+    CHECK(th_make_dir(dir) == 0);
+    th_write_box_msh(dir, "a.msh", 2);
+    static const struct {
+        const char *extra, *expect;
+    } sc[] = {
+        {"\"pressure\": \"smoothed\"", NULL},
+        {"\"pressure\": \"smoothed\", \"elasticity\": \"corotational\"",
+         "pressure: \"smoothed\" runs with \"operator\": \"fem\", \"elasticity\": \"linear\" and fixed lod only"},
+        {"\"pressure\": \"smoothed\", \"operator\": \"paper\"", "\"smoothed\" runs with \"operator\": \"fem\""},
+        {"\"pressure\": \"smoothed\", \"lod\": {\"mode\": \"adaptive\"}", "\"smoothed\" runs with"},
+        {"\"pressure\": \"face\"", "\"element\" (default: one pressure per tet), \"nodal\""},
+    };
+    for (int k = 0; k < 5; k++) {
+        char json[600];
+        snprintf(json, sizeof json,
+                 "{\"bodies\": [{\"name\": \"c\", \"levels\": [\"a.msh\"], \"material\": {\"E\": 1e5, \"nu\": 0.45}, "
+                 "\"fixed\": [{\"box\": [[-1, -1, -1], [2, 2, 0.01]]}], %s}]}",
+                 sc[k].extra);
+        memset(&e, 0, sizeof e);
+        sq_scene *s = sq_scene_parse(json, dir, "t.json", &e);
+        if (!sc[k].expect) {
+            CHECK(s != NULL);
+            if (!s)
+                fprintf(stderr, "    %s\n", e.msg);
+            else
+                CHECK(s->bodies[0].nodal_pressure == SQ_PRESSURE_SMOOTHED);
+        } else {
+            CHECK(s == NULL);
+            CHECK_CONTAINS(e.msg, sc[k].expect);
+        }
+        if (s)
+            sq_scene_free(s);
+    }
+
+    /* the protocol: set.pressure "smoothed" decodes to SQ_PRESSURE_SMOOTHED; a wrong value is refused */
+    sq_request r;
+    sq_net_error ne;
+    const char *ok = "{\"type\": \"set\", \"pressure\": \"smoothed\"}";
+    CHECK(sq_request_decode(ok, strlen(ok), 65536, &r, &ne) == 0);
+    CHECK(r.set.has_pressure && r.set.nodal_pressure == SQ_PRESSURE_SMOOTHED);
+    const char *bad = "{\"type\": \"set\", \"pressure\": \"fs\"}";
+    CHECK(sq_request_decode(bad, strlen(bad), 65536, &r, &ne) == -1);
 }
