@@ -33,7 +33,9 @@ struct sq_anp {
     int ntets, n;
     double *grad;   /* per tet: a_0..a_3 (12) and V */
     int *nb;        /* smoothed: per tet, the tet across the face opposite corner k, -1 on the boundary (4) */
-    double *G;      /* smoothed: scratch displacement gradient per tet (9) */
+    double *wf;     /* smoothed: per tet, the weights of its face averages: V_o / (V + V_o) of the tet o
+                       across face k (0 on the boundary), then sum_k V / (V + V_o) (1 for a boundary face) (5) */
+    double *E;      /* smoothed: scratch deviatoric strain per tet, xx yy zz xy yz xz (6) */
     double *theta;  /* nodal volumetric strain scratch (n) */
     double *w;      /* scratch u = d + b v (3n) */
     double mu, kappa;
@@ -106,8 +108,20 @@ sq_anp *sq_anp_create(const sq_mesh *m, int n, int mode)
     }
     if (mode == SQ_PRESSURE_SMOOTHED) {
         A->nb = sq_malloc(sizeof(int) * 4 * (size_t)m->ntets);
-        A->G = sq_malloc(sizeof(double) * 9 * (size_t)m->ntets);
+        A->wf = sq_malloc(sizeof(double) * 5 * (size_t)m->ntets);
+        A->E = sq_malloc(sizeof(double) * 6 * (size_t)m->ntets);
         tet_neighbours(m, A->nb);
+        for (int t = 0; t < m->ntets; t++) {
+            const double V = A->grad[13 * (size_t)t + 12];
+            double *w = A->wf + 5 * (size_t)t;
+            w[4] = 0;
+            for (int k = 0; k < 4; k++) {
+                int o = A->nb[4 * (size_t)t + k];
+                double Vo = o < 0 ? 0 : A->grad[13 * (size_t)o + 12];
+                w[k] = Vo / (V + Vo);
+                w[4] += V / (V + Vo);
+            }
+        }
     }
     return A;
 }
@@ -129,7 +143,8 @@ void sq_anp_destroy(sq_anp *A)
         return;
     free(A->grad);
     free(A->nb);
-    free(A->G);
+    free(A->wf);
+    free(A->E);
     free(A->theta);
     free(A->w);
     free(A);
@@ -147,14 +162,19 @@ void sq_anp_apply(const sq_anp *A, const sq_mesh *m, const double *vol, const do
         const int *tv = m->tets + 4 * (size_t)t;
         double th = 0;
         if (smooth) {
-            double *G = A->G + 9 * (size_t)t;
-            for (int q = 0; q < 9; q++)
-                G[q] = 0;
+            double G[9] = {0};
             for (int k = 0; k < 4; k++)
                 for (int r = 0; r < 3; r++)
                     for (int c = 0; c < 3; c++)
                         G[3 * r + c] += x[3 * tv[k] + r] * a[3 * k + c];
             th = G[0] + G[4] + G[8];
+            double *E = A->E + 6 * (size_t)t; /* dev sym G: the face averages are linear in it */
+            E[0] = G[0] - th / 3;
+            E[1] = G[4] - th / 3;
+            E[2] = G[8] - th / 3;
+            E[3] = 0.5 * (G[1] + G[3]);
+            E[4] = 0.5 * (G[5] + G[7]);
+            E[5] = 0.5 * (G[2] + G[6]);
         } else {
             for (int k = 0; k < 4; k++)
                 th += a[3 * k] * x[3 * tv[k]] + a[3 * k + 1] * x[3 * tv[k] + 1] + a[3 * k + 2] * x[3 * tv[k] + 2];
@@ -172,28 +192,26 @@ void sq_anp_apply(const sq_anp *A, const sq_mesh *m, const double *vol, const do
         double sig[9];
         const double tbar = 0.25 * (A->theta[tv[0]] + A->theta[tv[1]] + A->theta[tv[2]] + A->theta[tv[3]]);
         if (smooth) {
-            /* deviatoric stress: sum over the tet's four face domains of (V / 4) 2 mu dev sym eps_f */
-            const double *Gt = A->G + 9 * (size_t)t;
-            double S[9] = {0};
-            for (int k = 0; k < 4; k++) {
-                int o = A->nb[4 * (size_t)t + k];
-                double Gf[9];
-                if (o < 0) {
-                    memcpy(Gf, Gt, sizeof Gf);
-                } else {
-                    const double Vo = A->grad[13 * (size_t)o + 12], wt = V / (V + Vo), wo = Vo / (V + Vo);
-                    const double *Go = A->G + 9 * (size_t)o;
-                    for (int q = 0; q < 9; q++)
-                        Gf[q] = wt * Gt[q] + wo * Go[q];
+            /* deviatoric stress: sum over the tet's four face domains f of (V / 4) 2 mu dev eps_f,
+             * dev eps_f = (V E_t + V_o E_o) / (V + V_o) (E_t alone on a boundary face) */
+            const double *w = A->wf + 5 * (size_t)t, *Et = A->E + 6 * (size_t)t;
+            const int *nb = A->nb + 4 * (size_t)t;
+            double S[6];
+            for (int q = 0; q < 6; q++)
+                S[q] = w[4] * Et[q];
+            for (int k = 0; k < 4; k++)
+                if (nb[k] >= 0) {
+                    const double *Eo = A->E + 6 * (size_t)nb[k];
+                    for (int q = 0; q < 6; q++)
+                        S[q] += w[k] * Eo[q];
                 }
-                double trf = Gf[0] + Gf[4] + Gf[8];
-                for (int r = 0; r < 3; r++)
-                    for (int c = 0; c < 3; c++)
-                        S[3 * r + c] += Gf[3 * r + c] + Gf[3 * c + r] - (r == c ? 2.0 * trf / 3.0 : 0);
-            }
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++)
-                    sig[3 * r + c] = V * (0.25 * mu * S[3 * r + c] + (r == c ? kappa * tbar : 0));
+            const double hm = 0.5 * mu * V, p = V * kappa * tbar;
+            sig[0] = hm * S[0] + p;
+            sig[4] = hm * S[1] + p;
+            sig[8] = hm * S[2] + p;
+            sig[1] = sig[3] = hm * S[3];
+            sig[5] = sig[7] = hm * S[4];
+            sig[2] = sig[6] = hm * S[5];
         } else {
             for (int k = 0; k < 4; k++)
                 for (int r = 0; r < 3; r++)
