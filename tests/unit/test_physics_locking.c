@@ -1,13 +1,15 @@
-/* test_physics_locking.c - locking of linear tets and the average nodal pressure option
- * (sq_level_static_solve_nodal_pressure; docs/physics.md section 10): the clamped beam's static
- * tip under its own weight against beam theory, today's tets and the option side by side. */
+/* test_physics_locking.c - locking of linear tets, the average nodal pressure option
+ * (sq_level_static_solve_nodal_pressure) and the smoothed option (face-smoothed deviatoric strain
+ * with nodal pressure, sq_level_static_solve_pressure; docs/physics.md section 10): the clamped
+ * beam's static tip under its own weight against beam theory, the three side by side. */
 #include "net/net.h"
 #include "scene/scene.h"
 #include "sq_test.h"
 #include "test_scene_helpers.h"
 #include "test_sim_helpers.h"
 
-/* mean tip-face u_z of the cantilever (clamped at x = 0) under gravity -z; anp: nodal pressure */
+/* mean tip-face u_z of the cantilever (clamped at x = 0) under gravity -z; anp: 0 element-wise,
+ * 1 nodal pressure, 2 smoothed */
 static double beam_tip(const sq_mesh *m, double nu, int anp)
 {
     sq_material mat = th_material(1, 1, 1000);
@@ -51,7 +53,13 @@ static double eb_tip(double L, double h)
  * tets remove the volumetric part (not the shear locking of coarse bending), never stiffen, and
  * are never more than 3 % softer than beam theory (the converged 3-D tip: shear adds about 1 %,
  * the clamp's full restraint takes some off). */
-SQ_TEST(locking_beam_tip_today_and_nodal_pressure)
+/* the converged 3-D tip of this cantilever over Euler-Bernoulli at nu 0.3 / 0.45 / 0.49: the
+ * smoothed tets' static tip on the 160 x 16 x 16 box mesh (46,529 nodes), the finest mesh
+ * measured (docs/physics.md section 10: all three elements converge to it from below; the
+ * extrapolated limit is within 1 % of it; too slow for this test, measured once) */
+static const double converged_3d[3] = {0.9971, 0.9833, 0.97};
+
+SQ_TEST(locking_beam_tip_today_nodal_smoothed)
 {
 #ifdef __SANITIZE_ADDRESS__
     /* the sanitizer build checks memory, not the physics twice (as test_physics_cube.c): 36
@@ -62,7 +70,7 @@ SQ_TEST(locking_beam_tip_today_and_nodal_pressure)
     static const double nus[3] = {0.3, 0.45, 0.49};
     const double ref = eb_tip(1, 0.1);
     const char *names[6] = {"beam_l0", "beam_l1", "beam_l2", "beam_l3", "box 20x2x2", "box 40x4x4"};
-    double r_std[6][3], r_anp[6][3];
+    double r_std[6][3], r_anp[6][3], r_sm[6][3];
     int nodes[6];
     for (int k = 0; k < 6; k++) {
         sq_mesh *m = NULL;
@@ -80,10 +88,11 @@ SQ_TEST(locking_beam_tip_today_and_nodal_pressure)
         for (int j = 0; j < 3; j++) {
             r_std[k][j] = beam_tip(m, nus[j], 0) / ref;
             r_anp[k][j] = beam_tip(m, nus[j], 1) / ref;
+            r_sm[k][j] = beam_tip(m, nus[j], 2) / ref;
         }
         fprintf(stderr, "    %-11s %5d nodes: tip / Euler-Bernoulli  today %.3f %.3f %.3f   nodal pressure %.3f %.3f %.3f"
-                        "  (nu 0.3 0.45 0.49)\n", names[k], nodes[k], r_std[k][0], r_std[k][1], r_std[k][2],
-                r_anp[k][0], r_anp[k][1], r_anp[k][2]);
+                        "   smoothed %.3f %.3f %.3f  (nu 0.3 0.45 0.49)\n", names[k], nodes[k], r_std[k][0], r_std[k][1],
+                r_std[k][2], r_anp[k][0], r_anp[k][1], r_anp[k][2], r_sm[k][0], r_sm[k][1], r_sm[k][2]);
         sq_mesh_free(m);
     }
     for (int k = 0; k < 6; k++)
@@ -106,6 +115,31 @@ SQ_TEST(locking_beam_tip_today_and_nodal_pressure)
     /* locking grows with nu for today's tets, on every mesh */
     for (int k = 0; k < 6; k++)
         CHECK(r_std[k][2] < r_std[k][1] && r_std[k][1] < r_std[k][0]);
+
+    /* smoothed: never stiffer than nodal pressure (its energy is below that one's: Jensen over the
+     * face domains), and takes off shear locking too: at least 0.04 of the theory more than nodal
+     * pressure on every mesh but the finest level (where the two are within 0.02 of the limit).
+     * No over-softening: below the converged 3-D tip on every mesh and nu (the elements converge
+     * from below), which is itself within 1 % of Euler-Bernoulli (shear adds about 1 %, the
+     * clamped end face's restrained Poisson contraction takes about as much off). */
+    for (int k = 0; k < 6; k++)
+        for (int j = 0; j < 3; j++) {
+            CHECK(r_sm[k][j] >= r_anp[k][j]);
+            if (k != 3)
+                CHECK(r_sm[k][j] >= r_anp[k][j] + 0.04);
+            CHECK(r_sm[k][j] < converged_3d[j]);
+        }
+    /* convergence over the shipped levels at every nu */
+    for (int k = 0; k < 3; k++)
+        for (int j = 0; j < 3; j++)
+            CHECK(r_sm[k + 1][j] > r_sm[k][j]);
+    /* the issue's aim: 0.89-0.93 of the reference at nu 0.45 where today's tets give 0.77: on
+     * beam_l2 (today 0.735) and the 40 x 4 x 4 box (today 0.600), 0.90 of Euler-Bernoulli,
+     * 0.91-0.92 of the converged tip; the 20 x 2 x 2 box (two tets' edges across) stays at 0.73 */
+    CHECK(r_sm[2][1] >= 0.89 && r_sm[5][1] >= 0.89);
+    CHECK(r_sm[4][1] >= 0.70);
+    /* at nu 0.49: within 6 % of the theory on level 3 (nodal pressure 7 %, today 23 %) */
+    CHECK(r_sm[3][2] >= 0.94);
 }
 
 /* the simulation with "pressure": "nodal": the damped run settles to the nodal pressure static
@@ -243,6 +277,32 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
     fprintf(stderr, "    x.Kx element %.6g, nodal %.6g, smoothed %.6g\n", ex[0], ex[1], ex[2]);
     CHECK(ex[2] > 0 && ex[2] < ex[1] && ex[1] < ex[0]);
     CHECK(sq_anp_mode(L.anp) == SQ_PRESSURE_SMOOTHED);
+    /* the step bound: the smoothed lambda_max(M^-1 K) (300 power iterations on M^-1/2 K M^-1/2,
+     * a lower estimate) stays below the element-wise operator's Lanczos estimate and its
+     * Gershgorin ceiling, which the step uses */
+    for (size_t k = 0; k < n3; k++)
+        x[k] = (double)((k * 7919) % 101) / 101.0 - 0.5;
+    double lam = 0;
+    for (int it = 0; it < 300; it++) {
+        double nx = 0;
+        for (size_t k = 0; k < n3; k++)
+            nx += x[k] * x[k];
+        nx = sqrt(nx);
+        for (size_t k = 0; k < n3; k++) {
+            x[k] /= nx;
+            y[k] = x[k] / sqrt(L.model.mass[k / 3]);
+        }
+        sq_level_anp_apply(&L, y, ky);
+        lam = 0;
+        for (size_t k = 0; k < n3; k++) {
+            x[k] = ky[k] / sqrt(L.model.mass[k / 3]);
+            lam += y[k] * ky[k];
+        }
+    }
+    double lan = sq_level_lanczos_max(&L, 40), ger = L.omega_max * L.omega_max;
+    fprintf(stderr, "    lambda_max(M^-1 K): smoothed (power) %.5g, element-wise Lanczos %.5g, Gershgorin %.5g\n", lam, lan,
+            ger);
+    CHECK(lam > 0 && lam < lan && lan <= ger * (1 + 1e-12));
     free(x);
     free(y);
     free(kx);
