@@ -55,9 +55,10 @@ static double eb_tip(double L, double h)
  * the clamp's full restraint takes some off). */
 /* the converged 3-D tip of this cantilever over Euler-Bernoulli at nu 0.3 / 0.45 / 0.49: the
  * smoothed tets' static tip on the 160 x 16 x 16 box mesh (46,529 nodes), the finest mesh
- * measured (docs/physics.md section 10: all three elements converge to it from below; the
- * extrapolated limit is within 1 % of it; too slow for this test, measured once) */
-static const double converged_3d[3] = {0.9971, 0.9833, 0.97};
+ * measured (docs/physics.md section 10: all three elements converge to it from below over the
+ * 40 x 4 x 4, 80 x 8 x 8 and 160 x 16 x 16 boxes; the extrapolated limit, 1.002 / 0.991 / 0.987,
+ * is within 1 % above it; too slow for this test, measured once) */
+static const double converged_3d[3] = {0.9971, 0.9833, 0.9771};
 
 SQ_TEST(locking_beam_tip_today_nodal_smoothed)
 {
@@ -120,8 +121,9 @@ SQ_TEST(locking_beam_tip_today_nodal_smoothed)
      * face domains), and takes off shear locking too: at least 0.04 of the theory more than nodal
      * pressure on every mesh but the finest level (where the two are within 0.02 of the limit).
      * No over-softening: below the converged 3-D tip on every mesh and nu (the elements converge
-     * from below), which is itself within 1 % of Euler-Bernoulli (shear adds about 1 %, the
-     * clamped end face's restrained Poisson contraction takes about as much off). */
+     * from below), which is itself within 2.5 % of Euler-Bernoulli (shear adds about 1 %, the
+     * clamped end face's restrained Poisson contraction takes off about as much, more as nu
+     * grows). */
     for (int k = 0; k < 6; k++)
         for (int j = 0; j < 3; j++) {
             CHECK(r_sm[k][j] >= r_anp[k][j]);
