@@ -446,3 +446,30 @@ SQ_TEST(locking_smoothed_body_settles_and_refuses)
     const char *bad = "{\"type\": \"set\", \"pressure\": \"fs\"}";
     CHECK(sq_request_decode(bad, strlen(bad), 65536, &r, &ne) == -1);
 }
+
+/* the converged reference of docs/physics.md section 10 (the 80 x 8 x 8 and 160 x 16 x 16 boxes,
+ * minutes of CG): runs only with SQ_LOCKING_REFERENCE=1 in the environment, e.g.
+ * SQ_LOCKING_REFERENCE=1 build/unit_tests locking_converged_reference; prints the table rows */
+SQ_TEST(locking_converged_reference)
+{
+    const char *on = getenv("SQ_LOCKING_REFERENCE");
+    if (!on || strcmp(on, "1"))
+        return;
+    static const double nus[3] = {0.3, 0.45, 0.49};
+    const double ref = eb_tip(1, 0.1);
+    double prev[3] = {0, 0, 0};
+    for (int c = 4; c <= 16; c *= 2) {
+        sq_mesh *m = th_box(10 * c, c, c, 1, 0.1, 0.1);
+        TH_REQUIRE(m);
+        for (int j = 0; j < 3; j++) {
+            double r[3];
+            for (int mode = 0; mode < 3; mode++)
+                r[mode] = beam_tip(m, nus[j], mode) / ref;
+            fprintf(stderr, "    box %dx%dx%d (%d nodes) nu %.2f: today %.4f nodal %.4f smoothed %.4f\n", 10 * c, c, c,
+                    m->nnodes, nus[j], r[0], r[1], r[2]);
+            CHECK(r[2] > prev[j]); /* converging from below */
+            prev[j] = r[2];
+        }
+        sq_mesh_free(m);
+    }
+}
