@@ -39,6 +39,16 @@ struct sq_anp {
     double *theta;  /* nodal volumetric strain scratch (n) */
     double *w;      /* scratch u = d + b v (3n) */
     double mu, kappa;
+    /* the step's copy of the same data in blocks of four tets, lane-innermost (the passes of
+     * anp_apply_blocked run four tets at once in vector lanes; the last block is padded with
+     * tets of zero gradients and volume on node 0) */
+    int nblk;
+    int *btv;       /* corners: [blk][corner k][lane] (16) */
+    double *bg;     /* gradients and volume: [blk][3k + c or 12][lane] (52) */
+    int *bnb;       /* smoothed: face neighbours [blk][k][lane], the tet itself on the boundary (16) */
+    double *bw;     /* smoothed: face weights [blk][k or 4][lane], 0 on the boundary (20) */
+    double *bE;     /* smoothed: scratch deviatoric strain per tet, xx yy zz xy yz xz and 2 pad (8: one
+                       cache line, gathered whole for each face neighbour) */
 };
 
 /* the four faces of a tet: corners other than k */
@@ -123,6 +133,38 @@ sq_anp *sq_anp_create(const sq_mesh *m, int n, int mode)
             }
         }
     }
+    /* the blocked copy */
+    A->nblk = (m->ntets + 3) / 4;
+    size_t nb4 = (size_t)A->nblk;
+    A->btv = sq_calloc(16 * nb4, sizeof(int));
+    A->bg = sq_calloc(52 * nb4, sizeof(double));
+    for (int t = 0; t < m->ntets; t++) {
+        size_t b = (size_t)t / 4;
+        int l = t % 4;
+        for (int k = 0; k < 4; k++)
+            A->btv[16 * b + 4 * k + l] = m->tets[4 * (size_t)t + k];
+        for (int q = 0; q < 13; q++)
+            A->bg[52 * b + 4 * q + l] = A->grad[13 * (size_t)t + q];
+    }
+    if (mode == SQ_PRESSURE_SMOOTHED) {
+        A->bnb = sq_calloc(16 * nb4, sizeof(int));
+        A->bw = sq_calloc(20 * nb4, sizeof(double));
+        /* 64-byte aligned: each tet's 8 values are one cache line */
+        A->bE = aligned_alloc(64, 32 * nb4 * sizeof(double));
+        if (!A->bE)
+            A->bE = sq_malloc(32 * nb4 * sizeof(double)); /* unaligned is only slower */
+        memset(A->bE, 0, 32 * nb4 * sizeof(double));       /* the 2 pad values are read, never written */
+        for (int t = 0; t < m->ntets; t++) {
+            size_t b = (size_t)t / 4;
+            int l = t % 4;
+            for (int k = 0; k < 4; k++) {
+                int o = A->nb[4 * (size_t)t + k];
+                A->bnb[16 * b + 4 * k + l] = o < 0 ? t : o;
+            }
+            for (int q = 0; q < 5; q++)
+                A->bw[20 * b + 4 * q + l] = A->wf[5 * (size_t)t + q];
+        }
+    }
     return A;
 }
 
@@ -147,10 +189,16 @@ void sq_anp_destroy(sq_anp *A)
     free(A->E);
     free(A->theta);
     free(A->w);
+    free(A->btv);
+    free(A->bg);
+    free(A->bnb);
+    free(A->bw);
+    free(A->bE);
     free(A);
 }
 
-/* y = K x (all nodes; vol: the nodal volumes W_i) */
+/* y = K x (all nodes; vol: the nodal volumes W_i): the plain per-tet form, the reference the
+ * static solve uses and the blocked step pass is checked against */
 void sq_anp_apply(const sq_anp *A, const sq_mesh *m, const double *vol, const double *x, double *y)
 {
     const double mu = A->mu, kappa = A->kappa;
@@ -229,6 +277,132 @@ void sq_anp_apply(const sq_anp *A, const sq_mesh *m, const double *vol, const do
     }
 }
 
+/* y = K x, the same operator as sq_anp_apply, four tets at once: every loop over `l` is a
+ * vector of the four lanes (portable C the compiler vectorises; gathers and scatters scalar) */
+static void anp_apply_blocked(const sq_anp *A, const double *vol, const double *x, double *y)
+{
+    const double mu = A->mu, kappa = A->kappa;
+    const int smooth = A->mode == SQ_PRESSURE_SMOOTHED;
+    double *theta = A->theta;
+    memset(theta, 0, sizeof(double) * (size_t)A->n);
+    memset(y, 0, sizeof(double) * 3 * (size_t)A->n);
+    /* pass 1: volumetric strain to the nodes; smoothed: each tet's deviatoric strain */
+    for (int b = 0; b < A->nblk; b++) {
+        const int *tv = A->btv + 16 * (size_t)b;
+        const double *g = A->bg + 52 * (size_t)b;
+        double xl[12][4], th[4];
+        for (int k = 0; k < 4; k++)
+            for (int l = 0; l < 4; l++)
+                for (int r = 0; r < 3; r++)
+                    xl[3 * k + r][l] = x[3 * (size_t)tv[4 * k + l] + r];
+        if (smooth) {
+            double G[9][4];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    for (int l = 0; l < 4; l++)
+                        G[3 * r + c][l] = xl[r][l] * g[4 * c + l] + xl[3 + r][l] * g[4 * (3 + c) + l] +
+                                          xl[6 + r][l] * g[4 * (6 + c) + l] + xl[9 + r][l] * g[4 * (9 + c) + l];
+            double Eb[6][4];
+            for (int l = 0; l < 4; l++) {
+                th[l] = G[0][l] + G[4][l] + G[8][l];
+                Eb[0][l] = G[0][l] - th[l] / 3;
+                Eb[1][l] = G[4][l] - th[l] / 3;
+                Eb[2][l] = G[8][l] - th[l] / 3;
+                Eb[3][l] = 0.5 * (G[1][l] + G[3][l]);
+                Eb[4][l] = 0.5 * (G[5][l] + G[7][l]);
+                Eb[5][l] = 0.5 * (G[2][l] + G[6][l]);
+            }
+            double *E = A->bE + 32 * (size_t)b;
+            for (int l = 0; l < 4; l++)
+                for (int q = 0; q < 6; q++)
+                    E[8 * l + q] = Eb[q][l];
+        } else {
+            for (int l = 0; l < 4; l++)
+                th[l] = 0;
+            for (int q = 0; q < 12; q++)
+                for (int l = 0; l < 4; l++)
+                    th[l] += xl[q][l] * g[4 * q + l];
+        }
+        for (int l = 0; l < 4; l++)
+            th[l] *= 0.25 * g[48 + l];
+        for (int k = 0; k < 4; k++)
+            for (int l = 0; l < 4; l++)
+                theta[tv[4 * k + l]] += th[l];
+    }
+    /* node pass: the nodal pressure kappa theta_i */
+    for (int i = 0; i < A->n; i++)
+        theta[i] = kappa * theta[i] / vol[i];
+    /* pass 2: stresses and forces */
+    for (int b = 0; b < A->nblk; b++) {
+        const int *tv = A->btv + 16 * (size_t)b;
+        const double *g = A->bg + 52 * (size_t)b;
+        double sig[9][4], p[4];
+        for (int l = 0; l < 4; l++)
+            p[l] = 0.25 * g[48 + l] *
+                   (theta[tv[l]] + theta[tv[4 + l]] + theta[tv[8 + l]] + theta[tv[12 + l]]); /* V kappa tbar */
+        if (smooth) {
+            const int *nb = A->bnb + 16 * (size_t)b;
+            const double *w = A->bw + 20 * (size_t)b, *E = A->bE + 32 * (size_t)b;
+            double S[6][4];
+            for (int l = 0; l < 4; l++) {
+                double Sl[8];
+                for (int q = 0; q < 8; q++)
+                    Sl[q] = w[16 + l] * E[8 * l + q];
+                for (int k = 0; k < 4; k++) {
+                    const double *Eo = A->bE + 8 * (size_t)nb[4 * k + l], wk = w[4 * k + l];
+                    for (int q = 0; q < 8; q++)
+                        Sl[q] += wk * Eo[q];
+                }
+                for (int q = 0; q < 6; q++)
+                    S[q][l] = Sl[q];
+            }
+            for (int l = 0; l < 4; l++) {
+                const double hm = 0.5 * mu * g[48 + l];
+                sig[0][l] = hm * S[0][l] + p[l];
+                sig[4][l] = hm * S[1][l] + p[l];
+                sig[8][l] = hm * S[2][l] + p[l];
+                sig[1][l] = sig[3][l] = hm * S[3][l];
+                sig[5][l] = sig[7][l] = hm * S[4][l];
+                sig[2][l] = sig[6][l] = hm * S[5][l];
+            }
+        } else {
+            double xl[12][4], G[9][4];
+            for (int k = 0; k < 4; k++)
+                for (int l = 0; l < 4; l++)
+                    for (int r = 0; r < 3; r++)
+                        xl[3 * k + r][l] = x[3 * (size_t)tv[4 * k + l] + r];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    for (int l = 0; l < 4; l++)
+                        G[3 * r + c][l] = xl[r][l] * g[4 * c + l] + xl[3 + r][l] * g[4 * (3 + c) + l] +
+                                          xl[6 + r][l] * g[4 * (6 + c) + l] + xl[9 + r][l] * g[4 * (9 + c) + l];
+            for (int l = 0; l < 4; l++) {
+                const double V = g[48 + l], tr = G[0][l] + G[4][l] + G[8][l];
+                const double dg = p[l] - V * 2.0 * mu * tr / 3.0;
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        sig[3 * r + c][l] = V * mu * (G[3 * r + c][l] + G[3 * c + r][l]) + (r == c ? dg : 0);
+            }
+        }
+        double f[12][4];
+        for (int k = 0; k < 4; k++)
+            for (int r = 0; r < 3; r++)
+                for (int l = 0; l < 4; l++)
+                    f[3 * k + r][l] = sig[3 * r][l] * g[4 * (3 * k) + l] + sig[3 * r + 1][l] * g[4 * (3 * k + 1) + l] +
+                                      sig[3 * r + 2][l] * g[4 * (3 * k + 2) + l];
+        for (int k = 0; k < 4; k++)
+            for (int l = 0; l < 4; l++)
+                for (int r = 0; r < 3; r++)
+                    y[3 * (size_t)tv[4 * k + l] + r] += f[3 * k + r][l];
+    }
+}
+
+/* the step's form of y = K x (the blocked pass); exposed for the test against sq_anp_apply */
+void sq_anp_apply_fast(const sq_anp *A, const double *vol, const double *x, double *y)
+{
+    anp_apply_blocked(A, vol, x, y);
+}
+
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err)
 {
     if (op != SQ_OPERATOR_FEM)
@@ -253,7 +427,7 @@ void sq_level_anp_free(sq_level *L)
 
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
 {
-    sq_anp_apply(L->anp, L->model.mesh, L->model.vol, x, y);
+    anp_apply_blocked(L->anp, L->model.vol, x, y);
 }
 
 void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
