@@ -107,7 +107,7 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     if ((b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
          sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) ||
-        (b->def.nodal_pressure && sq_level_anp_enable(L, &b->def.material, b->def.op, err) < 0)) {
+        (b->def.nodal_pressure && sq_level_anp_enable(L, &b->def.material, b->def.op, b->def.nodal_pressure, err) < 0)) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     }
@@ -206,12 +206,15 @@ void sq_body_set_levels_fixed(sq_body *b)
 #define NODAL_MSG                                                                                          \
     "nodal pressure tets (\"pressure\": \"nodal\") run with the fem operator, linear elasticity and fixed "   \
     "lod only: use those, or \"pressure\": \"element\""
+#define SMOOTHED_MSG                                                                                       \
+    "smoothed tets (\"pressure\": \"smoothed\": nodal pressure tets with face-smoothed strain) run with the " \
+    "fem operator, linear elasticity and fixed lod only: use those, or \"pressure\": \"element\""
 
-/* is nodal pressure allowed with the rest? */
+/* is nodal pressure (or smoothed) allowed with the rest? */
 int sq_body_check_pressure(int nodal, sq_elasticity_kind e, sq_operator_kind op, sq_lod_mode mode, sq_err *err)
 {
     if (nodal && (e != SQ_ELASTICITY_LINEAR || op != SQ_OPERATOR_FEM || mode != SQ_LOD_FIXED))
-        return sq_err_set(err, NODAL_MSG);
+        return sq_err_set(err, nodal == SQ_PRESSURE_SMOOTHED ? SMOOTHED_MSG : NODAL_MSG);
     return 0;
 }
 

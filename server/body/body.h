@@ -33,7 +33,7 @@ typedef struct sq_body_def {
     int sharp_step;       /* 1 = step from a Lanczos estimate of the bound (Gershgorin as ceiling):
                              fixed mode any integer substep count, adaptive mode 2^n per level from
                              the coupled operator (lod/bound.c); 0 (default) = Gershgorin, 2^n */
-    int nodal_pressure;   /* 1: average nodal pressure tets (fem, linear, fixed lod; less locking) */
+    int nodal_pressure;   /* SQ_PRESSURE_*: 1 average nodal pressure tets, 2 smoothed (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
 /* defaults: fem, gravity 0, 50 Hz, fixed lod at level 0, budget 0.95, step_fraction 0.9 */
@@ -81,8 +81,9 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err);
 /* linear <-> corotational; corotational is refused (nothing changes) with the paper operator or
  * in adaptive lod mode; the state is kept */
 int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err);
-/* element-wise (0) <-> average nodal pressure (1) tets; refused (nothing changes) with the paper
- * operator, corotational elasticity or adaptive lod; the state is kept */
+/* element-wise (SQ_PRESSURE_ELEMENT), average nodal pressure (SQ_PRESSURE_NODAL) or smoothed
+ * (SQ_PRESSURE_SMOOTHED) tets; the last two are refused (nothing changes) with the paper operator,
+ * corotational elasticity or adaptive lod; the state is kept */
 int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err);
 
 /* back to rest (zero displacement and velocity, coarse level) */

@@ -26,7 +26,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
             continue;
         if (sq_level_init(&fresh[k], b->def.levels[k], m, op, b->def.constraints, b->def.nconstraints, err) < 0 ||
             (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
-            (b->def.nodal_pressure && sq_level_anp_enable(&fresh[k], m, op, err) < 0) ||
+            (b->def.nodal_pressure && sq_level_anp_enable(&fresh[k], m, op, b->def.nodal_pressure, err) < 0) ||
             sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
             /* the Lanczos estimate only where it is used (a set flood must stay cheap) */
             (b->def.sharp_step &&
@@ -161,7 +161,8 @@ int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
 
 int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err)
 {
-    nodal = nodal != 0;
+    if (nodal < SQ_PRESSURE_ELEMENT || nodal > SQ_PRESSURE_SMOOTHED)
+        return sq_err_set(err, "pressure %d is unknown: use element, nodal or smoothed", nodal);
     if (sq_body_check_pressure(nodal, b->def.elasticity, b->def.op, b->def.lod.mode, err) < 0)
         return -1;
     if (nodal == b->def.nodal_pressure)
@@ -170,7 +171,7 @@ int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err)
         if (!b->ready[k])
             continue;
         if (nodal) {
-            if (sq_level_anp_enable(&b->level[k], &b->def.material, b->def.op, err) < 0) {
+            if (sq_level_anp_enable(&b->level[k], &b->def.material, b->def.op, nodal, err) < 0) {
                 for (int j = 0; j < k; j++)
                     sq_level_anp_free(&b->level[j]);
                 return -1;

@@ -58,6 +58,11 @@ typedef struct sq_constraint {
 typedef struct sq_corot sq_corot;
 typedef struct sq_anp sq_anp;
 
+/* the volumetric (and deviatoric) treatment of a body's tets ("pressure" in scenes and set):
+ * element-wise (the standard tets), average nodal pressure, or nodal pressure with the
+ * deviatoric strain smoothed over face domains (docs/physics.md section 10) */
+enum { SQ_PRESSURE_ELEMENT = 0, SQ_PRESSURE_NODAL = 1, SQ_PRESSURE_SMOOTHED = 2 };
+
 /* the constant model of one level: rest mesh, topology, operator blocks, masses and constrained
  * axes. Built by sq_level_init and rebuilt only by sq_level_set_material; the step, the force
  * passes, the residual and the static solver only read it (const sq_level_model *). */
@@ -308,13 +313,28 @@ int sq_level_static_solve(const sq_level_model *M, const double gravity[3], doub
 int sq_level_static_solve_nodal_pressure(const sq_level_model *M, const sq_material *mat, const double gravity[3],
                                          double tol, int max_iter, double *d, int *iterations, sq_err *err);
 
-/* average nodal pressure tets (level/anp.c; fem operator, linear elasticity, fixed mode): with
- * L->anp set, sq_level_step and sq_level_forces use them; enable refuses the paper operator */
-int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
+/* the same static solve with a pressure mode of level/anp.c (SQ_PRESSURE_NODAL: as above;
+ * SQ_PRESSURE_SMOOTHED: face-smoothed deviatoric strain with nodal pressure; docs/physics.md
+ * section 10); mat gives mu and lambda */
+int sq_level_static_solve_pressure(const sq_level_model *M, const sq_material *mat, int mode, const double gravity[3],
+                                   double tol, int max_iter, double *d, int *iterations, sq_err *err);
+
+/* average nodal pressure tets and smoothed tets (level/anp.c; fem operator, linear elasticity,
+ * fixed mode): with L->anp set, sq_level_step and sq_level_forces use them; enable (mode
+ * SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED) refuses the paper operator */
+int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err);
 void sq_level_anp_free(sq_level *L);
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
 void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
 double sq_level_anp_energy(const sq_level *L);
+/* the operator alone, on a mesh with n nodes of nodal volumes vol (the static solve's use) */
+sq_anp *sq_anp_create(const sq_mesh *m, int n, int mode);
+void sq_anp_set_moduli(sq_anp *A, double mu, double lambda);
+int sq_anp_mode(const sq_anp *A);
+void sq_anp_apply(const sq_anp *A, const sq_mesh *m, const double *vol, const double *x, double *y); /* y = K x */
+/* the same y = K x as the step computes it (four tets at once; equal to round-off) */
+void sq_anp_apply_fast(const sq_anp *A, const double *vol, const double *x, double *y);
+void sq_anp_destroy(sq_anp *A);
 
 /* 0.5 d.K d of the level's current displacement (J) */
 double sq_level_elastic_energy(const sq_level *L);

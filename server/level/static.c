@@ -185,3 +185,38 @@ int sq_level_static_solve_nodal_pressure(const sq_level_model *M, const sq_mater
     free(c.theta);
     return rc;
 }
+
+/* ---- the pressure modes of level/anp.c (nodal, smoothed) through its operator ---------------
+ * y = P K P x with P zeroing the constrained axes: symmetric, and the step's own operator */
+typedef struct {
+    sq_anp *A;
+    double *xm; /* scratch: x with the constrained axes zeroed */
+} anp_op_ctx;
+
+static void anp_op_matvec(const sq_level_model *M, const void *vctx, const double *x, double *y)
+{
+    const anp_op_ctx *c = vctx;
+    for (int i = 0; i < M->n; i++)
+        for (int r = 0; r < 3; r++)
+            c->xm[3 * i + r] = (M->fixed[i] & (1u << r)) ? 0 : x[3 * i + r];
+    sq_anp_apply(c->A, M->mesh, M->vol, c->xm, y);
+    for (int i = 0; i < M->n; i++)
+        for (int r = 0; r < 3; r++)
+            if (M->fixed[i] & (1u << r))
+                y[3 * i + r] = 0;
+}
+
+int sq_level_static_solve_pressure(const sq_level_model *M, const sq_material *mat, int mode, const double gravity[3],
+                                   double tol, int max_iter, double *d, int *iterations, sq_err *err)
+{
+    if (mode == SQ_PRESSURE_ELEMENT)
+        return sq_level_static_solve(M, gravity, tol, max_iter, d, iterations, err);
+    if (mode != SQ_PRESSURE_NODAL && mode != SQ_PRESSURE_SMOOTHED)
+        return sq_err_set(err, "pressure mode %d is unknown: use element, nodal or smoothed", mode);
+    anp_op_ctx c = {sq_anp_create(M->mesh, M->n, mode), sq_malloc(sizeof(double) * 3 * (size_t)M->n)};
+    sq_anp_set_moduli(c.A, mat->mu, mat->lambda);
+    int rc = cg_solve(M, anp_op_matvec, &c, gravity, tol, max_iter, d, iterations, err);
+    sq_anp_destroy(c.A);
+    free(c.xm);
+    return rc;
+}

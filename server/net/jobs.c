@@ -101,7 +101,7 @@ static void do_set(sq_session *s, const sq_job *j)
         old_np[b] = d->nodal_pressure;
         sq_err err = {{0}};
         int rc = 0;
-        /* pressure: element first, nodal last (it needs fem, linear and fixed lod) */
+        /* pressure: element first, nodal or smoothed last (they need fem, linear and fixed lod) */
         if (r->set.has_pressure && !r->set.nodal_pressure)
             rc = sq_body_set_pressure(body, 0, &err);
         /* elasticity: linear before the other changes, corotational after them (it needs fem and
@@ -151,7 +151,8 @@ static void do_set(sq_session *s, const sq_job *j)
             if (changed_mat)
                 sq_body_set_material(body, &old_m[b], old_op[b], NULL);
         }
-        if (!rc && r->set.has_pressure && r->set.nodal_pressure && (rc = sq_body_set_pressure(body, 1, &err)) < 0) {
+        if (!rc && r->set.has_pressure && r->set.nodal_pressure &&
+            (rc = sq_body_set_pressure(body, r->set.nodal_pressure, &err)) < 0) {
             if (r->set.has_elasticity && old_el[b] == SQ_ELASTICITY_LINEAR)
                 sq_body_set_elasticity(body, old_el[b], NULL);
             if (changed_lod)
@@ -177,7 +178,7 @@ static void do_set(sq_session *s, const sq_job *j)
                 if (r->set.has_elasticity && old_el[k] == SQ_ELASTICITY_COROTATIONAL)
                     sq_body_set_elasticity(w->bodies[k], old_el[k], NULL);
                 if (r->set.has_pressure && old_np[k])
-                    sq_body_set_pressure(w->bodies[k], 1, NULL);
+                    sq_body_set_pressure(w->bodies[k], old_np[k], NULL);
             }
             char msg[400];
             snprintf(msg, sizeof msg, "body %d (\"%.40s\"): %.260s", b, s->scene->body_names[b], err.msg);

@@ -105,7 +105,9 @@ cJSON *sq_settings_json(const sq_world *w, int bi)
     cJSON_AddNumberToObject(dm, "stiffness", d->material.rayleigh_stiffness);
     cJSON_AddStringToObject(o, "operator", d->op == SQ_OPERATOR_PAPER ? "paper" : "fem");
     cJSON_AddStringToObject(o, "elasticity", d->elasticity == SQ_ELASTICITY_COROTATIONAL ? "corotational" : "linear");
-    cJSON_AddStringToObject(o, "pressure", d->nodal_pressure ? "nodal" : "element");
+    cJSON_AddStringToObject(o, "pressure", d->nodal_pressure == SQ_PRESSURE_SMOOTHED ? "smoothed"
+                                            : d->nodal_pressure                      ? "nodal"
+                                                                                     : "element");
     cJSON *l = cJSON_AddObjectToObject(o, "lod");
     cJSON_AddStringToObject(l, "mode", d->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed");
     cJSON_AddNumberToObject(l, "level", sq_world_listed_level(w, bi, d->lod.level));

@@ -209,7 +209,7 @@ static const char *const roles[] = {"control", "view", NULL};
 static const char *const shapes[] = {"sphere", "box", "grab", NULL};
 static const char *const operators[] = {"fem", "paper", NULL};
 static const char *const elasticities[] = {"linear", "corotational", NULL};
-static const char *const pressures[] = {"element", "nodal", NULL};
+static const char *const pressures[] = {"element", "nodal", "smoothed", NULL}; /* SQ_PRESSURE_* */
 static const char *const lod_modes[] = {"fixed", "adaptive", NULL};
 
 static int decode_hello(const cJSON *o, sq_request *r, sq_net_error *err)

@@ -390,13 +390,20 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
                           "see docs/stability.md");
     def->sharp_step = sb && !strcmp(sb->valuestring, "sharp");
 
-    /* pressure: element (default) or nodal (average nodal pressure tets: less locking) */
+    /* pressure: element (default), nodal (average nodal pressure tets: less volumetric locking) or
+     * smoothed (nodal pressure and face-smoothed deviatoric strain: less bending locking too) */
     const cJSON *pr = scene_get(obj, "pressure");
     scene_join(p, sizeof p, path, "pressure");
-    if (pr && !(cJSON_IsString(pr) && (!strcmp(pr->valuestring, "element") || !strcmp(pr->valuestring, "nodal"))))
-        return scene_fail(c, p, "expected \"element\" (default: one pressure per tet) or \"nodal\" (average nodal "
-                          "pressure tets: less locking; fem, linear, fixed lod); see docs/physics.md section 10");
-    def->nodal_pressure = pr && !strcmp(pr->valuestring, "nodal");
+    if (pr && !(cJSON_IsString(pr) && (!strcmp(pr->valuestring, "element") || !strcmp(pr->valuestring, "nodal") ||
+                                       !strcmp(pr->valuestring, "smoothed"))))
+        return scene_fail(c, p, "expected \"element\" (default: one pressure per tet), \"nodal\" (average nodal "
+                          "pressure tets: less volumetric locking) or \"smoothed\" (nodal pressure and face-smoothed "
+                          "strain: less bending locking too); the last two with fem, linear, fixed lod; see "
+                          "docs/physics.md section 10");
+    def->nodal_pressure = !pr                                   ? SQ_PRESSURE_ELEMENT
+                          : !strcmp(pr->valuestring, "nodal")    ? SQ_PRESSURE_NODAL
+                          : !strcmp(pr->valuestring, "smoothed") ? SQ_PRESSURE_SMOOTHED
+                                                                 : SQ_PRESSURE_ELEMENT;
 
     /* constraints */
     const cJSON *fx = scene_get_typed(c, obj, path, "fixed", 1, 0, &bad);
@@ -556,8 +563,9 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
     if (def->nodal_pressure && (def->elasticity != SQ_ELASTICITY_LINEAR || def->op != SQ_OPERATOR_FEM ||
                                 def->lod.mode != SQ_LOD_FIXED)) {
         scene_join(p, sizeof p, path, "pressure");
-        return scene_fail(c, p, "\"nodal\" runs with \"operator\": \"fem\", \"elasticity\": \"linear\" and fixed lod only; "
-                          "use those, or \"pressure\": \"element\"");
+        return scene_fail(c, p, "\"%s\" runs with \"operator\": \"fem\", \"elasticity\": \"linear\" and fixed lod only; "
+                          "use those, or \"pressure\": \"element\"",
+                          def->nodal_pressure == SQ_PRESSURE_SMOOTHED ? "smoothed" : "nodal");
     }
     return 0;
 }

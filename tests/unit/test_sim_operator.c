@@ -352,7 +352,7 @@ SQ_TEST(sim_operator_identities_on_shipped_meshes)
 }
 
 /* sq_level_forces_to (the residual's force pass) gives bit for bit the forces sq_level_forces
- * writes to L->f, for the linear, viscous, corotational and nodal-pressure paths, and leaves the
+ * writes to L->f, for the linear, viscous, corotational, nodal-pressure and smoothed paths, and leaves the
  * level as it was: state, L->f and the all-zero accumulator untouched (the level is only read) */
 SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
 {
@@ -360,7 +360,7 @@ SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
     TH_REQUIRE(m);
     sq_constraint fixed = {SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-3}, 7};
     const double g[3] = {0, 0, -9.81};
-    for (int path = 0; path < 4; path++) {
+    for (int path = 0; path < 5; path++) {
         sq_material mat = th_material(40000, 100000, 1000);
         mat.rayleigh_mass = 0.5;
         mat.rayleigh_stiffness = path == 1 ? 0 : 1e-3;
@@ -374,8 +374,9 @@ SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
         CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, &fixed, 1, &e) == 0);
         if (path == 2)
             CHECK(sq_level_corot_enable(&L, &mat, SQ_OPERATOR_FEM, &e) == 0);
-        if (path == 3)
-            CHECK(sq_level_anp_enable(&L, &mat, SQ_OPERATOR_FEM, &e) == 0);
+        if (path >= 3)
+            CHECK(sq_level_anp_enable(&L, &mat, SQ_OPERATOR_FEM, path == 3 ? SQ_PRESSURE_NODAL : SQ_PRESSURE_SMOOTHED,
+                                      &e) == 0);
         size_t n3 = 3 * (size_t)L.model.n;
         uint64_t s = 12345;
         for (size_t k = 0; k < n3; k++) {
