@@ -62,10 +62,10 @@ static const det_pin pins[] = {
     {"beam", "scene", 0xc4b5d5aafce9c039ull},
     {"box-big", "scene", 0x7f08ee2f62f3a3d4ull}, /* only once `make meshes` has made its meshes */
     {"column", "scene", 0xc7e07417af5b4521ull},
-    {"cube-poke", "scene", 0x88c8d758b5a33df4ull},
-    {"cube-poke", "fixed", 0xb13a080a97a1c7f4ull},
-    {"organ", "scene", 0xf3fa7ee681b553d0ull},
-    {"organ", "fixed", 0x7d4882e16f12a52full},
+    {"cube-poke", "scene", 0x224bec84d974c1cdull},
+    {"cube-poke", "fixed", 0x9a1fc3755b64429aull},
+    {"organ", "scene", 0x4daba0012a648267ull},
+    {"organ", "fixed", 0xf049a331724a04f3ull},
     {"paper-cube", "scene", 0x57da013edede2070ull},
     {"sphere-grab", "scene", 0x3fb980bb00cd5a3cull},
 };
