@@ -221,8 +221,9 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     }
 }
 
-void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
+int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
 {
+    int rows = 0; /* ring ghosts whose reaction went back to their sources (as couple_out) */
     sq_lod_level *lk = &lod->lev[k];
     sq_level *Lk = &lod->lv[k];
     sq_lod_corot *c = lk->corot;
@@ -233,7 +234,7 @@ void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t
     for (int r = 0; r < lk->nring && !any; r++)
         any = (lk->src_levels[r] & due_bits) != 0;
     if (!any)
-        return;
+        return 0;
     if (!lk->due) {
         /* between two of the level's steps: its mixed tets at this tick */
         double fr = (double)(t - lk->step_start) / (double)lk->step_len;
@@ -273,6 +274,7 @@ void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t
         if (!(lk->src_levels[r] & due_bits))
             continue;
         int j = lk->ring[r];
+        rows++;
         double g[3] = {c->gf[3 * r], c->gf[3 * r + 1], c->gf[3 * r + 2]};
         unsigned char fx = Lk->model.fixed[j];
         for (int q = 0; q < 3; q++)
@@ -288,6 +290,7 @@ void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t
             dst[2] += w * g[2];
         }
     }
+    return rows;
 }
 
 double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)

@@ -391,7 +391,7 @@ void sq_lodx_sort_ints(int *a, int n);
 int sq_lodx_corot_on(const sq_lod *lod);
 void sq_lodx_corot_layout(sq_lod *lod, const sq_material *mat);
 void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
+int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* ring rows handed back */
 double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic);
 void sq_lodx_corot_free(sq_lod *lod, int k);
 /* corotational.c: the ring weights of corotational levels made exact for affine fields (a
