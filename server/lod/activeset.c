@@ -598,8 +598,11 @@ void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
         double *d = sq_malloc(sizeof(double) * 3 * (size_t)SQ_MAX(Lk->model.n, 1));
         sq_err err = {{0}};
         int it = 0;
-        if (sq_level_static_solve(&Lk->model, gravity, 1e-8, 20 * Lk->model.n + 1000, d, &it, &err) == 0)
+        if (sq_level_static_solve(&Lk->model, gravity, 1e-8, 20 * Lk->model.n + 1000, d, &it, &err) == 0) {
+            if (Lk->corot) /* the corotational level's own equilibrium (corotational.c) */
+                sq_lodx_corot_static(lod, k, gravity, d, &it);
             lod->lev[k].d_static = d;
+        }
         else
             free(d);
     }

@@ -22,6 +22,7 @@
 #include "lod/lod.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -220,8 +221,9 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     }
 }
 
-void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
+int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
 {
+    int rows = 0; /* ring ghosts whose reaction went back to their sources (as couple_out) */
     sq_lod_level *lk = &lod->lev[k];
     sq_level *Lk = &lod->lv[k];
     sq_lod_corot *c = lk->corot;
@@ -232,7 +234,7 @@ void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t
     for (int r = 0; r < lk->nring && !any; r++)
         any = (lk->src_levels[r] & due_bits) != 0;
     if (!any)
-        return;
+        return 0;
     if (!lk->due) {
         /* between two of the level's steps: its mixed tets at this tick */
         double fr = (double)(t - lk->step_start) / (double)lk->step_len;
@@ -272,6 +274,7 @@ void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t
         if (!(lk->src_levels[r] & due_bits))
             continue;
         int j = lk->ring[r];
+        rows++;
         double g[3] = {c->gf[3 * r], c->gf[3 * r + 1], c->gf[3 * r + 2]};
         unsigned char fx = Lk->model.fixed[j];
         for (int q = 0; q < 3; q++)
@@ -287,6 +290,7 @@ void sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t
             dst[2] += w * g[2];
         }
     }
+    return rows;
 }
 
 double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)
@@ -551,4 +555,252 @@ void sq_lodx_corot_affine_sources(sq_lod *lod)
         lk->src_cap = ncap;
     }
     free(it);
+}
+
+/* ---------------------------------------------------------------- static equilibrium */
+
+/* the rotation of F (3x3, row-major) by the scaled polar iteration X <- (X + X^-T) / 2; identity
+ * for a flat or inverted F (the fixed point's Jacobian only needs a reasonable rotation there) */
+static void polar_rotation(const double F[9], double R[9])
+{
+    double X[9];
+    memcpy(X, F, sizeof X);
+    for (int it = 0; it < 30; it++) {
+        double c[9]; /* cofactor matrix: X^-T = cof(X) / det X */
+        c[0] = X[4] * X[8] - X[5] * X[7];
+        c[1] = X[5] * X[6] - X[3] * X[8];
+        c[2] = X[3] * X[7] - X[4] * X[6];
+        c[3] = X[2] * X[7] - X[1] * X[8];
+        c[4] = X[0] * X[8] - X[2] * X[6];
+        c[5] = X[1] * X[6] - X[0] * X[7];
+        c[6] = X[1] * X[5] - X[2] * X[4];
+        c[7] = X[2] * X[3] - X[0] * X[5];
+        c[8] = X[0] * X[4] - X[1] * X[3];
+        double det = X[0] * c[0] + X[1] * c[1] + X[2] * c[2];
+        if (!(det > 1e-12)) {
+            memset(R, 0, 9 * sizeof(double));
+            R[0] = R[4] = R[8] = 1;
+            return;
+        }
+        double ch = 0;
+        for (int q = 0; q < 9; q++) {
+            double y = 0.5 * (X[q] + c[q] / det);
+            ch = fmax(ch, fabs(y - X[q]));
+            X[q] = y;
+        }
+        if (ch < 1e-14)
+            break;
+    }
+    memcpy(R, X, sizeof X);
+}
+
+/* y = sum_T R_T K_T R_T^T x over the tets (the rest stiffness turned by each tet's rotation:
+ * the tangent of the corotational force without the change of the rotations), free axes only */
+static void kr_apply(const sq_level_model *M, const sq_material *mat, const double *tg, const double *rot,
+                     const double *x, double *y)
+{
+    const sq_mesh *m = M->mesh;
+    memset(y, 0, sizeof(double) * 3 * (size_t)M->n);
+    for (int t = 0; t < m->ntets; t++) {
+        const int *tv = m->tets + 4 * (size_t)t;
+        const double *a = tg + 13 * (size_t)t, *R = rot + 9 * (size_t)t;
+        double G[9] = {0};
+        for (int q = 0; q < 4; q++) {
+            const double *xq = x + 3 * (size_t)tv[q];
+            double u[3];
+            for (int r = 0; r < 3; r++) {
+                double xr[3];
+                for (int c = 0; c < 3; c++)
+                    xr[c] = ((M->fixed[tv[q]] >> c) & 1) ? 0 : xq[c];
+                u[r] = R[r] * xr[0] + R[3 + r] * xr[1] + R[6 + r] * xr[2]; /* R^T x */
+            }
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    G[3 * r + c] += u[r] * a[3 * q + c];
+        }
+        double tr = G[0] + G[4] + G[8], S[9];
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)
+                S[3 * r + c] = mat->mu * (G[3 * r + c] + G[3 * c + r]) + (r == c ? mat->lambda * tr : 0);
+        double P[9]; /* V R sigma */
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)
+                P[3 * r + c] = a[12] * (R[3 * r] * S[c] + R[3 * r + 1] * S[3 + c] + R[3 * r + 2] * S[6 + c]);
+        for (int q = 0; q < 4; q++) {
+            double *yq = y + 3 * (size_t)tv[q];
+            for (int r = 0; r < 3; r++)
+                yq[r] += P[3 * r] * a[3 * q] + P[3 * r + 1] * a[3 * q + 1] + P[3 * r + 2] * a[3 * q + 2];
+        }
+    }
+    for (int i = 0; i < M->n; i++)
+        for (int c = 0; c < 3; c++)
+            if ((M->fixed[i] >> c) & 1)
+                y[3 * i + c] = 0;
+}
+
+static double vdot(const double *a, const double *b, size_t n)
+{
+    double s = 0;
+    for (size_t q = 0; q < n; q++)
+        s += a[q] * b[q];
+    return s;
+}
+
+/* K_R x = b (free axes), conjugate gradients preconditioned by the diagonal of the rest K, from
+ * x = 0 to relative residual tol; 0, or -1 when it breaks down or runs out of iterations */
+static int kr_solve(const sq_level_model *M, const sq_material *mat, const double *tg, const double *rot,
+                    const double *b, double tol, double *x)
+{
+    size_t n3 = 3 * (size_t)M->n;
+    double *r = sq_malloc(sizeof(double) * n3), *z = sq_malloc(sizeof(double) * n3);
+    double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
+    double *pre = sq_malloc(sizeof(double) * n3);
+    for (int i = 0; i < M->n; i++) {
+        int e = M->row_start[i];
+        while (M->col[e] != i)
+            e++;
+        double kd = (M->K[9 * (size_t)e] + M->K[9 * (size_t)e + 4] + M->K[9 * (size_t)e + 8]) / 3;
+        for (int c = 0; c < 3; c++)
+            pre[3 * i + c] = ((M->fixed[i] >> c) & 1) || !(kd > 0) ? 0 : 1.0 / kd;
+    }
+    memcpy(r, b, sizeof(double) * n3);
+    memset(x, 0, sizeof(double) * n3);
+    for (size_t k = 0; k < n3; k++)
+        z[k] = pre[k] * r[k];
+    memcpy(p, z, sizeof(double) * n3);
+    double rz = vdot(r, z, n3), bn = sqrt(vdot(b, b, n3));
+    int rc = -1, max_iter = 20 * M->n + 1000;
+    for (int it = 0; it < max_iter; it++) {
+        if (sqrt(vdot(r, r, n3)) <= tol * bn) {
+            rc = 0;
+            break;
+        }
+        kr_apply(M, mat, tg, rot, p, q);
+        double pq = vdot(p, q, n3);
+        if (!(pq > 0))
+            break;
+        double al = rz / pq;
+        for (size_t k = 0; k < n3; k++) {
+            x[k] += al * p[k];
+            r[k] -= al * q[k];
+        }
+        for (size_t k = 0; k < n3; k++)
+            z[k] = pre[k] * r[k];
+        double rz2 = vdot(r, z, n3);
+        double be = rz2 / rz;
+        rz = rz2;
+        for (size_t k = 0; k < n3; k++)
+            p[k] = z[k] + be * p[k];
+    }
+    free(r);
+    free(z);
+    free(p);
+    free(q);
+    free(pre);
+    return rc;
+}
+
+/* The criterion judges the motion from each level's static equilibrium (activeset.c,
+ * sq_lodx_static_loads). For a corotational level the linear equilibrium K d = M g is not the
+ * one the level settles in (measured on the organ resting on level 0: the criterion of the
+ * settled state against the linear sag up to 0.016 m, above the scene's split threshold 0.015),
+ * so d is refined to the corotational equilibrium f_corot(d) + M g = 0 by the iteration
+ * d <- d + K_R^-1 (f_corot(d) + M g), K_R = sum_T R_T K_T R_T^T the rest stiffness turned by
+ * each tet's polar rotation at d (the tangent without the change of the rotations, "stiffness
+ * warping"; the rest K alone as the Jacobian did not converge on the organ). The residual is
+ * the frame's own tet force (sq_level_corot_tet_force, rotations converged, not stored: the
+ * level's state is untouched). d holds the linear solution on entry; on success it holds the
+ * corotational one (relative residual 1e-8 of |M g|), else it is left as it was and -1 is
+ * returned (no convergence in 60 iterations, or a residual growing 100-fold: a body with no
+ * upright equilibrium near the linear one). */
+int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *iterations)
+{
+    const sq_level *L = &lod->lv[k];
+    const sq_level_model *M = &L->model;
+    const sq_mesh *m = M->mesh;
+    size_t n3 = 3 * (size_t)M->n;
+    if (!L->corot || !lod->have_mat)
+        return -1;
+    double *x = sq_malloc(sizeof(double) * n3), *r = sq_malloc(sizeof(double) * n3);
+    double *dx = sq_malloc(sizeof(double) * n3);
+    double *tg = sq_malloc(sizeof(double) * 13 * (size_t)SQ_MAX(m->ntets, 1));
+    double *rot = sq_malloc(sizeof(double) * 9 * (size_t)SQ_MAX(m->ntets, 1));
+    for (int t = 0; t < m->ntets; t++) {
+        double a[4][3];
+        double V = fabs(sq_tet_gradients(m, t, a));
+        memcpy(tg + 13 * (size_t)t, a, sizeof a);
+        tg[13 * (size_t)t + 12] = V;
+    }
+    memcpy(x, d, sizeof(double) * n3);
+    double gn = 0;
+    for (int i = 0; i < M->n; i++)
+        for (int c = 0; c < 3; c++)
+            if (!((M->fixed[i] >> c) & 1))
+                gn += (M->mass[i] * g[c]) * (M->mass[i] * g[c]);
+    gn = sqrt(gn);
+    double best = INFINITY, rn = 0, t0 = sq_thread_cpu();
+    int rc = -1, it;
+    for (it = 0; it < 60 && gn > 0; it++) {
+        for (int i = 0; i < M->n; i++)
+            for (int c = 0; c < 3; c++)
+                r[3 * i + c] = M->mass[i] * g[c];
+        for (int t = 0; t < m->ntets; t++) {
+            const int *tv = m->tets + 4 * (size_t)t;
+            const double *a = tg + 13 * (size_t)t;
+            double d4[12], F[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+            for (int q = 0; q < 4; q++) {
+                memcpy(d4 + 3 * q, x + 3 * (size_t)tv[q], 3 * sizeof(double));
+                for (int rr = 0; rr < 3; rr++)
+                    for (int c = 0; c < 3; c++)
+                        F[3 * rr + c] += d4[3 * q + rr] * a[3 * q + c];
+            }
+            double *R = rot + 9 * (size_t)t;
+            polar_rotation(F, R);
+            /* f_q = -V R sigma(R^T F - I) a_q (docs/physics.md section 9) */
+            double G[9], S[9], P[9];
+            for (int rr = 0; rr < 3; rr++)
+                for (int c = 0; c < 3; c++)
+                    G[3 * rr + c] = R[rr] * F[c] + R[3 + rr] * F[3 + c] + R[6 + rr] * F[6 + c] - (rr == c);
+            double tr = G[0] + G[4] + G[8];
+            for (int rr = 0; rr < 3; rr++)
+                for (int c = 0; c < 3; c++)
+                    S[3 * rr + c] = lod->mat.mu * (G[3 * rr + c] + G[3 * c + rr]) + (rr == c ? lod->mat.lambda * tr : 0);
+            for (int rr = 0; rr < 3; rr++)
+                for (int c = 0; c < 3; c++)
+                    P[3 * rr + c] = a[12] * (R[3 * rr] * S[c] + R[3 * rr + 1] * S[3 + c] + R[3 * rr + 2] * S[6 + c]);
+            for (int q = 0; q < 4; q++)
+                for (int rr = 0; rr < 3; rr++)
+                    r[3 * (size_t)tv[q] + rr] -= P[3 * rr] * a[3 * q] + P[3 * rr + 1] * a[3 * q + 1] + P[3 * rr + 2] * a[3 * q + 2];
+        }
+        for (int i = 0; i < M->n; i++)
+            for (int c = 0; c < 3; c++)
+                if ((M->fixed[i] >> c) & 1)
+                    r[3 * i + c] = 0;
+        rn = sqrt(vdot(r, r, n3));
+        if (!(rn == rn) || rn > 100 * best)
+            break;
+        best = fmin(best, rn);
+        if (rn <= 1e-6 * gn) {
+            rc = 0;
+            break;
+        }
+        if (kr_solve(M, &lod->mat, tg, rot, r, 1e-2, dx) < 0)
+            break;
+        for (size_t q = 0; q < n3; q++)
+            x[q] += dx[q];
+    }
+    if (rc == 0)
+        memcpy(d, x, sizeof(double) * n3);
+    if (getenv("SQ_STATIC_TRACE"))
+        fprintf(stderr, "corotational static: level %d, %d nodes, %s after %d iterations, residual %.3g of |M g|, %.1f ms CPU\n",
+                k, M->n, rc == 0 ? "converged" : "not converged (linear equilibrium kept)", it, gn > 0 ? rn / gn : 0,
+                1e3 * (sq_thread_cpu() - t0));
+    if (iterations)
+        *iterations = it;
+    free(x);
+    free(r);
+    free(dx);
+    free(tg);
+    free(rot);
+    return rc;
 }

@@ -198,6 +198,9 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
 
     /* merges: split nodes of level k whose children are all active and calm */
     if (!forced) {
+        int parent_test = lk->d_static != NULL;
+        if (parent_test)
+            sq_lodx_pull_level(lod, k);
         for (int p = 0; p < Lk->model.n; p++) {
             if (lk->state[p] != ST_SPLIT || lk->fresh[p])
                 continue;
@@ -216,6 +219,8 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 for (int c = c0; c < c1 && ok; c++)
                     if (!(delta_at(lod, k + 1, ln->child[c]) < def->merge))
                         ok = 0;
+                if (ok && parent_test && !(delta_at(lod, k, p) < def->split))
+                    ok = 0;
                 if (!ok)
                     continue;
             }

@@ -182,6 +182,7 @@ static void tick_step(lod_frame *fr)
             if (!lod->lev[k].due && lod->lv[k].corot) {
                 /* the tet-by-tet reactions read every ring ghost */
                 sq_lodx_eval_ring(lod, k, t);
+                fr->ring_values += lod->lev[k].nring;
             } else if (!lod->lev[k].due) {
                 /* between two of its steps only the ring rows with a source on a level that
                  * steps more often are used (the reactions the finer levels need now): only
@@ -193,7 +194,7 @@ static void tick_step(lod_frame *fr)
                 fr->ring_values += sq_lodx_eval_ring_hot(lod, k, t, faster);
             }
             if (lod->lv[k].corot)
-                sq_lodx_corot_couple_out(lod, mat, k, t);
+                fr->ring_rows += sq_lodx_corot_couple_out(lod, mat, k, t);
             else
                 fr->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
         }

@@ -4,6 +4,7 @@
 
 #include "lod/lod_internal.h"
 #include "body/body_internal.h"
+#include "scene/scene.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"
 #include "test_sim_helpers.h"
@@ -369,4 +370,51 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
         sq_body_destroy(b[1]);
     }
     free4(m);
+}
+
+/* Under a static load the mixed layout's own equilibrium differs from each level's, so a
+ * merged node can read over the split threshold at once (the coarse level's sag differs from
+ * the finer one's where the refined region was) and split again in the next frame: the shipped
+ * organ, with no tool at all, split and merged in every frame after it settled (150 of the 150
+ * frames after frame 50, each pass a rebuild and, with the sharp step, three step estimates).
+ * A split node of a body with a static load now merges only if its own criterion, read from the
+ * values it would take up, is under the split threshold (criterion.c). Measured: no pass after
+ * frame 50 (the optimised build). Tolerance: at most 2 of frames 61-100 with a split or merge,
+ * for a late threshold crossing under other rounding (the sanitizer build); the code before
+ * has one in all 40. */
+SQ_TEST(lod_static_load_settles_without_split_merge_churn)
+{
+    char path[1024];
+    snprintf(path, sizeof path, "%s/../../meshes/scenes/organ.json", sq_test_data());
+    sq_err e = {{0}};
+    sq_scene *sc = sq_scene_load(path, &e);
+    CHECK(sc != NULL);
+    if (!sc) {
+        fprintf(stderr, "%s: %s\n", path, e.msg);
+        return;
+    }
+    sc->ntools = 0;
+    sq_world *w = sq_world_create(sc, &e);
+    CHECK(w != NULL);
+    if (!w) {
+        fprintf(stderr, "world: %s\n", e.msg);
+        sq_scene_free(sc);
+        return;
+    }
+    int passes = 0, refined = 0;
+    for (int f = 1; f <= 100; f++) {
+        sq_world_step(w, 0);
+        const sq_frame_profile *p = &w->profile[0];
+        if (f > 60 && p->splits + p->merges > 0)
+            passes++;
+        if (f == 100)
+            refined = p->active[1] + p->active[2];
+        CHECK(p->reset == 0);
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "organ, gravity only: %d of frames 61-100 with a split or merge; %d nodes active on levels 1-2\n",
+                passes, refined);
+    CHECK(passes <= 2);
+    sq_world_destroy(w);
+    sq_scene_free(sc);
 }
