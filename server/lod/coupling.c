@@ -46,14 +46,21 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
     int sl = lk->blocks_slot[t];
     size_t per = visc ? 288 : 144;
     if (sl >= 0)
-        return lk->blocks_cache + per * (size_t)sl;
+        return lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
+    if (lk->blocks_per != (int)per) { /* chunks made for the other slot size: made again */
+        for (int c = 0; c < lk->blocks_nchunk; c++)
+            free(lk->blocks_chunk[c]);
+        lk->blocks_nchunk = lk->blocks_cap = 0;
+        lk->blocks_per = (int)per;
+    }
     if (lk->blocks_used == lk->blocks_cap) {
-        lk->blocks_cap = lk->blocks_cap ? 2 * lk->blocks_cap : 256;
-        lk->blocks_cache = sq_realloc(lk->blocks_cache, sizeof(double) * per * (size_t)lk->blocks_cap);
+        lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
+        lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
+        lk->blocks_cap += SQ_BLOCKS_CHUNK;
     }
     sl = lk->blocks_used++;
     lk->blocks_slot[t] = sl;
-    double *E = lk->blocks_cache + per * (size_t)sl;
+    double *E = lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
     memset(E, 0, sizeof(double) * per);
     const double *g = lk->tet_geom + 13 * (size_t)t;
     const sq_material *mat = &lod->mat;

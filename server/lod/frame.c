@@ -43,6 +43,13 @@ typedef struct lod_frame {
     int over_budget;                 /* 1: the previous frame was over budget, no splits */
     long cap_user, cap_guard;        /* the user's node-update cap; the guard's (0: none) */
     double coarse_ms;                /* predicted cost of every region at level 0, ms */
+    double c_ticks;                  /* thread CPU time of the ticks (pull, step), s */
+    double c_pass;                   /* thread CPU time of the split/merge passes' rebuilds, s */
+    double c_mark;                   /* thread CPU time the last non-tick stage ended, s */
+    double c_stage[SQ_LOD_STAGES];   /* thread CPU time of the non-tick stages, s */
+    unsigned rebuilt;                /* levels rebuilt by this frame's passes (bit k) */
+    int passes;                      /* split/merge passes rebuilt (0, 1 or 2) */
+    long guard_merges;               /* regions the guard merged this frame */
     /* layout and clock */
     long projected;                  /* node updates one frame of the current layout costs */
     adapt_out ao;                    /* splits, merges, refusals, levels whose layout changed */
@@ -50,6 +57,9 @@ typedef struct lod_frame {
     long stride[SQ_MAX_LEVELS];      /* level k steps every stride[k] ticks */
     long updates;                    /* node integrations so far */
     long ring_values, ring_rows, frontier_rows; /* the interface's work so far (profile) */
+    double fr_budget;                /* def.budget x in->budget_s, s */
+    int guard_on;                    /* a budget and a measured (or given) cost per update */
+    double modeled_pass;             /* the model's cost of this frame's passes, s */
 } lod_frame;
 
 /* run one stage and add its wall time to its entry */
@@ -61,37 +71,222 @@ static inline void run(lod_frame *fr, void (*stage)(lod_frame *), int which)
     fr->mark = now;
 }
 
+/* a stage that runs once a frame: its thread CPU time too (the guard's cost model) */
+static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which)
+{
+    run(fr, stage, which);
+    double c = sq_thread_cpu();
+    fr->c_stage[which] += c - fr->c_mark;
+    fr->c_mark = c;
+}
+
+/* ---------------------------------------------------------------- the guard's cost model
+ *
+ * A frame costs (thread CPU time)
+ *     cost_fixed + cost_update x node updates + [a pass: cost_couple + sum of cost_level[k]
+ *                                                 over the levels it rebuilds]
+ * each term measured on the last frames (a maximum decaying by 10 % a frame, or by 10 % a pass
+ * for the pass terms, which are measured only when a pass runs), or given (sq_lodx_set_costs).
+ * The budget is def.budget x the period. At the end of a frame the split/merge pass of a pair
+ * of levels runs only when its rebuild fits in what is left of this frame; splits stop where
+ * the next frame plus a full rebuild pass would exceed SPLIT_HEADROOM of the budget; and when
+ * the next frame would exceed the budget even without a pass, the least needed regions merge
+ * until it fits (this frame if the rebuild fits, else at the start of the next). A region the
+ * guard merged rests REST_FRAMES frames before it may split again. */
+#define SPLIT_HEADROOM 0.8
+#define REST_FRAMES 25
+
+void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s, double per_pass_s,
+                       double per_change_s)
+{
+    lod->cost_given = per_update_s > 0 || per_frame_s > 0 || per_level_s > 0 || per_pass_s > 0 || per_change_s > 0;
+    lod->cost_update = SQ_MAX(per_update_s, 0.0);
+    lod->cost_fixed = SQ_MAX(per_frame_s, 0.0);
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        lod->cost_level[k] = SQ_MAX(per_level_s, 0.0);
+    lod->cost_couple = SQ_MAX(per_pass_s, 0.0);
+    lod->cost_change = SQ_MAX(per_change_s, 0.0);
+    lod->cost_calibrated = lod->cost_given;
+}
+
+/* nodes whose active flag changed since the coupling blocks were built (a pass's work) */
+static long changed_nodes(const sq_lod *lod)
+{
+    long c = 0;
+    for (int k = 0; k < lod->L; k++)
+        c += lod->lev[k].nchg;
+    return c;
+}
+
+/* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
+ * children */
+static double changes_per_region(const sq_lod *lod, int k)
+{
+    return 1.0 + (double)lod->lv[k + 1].model.n / (double)SQ_MAX(lod->lv[k].model.n, 1);
+}
+
+/* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
+ * already (the coupling is rebuilt once per pass) */
+static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
+{
+    unsigned add = mask & ~done;
+    if (!add)
+        return 0;
+    double c = done ? 0 : lod->cost_couple;
+    for (int k = 0; k < lod->L; k++)
+        if (add & (1u << k))
+            c += lod->cost_level[k];
+    return c;
+}
+
+/* a measured cost into its decaying maximum (given costs stay) */
+static void learn(const sq_lod *lod, double *cost, double measured)
+{
+    if (!lod->cost_given)
+        *cost = fmax(measured, 0.9 * *cost);
+}
+
+/* every level that may take part in a pass: up to the highest simulated level + 1 */
+static unsigned all_levels(const sq_lod *lod)
+{
+    int hi = 0;
+    for (int k = 0; k < lod->L; k++)
+        if (lod->lev[k].nactive > 0)
+            hi = k;
+    hi = SQ_MIN(hi + 1, lod->top);
+    return (2u << hi) - 1;
+}
+
+/* node updates that fit in `seconds` of a frame's budget after its fixed cost */
+static long updates_fitting(const sq_lod *lod, double seconds)
+{
+    double fit = (seconds - lod->cost_fixed) / lod->cost_update;
+    return fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 0L);
+}
+
+/* levels whose layout changed (ao.changed) rebuilt, then the coupling over the new layout:
+ * one split/merge pass, its parts timed for the cost model */
+static void rebuild_pass(lod_frame *fr, int lists)
+{
+    sq_lod *lod = fr->lod;
+    double c0 = sq_thread_cpu(), c = c0, model = 0;
+    unsigned mask = 0;
+    for (int k = 0; k < lod->L; k++)
+        if (fr->ao.changed[k]) {
+            sq_lodx_rebuild_level(lod, k);
+            fr->ao.changed[k] = 0;
+            double t = sq_thread_cpu();
+            learn(lod, &lod->cost_level[k], t - c);
+            c = t;
+            mask |= 1u << k;
+        }
+    if (!mask)
+        return;
+    long nchanged = changed_nodes(lod);
+    /* (holds are mapped again onto the new active nodes at the next frame) */
+    sq_lodx_build_sources(lod);
+    double t_src = sq_thread_cpu();
+    long calls0 = 0, calls1 = 0;
+    double sc0 = 0, sc1 = 0;
+    sq_lod_sharp_cost(lod, &calls0, &sc0);
+    sq_lodx_update_ring_blocks(lod, fr->in->mat);
+    double t_blk = sq_thread_cpu();
+    sq_lod_sharp_cost(lod, &calls1, &sc1);
+    if (lists)
+        sq_lodx_refresh_lists(lod);
+    double t = sq_thread_cpu();
+    if (getenv("SQ_GUARD_TRACE"))
+        fprintf(stderr, "  pass %#x, %ld nodes changed: levels %.2f ms, sources %.2f, blocks+bound %.2f (sharp %ld: "
+                "%.2f), lists %.2f; model %.2f ms\n", mask, nchanged, 1e3 * (c - c0), 1e3 * (t_src - c),
+                1e3 * (t_blk - t_src), calls1 - calls0, 1e3 * (sc1 - sc0), 1e3 * (t - t_blk),
+                1e3 * (pass_cost(lod, mask, 0) + lod->cost_change * (double)nchanged));
+    model = pass_cost(lod, mask, 0) + lod->cost_change * (double)nchanged;
+    if (!lod->cost_calibrated) {
+        /* calibration: nothing changed, the floor */
+        if (!lod->cost_given)
+            lod->cost_couple = t - c;
+    } else if (nchanged > 0) {
+        learn(lod, &lod->cost_change, fmax(0.0, t - c - lod->cost_couple) / (double)nchanged);
+    }
+    fr->c_pass += t - c0;
+    fr->modeled_pass += model;
+    fr->rebuilt |= mask;
+    fr->passes++;
+}
+
+/* nodes of level k the guard merged and that still rest: out of the split pass (their state
+ * is masked as ST_RESTING while sq_lodx_adapt_pair runs: neither split nor merge reads it as
+ * active); hide = 0 restores them and counts any that was split in its rest anyway */
+#define ST_RESTING 3
+static void rest_mask(sq_lod *lod, int k, int hide)
+{
+    int *h = lod->guard_hold[k];
+    if (!h || lod->guard_hold_until[k] <= lod->guard_clock)
+        return;
+    unsigned char *st = lod->lev[k].state;
+    for (int p = 0; p < lod->lv[k].model.n; p++) {
+        if (h[p] <= lod->guard_clock)
+            continue;
+        if (hide && st[p] == ST_ACTIVE)
+            st[p] = ST_RESTING;
+        else if (!hide && st[p] == ST_RESTING)
+            st[p] = ST_ACTIVE;
+        else if (!hide && st[p] == ST_SPLIT)
+            lod->guard_resplit++;
+    }
+}
+
+/* time a pass that rebuilds every level without a change of state (the floor of a real pass:
+ * the lists' scans, the coupling, each level's step estimate), once, before the first
+ * budgeted pass, so the guard knows what a pass costs before it allows one */
+static void calibrate(lod_frame *fr)
+{
+    sq_lod *lod = fr->lod;
+    for (int k = 0; k <= lod->top && k < lod->L; k++)
+        fr->ao.changed[k] = 1;
+    sq_lodx_sharp_invalidate(lod);
+    rebuild_pass(fr, 1);
+    fr->passes = 0;
+    fr->modeled_pass = 0;
+    lod->cost_calibrated = 1;
+    /* a start for the cost per changed node until a pass measures it (box-big measured
+     * 5-40 us on this kind of machine): conservative, the first passes then stay small */
+    if (!lod->cost_given && lod->cost_change <= 0)
+        lod->cost_change = 50e-6;
+}
+
 /* ---------------------------------------------------------------- the stages */
 
-/* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
+/* guaranteed frame rate: no splitting after a frame over budget (merging still allowed); the
+ * node updates the next frames may have (the cost model above) */
 static void stage_guard(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
     double budget_s = fr->in->budget_s;
     sq_lodx_static_loads(lod, fr->in->gravity); /* no-op unless gravity or material changed */
     fr->prev_time = lod->last_time;
-    fr->over_budget = budget_s > 0 && fr->prev_time > lod->def.budget * budget_s;
-    /* ... and the next frame predicted from its node updates times the CPU cost of one update
-     * measured on the last frame that had any: above budget x period, the node-update cap of
-     * this frame is what fits, so the finest mergeable regions merge first and splits that
-     * would exceed it are refused (the user's cap, if lower, still holds) */
+    fr->fr_budget = lod->def.budget * budget_s;
+    fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
     fr->cap_user = lod->def.max_node_updates;
     fr->cap_guard = 0;
     fr->coarse_ms = 0;
-    if (budget_s > 0 && lod->cost_update > 0) {
-        double fit = (lod->def.budget * budget_s - lod->cost_fixed) / lod->cost_update;
-        fr->cap_guard = fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 1L);
-        if (fr->cap_user <= 0 || fr->cap_guard < fr->cap_user)
-            lod->def.max_node_updates = fr->cap_guard;
-        else
-            fr->cap_guard = 0;
-        /* the cheapest layout: every region at level 0 */
-        fr->coarse_ms = 1e3 * lod->cost_update * (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0));
+    if (budget_s <= 0)
+        return;
+    lod->guard_clock++;
+    if (!lod->cost_calibrated)
+        calibrate(fr);
+    fr->guard_on = lod->cost_update > 0;
+    if (fr->guard_on) {
+        /* the layout must fit without a pass; level 0 alone, the cheapest layout */
+        fr->cap_guard = updates_fitting(lod, fr->fr_budget);
+        fr->coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     }
 }
 
-/* coupling blocks and the substeps they need (which may push the cost over the cap: merge
- * first then), then the substep clock of the finest step */
+/* coupling blocks and the substeps they need (which may push the cost over a cap: merge
+ * first then: the user's cap as before, the finest regions; the guard's, the least needed
+ * regions), then the substep clock of the finest step */
 static void stage_layout(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
@@ -99,15 +294,20 @@ static void stage_layout(lod_frame *fr)
     int L = lod->L;
     sq_lodx_update_ring_blocks(lod, mat);
     fr->projected = sq_lod_projected_updates(lod);
-    if (lod->def.max_node_updates > 0 && fr->projected > lod->def.max_node_updates) {
+    int merged = 0;
+    if (fr->cap_user > 0 && fr->projected > fr->cap_user) {
         sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
-        for (int k = 0; k < L; k++)
-            if (fr->ao.changed[k]) {
-                sq_lodx_rebuild_level(lod, k);
-                fr->ao.changed[k] = 0;
-            }
-        sq_lodx_build_sources(lod);
-        sq_lodx_update_ring_blocks(lod, mat);
+        merged = 1;
+    }
+    if (fr->guard_on && fr->projected > fr->cap_guard) {
+        /* the cost model rose since the last frame's end (or the budget fell): this frame
+         * would not fit; merging now costs a pass, but less than the frame over */
+        fr->guard_merges += sq_lodx_guard_merge(lod, fr->cap_guard, &fr->projected, &fr->ao, REST_FRAMES,
+                                                 1000000000L);
+        merged = 1;
+    }
+    if (merged) {
+        rebuild_pass(fr, 0);
         fr->projected = sq_lod_projected_updates(lod);
     }
     int nmax = 0;
@@ -221,35 +421,85 @@ static void tick_step(lod_frame *fr)
 
 /* (4) split/merge at the end of the frame, when every level is at the same time (see
  * docs/lod.md: a region changes level at most once per frame, and the coupling is rebuilt
- * once), on fresh ring values */
+ * once), on fresh ring values. With a budget (the guard), a pair of levels is adapted only
+ * when its rebuild fits in what is left of the frame; splits stop where the next frame and a
+ * pass would pass SPLIT_HEADROOM of the budget; regions the guard merged rest; and when the
+ * next frame would not fit even without a pass, the least needed regions merge. */
 static void stage_criterion(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
     int L = lod->L;
     for (int k = 0; k < L; k++)
         sq_lodx_eval_ring(lod, k, fr->nticks);
-    for (int k = 0; k + 1 < L && k < lod->top; k++)
-        sq_lodx_adapt_pair(lod, k, !fr->over_budget, &fr->projected, &fr->ao);
-    sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
+    double now = sq_thread_cpu();
+    fr->c_ticks = now - fr->c_mark;
+    fr->c_mark = now;
+    if (fr->updates > 0)
+        learn(lod, &lod->cost_update, fr->c_ticks / (double)fr->updates);
+    if (fr->in->budget_s > 0 && lod->cost_update > 0 && lod->cost_calibrated)
+        fr->guard_on = 1;
+    if (!fr->guard_on) {
+        for (int k = 0; k + 1 < L && k < lod->top; k++)
+            sq_lodx_adapt_pair(lod, k, !fr->over_budget, &fr->projected, &fr->ao);
+        sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
+        return;
+    }
+    double B = fr->fr_budget;
+    /* what is left of this frame once the rest of it (push, feedback: within the fixed cost)
+     * is paid */
+    double left = B - (now - fr->c_start) - lod->cost_fixed;
+    long keep = updates_fitting(lod, B);
+    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - pass_cost(lod, all_levels(lod), 0));
+    if (fr->cap_user > 0) {
+        keep = SQ_MIN(keep, fr->cap_user);
+        split_cap = SQ_MIN(split_cap, fr->cap_user);
+    }
+    unsigned sched = 0;
+    for (int k = 0; k + 1 < L && k < lod->top; k++) {
+        double pc = pass_cost(lod, 3u << k, sched);
+        if (pc > left) {
+            fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
+            continue;
+        }
+        /* the changes this pass can afford, as node updates for the split rule: a split adds
+         * about (children x 2^n_k+1 - 2^n_k) updates for 1 + children changed nodes; half of
+         * that ratio, for margin */
+        double per = changes_per_region(lod, k);
+        double gain = ((per - 1) * (double)(1L << sub_log2(lod, k + 1)) - (double)(1L << sub_log2(lod, k))) / per;
+        double afford = lod->cost_change > 0 ? (left - pc) / lod->cost_change : 1e15;
+        long pass_cap = fr->projected + (long)fmin(1e15, fmax(0.0, 0.5 * afford * fmax(gain, 1.0)));
+        long cap = SQ_MIN(split_cap, pass_cap);
+        int allow = !fr->over_budget && cap > 0 && fr->projected < cap;
+        int s0 = fr->ao.splits, m0 = fr->ao.merges;
+        lod->def.max_node_updates = cap;
+        rest_mask(lod, k, 1);
+        sq_lodx_adapt_pair(lod, k, allow, &fr->projected, &fr->ao);
+        rest_mask(lod, k, 0);
+        unsigned now_sched = 0;
+        for (int m = 0; m < L; m++)
+            now_sched |= fr->ao.changed[m] ? 1u << m : 0u;
+        left -= pass_cost(lod, now_sched, sched) +
+                lod->cost_change * per * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
+        sched = now_sched;
+    }
+    lod->def.max_node_updates = fr->cap_user;
+    if (fr->projected > keep) {
+        /* the next frame would not fit even without a pass: merge the least needed regions,
+         * as many as this frame can rebuild (the next frame's layout stage merges the rest) */
+        double pc = pass_cost(lod, all_levels(lod), sched);
+        double per = changes_per_region(lod, 0);
+        for (int k = 1; k + 1 < L; k++)
+            per = fmax(per, changes_per_region(lod, k));
+        long most = lod->cost_change > 0 ? (long)fmin(1e9, (left - pc) / (lod->cost_change * per)) : 1000000000L;
+        if (most > 0)
+            fr->guard_merges += sq_lodx_guard_merge(lod, keep, &fr->projected, &fr->ao, REST_FRAMES, most);
+    }
 }
 
 /* the levels whose layout changed rebuilt, then the coupling over the new layout */
 static void stage_adapt(lod_frame *fr)
 {
-    sq_lod *lod = fr->lod;
-    int any = 0;
-    for (int k = 0; k < lod->L; k++)
-        if (fr->ao.changed[k]) {
-            sq_lodx_rebuild_level(lod, k);
-            fr->ao.changed[k] = 0;
-            any = 1;
-        }
-    if (any) {
-        /* (holds are mapped again onto the new active nodes at the next frame) */
-        sq_lodx_build_sources(lod);
-        sq_lodx_update_ring_blocks(lod, fr->in->mat);
-        sq_lodx_refresh_lists(lod);
-    }
+    rebuild_pass(fr, 1);
 }
 
 /* (3) every ghost from the active nodes at the end of the frame: the rendered finest level,
@@ -275,20 +525,37 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     long updates = fr->updates, cap_user = fr->cap_user, cap_guard = fr->cap_guard;
     const adapt_out ao = fr->ao;
     double t_end = sq_now(), c_end = sq_thread_cpu();
-    lod->last_time = c_end - fr->c_start;
-    if (updates > 0) {
-        /* a decaying maximum: a frame with a rebuild costs more per update than a quiet one,
-         * and the next frame may have one */
-        /* split the frame's CPU time into the part that scales with node updates (ghost
-         * values, forces, integration) and the rest (split/merge and rebuilds, end-of-frame
-         * ghosts), in the proportions of the stage wall times */
-        double cpu = c_end - fr->c_start, wall = t_end - fr->t_start;
-        double share = wall > 0 ? fmin(1.0, (t_pull + t_int) / wall) : 1.0;
-        double c = cpu * share / (double)updates;
-        lod->cost_update = fmax(c, 0.9 * lod->cost_update);
-        lod->cost_fixed = fmax(cpu * (1 - share), 0.9 * lod->cost_fixed);
+    double cpu = c_end - fr->c_start;
+    lod->last_time = cpu;
+    if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
+        fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
+        learn(lod, &lod->cost_update, fr->c_ticks / (double)updates);
     }
-    long cap_used = lod->def.max_node_updates;
+    /* what is neither ticks nor passes: criterion, push, feedback, guard, layout, holds */
+    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass));
+    if (!fr->passes && !lod->cost_given) {
+        /* the pass terms, measured only when a pass runs, forget an outlier (a first touch of
+         * a region's blocks) at 5 % a frame without one */
+        lod->cost_change *= 0.95;
+        for (int k = 0; k < lod->L; k++)
+            lod->cost_level[k] *= 0.95;
+    }
+    lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
+    long next = sq_lod_projected_updates(lod);
+    lod->guard_predicted = lod->cost_fixed + lod->cost_update * (double)next;
+    double coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+                                                    (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
+    if (getenv("SQ_GUARD_TRACE") && budget_s > 0)
+        fprintf(stderr,
+                "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f), %ld updates, rebuilt %#x, "
+                "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
+                "fixed %.2f ms, couple %.2f ms, levels %.2f/%.2f/%.2f/%.2f ms\n",
+                lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
+                1e3 * (cpu - fr->c_ticks - fr->c_pass), updates, fr->rebuilt, ao.splits, ao.merges,
+                fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
+                1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_level[0], 1e3 * lod->cost_level[1],
+                1e3 * lod->cost_level[2], 1e3 * lod->cost_level[3]);
+    long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
     if (prof) {
         prof->t_pull = t_pull;
@@ -308,16 +575,17 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         prof->splits = ao.splits;
         prof->merges = ao.merges;
         prof->splits_refused = fr->over_budget || ao.refused;
-        if (fr->coarse_ms > lod->def.budget * budget_s * 1e3)
-            sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, fr->coarse_ms, lod->lv[0].model.nfree,
-                           1 << sub_log2(lod, 0), lod->def.budget * budget_s * 1e3, NULL);
-        else if (fr->over_budget)
+        if (budget_s > 0 && lod->cost_update > 0 && coarse_ms > fr->fr_budget * 1e3) {
+            prof->splits_refused = 1;
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, coarse_ms, lod->lv[0].model.nfree,
+                           1 << sub_log2(lod, 0), fr->fr_budget * 1e3, NULL);
+        } else if (fr->over_budget)
             sq_frame_event(prof, SQ_HEALTH_BUDGET_OVER, fr->prev_time * 1e3, lod->def.budget * 100,
                            budget_s * 1e3, 0, NULL);
-        else if (ao.refused && cap_guard > 0 && cap_used == cap_guard)
+        else if (fr->guard_merges > 0)
             sq_frame_event(prof, SQ_HEALTH_BUDGET_PREDICTED, lod->def.budget * 100, budget_s * 1e3,
-                           (double)cap_guard, 0, NULL);
-        else if (ao.refused)
+                           (double)cap_used, 0, NULL);
+        else if (ao.refused && cap_user > 0)
             sq_frame_event(prof, SQ_HEALTH_NODE_CAP, (double)cap_user, 0, 0, 0, NULL);
     }
 }
@@ -341,12 +609,13 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     fr.t_start = sq_now();
     fr.c_start = sq_thread_cpu();
     fr.mark = fr.t_start;
+    fr.c_mark = fr.c_start;
     for (int t = 0; force && t < in->ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
 
-    run(&fr, stage_guard, SQ_LOD_STAGE_GUARD);     /* splits allowed? the cap that fits */
-    run(&fr, stage_layout, SQ_LOD_STAGE_LAYOUT);   /* coupling, cap merges, substep clock */
-    run(&fr, stage_holds, SQ_LOD_STAGE_HOLDS);     /* tool holds onto active nodes */
+    run_once(&fr, stage_guard, SQ_LOD_STAGE_GUARD);   /* splits allowed? the cap that fits */
+    run_once(&fr, stage_layout, SQ_LOD_STAGE_LAYOUT); /* coupling, cap merges, substep clock */
+    run_once(&fr, stage_holds, SQ_LOD_STAGE_HOLDS);   /* tool holds onto active nodes */
     for (fr.tick = 0; fr.tick < fr.nticks; fr.tick++) {
         if ((fr.tick & 15) == 15 && sq_cancelled())
             break; /* the server is stopping: the frame is abandoned */
@@ -354,10 +623,10 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
         run(&fr, tick_step, SQ_LOD_STAGE_STEP);    /* forces, coupling, integration */
     }
     if (fr.tick == fr.nticks) {                    /* every level at the frame's end */
-        run(&fr, stage_criterion, SQ_LOD_STAGE_CRITERION); /* split/merge decisions */
-        run(&fr, stage_adapt, SQ_LOD_STAGE_ADAPT);         /* changed levels rebuilt */
+        run_once(&fr, stage_criterion, SQ_LOD_STAGE_CRITERION); /* split/merge decisions */
+        run_once(&fr, stage_adapt, SQ_LOD_STAGE_ADAPT);         /* changed levels rebuilt */
     }
-    run(&fr, stage_push, SQ_LOD_STAGE_PUSH);       /* ghosts for the viewer, next frame */
-    run(&fr, stage_feedback, SQ_LOD_STAGE_FEEDBACK); /* tool forces, holds released */
+    run_once(&fr, stage_push, SQ_LOD_STAGE_PUSH);       /* ghosts for the viewer, next frame */
+    run_once(&fr, stage_feedback, SQ_LOD_STAGE_FEEDBACK); /* tool forces, holds released */
     frame_profile(&fr, prof);                      /* cost model, profile, events */
 }
