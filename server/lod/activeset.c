@@ -594,6 +594,7 @@ void sq_lodx_free(sq_lod *lod, int k)
     free(lk->d_static);
     free(lod->guard_hold[k]);
     lod->guard_hold[k] = NULL;
+    free(lk->limited);
 }
 
 /* The criterion measures curvature of the displacement; a body sagging under its own weight
@@ -750,4 +751,76 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
     }
     lod->guard_merged_total += made;
     return made;
+}
+
+/* ---------------------------------------------------------------- the guard's pass limit */
+
+typedef struct lim_cand {
+    double need;
+    int p, split; /* 1: an active node over the split threshold, 0: a mergeable split node */
+} lim_cand;
+
+/* merges first, least needed first; then splits, most needed first; ties in node order */
+static int cmp_lim(const void *pa, const void *pb)
+{
+    const lim_cand *a = pa, *b = pb;
+    if (a->split != b->split)
+        return a->split - b->split;
+    if (a->need != b->need)
+        return (a->split ? a->need > b->need : a->need < b->need) ? -1 : 1;
+    return (a->p > b->p) - (a->p < b->p);
+}
+
+long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    const sq_lod_def *def = &lod->def;
+    lk->nlimited = 0;
+    if (def->split <= 0 || k >= lod->top)
+        return 0; /* forced finest: no criterion to rank by */
+    long nc = 0;
+    lim_cand *c = sq_malloc(sizeof(lim_cand) * (size_t)SQ_MAX(lk->nactive + lk->nsplit_ghost, 1));
+    if (allow_split && def->split < INFINITY)
+        for (int a = 0; a < lk->nactive; a++) {
+            int i = lk->active_list[a];
+            if (lk->state[i] != ST_ACTIVE)
+                continue; /* resting */
+            double d = need_delta(lod, k, i);
+            if (d > def->split)
+                c[nc++] = (lim_cand){d, i, 1};
+        }
+    for (int a = 0; a < lk->nsplit_ghost; a++) {
+        int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
+        for (int q = ln->child_start[p]; q < ln->child_start[p + 1] && ok; q++)
+            ok = lod->lev[k + 1].state[ln->child[q]] == ST_ACTIVE;
+        if (!ok)
+            continue;
+        double need = sq_lodx_need(lod, k, p);
+        if (need < def->merge)
+            c[nc++] = (lim_cand){need, p, 0};
+    }
+    if (nc <= most) {
+        free(c);
+        return 0;
+    }
+    qsort(c, (size_t)nc, sizeof(lim_cand), cmp_lim);
+    if (!lk->limited)
+        lk->limited = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
+    for (long q = SQ_MAX(most, 0L); q < nc; q++) {
+        lk->limited[lk->nlimited++] = c[q].p;
+        lk->state[c[q].p] = c[q].split ? ST_LIMITED_ACTIVE : ST_LIMITED_SPLIT;
+    }
+    free(c);
+    return lk->nlimited;
+}
+
+void sq_lodx_guard_limit_undo(sq_lod *lod, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    for (int q = 0; q < lk->nlimited; q++) {
+        int p = lk->limited[q];
+        lk->state[p] = lk->state[p] == ST_LIMITED_ACTIVE ? ST_ACTIVE : ST_SPLIT;
+    }
+    lk->nlimited = 0;
 }

@@ -655,14 +655,23 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
     }
     if (!lod->have_mat)
         return;
-    for (int k = 0; k < lod->L; k++)
+    double c = sq_thread_cpu();
+    for (int k = 0; k < lod->L; k++) {
+        lod->lev[k].blocks_cpu = 0;
         if (lod->lev[k].blocks_dirty) {
             build_ring_blocks(lod, k);
             lod->lev[k].hot_valid = 0;
             changed = 1;
+            double t = sq_thread_cpu();
+            lod->lev[k].blocks_cpu = t - c; /* the guard's cost model (frame.c) */
+            c = t;
         }
-    if (changed)
+    }
+    lod->bound_cpu = 0;
+    if (changed) {
         coupling_bound(lod);
+        lod->bound_cpu = sq_thread_cpu() - c;
+    }
 }
 
 void sq_lod_set_material(sq_lod *lod, const sq_material *mat)

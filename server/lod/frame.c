@@ -60,6 +60,7 @@ typedef struct lod_frame {
     double fr_budget;                /* def.budget x in->budget_s, s */
     int guard_on;                    /* a budget and a measured (or given) cost per update */
     double modeled_pass;             /* the model's cost of this frame's passes, s */
+    double outside_raw;              /* thread CPU time since the last frame's end, s */
 } lod_frame;
 
 /* run one stage and add its wall time to its entry */
@@ -95,6 +96,8 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
  * guard merged rests REST_FRAMES frames before it may split again. */
 #define SPLIT_HEADROOM 0.8
 #define REST_FRAMES 25
+#define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
+                          * within 1.1 x, the worst 1.57 x */
 
 void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s, double per_pass_s,
                        double per_change_s)
@@ -105,17 +108,12 @@ void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, dou
     for (int k = 0; k < SQ_MAX_LEVELS; k++)
         lod->cost_level[k] = SQ_MAX(per_level_s, 0.0);
     lod->cost_couple = SQ_MAX(per_pass_s, 0.0);
-    lod->cost_change = SQ_MAX(per_change_s, 0.0);
+    lod->cost_bound = 0;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        lod->cost_blocks[k] = 0;
+        lod->cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
+    }
     lod->cost_calibrated = lod->cost_given;
-}
-
-/* nodes whose active flag changed since the coupling blocks were built (a pass's work) */
-static long changed_nodes(const sq_lod *lod)
-{
-    long c = 0;
-    for (int k = 0; k < lod->L; k++)
-        c += lod->lev[k].nchg;
-    return c;
 }
 
 /* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
@@ -125,25 +123,41 @@ static double changes_per_region(const sq_lod *lod, int k)
     return 1.0 + (double)lod->lv[k + 1].model.n / (double)SQ_MAX(lod->lv[k].model.n, 1);
 }
 
+/* the block rebuild a split or merge between levels k and k+1 costs: the parent's changed
+ * node on level k, the children's on level k+1 */
+static double region_cost(const sq_lod *lod, int k)
+{
+    return lod->cost_block_change[k] + (changes_per_region(lod, k) - 1) * lod->cost_block_change[k + 1];
+}
+
 /* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
- * already (the coupling is rebuilt once per pass) */
+ * already, before its changed nodes (the coupling and the bound are redone once per pass) */
 static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
 {
     unsigned add = mask & ~done;
     if (!add)
         return 0;
-    double c = done ? 0 : lod->cost_couple;
+    double c = done ? 0 : lod->cost_couple + lod->cost_bound;
     for (int k = 0; k < lod->L; k++)
         if (add & (1u << k))
-            c += lod->cost_level[k];
+            c += lod->cost_level[k] + lod->cost_blocks[k];
     return c;
 }
 
-/* a measured cost into its decaying maximum (given costs stay) */
+/* a measured cost into its decaying maximum (given costs stay): 10 % a frame for the terms
+ * measured every frame */
 static void learn(const sq_lod *lod, double *cost, double measured)
 {
     if (!lod->cost_given)
         *cost = fmax(measured, 0.9 * *cost);
+}
+
+/* ... and 3 % a pass for a pass's terms (measured only when one runs; a pass's block build
+ * varies up to 4x per changed node from one pass to the next on box-big) */
+static void learn_pass(const sq_lod *lod, double *cost, double measured)
+{
+    if (!lod->cost_given)
+        *cost = fmax(measured, 0.97 * *cost);
 }
 
 /* every level that may take part in a pass: up to the highest simulated level + 1 */
@@ -169,45 +183,58 @@ static long updates_fitting(const sq_lod *lod, double seconds)
 static void rebuild_pass(lod_frame *fr, int lists)
 {
     sq_lod *lod = fr->lod;
-    double c0 = sq_thread_cpu(), c = c0, model = 0;
+    int L = lod->L;
+    double c0 = sq_thread_cpu(), c = c0;
     unsigned mask = 0;
-    for (int k = 0; k < lod->L; k++)
+    double t_level[SQ_MAX_LEVELS] = {0};
+    for (int k = 0; k < L; k++)
         if (fr->ao.changed[k]) {
             sq_lodx_rebuild_level(lod, k);
             fr->ao.changed[k] = 0;
             double t = sq_thread_cpu();
-            learn(lod, &lod->cost_level[k], t - c);
+            t_level[k] = t - c;
             c = t;
             mask |= 1u << k;
         }
     if (!mask)
         return;
-    long nchanged = changed_nodes(lod);
+    long nchg[SQ_MAX_LEVELS] = {0}, nchanged = 0;
+    for (int k = 0; k < L; k++)
+        nchanged += nchg[k] = lod->lev[k].nchg;
+    double model = pass_cost(lod, mask, 0);
+    for (int k = 0; k < L; k++)
+        model += lod->cost_block_change[k] * (double)nchg[k];
     /* (holds are mapped again onto the new active nodes at the next frame) */
     sq_lodx_build_sources(lod);
-    double t_src = sq_thread_cpu();
-    long calls0 = 0, calls1 = 0;
-    double sc0 = 0, sc1 = 0;
-    sq_lod_sharp_cost(lod, &calls0, &sc0);
     sq_lodx_update_ring_blocks(lod, fr->in->mat);
-    double t_blk = sq_thread_cpu();
-    sq_lod_sharp_cost(lod, &calls1, &sc1);
     if (lists)
         sq_lodx_refresh_lists(lod);
-    double t = sq_thread_cpu();
-    if (getenv("SQ_GUARD_TRACE"))
-        fprintf(stderr, "  pass %#x, %ld nodes changed: levels %.2f ms, sources %.2f, blocks+bound %.2f (sharp %ld: "
-                "%.2f), lists %.2f; model %.2f ms\n", mask, nchanged, 1e3 * (c - c0), 1e3 * (t_src - c),
-                1e3 * (t_blk - t_src), calls1 - calls0, 1e3 * (sc1 - sc0), 1e3 * (t - t_blk),
-                1e3 * (pass_cost(lod, mask, 0) + lod->cost_change * (double)nchanged));
-    model = pass_cost(lod, mask, 0) + lod->cost_change * (double)nchanged;
-    if (!lod->cost_calibrated) {
-        /* calibration: nothing changed, the floor */
-        if (!lod->cost_given)
-            lod->cost_couple = t - c;
-    } else if (nchanged > 0) {
-        learn(lod, &lod->cost_change, fmax(0.0, t - c - lod->cost_couple) / (double)nchanged);
+    double t = sq_thread_cpu(), blocks = 0;
+    for (int k = 0; k < L; k++)
+        blocks += lod->lev[k].blocks_cpu;
+    double couple = fmax(0.0, t - c - blocks - lod->bound_cpu); /* sources, lists */
+    if (getenv("SQ_GUARD_TRACE") && fr->in->budget_s > 0)
+        fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
+                "bound %.2f, sources+lists %.2f); model %.2f ms\n", mask, nchg[0], nchg[1], nchg[2], nchg[3],
+                1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu, 1e3 * lod->lev[1].blocks_cpu,
+                1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu, 1e3 * lod->bound_cpu, 1e3 * couple,
+                1e3 * model);
+    /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
+     * changed (the calibration pass), else per changed node above the floor; the bound; the
+     * rest (sources, needed set) */
+    for (int k = 0; k < L; k++) {
+        if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
+            continue;
+        if (mask & (1u << k))
+            learn_pass(lod, &lod->cost_level[k], t_level[k]);
+        if (nchg[k] == 0)
+            learn_pass(lod, &lod->cost_blocks[k], lod->lev[k].blocks_cpu);
+        else
+            learn_pass(lod, &lod->cost_block_change[k],
+                  fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
     }
+    learn_pass(lod, &lod->cost_bound, lod->bound_cpu);
+    learn_pass(lod, &lod->cost_couple, couple);
     fr->c_pass += t - c0;
     fr->modeled_pass += model;
     fr->rebuilt |= mask;
@@ -217,7 +244,6 @@ static void rebuild_pass(lod_frame *fr, int lists)
 /* nodes of level k the guard merged and that still rest: out of the split pass (their state
  * is masked as ST_RESTING while sq_lodx_adapt_pair runs: neither split nor merge reads it as
  * active); hide = 0 restores them and counts any that was split in its rest anyway */
-#define ST_RESTING 3
 static void rest_mask(sq_lod *lod, int k, int hide)
 {
     int *h = lod->guard_hold[k];
@@ -249,10 +275,10 @@ static void calibrate(lod_frame *fr)
     fr->passes = 0;
     fr->modeled_pass = 0;
     lod->cost_calibrated = 1;
-    /* a start for the cost per changed node until a pass measures it (box-big measured
-     * 5-40 us on this kind of machine): conservative, the first passes then stay small */
-    if (!lod->cost_given && lod->cost_change <= 0)
-        lod->cost_change = 50e-6;
+    /* a start for the cost per changed node until a pass measures it (box-big measured up to
+     * 100 us on this kind of machine): conservative, the first passes then stay small */
+    for (int k = 0; k < lod->L && !lod->cost_given; k++)
+        lod->cost_block_change[k] = fmax(lod->cost_block_change[k], 100e-6);
 }
 
 /* ---------------------------------------------------------------- the stages */
@@ -266,6 +292,15 @@ static void stage_guard(lod_frame *fr)
     sq_lodx_static_loads(lod, fr->in->gravity); /* no-op unless gravity or material changed */
     fr->prev_time = lod->last_time;
     fr->fr_budget = lod->def.budget * budget_s;
+    /* the thread's time between two frames of this body (the body's own work around the lod
+     * frame: tool holds, node levels, health), up to a quarter of the period, is not the lod's */
+    fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end : 0;
+    if (budget_s > 0 && lod->last_c_end > 0) {
+        double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
+        if (!lod->cost_given)
+            lod->cost_outside = fmax(outside, 0.9 * lod->cost_outside);
+        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->cost_outside);
+    }
     fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
     fr->cap_user = lod->def.max_node_updates;
     fr->cap_guard = 0;
@@ -447,50 +482,51 @@ static void stage_criterion(lod_frame *fr)
     double B = fr->fr_budget;
     /* what is left of this frame once the rest of it (push, feedback: within the fixed cost)
      * is paid */
-    double left = B - (now - fr->c_start) - lod->cost_fixed;
+    double used = lod->cost_given ? lod->cost_update * (double)fr->updates + fr->modeled_pass : now - fr->c_start;
+    double left = B - used - lod->cost_fixed;
     long keep = updates_fitting(lod, B);
-    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - pass_cost(lod, all_levels(lod), 0));
+    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - PASS_MARGIN * pass_cost(lod, all_levels(lod), 0));
     if (fr->cap_user > 0) {
         keep = SQ_MIN(keep, fr->cap_user);
         split_cap = SQ_MIN(split_cap, fr->cap_user);
     }
     unsigned sched = 0;
     for (int k = 0; k + 1 < L && k < lod->top; k++) {
-        double pc = pass_cost(lod, 3u << k, sched);
+        double pc = PASS_MARGIN * pass_cost(lod, 3u << k, sched);
         if (pc > left) {
             fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
             continue;
         }
-        /* the changes this pass can afford, as node updates for the split rule: a split adds
-         * about (children x 2^n_k+1 - 2^n_k) updates for 1 + children changed nodes; half of
-         * that ratio, for margin */
-        double per = changes_per_region(lod, k);
-        double gain = ((per - 1) * (double)(1L << sub_log2(lod, k + 1)) - (double)(1L << sub_log2(lod, k))) / per;
-        double afford = lod->cost_change > 0 ? (left - pc) / lod->cost_change : 1e15;
-        long pass_cap = fr->projected + (long)fmin(1e15, fmax(0.0, 0.5 * afford * fmax(gain, 1.0)));
-        long cap = SQ_MIN(split_cap, pass_cap);
-        int allow = !fr->over_budget && cap > 0 && fr->projected < cap;
+        /* the regions this pass can change; when the criterion wants more, the merges it
+         * wants (least needed first), then the splits (most needed first) up to that count,
+         * the others held out of this pass */
+        double rc = PASS_MARGIN * region_cost(lod, k);
+        long afford = rc > 0 ? (long)fmin(1e9, fmax(0.0, (left - pc) / rc)) : 1000000000L;
+        int allow = !fr->over_budget && split_cap > 0 && fr->projected < split_cap;
         int s0 = fr->ao.splits, m0 = fr->ao.merges;
-        lod->def.max_node_updates = cap;
+        lod->def.max_node_updates = split_cap;
         rest_mask(lod, k, 1);
+        long held = sq_lodx_guard_limit(lod, k, allow, afford);
         sq_lodx_adapt_pair(lod, k, allow, &fr->projected, &fr->ao);
+        if (held > 0) {
+            sq_lodx_guard_limit_undo(lod, k);
+            fr->ao.refused = 1;
+        }
         rest_mask(lod, k, 0);
         unsigned now_sched = 0;
         for (int m = 0; m < L; m++)
             now_sched |= fr->ao.changed[m] ? 1u << m : 0u;
-        left -= pass_cost(lod, now_sched, sched) +
-                lod->cost_change * per * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
+        left -= PASS_MARGIN * pass_cost(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
         sched = now_sched;
     }
     lod->def.max_node_updates = fr->cap_user;
     if (fr->projected > keep) {
         /* the next frame would not fit even without a pass: merge the least needed regions,
          * as many as this frame can rebuild (the next frame's layout stage merges the rest) */
-        double pc = pass_cost(lod, all_levels(lod), sched);
-        double per = changes_per_region(lod, 0);
-        for (int k = 1; k + 1 < L; k++)
-            per = fmax(per, changes_per_region(lod, k));
-        long most = lod->cost_change > 0 ? (long)fmin(1e9, (left - pc) / (lod->cost_change * per)) : 1000000000L;
+        double pc = PASS_MARGIN * pass_cost(lod, all_levels(lod), sched), rc = 0;
+        for (int k = 0; k + 1 < L; k++)
+            rc = fmax(rc, PASS_MARGIN * region_cost(lod, k));
+        long most = rc > 0 ? (long)fmin(1e9, (left - pc) / rc) : 1000000000L;
         if (most > 0)
             fr->guard_merges += sq_lodx_guard_merge(lod, keep, &fr->projected, &fr->ao, REST_FRAMES, most);
     }
@@ -526,35 +562,32 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     const adapt_out ao = fr->ao;
     double t_end = sq_now(), c_end = sq_thread_cpu();
     double cpu = c_end - fr->c_start;
-    lod->last_time = cpu;
+    lod->last_c_end = c_end;
     if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
         fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
         learn(lod, &lod->cost_update, fr->c_ticks / (double)updates);
     }
     /* what is neither ticks nor passes: criterion, push, feedback, guard, layout, holds */
     learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass));
-    if (!fr->passes && !lod->cost_given) {
-        /* the pass terms, measured only when a pass runs, forget an outlier (a first touch of
-         * a region's blocks) at 5 % a frame without one */
-        lod->cost_change *= 0.95;
-        for (int k = 0; k < lod->L; k++)
-            lod->cost_level[k] *= 0.95;
-    }
+
     lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
+    lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */
     long next = sq_lod_projected_updates(lod);
     lod->guard_predicted = lod->cost_fixed + lod->cost_update * (double)next;
     double coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     if (getenv("SQ_GUARD_TRACE") && budget_s > 0)
         fprintf(stderr,
-                "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f), %ld updates, rebuilt %#x, "
+                "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f; outside %.2f, before this frame %.2f), "
+                "%ld updates, modeled %.2f ms, rebuilt %#x, "
                 "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
-                "fixed %.2f ms, couple %.2f ms, levels %.2f/%.2f/%.2f/%.2f ms\n",
+                "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us\n",
                 lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
-                1e3 * (cpu - fr->c_ticks - fr->c_pass), updates, fr->rebuilt, ao.splits, ao.merges,
+                1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard_modeled, fr->rebuilt, ao.splits, ao.merges,
                 fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
-                1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_level[0], 1e3 * lod->cost_level[1],
-                1e3 * lod->cost_level[2], 1e3 * lod->cost_level[3]);
+                1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_bound,
+                1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
+                1e6 * lod->cost_block_change[3]);
     long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
     if (prof) {

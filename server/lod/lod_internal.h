@@ -20,6 +20,10 @@
 #include <string.h>
 
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
+/* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (frame.c,
+ * activeset.c): neither read as active nor as split nor as a coarse ghost, so the node is
+ * neither split nor merged (its value is read as it is stored, as for an active or split node) */
+enum { ST_RESTING = 3, ST_LIMITED_ACTIVE = 4, ST_LIMITED_SPLIT = 5 };
 #define SQ_BLOCKS_CHUNK 1024  /* element-block cache slots per chunk (1.2 MB, 2.4 viscous) */
 #define SQ_KROW_CHUNK 16384   /* column-form row blocks per chunk (1.5 MB), at least */
 
@@ -51,6 +55,7 @@ typedef struct sq_lod_level {
     int *split_ghost, nsplit_ghost;   /* split ghosts (value from the finer level), increasing */
     int *coarse_ghost, ncoarse_ghost; /* coarse ghosts (value from the coarser level), increasing */
     unsigned char *fresh;       /* 1 = split in the current adapt pass: not merged back (n) */
+    int *limited, nlimited;     /* nodes the guard held out of this pass (sq_lodx_guard_limit) */
     double *crit_weight;        /* criterion Laplacian weights w_ij per adjacency CSR entry, m (nnz) */
     double *d_static;           /* static displacement under the body's gravity, m (n x 3);
                                  * NULL: judged from 0 */
@@ -85,6 +90,8 @@ typedef struct sq_lod_level {
     int blocks_nchunk, blocks_per; /* chunks allocated; doubles per slot they were made for */
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
+    double blocks_cpu;          /* thread CPU time of the last build of those blocks, s (0: not
+                                 * built by the last sq_lodx_update_ring_blocks) */
     int blocks_valid;           /* 1: the blocks were built for the current material (a later
                                  * rebuild may then redo only the rows near changed nodes) */
     int *prev_ring, nprev_ring; /* the ring and frontier the blocks were last built for (n) */
@@ -204,10 +211,15 @@ struct sq_lod {
     double cost_fixed;                   /* per frame, the stages outside the ticks and the
                                           * split/merge passes (criterion, push, ...), s */
     double cost_level[SQ_MAX_LEVELS];    /* a pass's rebuild of level k's lists, s (0: none yet) */
-    double cost_couple;                  /* a pass's coupling rebuild (sources, blocks, bound,
-                                          * needed set) with no node changed: its floor, timed
-                                          * once (calibration), s */
-    double cost_change;                  /* ... and per node whose active flag changed, s */
+    double cost_couple;                  /* a pass's sources and needed set, s */
+    double cost_blocks[SQ_MAX_LEVELS];   /* a pass's block build of level k with no node
+                                          * changed (calibration), s */
+    double cost_block_change[SQ_MAX_LEVELS]; /* ... and per changed node of level k, s */
+    double cost_bound;                   /* a pass's coupled bound (Gershgorin, sharp), s */
+    double cost_outside;                 /* the thread's time between two frames (the body's
+                                          * work around the lod frame), at most a quarter period, s */
+    double last_c_end;                   /* thread CPU clock at the last frame's end, s */
+    double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
@@ -360,6 +372,12 @@ typedef struct adapt_out {
  * `rest` frames before it may split again. Returns the merges made (levels changed in
  * out->changed). */
 long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most);
+/* activeset.c, the guard: when the split/merge pass of levels k, k+1 would change more than
+ * `most` regions, keep the merges the criterion wants (least needed first) and then its splits
+ * (most needed first) up to `most`, and hold the others out of the pass (their state masked
+ * until sq_lodx_guard_limit_undo); returns the regions held out */
+long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
+void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
 /* the need of split node p of level k: its children's largest criterion (its own without
  * children), as the merge rule judges it, m */
 double sq_lodx_need(const sq_lod *lod, int k, int p);
