@@ -780,12 +780,14 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
     if (def->split <= 0 || k >= lod->top)
         return 0; /* forced finest: no criterion to rank by */
     long nc = 0;
-    lim_cand *c = sq_malloc(sizeof(lim_cand) * (size_t)SQ_MAX(lk->nactive + lk->nsplit_ghost, 1));
+    int n = lod->lv[k].model.n;
+    lim_cand *c = sq_malloc(sizeof(lim_cand) * (size_t)SQ_MAX(n, 1));
+    /* every active node, also those the pass of levels k-1, k made active just now (not in
+     * the active list yet) */
     if (allow_split && def->split < INFINITY)
-        for (int a = 0; a < lk->nactive; a++) {
-            int i = lk->active_list[a];
+        for (int i = 0; i < n; i++) {
             if (lk->state[i] != ST_ACTIVE)
-                continue; /* resting */
+                continue; /* ghost or resting */
             double d = need_delta(lod, k, i);
             if (d > def->split)
                 c[nc++] = (lim_cand){d, i, 1};
