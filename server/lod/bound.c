@@ -454,9 +454,7 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     const sq_level *Lk = &lod->lv[k];
     int n = Lk->model.n, nact = lk->nactive;
     op_ctx c;
-    double T0 = sq_thread_cpu();
     *gersh = ctx_init(&c, lod, k);
-    double T1 = sq_thread_cpu();
     /* start: the previous Ritz vector on the nodes still active, plus a fixed pseudo-random
      * part (1% of it, all of it the first time) so that new regions are reached */
     size_t N = 3 * (size_t)nact;
@@ -507,10 +505,7 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     }
     S->iters[k] = done;
     free(q);
-    double T2 = sq_thread_cpu();
     ctx_free(&c);
-    if (getenv("SQ_TMP"))
-        fprintf(stderr, "est L%d nact %d: init %.3f ms lanczos %.3f ms free %.3f ms\n", k, nact, 1e3*(T1-T0), 1e3*(T2-T1), 1e3*(sq_thread_cpu()-T2));
     return fmin(est, *gersh);
 }
 

@@ -46,7 +46,6 @@ typedef struct lod_frame {
     double c_ticks;                  /* thread CPU time of the ticks (pull, step), s */
     double c_pass;                   /* thread CPU time of the split/merge passes' rebuilds, s */
     double c_mark;                   /* thread CPU time the last non-tick stage ended, s */
-    double c_stage[SQ_LOD_STAGES];   /* thread CPU time of the non-tick stages, s */
     unsigned rebuilt;                /* levels rebuilt by this frame's passes (bit k) */
     int passes;                      /* split/merge passes rebuilt (0, 1 or 2) */
     long guard_merges;               /* regions the guard merged this frame */
@@ -72,28 +71,34 @@ static inline void run(lod_frame *fr, void (*stage)(lod_frame *), int which)
     fr->mark = now;
 }
 
-/* a stage that runs once a frame: its thread CPU time too (the guard's cost model) */
+/* a stage that runs once a frame: the thread CPU clock read after it too (the ticks' CPU
+ * time, for the guard's cost model, is what passes between holds and criterion) */
 static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which)
 {
     run(fr, stage, which);
-    double c = sq_thread_cpu();
-    fr->c_stage[which] += c - fr->c_mark;
-    fr->c_mark = c;
+    fr->c_mark = sq_thread_cpu();
 }
 
 /* ---------------------------------------------------------------- the guard's cost model
  *
- * A frame costs (thread CPU time)
- *     cost_fixed + cost_update x node updates + [a pass: cost_couple + sum of cost_level[k]
- *                                                 over the levels it rebuilds]
- * each term measured on the last frames (a maximum decaying by 10 % a frame, or by 10 % a pass
- * for the pass terms, which are measured only when a pass runs), or given (sq_lodx_set_costs).
- * The budget is def.budget x the period. At the end of a frame the split/merge pass of a pair
- * of levels runs only when its rebuild fits in what is left of this frame; splits stop where
- * the next frame plus a full rebuild pass would exceed SPLIT_HEADROOM of the budget; and when
- * the next frame would exceed the budget even without a pass, the least needed regions merge
- * until it fits (this frame if the rebuild fits, else at the start of the next). A region the
- * guard merged rests REST_FRAMES frames before it may split again. */
+ * A frame costs (thread CPU time, docs/lod.md "Guaranteed frame rate")
+ *     cost_fixed + cost_update x node updates
+ *     + for a split/merge pass: cost_couple + cost_bound + sum over the levels it rebuilds of
+ *       (cost_level[k] + cost_blocks[k] + cost_block_change[k] x the level's changed nodes)
+ * each term a maximum over its measurements that decays by 10 % a frame (the frame terms) or
+ * 3 % a pass (the pass terms, measured only when a pass runs), or given (sq_lodx_set_costs,
+ * tests). The floors of a pass are timed once by a pass that changes nothing (calibrate) at
+ * the first budgeted frame. The budget is def.budget x the period less the thread's time
+ * around the lod frame (cost_outside). The guard:
+ *   - at the end of a frame, the split/merge pass of levels k, k+1 runs only if its rebuild
+ *     fits in what is left of this frame (PASS_MARGIN x the model), and changes at most the
+ *     regions that fit with it: the merges the criterion wants, least needed first, then its
+ *     splits, most needed first; the others wait (sq_lodx_guard_limit);
+ *   - splits stop where the next frame and a pass of every level would pass SPLIT_HEADROOM
+ *     of the budget (the node-update cap of sq_lodx_adapt_pair);
+ *   - when the next frame would not fit even without a pass, the least needed regions merge
+ *     (this frame, as many as its rebuild allows, the rest at the start of the next);
+ *   - a region the guard merged rests REST_FRAMES frames before it may split again. */
 #define SPLIT_HEADROOM 0.8
 #define REST_FRAMES 25
 #define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
