@@ -51,10 +51,10 @@ static double unguarded_cost(const sq_frame_profile *p, int levels_changed, long
 
 /* With a budget and given costs, every frame after the first costs (by the model, for what
  * it actually did) at most budget x period, also after the period drops from 20 to 12 ms in
- * the middle of the poke (the frame of the drop excepted), refinement still happens (the
- * finest level is used), the drop makes the guard merge, and no region the guard merged is
- * split again in its rest (the old guard merged at the start of a frame and the end-of-frame
- * pass split the same regions again). The same poke without the guard exceeds the budget in
+ * the middle of the poke (the two frames that absorb the drop excepted), refinement still
+ * happens (the finest level is used), the drop makes the guard merge, and no region the guard
+ * merged is split again in its rest (the old guard merged at the start of a frame and the
+ * end-of-frame pass split the same regions again). The same poke without the guard exceeds the budget in
  * some frames, so the test fails if the guard does not act. Tolerance: none (the model's
  * costs are given, so its frame cost is exact for what the frame did). */
 SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
@@ -95,12 +95,14 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
             nch += d;
             free(before[k]);
         }
-        /* from frame 60 (the tool still pressing) the period drops to 12 ms: the layout no
-         * longer fits and the guard merges; that frame (like the first) may be over */
+        /* from frame 60 (the tool still pressing) the period drops to 12 ms: the layout
+         * (then about 13 ms of node updates alone) no longer fits and the guard merges, as
+         * many regions as frame 60 can rebuild and the rest at the start of frame 61: those
+         * two frames (like the first) may be over */
         double period = f < 60 ? PERIOD : 12e-3, Bf = def.lod.budget * period;
         sq_body_frame(b[1], &tool, 1, NULL, &p[1], period);
         double cu = unguarded_cost(&p[0], lch, nch), cg = b[1]->lod->guard_modeled;
-        if (f >= 1 && f != 60) {
+        if (f >= 1 && f != 60 && f != 61) {
             over_unguarded += cu > B;
             over += cg > Bf;
             worst = fmax(worst, cg);
