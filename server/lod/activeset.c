@@ -729,7 +729,8 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
                 nc++;
             }
         }
-        qsort(cand, (size_t)nc, sizeof(merge_cand), cmp_cand);
+        if (nc > 0)
+            qsort(cand, (size_t)nc, sizeof(merge_cand), cmp_cand);
         long before = made;
         for (long c = 0; c < nc && *projected > cap && made < most; c++) {
             int k = cand[c].k, p = cand[c].p;
