@@ -203,9 +203,9 @@ static void rebuild_pass(lod_frame *fr, int lists)
         }
     if (!mask)
         return;
-    long nchg[SQ_MAX_LEVELS] = {0}, nchanged = 0;
+    long nchg[SQ_MAX_LEVELS] = {0};
     for (int k = 0; k < L; k++)
-        nchanged += nchg[k] = lod->lev[k].nchg;
+        nchg[k] = lod->lev[k].nchg;
     double model = pass_cost(lod, mask, 0);
     for (int k = 0; k < L; k++)
         model += lod->cost_block_change[k] * (double)nchg[k];
