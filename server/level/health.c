@@ -63,7 +63,7 @@ void sq_health_sentence(char *buf, size_t cap, sq_health_kind k, const double v[
     case SQ_HEALTH_BUDGET_PREDICTED:
         snprintf(buf, cap,
                  "warning: next frame predicted over %.0f%% of %.2f ms (%ld node updates fit): "
-                 "finest regions merged, splitting refused", v[0], v[1], (long)v[2]);
+                 "least needed regions merged, splitting refused", v[0], v[1], (long)v[2]);
         break;
     case SQ_HEALTH_NODE_CAP:
         snprintf(buf, cap, "warning: node-update cap %ld per frame reached: splitting refused", (long)v[0]);

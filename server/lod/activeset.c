@@ -19,6 +19,7 @@
  */
 #include "lod/lod_internal.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -346,15 +347,34 @@ static const double *krow(sq_lod *lod, int k, int i)
     }
     if (lk->krow_at[i] < 0) {
         int len = M->row_start[i + 1] - M->row_start[i];
-        if (lk->krow_used + len > lk->krow_cap) {
-            lk->krow_cap = SQ_MAX(2 * lk->krow_cap, lk->krow_used + len + 1024);
-            lk->krow_cache = sq_realloc(lk->krow_cache, sizeof(double) * 12 * (size_t)lk->krow_cap);
+        if (!lk->krow_chunk_len) { /* a chunk holds the longest row at least */
+            long most = SQ_KROW_CHUNK;
+            for (int j = 0; j < M->n; j++)
+                most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
+            lk->krow_chunk_len = most;
         }
-        sq_lodx_to_columns(M->K + 9 * (size_t)M->row_start[i], len, lk->krow_cache + 12 * (size_t)lk->krow_used);
-        lk->krow_at[i] = (int)lk->krow_used;
+        long CH = lk->krow_chunk_len;
+        if (lk->krow_used % CH + len > CH) /* no straddling: the next chunk */
+            lk->krow_used += CH - lk->krow_used % CH;
+        if (lk->krow_used + len > lk->krow_cap) {
+            /* a new chunk; the ones made before are kept (after a material change they are
+             * reused from the first) */
+            int c = (int)(lk->krow_used / CH);
+            if (c >= lk->krow_nchunk) {
+                lk->krow_chunk = sq_realloc(lk->krow_chunk, sizeof(double *) * (size_t)(c + 1));
+                for (int q = lk->krow_nchunk; q <= c; q++)
+                    lk->krow_chunk[q] = sq_malloc(sizeof(double) * 12 * (size_t)CH);
+                lk->krow_nchunk = c + 1;
+            }
+            lk->krow_cap = (long)lk->krow_nchunk * CH;
+        }
+        long at = lk->krow_used;
+        sq_lodx_to_columns(M->K + 9 * (size_t)M->row_start[i], len, lk->krow_chunk[at / CH] + 12 * (size_t)(at % CH));
+        lk->krow_at[i] = (int)at;
         lk->krow_used += len;
     }
-    return lk->krow_cache + 12 * (size_t)lk->krow_at[i];
+    long at = lk->krow_at[i];
+    return lk->krow_chunk[at / lk->krow_chunk_len] + 12 * (size_t)(at % lk->krow_chunk_len);
 }
 
 /* forces of the inner active nodes of level k (no viscosity): sq_level_forces with the inner
@@ -559,7 +579,9 @@ void sq_lodx_free(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     free(lk->krow_at);
-    free(lk->krow_cache);
+    for (int c = 0; c < lk->krow_nchunk; c++)
+        free(lk->krow_chunk[c]);
+    free(lk->krow_chunk);
     free(lk->active_list);
     free(lk->inner_list);
     free(lk->integrated_list);
@@ -570,6 +592,9 @@ void sq_lodx_free(sq_lod *lod, int k)
     free(lk->cascade_value);
     free(lk->push_stamp);
     free(lk->d_static);
+    free(lod->guard_hold[k]);
+    lod->guard_hold[k] = NULL;
+    free(lk->limited);
 }
 
 /* The criterion measures curvature of the displacement; a body sagging under its own weight
@@ -612,4 +637,196 @@ void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[
 {
     sq_lod_set_material(lod, mat);
     sq_lodx_static_loads(lod, gravity);
+}
+
+/* ---------------------------------------------------------------- the guard's merges */
+
+/* delta = hbar^2 |Lap(d - d_static)| at active node i of level k, as the criterion judges it
+ * (criterion.c delta_at; ghost neighbours the last cascade did not push read on demand) */
+static double need_delta(const sq_lod *lod, int k, int i)
+{
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *L = &lod->lv[k];
+    const double *w = lk->crit_weight, *ds = lk->d_static;
+    double s[3] = {0, 0, 0};
+    for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
+        int j = L->model.col[q];
+        double dj[3], vj[3];
+        sq_lodx_value(lod, k, j, dj, vj);
+        for (int a = 0; a < 3; a++)
+            s[a] += w[q] * (dj[a] - (ds ? ds[3 * j + a] : 0.0));
+    }
+    double h2 = L->model.hbar[i] * L->model.hbar[i];
+    return h2 / L->model.vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+}
+
+double sq_lodx_need(const sq_lod *lod, int k, int p)
+{
+    const sq_lod_link *ln = &lod->h.link[k];
+    int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
+    if (c0 == c1)
+        return need_delta(lod, k, p);
+    double m = 0;
+    for (int c = c0; c < c1; c++)
+        m = fmax(m, need_delta(lod, k + 1, ln->child[c]));
+    return m;
+}
+
+/* the merge itself (as criterion.c's merge_node): the node starts from its value interpolated
+ * from its child tet, its children become coarse ghosts at their parent-tet values */
+static void guard_merge_node(sq_lod *lod, int k, int p)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    lk->state[p] = ST_ACTIVE;
+    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
+        lod->lev[k + 1].state[ln->child[c]] = ST_COARSE;
+    memcpy(lk->d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
+    memcpy(lk->v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
+        int j = ln->child[c];
+        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+    }
+}
+
+typedef struct merge_cand {
+    double need;
+    int k, p;
+} merge_cand;
+
+/* least needed first; ties: finer level first, then node order (deterministic) */
+static int cmp_cand(const void *pa, const void *pb)
+{
+    const merge_cand *a = pa, *b = pb;
+    if (a->need != b->need)
+        return a->need < b->need ? -1 : 1;
+    if (a->k != b->k)
+        return a->k > b->k ? -1 : 1;
+    return (a->p > b->p) - (a->p < b->p);
+}
+
+long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most)
+{
+    long made = 0;
+    while (*projected > cap && made < most) {
+        /* the regions mergeable now: split nodes whose children are all active */
+        long nc = 0, capc = 0;
+        merge_cand *cand = NULL;
+        for (int k = 0; k < lod->top; k++) {
+            const sq_lod_link *ln = &lod->h.link[k];
+            const sq_lod_level *lk = &lod->lev[k];
+            for (int a = 0; a < lk->nsplit_ghost; a++) {
+                int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
+                for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
+                    ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
+                if (!ok)
+                    continue;
+                if (nc == capc) {
+                    capc = SQ_MAX(2 * capc, 64L);
+                    cand = sq_realloc(cand, sizeof(merge_cand) * (size_t)capc);
+                }
+                cand[nc].need = sq_lodx_need(lod, k, p);
+                cand[nc].k = k;
+                cand[nc].p = p;
+                nc++;
+            }
+        }
+        if (nc > 0)
+            qsort(cand, (size_t)nc, sizeof(merge_cand), cmp_cand);
+        long before = made;
+        for (long c = 0; c < nc && *projected > cap && made < most; c++) {
+            int k = cand[c].k, p = cand[c].p;
+            const sq_lod_link *ln = &lod->h.link[k];
+            long nch = ln->child_start[p + 1] - ln->child_start[p];
+            guard_merge_node(lod, k, p);
+            *projected -= nch * (1L << sub_log2(lod, k + 1)) - (1L << sub_log2(lod, k));
+            if (!lod->guard_hold[k])
+                lod->guard_hold[k] = sq_calloc((size_t)lod->lv[k].model.n, sizeof(int));
+            lod->guard_hold[k][p] = (int)SQ_MIN(lod->guard_clock + rest, (long)1 << 30);
+            lod->guard_hold_until[k] = SQ_MAX(lod->guard_hold_until[k], lod->guard_hold[k][p]);
+            out->merges++;
+            out->changed[k] = out->changed[k + 1] = 1;
+            made++;
+        }
+        free(cand);
+        if (made == before)
+            break; /* nothing mergeable is left (every level at 0) */
+    }
+    lod->guard_merged_total += made;
+    return made;
+}
+
+/* ---------------------------------------------------------------- the guard's pass limit */
+
+typedef struct lim_cand {
+    double need;
+    int p, split; /* 1: an active node over the split threshold, 0: a mergeable split node */
+} lim_cand;
+
+/* merges first, least needed first; then splits, most needed first; ties in node order */
+static int cmp_lim(const void *pa, const void *pb)
+{
+    const lim_cand *a = pa, *b = pb;
+    if (a->split != b->split)
+        return a->split - b->split;
+    if (a->need != b->need)
+        return (a->split ? a->need > b->need : a->need < b->need) ? -1 : 1;
+    return (a->p > b->p) - (a->p < b->p);
+}
+
+long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    const sq_lod_def *def = &lod->def;
+    lk->nlimited = 0;
+    if (def->split <= 0 || k >= lod->top)
+        return 0; /* forced finest: no criterion to rank by */
+    long nc = 0;
+    int n = lod->lv[k].model.n;
+    lim_cand *c = sq_malloc(sizeof(lim_cand) * (size_t)SQ_MAX(n, 1));
+    /* every active node, also those the pass of levels k-1, k made active just now (not in
+     * the active list yet) */
+    if (allow_split && def->split < INFINITY)
+        for (int i = 0; i < n; i++) {
+            if (lk->state[i] != ST_ACTIVE)
+                continue; /* ghost or resting */
+            double d = need_delta(lod, k, i);
+            if (d > def->split)
+                c[nc++] = (lim_cand){d, i, 1};
+        }
+    for (int a = 0; a < lk->nsplit_ghost; a++) {
+        int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
+        for (int q = ln->child_start[p]; q < ln->child_start[p + 1] && ok; q++)
+            ok = lod->lev[k + 1].state[ln->child[q]] == ST_ACTIVE;
+        if (!ok)
+            continue;
+        double need = sq_lodx_need(lod, k, p);
+        if (need < def->merge)
+            c[nc++] = (lim_cand){need, p, 0};
+    }
+    if (nc <= most) {
+        free(c);
+        return 0;
+    }
+    qsort(c, (size_t)nc, sizeof(lim_cand), cmp_lim);
+    if (!lk->limited)
+        lk->limited = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
+    for (long q = SQ_MAX(most, 0L); q < nc; q++) {
+        lk->limited[lk->nlimited++] = c[q].p;
+        lk->state[c[q].p] = c[q].split ? ST_LIMITED_ACTIVE : ST_LIMITED_SPLIT;
+    }
+    free(c);
+    return lk->nlimited;
+}
+
+void sq_lodx_guard_limit_undo(sq_lod *lod, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    for (int q = 0; q < lk->nlimited; q++) {
+        int p = lk->limited[q];
+        lk->state[p] = lk->state[p] == ST_LIMITED_ACTIVE ? ST_ACTIVE : ST_SPLIT;
+    }
+    lk->nlimited = 0;
 }

@@ -19,6 +19,7 @@
 #include "lod/lod.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,7 +39,91 @@ struct lod_sharp {
     int iters[SQ_MAX_LEVELS];      /* Lanczos steps of the last estimate */
     long calls;                    /* estimates made (one per level per rebuild) */
     double cpu_s;                  /* their thread CPU time, s */
+    /* an estimate is made again only when what it reads changed (level_key) */
+    unsigned long long key[SQ_MAX_LEVELS]; /* fingerprint of the level's operator at its estimate */
+    int have_key[SQ_MAX_LEVELS];   /* 1: key[k] and nsub[k] hold */
+    int nsub[SQ_MAX_LEVELS];       /* the exponent the estimate chose, -1: Gershgorin's kept */
+    long skipped;                  /* estimates skipped (operator unchanged) */
+    double *basis;                 /* Lanczos basis and work vector, kept (basis_cap doubles) */
+    size_t basis_cap;
+    int *ritz_nodes[SQ_MAX_LEVELS]; /* the nodes ritz[k] is nonzero on (nritz[k]) */
+    int nritz[SQ_MAX_LEVELS];
+    int *idx[SQ_MAX_LEVELS];       /* scratch of the operator, kept: active index per node, -1 */
+    double *u[SQ_MAX_LEVELS];      /* ... and each level's values under the product, zero (3 n) */
 };
+
+/* ---------------------------------------------------------------- skipping unchanged levels */
+
+static inline unsigned long long mix(unsigned long long h, unsigned long long x)
+{
+    h ^= x;
+    h *= 0x9E3779B97F4A7C15ULL;
+    return h ^ (h >> 29);
+}
+
+static unsigned long long mix_ints(unsigned long long h, const int *a, long n)
+{
+    h = mix(h, (unsigned long long)n);
+    for (long i = 0; i < n; i++)
+        h = mix(h, (unsigned long long)(unsigned)a[i]);
+    return h;
+}
+
+static unsigned long long mix_doubles(unsigned long long h, const double *a, long n)
+{
+    for (long i = 0; i < n; i++) {
+        unsigned long long x;
+        memcpy(&x, a + i, sizeof x);
+        h = mix(h, x);
+    }
+    return h;
+}
+
+/* fingerprint of everything level k's estimate reads: the material and step rule, level k's
+ * active and frontier lists (its own and merged frontier rows follow from them and the
+ * material), and for every level whose ring ghosts have a source on level k, that level's
+ * active list (its ring rows follow from it), ring and sources with their weights. Equal
+ * fingerprints: the same operator, so the same estimate (a 64-bit hash: a collision would
+ * keep the previous step, about 2^-64 per rebuild). */
+static unsigned long long level_key(const sq_lod *lod, const struct lod_sharp *S, int k)
+{
+    unsigned long long h = 0x243F6A8885A308D3ULL;
+    const sq_material *mt = &lod->mat;
+    const double mv[7] = {mt->mu, mt->lambda, mt->density, mt->rayleigh_mass, mt->rayleigh_stiffness,
+                          mt->phi, mt->psi};
+    h = mix_doubles(h, mv, 7);
+    h = mix(h, (unsigned long long)mt->use_viscosity);
+    h = mix_doubles(h, &S->step_fraction, 1);
+    h = mix_doubles(h, &lod->lv[k].dt, 1);
+    h = mix(h, (unsigned long long)lod->lv[k].substeps_log2);
+    h = mix(h, (unsigned long long)(uintptr_t)lod->lv[k].model.K);
+    const sq_lod_level *lk = &lod->lev[k];
+    h = mix_ints(h, lk->active_list, lk->nactive);
+    h = mix_ints(h, lk->frontier, lk->nfrontier);
+    for (int m = 0; m < lod->L; m++) {
+        const sq_lod_level *lm = &lod->lev[m];
+        int uses = 0;
+        for (int r = 0; r < lm->nring && !uses; r++)
+            uses = (lm->src_levels[r] & (1u << k)) != 0;
+        if (!uses)
+            continue;
+        int ns = lm->src_start[lm->nring];
+        h = mix(h, (unsigned long long)m);
+        h = mix_ints(h, lm->active_list, lm->nactive);
+        h = mix_ints(h, lm->ring, lm->nring);
+        h = mix_ints(h, lm->src_start, lm->nring + 1);
+        h = mix_ints(h, lm->src_level, ns);
+        h = mix_ints(h, lm->src_node, ns);
+        h = mix_doubles(h, lm->src_weight, ns);
+    }
+    return h;
+}
+
+void sq_lodx_sharp_invalidate(sq_lod *lod)
+{
+    if (lod->sharp)
+        memset(lod->sharp->have_key, 0, sizeof lod->sharp->have_key);
+}
 
 
 /* largest absolute row sum of a 3x3 block */
@@ -62,6 +147,7 @@ typedef struct op_ctx {
     double *off;         /* per active index: scaled row sum of |O| (C_k), 1/s^2 */
     double *u[SQ_MAX_LEVELS]; /* values of each level's nodes under the product (3 n_m) */
     double *y;           /* unscaled product, compact */
+    int scratch;         /* 1: idx and u are the lod_sharp's kept arrays (ctx_free cleans them) */
 } op_ctx;
 
 /* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
@@ -228,7 +314,17 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done)
     size_t N = 3 * (size_t)c->nact;
     if ((long)N * iters > BASIS_MAX_DOUBLES)
         iters = (int)SQ_MAX(BASIS_MAX_DOUBLES / (long)N, 4);
-    double *Q = sq_malloc(sizeof(double) * N * (size_t)iters), *w = sq_malloc(sizeof(double) * N);
+    /* the basis and the work vector are kept between estimates (struct lod_sharp): a fresh
+     * allocation of a few MB each time was a few hundred page faults, about 13 us each on
+     * this kind of machine */
+    struct lod_sharp *S = c->lod->sharp;
+    size_t need = N * (size_t)(iters + 1);
+    if (need > S->basis_cap) {
+        free(S->basis);
+        S->basis_cap = SQ_MAX(need, 2 * S->basis_cap);
+        S->basis = sq_malloc(sizeof(double) * S->basis_cap);
+    }
+    double *Q = S->basis, *w = S->basis + N * (size_t)iters;
     double alpha[ITERS_COLD + 1], beta[ITERS_COLD + 1];
     memcpy(Q, q, sizeof(double) * N);
     int m = 0;
@@ -278,8 +374,6 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done)
         if (!isfinite(est))
             est = INFINITY; /* the ceiling decides */
     }
-    free(Q);
-    free(w);
     return est;
 }
 
@@ -294,8 +388,18 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
     c.lod = lod;
     c.k = k;
     c.nact = nact;
-    c.idx = sq_malloc(sizeof(int) * (size_t)n);
-    for (int i = 0; i < n; i++)
+    /* the node-sized arrays are kept between estimates (bound.c's scratch: allocating and
+     * zeroing some MB per estimate cost up to 8 ms in page faults on the box-big levels) and
+     * handed back clean by ctx_free: idx all -1, u all zero */
+    struct lod_sharp *S = lod->sharp;
+    if (S && !S->idx[k]) {
+        S->idx[k] = sq_malloc(sizeof(int) * (size_t)SQ_MAX(n, 1));
+        for (int i = 0; i < n; i++)
+            S->idx[k][i] = -1;
+    }
+    c.scratch = S != NULL;
+    c.idx = S ? S->idx[k] : sq_malloc(sizeof(int) * (size_t)SQ_MAX(n, 1));
+    for (int i = 0; !S && i < n; i++)
         c.idx[i] = -1;
     c.fpos = sq_malloc(sizeof(int) * (size_t)nact);
     c.isq = sq_malloc(sizeof(double) * (size_t)nact);
@@ -312,8 +416,11 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
         c.fpos[c.idx[i]] = pos;
         pos += Lk->model.row_start[i + 1] - Lk->model.row_start[i];
     }
-    for (int m = 0; m < lod->L; m++)
-        c.u[m] = sq_calloc(3 * (size_t)lod->lv[m].model.n, sizeof(double));
+    for (int m = 0; m < lod->L; m++) {
+        if (S && !S->u[m])
+            S->u[m] = sq_calloc(3 * (size_t)SQ_MAX(lod->lv[m].model.n, 1), sizeof(double));
+        c.u[m] = S ? S->u[m] : sq_calloc(3 * (size_t)SQ_MAX(lod->lv[m].model.n, 1), sizeof(double));
+    }
     double g = row_sums(&c);
     *cc = c;
     return g;
@@ -321,9 +428,29 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
 
 static void ctx_free(op_ctx *c)
 {
-    for (int m = 0; m < c->lod->L; m++)
-        free(c->u[m]);
-    free(c->idx);
+    const sq_lod *lod = c->lod;
+    if (c->scratch) {
+        /* back to all zero / -1: the entries op_apply wrote (level k's active nodes and the
+         * ring ghosts with a source on level k) and the active indices */
+        const sq_lod_level *lk = &lod->lev[c->k];
+        for (int a = 0; a < c->nact; a++) {
+            int i = lk->active_list[a];
+            c->idx[i] = -1;
+            c->u[c->k][3 * i] = c->u[c->k][3 * i + 1] = c->u[c->k][3 * i + 2] = 0;
+        }
+        for (int m = 0; m < lod->L; m++) {
+            const sq_lod_level *lm = &lod->lev[m];
+            for (int r = 0; r < lm->nring; r++)
+                if (lm->src_levels[r] & (1u << c->k)) {
+                    int g = lm->ring[r];
+                    c->u[m][3 * g] = c->u[m][3 * g + 1] = c->u[m][3 * g + 2] = 0;
+                }
+        }
+    } else {
+        for (int m = 0; m < lod->L; m++)
+            free(c->u[m]);
+        free(c->idx);
+    }
     free(c->fpos);
     free(c->isq);
     free(c->off);
@@ -373,8 +500,15 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
             q[i] /= nq;
         est = lanczos(&c, q, warm ? ITERS_WARM : ITERS_COLD, &done);
         if (!S->ritz[k])
-            S->ritz[k] = sq_malloc(sizeof(double) * 3 * (size_t)n);
-        memset(S->ritz[k], 0, sizeof(double) * 3 * (size_t)n);
+            S->ritz[k] = sq_calloc(3 * (size_t)SQ_MAX(n, 1), sizeof(double));
+        /* zero only where the last Ritz vector was (its nodes), not the whole level */
+        for (int a = 0; a < S->nritz[k]; a++) {
+            int i = S->ritz_nodes[k][a];
+            S->ritz[k][3 * i] = S->ritz[k][3 * i + 1] = S->ritz[k][3 * i + 2] = 0;
+        }
+        S->ritz_nodes[k] = sq_realloc(S->ritz_nodes[k], sizeof(int) * (size_t)SQ_MAX(nact, 1));
+        memcpy(S->ritz_nodes[k], lk->active_list, sizeof(int) * (size_t)nact);
+        S->nritz[k] = nact;
         for (int a = 0; a < nact; a++)
             for (int x = 0; x < 3; x++)
                 S->ritz[k][3 * lk->active_list[a] + x] = isfinite(q[3 * a + x]) ? q[3 * a + x] : 0;
@@ -419,9 +553,24 @@ void sq_lodx_sharp_bound(sq_lod *lod)
     double t0 = sq_thread_cpu();
     const sq_material *mat = &lod->mat;
     for (int k = 0; k < lod->L; k++) {
-        S->lambda[k] = S->gersh[k] = 0;
-        if (lod->lev[k].nactive == 0)
+        if (lod->lev[k].nactive == 0) {
+            S->lambda[k] = S->gersh[k] = 0;
+            S->have_key[k] = 0;
             continue;
+        }
+        /* the rows this level's estimate reads did not change since its last estimate: the
+         * same estimate (the Gershgorin pass before rewrote extra_log2: put it back) */
+        unsigned long long key = level_key(lod, S, k);
+        if (S->have_key[k] && S->key[k] == key) {
+            if (S->nsub[k] >= 0)
+                lod->lev[k].extra_log2 = S->nsub[k] - lod->lv[k].substeps_log2;
+            S->skipped++;
+            continue;
+        }
+        S->key[k] = key;
+        S->have_key[k] = 1;
+        S->nsub[k] = -1;
+        S->lambda[k] = S->gersh[k] = 0;
         const sq_level *Lk = &lod->lv[k];
         double w2 = level_estimate(lod, S, k, &S->gersh[k]);
         S->lambda[k] = w2;
@@ -435,6 +584,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
             n++;
         if (n > 20 || !(w2 >= 0))
             continue; /* keep the Gershgorin substeps */
+        S->nsub[k] = n;
         lod->lev[k].extra_log2 = n - Lk->substeps_log2;
         if (getenv("SQ_SHARP_TRACE"))
             fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d\n", k,
@@ -451,6 +601,26 @@ void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)
     int changed = S->on != (sharp != 0) || S->step_fraction != step_fraction;
     S->on = sharp != 0;
     S->step_fraction = step_fraction;
+    if (changed)
+        memset(S->have_key, 0, sizeof S->have_key);
+    /* the node-sized arrays made (and their pages touched) now, at load, rather than at the
+     * first split into a level (a first touch cost 8 ms on box-big's finest level) */
+    for (int k = 0; S->on && k < lod->L; k++) {
+        int n = SQ_MAX(lod->lv[k].model.n, 1);
+        if (!S->ritz[k]) {
+            S->ritz[k] = sq_malloc(sizeof(double) * 3 * (size_t)n);
+            memset(S->ritz[k], 0, sizeof(double) * 3 * (size_t)n);
+        }
+        if (!S->u[k]) {
+            S->u[k] = sq_malloc(sizeof(double) * 3 * (size_t)n);
+            memset(S->u[k], 0, sizeof(double) * 3 * (size_t)n);
+        }
+        if (!S->idx[k]) {
+            S->idx[k] = sq_malloc(sizeof(int) * (size_t)n);
+            for (int i = 0; i < lod->lv[k].model.n; i++)
+                S->idx[k][i] = -1;
+        }
+    }
     if (changed && lod->have_mat)
         sq_lodx_coupling_bound(lod); /* Gershgorin substeps, then the sharp ones if on */
 }
@@ -481,8 +651,13 @@ void sq_lodx_sharp_free(sq_lod *lod)
     struct lod_sharp *S = lod->sharp;
     if (!S)
         return;
-    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         free(S->ritz[k]);
+        free(S->idx[k]);
+        free(S->u[k]);
+        free(S->ritz_nodes[k]);
+    }
+    free(S->basis);
     free(S);
     lod->sharp = NULL;
 }

@@ -46,14 +46,21 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
     int sl = lk->blocks_slot[t];
     size_t per = visc ? 288 : 144;
     if (sl >= 0)
-        return lk->blocks_cache + per * (size_t)sl;
+        return lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
+    if (lk->blocks_per != (int)per) { /* chunks made for the other slot size: made again */
+        for (int c = 0; c < lk->blocks_nchunk; c++)
+            free(lk->blocks_chunk[c]);
+        lk->blocks_nchunk = lk->blocks_cap = 0;
+        lk->blocks_per = (int)per;
+    }
     if (lk->blocks_used == lk->blocks_cap) {
-        lk->blocks_cap = lk->blocks_cap ? 2 * lk->blocks_cap : 256;
-        lk->blocks_cache = sq_realloc(lk->blocks_cache, sizeof(double) * per * (size_t)lk->blocks_cap);
+        lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
+        lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
+        lk->blocks_cap += SQ_BLOCKS_CHUNK;
     }
     sl = lk->blocks_used++;
     lk->blocks_slot[t] = sl;
-    double *E = lk->blocks_cache + per * (size_t)sl;
+    double *E = lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
     memset(E, 0, sizeof(double) * per);
     const double *g = lk->tet_geom + 13 * (size_t)t;
     const sq_material *mat = &lod->mat;
@@ -648,14 +655,23 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
     }
     if (!lod->have_mat)
         return;
-    for (int k = 0; k < lod->L; k++)
+    double c = sq_thread_cpu();
+    for (int k = 0; k < lod->L; k++) {
+        lod->lev[k].blocks_cpu = 0;
         if (lod->lev[k].blocks_dirty) {
             build_ring_blocks(lod, k);
             lod->lev[k].hot_valid = 0;
             changed = 1;
+            double t = sq_thread_cpu();
+            lod->lev[k].blocks_cpu = t - c; /* the guard's cost model (frame.c) */
+            c = t;
         }
-    if (changed)
+    }
+    lod->bound_cpu = 0;
+    if (changed) {
         coupling_bound(lod);
+        lod->bound_cpu = sq_thread_cpu() - c;
+    }
 }
 
 void sq_lod_set_material(sq_lod *lod, const sq_material *mat)

@@ -43,6 +43,12 @@ typedef struct lod_frame {
     int over_budget;                 /* 1: the previous frame was over budget, no splits */
     long cap_user, cap_guard;        /* the user's node-update cap; the guard's (0: none) */
     double coarse_ms;                /* predicted cost of every region at level 0, ms */
+    double c_ticks;                  /* thread CPU time of the ticks (pull, step), s */
+    double c_pass;                   /* thread CPU time of the split/merge passes' rebuilds, s */
+    double c_mark;                   /* thread CPU time the last non-tick stage ended, s */
+    unsigned rebuilt;                /* levels rebuilt by this frame's passes (bit k) */
+    int passes;                      /* split/merge passes rebuilt (0, 1 or 2) */
+    long guard_merges;               /* regions the guard merged this frame */
     /* layout and clock */
     long projected;                  /* node updates one frame of the current layout costs */
     adapt_out ao;                    /* splits, merges, refusals, levels whose layout changed */
@@ -50,6 +56,10 @@ typedef struct lod_frame {
     long stride[SQ_MAX_LEVELS];      /* level k steps every stride[k] ticks */
     long updates;                    /* node integrations so far */
     long ring_values, ring_rows, frontier_rows; /* the interface's work so far (profile) */
+    double fr_budget;                /* def.budget x in->budget_s, s */
+    int guard_on;                    /* a budget and a measured (or given) cost per update */
+    double modeled_pass;             /* the model's cost of this frame's passes, s */
+    double outside_raw;              /* thread CPU time since the last frame's end, s */
 } lod_frame;
 
 /* run one stage and add its wall time to its entry */
@@ -61,37 +71,262 @@ static inline void run(lod_frame *fr, void (*stage)(lod_frame *), int which)
     fr->mark = now;
 }
 
+/* a stage that runs once a frame: the thread CPU clock read after it too (the ticks' CPU
+ * time, for the guard's cost model, is what passes between holds and criterion) */
+static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which)
+{
+    run(fr, stage, which);
+    fr->c_mark = sq_thread_cpu();
+}
+
+/* ---------------------------------------------------------------- the guard's cost model
+ *
+ * A frame costs (thread CPU time, docs/lod.md "Guaranteed frame rate")
+ *     cost_fixed + cost_update x node updates
+ *     + for a split/merge pass: cost_couple + cost_bound + sum over the levels it rebuilds of
+ *       (cost_level[k] + cost_blocks[k] + cost_block_change[k] x the level's changed nodes)
+ * each term a maximum over its measurements that decays by 10 % a frame (the frame terms) or
+ * 3 % a pass (the pass terms, measured only when a pass runs), or given (sq_lodx_set_costs,
+ * tests). The floors of a pass are timed once by a pass that changes nothing (calibrate) at
+ * the first budgeted frame. The budget is def.budget x the period less the thread's time
+ * around the lod frame (cost_outside). The guard:
+ *   - at the end of a frame, the split/merge pass of levels k, k+1 runs only if its rebuild
+ *     fits in what is left of this frame (PASS_MARGIN x the model), and changes at most the
+ *     regions that fit with it: the merges the criterion wants, least needed first, then its
+ *     splits, most needed first; the others wait (sq_lodx_guard_limit);
+ *   - splits stop where the next frame and a pass of every level would pass SPLIT_HEADROOM
+ *     of the budget (the node-update cap of sq_lodx_adapt_pair);
+ *   - when the next frame would not fit even without a pass, the least needed regions merge
+ *     (this frame, as many as its rebuild allows, the rest at the start of the next);
+ *   - a region the guard merged rests REST_FRAMES frames before it may split again. */
+#define SPLIT_HEADROOM 0.8
+#define REST_FRAMES 25
+#define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
+                          * within 1.1 x, the worst 1.57 x */
+
+void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s, double per_pass_s,
+                       double per_change_s)
+{
+    lod->cost_given = per_update_s > 0 || per_frame_s > 0 || per_level_s > 0 || per_pass_s > 0 || per_change_s > 0;
+    lod->cost_update = SQ_MAX(per_update_s, 0.0);
+    lod->cost_fixed = SQ_MAX(per_frame_s, 0.0);
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        lod->cost_level[k] = SQ_MAX(per_level_s, 0.0);
+    lod->cost_couple = SQ_MAX(per_pass_s, 0.0);
+    lod->cost_bound = 0;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        lod->cost_blocks[k] = 0;
+        lod->cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
+    }
+    lod->cost_calibrated = lod->cost_given;
+}
+
+/* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
+ * children */
+static double changes_per_region(const sq_lod *lod, int k)
+{
+    return 1.0 + (double)lod->lv[k + 1].model.n / (double)SQ_MAX(lod->lv[k].model.n, 1);
+}
+
+/* the block rebuild a split or merge between levels k and k+1 costs: the parent's changed
+ * node on level k, the children's on level k+1 */
+static double region_cost(const sq_lod *lod, int k)
+{
+    return lod->cost_block_change[k] + (changes_per_region(lod, k) - 1) * lod->cost_block_change[k + 1];
+}
+
+/* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
+ * already, before its changed nodes (the coupling and the bound are redone once per pass) */
+static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
+{
+    unsigned add = mask & ~done;
+    if (!add)
+        return 0;
+    double c = done ? 0 : lod->cost_couple + lod->cost_bound;
+    for (int k = 0; k < lod->L; k++)
+        if (add & (1u << k))
+            c += lod->cost_level[k] + lod->cost_blocks[k];
+    return c;
+}
+
+/* a measured cost into its decaying maximum (given costs stay): 10 % a frame for the terms
+ * measured every frame */
+static void learn(const sq_lod *lod, double *cost, double measured)
+{
+    if (!lod->cost_given)
+        *cost = fmax(measured, 0.9 * *cost);
+}
+
+/* ... and 3 % a pass for a pass's terms (measured only when one runs; a pass's block build
+ * varies up to 4x per changed node from one pass to the next on box-big) */
+static void learn_pass(const sq_lod *lod, double *cost, double measured)
+{
+    if (!lod->cost_given)
+        *cost = fmax(measured, 0.97 * *cost);
+}
+
+/* every level that may take part in a pass: up to the highest simulated level + 1 */
+static unsigned all_levels(const sq_lod *lod)
+{
+    int hi = 0;
+    for (int k = 0; k < lod->L; k++)
+        if (lod->lev[k].nactive > 0)
+            hi = k;
+    hi = SQ_MIN(hi + 1, lod->top);
+    return (2u << hi) - 1;
+}
+
+/* node updates that fit in `seconds` of a frame's budget after its fixed cost */
+static long updates_fitting(const sq_lod *lod, double seconds)
+{
+    double fit = (seconds - lod->cost_fixed) / lod->cost_update;
+    return fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 0L);
+}
+
+/* levels whose layout changed (ao.changed) rebuilt, then the coupling over the new layout:
+ * one split/merge pass, its parts timed for the cost model */
+static void rebuild_pass(lod_frame *fr, int lists)
+{
+    sq_lod *lod = fr->lod;
+    int L = lod->L;
+    double c0 = sq_thread_cpu(), c = c0;
+    unsigned mask = 0;
+    double t_level[SQ_MAX_LEVELS] = {0};
+    for (int k = 0; k < L; k++)
+        if (fr->ao.changed[k]) {
+            sq_lodx_rebuild_level(lod, k);
+            fr->ao.changed[k] = 0;
+            double t = sq_thread_cpu();
+            t_level[k] = t - c;
+            c = t;
+            mask |= 1u << k;
+        }
+    if (!mask)
+        return;
+    long nchg[SQ_MAX_LEVELS] = {0};
+    for (int k = 0; k < L; k++)
+        nchg[k] = lod->lev[k].nchg;
+    double model = pass_cost(lod, mask, 0);
+    for (int k = 0; k < L; k++)
+        model += lod->cost_block_change[k] * (double)nchg[k];
+    /* (holds are mapped again onto the new active nodes at the next frame) */
+    sq_lodx_build_sources(lod);
+    sq_lodx_update_ring_blocks(lod, fr->in->mat);
+    if (lists)
+        sq_lodx_refresh_lists(lod);
+    double t = sq_thread_cpu(), blocks = 0;
+    for (int k = 0; k < L; k++)
+        blocks += lod->lev[k].blocks_cpu;
+    double couple = fmax(0.0, t - c - blocks - lod->bound_cpu); /* sources, lists */
+    if (getenv("SQ_GUARD_TRACE") && fr->in->budget_s > 0)
+        fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
+                "bound %.2f, sources+lists %.2f); model %.2f ms\n", mask, nchg[0], nchg[1], nchg[2], nchg[3],
+                1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu, 1e3 * lod->lev[1].blocks_cpu,
+                1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu, 1e3 * lod->bound_cpu, 1e3 * couple,
+                1e3 * model);
+    /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
+     * changed (the calibration pass), else per changed node above the floor; the bound; the
+     * rest (sources, needed set) */
+    for (int k = 0; k < L; k++) {
+        if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
+            continue;
+        if (mask & (1u << k))
+            learn_pass(lod, &lod->cost_level[k], t_level[k]);
+        if (nchg[k] == 0)
+            learn_pass(lod, &lod->cost_blocks[k], lod->lev[k].blocks_cpu);
+        else
+            learn_pass(lod, &lod->cost_block_change[k],
+                  fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
+    }
+    learn_pass(lod, &lod->cost_bound, lod->bound_cpu);
+    learn_pass(lod, &lod->cost_couple, couple);
+    fr->c_pass += t - c0;
+    fr->modeled_pass += model;
+    fr->rebuilt |= mask;
+    fr->passes++;
+}
+
+/* nodes of level k the guard merged and that still rest: out of the split pass (their state
+ * is masked as ST_RESTING while sq_lodx_adapt_pair runs: neither split nor merge reads it as
+ * active); hide = 0 restores them and counts any that was split in its rest anyway */
+static void rest_mask(sq_lod *lod, int k, int hide)
+{
+    int *h = lod->guard_hold[k];
+    if (!h || lod->guard_hold_until[k] <= lod->guard_clock)
+        return;
+    unsigned char *st = lod->lev[k].state;
+    for (int p = 0; p < lod->lv[k].model.n; p++) {
+        if (h[p] <= lod->guard_clock)
+            continue;
+        if (hide && st[p] == ST_ACTIVE)
+            st[p] = ST_RESTING;
+        else if (!hide && st[p] == ST_RESTING)
+            st[p] = ST_ACTIVE;
+        else if (!hide && st[p] == ST_SPLIT)
+            lod->guard_resplit++;
+    }
+}
+
+/* time a pass that rebuilds every level without a change of state (the floor of a real pass:
+ * the lists' scans, the coupling, each level's step estimate), once, before the first
+ * budgeted pass, so the guard knows what a pass costs before it allows one */
+static void calibrate(lod_frame *fr)
+{
+    sq_lod *lod = fr->lod;
+    for (int k = 0; k <= lod->top && k < lod->L; k++)
+        fr->ao.changed[k] = 1;
+    sq_lodx_sharp_invalidate(lod);
+    rebuild_pass(fr, 1);
+    fr->passes = 0;
+    fr->modeled_pass = 0;
+    lod->cost_calibrated = 1;
+    /* a start for the cost per changed node until a pass measures it (box-big measured up to
+     * 100 us on this kind of machine): conservative, the first passes then stay small */
+    for (int k = 0; k < lod->L && !lod->cost_given; k++)
+        lod->cost_block_change[k] = fmax(lod->cost_block_change[k], 100e-6);
+}
+
 /* ---------------------------------------------------------------- the stages */
 
-/* guaranteed frame rate: no splitting after a frame over budget (merging still allowed) */
+/* guaranteed frame rate: no splitting after a frame over budget (merging still allowed); the
+ * node updates the next frames may have (the cost model above) */
 static void stage_guard(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
     double budget_s = fr->in->budget_s;
     sq_lodx_static_loads(lod, fr->in->gravity); /* no-op unless gravity or material changed */
     fr->prev_time = lod->last_time;
-    fr->over_budget = budget_s > 0 && fr->prev_time > lod->def.budget * budget_s;
-    /* ... and the next frame predicted from its node updates times the CPU cost of one update
-     * measured on the last frame that had any: above budget x period, the node-update cap of
-     * this frame is what fits, so the finest mergeable regions merge first and splits that
-     * would exceed it are refused (the user's cap, if lower, still holds) */
+    fr->fr_budget = lod->def.budget * budget_s;
+    /* the thread's time between two frames of this body (the body's own work around the lod
+     * frame: tool holds, node levels, health), up to a quarter of the period, is not the lod's */
+    fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end : 0;
+    if (budget_s > 0 && lod->last_c_end > 0) {
+        double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
+        if (!lod->cost_given)
+            lod->cost_outside = fmax(outside, 0.9 * lod->cost_outside);
+        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->cost_outside);
+    }
+    fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
     fr->cap_user = lod->def.max_node_updates;
     fr->cap_guard = 0;
     fr->coarse_ms = 0;
-    if (budget_s > 0 && lod->cost_update > 0) {
-        double fit = (lod->def.budget * budget_s - lod->cost_fixed) / lod->cost_update;
-        fr->cap_guard = fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 1L);
-        if (fr->cap_user <= 0 || fr->cap_guard < fr->cap_user)
-            lod->def.max_node_updates = fr->cap_guard;
-        else
-            fr->cap_guard = 0;
-        /* the cheapest layout: every region at level 0 */
-        fr->coarse_ms = 1e3 * lod->cost_update * (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0));
+    if (budget_s <= 0)
+        return;
+    lod->guard_clock++;
+    if (!lod->cost_calibrated)
+        calibrate(fr);
+    fr->guard_on = lod->cost_update > 0;
+    if (fr->guard_on) {
+        /* the layout must fit without a pass; level 0 alone, the cheapest layout */
+        fr->cap_guard = updates_fitting(lod, fr->fr_budget);
+        fr->coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     }
 }
 
-/* coupling blocks and the substeps they need (which may push the cost over the cap: merge
- * first then), then the substep clock of the finest step */
+/* coupling blocks and the substeps they need (which may push the cost over a cap: merge
+ * first then: the user's cap as before, the finest regions; the guard's, the least needed
+ * regions), then the substep clock of the finest step */
 static void stage_layout(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
@@ -99,15 +334,20 @@ static void stage_layout(lod_frame *fr)
     int L = lod->L;
     sq_lodx_update_ring_blocks(lod, mat);
     fr->projected = sq_lod_projected_updates(lod);
-    if (lod->def.max_node_updates > 0 && fr->projected > lod->def.max_node_updates) {
+    int merged = 0;
+    if (fr->cap_user > 0 && fr->projected > fr->cap_user) {
         sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
-        for (int k = 0; k < L; k++)
-            if (fr->ao.changed[k]) {
-                sq_lodx_rebuild_level(lod, k);
-                fr->ao.changed[k] = 0;
-            }
-        sq_lodx_build_sources(lod);
-        sq_lodx_update_ring_blocks(lod, mat);
+        merged = 1;
+    }
+    if (fr->guard_on && fr->projected > fr->cap_guard) {
+        /* the cost model rose since the last frame's end (or the budget fell): this frame
+         * would not fit; merging now costs a pass, but less than the frame over */
+        fr->guard_merges += sq_lodx_guard_merge(lod, fr->cap_guard, &fr->projected, &fr->ao, REST_FRAMES,
+                                                 1000000000L);
+        merged = 1;
+    }
+    if (merged) {
+        rebuild_pass(fr, 0);
         fr->projected = sq_lod_projected_updates(lod);
     }
     int nmax = 0;
@@ -222,35 +462,86 @@ static void tick_step(lod_frame *fr)
 
 /* (4) split/merge at the end of the frame, when every level is at the same time (see
  * docs/lod.md: a region changes level at most once per frame, and the coupling is rebuilt
- * once), on fresh ring values */
+ * once), on fresh ring values. With a budget (the guard), a pair of levels is adapted only
+ * when its rebuild fits in what is left of the frame; splits stop where the next frame and a
+ * pass would pass SPLIT_HEADROOM of the budget; regions the guard merged rest; and when the
+ * next frame would not fit even without a pass, the least needed regions merge. */
 static void stage_criterion(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
     int L = lod->L;
     for (int k = 0; k < L; k++)
         sq_lodx_eval_ring(lod, k, fr->nticks);
-    for (int k = 0; k + 1 < L && k < lod->top; k++)
-        sq_lodx_adapt_pair(lod, k, !fr->over_budget, &fr->projected, &fr->ao);
-    sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
+    double now = sq_thread_cpu();
+    fr->c_ticks = now - fr->c_mark;
+    fr->c_mark = now;
+    if (fr->updates > 0)
+        learn(lod, &lod->cost_update, fr->c_ticks / (double)fr->updates);
+    if (fr->in->budget_s > 0 && lod->cost_update > 0 && lod->cost_calibrated)
+        fr->guard_on = 1;
+    if (!fr->guard_on) {
+        for (int k = 0; k + 1 < L && k < lod->top; k++)
+            sq_lodx_adapt_pair(lod, k, !fr->over_budget, &fr->projected, &fr->ao);
+        sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
+        return;
+    }
+    double B = fr->fr_budget;
+    /* what is left of this frame once the rest of it (push, feedback: within the fixed cost)
+     * is paid */
+    double used = lod->cost_given ? lod->cost_update * (double)fr->updates + fr->modeled_pass : now - fr->c_start;
+    double left = B - used - lod->cost_fixed;
+    long keep = updates_fitting(lod, B);
+    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - PASS_MARGIN * pass_cost(lod, all_levels(lod), 0));
+    if (fr->cap_user > 0) {
+        keep = SQ_MIN(keep, fr->cap_user);
+        split_cap = SQ_MIN(split_cap, fr->cap_user);
+    }
+    unsigned sched = 0;
+    for (int k = 0; k + 1 < L && k < lod->top; k++) {
+        double pc = PASS_MARGIN * pass_cost(lod, 3u << k, sched);
+        if (pc > left) {
+            fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
+            continue;
+        }
+        /* the regions this pass can change; when the criterion wants more, the merges it
+         * wants (least needed first), then the splits (most needed first) up to that count,
+         * the others held out of this pass */
+        double rc = PASS_MARGIN * region_cost(lod, k);
+        long afford = rc > 0 ? (long)fmin(1e9, fmax(0.0, (left - pc) / rc)) : 1000000000L;
+        int allow = !fr->over_budget && split_cap > 0 && fr->projected < split_cap;
+        int s0 = fr->ao.splits, m0 = fr->ao.merges;
+        lod->def.max_node_updates = split_cap;
+        rest_mask(lod, k, 1);
+        long held = sq_lodx_guard_limit(lod, k, allow, afford);
+        sq_lodx_adapt_pair(lod, k, allow, &fr->projected, &fr->ao);
+        if (held > 0) {
+            sq_lodx_guard_limit_undo(lod, k);
+            fr->ao.refused = 1;
+        }
+        rest_mask(lod, k, 0);
+        unsigned now_sched = 0;
+        for (int m = 0; m < L; m++)
+            now_sched |= fr->ao.changed[m] ? 1u << m : 0u;
+        left -= PASS_MARGIN * pass_cost(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
+        sched = now_sched;
+    }
+    lod->def.max_node_updates = fr->cap_user;
+    if (fr->projected > keep) {
+        /* the next frame would not fit even without a pass: merge the least needed regions,
+         * as many as this frame can rebuild (the next frame's layout stage merges the rest) */
+        double pc = PASS_MARGIN * pass_cost(lod, all_levels(lod), sched), rc = 0;
+        for (int k = 0; k + 1 < L; k++)
+            rc = fmax(rc, PASS_MARGIN * region_cost(lod, k));
+        long most = rc > 0 ? (long)fmin(1e9, (left - pc) / rc) : 1000000000L;
+        if (most > 0)
+            fr->guard_merges += sq_lodx_guard_merge(lod, keep, &fr->projected, &fr->ao, REST_FRAMES, most);
+    }
 }
 
 /* the levels whose layout changed rebuilt, then the coupling over the new layout */
 static void stage_adapt(lod_frame *fr)
 {
-    sq_lod *lod = fr->lod;
-    int any = 0;
-    for (int k = 0; k < lod->L; k++)
-        if (fr->ao.changed[k]) {
-            sq_lodx_rebuild_level(lod, k);
-            fr->ao.changed[k] = 0;
-            any = 1;
-        }
-    if (any) {
-        /* (holds are mapped again onto the new active nodes at the next frame) */
-        sq_lodx_build_sources(lod);
-        sq_lodx_update_ring_blocks(lod, fr->in->mat);
-        sq_lodx_refresh_lists(lod);
-    }
+    rebuild_pass(fr, 1);
 }
 
 /* (3) every ghost from the active nodes at the end of the frame: the rendered finest level,
@@ -276,20 +567,34 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     long updates = fr->updates, cap_user = fr->cap_user, cap_guard = fr->cap_guard;
     const adapt_out ao = fr->ao;
     double t_end = sq_now(), c_end = sq_thread_cpu();
-    lod->last_time = c_end - fr->c_start;
-    if (updates > 0) {
-        /* a decaying maximum: a frame with a rebuild costs more per update than a quiet one,
-         * and the next frame may have one */
-        /* split the frame's CPU time into the part that scales with node updates (ghost
-         * values, forces, integration) and the rest (split/merge and rebuilds, end-of-frame
-         * ghosts), in the proportions of the stage wall times */
-        double cpu = c_end - fr->c_start, wall = t_end - fr->t_start;
-        double share = wall > 0 ? fmin(1.0, (t_pull + t_int) / wall) : 1.0;
-        double c = cpu * share / (double)updates;
-        lod->cost_update = fmax(c, 0.9 * lod->cost_update);
-        lod->cost_fixed = fmax(cpu * (1 - share), 0.9 * lod->cost_fixed);
+    double cpu = c_end - fr->c_start;
+    lod->last_c_end = c_end;
+    if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
+        fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
+        learn(lod, &lod->cost_update, fr->c_ticks / (double)updates);
     }
-    long cap_used = lod->def.max_node_updates;
+    /* what is neither ticks nor passes: criterion, push, feedback, guard, layout, holds */
+    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass));
+
+    lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
+    lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */
+    long next = sq_lod_projected_updates(lod);
+    lod->guard_predicted = lod->cost_fixed + lod->cost_update * (double)next;
+    double coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+                                                    (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
+    if (getenv("SQ_GUARD_TRACE") && budget_s > 0)
+        fprintf(stderr,
+                "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f; outside %.2f, before this frame %.2f), "
+                "%ld updates, modeled %.2f ms, rebuilt %#x, "
+                "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
+                "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us\n",
+                lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
+                1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard_modeled, fr->rebuilt, ao.splits, ao.merges,
+                fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
+                1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_bound,
+                1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
+                1e6 * lod->cost_block_change[3]);
+    long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
     if (prof) {
         prof->t_pull = t_pull;
@@ -309,16 +614,17 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         prof->splits = ao.splits;
         prof->merges = ao.merges;
         prof->splits_refused = fr->over_budget || ao.refused;
-        if (fr->coarse_ms > lod->def.budget * budget_s * 1e3)
-            sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, fr->coarse_ms, lod->lv[0].model.nfree,
-                           1 << sub_log2(lod, 0), lod->def.budget * budget_s * 1e3, NULL);
-        else if (fr->over_budget)
+        if (budget_s > 0 && lod->cost_update > 0 && coarse_ms > fr->fr_budget * 1e3) {
+            prof->splits_refused = 1;
+            sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, coarse_ms, lod->lv[0].model.nfree,
+                           1 << sub_log2(lod, 0), fr->fr_budget * 1e3, NULL);
+        } else if (fr->over_budget)
             sq_frame_event(prof, SQ_HEALTH_BUDGET_OVER, fr->prev_time * 1e3, lod->def.budget * 100,
                            budget_s * 1e3, 0, NULL);
-        else if (ao.refused && cap_guard > 0 && cap_used == cap_guard)
+        else if (fr->guard_merges > 0)
             sq_frame_event(prof, SQ_HEALTH_BUDGET_PREDICTED, lod->def.budget * 100, budget_s * 1e3,
-                           (double)cap_guard, 0, NULL);
-        else if (ao.refused)
+                           (double)cap_used, 0, NULL);
+        else if (ao.refused && cap_user > 0)
             sq_frame_event(prof, SQ_HEALTH_NODE_CAP, (double)cap_user, 0, 0, 0, NULL);
     }
 }
@@ -342,12 +648,13 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     fr.t_start = sq_now();
     fr.c_start = sq_thread_cpu();
     fr.mark = fr.t_start;
+    fr.c_mark = fr.c_start;
     for (int t = 0; force && t < in->ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
 
-    run(&fr, stage_guard, SQ_LOD_STAGE_GUARD);     /* splits allowed? the cap that fits */
-    run(&fr, stage_layout, SQ_LOD_STAGE_LAYOUT);   /* coupling, cap merges, substep clock */
-    run(&fr, stage_holds, SQ_LOD_STAGE_HOLDS);     /* tool holds onto active nodes */
+    run_once(&fr, stage_guard, SQ_LOD_STAGE_GUARD);   /* splits allowed? the cap that fits */
+    run_once(&fr, stage_layout, SQ_LOD_STAGE_LAYOUT); /* coupling, cap merges, substep clock */
+    run_once(&fr, stage_holds, SQ_LOD_STAGE_HOLDS);   /* tool holds onto active nodes */
     for (fr.tick = 0; fr.tick < fr.nticks; fr.tick++) {
         if ((fr.tick & 15) == 15 && sq_cancelled())
             break; /* the server is stopping: the frame is abandoned */
@@ -355,10 +662,10 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
         run(&fr, tick_step, SQ_LOD_STAGE_STEP);    /* forces, coupling, integration */
     }
     if (fr.tick == fr.nticks) {                    /* every level at the frame's end */
-        run(&fr, stage_criterion, SQ_LOD_STAGE_CRITERION); /* split/merge decisions */
-        run(&fr, stage_adapt, SQ_LOD_STAGE_ADAPT);         /* changed levels rebuilt */
+        run_once(&fr, stage_criterion, SQ_LOD_STAGE_CRITERION); /* split/merge decisions */
+        run_once(&fr, stage_adapt, SQ_LOD_STAGE_ADAPT);         /* changed levels rebuilt */
     }
-    run(&fr, stage_push, SQ_LOD_STAGE_PUSH);       /* ghosts for the viewer, next frame */
-    run(&fr, stage_feedback, SQ_LOD_STAGE_FEEDBACK); /* tool forces, holds released */
+    run_once(&fr, stage_push, SQ_LOD_STAGE_PUSH);       /* ghosts for the viewer, next frame */
+    run_once(&fr, stage_feedback, SQ_LOD_STAGE_FEEDBACK); /* tool forces, holds released */
     frame_profile(&fr, prof);                      /* cost model, profile, events */
 }

@@ -164,7 +164,8 @@ void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[
 /* the step rule ("step_bound": docs/stability.md, docs/lod.md "Coupling the levels"): sharp = 0
  * (default) gives each level its own Gershgorin exponent plus the interface extra; sharp = 1
  * the smallest 2^n at step_fraction of the damped bound from a Lanczos estimate of the
- * block-diagonal majorant of the coupled operator (bound.c), recomputed after each rebuild;
+ * block-diagonal majorant of the coupled operator (bound.c), recomputed after each rebuild
+ * for the levels whose operator changed;
  * without viscosity only (with it the Gershgorin rule stays). Recomputes when it changes. */
 void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction);
 /* sharp rule on: level k's estimate of lambda_max (1/s^2; 0 without active nodes), its

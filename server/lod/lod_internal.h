@@ -20,6 +20,12 @@
 #include <string.h>
 
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
+/* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (frame.c,
+ * activeset.c): neither read as active nor as split nor as a coarse ghost, so the node is
+ * neither split nor merged (its value is read as it is stored, as for an active or split node) */
+enum { ST_RESTING = 3, ST_LIMITED_ACTIVE = 4, ST_LIMITED_SPLIT = 5 };
+#define SQ_BLOCKS_CHUNK 1024  /* element-block cache slots per chunk (1.2 MB, 2.4 viscous) */
+#define SQ_KROW_CHUNK 16384   /* column-form row blocks per chunk (1.5 MB), at least */
 
 /* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
  * the node jumps to its target when the hold starts, with velocity (target - old) / time left,
@@ -49,6 +55,7 @@ typedef struct sq_lod_level {
     int *split_ghost, nsplit_ghost;   /* split ghosts (value from the finer level), increasing */
     int *coarse_ghost, ncoarse_ghost; /* coarse ghosts (value from the coarser level), increasing */
     unsigned char *fresh;       /* 1 = split in the current adapt pass: not merged back (n) */
+    int *limited, nlimited;     /* nodes the guard held out of this pass (sq_lodx_guard_limit) */
     double *crit_weight;        /* criterion Laplacian weights w_ij per adjacency CSR entry, m (nnz) */
     double *d_static;           /* static displacement under the body's gravity, m (n x 3);
                                  * NULL: judged from 0 */
@@ -74,12 +81,17 @@ typedef struct sq_lod_level {
     int *inc_block;             /* per incidence, for each corner q: the block's position in the
                                  * node's adjacency row (4 per incidence) */
     int *blocks_slot;           /* cache slot of a tet's element blocks, or -1 (ntets) */
-    double *blocks_cache;       /* 16 blocks of 9 per slot (x 2 with viscosity: the viscous ones
-                                 * after), N/m (N s/m); slots handed out on first use, so the
-                                 * memory follows the refined region, not the mesh */
+    double **blocks_chunk;      /* 16 blocks of 9 per slot (x 2 with viscosity: the viscous ones
+                                 * after), N/m (N s/m), in chunks of SQ_BLOCKS_CHUNK slots (a
+                                 * grown cache is never copied: a copy stalled a frame); slots
+                                 * handed out on first use, so the memory follows the refined
+                                 * region, not the mesh */
     int blocks_used, blocks_cap;/* slots in use, slots allocated */
+    int blocks_nchunk, blocks_per; /* chunks allocated; doubles per slot they were made for */
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
+    double blocks_cpu;          /* thread CPU time of the last build of those blocks, s (0: not
+                                 * built by the last sq_lodx_update_ring_blocks) */
     int blocks_valid;           /* 1: the blocks were built for the current material (a later
                                  * rebuild may then redo only the rows near changed nodes) */
     int *prev_ring, nprev_ring; /* the ring and frontier the blocks were last built for (n) */
@@ -117,9 +129,13 @@ typedef struct sq_lod_level {
     /* the level's own rows of K in column form for the inner rows, made on a node's first use
      * as an inner node for the current material (so the memory follows the refined region,
      * like the element blocks) */
-    int *krow_at;               /* block offset of node i's row in krow_cache, or -1 (n) */
-    double *krow_cache;         /* 12 doubles per block */
-    long krow_used, krow_cap;   /* blocks in use, allocated */
+    int *krow_at;               /* block offset of node i's row in krow_chunk (chunk x
+                                 * SQ_KROW_CHUNK + block in it), or -1 (n) */
+    double **krow_chunk;        /* 12 doubles per block, SQ_KROW_CHUNK blocks a chunk (a row never
+                                 * straddles two; a grown cache is never copied) */
+    long krow_used, krow_cap;   /* next free block offset; offsets allocated */
+    long krow_chunk_len;        /* blocks per chunk: SQ_KROW_CHUNK or the longest row (0: none yet) */
+    int krow_nchunk;
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -186,10 +202,37 @@ struct sq_lod {
     int nhe, cap_he;
     int *hold_entry_of;                  /* entry of each hold of the frame */
     int cap_holds;
-    /* cost model of the guaranteed frame rate */
+    /* cost model of the guaranteed frame rate (frame.c, docs/lod.md "Guaranteed frame rate"):
+     * thread CPU s, each a maximum over the last measurements that decays by 10 % a frame (a
+     * frame after a rebuild costs more per update than a quiet one) */
     double last_time;                    /* CPU time of the previous frame, s */
-    double cost_update;                  /* CPU s per node update, last frame with updates (0: none yet) */
-    double cost_fixed;                   /* CPU s of a frame's rest (rebuilds, end-of-frame ghosts) */
+    double cost_update;                  /* per node update of the ticks (ghost values, forces,
+                                          * integration), s (0: none measured yet) */
+    double cost_fixed;                   /* per frame, the stages outside the ticks and the
+                                          * split/merge passes (criterion, push, ...), s */
+    double cost_level[SQ_MAX_LEVELS];    /* a pass's rebuild of level k's lists, s (0: none yet) */
+    double cost_couple;                  /* a pass's sources and needed set, s */
+    double cost_blocks[SQ_MAX_LEVELS];   /* a pass's block build of level k with no node
+                                          * changed (calibration), s */
+    double cost_block_change[SQ_MAX_LEVELS]; /* ... and per changed node of level k, s */
+    double cost_bound;                   /* a pass's coupled bound (Gershgorin, sharp), s */
+    double cost_outside;                 /* the thread's time between two frames (the body's
+                                          * work around the lod frame), at most a quarter period, s */
+    double last_c_end;                   /* thread CPU clock at the last frame's end, s */
+    double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
+    int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
+                                          * deterministic tests), not measured */
+    int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
+    long guard_clock;                    /* frames run with a budget (hysteresis clock) */
+    int *guard_hold[SQ_MAX_LEVELS];      /* per node of level k: no split before this guard
+                                          * clock (a region the guard merged rests), NULL: none */
+    long guard_merged_total;             /* regions the guard merged so far (tests) */
+    long guard_resplit;                  /* of those, split again within their rest (tests: 0) */
+    int guard_hold_until[SQ_MAX_LEVELS]; /* the latest rest in guard_hold[k] */
+    double guard_modeled;                /* the last frame's cost by the model for what it did
+                                          * (its node updates, fixed cost and passes), s */
+    double guard_predicted;              /* the next frame's cost predicted at this frame's end
+                                          * (without a pass), s */
     int corot_tets_always;               /* 1: corotational levels run the tet-by-tet pass even when
                                           * all their nodes are active (tests compare it) */
     int full_rebuild;                    /* 1: every block row rebuilt after a split/merge pass (the
@@ -324,6 +367,25 @@ typedef struct adapt_out {
 } adapt_out;
 
 
+/* activeset.c, the guard: merge the least needed mergeable regions (smallest criterion over
+ * their children) until *projected <= cap, at most `most` of them; each merged node rests
+ * `rest` frames before it may split again. Returns the merges made (levels changed in
+ * out->changed). */
+long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most);
+/* activeset.c, the guard: when the split/merge pass of levels k, k+1 would change more than
+ * `most` regions, keep the merges the criterion wants (least needed first) and then its splits
+ * (most needed first) up to `most`, and hold the others out of the pass (their state masked
+ * until sq_lodx_guard_limit_undo); returns the regions held out */
+long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
+void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
+/* the need of split node p of level k: its children's largest criterion (its own without
+ * children), as the merge rule judges it, m */
+double sq_lodx_need(const sq_lod *lod, int k, int p);
+/* frame.c: fixed costs for the guard instead of measured ones (tests: deterministic runs with
+ * a budget); all <= 0 returns to measuring */
+void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s,
+                       double per_pass_s, double per_change_s);
+
 /* state.c: recompute the active mask, the ghost lists and the integration mask of level k */
 void sq_lodx_rebuild_level(sq_lod *lod, int k);
 /* state.c: split ghosts of level k from their child tets in level k+1 */
@@ -342,6 +404,8 @@ void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
 void sq_lodx_sharp_bound(sq_lod *lod);
 void sq_lodx_sharp_free(sq_lod *lod);
+/* the next sharp pass estimates every level again (the guard's calibration times it) */
+void sq_lodx_sharp_invalidate(sq_lod *lod);
 /* for tests: level k's block S_kk + C_k of the majorant (S = M^-1/2 A M^-1/2) as bound.c applies it,
  * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
  * and the scaled diagonal C_k (*off, same order); both to free */

@@ -425,7 +425,9 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].node_tet);
         free(lod->lev[k].inc_corner);
         free(lod->lev[k].blocks_slot);
-        free(lod->lev[k].blocks_cache);
+        for (int c = 0; c < lod->lev[k].blocks_nchunk; c++)
+            free(lod->lev[k].blocks_chunk[c]);
+        free(lod->lev[k].blocks_chunk);
         free(lod->lev[k].inc_block);
         free(lod->lev[k].tet_geom);
         free(lod->lev[k].src_level);

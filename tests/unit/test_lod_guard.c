@@ -1,0 +1,275 @@
+/* test_lod_guard.c - the guard that holds the frame rate (docs/lod.md, "Guaranteed frame
+ * rate"), run on given costs (sq_lodx_set_costs) so that every decision is deterministic and
+ * nothing depends on the machine's clock: the frame's cost by the model is exact for what the
+ * frame did (its node updates, its passes' levels and changed nodes). */
+#include <stdint.h>
+
+#include "lod/lod_internal.h"
+#include "body/body_internal.h"
+#include "sq_test.h"
+#include "test_lod_helpers.h"
+#include "test_sim_helpers.h"
+
+/* four cube levels: 3, 6 (jittered), 12, 18 (jittered) cells */
+static int guard_meshes(sq_mesh **m)
+{
+    m[0] = lh_cube(3, 0, 1, 1);
+    m[1] = lh_cube(6, 0.1, 1, 2);
+    m[2] = lh_cube(12, 0, 1, 3);
+    m[3] = lh_cube(18, 0.1, 1, 4);
+    return m[0] && m[1] && m[2] && m[3];
+}
+
+/* a sphere pressing the top 8 cm over 0.6 s while moving sideways, held, released at 1.2 s */
+static sq_tool guard_poke(double t)
+{
+    double depth = t < 0.6 ? 0.08 * t / 0.6 : 0.08;
+    double x = 0.4 + 0.2 * (t < 1.2 ? t / 1.2 : 1.0);
+    return lh_sphere(x, 0.5, 1.15 - depth, 0.15, t < 1.2);
+}
+
+/* the given costs: 100 ns per node update, 0.5 ms a frame, per pass 0.3 ms per level rebuilt
+ * plus 1 ms, 20 us per changed node (the proportions measured on box-big, scaled to this
+ * body); a 20 ms period. With these the unguarded poke's own frames (updates and passes)
+ * exceed the budget (checked below), so the guard has to act. */
+#define C_UPDATE 100e-9
+#define C_FRAME 0.5e-3
+#define C_LEVEL 0.3e-3
+#define C_PASS 1e-3
+#define C_CHANGE 20e-6
+#define PERIOD 20e-3
+
+/* the model's cost of one frame from its profile and the levels a pass rebuilt, for the
+ * unguarded run (which has no model): fixed + updates + per pass its levels and changes */
+static double unguarded_cost(const sq_frame_profile *p, int levels_changed, long nodes_changed)
+{
+    double c = C_FRAME + C_UPDATE * (double)p->node_updates;
+    if (levels_changed > 0)
+        c += C_PASS + C_LEVEL * levels_changed + C_CHANGE * (double)nodes_changed;
+    return c;
+}
+
+/* With a budget and given costs, every frame after the first costs (by the model, for what
+ * it actually did) at most budget x period, also after the period drops from 20 to 12 ms in
+ * the middle of the poke (the two frames that absorb the drop excepted), refinement still
+ * happens (the finest level is used), the drop makes the guard merge, and no region the guard
+ * merged is split again in its rest (the old guard merged at the start of a frame and the
+ * end-of-frame pass split the same regions again). The same poke without the guard exceeds the budget in
+ * some frames, so the test fails if the guard does not act. Tolerance: none (the model's
+ * costs are given, so its frame cost is exact for what the frame did). */
+SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
+{
+    sq_mesh *m[4];
+    if (!guard_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 4);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
+    sq_err e = {{0}};
+    sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
+    TH_REQUIRE(b[0] && b[1]);
+    sq_lodx_set_costs(b[1]->lod, C_UPDATE, C_FRAME, C_LEVEL, C_PASS, C_CHANGE);
+    double B = def.lod.budget * PERIOD;
+    int frames = 100, over_unguarded = 0, over = 0, finest_max = 0, refused = 0;
+    double worst = 0, worst_unguarded = 0;
+    long splits = 0, merges = 0;
+    for (int f = 0; f < frames; f++) {
+        sq_tool tool = guard_poke(f * def.frame_dt);
+        sq_frame_profile p[2];
+        /* unguarded: the levels and nodes its pass changed, from the states before and after */
+        unsigned char *before[4];
+        for (int k = 0; k < 4; k++) {
+            before[k] = malloc((size_t)m[k]->nnodes);
+            memcpy(before[k], b[0]->lod->lev[k].state, (size_t)m[k]->nnodes);
+        }
+        sq_body_frame(b[0], &tool, 1, NULL, &p[0], 0);
+        int lch = 0;
+        long nch = 0;
+        for (int k = 0; k < 4; k++) {
+            long d = 0;
+            for (int i = 0; i < m[k]->nnodes; i++)
+                d += (before[k][i] == ST_ACTIVE) != (b[0]->lod->lev[k].state[i] == ST_ACTIVE);
+            lch += d > 0;
+            nch += d;
+            free(before[k]);
+        }
+        /* from frame 60 (the tool still pressing) the period drops to 12 ms: the layout
+         * (then about 13 ms of node updates alone) no longer fits and the guard merges, as
+         * many regions as frame 60 can rebuild and the rest at the start of frame 61: those
+         * two frames (like the first) may be over */
+        double period = f < 60 ? PERIOD : 12e-3, Bf = def.lod.budget * period;
+        sq_body_frame(b[1], &tool, 1, NULL, &p[1], period);
+        double cu = unguarded_cost(&p[0], lch, nch), cg = b[1]->lod->guard_modeled;
+        if (f >= 1 && f != 60 && f != 61) {
+            over_unguarded += cu > B;
+            over += cg > Bf;
+            worst = fmax(worst, cg);
+            worst_unguarded = fmax(worst_unguarded, cu);
+        }
+        finest_max = SQ_MAX(finest_max, p[1].active[3]);
+        refused += p[1].splits_refused;
+        splits += p[1].splits;
+        merges += p[1].merges;
+        CHECK(sq_lod_check(b[1]->lod, &e) == 0);
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "guard on given costs, budget %.2f ms: unguarded %d frames over (worst %.2f ms); guarded "
+                "%d over (worst %.2f ms), finest active up to %d, %ld splits, %ld merges (%ld by the guard, "
+                "%ld split again in their rest), %d frames with splits refused\n", 1e3 * B, over_unguarded,
+                1e3 * worst_unguarded, over, 1e3 * worst, finest_max, splits, merges, b[1]->lod->guard_merged_total,
+                b[1]->lod->guard_resplit, refused);
+    CHECK(over_unguarded > 0);  /* the budget binds */
+    CHECK(over == 0);           /* exact model: no frame over after the first */
+    CHECK(finest_max > 0);      /* the guard does not simply keep everything coarse */
+    CHECK(refused > 0);
+    CHECK(b[1]->lod->guard_merged_total > 0); /* the drop made the guard merge */
+    CHECK(b[1]->lod->guard_resplit == 0);
+    sq_body_destroy(b[0]);
+    sq_body_destroy(b[1]);
+    for (int k = 0; k < 4; k++)
+        sq_mesh_free(m[k]);
+}
+
+/* The guard merges the least needed regions first: after a poke refines a body (no budget),
+ * merging down to a node-update cap takes mergeable regions in increasing order of their
+ * children's largest criterion, and the merged ones rest (not split for REST frames). */
+SQ_TEST(lod_guard_merges_least_needed_first)
+{
+    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
+    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.02, 0.004);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_frame_profile p;
+    for (int f = 0; f < 25; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.2 - 0.1 * SQ_MIN(f / 20.0, 1.0), 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 0);
+    }
+    sq_lod *lod = b->lod;
+    sq_lod_flush(lod);
+    /* the needs of the regions mergeable now (split nodes of levels 0 and 1 whose children
+     * are all active) and the node updates merging them all would save */
+    double *need[2];
+    int cand = 0;
+    long projected = sq_lod_projected_updates(lod), gain = 0;
+    for (int k = 0; k < 2; k++) {
+        int n = m[k]->nnodes;
+        const sq_lod_link *ln = &lod->h.link[k];
+        need[k] = malloc(sizeof(double) * (size_t)n);
+        for (int p = 0; p < n; p++) {
+            need[k][p] = -1;
+            if (lod->lev[k].state[p] != ST_SPLIT)
+                continue;
+            int ok = 1;
+            for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
+                ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
+            if (!ok)
+                continue;
+            need[k][p] = sq_lodx_need(lod, k, p);
+            long nch = ln->child_start[p + 1] - ln->child_start[p];
+            gain += nch * (1L << sub_log2(lod, k + 1)) - (1L << sub_log2(lod, k));
+            cand++;
+        }
+    }
+    CHECK(cand > 3);
+    /* merge about half of them: a cap half way between none and all merged */
+    long cap = projected - gain / 2;
+    adapt_out ao;
+    memset(&ao, 0, sizeof ao);
+    long made = sq_lodx_guard_merge(lod, cap, &projected, &ao, 7, 1000000);
+    double merged_max = 0, kept_min = INFINITY;
+    int held = 0, merged = 0;
+    for (int k = 0; k < 2; k++)
+        for (int p = 0; p < m[k]->nnodes; p++) {
+            if (need[k][p] < 0)
+                continue;
+            if (lod->lev[k].state[p] == ST_ACTIVE) {
+                merged_max = fmax(merged_max, need[k][p]);
+                merged++;
+                held += lod->guard_hold[k] && lod->guard_hold[k][p] == lod->guard_clock + 7;
+            } else {
+                kept_min = fmin(kept_min, need[k][p]);
+            }
+        }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "least needed: %d mergeable, %ld merged (largest need %.3g m), the rest from %.3g m\n", cand,
+                made, merged_max, kept_min);
+    CHECK(made == merged && made > 0 && made < cand); /* regions mergeable at the start only */
+    CHECK(projected <= cap);
+    CHECK(merged_max <= kept_min); /* every merged region needed less than every kept one */
+    CHECK(held == made);           /* each rests 7 frames */
+    free(need[0]);
+    free(need[1]);
+    for (int k = 0; k < 3; k++)
+        if (ao.changed[k])
+            sq_lodx_rebuild_level(lod, k);
+    sq_lod_sync(lod);
+    CHECK(sq_lod_check(lod, &e) == 0);
+    sq_body_destroy(b);
+    for (int k = 0; k < 3; k++)
+        sq_mesh_free(m[k]);
+}
+
+/* The sharp step estimate is made again only for a level whose operator changed: a rebuild
+ * of every level with no change of state estimates nothing and keeps every level's substeps;
+ * after sq_lodx_sharp_invalidate the same rebuild estimates every level with active nodes
+ * again and finds the same substeps (the operator is the same). */
+SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
+{
+    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
+    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.sharp_step = 1;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.02, 0.004);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_frame_profile p;
+    for (int f = 0; f < 20; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.2 - 0.1 * SQ_MIN(f / 15.0, 1.0), 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 0);
+    }
+    sq_lod *lod = b->lod;
+    int levels_active = 0, ext0[3];
+    for (int k = 0; k < 3; k++) {
+        levels_active += lod->lev[k].nactive > 0;
+        ext0[k] = lod->lev[k].extra_log2;
+    }
+    CHECK(levels_active >= 2);
+    long calls0, calls1, calls2;
+    double cpu;
+    sq_lod_sharp_cost(lod, &calls0, &cpu);
+    for (int k = 0; k < 3; k++)
+        sq_lodx_rebuild_level(lod, k);
+    sq_lodx_build_sources(lod);
+    sq_lodx_update_ring_blocks(lod, &def.material);
+    sq_lod_sharp_cost(lod, &calls1, &cpu);
+    int same1 = 1;
+    for (int k = 0; k < 3; k++)
+        same1 &= lod->lev[k].extra_log2 == ext0[k];
+    sq_lodx_sharp_invalidate(lod);
+    for (int k = 0; k < 3; k++)
+        sq_lodx_rebuild_level(lod, k);
+    sq_lodx_build_sources(lod);
+    sq_lodx_update_ring_blocks(lod, &def.material);
+    sq_lod_sharp_cost(lod, &calls2, &cpu);
+    int same2 = 1;
+    for (int k = 0; k < 3; k++)
+        same2 &= lod->lev[k].extra_log2 == ext0[k];
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "sharp skip: %d levels active; unchanged rebuild %ld estimates, invalidated %ld\n",
+                levels_active, calls1 - calls0, calls2 - calls1);
+    CHECK(calls1 == calls0);
+    CHECK(same1);
+    CHECK(calls2 - calls1 == levels_active);
+    CHECK(same2);
+    sq_body_destroy(b);
+    for (int k = 0; k < 3; k++)
+        sq_mesh_free(m[k]);
+}
