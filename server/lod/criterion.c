@@ -219,7 +219,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 for (int c = c0; c < c1 && ok; c++)
                     if (!(delta_at(lod, k + 1, ln->child[c]) < def->merge))
                         ok = 0;
-                if (ok && parent_test && !(delta_at(lod, k, p) < def->split))
+                if (ok && parent_test && !(delta_at(lod, k, p) < def->merge))
                     ok = 0;
                 if (!ok)
                     continue;

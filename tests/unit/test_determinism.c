@@ -52,8 +52,8 @@ static const det_pin pins[] = {
     {"column", "scene", 0x8537284037d534bfull},
     {"cube-poke", "scene", 0x7f69eaa33d71a5c7ull},
     {"cube-poke", "fixed", 0xe130ee33772bddefull},
-    {"organ", "scene", 0xf7b4f7722a81c8afull},
-    {"organ", "fixed", 0x39ae3fc5b6f04433ull},
+    {"organ", "scene", 0xd0a49bcc32ec2f54ull},
+    {"organ", "fixed", 0xdce4ff797d752cd3ull},
     {"paper-cube", "scene", 0xc5c82c2c051ac668ull},
     {"sphere-grab", "scene", 0x4d465e16c76691f2ull},
 };
@@ -64,8 +64,8 @@ static const det_pin pins[] = {
     {"column", "scene", 0xc7e07417af5b4521ull},
     {"cube-poke", "scene", 0x224bec84d974c1cdull},
     {"cube-poke", "fixed", 0x9a1fc3755b64429aull},
-    {"organ", "scene", 0xab4d412628d927e1ull},
-    {"organ", "fixed", 0xf049a331724a04f3ull},
+    {"organ", "scene", 0x03e2e0e0ebf37354ull},
+    {"organ", "fixed", 0xaf01e98ce32a5dfaull},
     {"paper-cube", "scene", 0x57da013edede2070ull},
     {"sphere-grab", "scene", 0x3fb980bb00cd5a3cull},
 };

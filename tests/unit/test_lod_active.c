@@ -374,14 +374,15 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
 
 /* Under a static load the mixed layout's own equilibrium differs from each level's, so a
  * merged node can read over the split threshold at once (the coarse level's sag differs from
- * the finer one's where the refined region was) and split again in the next frame: the shipped
- * organ, with no tool at all, split and merged in every frame after it settled (150 of the 150
- * frames after frame 50, each pass a rebuild and, with the sharp step, three step estimates).
- * A split node of a body with a static load now merges only if its own criterion, read from the
- * values it would take up, is under the split threshold (criterion.c). Measured: no pass after
- * frame 50 (the optimised build). Tolerance: at most 2 of frames 61-100 with a split or merge,
- * for a late threshold crossing under other rounding (the sanitizer build); the code before
- * has one in all 40. */
+ * the finer one's where the refined region was) and split again a few frames later: the linear
+ * organ, with no tool at all, split and merged in every frame after it settled. A split node of
+ * a body with a static load now merges only if its own criterion, read from the values it would
+ * take up, is under the merge threshold (criterion.c: the same hysteresis band as its children's
+ * test). The shipped organ (corotational since 2026-12-02), no tool: no pass after frame 50.
+ * With no parent test, 40 of frames 61-100 have a split or a merge; with the parent judged
+ * against the split threshold (the first version of the rule) 26: one level-0 node merged and
+ * split again every four frames. Tolerance: at most 2 of frames 61-100 with a split or merge,
+ * for a late threshold crossing under other rounding (the sanitizer build). */
 SQ_TEST(lod_static_load_settles_without_split_merge_churn)
 {
     char path[1024];
