@@ -302,6 +302,15 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
  * (positive semi-definite) stiffness of -Lap, hence the minus sign */
 void sq_level_laplacian(const sq_level *L, int i, double out[3]);
 
+/* y = A x for a symmetric positive definite operator A on the level's nodes (3n values) */
+typedef void (*sq_level_op)(const sq_level_model *M, const void *ctx, const double *x, double *y);
+
+/* A x = b by conjugate gradients preconditioned by the diagonal pre (its inverse, 0 on fixed
+ * axes), from x = 0 to |r| <= tol |b|; 0, or -1 + err when it breaks down or does not converge
+ * in max_iter (iterations, if not NULL, receives the count) */
+int sq_level_pcg(const sq_level_model *M, sq_level_op op, const void *ctx, const double *b, const double *pre,
+                 double tol, int max_iter, double *x, int *iterations, sq_err *err);
+
 /* static equilibrium K d = M g with the level's constraints (constrained axes zero), by
  * Jacobi-preconditioned conjugate gradients to relative residual tol; d (n x 3) receives
  * the solution; -1 + err if CG breaks down or does not converge in max_iter */

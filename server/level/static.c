@@ -33,28 +33,14 @@ static double dot(const double *a, const double *b, size_t n)
     return s;
 }
 
-typedef void (*op_fn)(const sq_level_model *M, const void *ctx, const double *x, double *y);
-
-static int cg_solve(const sq_level_model *M, op_fn op, const void *ctx, const double gravity[3], double tol,
-                    int max_iter, double *d, int *iterations, sq_err *err)
+int sq_level_pcg(const sq_level_model *M, sq_level_op op, const void *ctx, const double *b, const double *pre,
+                 double tol, int max_iter, double *x, int *iterations, sq_err *err)
 {
     size_t n3 = 3 * (size_t)M->n;
     double *r = sq_malloc(sizeof(double) * n3), *z = sq_malloc(sizeof(double) * n3);
     double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
-    double *pre = sq_malloc(sizeof(double) * n3);
-    /* right-hand side M g on free axes; Jacobi preconditioner from the diagonal blocks */
-    for (int i = 0; i < M->n; i++) {
-        int e = M->row_start[i];
-        while (M->col[e] != i)
-            e++;
-        for (int c = 0; c < 3; c++) {
-            int fx = (M->fixed[i] >> c) & 1;
-            r[3 * i + c] = fx ? 0 : M->mass[i] * gravity[c];
-            double kd = M->K[9 * (size_t)e + 4 * c];
-            pre[3 * i + c] = fx || !(kd > 0) ? 0 : 1.0 / kd;
-        }
-    }
-    memset(d, 0, sizeof(double) * n3);
+    memcpy(r, b, sizeof(double) * n3);
+    memset(x, 0, sizeof(double) * n3);
     double bnorm = sqrt(dot(r, r, n3));
     int it = 0, rc = 0;
     if (bnorm > 0) {
@@ -75,7 +61,7 @@ static int cg_solve(const sq_level_model *M, op_fn op, const void *ctx, const do
             }
             double alpha = rz / pq;
             for (size_t k = 0; k < n3; k++) {
-                d[k] += alpha * p[k];
+                x[k] += alpha * p[k];
                 r[k] -= alpha * q[k];
             }
             for (size_t k = 0; k < n3; k++)
@@ -96,6 +82,28 @@ static int cg_solve(const sq_level_model *M, op_fn op, const void *ctx, const do
     free(z);
     free(p);
     free(q);
+    return rc;
+}
+
+/* K d = M g on the free axes by sq_level_pcg, Jacobi-preconditioned from the diagonal blocks */
+static int cg_solve(const sq_level_model *M, sq_level_op op, const void *ctx, const double gravity[3], double tol,
+                    int max_iter, double *d, int *iterations, sq_err *err)
+{
+    size_t n3 = 3 * (size_t)M->n;
+    double *b = sq_malloc(sizeof(double) * n3), *pre = sq_malloc(sizeof(double) * n3);
+    for (int i = 0; i < M->n; i++) {
+        int e = M->row_start[i];
+        while (M->col[e] != i)
+            e++;
+        for (int c = 0; c < 3; c++) {
+            int fx = (M->fixed[i] >> c) & 1;
+            b[3 * i + c] = fx ? 0 : M->mass[i] * gravity[c];
+            double kd = M->K[9 * (size_t)e + 4 * c];
+            pre[3 * i + c] = fx || !(kd > 0) ? 0 : 1.0 / kd;
+        }
+    }
+    int rc = sq_level_pcg(M, op, ctx, b, pre, tol, max_iter, d, iterations, err);
+    free(b);
     free(pre);
     return rc;
 }

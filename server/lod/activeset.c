@@ -672,24 +672,6 @@ double sq_lodx_need(const sq_lod *lod, int k, int p)
     return m;
 }
 
-/* the merge itself (as criterion.c's merge_node): the node starts from its value interpolated
- * from its child tet, its children become coarse ghosts at their parent-tet values */
-static void guard_merge_node(sq_lod *lod, int k, int p)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_lod_link *ln = &lod->h.link[k];
-    lk->state[p] = ST_ACTIVE;
-    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
-        lod->lev[k + 1].state[ln->child[c]] = ST_COARSE;
-    memcpy(lk->d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
-    memcpy(lk->v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
-        int j = ln->child[c];
-        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-    }
-}
-
 typedef struct merge_cand {
     double need;
     int k, p;
@@ -739,7 +721,7 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
             int k = cand[c].k, p = cand[c].p;
             const sq_lod_link *ln = &lod->h.link[k];
             long nch = ln->child_start[p + 1] - ln->child_start[p];
-            guard_merge_node(lod, k, p);
+            sq_lodx_merge_node(lod, k, p);
             *projected -= nch * (1L << sub_log2(lod, k + 1)) - (1L << sub_log2(lod, k));
             if (!lod->guard_hold[k])
                 lod->guard_hold[k] = sq_calloc((size_t)lod->lv[k].model.n, sizeof(int));

@@ -646,14 +646,24 @@ static double vdot(const double *a, const double *b, size_t n)
     return s;
 }
 
-/* K_R x = b (free axes), conjugate gradients preconditioned by the diagonal of the rest K, from
- * x = 0 to relative residual tol; 0, or -1 when it breaks down or runs out of iterations */
+typedef struct kr_ctx {
+    const sq_material *mat;
+    const double *tg, *rot;
+} kr_ctx;
+
+static void kr_op(const sq_level_model *M, const void *ctx, const double *x, double *y)
+{
+    const kr_ctx *c = ctx;
+    kr_apply(M, c->mat, c->tg, c->rot, x, y);
+}
+
+/* K_R x = b (free axes), conjugate gradients (level's sq_level_pcg) preconditioned by the mean
+ * diagonal of the rest K's blocks, from x = 0 to relative residual tol; 0, or -1 when it breaks
+ * down or runs out of iterations */
 static int kr_solve(const sq_level_model *M, const sq_material *mat, const double *tg, const double *rot,
                     const double *b, double tol, double *x)
 {
     size_t n3 = 3 * (size_t)M->n;
-    double *r = sq_malloc(sizeof(double) * n3), *z = sq_malloc(sizeof(double) * n3);
-    double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
     double *pre = sq_malloc(sizeof(double) * n3);
     for (int i = 0; i < M->n; i++) {
         int e = M->row_start[i];
@@ -663,39 +673,8 @@ static int kr_solve(const sq_level_model *M, const sq_material *mat, const doubl
         for (int c = 0; c < 3; c++)
             pre[3 * i + c] = ((M->fixed[i] >> c) & 1) || !(kd > 0) ? 0 : 1.0 / kd;
     }
-    memcpy(r, b, sizeof(double) * n3);
-    memset(x, 0, sizeof(double) * n3);
-    for (size_t k = 0; k < n3; k++)
-        z[k] = pre[k] * r[k];
-    memcpy(p, z, sizeof(double) * n3);
-    double rz = vdot(r, z, n3), bn = sqrt(vdot(b, b, n3));
-    int rc = -1, max_iter = 20 * M->n + 1000;
-    for (int it = 0; it < max_iter; it++) {
-        if (sqrt(vdot(r, r, n3)) <= tol * bn) {
-            rc = 0;
-            break;
-        }
-        kr_apply(M, mat, tg, rot, p, q);
-        double pq = vdot(p, q, n3);
-        if (!(pq > 0))
-            break;
-        double al = rz / pq;
-        for (size_t k = 0; k < n3; k++) {
-            x[k] += al * p[k];
-            r[k] -= al * q[k];
-        }
-        for (size_t k = 0; k < n3; k++)
-            z[k] = pre[k] * r[k];
-        double rz2 = vdot(r, z, n3);
-        double be = rz2 / rz;
-        rz = rz2;
-        for (size_t k = 0; k < n3; k++)
-            p[k] = z[k] + be * p[k];
-    }
-    free(r);
-    free(z);
-    free(p);
-    free(q);
+    kr_ctx c = {mat, tg, rot};
+    int rc = sq_level_pcg(M, kr_op, &c, b, pre, tol, 20 * M->n + 1000, x, NULL, NULL);
     free(pre);
     return rc;
 }

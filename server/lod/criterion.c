@@ -135,7 +135,9 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
     return delta_at(lod, level, node);
 }
 
-static void merge_node(sq_lod *lod, int k, int p)
+/* merge node p of level k: it starts from its value interpolated from its child tet, its
+ * children become coarse ghosts at their parent-tet values (the criterion's and the guard's merges) */
+void sq_lodx_merge_node(sq_lod *lod, int k, int p)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_lod_link *ln = &lod->h.link[k];
@@ -224,7 +226,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 if (!ok)
                     continue;
             }
-            merge_node(lod, k, p);
+            sq_lodx_merge_node(lod, k, p);
             *projected -= (long)(c1 - c0) * cost_f - cost_k;
             out->merges++;
             changed = 1;
@@ -255,7 +257,7 @@ void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
                     ok = 0;
             if (!ok)
                 continue;
-            merge_node(lod, k, p);
+            sq_lodx_merge_node(lod, k, p);
             *projected -= (long)(ln->child_start[p + 1] - ln->child_start[p]) * cost_f - cost_k;
             out->merges++;
             out->changed[k] = out->changed[k + 1] = 1;

@@ -396,6 +396,7 @@ void sq_lodx_cascade_needed(sq_lod *lod);
 double *sq_lodx_criterion_weights(const sq_mesh *m);
 /* criterion.c: split/merge between levels k and k+1; merges until the node-update cap fits */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out);
+void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, values interpolated */
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 /* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);

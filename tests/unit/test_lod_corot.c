@@ -513,7 +513,7 @@ SQ_TEST(lod_corot_run_after_reset_is_the_run_from_rest)
  * linear one. The shipped organ (corotational, its base glued below z = 0.02 m: on the earlier
  * 0.012 m patch the corotational organ has no upright equilibrium and collapses, docs/physics.md
  * section 9), no tool, held at level 0 (split inf), settles in 3 s of its damping; the criterion
- * of the settled state must then be near zero at every node. Measured: 3.1e-7 m; against the
+ * of the settled state must then be near zero at every node. Measured: 4.4e-7 m; against the
  * linear equilibrium (the code before) 0.0163 m, above the scene's split threshold 0.015 m.
  * Tolerance 1e-4 m: what is left of the motion after 3 s (mass damping 8 /s) and the solve's
  * relative residual 1e-6, far below the merge threshold 0.006 m. */
