@@ -180,7 +180,15 @@ int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err)
             sq_level_anp_free(&b->level[k]);
         }
     }
+    /* the sharp bound is the Lanczos estimate of the operator the step applies: made again for
+     * the new one (it cannot fail: every operator is under the element-wise Gershgorin ceiling
+     * the level was accepted with, so its integer count is at most that rule's 2^n) */
     b->def.nodal_pressure = nodal;
+    if (b->def.sharp_step)
+        for (int k = 0; k < SQ_MAX_LEVELS; k++)
+            if (b->ready[k] && sq_level_choose_step_sharp(&b->level[k], &b->def.material, b->def.frame_dt,
+                                                          b->def.step_fraction, SQ_LANCZOS_ITERS, err) < 0)
+                return -1;
     b->sleeping = 0;
     b->calm = 0;
     return 0;

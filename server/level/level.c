@@ -297,6 +297,23 @@ static void scaled_matvec(const sq_level *L, const double *x, double *y)
         }
 }
 
+/* the same product with the level's own operator when it has one (pressure nodal or smoothed:
+ * the step's matrix-free pass of level/anp.c; scratch: 3n doubles); the element-wise K otherwise */
+static void scaled_matvec_own(const sq_level *L, const double *x, double *y, double *z)
+{
+    if (!L->anp) {
+        scaled_matvec(L, x, y);
+        return;
+    }
+    for (int i = 0; i < L->model.n; i++)
+        for (int r = 0; r < 3; r++)
+            z[3 * i + r] = (L->model.fixed[i] & (1u << r)) ? 0 : x[3 * i + r] / sqrt(L->model.mass[i]);
+    sq_level_anp_apply(L, z, y);
+    for (int i = 0; i < L->model.n; i++)
+        for (int r = 0; r < 3; r++)
+            y[3 * i + r] = (L->model.fixed[i] & (1u << r)) ? 0 : y[3 * i + r] / sqrt(L->model.mass[i]);
+}
+
 double sq_level_tridiag_max(const double *alpha, const double *beta, int m)
 {
     double lo = INFINITY, hi = -INFINITY;
@@ -322,11 +339,12 @@ double sq_level_tridiag_max(const double *alpha, const double *beta, int m)
     return hi;
 }
 
-double sq_level_lanczos_max(const sq_level *L, int iters)
+/* own: 0 the element-wise K, 1 the level's own operator (scaled_matvec_own) */
+static double lanczos_max(const sq_level *L, int iters, int own)
 {
     size_t n3 = 3 * (size_t)L->model.n;
     double *q0 = sq_calloc(n3, sizeof(double)), *q = sq_malloc(n3 * sizeof(double)),
-           *w = sq_malloc(n3 * sizeof(double));
+           *w = sq_malloc(n3 * sizeof(double)), *z = own && L->anp ? sq_malloc(n3 * sizeof(double)) : NULL;
     double *alpha = sq_malloc(sizeof(double) * (size_t)(iters + 1)),
            *beta = sq_malloc(sizeof(double) * (size_t)(iters + 1));
     /* deterministic start on the free axes */
@@ -344,7 +362,10 @@ double sq_level_lanczos_max(const sq_level *L, int iters)
         int m = 0;
         double bprev = 0;
         for (int j = 0; j < iters; j++) {
-            scaled_matvec(L, q, w);
+            if (z)
+                scaled_matvec_own(L, q, w, z);
+            else
+                scaled_matvec(L, q, w);
             double a = 0;
             for (size_t k = 0; k < n3; k++)
                 a += w[k] * q[k];
@@ -383,9 +404,20 @@ double sq_level_lanczos_max(const sq_level *L, int iters)
     free(q0);
     free(q);
     free(w);
+    free(z);
     free(alpha);
     free(beta);
     return theta;
+}
+
+double sq_level_lanczos_max(const sq_level *L, int iters)
+{
+    return lanczos_max(L, iters, 0);
+}
+
+double sq_level_lanczos_max_own(const sq_level *L, int iters)
+{
+    return lanczos_max(L, iters, 1);
 }
 
 int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
@@ -395,7 +427,10 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
         return sq_err_set(err, "frame period %g s is out of range: give a frame rate > 0", frame_dt);
     if (!(step_fraction > 0 && step_fraction <= 1))
         return sq_err_set(err, "step_fraction %g is out of range: give 0 < step_fraction <= 1", step_fraction);
-    double g2 = L->omega_max * L->omega_max, lz = sq_level_lanczos_max(L, iters);
+    /* the estimate on the operator the step applies: with "pressure" nodal or smoothed (L->anp)
+     * that operator, never stiffer than the element-wise K (docs/physics.md section 10), so the
+     * element-wise Gershgorin bound stays a safe ceiling */
+    double g2 = L->omega_max * L->omega_max, lz = sq_level_lanczos_max_own(L, iters);
     double w2 = fmin(g2, lz); /* Gershgorin is the ceiling */
     double w = sqrt(w2);
     double c = mat->rayleigh_mass;

@@ -163,14 +163,19 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
 int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
                          sq_err *err);
 
-/* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes estimated by
- * `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
+/* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes, K the operator
+ * the step applies (the element-wise blocks, or with L->anp the nodal-pressure or smoothed
+ * operator, which must be enabled first), estimated by `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
  * from it, and the smallest integer substep count n with frame_dt / n <= step_fraction * bound
  * (sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
 int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
                                int iters, sq_err *err);
-/* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2 */
+/* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2, K the element-wise
+ * blocks (whatever the pressure mode) */
 double sq_level_lanczos_max(const sq_level *L, int iters);
+/* the same for the operator the step applies: the matrix-free nodal-pressure or smoothed operator
+ * (level/anp.c) when L->anp is set, else the same as sq_level_lanczos_max (the same arithmetic) */
+double sq_level_lanczos_max_own(const sq_level *L, int iters);
 /* largest eigenvalue of the symmetric tridiagonal (alpha diagonal, beta off-diagonal) of
  * size m, by bisection on the Sturm count (to 1e-15 relative): a Lanczos run's Ritz value */
 double sq_level_tridiag_max(const double *alpha, const double *beta, int m);
