@@ -17,8 +17,10 @@
  *
  * Both are quadratic energies of the displacement, so the operators are symmetric; both are never
  * stiffer than the element-wise operator (the averaged strain's square is below the mean of the
- * squares: Jensen, for the face and the node averages alike), so that operator's step bounds
- * (Gershgorin and the Lanczos estimate) are safe for them. Forces are evaluated matrix-free: a
+ * squares: Jensen, for the face and the node averages alike), so that operator's Gershgorin bound
+ * is safe for them (the default rule); the sharp rule's Lanczos estimate runs on their own
+ * operator through sq_level_anp_apply (level.c, sq_level_lanczos_max_own), under that Gershgorin
+ * ceiling. Forces are evaluated matrix-free: a
  * pass over the tets (gradients, nodal theta), a node pass, a pass over the tets (the face
  * averages, through each tet's four neighbours across its faces, and the stresses).
  */

@@ -334,8 +334,9 @@ int sq_level_static_solve_pressure(const sq_level_model *M, const sq_material *m
                                    double tol, int max_iter, double *d, int *iterations, sq_err *err);
 
 /* average nodal pressure tets and smoothed tets (level/anp.c; fem operator, linear elasticity,
- * fixed mode): with L->anp set, sq_level_step and sq_level_forces use them; enable (mode
- * SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED) refuses the paper operator */
+ * fixed mode): with L->anp set, sq_level_step and sq_level_forces use them, and so does the sharp
+ * bound's Lanczos estimate (call sq_level_choose_step_sharp again after enabling or freeing);
+ * enable (mode SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED) refuses the paper operator */
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err);
 void sq_level_anp_free(sq_level *L);
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
