@@ -141,40 +141,7 @@ static double true_omega_max(const sq_level *L)
                         A[(size_t)p * nf + q] = L->model.K[9 * e + 3 * r + c] / sqrt(L->model.mass[i] * L->model.mass[j]);
                 }
         }
-    for (int sweep = 0; sweep < 50; sweep++) {
-        double off = 0, diag = 0;
-        for (int p = 0; p < nf; p++)
-            for (int q = 0; q < nf; q++)
-                if (p == q)
-                    diag += A[(size_t)p * nf + q] * A[(size_t)p * nf + q];
-                else
-                    off += A[(size_t)p * nf + q] * A[(size_t)p * nf + q];
-        if (off <= 1e-24 * diag)
-            break;
-        for (int p = 0; p < nf; p++)
-            for (int q = p + 1; q < nf; q++) {
-                double apq = A[(size_t)p * nf + q];
-                if (fabs(apq) < 1e-300)
-                    continue;
-                double app = A[(size_t)p * nf + p], aqq = A[(size_t)q * nf + q];
-                double th = (aqq - app) / (2 * apq);
-                double t = (th >= 0 ? 1 : -1) / (fabs(th) + sqrt(th * th + 1));
-                double c = 1 / sqrt(t * t + 1), s = t * c;
-                for (int k = 0; k < nf; k++) { /* columns p, q */
-                    double akp = A[(size_t)k * nf + p], akq = A[(size_t)k * nf + q];
-                    A[(size_t)k * nf + p] = c * akp - s * akq;
-                    A[(size_t)k * nf + q] = s * akp + c * akq;
-                }
-                for (int k = 0; k < nf; k++) { /* rows p, q */
-                    double apk = A[(size_t)p * nf + k], aqk = A[(size_t)q * nf + k];
-                    A[(size_t)p * nf + k] = c * apk - s * aqk;
-                    A[(size_t)q * nf + k] = s * apk + c * aqk;
-                }
-            }
-    }
-    double lam = 0;
-    for (int p = 0; p < nf; p++)
-        lam = th_max(lam, A[(size_t)p * nf + p]);
+    double lam = th_sym_eig_max(A, nf);
     free(A);
     free(dof);
     return sqrt(lam);

@@ -20,6 +20,48 @@
 /* max that propagates NaN (fmax would drop it and let a broken state pass) */
 static inline double th_max(double a, double b) { return (a > b || isnan(a)) ? a : b; }
 
+/* largest eigenvalue of the dense symmetric nf x nf matrix A (row-major) by cyclic Jacobi
+ * rotations to off-diagonal mass 1e-24 of the diagonal's (at most 50 sweeps); A is destroyed.
+ * The tests' independent reference for the step bounds (dense, so small meshes only). */
+static inline double th_sym_eig_max(double *A, int nf)
+{
+    for (int sweep = 0; sweep < 50; sweep++) {
+        double off = 0, diag = 0;
+        for (int p = 0; p < nf; p++)
+            for (int q = 0; q < nf; q++)
+                if (p == q)
+                    diag += A[(size_t)p * nf + q] * A[(size_t)p * nf + q];
+                else
+                    off += A[(size_t)p * nf + q] * A[(size_t)p * nf + q];
+        if (off <= 1e-24 * diag)
+            break;
+        for (int p = 0; p < nf; p++)
+            for (int q = p + 1; q < nf; q++) {
+                double apq = A[(size_t)p * nf + q];
+                if (fabs(apq) < 1e-300)
+                    continue;
+                double app = A[(size_t)p * nf + p], aqq = A[(size_t)q * nf + q];
+                double th = (aqq - app) / (2 * apq);
+                double t = (th >= 0 ? 1 : -1) / (fabs(th) + sqrt(th * th + 1));
+                double c = 1 / sqrt(t * t + 1), s = t * c;
+                for (int k = 0; k < nf; k++) { /* columns p, q */
+                    double akp = A[(size_t)k * nf + p], akq = A[(size_t)k * nf + q];
+                    A[(size_t)k * nf + p] = c * akp - s * akq;
+                    A[(size_t)k * nf + q] = s * akp + c * akq;
+                }
+                for (int k = 0; k < nf; k++) { /* rows p, q */
+                    double apk = A[(size_t)p * nf + k], aqk = A[(size_t)q * nf + k];
+                    A[(size_t)p * nf + k] = c * apk - s * aqk;
+                    A[(size_t)q * nf + k] = s * apk + c * aqk;
+                }
+            }
+    }
+    double lam = 0;
+    for (int p = 0; p < nf; p++)
+        lam = th_max(lam, A[(size_t)p * nf + p]);
+    return lam;
+}
+
 /* a box mesh or fail the test (returns NULL) */
 static inline sq_mesh *th_box(int nx, int ny, int nz, double sx, double sy, double sz)
 {
