@@ -58,6 +58,7 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
         lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
         lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
         lk->blocks_cap += SQ_BLOCKS_CHUNK;
+        lk->blocks_mapped = 0; /* its pages mapped by the slots' first use or sq_lodx_reserve_blocks */
     }
     sl = lk->blocks_used++;
     lk->blocks_slot[t] = sl;
@@ -699,6 +700,25 @@ static void *reserve_one(void *p, int *cap, long want, long used, size_t size, l
     return p;
 }
 
+/* the last element-block chunk of a level mapped from where the last call stopped (never
+ * over slots in use), 16 pages at a time while the thread CPU since c0 is under seconds;
+ * returns the pages left */
+static long map_chunk(sq_lod_level *lk, size_t chunk, size_t per, double c0, double seconds, long *pages)
+{
+    if (lk->blocks_nchunk == 0 || lk->blocks_mapped >= chunk)
+        return 0;
+    unsigned char *ch = (unsigned char *)lk->blocks_chunk[lk->blocks_nchunk - 1];
+    size_t live = (size_t)SQ_MAX(lk->blocks_used - (lk->blocks_nchunk - 1) * SQ_BLOCKS_CHUNK, 0) * sizeof(double) * per;
+    size_t from = lk->blocks_mapped > live ? lk->blocks_mapped : live;
+    while (from < chunk && sq_thread_cpu() - c0 < seconds) {
+        size_t to = from + 16 * PAGE_BYTES < chunk ? from + 16 * PAGE_BYTES : chunk;
+        *pages += touch_pages(ch, from, to);
+        from = to;
+    }
+    lk->blocks_mapped = from;
+    return (long)((chunk - from) / PAGE_BYTES);
+}
+
 long sq_lodx_reserve_blocks(sq_lod *lod, double seconds)
 {
     double c0 = sq_thread_cpu();
@@ -755,22 +775,22 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds)
             }
             bytes += (long)a[i].size * *a[i].cap;
         }
-        /* the element-block cache: a mapped chunk ahead (slots are cleared when handed out) */
-        size_t per = visc ? 288 : 144;
+        /* the element-block cache: a chunk ahead, mapped a few pages at a time within the
+         * time given, the rest at a later frame (a page costs 8-35 us here, with the load;
+         * slots are cleared when handed out, so the writes are free) */
+        size_t per = visc ? 288 : 144, chunk = sizeof(double) * per * SQ_BLOCKS_CHUNK;
         if (lk->blocks_nchunk == 0)
             lk->blocks_per = (int)per; /* (tet_blocks makes the chunks again for another size) */
+        if (lk->blocks_per == (int)per)
+            pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
         if (lk->blocks_per == (int)per && lk->blocks_cap - lk->blocks_used < SQ_BLOCKS_CHUNK / 2 &&
-            lk->blocks_cap < L->model.mesh->ntets) {
-            long np = (long)(sizeof(double) * per * SQ_BLOCKS_CHUNK / PAGE_BYTES);
-            if ((double)np * lod->cost_fault > seconds - (sq_thread_cpu() - c0)) {
-                pending += np;
-            } else {
-                lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
-                double *ch = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
-                pages += touch_pages(ch, 0, sizeof(double) * per * SQ_BLOCKS_CHUNK);
-                lk->blocks_chunk[lk->blocks_nchunk++] = ch;
-                lk->blocks_cap += SQ_BLOCKS_CHUNK;
-            }
+            lk->blocks_cap < L->model.mesh->ntets && (lk->blocks_nchunk == 0 || lk->blocks_mapped >= chunk) &&
+            sq_thread_cpu() - c0 < seconds) {
+            lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
+            lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(chunk);
+            lk->blocks_cap += SQ_BLOCKS_CHUNK;
+            lk->blocks_mapped = 0;
+            pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
         }
         bytes += (long)(sizeof(double) * (size_t)SQ_MAX(lk->blocks_per, 0)) * lk->blocks_cap;
     }

@@ -88,6 +88,7 @@ typedef struct sq_lod_level {
                                  * region, not the mesh */
     int blocks_used, blocks_cap;/* slots in use, slots allocated */
     int blocks_nchunk, blocks_per; /* chunks allocated; doubles per slot they were made for */
+    size_t blocks_mapped;       /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
     double blocks_cpu;          /* thread CPU time of the last build of those blocks, s (0: not
