@@ -250,9 +250,14 @@ int sq_cmd_run(int argc, char **argv)
     /* batch runs have no compute budget (deterministic); --realtime gives the frame period */
     double budget = realtime ? 1.0 / scene->frame_rate : 0;
     print_setup(scene, w);
-    if (realtime)
+    if (realtime) {
         printf("realtime: compute budget %.4g s per frame (splits refused above it; output not deterministic)\n",
                budget);
+        char msg[1024];
+        if (sq_world_realtime_check(w, budget, msg, sizeof msg))
+            fprintf(stderr, "squish run: %s\n", msg);
+        printf("%s\n", msg);
+    }
     if (until_rest)
         printf("run: until rest (kinetic energy < %g J/kg, residual < %g), at most %ld frames (%g s)\n", rest_ke,
                rest_res, nframes, nframes / scene->frame_rate);

@@ -13,6 +13,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 
 #include "lod/lod_internal.h"
 
@@ -57,6 +58,7 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
         lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
         lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
         lk->blocks_cap += SQ_BLOCKS_CHUNK;
+        lk->blocks_mapped = 0; /* its pages mapped by the slots' first use or sq_lodx_reserve_blocks */
     }
     sl = lk->blocks_used++;
     lk->blocks_slot[t] = sl;
@@ -182,10 +184,13 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
         double *Bd = visc ? *bd + 9 * (size_t)off[r] : NULL;
         row_blocks(lod, k, lod->lev[k].node_tet_start[j], lod->lev[k].node_tet_start[j + 1], weight, B, Bd);
     }
-    /* keep the non-zero blocks only, with their column */
-    int *col = sq_realloc(*cols, sizeof(int) * (size_t)SQ_MAX(total, 1));
-    *cols = col;
-    *col_cap = SQ_MAX(total, 1);
+    /* keep the non-zero blocks only, with their column (the array only grows: a shrunk one
+     * would be mapped again, page by page, by a later pass) */
+    if (total > *col_cap || !*cols) {
+        *col_cap = SQ_MAX(SQ_MAX(total, 2 * *col_cap), 1);
+        *cols = sq_realloc(*cols, sizeof(int) * (size_t)*col_cap);
+    }
+    int *col = *cols;
     int w = 0;
     for (int r = 0; r < nn; r++) {
         int j = nodes[r], start = off[r];
@@ -638,8 +643,169 @@ void sq_lodx_coupling_bound(sq_lod *lod)
     coupling_bound(lod);
 }
 
+/* ---------------------------------------------------------------- reserve
+ *
+ * A first touch of a page costs 12-15 us on this kind of machine (a page fault): a pass whose
+ * rows outgrow an array, or whose element blocks open a new cache chunk, paid 400-570 faults
+ * (4-5 ms) on box-big, 2-4x its model. So every array a pass writes is grown ahead of need,
+ * with its pages mapped, at load (the first build) and at the end of a budgeted frame that has
+ * room (frame.c): each holds at least RESERVE_FLOOR blocks (capped at the level's adjacency
+ * blocks, the most a level can need) and, once its use passes half its capacity, is grown to
+ * RESERVE_GROW x its use; the element-block cache keeps a mapped chunk ahead once fewer than
+ * half a chunk of slots are left. A pass then grows (and faults) only when the layout jumps
+ * by more than that between two frames with room. */
+#define RESERVE_FLOOR 4096
+#define RESERVE_GROW 3
+#define PAGE_BYTES 4096
+
+long sq_minor_faults(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_minflt : 0;
+}
+
+/* write each page of p[from, to) bytes once (the contents there are free: past the use) */
+static long touch_pages(void *p, size_t from, size_t to)
+{
+    volatile unsigned char *c = p;
+    long n = 0;
+    for (size_t b = from; b < to; b += PAGE_BYTES - (b % PAGE_BYTES), n++)
+        c[b] = 0;
+    return n;
+}
+
+/* the pages a reserve of one array would write: 0 when it needs nothing */
+static long reserve_pages(int cap, const void *p, long used, long limit, size_t size, long *want)
+{
+    long w = SQ_MIN(SQ_MAX((long)RESERVE_FLOOR, used > 0 ? RESERVE_GROW * used : 0), limit);
+    w = SQ_MAX(w, 1);
+    if (p && cap >= w && (2 * used <= cap || cap >= limit)) {
+        *want = cap;
+        return 0;
+    }
+    *want = SQ_MAX(w, cap);
+    /* at most: the new pages, and the used ones if the grown array is copied */
+    return (long)((size_t)*want * size / PAGE_BYTES + 1);
+}
+
+/* one array: grown to *want elements of size bytes and its pages past the first `used`
+ * written; returns the new pointer */
+static void *reserve_one(void *p, int *cap, long want, long used, size_t size, long *pages)
+{
+    if (want > *cap || !p) {
+        p = sq_realloc(p, size * (size_t)want);
+        *cap = (int)want;
+    }
+    *pages += touch_pages(p, size * (size_t)used, size * (size_t)*cap);
+    return p;
+}
+
+/* the last element-block chunk of a level mapped from where the last call stopped (never
+ * over slots in use), 16 pages at a time while the thread CPU since c0 is under seconds;
+ * returns the pages left */
+static long map_chunk(sq_lod_level *lk, size_t chunk, size_t per, double c0, double seconds, long *pages)
+{
+    if (lk->blocks_nchunk == 0 || lk->blocks_mapped >= chunk)
+        return 0;
+    unsigned char *ch = (unsigned char *)lk->blocks_chunk[lk->blocks_nchunk - 1];
+    size_t live = (size_t)SQ_MAX(lk->blocks_used - (lk->blocks_nchunk - 1) * SQ_BLOCKS_CHUNK, 0) * sizeof(double) * per;
+    size_t from = lk->blocks_mapped > live ? lk->blocks_mapped : live;
+    while (from < chunk && sq_thread_cpu() - c0 < seconds) {
+        size_t to = from + 16 * PAGE_BYTES < chunk ? from + 16 * PAGE_BYTES : chunk;
+        *pages += touch_pages(ch, from, to);
+        from = to;
+    }
+    lk->blocks_mapped = from;
+    return (long)((chunk - from) / PAGE_BYTES);
+}
+
+long sq_lodx_reserve_blocks(sq_lod *lod, double seconds)
+{
+    double c0 = sq_thread_cpu();
+    long flt0 = sq_minor_faults();
+    lod->cost_fault = fmax(lod->cost_fault, 15e-6); /* measured 12-15 us here: at least that */
+    long pages = 0, pending = 0, bytes = 0;
+    for (int k = 0; k < lod->L; k++) {
+        sq_lod_level *lk = &lod->lev[k];
+        const sq_level *L = &lod->lv[k];
+        int visc = lod->have_mat && lod->mat.use_viscosity && L->model.D;
+        long limit = SQ_MAX((long)L->model.row_start[L->model.n], 1);
+        long ring_used = lk->ring_off && lk->blocks_valid ? lk->ring_off[lk->nring] : 0;
+        long front_used = lk->front_off && lk->blocks_valid ? lk->front_off[lk->nfrontier] : 0;
+        long merged_used = 0;
+        for (int r = 0; r < lk->nfrontier && lk->blocks_valid; r++)
+            merged_used += L->model.row_start[lk->frontier[r] + 1] - L->model.row_start[lk->frontier[r]];
+        /* each array: pointer, capacity, the elements in use (0 for the previous build's
+         * arrays, free between builds), element size */
+        struct {
+            void **p;
+            int *cap;
+            long used;
+            size_t size;
+        } a[] = {
+            {(void **)&lk->ring_col, &lk->ring_col_cap, ring_used, sizeof(int)},
+            {(void **)&lk->ring_col2, &lk->ring_col2_cap, 0, sizeof(int)},
+            {(void **)&lk->ring_K, &lk->ring_K_cap, ring_used, 9 * sizeof(double)},
+            {(void **)&lk->ring_K2, &lk->ring_K2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->ring_T, &lk->ring_T_cap, ring_used, 12 * sizeof(double)},
+            {(void **)&lk->ring_T2, &lk->ring_T2_cap, 0, 12 * sizeof(double)},
+            {(void **)&lk->front_col, &lk->front_col_cap, front_used, sizeof(int)},
+            {(void **)&lk->front_col2, &lk->front_col2_cap, 0, sizeof(int)},
+            {(void **)&lk->front_K, &lk->front_K_cap, front_used, 9 * sizeof(double)},
+            {(void **)&lk->front_K2, &lk->front_K2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->front_merged, &lk->front_merged_cap, merged_used, 9 * sizeof(double)},
+            {(void **)&lk->front_merged2, &lk->front_merged2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->front_T, &lk->front_T_cap, merged_used, 12 * sizeof(double)},
+            {(void **)&lk->front_T2, &lk->front_T2_cap, 0, 12 * sizeof(double)},
+            {(void **)&lk->ring_D, &lk->ring_D_cap, ring_used, 9 * sizeof(double)},
+            {(void **)&lk->ring_D2, &lk->ring_D2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->front_D, &lk->front_D_cap, front_used, 9 * sizeof(double)},
+            {(void **)&lk->front_D2, &lk->front_D2_cap, 0, 9 * sizeof(double)},
+        };
+        int na = visc ? 18 : 14; /* the viscous blocks only with viscosity */
+        for (int i = 0; i < na; i++) {
+            /* the previous build's arrays follow the current one's use */
+            long used = a[i].used, want;
+            long ref = (i & 1) ? a[i - 1].used : used;
+            long np = reserve_pages(*a[i].cap, *a[i].p, ref, limit, a[i].size, &want);
+            if (np > 0 && (double)np * lod->cost_fault > seconds - (sq_thread_cpu() - c0)) {
+                pending += np;
+            } else if (np > 0) {
+                *a[i].p = reserve_one(*a[i].p, a[i].cap, want, used, a[i].size, &pages);
+            }
+            bytes += (long)a[i].size * *a[i].cap;
+        }
+        /* the element-block cache: a chunk ahead, mapped a few pages at a time within the
+         * time given, the rest at a later frame (a page costs 8-35 us here, with the load;
+         * slots are cleared when handed out, so the writes are free) */
+        size_t per = visc ? 288 : 144, chunk = sizeof(double) * per * SQ_BLOCKS_CHUNK;
+        if (lk->blocks_nchunk == 0)
+            lk->blocks_per = (int)per; /* (tet_blocks makes the chunks again for another size) */
+        if (lk->blocks_per == (int)per)
+            pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
+        if (lk->blocks_per == (int)per && lk->blocks_cap - lk->blocks_used < SQ_BLOCKS_CHUNK / 2 &&
+            lk->blocks_cap < L->model.mesh->ntets && (lk->blocks_nchunk == 0 || lk->blocks_mapped >= chunk) &&
+            sq_thread_cpu() - c0 < seconds) {
+            lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
+            lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(chunk);
+            lk->blocks_cap += SQ_BLOCKS_CHUNK;
+            lk->blocks_mapped = 0;
+            pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
+        }
+        bytes += (long)(sizeof(double) * (size_t)SQ_MAX(lk->blocks_per, 0)) * lk->blocks_cap;
+    }
+    double spent = sq_thread_cpu() - c0;
+    long faults = sq_minor_faults() - flt0;
+    if (faults >= 64) /* what a page costs here (a fault and the copies of grown arrays) */
+        lod->cost_fault = fmax(spent / (double)faults, 0.9 * lod->cost_fault);
+    lod->reserve_pending = pending;
+    lod->reserve_bytes = bytes;
+    return pages;
+}
+
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
 {
+    int first = 0;
     int changed = 0;
     if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->k_seen)) {
         lod->mat = *mat;
@@ -648,6 +814,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         lod->op = infer_op(lod, mat);
         drop_tet_blocks(lod);
         own_rows(lod);
+        first = 1;
         for (int k = 0; k < lod->L; k++) {
             lod->lev[k].blocks_dirty = 1;
             lod->lev[k].blocks_valid = 0; /* every row again for the new material */
@@ -672,6 +839,8 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         coupling_bound(lod);
         lod->bound_cpu = sq_thread_cpu() - c;
     }
+    if (first) /* at load: every array reserved and mapped, whatever it costs */
+        sq_lodx_reserve_blocks(lod, 1e9);
 }
 
 void sq_lod_set_material(sq_lod *lod, const sq_material *mat)

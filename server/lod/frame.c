@@ -60,6 +60,8 @@ typedef struct lod_frame {
     int guard_on;                    /* a budget and a measured (or given) cost per update */
     double modeled_pass;             /* the model's cost of this frame's passes, s */
     double outside_raw;              /* thread CPU time since the last frame's end, s */
+    double c_reserve;                /* thread CPU time of the coupling arrays' reserve, s */
+    long reserved_pages;             /* pages it mapped */
 } lod_frame;
 
 /* run one stage and add its wall time to its entry */
@@ -189,6 +191,8 @@ static void rebuild_pass(lod_frame *fr, int lists)
 {
     sq_lod *lod = fr->lod;
     int L = lod->L;
+    int trace = getenv("SQ_GUARD_TRACE") && fr->in->budget_s > 0;
+    long flt0 = trace ? sq_minor_faults() : 0;
     double c0 = sq_thread_cpu(), c = c0;
     unsigned mask = 0;
     double t_level[SQ_MAX_LEVELS] = {0};
@@ -218,12 +222,12 @@ static void rebuild_pass(lod_frame *fr, int lists)
     for (int k = 0; k < L; k++)
         blocks += lod->lev[k].blocks_cpu;
     double couple = fmax(0.0, t - c - blocks - lod->bound_cpu); /* sources, lists */
-    if (getenv("SQ_GUARD_TRACE") && fr->in->budget_s > 0)
+    if (trace)
         fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
-                "bound %.2f, sources+lists %.2f); model %.2f ms\n", mask, nchg[0], nchg[1], nchg[2], nchg[3],
-                1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu, 1e3 * lod->lev[1].blocks_cpu,
-                1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu, 1e3 * lod->bound_cpu, 1e3 * couple,
-                1e3 * model);
+                "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld\n", mask, nchg[0], nchg[1],
+                nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
+                1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
+                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0);
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
@@ -557,6 +561,20 @@ static void stage_feedback(lod_frame *fr)
     sq_lodx_hold_end(fr->lod, fr->in->holds, fr->in->nholds, fr->force);
 }
 
+/* with a budget, the coupling arrays grown ahead of need and their pages mapped
+ * (sq_lodx_reserve_blocks) in what is left of this frame (90 % of the budget less what the
+ * frame used, at most a quarter of the budget), so that no pass pays first-touch page faults; the rest waits for a later frame */
+static void reserve_ahead(lod_frame *fr)
+{
+    if (fr->in->budget_s <= 0 || !fr->lod->have_mat)
+        return;
+    double c = sq_thread_cpu();
+    double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);
+    if (room > 0)
+        fr->reserved_pages = sq_lodx_reserve_blocks(fr->lod, room);
+    fr->c_reserve = sq_thread_cpu() - c;
+}
+
 /* the cost model of the guard, then the profile and the frame's event */
 static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
 {
@@ -573,8 +591,9 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
         learn(lod, &lod->cost_update, fr->c_ticks / (double)updates);
     }
-    /* what is neither ticks nor passes: criterion, push, feedback, guard, layout, holds */
-    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass));
+    /* what is neither ticks nor passes (nor the reserve, done only with room left):
+     * criterion, push, feedback, guard, layout, holds */
+    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve));
 
     lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
     lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */
@@ -587,13 +606,15 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
                 "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f; outside %.2f, before this frame %.2f), "
                 "%ld updates, modeled %.2f ms, rebuilt %#x, "
                 "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
-                "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us\n",
+                "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us; "
+                "reserve %.2f ms %ld pages (%ld pending, %.1f MB held)\n",
                 lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
                 1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard_modeled, fr->rebuilt, ao.splits, ao.merges,
                 fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
                 1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_bound,
                 1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
-                1e6 * lod->cost_block_change[3]);
+                1e6 * lod->cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve_pending,
+                1e-6 * (double)lod->reserve_bytes);
     long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
     if (prof) {
@@ -667,5 +688,6 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     }
     run_once(&fr, stage_push, SQ_LOD_STAGE_PUSH);       /* ghosts for the viewer, next frame */
     run_once(&fr, stage_feedback, SQ_LOD_STAGE_FEEDBACK); /* tool forces, holds released */
+    reserve_ahead(&fr);                            /* coupling arrays mapped ahead of need */
     frame_profile(&fr, prof);                      /* cost model, profile, events */
 }

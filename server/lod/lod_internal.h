@@ -88,6 +88,7 @@ typedef struct sq_lod_level {
                                  * region, not the mesh */
     int blocks_used, blocks_cap;/* slots in use, slots allocated */
     int blocks_nchunk, blocks_per; /* chunks allocated; doubles per slot they were made for */
+    size_t blocks_mapped;       /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
     double blocks_cpu;          /* thread CPU time of the last build of those blocks, s (0: not
@@ -220,6 +221,9 @@ struct sq_lod {
                                           * work around the lod frame), at most a quarter period, s */
     double last_c_end;                   /* thread CPU clock at the last frame's end, s */
     double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
+    double cost_fault;                   /* a first touch of a page, s (sq_lodx_reserve_blocks) */
+    long reserve_pending;                /* pages sq_lodx_reserve_blocks left for a later frame */
+    long reserve_bytes;                  /* bytes the coupling arrays hold (capacities) */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
@@ -400,6 +404,12 @@ void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, v
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 /* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
+/* grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
+ * their pages now, within `seconds` of thread CPU (estimated); returns the pages written */
+long sq_lodx_reserve_blocks(sq_lod *lod, double seconds);
+/* the thread's minor page faults so far (coupling.c; a first touch of a page costs 12-15 us on
+ * this kind of machine) */
+long sq_minor_faults(void);
 /* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
 void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */

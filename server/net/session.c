@@ -287,6 +287,12 @@ static int setup(sq_session *s)
         return -1;
     }
     sq_world *w = s->world;
+    if (!s->lockstep) { /* real time: say at load when the scene cannot hold its frame */
+        char msg[1024];
+        if (sq_world_realtime_check(w, s->period, msg, sizeof msg))
+            fprintf(stderr, "squish serve: session %llu, scene \"%.60s\": %s\n", (unsigned long long)s->id,
+                    s->scene_name, msg);
+    }
     int maxs = 1;
     sq_blob *topo[SQ_MAX_BODIES];
     for (int b = 0; b < w->nbodies; b++) {

@@ -126,6 +126,71 @@ void sq_world_destroy(sq_world *w)
     free(w);
 }
 
+int sq_world_realtime_check(sq_world *w, double period_s, char *msg, size_t n)
+{
+    double total = 0, worst = -1, worst_pass = 0, frac = 0.95;
+    int wb = 0, wk = 0, wn = 0, ws = 0;
+    for (int b = 0; b < w->nbodies; b++) {
+        sq_body *body = w->bodies[b];
+        const sq_body_def *def = sq_body_get_def(body);
+        int k = sq_body_sim_level(body);
+        if (def->lod.mode == SQ_LOD_ADAPTIVE)
+            for (k = 0; k < SQ_MAX_LEVELS - 1 && !sq_body_level(body, k); k++)
+                ;
+        sq_level *L = sq_body_level(body, k);
+        if (!L)
+            continue;
+        if (def->lod.budget > 0)
+            frac = fmin(frac, def->lod.budget);
+        int sub[SQ_MAX_LEVELS];
+        sq_body_substeps(body, sub);
+        int steps = sub[k] > 0 ? sub[k] : 1 << L->substeps_log2;
+        size_t nn = (size_t)L->model.n;
+        double *f = sq_malloc(sizeof(double) * 3 * nn), *acc = sq_calloc(3 * nn + 1, sizeof(double));
+        sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc); /* warm */
+        double c0 = sq_thread_cpu(), c = c0;
+        int reps = 0;
+        while (reps < 3 || (c - c0 < 5e-3 && reps < 200)) {
+            sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc);
+            reps++;
+            c = sq_thread_cpu();
+        }
+        free(f);
+        free(acc);
+        double pass = (c - c0) / reps, frame = pass * steps;
+        total += frame;
+        if (frame > worst) {
+            worst = frame;
+            worst_pass = pass;
+            wb = b, wk = k, wn = L->model.n, ws = steps;
+        }
+    }
+    double budget = frac * period_s;
+    if (worst < 0 || period_s <= 0) {
+        snprintf(msg, n, "realtime: no body to check");
+        return 0;
+    }
+    if (total > budget) {
+        /* steps per frame follow the frame's length (a level's step is its stability bound):
+         * a lower frame rate helps only while a frame is one step */
+        const char *todo = ws > 1 ? "a lower frame rate does not help (the steps per frame grow with the period): "
+                                    "give the body a coarser level 0 (fewer nodes) or a material that allows a "
+                                    "longer stable step"
+                                  : "lower the frame rate (\"frame_rate\" in the scene: a frame already has one "
+                                    "step), or give the body a coarser level 0 (fewer nodes)";
+        snprintf(msg, n,
+                 "warning: the scene cannot run in real time even fully coarse: one frame at the coarsest "
+                 "level needs at least %.2f ms of CPU (body %d, level %d: %d nodes x %d steps x %.3f ms per "
+                 "force pass, timed at load%s), budget %.2f ms (%.0f%% of the %.2f ms period); %s",
+                 1e3 * total, wb, wk, wn, ws, 1e3 * worst_pass, w->nbodies > 1 ? "; all bodies summed" : "",
+                 1e3 * budget, 100 * frac, 1e3 * period_s, todo);
+        return 1;
+    }
+    snprintf(msg, n, "realtime: fully coarse frame predicted at least %.2f ms of CPU (body %d, level %d: %d nodes x %d "
+             "steps), budget %.1f ms", 1e3 * total, wb, wk, wn, ws, 1e3 * budget);
+    return 0;
+}
+
 void sq_world_reset(sq_world *w)
 {
     for (int b = 0; b < w->nbodies; b++)
