@@ -201,8 +201,6 @@ static void corot_tets_simd(sq_level *L)
     double *acc = C->acc;
     const vd one = VSET1(1.0), half = VSET1(0.5);
     const vd m2n = VSET1(-2 * C->mu), lamn = VSET1(-C->lambda);
-    const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
-    const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
     /* per block of the chunk: F (9); then R (9) and S's diagonal and symmetric sums (6) */
     vd Fb[CK][9], Rb[CK][9], Sb[CK][6];
     for (int b0 = 0; b0 < C->nblocks; b0 += CK) {
@@ -242,53 +240,11 @@ static void corot_tets_simd(sq_level *L)
             double *qb = C->q + 4 * CW * (size_t)(b0 + j);
             vd qw = _mm256_load_pd(qb), qx = _mm256_load_pd(qb + CW), qy = _mm256_load_pd(qb + 2 * CW),
                qz = _mm256_load_pd(qb + 3 * CW);
-            vd R[9], S[9];
-            quat_mat_v(qw, qx, qy, qz, R);
-            rt_mul_v(R, Fb[j], S);
-            vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
-            vd tr = VADD(VADD(S[0], S[4]), S[8]);
-            vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
-            vd h01 = VMUL(half, VADD(S[1], S[3])), h02 = VMUL(half, VADD(S[2], S[6])),
-               h12 = VMUL(half, VADD(S[5], S[7])); /* the negated off-diagonals of H */
-            /* cofactors of H = [[h00, -h01, -h02], [-h01, h11, -h12], [-h02, -h12, h22]] */
-            vd c00 = VFNMA(h12, h12, VMUL(h11, h22));
-            vd c01 = VFMA(h01, h22, VMUL(h02, h12));
-            vd c02 = VFMA(h02, h11, VMUL(h01, h12));
-            vd c11 = VFNMA(h02, h02, VMUL(h00, h22));
-            vd c12 = VFMA(h00, h12, VMUL(h01, h02));
-            vd c22 = VFNMA(h01, h01, VMUL(h00, h11));
-            vd det = VFNMA(h02, c02, VFNMA(h01, c01, VMUL(h00, c00)));
-            vd ht = VADD(VADD(h00, h11), h22);
-            vd ok = _mm256_and_pd(_mm256_cmp_pd(h00, _mm256_setzero_pd(), _CMP_GT_OQ),
-                                  _mm256_cmp_pd(c22, _mm256_setzero_pd(), _CMP_GT_OQ));
-            ok = _mm256_and_pd(ok, _mm256_cmp_pd(det, VMUL(thr, VMUL(ht, VMUL(ht, ht))), _CMP_GT_OQ));
-            /* Newton: w = adj(H) g / det; fallback: g / (|tr| + tiny) */
-            vd s = _mm256_div_pd(one, _mm256_blendv_pd(VADD(_mm256_and_pd(tr, absmask), tiny), det, ok));
-            vd n0 = VFMA(c00, g0, VFMA(c01, g1, VMUL(c02, g2)));
-            vd n1 = VFMA(c01, g0, VFMA(c11, g1, VMUL(c12, g2)));
-            vd n2 = VFMA(c02, g0, VFMA(c12, g1, VMUL(c22, g2)));
-            vd w0 = VMUL(_mm256_blendv_pd(g0, n0, ok), s), w1 = VMUL(_mm256_blendv_pd(g1, n1, ok), s),
-               w2 = VMUL(_mm256_blendv_pd(g2, n2, ok), s);
-            /* cap |w| at 1 rad, then q <- normalise(q (1, w/2)) */
-            vd wn2 = VFMA(w0, w0, VFMA(w1, w1, VMUL(w2, w2)));
-            vd cap = half;
-            if (_mm256_movemask_pd(_mm256_cmp_pd(wn2, one, _CMP_GT_OQ)))
-                cap = _mm256_div_pd(half, _mm256_max_pd(one, _mm256_sqrt_pd(wn2)));
-            vd hw0 = VMUL(w0, cap), hw1 = VMUL(w1, cap), hw2 = VMUL(w2, cap);
-            vd nw = VFNMA(qx, hw0, VFNMA(qy, hw1, VFNMA(qz, hw2, qw)));
-            vd nx = VFMA(qw, hw0, VFMA(qy, hw2, VFNMA(qz, hw1, qx)));
-            vd ny = VFMA(qw, hw1, VFMA(qz, hw0, VFNMA(qx, hw2, qy)));
-            vd nz = VFMA(qw, hw2, VFMA(qx, hw1, VFNMA(qy, hw0, qz)));
-            /* 1 / |n|: |n|^2 = (1 + |w/2|^2) |q|^2 is 1 + O(1e-8) in a normal step, where
-             * (3 - x) / 2 is exact to ~1e-16; otherwise divide */
-            vd nn = VFMA(nw, nw, VFMA(nx, nx, VFMA(ny, ny, VMUL(nz, nz))));
-            vd in = VFNMA(half, nn, VSET1(1.5));
-            if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
-                in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
-            _mm256_store_pd(qb, VMUL(nw, in));
-            _mm256_store_pd(qb + CW, VMUL(nx, in));
-            _mm256_store_pd(qb + 2 * CW, VMUL(ny, in));
-            _mm256_store_pd(qb + 3 * CW, VMUL(nz, in));
+            rot_update_v(&qw, &qx, &qy, &qz, Fb[j]);
+            _mm256_store_pd(qb, qw);
+            _mm256_store_pd(qb + CW, qx);
+            _mm256_store_pd(qb + 2 * CW, qy);
+            _mm256_store_pd(qb + 3 * CW, qz);
         }
         for (int j = 0; j < CK; j++) { /* 2b: R and S of the updated rotation */
             const double *qb = C->q + 4 * CW * (size_t)(b0 + j);

@@ -85,8 +85,6 @@ static void tet_force4_simd(const sq_level *L, const sq_material *mat, const int
     const double b = mat->rayleigh_stiffness;
     const vd one = VSET1(1.0), half = VSET1(0.5);
     const vd m2n = VSET1(-2 * C->mu), lamn = VSET1(-C->lambda);
-    const vd tiny = VSET1(1e-12), thr = VSET1(1e-3 / 27);
-    const vd absmask = _mm256_castsi256_pd(_mm256_set1_epi64x(0x7fffffffffffffffLL));
     double gl[10][4] __attribute__((aligned(32))), ql[4][4] __attribute__((aligned(32)));
     double ul[4][3][4] __attribute__((aligned(32))); /* corner, component, lane */
     for (int l = 0; l < 4; l++) {
@@ -122,49 +120,10 @@ static void tet_force4_simd(const sq_level *L, const sq_material *mat, const int
     F[0] = VADD(F[0], one);
     F[4] = VADD(F[4], one);
     F[8] = VADD(F[8], one);
-    /* the rotation update (as corot_tets_simd, 2a) */
+    /* the rotation update (rot_update_v, as corot_tets_simd 2a) */
     vd qw = _mm256_load_pd(ql[0]), qx = _mm256_load_pd(ql[1]), qy = _mm256_load_pd(ql[2]), qz = _mm256_load_pd(ql[3]);
+    rot_update_v(&qw, &qx, &qy, &qz, F);
     vd R[9], S[9];
-    quat_mat_v(qw, qx, qy, qz, R);
-    rt_mul_v(R, F, S);
-    vd g0 = VSUB(S[7], S[5]), g1 = VSUB(S[2], S[6]), g2 = VSUB(S[3], S[1]);
-    vd tr = VADD(VADD(S[0], S[4]), S[8]);
-    vd h00 = VSUB(tr, S[0]), h11 = VSUB(tr, S[4]), h22 = VSUB(tr, S[8]);
-    vd h01 = VMUL(half, VADD(S[1], S[3])), h02 = VMUL(half, VADD(S[2], S[6])), h12 = VMUL(half, VADD(S[5], S[7]));
-    vd c00 = VFNMA(h12, h12, VMUL(h11, h22));
-    vd c01 = VFMA(h01, h22, VMUL(h02, h12));
-    vd c02 = VFMA(h02, h11, VMUL(h01, h12));
-    vd c11 = VFNMA(h02, h02, VMUL(h00, h22));
-    vd c12 = VFMA(h00, h12, VMUL(h01, h02));
-    vd c22 = VFNMA(h01, h01, VMUL(h00, h11));
-    vd det = VFNMA(h02, c02, VFNMA(h01, c01, VMUL(h00, c00)));
-    vd ht = VADD(VADD(h00, h11), h22);
-    vd ok = _mm256_and_pd(_mm256_cmp_pd(h00, _mm256_setzero_pd(), _CMP_GT_OQ),
-                          _mm256_cmp_pd(c22, _mm256_setzero_pd(), _CMP_GT_OQ));
-    ok = _mm256_and_pd(ok, _mm256_cmp_pd(det, VMUL(thr, VMUL(ht, VMUL(ht, ht))), _CMP_GT_OQ));
-    vd sdiv = _mm256_div_pd(one, _mm256_blendv_pd(VADD(_mm256_and_pd(tr, absmask), tiny), det, ok));
-    vd n0 = VFMA(c00, g0, VFMA(c01, g1, VMUL(c02, g2)));
-    vd n1 = VFMA(c01, g0, VFMA(c11, g1, VMUL(c12, g2)));
-    vd n2 = VFMA(c02, g0, VFMA(c12, g1, VMUL(c22, g2)));
-    vd w0 = VMUL(_mm256_blendv_pd(g0, n0, ok), sdiv), w1 = VMUL(_mm256_blendv_pd(g1, n1, ok), sdiv),
-       w2 = VMUL(_mm256_blendv_pd(g2, n2, ok), sdiv);
-    vd wn2 = VFMA(w0, w0, VFMA(w1, w1, VMUL(w2, w2)));
-    vd cap = half;
-    if (_mm256_movemask_pd(_mm256_cmp_pd(wn2, one, _CMP_GT_OQ)))
-        cap = _mm256_div_pd(half, _mm256_max_pd(one, _mm256_sqrt_pd(wn2)));
-    vd hw0 = VMUL(w0, cap), hw1 = VMUL(w1, cap), hw2 = VMUL(w2, cap);
-    vd nw = VFNMA(qx, hw0, VFNMA(qy, hw1, VFNMA(qz, hw2, qw)));
-    vd nx = VFMA(qw, hw0, VFMA(qy, hw2, VFNMA(qz, hw1, qx)));
-    vd ny = VFMA(qw, hw1, VFMA(qz, hw0, VFNMA(qx, hw2, qy)));
-    vd nz = VFMA(qw, hw2, VFMA(qx, hw1, VFNMA(qy, hw0, qz)));
-    vd nn = VFMA(nw, nw, VFMA(nx, nx, VFMA(ny, ny, VMUL(nz, nz))));
-    vd in = VFNMA(half, nn, VSET1(1.5));
-    if (_mm256_movemask_pd(_mm256_cmp_pd(_mm256_and_pd(VSUB(nn, one), absmask), VSET1(1e-8), _CMP_GT_OQ)))
-        in = _mm256_div_pd(one, _mm256_sqrt_pd(nn));
-    qw = VMUL(nw, in);
-    qx = VMUL(nx, in);
-    qy = VMUL(ny, in);
-    qz = VMUL(nz, in);
     if (store) {
         _mm256_store_pd(ql[0], qw);
         _mm256_store_pd(ql[1], qx);
