@@ -331,6 +331,13 @@ static void stage_guard(lod_frame *fr)
     if (budget_s <= 0)
         return;
     lod->guard_clock++;
+    if (!lod->reserve_live && lod->have_mat) {
+        /* the first budgeted frame: every array a pass writes reserved and mapped, whatever it
+         * costs (a run without a budget does not hold them), then kept ahead of need at the end
+         * of frames with room (reserve_ahead) */
+        lod->reserve_live = 1;
+        sq_lodx_reserve_blocks(lod, 1e9);
+    }
     if (!lod->cost_calibrated)
         calibrate(fr);
     fr->guard_on = lod->cost_update > 0;
@@ -596,7 +603,7 @@ static void sharp_owed(lod_frame *fr)
  * frame used, at most a quarter of the budget), so that no pass pays first-touch page faults; the rest waits for a later frame */
 static void reserve_ahead(lod_frame *fr)
 {
-    if (fr->in->budget_s <= 0 || !fr->lod->have_mat)
+    if (fr->in->budget_s <= 0 || !fr->lod->have_mat || !fr->lod->reserve_live)
         return;
     double c = sq_thread_cpu();
     double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);

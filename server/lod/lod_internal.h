@@ -137,6 +137,8 @@ typedef struct sq_lod_level {
     long krow_used, krow_cap;   /* next free block offset; offsets allocated */
     long krow_chunk_len;        /* blocks per chunk: SQ_KROW_CHUNK or the longest row (0: none yet) */
     int krow_nchunk;
+    size_t krow_mapped;         /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
+    int krow_grown;             /* chunks krow opened itself, in a tick (not reserved ahead) */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -224,6 +226,8 @@ struct sq_lod {
     double cost_fault;                   /* a first touch of a page, s (sq_lodx_reserve_blocks) */
     long reserve_pending;                /* pages sq_lodx_reserve_blocks left for a later frame */
     long reserve_bytes;                  /* bytes the coupling arrays hold (capacities) */
+    int reserve_live;                    /* 1: a budget was live (reserve on): the arrays are
+                                          * reserved from the first budgeted frame on */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
