@@ -605,7 +605,7 @@ static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
     S->nsub[k] = n;
     lod->lev[k].extra_log2 = n - Lk->substeps_log2;
     if (getenv("SQ_SHARP_TRACE"))
-        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d\n", k,
+        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d", k,
                 lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
 }
 
@@ -629,6 +629,10 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
     S->lambda[k] = w2;
     S->calls++;
     take_estimate(lod, S, k, w2);
+    if (getenv("SQ_SHARP_TRACE")) /* (after take_estimate's line; alone when Gershgorin's kept) */
+        fprintf(stderr, "%s%.3f ms (%.0f units, %.1f ns per unit and product)\n",
+                S->nsub[k] >= 0 ? ", " : "sharp: Gershgorin kept, ", 1e3 * spent, units,
+                1e9 * spent / (units * (S->iters[k] + 3)));
     return 1;
 }
 
