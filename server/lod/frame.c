@@ -336,7 +336,9 @@ static void stage_guard(lod_frame *fr)
          * costs (a run without a budget does not hold them), then kept ahead of need at the end
          * of frames with room (reserve_ahead) */
         lod->reserve_live = 1;
-        sq_lodx_reserve_blocks(lod, 1e9);
+        double c = sq_thread_cpu();
+        fr->reserved_pages += sq_lodx_reserve_blocks(lod, 1e9);
+        fr->c_reserve += sq_thread_cpu() - c; /* (not the frame's fixed cost) */
     }
     if (!lod->cost_calibrated)
         calibrate(fr);
@@ -608,8 +610,8 @@ static void reserve_ahead(lod_frame *fr)
     double c = sq_thread_cpu();
     double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);
     if (room > 0)
-        fr->reserved_pages = sq_lodx_reserve_blocks(fr->lod, room);
-    fr->c_reserve = sq_thread_cpu() - c;
+        fr->reserved_pages += sq_lodx_reserve_blocks(fr->lod, room);
+    fr->c_reserve += sq_thread_cpu() - c;
 }
 
 /* the cost model of the guard, then the profile and the frame's event */
