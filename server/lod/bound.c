@@ -614,7 +614,13 @@ static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
 static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
 {
     double units = SQ_MAX(level_units(lod, k), 1.0);
-    int iters = S->nritz[k] > 0 ? ITERS_WARM : ITERS_COLD;
+    /* warm (level_estimate) when the last Ritz vector is nonzero on a node still active */
+    int iters = ITERS_COLD;
+    for (int a = 0; S->ritz[k] && a < lod->lev[k].nactive && iters == ITERS_COLD; a++) {
+        const double *r = S->ritz[k] + 3 * (size_t)lod->lev[k].active_list[a];
+        if (r[0] != 0 || r[1] != 0 || r[2] != 0)
+            iters = ITERS_WARM;
+    }
     double t0 = sq_thread_cpu();
     /* predicted: its products (Lanczos, the Ritz vector's) and the operator's set-up (about two) */
     if (deadline > 0 && t0 + S->cost_unit[k] * units * (iters + 3) > deadline)
