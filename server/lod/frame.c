@@ -201,9 +201,10 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     long flt0 = trace ? sq_minor_faults() : 0;
     long late0 = 0, later0 = 0;
     sq_lodx_sharp_late(lod, &late0, &later0);
+    double deadline = 0;
     if (fr->guard_on && !lod->cost_given && after >= 0)
-        sq_lodx_sharp_deadline(lod, fmax(fr->c_start + fr->fr_budget - lod->cost_fixed - lod->cost_couple - after,
-                                         1e-9));
+        deadline = fmax(fr->c_start + fr->fr_budget - lod->cost_fixed - lod->cost_couple - after, 1e-9);
+    sq_lodx_sharp_deadline(lod, deadline);
     double c0 = sq_thread_cpu(), c = c0;
     unsigned mask = 0;
     double t_level[SQ_MAX_LEVELS] = {0};
@@ -228,6 +229,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, fr->in->mat);
     sq_lodx_sharp_deadline(lod, 0);
+    double slack = deadline > 0 ? deadline - sq_thread_cpu() : INFINITY; /* (trace) */
     if (lists)
         sq_lodx_refresh_lists(lod);
     double t = sq_thread_cpu(), blocks = 0;
@@ -238,10 +240,11 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     sq_lodx_sharp_late(lod, &late1, &later1);
     if (trace)
         fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
-                "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld; sharp estimates late %ld\n", mask,
+                "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld; sharp estimates late %ld, "
+                "bound ended %.2f ms before its deadline\n", mask,
                 nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
                 1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
-                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0);
+                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
