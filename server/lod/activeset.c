@@ -364,7 +364,9 @@ static const double *krow(sq_lod *lod, int k, int i)
                 lk->krow_chunk = sq_realloc(lk->krow_chunk, sizeof(double *) * (size_t)(c + 1));
                 for (int q = lk->krow_nchunk; q <= c; q++)
                     lk->krow_chunk[q] = sq_malloc(sizeof(double) * 12 * (size_t)CH);
+                lk->krow_grown += c + 1 - lk->krow_nchunk;
                 lk->krow_nchunk = c + 1;
+                lk->krow_mapped = 0; /* (the reserve maps its pages past the use) */
             }
             lk->krow_cap = (long)lk->krow_nchunk * CH;
         }

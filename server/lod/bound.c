@@ -50,6 +50,14 @@ struct lod_sharp {
     int nritz[SQ_MAX_LEVELS];
     int *idx[SQ_MAX_LEVELS];       /* scratch of the operator, kept: active index per node, -1 */
     double *u[SQ_MAX_LEVELS];      /* ... and each level's values under the product, zero (3 n) */
+    /* the estimates' time limit (the guard, docs/lod.md "Guaranteed frame rate") */
+    double deadline;               /* thread CPU time by which the estimates must end (0: none) */
+    int owed[SQ_MAX_LEVELS];       /* 1: not made by its deadline: the level runs its Gershgorin
+                                    * substeps until a frame with room makes it (sq_lodx_sharp_owed) */
+    double cost_unit[SQ_MAX_LEVELS]; /* thread CPU per product per unit (active node or ring ghost
+                                    * read), s: a decaying maximum over the level's estimates */
+    long late;                     /* estimates not made by their deadline */
+    long made_later;               /* owed estimates made later */
 };
 
 /* ---------------------------------------------------------------- skipping unchanged levels */
@@ -123,6 +131,19 @@ void sq_lodx_sharp_invalidate(sq_lod *lod)
 {
     if (lod->sharp)
         memset(lod->sharp->have_key, 0, sizeof lod->sharp->have_key);
+}
+
+/* the size of level k's product, for its cost: its active nodes and the ring ghosts of every
+ * level with a source on it (their rows are read) */
+static double level_units(const sq_lod *lod, int k)
+{
+    long u = lod->lev[k].nactive;
+    for (int m = 0; m < lod->L; m++) {
+        const sq_lod_level *lm = &lod->lev[m];
+        for (int r = 0; r < lm->nring; r++)
+            u += (lm->src_levels[r] >> k) & 1u;
+    }
+    return (double)u;
 }
 
 
@@ -308,8 +329,10 @@ static double dot(const double *a, const double *b, size_t n)
 }
 
 /* upper estimate of lambda_max of the operator from start vector q (unit, free axes only):
- * Lanczos, then the Ritz vector (into q), its Rayleigh quotient plus its residual norm */
-static double lanczos(op_ctx *c, double *q, int iters, int *done)
+ * Lanczos, then the Ritz vector (into q), its Rayleigh quotient plus its residual norm. With a
+ * deadline (thread CPU time, 0: none), a product starts only when it ends before the deadline
+ * at the slowest product's time so far (tprod at first, the prediction): else NAN, q untouched */
+static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadline, double tprod)
 {
     size_t N = 3 * (size_t)c->nact;
     if ((long)N * iters > BASIS_MAX_DOUBLES)
@@ -328,9 +351,18 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done)
     double alpha[ITERS_COLD + 1], beta[ITERS_COLD + 1];
     memcpy(Q, q, sizeof(double) * N);
     int m = 0;
-    double bprev = 0;
+    double bprev = 0, tlast = deadline > 0 ? sq_thread_cpu() : 0;
     for (int j = 0; j < iters; j++) {
         double *qj = Q + N * (size_t)j;
+        if (deadline > 0 && j > 0) {
+            double now = sq_thread_cpu();
+            tprod = fmax(tprod, now - tlast);
+            tlast = now;
+        }
+        if (deadline > 0 && tlast + tprod > deadline) {
+            *done = m;
+            return NAN;
+        }
         op_apply(c, qj, w);
         double a = dot(w, qj, N), b = 0;
         for (size_t i = 0; i < N; i++) {
@@ -348,6 +380,12 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done)
         bprev = b;
     }
     *done = m;
+    if (deadline > 0) { /* the Ritz vector's product too */
+        double now = sq_thread_cpu();
+        tprod = fmax(tprod, now - tlast);
+        if (now + tprod > deadline)
+            return NAN;
+    }
     double theta = sq_level_tridiag_max(alpha, beta, m);
     /* eigenvector s of T for theta (recurrence), the Ritz vector Q s */
     double s[ITERS_COLD + 1];
@@ -457,8 +495,9 @@ static void ctx_free(op_ctx *c)
     free(c->y);
 }
 
-/* the upper estimate of lambda_max(M^-1 (A_kk + C_k)) of level k (1/s^2), its ceiling in *gersh */
-static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *gersh)
+/* the upper estimate of lambda_max(M^-1 (A_kk + C_k)) of level k (1/s^2), its ceiling in *gersh;
+ * NAN when the deadline (0: none) came first (the Ritz vector then kept) */
+static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *gersh, double deadline, double tprod)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
@@ -498,7 +537,13 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     if (nq > 0) {
         for (size_t i = 0; i < N; i++)
             q[i] /= nq;
-        est = lanczos(&c, q, warm ? ITERS_WARM : ITERS_COLD, &done);
+        est = lanczos(&c, q, warm ? ITERS_WARM : ITERS_COLD, &done, deadline, tprod);
+        if (isnan(est)) { /* not made in time */
+            S->iters[k] = done;
+            free(q);
+            ctx_free(&c);
+            return NAN;
+        }
         if (!S->ritz[k])
             S->ritz[k] = sq_calloc(3 * (size_t)SQ_MAX(n, 1), sizeof(double));
         /* zero only where the last Ritz vector was (its nodes), not the whole level */
@@ -542,24 +587,98 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
     return A;
 }
 
+/* level k's substeps from its estimate w2 (damping as docs/physics.md section 3: c = a + b
+ * omega^2): the smallest 2^n within step_fraction of the bound; above 2^20 (or no estimate)
+ * the Gershgorin substeps coupling_bound gave stay */
+static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
+{
+    const sq_material *mat = &lod->mat;
+    const sq_level *Lk = &lod->lv[k];
+    double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
+    double bound = (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
+    int n = 0;
+    while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
+        n++;
+    if (n > 20 || !(w2 >= 0))
+        return; /* keep the Gershgorin substeps */
+    S->nsub[k] = n;
+    lod->lev[k].extra_log2 = n - Lk->substeps_log2;
+    if (getenv("SQ_SHARP_TRACE"))
+        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d", k,
+                lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
+}
+
+/* one estimate of level k by the deadline (0: none): 1 made and taken; 0 not in time (none of
+ * it taken: the level keeps its Gershgorin substeps) */
+static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
+{
+    double units = SQ_MAX(level_units(lod, k), 1.0);
+    /* warm (level_estimate) when the last Ritz vector is nonzero on a node still active */
+    int iters = ITERS_COLD;
+    for (int a = 0; S->ritz[k] && a < lod->lev[k].nactive && iters == ITERS_COLD; a++) {
+        const double *r = S->ritz[k] + 3 * (size_t)lod->lev[k].active_list[a];
+        if (r[0] != 0 || r[1] != 0 || r[2] != 0)
+            iters = ITERS_WARM;
+    }
+    double t0 = sq_thread_cpu();
+    /* predicted: its products (Lanczos, the Ritz vector's) and the operator's set-up (about two) */
+    if (deadline > 0 && t0 + S->cost_unit[k] * units * (iters + 3) > deadline)
+        return 0;
+    double gersh = 0;
+    double w2 = level_estimate(lod, S, k, &gersh, deadline, S->cost_unit[k] * units);
+    if (isnan(w2))
+        return 0;
+    double spent = sq_thread_cpu() - t0;
+    S->cost_unit[k] = fmax(spent / (units * (S->iters[k] + 3)), 0.97 * S->cost_unit[k]);
+    S->gersh[k] = gersh;
+    S->lambda[k] = w2;
+    S->calls++;
+    take_estimate(lod, S, k, w2);
+    if (getenv("SQ_SHARP_TRACE")) /* (after take_estimate's line; alone when Gershgorin's kept) */
+        fprintf(stderr, "%s%.3f ms (%.0f units, %.1f ns per unit and product)\n",
+                S->nsub[k] >= 0 ? ", " : "sharp: Gershgorin kept, ", 1e3 * spent, units,
+                1e9 * spent / (units * (S->iters[k] + 3)));
+    return 1;
+}
+
 /* the sharp substeps of every level with active nodes (after coupling_bound's Gershgorin ones):
  * extra_log2 becomes the sharp exponent less the level's own, negative when the sharp step is
- * longer than the level's own Gershgorin step */
+ * longer than the level's own Gershgorin step. With a deadline (sq_lodx_sharp_deadline), an
+ * estimate that cannot end by it is not made (or abandoned): that level keeps its Gershgorin
+ * substeps, a rigorous bound, and owes its estimate (sq_lodx_sharp_owed); the levels are then
+ * taken most node updates first (their estimates save the most) */
 void sq_lodx_sharp_bound(sq_lod *lod)
 {
     struct lod_sharp *S = lod->sharp;
     if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
         return;
     double t0 = sq_thread_cpu();
-    const sq_material *mat = &lod->mat;
-    for (int k = 0; k < lod->L; k++) {
+    int order[SQ_MAX_LEVELS];
+    for (int k = 0; k < lod->L; k++)
+        order[k] = k;
+    if (S->deadline > 0) /* most node updates first: active nodes x substeps (Gershgorin's now) */
+        for (int i = 1; i < lod->L; i++)
+            for (int j = i; j > 0; j--) {
+                int a = order[j - 1], b = order[j];
+                double ua = ldexp((double)lod->lev[a].nactive, lod->lv[a].substeps_log2 + lod->lev[a].extra_log2);
+                double ub = ldexp((double)lod->lev[b].nactive, lod->lv[b].substeps_log2 + lod->lev[b].extra_log2);
+                if (ub > ua) {
+                    order[j - 1] = b;
+                    order[j] = a;
+                }
+            }
+    for (int o = 0; o < lod->L; o++) {
+        int k = order[o];
         if (lod->lev[k].nactive == 0) {
             S->lambda[k] = S->gersh[k] = 0;
             S->have_key[k] = 0;
+            S->owed[k] = 0;
             continue;
         }
         /* the rows this level's estimate reads did not change since its last estimate: the
-         * same estimate (the Gershgorin pass before rewrote extra_log2: put it back) */
+         * same estimate (the Gershgorin pass before rewrote extra_log2: put it back; an owed
+         * estimate stays owed) */
         unsigned long long key = level_key(lod, S, k);
         if (S->have_key[k] && S->key[k] == key) {
             if (S->nsub[k] >= 0)
@@ -571,26 +690,62 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         S->have_key[k] = 1;
         S->nsub[k] = -1;
         S->lambda[k] = S->gersh[k] = 0;
-        const sq_level *Lk = &lod->lv[k];
-        double w2 = level_estimate(lod, S, k, &S->gersh[k]);
-        S->lambda[k] = w2;
-        S->calls++;
-        /* damping as docs/physics.md section 3: c = a + b omega^2 */
-        double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
-        double bound = (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
-        double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
-        int n = 0;
-        while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
-            n++;
-        if (n > 20 || !(w2 >= 0))
-            continue; /* keep the Gershgorin substeps */
-        S->nsub[k] = n;
-        lod->lev[k].extra_log2 = n - Lk->substeps_log2;
-        if (getenv("SQ_SHARP_TRACE"))
-            fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d\n", k,
-                    lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
+        S->owed[k] = !estimate_by(lod, S, k, S->deadline);
+        if (S->owed[k]) {
+            S->late++;
+            if (getenv("SQ_SHARP_TRACE"))
+                fprintf(stderr, "sharp L%d: %d active, not made by its deadline (%d steps): Gershgorin 2^%d, owed\n",
+                        k, lod->lev[k].nactive, S->iters[k], lod->lv[k].substeps_log2 + lod->lev[k].extra_log2);
+        }
     }
     S->cpu_s += sq_thread_cpu() - t0;
+}
+
+void sq_lodx_sharp_deadline(sq_lod *lod, double cpu_deadline)
+{
+    if (lod->sharp)
+        lod->sharp->deadline = cpu_deadline > 0 ? cpu_deadline : 0;
+}
+
+int sq_lodx_sharp_owed(sq_lod *lod, double seconds)
+{
+    struct lod_sharp *S = lod->sharp;
+    if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
+        return 0;
+    double t0 = sq_thread_cpu(), deadline = isfinite(seconds) ? t0 + fmax(seconds, 1e-12) : 0;
+    int made = 0;
+    for (int k = 0; k < lod->L; k++) {
+        if (!S->owed[k] || !S->have_key[k] || lod->lev[k].nactive == 0)
+            continue;
+        /* the operator is the one the owed estimate was keyed on: a pass since would have
+         * made the estimate again */
+        if (estimate_by(lod, S, k, deadline)) {
+            S->owed[k] = 0;
+            S->made_later++;
+            made++;
+        }
+    }
+    S->cpu_s += sq_thread_cpu() - t0;
+    return made;
+}
+
+int sq_lodx_sharp_owes(const sq_lod *lod, int k)
+{
+    const struct lod_sharp *S = lod->sharp;
+    if (!S)
+        return 0;
+    int n = 0;
+    for (int m = 0; m < lod->L; m++)
+        if ((k < 0 || m == k) && S->owed[m] && S->have_key[m])
+            n++;
+    return n;
+}
+
+void sq_lodx_sharp_late(const sq_lod *lod, long *late, long *made_later)
+{
+    const struct lod_sharp *S = lod->sharp;
+    *late = S ? S->late : 0;
+    *made_later = S ? S->made_later : 0;
 }
 
 void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)
@@ -601,8 +756,10 @@ void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)
     int changed = S->on != (sharp != 0) || S->step_fraction != step_fraction;
     S->on = sharp != 0;
     S->step_fraction = step_fraction;
-    if (changed)
+    if (changed) {
         memset(S->have_key, 0, sizeof S->have_key);
+        memset(S->owed, 0, sizeof S->owed);
+    }
     /* the node-sized arrays made (and their pages touched) now, at load, rather than at the
      * first split into a level (a first touch cost 8 ms on box-big's finest level) */
     for (int k = 0; S->on && k < lod->L; k++) {

@@ -719,6 +719,54 @@ static long map_chunk(sq_lod_level *lk, size_t chunk, size_t per, double c0, dou
     return (long)((chunk - from) / PAGE_BYTES);
 }
 
+/* the column-form row cache of the inner rows (activeset.c's krow): its node index made, and a
+ * whole chunk kept ahead of its use, mapped 16 pages at a time within the time given (the
+ * cache fills in the ticks after a pass, on a node's first use as an inner node: a chunk
+ * opened there, 1.5 MB, paid its first touches in that frame); returns the pages left */
+static long reserve_krow(sq_lod_level *lk, const sq_level_model *M, double c0, double seconds, long *pages)
+{
+    if (!lk->krow_at) {
+        lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
+        for (int j = 0; j < M->n; j++)
+            lk->krow_at[j] = -1;
+        *pages += (long)(sizeof(int) * (size_t)M->n / PAGE_BYTES + 1);
+    }
+    if (!lk->krow_chunk_len) { /* a chunk holds the longest row at least (as krow) */
+        long most = SQ_KROW_CHUNK;
+        for (int j = 0; j < M->n; j++)
+            most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
+        lk->krow_chunk_len = most;
+    }
+    long CH = lk->krow_chunk_len;
+    size_t chunk = sizeof(double) * 12 * (size_t)CH;
+    long left = 0;
+    for (int round = 0; round < 2; round++) {
+        /* the last chunk's pages past its use, from where the last call stopped */
+        if (lk->krow_nchunk > 0 && lk->krow_mapped < chunk) {
+            unsigned char *ch = (unsigned char *)lk->krow_chunk[lk->krow_nchunk - 1];
+            long base = (long)(lk->krow_nchunk - 1) * CH;
+            size_t live = lk->krow_used > base ? sizeof(double) * 12 * (size_t)(lk->krow_used - base) : 0;
+            size_t from = lk->krow_mapped > live ? lk->krow_mapped : live;
+            while (from < chunk && sq_thread_cpu() - c0 < seconds) {
+                size_t to = from + 16 * PAGE_BYTES < chunk ? from + 16 * PAGE_BYTES : chunk;
+                *pages += touch_pages(ch, from, to);
+                from = to;
+            }
+            lk->krow_mapped = from;
+            left = (long)((chunk - from) / PAGE_BYTES);
+        }
+        /* a new chunk once less than a whole one is left (not past the level's rows) */
+        if (round == 1 || lk->krow_cap - lk->krow_used >= CH || lk->krow_cap >= (long)M->row_start[M->n] ||
+            (lk->krow_nchunk > 0 && lk->krow_mapped < chunk) || sq_thread_cpu() - c0 >= seconds)
+            break;
+        lk->krow_chunk = sq_realloc(lk->krow_chunk, sizeof(double *) * (size_t)(lk->krow_nchunk + 1));
+        lk->krow_chunk[lk->krow_nchunk++] = sq_malloc(chunk);
+        lk->krow_cap = (long)lk->krow_nchunk * CH;
+        lk->krow_mapped = 0;
+    }
+    return left;
+}
+
 long sq_lodx_reserve_blocks(sq_lod *lod, double seconds)
 {
     double c0 = sq_thread_cpu();
@@ -793,6 +841,10 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds)
             pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
         }
         bytes += (long)(sizeof(double) * (size_t)SQ_MAX(lk->blocks_per, 0)) * lk->blocks_cap;
+        /* the inner rows' column-form cache (no viscosity: the viscous pass does not read it) */
+        if (!visc && !L->corot)
+            pending += reserve_krow(lk, &L->model, c0, seconds, &pages);
+        bytes += (long)(sizeof(double) * 12) * lk->krow_cap + (lk->krow_at ? (long)sizeof(int) * L->model.n : 0);
     }
     double spent = sq_thread_cpu() - c0;
     long faults = sq_minor_faults() - flt0;
@@ -839,7 +891,8 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         coupling_bound(lod);
         lod->bound_cpu = sq_thread_cpu() - c;
     }
-    if (first) /* at load: every array reserved and mapped, whatever it costs */
+    if (first && lod->reserve_live) /* a new material under a budget: every array reserved and
+                                     * mapped, whatever it costs (first budgeted frame: frame.c) */
         sq_lodx_reserve_blocks(lod, 1e9);
 }
 

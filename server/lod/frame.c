@@ -62,6 +62,8 @@ typedef struct lod_frame {
     double outside_raw;              /* thread CPU time since the last frame's end, s */
     double c_reserve;                /* thread CPU time of the coupling arrays' reserve, s */
     long reserved_pages;             /* pages it mapped */
+    double c_owed;                   /* thread CPU time of the owed sharp estimates, s */
+    int sharp_made;                  /* owed sharp estimates made at this frame's end */
 } lod_frame;
 
 /* run one stage and add its wall time to its entry */
@@ -186,13 +188,23 @@ static long updates_fitting(const sq_lod *lod, double seconds)
 }
 
 /* levels whose layout changed (ao.changed) rebuilt, then the coupling over the new layout:
- * one split/merge pass, its parts timed for the cost model */
-static void rebuild_pass(lod_frame *fr, int lists)
+ * one split/merge pass, its parts timed for the cost model. With the guard on (measured
+ * costs), the pass's sharp estimates end where the frame must go on to fit its budget: the
+ * rest of the pass (sources and lists: cost_couple), the frame's fixed cost and `after` (its
+ * ticks when the pass runs before them); an estimate that cannot is left for a frame with
+ * room, its level on its Gershgorin substeps (bound.c). after < 0: no limit */
+static void rebuild_pass(lod_frame *fr, int lists, double after)
 {
     sq_lod *lod = fr->lod;
     int L = lod->L;
     int trace = getenv("SQ_GUARD_TRACE") && fr->in->budget_s > 0;
     long flt0 = trace ? sq_minor_faults() : 0;
+    long late0 = 0, later0 = 0;
+    sq_lodx_sharp_late(lod, &late0, &later0);
+    double deadline = 0;
+    if (fr->guard_on && !lod->cost_given && after >= 0)
+        deadline = fmax(fr->c_start + fr->fr_budget - lod->cost_fixed - lod->cost_couple - after, 1e-9);
+    sq_lodx_sharp_deadline(lod, deadline);
     double c0 = sq_thread_cpu(), c = c0;
     unsigned mask = 0;
     double t_level[SQ_MAX_LEVELS] = {0};
@@ -216,18 +228,23 @@ static void rebuild_pass(lod_frame *fr, int lists)
     /* (holds are mapped again onto the new active nodes at the next frame) */
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, fr->in->mat);
+    sq_lodx_sharp_deadline(lod, 0);
+    double slack = deadline > 0 ? deadline - sq_thread_cpu() : INFINITY; /* (trace) */
     if (lists)
         sq_lodx_refresh_lists(lod);
     double t = sq_thread_cpu(), blocks = 0;
     for (int k = 0; k < L; k++)
         blocks += lod->lev[k].blocks_cpu;
     double couple = fmax(0.0, t - c - blocks - lod->bound_cpu); /* sources, lists */
+    long late1 = 0, later1 = 0;
+    sq_lodx_sharp_late(lod, &late1, &later1);
     if (trace)
         fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
-                "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld\n", mask, nchg[0], nchg[1],
-                nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
+                "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld; sharp estimates late %ld, "
+                "bound ended %.2f ms before its deadline\n", mask,
+                nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
                 1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
-                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0);
+                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
@@ -280,7 +297,7 @@ static void calibrate(lod_frame *fr)
     for (int k = 0; k <= lod->top && k < lod->L; k++)
         fr->ao.changed[k] = 1;
     sq_lodx_sharp_invalidate(lod);
-    rebuild_pass(fr, 1);
+    rebuild_pass(fr, 1, -1);
     fr->passes = 0;
     fr->modeled_pass = 0;
     lod->cost_calibrated = 1;
@@ -317,6 +334,15 @@ static void stage_guard(lod_frame *fr)
     if (budget_s <= 0)
         return;
     lod->guard_clock++;
+    if (!lod->reserve_live && lod->have_mat) {
+        /* the first budgeted frame: every array a pass writes reserved and mapped, whatever it
+         * costs (a run without a budget does not hold them), then kept ahead of need at the end
+         * of frames with room (reserve_ahead) */
+        lod->reserve_live = 1;
+        double c = sq_thread_cpu();
+        fr->reserved_pages += sq_lodx_reserve_blocks(lod, 1e9);
+        fr->c_reserve += sq_thread_cpu() - c; /* (not the frame's fixed cost) */
+    }
     if (!lod->cost_calibrated)
         calibrate(fr);
     fr->guard_on = lod->cost_update > 0;
@@ -351,7 +377,7 @@ static void stage_layout(lod_frame *fr)
         merged = 1;
     }
     if (merged) {
-        rebuild_pass(fr, 0);
+        rebuild_pass(fr, 0, lod->cost_update * (double)fr->projected);
         fr->projected = sq_lod_projected_updates(lod);
     }
     int nmax = 0;
@@ -545,7 +571,7 @@ static void stage_criterion(lod_frame *fr)
 /* the levels whose layout changed rebuilt, then the coupling over the new layout */
 static void stage_adapt(lod_frame *fr)
 {
-    rebuild_pass(fr, 1);
+    rebuild_pass(fr, 1, 0);
 }
 
 /* (3) every ghost from the active nodes at the end of the frame: the rendered finest level,
@@ -561,18 +587,34 @@ static void stage_feedback(lod_frame *fr)
     sq_lodx_hold_end(fr->lod, fr->in->holds, fr->in->nholds, fr->force);
 }
 
+/* the sharp estimates a pass could not make by its deadline (their levels on Gershgorin
+ * substeps meanwhile), made in what is left of this frame: with a budget up to 90 % of it
+ * less what the frame used, each only when its predicted cost fits (bound.c); without one,
+ * all (a budget gone) */
+static void sharp_owed(lod_frame *fr)
+{
+    sq_lod *lod = fr->lod;
+    if (!sq_lodx_sharp_owes(lod, -1))
+        return;
+    double c = sq_thread_cpu();
+    double room = fr->in->budget_s > 0 ? 0.9 * fr->fr_budget - (c - fr->c_start) : INFINITY;
+    if (room > 0)
+        fr->sharp_made = sq_lodx_sharp_owed(lod, room);
+    fr->c_owed = sq_thread_cpu() - c;
+}
+
 /* with a budget, the coupling arrays grown ahead of need and their pages mapped
  * (sq_lodx_reserve_blocks) in what is left of this frame (90 % of the budget less what the
  * frame used, at most a quarter of the budget), so that no pass pays first-touch page faults; the rest waits for a later frame */
 static void reserve_ahead(lod_frame *fr)
 {
-    if (fr->in->budget_s <= 0 || !fr->lod->have_mat)
+    if (fr->in->budget_s <= 0 || !fr->lod->have_mat || !fr->lod->reserve_live)
         return;
     double c = sq_thread_cpu();
     double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);
     if (room > 0)
-        fr->reserved_pages = sq_lodx_reserve_blocks(fr->lod, room);
-    fr->c_reserve = sq_thread_cpu() - c;
+        fr->reserved_pages += sq_lodx_reserve_blocks(fr->lod, room);
+    fr->c_reserve += sq_thread_cpu() - c;
 }
 
 /* the cost model of the guard, then the profile and the frame's event */
@@ -591,9 +633,9 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
         learn(lod, &lod->cost_update, fr->c_ticks / (double)updates);
     }
-    /* what is neither ticks nor passes (nor the reserve, done only with room left):
+    /* what is neither ticks nor passes (nor the reserve and owed estimates, done only with room left):
      * criterion, push, feedback, guard, layout, holds */
-    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve));
+    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
 
     lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
     lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */
@@ -607,14 +649,14 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
                 "%ld updates, modeled %.2f ms, rebuilt %#x, "
                 "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
                 "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us; "
-                "reserve %.2f ms %ld pages (%ld pending, %.1f MB held)\n",
+                "reserve %.2f ms %ld pages (%ld pending, %.1f MB held); owed estimates %.2f ms, %d made, %d owed\n",
                 lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
                 1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard_modeled, fr->rebuilt, ao.splits, ao.merges,
                 fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
                 1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_bound,
                 1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
                 1e6 * lod->cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve_pending,
-                1e-6 * (double)lod->reserve_bytes);
+                1e-6 * (double)lod->reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
     long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
     if (prof) {
@@ -688,6 +730,7 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     }
     run_once(&fr, stage_push, SQ_LOD_STAGE_PUSH);       /* ghosts for the viewer, next frame */
     run_once(&fr, stage_feedback, SQ_LOD_STAGE_FEEDBACK); /* tool forces, holds released */
+    sharp_owed(&fr);                               /* step estimates a pass left owed */
     reserve_ahead(&fr);                            /* coupling arrays mapped ahead of need */
     frame_profile(&fr, prof);                      /* cost model, profile, events */
 }

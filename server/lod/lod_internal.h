@@ -137,6 +137,8 @@ typedef struct sq_lod_level {
     long krow_used, krow_cap;   /* next free block offset; offsets allocated */
     long krow_chunk_len;        /* blocks per chunk: SQ_KROW_CHUNK or the longest row (0: none yet) */
     int krow_nchunk;
+    size_t krow_mapped;         /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
+    int krow_grown;             /* chunks krow opened itself, in a tick (not reserved ahead) */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -224,6 +226,8 @@ struct sq_lod {
     double cost_fault;                   /* a first touch of a page, s (sq_lodx_reserve_blocks) */
     long reserve_pending;                /* pages sq_lodx_reserve_blocks left for a later frame */
     long reserve_bytes;                  /* bytes the coupling arrays hold (capacities) */
+    int reserve_live;                    /* 1: a budget was live (reserve on): the arrays are
+                                          * reserved from the first budgeted frame on */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
@@ -417,6 +421,16 @@ void sq_lodx_sharp_bound(sq_lod *lod);
 void sq_lodx_sharp_free(sq_lod *lod);
 /* the next sharp pass estimates every level again (the guard's calibration times it) */
 void sq_lodx_sharp_invalidate(sq_lod *lod);
+/* the sharp estimates of the next passes end by this thread CPU time (0: no limit); a level
+ * whose estimate cannot is left on its Gershgorin substeps and owes it (the guard, frame.c) */
+void sq_lodx_sharp_deadline(sq_lod *lod, double cpu_deadline);
+/* the owed estimates made within `seconds` of thread CPU (INFINITY: all), each only when its
+ * prediction fits; returns how many were made (their levels' substeps then change) */
+int sq_lodx_sharp_owed(sq_lod *lod, double seconds);
+/* owed estimates: of level k, or of every level (k < 0) */
+int sq_lodx_sharp_owes(const sq_lod *lod, int k);
+/* estimates not made by their deadline so far, and owed ones made later */
+void sq_lodx_sharp_late(const sq_lod *lod, long *late, long *made_later);
 /* for tests: level k's block S_kk + C_k of the majorant (S = M^-1/2 A M^-1/2) as bound.c applies it,
  * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
  * and the scaled diagonal C_k (*off, same order); both to free */

@@ -399,3 +399,76 @@ SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
         sq_mesh_free(m[k]);
     }
 }
+
+/* a sharp estimate that cannot end by its deadline (the guard's, frame.c) is not made: its
+ * level keeps the Gershgorin substeps (the rule without the key, a rigorous bound: at least the
+ * sharp substeps), owes the estimate, and a later call with room makes exactly the estimate an
+ * unlimited pass makes (nothing of the attempt is kept); skipped levels stay owed */
+SQ_TEST(lod_sharp_estimate_past_its_deadline_keeps_gershgorin_until_made)
+{
+    sq_material mat = {0};
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    mat.rayleigh_mass = 2;
+    mat.rayleigh_stiffness = 1e-3;
+    sq_mesh *m[3][3] = {{NULL}};
+    sq_level lv[3][3];
+    memset(lv, 0, sizeof lv);
+    sq_lod *lod[3];
+    for (int c = 0; c < 3; c++) {
+        lod[c] = bent_lod(m[c], lv[c], &mat);
+        CHECK(lod[c] != NULL);
+        if (!lod[c])
+            return;
+    }
+    /* 0: every level estimated again without a limit; 1: the same with a deadline passed;
+     * 2: the Gershgorin rule */
+    sq_lodx_sharp_invalidate(lod[0]);
+    sq_lodx_coupling_bound(lod[0]);
+    sq_lodx_sharp_invalidate(lod[1]);
+    sq_lodx_sharp_deadline(lod[1], 1e-9);
+    sq_lodx_coupling_bound(lod[1]);
+    sq_lodx_sharp_deadline(lod[1], 0);
+    sq_lod_set_step_rule(lod[2], 0, 0.9);
+    CHECK(sq_lodx_sharp_owes(lod[0], -1) == 0);
+    CHECK(sq_lodx_sharp_owes(lod[1], -1) == 3);
+    long late = 0, later = 0;
+    sq_lodx_sharp_late(lod[1], &late, &later);
+    CHECK(late == 3 && later == 0);
+    int more = 0;
+    for (int k = 0; k < 3; k++) {
+        int s0 = lv[0][k].substeps_log2 + lod[0]->lev[k].extra_log2;
+        int s1 = lv[1][k].substeps_log2 + lod[1]->lev[k].extra_log2;
+        int s2 = lv[2][k].substeps_log2 + lod[2]->lev[k].extra_log2;
+        if (getenv("SQ_LOD_VERBOSE"))
+            fprintf(stderr, "level %d: sharp 2^%d, past its deadline 2^%d, Gershgorin 2^%d\n", k, s0, s1, s2);
+        CHECK(s1 == s2);
+        CHECK(s1 >= s0);
+        more += s1 > s0;
+    }
+    CHECK(more > 0); /* the sharp rule saves substeps here: the fallback is visible */
+    /* an unchanged operator stays owed through another pass's bound */
+    sq_lodx_coupling_bound(lod[1]);
+    CHECK(sq_lodx_sharp_owes(lod[1], -1) == 3);
+    /* a later frame with room: the same estimates as the unlimited pass, bit for bit */
+    CHECK(sq_lodx_sharp_owed(lod[1], INFINITY) == 3);
+    CHECK(sq_lodx_sharp_owes(lod[1], -1) == 0);
+    sq_lodx_sharp_late(lod[1], &late, &later);
+    CHECK(late == 3 && later == 3);
+    for (int k = 0; k < 3; k++) {
+        double l0 = 0, l1 = 0, g0 = 0, g1 = 0;
+        int i0 = 0, i1 = 0;
+        CHECK(sq_lod_sharp_info(lod[0], k, &l0, &g0, &i0) == 1);
+        CHECK(sq_lod_sharp_info(lod[1], k, &l1, &g1, &i1) == 1);
+        CHECK(l0 == l1 && g0 == g1 && i0 == i1 && l0 > 0);
+        CHECK(lod[0]->lev[k].extra_log2 == lod[1]->lev[k].extra_log2);
+    }
+    for (int c = 0; c < 3; c++) {
+        sq_lod_destroy(lod[c]);
+        for (int k = 0; k < 3; k++) {
+            sq_level_free(&lv[c][k]);
+            sq_mesh_free(m[c][k]);
+        }
+    }
+}

@@ -275,6 +275,57 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
         sq_mesh_free(m[k]);
 }
 
+/* the reserve (docs/lod.md "A pass's cost without page faults") is held only under a budget:
+ * a body run without one holds none of it (nothing reserved at load, the inner rows' column
+ * cache opening its chunks in the ticks as before); a budgeted one reserves at its first frame
+ * and keeps the column cache a chunk ahead, so no tick opens one. Same poke as above, the
+ * budgeted body on given costs; results of the unbudgeted body do not depend on it. */
+SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
+{
+    sq_mesh *m[4];
+    if (!guard_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_cube_def(m, 4);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
+    sq_err e = {{0}};
+    sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
+    TH_REQUIRE(b[0] && b[1]);
+    sq_lodx_set_costs(b[1]->lod, C_UPDATE, C_FRAME, C_LEVEL, C_PASS, C_CHANGE);
+    for (int c = 0; c < 2; c++) {
+        CHECK(b[c]->lod->reserve_bytes == 0);
+        for (int k = 0; k < 4; k++)
+            CHECK(b[c]->lod->lev[k].krow_at == NULL && b[c]->lod->lev[k].ring_K_cap == 0);
+    }
+    for (int f = 0; f < 60; f++) {
+        sq_tool tool = guard_poke(f * def.frame_dt);
+        sq_frame_profile p;
+        sq_body_frame(b[0], &tool, 1, NULL, &p, 0);
+        sq_body_frame(b[1], &tool, 1, NULL, &p, PERIOD);
+        if (f == 0)
+            CHECK(b[1]->lod->reserve_live == 1 && b[1]->lod->reserve_bytes > 0);
+    }
+    long used[2] = {0, 0}, grown[2] = {0, 0};
+    for (int c = 0; c < 2; c++)
+        for (int k = 0; k < 4; k++) {
+            used[c] += b[c]->lod->lev[k].krow_used;
+            grown[c] += b[c]->lod->lev[k].krow_grown;
+        }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "row cache: unbudgeted %ld blocks used, %ld chunks opened in ticks, reserve %ld bytes; "
+                "budgeted %ld used, %ld opened in ticks, reserve %.1f MB\n", used[0], grown[0],
+                b[0]->lod->reserve_bytes, used[1], grown[1], 1e-6 * (double)b[1]->lod->reserve_bytes);
+    CHECK(b[0]->lod->reserve_live == 0 && b[0]->lod->reserve_bytes == 0);
+    CHECK(used[0] > 0 && grown[0] > 0); /* without a budget the ticks open the chunks */
+    CHECK(used[1] > 0 && grown[1] == 0); /* with one, none */
+    sq_body_destroy(b[0]);
+    sq_body_destroy(b[1]);
+    for (int k = 0; k < 4; k++)
+        sq_mesh_free(m[k]);
+}
+
 /* at load (docs/lod.md "Guaranteed frame rate"): a scene whose fully coarse frame cannot fit
  * the period is reported with its numbers; the shipped cube-poke at its own 50 Hz is not */
 SQ_TEST(lod_guard_load_check_reports_a_scene_that_cannot_run)
