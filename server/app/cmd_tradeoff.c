@@ -1,6 +1,7 @@
 /* cmd_tradeoff.c - squish tradeoff: the speed/accuracy trade of a scene (issue 7).
  *
  *   squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K] [--reference-step F]
+ *                              [--guarded N]
  *   squish tradeoff --bench [...]          (bench_scenes.c)
  *
  * Runs the scene, with its scripted tools, under a grid of settings: every fixed level, the
@@ -11,6 +12,12 @@
  * Every variant is compared with it at the same points: the rest positions of the reference's
  * surface vertices (displacement interpolated in the variant's simulated level, so coarse
  * levels are compared where the user sees them) and the scene's probes, every frame.
+ *
+ * After the grid, N runs (default 3) of the scene's adaptive setting with the live budget (the
+ * frame period as each frame's budget, the guard on, one thread: as `squish run --realtime` and
+ * the server), measured the same way; not deterministic (the guard reads CPU time), so reported
+ * as min / median / max, kept off the Pareto front and the equal-error headline, with the
+ * aims of a scene that needs adaptivity counted per run.
  *
  * Writes DIR/tradeoff.csv, DIR/tradeoff.png (gnuplot: RMS surface error against node updates
  * per simulated second, Pareto front marked) and DIR/summary.txt (the adaptive speed-up at
