@@ -128,7 +128,7 @@ bench: deps node-deps
 	$(BUILD)/squish tradeoff --bench
 	@echo "=== speed against accuracy (quick grid)"
 	$(BUILD)/squish tradeoff meshes/scenes/cube-poke.json --quick --out $(BUILD)/bench-tradeoff
-	@echo "=== the adaptive headline: box-big (117,649 finest nodes), adaptive against fixed levels (minutes)"
+	@echo "=== the adaptive headline: box-big (117,649 finest nodes), adaptive against fixed levels, and 3 runs with the live budget (the guard) beside fixed L2 and fixed finest with the three aims met or not (minutes)"
 	@if [ -f meshes/box/box_48.msh ]; then \
 	  $(BUILD)/squish tradeoff --bench --scene meshes/scenes/box-big.json && \
 	  $(BUILD)/squish tradeoff meshes/scenes/box-big.json --quick --reference-step 0.9 --out $(BUILD)/bench-box-big; \

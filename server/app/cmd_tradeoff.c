@@ -1,6 +1,7 @@
 /* cmd_tradeoff.c - squish tradeoff: the speed/accuracy trade of a scene (issue 7).
  *
  *   squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K] [--reference-step F]
+ *                              [--guarded N]
  *   squish tradeoff --bench [...]          (bench_scenes.c)
  *
  * Runs the scene, with its scripted tools, under a grid of settings: every fixed level, the
@@ -11,6 +12,12 @@
  * Every variant is compared with it at the same points: the rest positions of the reference's
  * surface vertices (displacement interpolated in the variant's simulated level, so coarse
  * levels are compared where the user sees them) and the scene's probes, every frame.
+ *
+ * After the grid, N runs (default 3) of the scene's adaptive setting with the live budget (the
+ * frame period as each frame's budget, the guard on, one thread: as `squish run --realtime` and
+ * the server), measured the same way; not deterministic (the guard reads CPU time), so reported
+ * as min / median / max, kept off the Pareto front and the equal-error headline, with the
+ * aims of a scene that needs adaptivity counted per run.
  *
  * Writes DIR/tradeoff.csv, DIR/tradeoff.png (gnuplot: RMS surface error against node updates
  * per simulated second, Pareto front marked) and DIR/summary.txt (the adaptive speed-up at
@@ -29,7 +36,8 @@
 #include "scene/scene.h"
 #include "body/body.h"
 
-#define TO_MAX_VARIANTS 32
+#define TO_MAX_VARIANTS 40
+#define TO_MAX_GUARDED 15 /* --guarded runs at most */
 #define TO_MAX_SAMPLES 4000 /* surface points compared per body (evenly strided) */
 
 /* one setting of the grid */
@@ -54,6 +62,10 @@ typedef struct to_result {
     long count;
     double max_err, probe_err, final_rms, final_max;
     double rms, ups, wps;  /* RMS error (m), node updates and wall seconds per simulated second */
+    double cpu;            /* thread CPU s inside sq_world_step */
+    double cps;            /* thread CPU s per simulated second */
+    double cpu_max1;       /* slowest frame after frame 1, thread CPU s */
+    long cpu_late1;        /* frames after frame 1 over the frame period in thread CPU time */
     int substeps_finest;   /* substeps per frame at the variant's finest simulated level, body 0 */
     long resets;
     int pareto;
@@ -71,7 +83,7 @@ static void usage(FILE *f)
 {
     fprintf(f,
             "usage: squish tradeoff SCENE.json [--out DIR] [--frames N] [--quick] [--finest K]\n"
-            "                                  [--reference-step F]\n"
+            "                                  [--reference-step F] [--guarded N]\n"
             "       squish tradeoff --bench [--scenes DIR] [--frames N]\n"
             "\n"
             "  Runs the scene (its scripted tools included) under a grid of settings and measures\n"
@@ -83,6 +95,9 @@ static void usage(FILE *f)
             "  --finest K   listed level index used as the finest (default: each body's max_level)\n"
             "  --reference-step F  step fraction of the reference (default 0.25; 0.9: the fixed finest\n"
             "               run is the reference, for large scenes; the finer-step rows give its noise)\n"
+            "  --guarded N  runs of the scene's adaptive setting with the live budget (the frame period,\n"
+            "               the guard on, as 'squish run --realtime' and the server; not deterministic:\n"
+            "               reported as min / median / max; default 3, 0: none, at most 15)\n"
             "  --bench      frame-budget headroom of the shipped scenes and 1 vs 2 threads\n");
 }
 
@@ -311,7 +326,7 @@ typedef struct to_ref {
 
 /* run one variant; ref->u is recorded when record != 0, else errors are measured against it */
 static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result *r, sq_progress *prog,
-                       double *prog_done)
+                       double *prog_done, double budget_s)
 {
     sq_err err = {{0}};
     sq_world *w = sq_world_create(scene, &err);
@@ -349,10 +364,18 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
     double *u = sq_malloc(sizeof(double) * 3 * (size_t)ref->ntotal);
     double sum_ref = 0;
     long cnt_ref = 0;
+    double period = 1.0 / scene->frame_rate;
     for (long f = 1; f <= ref->nframes; f++) {
-        double t0 = sq_now();
-        sq_world_step(w, 0);
+        double t0 = sq_now(), c0 = sq_thread_cpu();
+        sq_world_step(w, budget_s); /* 0: no budget (deterministic); > 0: the live budget, the guard on */
+        double c = sq_thread_cpu() - c0;
         r->wall += sq_now() - t0;
+        r->cpu += c;
+        if (f > 1) {
+            /* after the first frame (one-off set-up), as `squish tradeoff --bench` counts */
+            r->cpu_max1 = fmax(r->cpu_max1, c);
+            r->cpu_late1 += c > period;
+        }
         for (int b = 0; b < w->nbodies; b++)
             r->updates += (double)w->profile[b].node_updates;
         /* surface samples */
@@ -413,6 +436,7 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
     r->rms = r->count ? sqrt(r->sum_sq / r->count) : 0;
     r->ups = r->sim_s > 0 ? r->updates / r->sim_s : 0;
     r->wps = r->sim_s > 0 ? r->wall / r->sim_s : 0;
+    r->cps = r->sim_s > 0 ? r->cpu / r->sim_s : 0;
     r->ok = 1;
     free(u);
     sq_world_destroy(w);
@@ -446,6 +470,153 @@ static double fixed_cost_at(const to_variant *v, const to_result *r, int n, doub
     return best;
 }
 
+/* ---- the runs with the live budget ----------------------------------------------------------- */
+
+static int cmp_dbl(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* min, median (the lower middle for an even count) and max of x[0..k-1] (k > 0; sorts x) */
+static void spread(double *x, int k, double out[3])
+{
+    qsort(x, (size_t)k, sizeof *x, cmp_dbl);
+    out[0] = x[0];
+    out[1] = x[(k - 1) / 2];
+    out[2] = x[k - 1];
+}
+
+/* r[gmed]: each column's median over the completed runs r[g0..gmed-1] (resets: the largest) */
+static void guarded_median(to_result *r, int g0, int gmed)
+{
+    double x[TO_MAX_GUARDED], o[3];
+    int k = 0;
+    to_result *m = &r[gmed];
+    for (int i = g0; i < gmed; i++)
+        if (r[i].ok) {
+            if (!k)
+                *m = r[i];
+            k++;
+        }
+    if (!k) {
+        m->ok = 0;
+        snprintf(m->error, sizeof m->error, "no run with the live budget completed");
+        return;
+    }
+#define TO_MEDIAN(field)                                                                                           \
+    do {                                                                                                           \
+        int c = 0;                                                                                                 \
+        for (int i = g0; i < gmed; i++)                                                                            \
+            if (r[i].ok)                                                                                           \
+                x[c++] = (double)r[i].field;                                                                       \
+        spread(x, c, o);                                                                                           \
+        m->field = o[1];                                                                                           \
+    } while (0)
+    TO_MEDIAN(updates);
+    TO_MEDIAN(wall);
+    TO_MEDIAN(cpu);
+    TO_MEDIAN(max_err);
+    TO_MEDIAN(probe_err);
+    TO_MEDIAN(final_rms);
+    TO_MEDIAN(final_max);
+    TO_MEDIAN(rms);
+    TO_MEDIAN(ups);
+    TO_MEDIAN(wps);
+    TO_MEDIAN(cps);
+    TO_MEDIAN(cpu_max1);
+    TO_MEDIAN(cpu_late1);
+#undef TO_MEDIAN
+    for (int i = g0; i < gmed; i++)
+        if (r[i].ok && r[i].resets > m->resets)
+            m->resets = r[i].resets;
+    m->pareto = 0;
+    m->error[0] = 0;
+}
+
+/* summary lines of the runs with the live budget, beside fixed L(finest-1), the fixed finest level
+ * and the same setting without a budget, and the aims of a scene that needs adaptivity (issue
+ * 10): RMS error within 1.5x fixed L(finest-1)'s, at least 100x less CPU than the fixed finest
+ * level, every frame after the first within the period in thread CPU time */
+static void guarded_summary(FILE *f, const to_variant *v, const to_result *r, int n, int g0, int gmed, int finest,
+                            double frame_rate)
+{
+    double period = 1.0 / frame_rate;
+    int nrun = gmed - g0, k = 0;
+    double x[TO_MAX_GUARDED], o[3];
+    for (int i = g0; i < gmed; i++)
+        k += r[i].ok;
+    fprintf(f, "\nwith the live budget (each frame's budget the %.3g ms frame period, the guard on, one thread: as "
+               "'squish run --realtime' and the server run it), split %.3g m, %d of %d runs completed; NOT "
+               "deterministic (the guard decides from measured CPU time): min / median / max over the runs, "
+               "kept off the Pareto front and the equal-error speed-up above\n",
+            1e3 * period, v[gmed].split, k, nrun);
+    if (!k)
+        return;
+#define TO_SPREAD(label, field, scale, fmt)                                                                       \
+    do {                                                                                                           \
+        int c = 0;                                                                                                 \
+        for (int i = g0; i < gmed; i++)                                                                            \
+            if (r[i].ok)                                                                                           \
+                x[c++] = (double)r[i].field * (scale);                                                             \
+        spread(x, c, o);                                                                                           \
+        fprintf(f, "  %-50s " fmt " / " fmt " / " fmt "\n", label, o[0], o[1], o[2]);                              \
+    } while (0)
+    TO_SPREAD("rms surface error (m)", rms, 1, "%.3g");
+    TO_SPREAD("max surface error (m)", max_err, 1, "%.3g");
+    TO_SPREAD("probe error (m)", probe_err, 1, "%.3g");
+    TO_SPREAD("node updates per simulated s", ups, 1, "%.4g");
+    TO_SPREAD("thread CPU s per simulated s", cps, 1, "%.3g");
+    TO_SPREAD("frames over the period in CPU time, after frame 1", cpu_late1, 1, "%.0f");
+    TO_SPREAD("slowest frame after frame 1, CPU ms", cpu_max1, 1e3, "%.3g");
+    TO_SPREAD("wall s per simulated s (includes other load)", wps, 1, "%.3g");
+#undef TO_SPREAD
+    int fc = -1, ff = -1, ua = -1;
+    for (int i = 0; i < n; i++) {
+        if (!r[i].ok)
+            continue;
+        if (!strcmp(v[i].kind, "fixed") && v[i].level == finest - 1)
+            fc = i;
+        if (!strcmp(v[i].kind, "fixed") && v[i].level == finest)
+            ff = i;
+        if (!strcmp(v[i].kind, "adaptive") && v[i].split == v[gmed].split && v[i].fraction == v[gmed].fraction)
+            ua = i;
+    }
+    if (fc >= 0)
+        fprintf(f, "  next to fixed L%d: rms %.3g m, %.3g CPU s/s\n", finest - 1, r[fc].rms, r[fc].cps);
+    if (ff >= 0)
+        fprintf(f, "  next to fixed L%d (finest): rms %.3g m, %.3g CPU s/s\n", finest, r[ff].rms, r[ff].cps);
+    if (ua >= 0)
+        fprintf(f, "  next to the same setting without a budget: rms %.3g m, %.3g CPU s/s, %ld frames over the "
+                   "period in CPU time after frame 1, slowest %.3g ms\n",
+                r[ua].rms, r[ua].cps, r[ua].cpu_late1, 1e3 * r[ua].cpu_max1);
+    if (fc < 0 || ff < 0 || !(r[fc].rms > 0))
+        return;
+    /* the aims, per run: met when every completed run meets it */
+    int acc = 0, cost = 0, rate = 0, all = 0;
+    double lim = 1.5 * r[fc].rms;
+    for (int i = g0; i < gmed; i++) {
+        if (!r[i].ok)
+            continue;
+        int a = r[i].rms <= lim, c = r[i].cps > 0 && r[ff].cps >= 100 * r[i].cps, t = r[i].cpu_late1 == 0;
+        acc += a;
+        cost += c;
+        rate += t;
+        all += a && c && t;
+    }
+    fprintf(f, "aims with the live budget (met: in every run):\n");
+    fprintf(f, "  accuracy: rms error within 1.5x fixed L%d's (at most %.3g m): %s (%d of %d runs; median %.3g m, "
+               "%.2fx fixed L%d)\n",
+            finest - 1, lim, acc == k ? "met" : "NOT met", acc, k, r[gmed].rms, r[gmed].rms / r[fc].rms, finest - 1);
+    fprintf(f, "  cost: at least 100x less thread CPU than fixed L%d (%.3g CPU s/s): %s (%d of %d runs; median "
+               "x%.1f; x%.1f in node updates)\n",
+            finest, r[ff].cps, cost == k ? "met" : "NOT met", cost, k, r[gmed].cps > 0 ? r[ff].cps / r[gmed].cps : 0,
+            r[gmed].ups > 0 ? r[ff].ups / r[gmed].ups : 0);
+    fprintf(f, "  rate: every frame after the first within %.3g ms of thread CPU: %s (%d of %d runs)\n", 1e3 * period,
+            rate == k ? "met" : "NOT met", rate, k);
+    fprintf(f, "  all three in the same run: %d of %d runs\n", all, k);
+}
+
 /* ---- output -------------------------------------------------------------------------------- */
 
 static int write_plot(const char *dir, const char *scene_name, const to_variant *v, const to_result *r, int n)
@@ -466,6 +637,7 @@ static int write_plot(const char *dir, const char *scene_name, const to_variant 
                 fprintf(f, "%.6e %.6e \"%s\"\n", r[i].ups, r[i].rms, v[i].name);
         fprintf(f, "\n\n");
     }
+    /* block 4 is the front (below), block 5 the runs with the live budget */
     fprintf(f, "# pareto\n");
     int idx[TO_MAX_VARIANTS], np = 0;
     for (int i = 0; i < n; i++)
@@ -480,6 +652,14 @@ static int write_plot(const char *dir, const char *scene_name, const to_variant 
             }
     for (int a = 0; a < np; a++)
         fprintf(f, "%.6e %.6e\n", r[idx[a]].ups, r[idx[a]].rms);
+    fprintf(f, "\n\n");
+    int nguard = 0;
+    fprintf(f, "# guarded runs (live budget, not deterministic)\n");
+    for (int i = 0; i < n; i++)
+        if (r[i].ok && !strcmp(v[i].kind, "guarded_run") && r[i].rms > 0 && r[i].ups > 0) {
+            fprintf(f, "%.6e %.6e\n", r[i].ups, r[i].rms);
+            nguard++;
+        }
     fprintf(f, "\n\n");
     fclose(f);
     f = fopen(gp, "w");
@@ -511,8 +691,11 @@ static int write_plot(const char *dir, const char *scene_name, const to_variant 
             "     '' index 0 using 1:2:3 with labels offset 1,0.7 left font ',8' notitle, \\\n"
             "     '' index 1 using 1:2:3 with labels offset 1,-0.7 left font ',8' tc rgb '#d62728' notitle, \\\n"
             "     '' index 2 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#2ca02c' notitle, \\\n"
-            "     '' index 3 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#9467bd' notitle\n",
-            png, scene_name, v[0].fraction, dat);
+            "     '' index 3 using 1:2:3 with labels offset 1,0.7 left font ',8' tc rgb '#9467bd' notitle%s\n",
+            png, scene_name, v[0].fraction, dat,
+            nguard ? ", \\\n     '' index 5 with points pt 11 ps 1.5 lc rgb '#ff7f0e' title 'adaptive, live budget "
+                     "(guard; each run; not deterministic)'"
+                   : "");
     fclose(f);
     char cmd[2400];
     snprintf(cmd, sizeof cmd, "gnuplot '%s' 2>&1", gp);
@@ -537,7 +720,7 @@ int sq_cmd_tradeoff(int argc, char **argv)
 {
     const char *scene_path = NULL, *out = "squish-tradeoff";
     long frames = -1;
-    int quick = 0, finest_override = -1;
+    int quick = 0, finest_override = -1, guarded = 3;
     double ref_fraction = 0.25;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
@@ -554,6 +737,13 @@ int sq_cmd_tradeoff(int argc, char **argv)
             if (i + 1 >= argc || *end || !(f > 0 && f <= 1))
                 return usage_error("--reference-step needs a step fraction of the bound in (0, 1]", NULL);
             ref_fraction = f;
+            i++;
+        } else if (!strcmp(a, "--guarded")) {
+            char *end = NULL;
+            long g = i + 1 < argc ? strtol(argv[i + 1], &end, 10) : -1;
+            if (i + 1 >= argc || *end || g < 0 || g > TO_MAX_GUARDED)
+                return usage_error("--guarded needs a number of runs with the live budget (0 to 15)", NULL);
+            guarded = (int)g;
             i++;
         } else if (!strcmp(a, "--out")) {
             if (i + 1 >= argc || !argv[i + 1][0])
@@ -624,6 +814,22 @@ int sq_cmd_tradeoff(int argc, char **argv)
     static to_result r[TO_MAX_VARIANTS];
     memset(r, 0, sizeof r);
     int n = build_grid(v, finest, s0, quick, ref_fraction);
+    /* the scene's adaptive setting again, with the live budget: the same scene text as its
+     * unbudgeted row, stepped with the frame period as budget (the guard on), one thread; the
+     * guard decides from measured CPU time, so these runs are not deterministic: `guarded` runs,
+     * then one row of their medians (gmed) */
+    int gmed = -1, g0 = n;
+    if (finest > 0 && guarded > 0) {
+        for (int k = 0; k < guarded; k++) {
+            v[n] = (to_variant){"", "guarded_run", 1, 0, s0, SQ_OPERATOR_FEM, 0.9};
+            snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g guarded run %d", s0, k + 1);
+            n++;
+        }
+        gmed = n;
+        v[n] = (to_variant){"", "guarded", 1, 0, s0, SQ_OPERATOR_FEM, 0.9};
+        snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g guarded median", s0);
+        n++;
+    }
     double caps[SQ_MAX_BODIES] = {0};
     scene_caps(root, caps);
     if (sq_mkdir_p(out)) {
@@ -634,17 +840,23 @@ int sq_cmd_tradeoff(int argc, char **argv)
     }
     printf("tradeoff %s: %d settings x %ld frames (%.3g s simulated each); reference: fixed L%d, fem, step %.3g "
            "x bound; adaptive thresholds around the scene's split %.3g m\n",
-           scene_name, n, nframes, nframes / frame_rate, finest, ref_fraction, s0);
+           scene_name, g0, nframes, nframes / frame_rate, finest, ref_fraction, s0);
+    if (gmed >= 0)
+        printf("tradeoff %s: and %d runs of split %.3g m with the live budget (the %.3g ms frame period, the guard "
+               "on, one thread): not deterministic, reported as min / median / max\n",
+               scene_name, gmed - g0, s0, 1e3 / frame_rate);
     fflush(stdout);
 
     to_ref ref;
     memset(&ref, 0, sizeof ref);
     ref.nframes = nframes;
     sq_progress prog;
-    sq_progress_begin(&prog, "squish tradeoff", (double)n * nframes);
+    sq_progress_begin(&prog, "squish tradeoff", (double)(gmed >= 0 ? n - 1 : n) * nframes);
     double done = 0;
     int rc = 0;
     for (int i = 0; i < n; i++) {
+        if (i == gmed)
+            continue; /* not a run: the medians of the guarded runs, below */
         if (i > 0 && !strcmp(v[i].kind, "fixed") && v[i].level == finest && v[i].fraction == v[0].fraction &&
             r[0].ok) {
             /* the same run as the reference (--reference-step 0.9): its numbers, zero error */
@@ -655,13 +867,14 @@ int sq_cmd_tradeoff(int argc, char **argv)
         }
         char *vt = variant_text(root, &v[i], finest_override, caps, sharp);
         char label[600];
-        snprintf(label, sizeof label, "%s [%s]", scene_path, v[i].name);
+        snprintf(label, sizeof label, "%.500s [%.47s]", scene_path, v[i].name);
         sq_scene *s = sq_scene_parse(vt, dir, label, &err);
         cJSON_free(vt);
         if (!s) {
             snprintf(r[i].error, sizeof r[i].error, "%.290s", err.msg);
         } else {
-            run_variant(s, &ref, i == 0, &r[i], &prog, &done);
+            run_variant(s, &ref, i == 0, &r[i], &prog, &done,
+                        !strcmp(v[i].kind, "guarded_run") ? 1.0 / frame_rate : 0);
             sq_scene_free(s);
         }
         if (!r[i].ok) {
@@ -675,14 +888,19 @@ int sq_cmd_tradeoff(int argc, char **argv)
         }
     }
     sq_progress_end(&prog);
+    if (gmed >= 0)
+        guarded_median(r, g0, gmed);
 
-    /* the Pareto front over the fem settings (the paper operator is a different model) */
+    /* the Pareto front over the fem settings (the paper operator is a different model), without
+     * the runs with the live budget (not deterministic: they neither sit on it nor push a
+     * setting off it) */
     for (int i = 0; i < n; i++) {
-        if (!r[i].ok || v[i].op != SQ_OPERATOR_FEM)
+        if (!r[i].ok || v[i].op != SQ_OPERATOR_FEM || !strncmp(v[i].kind, "guarded", 7))
             continue;
         int dominated = 0;
         for (int j = 0; j < n && !dominated; j++)
-            if (j != i && r[j].ok && v[j].op == SQ_OPERATOR_FEM && r[j].ups <= r[i].ups && r[j].rms <= r[i].rms &&
+            if (j != i && r[j].ok && v[j].op == SQ_OPERATOR_FEM && strncmp(v[j].kind, "guarded", 7) &&
+                r[j].ups <= r[i].ups && r[j].rms <= r[i].rms &&
                 (r[j].ups < r[i].ups || r[j].rms < r[i].rms))
                 dominated = 1;
         r[i].pareto = !dominated;
@@ -700,14 +918,15 @@ int sq_cmd_tradeoff(int argc, char **argv)
         }
         fprintf(f, "setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,"
                    "node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,rms_rel,probe_err_m,final_rms_m,"
-                   "final_max_m,resets,pareto,error\n");
+                   "final_max_m,resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error\n");
         for (int i = 0; i < n; i++) {
-            fprintf(f, "\"%s\",%s,%s,%s,%d,%.6g,%.3g,%d,%ld,%.6g,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%ld,%d,\"%s\"\n",
+            fprintf(f, "\"%s\",%s,%s,%s,%d,%.6g,%.3g,%d,%ld,%.6g,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%ld,%d,%.6e,%ld,"
+                       "%.6e,\"%s\"\n",
                     v[i].name, v[i].kind, v[i].op == SQ_OPERATOR_PAPER ? "paper" : "fem",
                     v[i].adaptive ? "adaptive" : "fixed", v[i].adaptive ? -1 : v[i].level, v[i].adaptive ? v[i].split : 0,
                     v[i].fraction, r[i].substeps_finest, r[i].frames, r[i].sim_s, r[i].ups, r[i].wps, r[i].rms,
                     r[i].max_err, ref.rms_ref > 0 ? r[i].rms / ref.rms_ref : 0, r[i].probe_err, r[i].final_rms,
-                    r[i].final_max, r[i].resets, r[i].pareto, r[i].error);
+                    r[i].final_max, r[i].resets, r[i].pareto, r[i].cps, r[i].cpu_late1, r[i].cpu_max1, r[i].error);
         }
         if (fclose(f)) {
             fprintf(stderr, "squish tradeoff: writing %s failed: %s\n", path, strerror(errno));
@@ -727,18 +946,21 @@ int sq_cmd_tradeoff(int argc, char **argv)
                 continue;
             fprintf(f, "scene %s, %ld frames; reference RMS |u| %.3g m, max |u| %.3g m\n", scene_name, nframes,
                     ref.rms_ref, ref.max_ref);
-            fprintf(f, "%-32s %8s %12s %10s %10s %10s %10s %10s %7s %s\n", "setting", "substeps", "updates/s",
-                    "wall/s", "rms err m", "rel", "max err m", "probe m", "pareto", "");
+            fprintf(f, "%-40s %8s %12s %10s %10s %10s %10s %10s %10s %7s %s\n", "setting", "substeps", "updates/s",
+                    "wall/s", "cpu/s", "rms err m", "rel", "max err m", "probe m", "pareto", "");
             for (int i = 0; i < n; i++) {
                 if (!r[i].ok) {
-                    fprintf(f, "%-32s refused: %s\n", v[i].name, r[i].error);
+                    fprintf(f, "%-40s refused: %s\n", v[i].name, r[i].error);
                     continue;
                 }
-                fprintf(f, "%-32s %8d %12.4g %10.3g %10.3g %10.3g %10.3g %10.3g %7s %s\n", v[i].name,
-                        r[i].substeps_finest, r[i].ups, r[i].wps, r[i].rms, ref.rms_ref > 0 ? r[i].rms / ref.rms_ref : 0,
-                        r[i].max_err, r[i].probe_err, r[i].pareto ? "*" : "",
+                fprintf(f, "%-40s %8d %12.4g %10.3g %10.3g %10.3g %10.3g %10.3g %10.3g %7s %s\n", v[i].name,
+                        r[i].substeps_finest, r[i].ups, r[i].wps, r[i].cps, r[i].rms,
+                        ref.rms_ref > 0 ? r[i].rms / ref.rms_ref : 0, r[i].max_err, r[i].probe_err,
+                        r[i].pareto ? "*" : "",
                         v[i].op == SQ_OPERATOR_PAPER ? "(model difference, not discretisation error)"
-                                                     : r[i].resets ? "(resets!)" : "");
+                        : r[i].resets                ? "(resets!)"
+                        : !strncmp(v[i].kind, "guarded", 7) ? "(live budget: not deterministic, off the front)"
+                                                            : "");
             }
             /* the headline: adaptive settings against the fixed levels at equal RMS error */
             int fine = -1;
@@ -777,6 +999,8 @@ int sq_cmd_tradeoff(int argc, char **argv)
             else
                 fprintf(f, "headline: no adaptive setting (0 < split < inf) reaches a fixed mesh's error at a lower "
                            "node-update cost on this scene\n");
+            if (gmed >= 0)
+                guarded_summary(f, v, r, n, g0, gmed, finest, frame_rate);
             for (int i = 0; i < n; i++)
                 if (r[i].ok && r[i].resets)
                     fprintf(f, "warning: %s tripped the blow-up detector %ld time%s (body reset to rest); its "

@@ -111,11 +111,27 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     }
+    /* a copy of a body on the same level (sq_body_create_like): its sharp estimate, the same
+     * numbers as estimating again on the same mesh, material, constraints, frame and fraction */
+    const sq_body *like = b->like;
+    int reuse = like && k < like->nuse && like->ready[k] && like->def.levels[k] == b->def.levels[k] &&
+                like->def.frame_dt == b->def.frame_dt && like->def.step_fraction == b->def.step_fraction &&
+                like->def.op == b->def.op && like->def.elasticity == b->def.elasticity &&
+                like->def.nodal_pressure == b->def.nodal_pressure &&
+                !memcmp(&like->def.material, &b->def.material, sizeof b->def.material) &&
+                like->def.nconstraints == b->def.nconstraints &&
+                !memcmp(like->def.constraints, b->def.constraints, sizeof(sq_constraint) * (size_t)b->def.nconstraints);
     if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
-        sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
-                                   err) < 0) {
+        (!reuse && sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction,
+                                              SQ_LANCZOS_ITERS, err) < 0)) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d (%d nodes)", b->name, k, b->def.levels[k]->nnodes);
+    }
+    if (reuse) {
+        L->omega_est = like->level[k].omega_est;
+        L->bound_sharp = like->level[k].bound_sharp;
+        L->nsub = like->level[k].nsub;
+        L->dt_fixed = like->level[k].dt_fixed;
     }
     b->mask[k] = sq_malloc((size_t)L->model.n);
     memset(b->mask[k], 1, (size_t)L->model.n);
@@ -289,11 +305,12 @@ int sq_body_check_lod(const sq_body *b, const sq_lod_def *lod, sq_err *err)
 
 /* ---- create / destroy ------------------------------------------------------------------- */
 
-sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
+static sq_body *create(const sq_body_def *def, const sq_body *like, sq_err *err)
 {
     if (check_def(def, err) < 0)
         return NULL;
     sq_body *b = sq_calloc(1, sizeof *b);
+    b->like = like;
     b->def = *def;
     snprintf(b->name, sizeof b->name, "%s", def->name ? def->name : "body");
     b->def.name = b->name;
@@ -342,7 +359,18 @@ sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
         sq_body_prepare_surface_map(b);
         sq_body_set_levels_fixed(b);
     }
+    b->like = NULL;
     return b;
+}
+
+sq_body *sq_body_create(const sq_body_def *def, sq_err *err)
+{
+    return create(def, NULL, err);
+}
+
+sq_body *sq_body_create_like(const sq_body *like, const sq_body_def *def, sq_err *err)
+{
+    return create(def, like, err);
 }
 
 void sq_body_destroy(sq_body *b)

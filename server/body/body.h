@@ -72,6 +72,10 @@ typedef struct sq_body sq_body;
  * setup cannot run (bad material, no nodes left free, step bound needing more than
  * 2^20 substeps per frame, ...) */
 sq_body *sq_body_create(const sq_body_def *def, sq_err *err);
+/* the same for a copy of body `like` with another def on the same meshes (e.g. another lod): a
+ * level whose mesh, material, operator, constraints, frame and step fraction equal like's takes
+ * like's sharp step estimate instead of estimating again (the same numbers, none of its cost) */
+sq_body *sq_body_create_like(const sq_body *like, const sq_body_def *def, sq_err *err);
 void sq_body_destroy(sq_body *b);
 
 /* change material / operator / lod at run time; validated; on refusal nothing changes

@@ -23,6 +23,8 @@ struct sq_body {
     int cur;                               /* fixed mode: the simulated level */
     sq_level level[SQ_MAX_LEVELS];
     int ready[SQ_MAX_LEVELS];              /* level initialised */
+    const sq_body *like;                   /* during sq_body_create_like: the body whose levels' step
+                                              estimates are reused (NULL otherwise) */
     unsigned char *mask[SQ_MAX_LEVELS];    /* integration mask (held nodes 0) (n_k) */
     int *hold_of[SQ_MAX_LEVELS];           /* scratch: hold index per node or -1 (n_k) */
     struct sq_lod *lod;                    /* adaptive mode state, else NULL */

@@ -126,12 +126,15 @@ typedef struct sq_world {
 sq_world *sq_world_create(const sq_scene *scene, sq_err *err);
 void sq_world_destroy(sq_world *w);
 void sq_world_reset(sq_world *w);
-/* real time at load (docs/lod.md "Guaranteed frame rate"): the thread CPU time of one frame
- * with every body fully coarse (an adaptive body at its level 0, a fixed one at its level),
- * predicted from one all-node force pass per body timed now on its state (read only) times
- * its steps per frame: a lower bound (integration and coupling not counted). Returns 1 and a
- * warning in msg when it exceeds the budget (the body's budget fraction of period_s), with
- * the numbers and what to do; else 0 and the figures in msg. */
+/* real time at load (docs/lod.md "The load check times a real coarse frame"): the thread CPU
+ * time of one frame with every body fully coarse (an adaptive body at its level 0, a fixed one
+ * at its level), the mean of real frames (after a warm-up) of a scratch world whose bodies are
+ * fresh copies forced fully coarse (sq_body_create_like), so integration, substeps, ghost
+ * levels and the frame's fixed cost are in it; w is only read (its tools copied, one force pass
+ * per body timed on its state to name the part that grows with the steps). Costs about one
+ * more load of the bodies in CPU time and memory while it runs. Returns 1 and a warning in msg
+ * when it exceeds the budget (the body's budget fraction of period_s), with the numbers and
+ * what to do; else 0 and the figures in msg. */
 int sq_world_realtime_check(sq_world *w, double period_s, char *msg, size_t n);
 /* advance one frame: scripted tools take their pose at the new time, then every body
  * steps with all tools; budget_s is the compute budget for splitting decisions

@@ -41,7 +41,17 @@ rc=$?
 check "tradeoff exits 0" [ "$rc" = 0 ]
 tcsv=$TMP/to/tradeoff.csv
 check "tradeoff.csv header" bash -c "head -n 1 '$tcsv' | grep -q '^setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,'"
-check "tradeoff.csv rows (quick grid: 9 settings)" [ "$(tail -n +2 "$tcsv" | wc -l)" = 9 ]
+check "tradeoff.csv rows (quick grid: 9 settings)" [ "$(tail -n +2 "$tcsv" | grep -cv ',guarded')" = 9 ]
+# the scene's adaptive setting with the live budget (the guard on): 3 runs and a row of their medians,
+# every number finite, the error measured (the tool touches), never on the Pareto front
+check "tradeoff.csv: 3 guarded runs and their median row" \
+    bash -c "[ \$(grep -c '^\"adaptive split 0.005 guarded run [123]\",guarded_run,fem,adaptive,' '$tcsv') = 3 ] && [ \$(grep -c '^\"adaptive split 0.005 guarded median\",guarded,fem,adaptive,' '$tcsv') = 1 ] && [ \$(grep -c ',guarded' '$tcsv') = 4 ]"
+check "tradeoff.csv header names the CPU columns" \
+    bash -c "head -n 1 '$tcsv' | grep -q ',resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error$'"
+check "guarded rows: finite, error and cost measured, off the front" \
+    bash -c "grep ',guarded' '$tcsv' | awk -F, '{for (c = 8; c <= 23; c++) if (\$c !~ /^-?[0-9.]+(e[-+][0-9]+)?$/) bad = 1; if (!(\$9 == 75 && \$11 > 0 && \$12 > 0 && \$13 > 0 && \$14 >= \$13 && \$20 == 0 && \$21 > 0 && \$22 >= 0 && \$23 > 0)) bad = 1; n++} END {exit !(n == 4 && !bad)}'"
+check "summary: the live-budget spread, said not deterministic, and the aims" \
+    bash -c "grep -q 'NOT deterministic' '$TMP/to/summary.txt' && grep -q '^  rms surface error (m) .* / .* / ' '$TMP/to/summary.txt' && grep -q '^  rate: every frame after the first within 20 ms of thread CPU: ' '$TMP/to/summary.txt' && grep -q '^  accuracy: rms error within 1.5x fixed L1' '$TMP/to/summary.txt'"
 check "reference has zero error" bash -c "grep '^\"reference\",reference,' '$tcsv' | awk -F, '\$13 == 0 && \$14 == 0' | grep -q ."
 check "fixed levels cost more when finer" \
     bash -c "awk -F, '/^\"fixed L[0-9]\",fixed,/ {c[\$5] = \$11} END {exit !(c[0] < c[1] && c[1] < c[2])}' '$tcsv'"
@@ -69,6 +79,11 @@ sed -e 's#"\.\./cube/#"'"$PWD"'/meshes/cube/#g' \
 "$SQUISH" tradeoff "$TMP/capped.json" --quick --frames 75 --out "$TMP/tocap" >"$TMP/tocap.log" 2>&1
 check "tradeoff keeps the scene's max_node_updates on adaptive rows" \
     bash -c "awk -F, '/,adaptive,fem,adaptive,/ {n++; if (\$11 > 600 * 50) bad = 1} END {exit !(n == 3 && !bad)}' '$TMP/tocap/tradeoff.csv'"
+"$SQUISH" tradeoff meshes/scenes/cube-poke.json --quick --frames 10 --guarded 0 --out "$TMP/tog0" >"$TMP/tog0.log" 2>&1
+check "tradeoff --guarded 0: no run with the live budget" \
+    bash -c "[ \$? = 0 ] && [ \$(tail -n +2 '$TMP/tog0/tradeoff.csv' | wc -l) = 9 ] && ! grep -q guarded '$TMP/tog0/tradeoff.csv'"
+"$SQUISH" tradeoff meshes/scenes/cube-poke.json --guarded 16 >"$TMP/u6.log" 2>&1
+check "tradeoff bad --guarded: exit 2, named" bash -c "[ $? = 2 ] && grep -q -- '--guarded needs' '$TMP/u6.log'"
 "$SQUISH" tradeoff meshes/scenes/cube-poke.json --reference-step 0 >"$TMP/u5.log" 2>&1
 check "tradeoff bad --reference-step: exit 2, named" bash -c "[ $? = 2 ] && grep -q -- '--reference-step needs' '$TMP/u5.log'"
 
