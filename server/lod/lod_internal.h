@@ -137,6 +137,12 @@ typedef struct sq_lod_level {
     long krow_used, krow_cap;   /* next free block offset; offsets allocated */
     long krow_chunk_len;        /* blocks per chunk: SQ_KROW_CHUNK or the longest row (0: none yet) */
     int krow_nchunk;
+    /* d + b v of the level's active nodes and ring ghosts at the current tick (b the stiffness
+     * damping), formed once per step of the level (sq_lodx_form_w) for its row kernels, which
+     * read each node's value from about 14 blocks (3 n + 1 doubles, NULL until first used) */
+    double *w_tick;
+    int w_ok;                   /* 1: w_tick is current (set and cleared by the frame's tick; the
+                                 * kernels called with it 0 form it themselves) */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -329,6 +335,15 @@ typedef double sq_v2 __attribute__((vector_size(16)));
         v4t_ + v4_load(v4T_ + 8) * V4_LANE(v4w_, 2);                                                               \
     })
 
+/* the same with w given as 3 doubles at W (each broadcast from memory): the same products and
+ * sums, lane by lane */
+#define v4_block_s(T, W)                                                                                           \
+    ({                                                                                                             \
+        const double *v4T_ = (T), *v4W_ = (W);                                                                     \
+        const sq_v4 v4t_ = v4_load(v4T_) * v4_set1(v4W_[0]) + v4_load(v4T_ + 4) * v4_set1(v4W_[1]);             \
+        v4t_ + v4_load(v4T_ + 8) * v4_set1(v4W_[2]);                                                               \
+    })
+
 /* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
  * (B2 B5 B8), each padded to 4 lanes with a zero */
 static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
@@ -445,6 +460,9 @@ void sq_lodx_level_lists(sq_lod *lod, int k);
 void sq_lodx_refresh_lists(sq_lod *lod);
 void sq_lodx_mask_list(sq_lod *lod, int k);
 void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
+/* w_tick of level k (active nodes and ring ghosts) = d + b v, b the material's stiffness
+ * damping: what the row kernels of a due linear level without viscosity read */
+void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_integrate(sq_lod *lod, int k, double dt);
 void sq_lodx_save_prev(sq_lod *lod, int k);
 void sq_lodx_push_needed(sq_lod *lod);

@@ -315,8 +315,20 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         const sq_v4 bb = v4_set1(b);
         sq_v4 acc = {0, 0, 0, 0};
         const int e0 = lk->ring_off[r], e1 = lk->ring_off[r + 1];
-        if (fr >= 1) {
-            /* the level at the end of its step (the common case): its current values */
+        if (fr >= 1 && !mat->use_viscosity) {
+            /* the level at the end of its step (the common case): its current values, d + b v
+             * formed once for the step (sq_lodx_form_w) */
+            const double *restrict W = lk->w_tick;
+            int e = e0;
+            for (; e + 1 < e1; e += 2) { /* two blocks a turn, subtracted in row order */
+                const sq_v4 x0 = v4_block_s(T + 12 * (size_t)e, W + 3 * (size_t)col[e]);
+                const sq_v4 x1 = v4_block_s(T + 12 * (size_t)e + 12, W + 3 * (size_t)col[e + 1]);
+                acc -= x0;
+                acc -= x1;
+            }
+            if (e < e1)
+                acc -= v4_block_s(T + 12 * (size_t)e, W + 3 * (size_t)col[e]);
+        } else if (fr >= 1) {
             for (int e = e0; e < e1; e++) {
                 const size_t j = 3 * (size_t)col[e];
                 acc -= v4_block(T + 12 * (size_t)e, v4_load(d + j) + bb * v4_load(v + j));
@@ -386,6 +398,8 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     const unsigned char *src_levels = lk->src_levels;
     const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
     const double *fw = lk->src_weight;
+    if (fr >= 1 && !mat->use_viscosity && !lk->w_ok) /* called outside the frame's tick */
+        sq_lodx_form_w(lod, mat, k);
     for (int r = 0; r < nring; r++) {
         int j = ring[r];
         int a = src_start[r], b = src_start[r + 1];
