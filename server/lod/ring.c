@@ -221,7 +221,16 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
             double f = fr[m];
             const double *D1 = dcur[m], *V1 = vcur[m];
             if (f == 1) {
-                /* a source level at the end of its step (the common case): its values */
+                /* a source level at the end of its step (the common case): its values; two
+                 * sources a turn, added in order */
+                for (; q + 1 < qe; q += 2) {
+                    const sq_v4 w0 = v4_set1(fw[q]), w1 = v4_set1(fw[q + 1]);
+                    const size_t n0 = 3 * (size_t)fn[q], n1 = 3 * (size_t)fn[q + 1];
+                    d += w0 * v4_load(D1 + n0);
+                    v += w0 * v4_load(V1 + n0);
+                    d += w1 * v4_load(D1 + n1);
+                    v += w1 * v4_load(V1 + n1);
+                }
                 for (; q < qe; q++) {
                     const sq_v4 w = v4_set1(fw[q]);
                     const size_t n3 = 3 * (size_t)fn[q];
