@@ -610,6 +610,19 @@ static void coupling_bound(sq_lod *lod)
         double *rowsum[SQ_MAX_LEVELS];
         for (int k = 0; k < L; k++)
             rowsum[k] = lod->lev[k].coupled_rowsum;
+        /* the sum of |weights| of each ring ghost's sources, once per ghost (a ghost is a column
+         * of about ten ring rows) */
+        if (nring > lod->abs_cap) {
+            lod->abs_cap = SQ_MAX(nring, 2 * lod->abs_cap);
+            lod->abs_sum = sq_realloc(lod->abs_sum, sizeof(double) * (size_t)lod->abs_cap);
+        }
+        double *abs_sum = lod->abs_sum;
+        for (int r = 0; r < nring; r++) {
+            double sc = 0;
+            for (int q = src_start[r]; q < src_start[r + 1]; q++)
+                sc += fabs(src_weight[q]);
+            abs_sum[r] = sc;
+        }
         for (int r = 0; r < nring; r++) {
             int a = src_start[r], b = src_start[r + 1];
             if (a == b)
@@ -620,10 +633,7 @@ static void coupling_bound(sq_lod *lod)
                 double scale = 1;
                 if (!active[l]) {
                     int rl = ring_index[l];
-                    scale = 0;
-                    if (rl >= 0)
-                        for (int q = src_start[rl]; q < src_start[rl + 1]; q++)
-                            scale += fabs(src_weight[q]);
+                    scale = rl >= 0 ? abs_sum[rl] : 0;
                 }
                 R += block_norm(ring_K + 9 * (size_t)e) * scale;
             }

@@ -266,6 +266,9 @@ struct sq_lod {
     long nl_gen;                         /* gen the node levels were last given out at */
     const unsigned char *nl_out;         /* ... and the buffer they went to */
     unsigned char *nlv[2];               /* scratch of sq_lod_node_levels (largest level) */
+    double *abs_sum;                     /* scratch of the coupled bound: sum of |weights| of
+                                          * each ring ghost's sources (coupling.c) */
+    int abs_cap;
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
 
