@@ -209,7 +209,7 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     int e2 = 0; /* position in the mixed list (both lists increase) */
     for (int e = 0; e < c->ntet; e += 4) {
         int t4[4];
-        double w4[4], D[49], V[49], F[48]; /* one spare double: the corners are copied as 4 lanes */
+        double w4[4] = {0, 0, 0, 0}, D[49], V[49], F[48]; /* one spare double: corners copied as 4 lanes */
         for (int l = 0; l < 4; l++) {
             t4[l] = -1;
             if (e + l >= c->ntet)
@@ -235,12 +235,17 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
                 continue;
             double *const *dst = c->dst + 4 * (size_t)(e + l);
             const double w = w4[l], *f4 = F + 12 * l;
+            const sq_v2 ww = {w, w};
             for (int q = 0; q < 4; q++) {
                 double *p = dst[q];
                 if (!p)
                     continue; /* not reached: a ghost corner of a mixed tet is a ring ghost */
-                p[0] += w * f4[3 * q];
-                p[1] += w * f4[3 * q + 1];
+                /* p[c] += w f4[c]: x and y as one 2-lane vector */
+                sq_v2 xy, fxy;
+                memcpy(&xy, p, sizeof xy);
+                memcpy(&fxy, f4 + 3 * q, sizeof fxy);
+                xy += ww * fxy;
+                memcpy(p, &xy, sizeof xy);
                 p[2] += w * f4[3 * q + 2];
             }
         }
@@ -294,26 +299,38 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
         }
     }
     /* the ring ghosts' forces to their sources on the levels stepping now (as couple_out) */
-    const int *fl = lk->src_level, *fn = lk->src_node;
-    const double *fw = lk->src_weight;
-    for (int r = 0; r < lk->nring; r++) {
-        if (!(lk->src_levels[r] & due_bits))
+    /* the lists in locals (the force stores would make the compiler reload them); the sources
+     * one run per level (sorted by level), levels not stepping now skipped */
+    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
+    const unsigned char *src_levels = lk->src_levels, *fixed = Lk->model.fixed;
+    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
+    const double *fw = lk->src_weight, *gf = c->gf;
+    double *Fl[SQ_MAX_LEVELS];
+    for (int m = 0; m < lod->L; m++)
+        Fl[m] = lod->lv[m].f;
+    for (int r = 0; r < nring; r++) {
+        if (!(src_levels[r] & due_bits))
             continue;
-        int j = lk->ring[r];
+        int j = ring[r];
         rows++;
-        double g[3] = {c->gf[3 * r], c->gf[3 * r + 1], c->gf[3 * r + 2]};
-        unsigned char fx = Lk->model.fixed[j];
+        double g[3] = {gf[3 * r], gf[3 * r + 1], gf[3 * r + 2]};
+        unsigned char fx = fixed[j];
         for (int q = 0; q < 3; q++)
             if (fx & (1u << q))
                 g[q] = 0; /* a constrained axis of a ghost does not follow its sources */
-        for (int q = lk->src_start[r]; q < lk->src_start[r + 1]; q++) {
-            int m = fl[q];
-            if (!(due_bits & (1u << m)))
+        for (int q = src_start[r], b = src_start[r + 1]; q < b;) {
+            const int m = fl[q], qe = rend[q];
+            if (!(due_bits & (1u << m))) {
+                q = qe;
                 continue;
-            double w = fw[q], *dst = lod->lv[m].f + 3 * (size_t)fn[q];
-            dst[0] += w * g[0];
-            dst[1] += w * g[1];
-            dst[2] += w * g[2];
+            }
+            double *F = Fl[m];
+            for (; q < qe; q++) {
+                double w = fw[q], *dst = F + 3 * (size_t)fn[q];
+                dst[0] += w * g[0];
+                dst[1] += w * g[1];
+                dst[2] += w * g[2];
+            }
         }
     }
     return rows;
