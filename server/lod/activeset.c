@@ -555,6 +555,37 @@ void sq_lod_flush(sq_lod *lod)
     lod->stale = 0;
 }
 
+void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
+{
+    const sq_level *Lk = &lod->lv[k];
+    /* what sq_lod_flush leaves as it is: everything when nothing is stale, a node that is not a
+     * coarse ghost, one the last cascade pushed */
+    if (!lod->stale || k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->lev[k].push_stamp[j] == lod->cascade_no) {
+        memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
+        return;
+    }
+    /* what it writes: the parent tet's corners as the flush of level k - 1 left them, a ring
+     * ghost among them at its cascade value; the same sums in the same order */
+    const sq_lod_link *ln = &lod->h.link[k - 1];
+    const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * ln->up_tet[j];
+    const double *b = ln->up_bary + 4 * j;
+    const int *ri = lod->lev[k - 1].ring_index;
+    double s[3] = {0, 0, 0};
+    for (int m = 0; m < 4; m++) {
+        double c[3];
+        const double *sd = c;
+        if (ri[tn[m]] >= 0)
+            sd = lod->lev[k - 1].cascade_value + 6 * (size_t)ri[tn[m]];
+        else
+            sq_lod_flushed_d(lod, k - 1, tn[m], c);
+        for (int a = 0; a < 3; a++)
+            s[a] += b[m] * sd[a];
+    }
+    unsigned char fx = Lk->model.fixed[j];
+    for (int a = 0; a < 3; a++)
+        d[a] = !(fx & (1u << a)) ? s[a] : 0.0;
+}
+
 void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
 {
     const sq_level *Lk = &lod->lv[k];
