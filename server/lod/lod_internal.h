@@ -272,27 +272,6 @@ struct sq_lod {
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
 
-/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
- * axes of the destination stay zero */
-static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
-{
-    const int *tn = src->model.mesh->tets + 4 * t;
-    double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-    for (int m = 0; m < 4; m++) {
-        const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
-        for (int a = 0; a < 3; a++) {
-            d[a] += b[m] * sd[a];
-            v[a] += b[m] * sv[a];
-        }
-    }
-    unsigned char fx = dst->model.fixed[i];
-    for (int a = 0; a < 3; a++) {
-        int free_axis = !(fx & (1u << a));
-        dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
-        dst->v[3 * i + a] = free_axis ? v[a] : 0.0;
-    }
-}
-
 /* 4-lane vectors (lane 3 unused) for the kernels of the tick: a node's 3 components are
  * loaded as 4 lanes, so arrays read that way have one spare double after the last node. The
  * lanes are computed with the same multiplications and additions, in the same order, as the
@@ -358,6 +337,32 @@ static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
             T[4 * c + 2] = src[6 + c];
             T[4 * c + 3] = 0;
         }
+}
+
+/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
+ * axes of the destination stay zero. The three components in the lanes of one vector, each
+ * lane summed as the scalar sums were: d += b_m d_m, m = 0..3 */
+static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
+{
+    const int *tn = src->model.mesh->tets + 4 * t;
+    sq_v4 d = {0, 0, 0, 0}, v = {0, 0, 0, 0};
+    for (int m = 0; m < 4; m++) {
+        const sq_v4 bm = v4_set1(b[m]);
+        d += bm * v4_load(src->d + 3 * (size_t)tn[m]);
+        v += bm * v4_load(src->v + 3 * (size_t)tn[m]);
+    }
+    unsigned char fx = dst->model.fixed[i];
+    double *dd = dst->d + 3 * (size_t)i, *dv = dst->v + 3 * (size_t)i;
+    if (!fx) {
+        dd[0] = d[0], dd[1] = d[1], dd[2] = d[2];
+        dv[0] = v[0], dv[1] = v[1], dv[2] = v[2];
+        return;
+    }
+    for (int a = 0; a < 3; a++) {
+        int free_axis = !(fx & (1u << a));
+        dd[a] = free_axis ? d[a] : 0.0;
+        dv[a] = free_axis ? v[a] : 0.0;
+    }
 }
 
 /* substep exponent a level runs at in the adaptive frame */
