@@ -131,8 +131,22 @@ int sq_body_probe(const sq_body *b, const double p[3], double u[3])
         if (t < 0)
             return -1;
     }
-    sq_lod_flush(b->lod);
-    sq_body_interp3(b->def.levels[k], b->level[k].d, t, bary, u);
+    if (!b->lod) {
+        sq_body_interp3(b->def.levels[k], b->level[k].d, t, bary, u);
+        return 0;
+    }
+    /* the tet's corners as a flush would leave them, without flushing the whole body; the
+     * sums of sq_body_interp3 */
+    const int *tv = b->def.levels[k]->tets + 4 * (size_t)t;
+    double f[4][3];
+    for (int q = 0; q < 4; q++)
+        sq_lod_flushed_d(b->lod, k, tv[q], f[q]);
+    u[0] = u[1] = u[2] = 0;
+    for (int q = 0; q < 4; q++) {
+        u[0] += bary[q] * f[q][0];
+        u[1] += bary[q] * f[q][1];
+        u[2] += bary[q] * f[q][2];
+    }
     return 0;
 }
 

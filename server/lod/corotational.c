@@ -37,6 +37,10 @@ struct sq_lod_corot {
     double *d0, *v0;            /* d (m), v (m/s) of the active corners of mixed tets at the start
                                  * of the level's last step (n x 3; only those nodes written) */
     long gen;                   /* lod->gen the lists were built at */
+    double **dst;               /* per listed tet and corner: where its force goes (the node's f
+                                 * if active, its ring ghost's gf, or NULL), made with the lists */
+    int dst_cap;                /* capacity of dst, tets */
+    int *mact, nmact;           /* the active corners of mixed tets, once each */
 };
 
 int sq_lodx_corot_on(const sq_lod *lod)
@@ -55,6 +59,8 @@ void sq_lodx_corot_free(sq_lod *lod, int k)
     free(c->gf);
     free(c->d0);
     free(c->v0);
+    free(c->dst);
+    free(c->mact);
     free(c);
     lod->lev[k].corot = NULL;
 }
@@ -110,6 +116,34 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
         c->gf_cap = SQ_MAX(lk->nring, 2 * c->gf_cap);
         c->gf = sq_realloc(c->gf, sizeof(double) * 3 * (size_t)c->gf_cap);
     }
+    /* the scatter's destinations, and the nodes whose start values the ticks between the
+     * level's steps read (active corners of mixed tets, each once) */
+    if (c->ntet > c->dst_cap) {
+        c->dst_cap = SQ_MAX(c->ntet, 2 * c->dst_cap);
+        c->dst = sq_realloc(c->dst, sizeof(double *) * 4 * (size_t)c->dst_cap);
+    }
+    if (!c->mact)
+        c->mact = sq_malloc(sizeof(int) * (size_t)SQ_MAX(L->model.n, 1));
+    double *f = lod->lv[k].f;
+    for (int e = 0; e < c->ntet; e++) {
+        const int *tv = m->tets + 4 * (size_t)c->tet[e];
+        for (int q = 0; q < 4; q++) {
+            int j = tv[q], r = lk->ring_index[j];
+            c->dst[4 * (size_t)e + q] = act[j] ? f + 3 * (size_t)j : (r >= 0 ? c->gf + 3 * (size_t)r : NULL);
+        }
+    }
+    unsigned char *mark = lk->mark; /* all zero between uses */
+    c->nmact = 0;
+    for (int e = 0; e < c->nmixed; e++) {
+        const int *tv = m->tets + 4 * (size_t)c->mixed[e];
+        for (int q = 0; q < 4; q++)
+            if (act[tv[q]] && !mark[tv[q]]) {
+                mark[tv[q]] = 1;
+                c->mact[c->nmact++] = tv[q];
+            }
+    }
+    for (int x = 0; x < c->nmact; x++)
+        mark[c->mact[x]] = 0;
     c->gen = lod->gen;
 }
 
@@ -143,30 +177,6 @@ static void gather(const sq_lod *lod, int k, int t, double fr, double d4[12], do
     }
 }
 
-/* element force of listed tet t with weight w: active corners into L->f, ghost corners into
- * the ring ghosts' gf */
-static void scatter(sq_lod *lod, int k, int t, double w, const double f4[12])
-{
-    sq_level *L = &lod->lv[k];
-    sq_lod_level *lk = &lod->lev[k];
-    const int *tv = L->model.mesh->tets + 4 * (size_t)t;
-    for (int q = 0; q < 4; q++) {
-        int j = tv[q];
-        double *dst;
-        if (lk->active[j]) {
-            dst = L->f + 3 * (size_t)j;
-        } else {
-            int r = lk->ring_index[j];
-            if (r < 0)
-                continue; /* not reached: a ghost corner of a mixed tet is a ring ghost */
-            dst = lk->corot->gf + 3 * (size_t)r;
-        }
-        dst[0] += w * f4[3 * q];
-        dst[1] += w * f4[3 * q + 1];
-        dst[2] += w * f4[3 * q + 2];
-    }
-}
-
 void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
 {
     sq_level *L = &lod->lv[k];
@@ -188,21 +198,18 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     if (lk->nring > 0)
         memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->nring);
     /* start values of the active corners of mixed tets, read between this step's ticks */
-    const unsigned char *act = lk->active;
-    for (int e = 0; e < c->nmixed; e++) {
-        const int *tv = m->tets + 4 * (size_t)c->mixed[e];
-        for (int q = 0; q < 4; q++)
-            if (act[tv[q]]) {
-                size_t j = 3 * (size_t)tv[q];
-                memcpy(c->d0 + j, L->d + j, 3 * sizeof(double));
-                memcpy(c->v0 + j, L->v + j, 3 * sizeof(double));
-            }
+    for (int x = 0; x < c->nmact; x++) {
+        size_t j = 3 * (size_t)c->mact[x];
+        memcpy(c->d0 + j, L->d + j, 3 * sizeof(double));
+        memcpy(c->v0 + j, L->v + j, 3 * sizeof(double));
     }
     /* four tets at a time (the vector pass's arithmetic in AVX2 builds), scattered in tet order */
+    const int *tets = m->tets;
+    const double *d = L->d, *v = L->v;
     int e2 = 0; /* position in the mixed list (both lists increase) */
     for (int e = 0; e < c->ntet; e += 4) {
         int t4[4];
-        double w4[4], D[48], V[48], F[48];
+        double w4[4] = {0, 0, 0, 0}, D[49], V[49], F[48]; /* one spare double: corners copied as 4 lanes */
         for (int l = 0; l < 4; l++) {
             t4[l] = -1;
             if (e + l >= c->ntet)
@@ -212,12 +219,36 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
             e2 += mixed;
             t4[l] = t;
             w4[l] = mixed ? 0.5 : 1.0;
-            gather(lod, k, t, 1, D + 12 * l, V + 12 * l);
+            /* the corners as stored (active nodes and ring values), 4 lanes a corner (the
+             * fourth is overwritten by the next corner, or lands in the spare slot) */
+            const int *tv = tets + 4 * (size_t)t;
+            for (int q = 0; q < 4; q++) {
+                const sq_v4 dq = v4_load(d + 3 * (size_t)tv[q]), vq = v4_load(v + 3 * (size_t)tv[q]);
+                memcpy(D + 12 * l + 3 * q, &dq, sizeof dq);
+                memcpy(V + 12 * l + 3 * q, &vq, sizeof vq);
+            }
         }
         sq_level_corot_tet_force4(L, mat, t4, D, V, 1, F);
-        for (int l = 0; l < 4; l++)
-            if (t4[l] >= 0)
-                scatter(lod, k, t4[l], w4[l], F + 12 * l);
+        /* active corners into f, ghost corners into their ring ghost's gf, in tet order */
+        for (int l = 0; l < 4; l++) {
+            if (t4[l] < 0)
+                continue;
+            double *const *dst = c->dst + 4 * (size_t)(e + l);
+            const double w = w4[l], *f4 = F + 12 * l;
+            const sq_v2 ww = {w, w};
+            for (int q = 0; q < 4; q++) {
+                double *p = dst[q];
+                if (!p)
+                    continue; /* not reached: a ghost corner of a mixed tet is a ring ghost */
+                /* p[c] += w f4[c]: x and y as one 2-lane vector */
+                sq_v2 xy, fxy;
+                memcpy(&xy, p, sizeof xy);
+                memcpy(&fxy, f4 + 3 * q, sizeof fxy);
+                xy += ww * fxy;
+                memcpy(p, &xy, sizeof xy);
+                p[2] += w * f4[3 * q + 2];
+            }
+        }
     }
 }
 
@@ -268,26 +299,38 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
         }
     }
     /* the ring ghosts' forces to their sources on the levels stepping now (as couple_out) */
-    const int *fl = lk->src_level, *fn = lk->src_node;
-    const double *fw = lk->src_weight;
-    for (int r = 0; r < lk->nring; r++) {
-        if (!(lk->src_levels[r] & due_bits))
+    /* the lists in locals (the force stores would make the compiler reload them); the sources
+     * one run per level (sorted by level), levels not stepping now skipped */
+    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
+    const unsigned char *src_levels = lk->src_levels, *fixed = Lk->model.fixed;
+    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
+    const double *fw = lk->src_weight, *gf = c->gf;
+    double *Fl[SQ_MAX_LEVELS];
+    for (int m = 0; m < lod->L; m++)
+        Fl[m] = lod->lv[m].f;
+    for (int r = 0; r < nring; r++) {
+        if (!(src_levels[r] & due_bits))
             continue;
-        int j = lk->ring[r];
+        int j = ring[r];
         rows++;
-        double g[3] = {c->gf[3 * r], c->gf[3 * r + 1], c->gf[3 * r + 2]};
-        unsigned char fx = Lk->model.fixed[j];
+        double g[3] = {gf[3 * r], gf[3 * r + 1], gf[3 * r + 2]};
+        unsigned char fx = fixed[j];
         for (int q = 0; q < 3; q++)
             if (fx & (1u << q))
                 g[q] = 0; /* a constrained axis of a ghost does not follow its sources */
-        for (int q = lk->src_start[r]; q < lk->src_start[r + 1]; q++) {
-            int m = fl[q];
-            if (!(due_bits & (1u << m)))
+        for (int q = src_start[r], b = src_start[r + 1]; q < b;) {
+            const int m = fl[q], qe = rend[q];
+            if (!(due_bits & (1u << m))) {
+                q = qe;
                 continue;
-            double w = fw[q], *dst = lod->lv[m].f + 3 * (size_t)fn[q];
-            dst[0] += w * g[0];
-            dst[1] += w * g[1];
-            dst[2] += w * g[2];
+            }
+            double *F = Fl[m];
+            for (; q < qe; q++) {
+                double w = fw[q], *dst = F + 3 * (size_t)fn[q];
+                dst[0] += w * g[0];
+                dst[1] += w * g[1];
+                dst[2] += w * g[2];
+            }
         }
     }
     return rows;

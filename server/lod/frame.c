@@ -430,6 +430,10 @@ static void tick_step(lod_frame *fr)
             sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
         } else if (lod->lev[k].due && lod->lev[k].nactive > 0) {
             fr->frontier_rows += lod->lev[k].nfrontier;
+            if (!mat->use_viscosity) { /* d + b v once per step for the row kernels */
+                sq_lodx_form_w(lod, mat, k);
+                lod->lev[k].w_ok = 1;
+            }
             /* the all-nodes force pass is vectorised, faster per node than the masked
              * one, but computes ghost rows nobody reads and needs the frontier correction
              * pass: use it once 60% of the level is active (with the frontier rows folded,
@@ -488,6 +492,8 @@ static void tick_step(lod_frame *fr)
         }
         fr->updates += lod->lev[k].nintegrated;
     }
+    for (int k = 0; k < L; k++)
+        lod->lev[k].w_ok = 0; /* d and v moved on */
 }
 
 /* (4) split/merge at the end of the frame, when every level is at the same time (see

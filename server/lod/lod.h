@@ -151,6 +151,9 @@ const int *sq_lod_active_list(const sq_lod *lod, int level, int *n);
  * follows the active set"): bring every ghost value up to date before reading a level's whole
  * field (the body's accessors call it); a no-op when nothing is out of date */
 void sq_lod_flush(sq_lod *lod);
+/* the displacement of node `node` of level `level` as sq_lod_flush would leave it, without
+ * flushing (a probe reads four nodes: a flush pushes every stale coarse ghost of the body) */
+void sq_lod_flushed_d(const sq_lod *lod, int level, int node, double d[3]);
 
 /* the material the next frames use (sq_lod_frame passes it too): lets sq_lod_energy and
  * sq_lod_sync account for the level coupling before the first frame */

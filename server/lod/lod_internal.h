@@ -139,6 +139,12 @@ typedef struct sq_lod_level {
     int krow_nchunk;
     size_t krow_mapped;         /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
     int krow_grown;             /* chunks krow opened itself, in a tick (not reserved ahead) */
+    /* d + b v of the level's active nodes and ring ghosts at the current tick (b the stiffness
+     * damping), formed once per step of the level (sq_lodx_form_w) for its row kernels, which
+     * read each node's value from about 14 blocks (3 n + 1 doubles, NULL until first used) */
+    double *w_tick;
+    int w_ok;                   /* 1: w_tick is current (set and cleared by the frame's tick; the
+                                 * kernels called with it 0 form it themselves) */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -264,29 +270,11 @@ struct sq_lod {
     long nl_gen;                         /* gen the node levels were last given out at */
     const unsigned char *nl_out;         /* ... and the buffer they went to */
     unsigned char *nlv[2];               /* scratch of sq_lod_node_levels (largest level) */
+    double *abs_sum;                     /* scratch of the coupled bound: sum of |weights| of
+                                          * each ring ghost's sources (coupling.c) */
+    int abs_cap;
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
-
-/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
- * axes of the destination stay zero */
-static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
-{
-    const int *tn = src->model.mesh->tets + 4 * t;
-    double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-    for (int m = 0; m < 4; m++) {
-        const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
-        for (int a = 0; a < 3; a++) {
-            d[a] += b[m] * sd[a];
-            v[a] += b[m] * sv[a];
-        }
-    }
-    unsigned char fx = dst->model.fixed[i];
-    for (int a = 0; a < 3; a++) {
-        int free_axis = !(fx & (1u << a));
-        dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
-        dst->v[3 * i + a] = free_axis ? v[a] : 0.0;
-    }
-}
 
 /* 4-lane vectors (lane 3 unused) for the kernels of the tick: a node's 3 components are
  * loaded as 4 lanes, so arrays read that way have one spare double after the last node. The
@@ -333,6 +321,15 @@ typedef double sq_v2 __attribute__((vector_size(16)));
         v4t_ + v4_load(v4T_ + 8) * V4_LANE(v4w_, 2);                                                               \
     })
 
+/* the same with w given as 3 doubles at W (each broadcast from memory): the same products and
+ * sums, lane by lane */
+#define v4_block_s(T, W)                                                                                           \
+    ({                                                                                                             \
+        const double *v4T_ = (T), *v4W_ = (W);                                                                     \
+        const sq_v4 v4t_ = v4_load(v4T_) * v4_set1(v4W_[0]) + v4_load(v4T_ + 4) * v4_set1(v4W_[1]);             \
+        v4t_ + v4_load(v4T_ + 8) * v4_set1(v4W_[2]);                                                               \
+    })
+
 /* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
  * (B2 B5 B8), each padded to 4 lanes with a zero */
 static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
@@ -344,6 +341,32 @@ static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
             T[4 * c + 2] = src[6 + c];
             T[4 * c + 3] = 0;
         }
+}
+
+/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
+ * axes of the destination stay zero. The three components in the lanes of one vector, each
+ * lane summed as the scalar sums were: d += b_m d_m, m = 0..3 */
+static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
+{
+    const int *tn = src->model.mesh->tets + 4 * t;
+    sq_v4 d = {0, 0, 0, 0}, v = {0, 0, 0, 0};
+    for (int m = 0; m < 4; m++) {
+        const sq_v4 bm = v4_set1(b[m]);
+        d += bm * v4_load(src->d + 3 * (size_t)tn[m]);
+        v += bm * v4_load(src->v + 3 * (size_t)tn[m]);
+    }
+    unsigned char fx = dst->model.fixed[i];
+    double *dd = dst->d + 3 * (size_t)i, *dv = dst->v + 3 * (size_t)i;
+    if (!fx) {
+        dd[0] = d[0], dd[1] = d[1], dd[2] = d[2];
+        dv[0] = v[0], dv[1] = v[1], dv[2] = v[2];
+        return;
+    }
+    for (int a = 0; a < 3; a++) {
+        int free_axis = !(fx & (1u << a));
+        dd[a] = free_axis ? d[a] : 0.0;
+        dv[a] = free_axis ? v[a] : 0.0;
+    }
 }
 
 /* substep exponent a level runs at in the adaptive frame */
@@ -459,6 +482,9 @@ void sq_lodx_level_lists(sq_lod *lod, int k);
 void sq_lodx_refresh_lists(sq_lod *lod);
 void sq_lodx_mask_list(sq_lod *lod, int k);
 void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
+/* w_tick of level k (active nodes and ring ghosts) = d + b v, b the material's stiffness
+ * damping: what the row kernels of a due linear level without viscosity read */
+void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_integrate(sq_lod *lod, int k, double dt);
 void sq_lodx_save_prev(sq_lod *lod, int k);
 void sq_lodx_push_needed(sq_lod *lod);

@@ -316,7 +316,8 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         sq_v4 acc = {0, 0, 0, 0};
         const int e0 = lk->ring_off[r], e1 = lk->ring_off[r + 1];
         if (fr >= 1) {
-            /* the level at the end of its step (the common case): its current values */
+            /* the level at the end of its step (without viscosity sq_lodx_couple_out does
+             * this itself, from d + b v formed once for the step) */
             for (int e = e0; e < e1; e++) {
                 const size_t j = 3 * (size_t)col[e];
                 acc -= v4_block(T + 12 * (size_t)e, v4_load(d + j) + bb * v4_load(v + j));
@@ -386,15 +387,45 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     const unsigned char *src_levels = lk->src_levels;
     const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
     const double *fw = lk->src_weight;
+    /* the level at the end of its step without viscosity (the common case): the ring rows
+     * here, from d + b v formed once for the step (sq_lodx_form_w); the others by ring_force */
+    const int fast = fr >= 1 && !mat->use_viscosity;
+    if (fast && !lk->w_ok) /* called outside the frame's tick */
+        sq_lodx_form_w(lod, mat, k);
+    const double *restrict W = lk->w_tick, *T = lk->ring_T;
+    const int *col = lk->ring_col, *roff = lk->ring_off;
+    const unsigned char *fixed = Lk->model.fixed;
+    double *Fl[SQ_MAX_LEVELS];
+    for (int m = 0; m < lod->L; m++)
+        Fl[m] = lod->lv[m].f;
     for (int r = 0; r < nring; r++) {
         int j = ring[r];
         int a = src_start[r], b = src_start[r + 1];
         if (!(src_levels[r] & due_bits))
             continue;
         double g[3];
-        ring_force(lod, mat, k, r, fr, g);
+        if (fast) {
+            /* -(K w) over the row in column form, each lane summed as the scalar rows were:
+             * g_r -= (K_r0 w0 + K_r1 w1) + K_r2 w2, two blocks a turn in row order */
+            sq_v4 acc = {0, 0, 0, 0};
+            int e = roff[r];
+            const int e1 = roff[r + 1];
+            for (; e + 1 < e1; e += 2) {
+                const sq_v4 x0 = v4_block_s(T + 12 * (size_t)e, W + 3 * (size_t)col[e]);
+                const sq_v4 x1 = v4_block_s(T + 12 * (size_t)e + 12, W + 3 * (size_t)col[e + 1]);
+                acc -= x0;
+                acc -= x1;
+            }
+            if (e < e1)
+                acc -= v4_block_s(T + 12 * (size_t)e, W + 3 * (size_t)col[e]);
+            g[0] = acc[0];
+            g[1] = acc[1];
+            g[2] = acc[2];
+        } else {
+            ring_force(lod, mat, k, r, fr, g);
+        }
         rows++;
-        unsigned char fx = Lk->model.fixed[j];
+        unsigned char fx = fixed[j];
         if (fx)
             for (int c = 0; c < 3; c++)
                 if (fx & (1u << c))
@@ -407,7 +438,7 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
                 q = qe;
                 continue;
             }
-            double *F = lod->lv[m].f;
+            double *F = Fl[m];
             for (; q < qe; q++) {
                 /* dst[c] += w g[c]: x and y as one 2-lane vector */
                 double w = fw[q], *dst = F + 3 * (size_t)fn[q];

@@ -438,6 +438,7 @@ void sq_lod_destroy(sq_lod *lod)
     }
     free(lod->nlv[0]);
     free(lod->nlv[1]);
+    free(lod->abs_sum);
     free(lod->he);
     free(lod->hold_entry_of);
     sq_hierarchy_free(&lod->h);

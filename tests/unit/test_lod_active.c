@@ -52,12 +52,24 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
     sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
     TH_REQUIRE(b[0] && b[1]);
     long diff_frames = 0, max_fine = 0, splits = 0, merges = 0, bad_levels = 0;
+    long stale_frames = 0, bad_flushed = 0; /* sq_lod_flushed_d against the flush itself */
+    double *pre[4] = {NULL};
+    for (int k = 1; k < 4; k++) {
+        pre[k] = malloc(sizeof(double) * 3 * (size_t)m[k]->nnodes);
+        TH_REQUIRE(pre[k]);
+    }
     for (int f = 0; f < 120; f++) {
         sq_tool tool = moving_poke(f * def.frame_dt);
         sq_frame_profile p[2];
         for (int i = 0; i < 2; i++)
             sq_body_frame(b[i], &tool, 1, NULL, &p[i], 0);
+        stale_frames += b[0]->lod->stale != 0;
+        for (int k = 1; k < 4; k++)
+            for (int j = 0; j < m[k]->nnodes; j++)
+                sq_lod_flushed_d(b[0]->lod, k, j, pre[k] + 3 * (size_t)j);
         sq_lod_flush(b[0]->lod);
+        for (int k = 1; k < 4; k++)
+            bad_flushed += memcmp(pre[k], b[0]->level[k].d, sizeof(double) * 3 * (size_t)m[k]->nnodes) != 0;
         diff_frames += p[0].node_updates != p[1].node_updates || p[0].active[3] != p[1].active[3] ||
                        p[0].splits != p[1].splits || p[0].merges != p[1].merges;
         max_fine = SQ_MAX(max_fine, p[0].active[3]);
@@ -87,6 +99,9 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
     CHECK(diff_frames == 0);
     CHECK(same);
     CHECK(bad_levels == 0);
+    CHECK(stale_frames > 0 && bad_flushed == 0);
+    for (int k = 1; k < 4; k++)
+        free(pre[k]);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
     free4(m);
