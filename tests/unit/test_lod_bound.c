@@ -133,6 +133,20 @@ static double *dense_operator(sq_lod *lod, const sq_material *mat, const dof *do
     return A;
 }
 
+/* the bent cube's material (mu 40 kPa, lambda 100 kPa, 1000 kg/m^3), Rayleigh damped or not */
+static sq_material bent_material(int damped)
+{
+    sq_material mat = {0};
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    if (damped) {
+        mat.rayleigh_mass = 2;
+        mat.rayleigh_stiffness = 1e-3;
+    }
+    return mat;
+}
+
 /* three cube levels (2, 4 jittered, 6 cells), bottom fixed, a bent field refined in part */
 static sq_lod *bent_lod(sq_mesh **m, sq_level *lv, const sq_material *mat)
 {
@@ -176,10 +190,7 @@ static sq_lod *bent_lod(sq_mesh **m, sq_level *lv, const sq_material *mat)
 
 SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
 {
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000; /* undamped: the bound is 2 / omega */
+    sq_material mat = bent_material(0); /* undamped: the bound is 2 / omega */
     sq_mesh *m[3] = {NULL, NULL, NULL};
     sq_level lv[3];
     memset(lv, 0, sizeof lv);
@@ -358,12 +369,7 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
  * Gershgorin rule both ways) */
 SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
 {
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
-    mat.rayleigh_mass = 2;
-    mat.rayleigh_stiffness = 1e-3;
+    sq_material mat = bent_material(1);
     sq_mesh *m[3] = {NULL, NULL, NULL};
     sq_level lv[3];
     memset(lv, 0, sizeof lv);
@@ -406,12 +412,7 @@ SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
  * unlimited pass makes (nothing of the attempt is kept); skipped levels stay owed */
 SQ_TEST(lod_sharp_estimate_past_its_deadline_keeps_gershgorin_until_made)
 {
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
-    mat.rayleigh_mass = 2;
-    mat.rayleigh_stiffness = 1e-3;
+    sq_material mat = bent_material(1);
     sq_mesh *m[3][3] = {{NULL}};
     sq_level lv[3][3];
     memset(lv, 0, sizeof lv);
