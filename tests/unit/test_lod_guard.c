@@ -216,6 +216,136 @@ SQ_TEST(lod_guard_merges_least_needed_first)
         sq_mesh_free(m[k]);
 }
 
+/* A region a tool holds (the node or one of its children carries a hold) is the guard's
+ * last to merge, and the swap (sq_lodx_guard_merge_below) merges only regions needed less
+ * than its bound, never a held one: after a poke refines a body (no budget), merging with
+ * the bound at the median need of the unheld mergeable regions takes exactly the unheld
+ * ones below it; merging all but the held ones with no bound (sq_lodx_guard_merge, as
+ * many as the unheld left) keeps every held region, however little needed. */
+SQ_TEST(lod_guard_keeps_held_regions_and_swaps_below_a_need)
+{
+    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
+    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.02, 0.004);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    TH_REQUIRE(b);
+    sq_frame_profile p;
+    for (int f = 0; f < 25; f++) {
+        sq_tool tool = lh_sphere(0.5, 0.5, 1.2 - 0.1 * SQ_MIN(f / 20.0, 1.0), 0.2, 1);
+        sq_body_frame(b, &tool, 1, NULL, &p, 0);
+    }
+    sq_lod *lod = b->lod;
+    sq_lod_flush(lod);
+    /* the mergeable regions of levels 0 and 1, their needs and whether a tool holds them */
+    double *need[2];
+    int *held[2], cand = 0, nheld = 0, nun = 0;
+    double unheld_need[4096];
+    for (int k = 0; k < 2; k++) {
+        int n = m[k]->nnodes;
+        const sq_lod_link *ln = &lod->h.link[k];
+        need[k] = malloc(sizeof(double) * (size_t)n);
+        held[k] = calloc((size_t)n, sizeof(int));
+        for (int q = 0; q < n; q++) {
+            need[k][q] = -1;
+            if (lod->lev[k].state[q] != ST_SPLIT)
+                continue;
+            int ok = 1;
+            for (int c = ln->child_start[q]; c < ln->child_start[q + 1] && ok; c++)
+                ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
+            if (!ok)
+                continue;
+            need[k][q] = sq_lodx_need(lod, k, q);
+            for (int c = ln->child_start[q]; c < ln->child_start[q + 1]; c++)
+                held[k][q] |= lod->lev[k + 1].hold_of[ln->child[c]] >= 0;
+            nheld += held[k][q];
+            cand++;
+        }
+    }
+    /* a frame's holds are let go at its end: hold the least needed region as a tool would
+     * (a hold entry on its first child) */
+    int hk = -1, hq = -1, hc = -1;
+    for (int k = 0; k < 2; k++)
+        for (int q = 0; q < m[k]->nnodes; q++)
+            if (need[k][q] >= 0 && !held[k][q] && (hk < 0 || need[k][q] < need[hk][hq])) {
+                hk = k;
+                hq = q;
+            }
+    CHECK(hk >= 0);
+    if (hk < 0)
+        return;
+    hc = lod->h.link[hk].child[lod->h.link[hk].child_start[hq]];
+    int hold_was = lod->lev[hk + 1].hold_of[hc];
+    lod->lev[hk + 1].hold_of[hc] = 0;
+    held[hk][hq] = 1;
+    nheld++;
+    nun = 0;
+    for (int k = 0; k < 2; k++)
+        for (int q = 0; q < m[k]->nnodes; q++)
+            if (need[k][q] >= 0 && !held[k][q] && nun < 4096)
+                unheld_need[nun++] = need[k][q];
+    CHECK(nheld > 0 && nun > 3 && nun == cand - nheld);
+    double *sorted = malloc(sizeof(double) * (size_t)SQ_MAX(nun, 1));
+    memcpy(sorted, unheld_need, sizeof(double) * (size_t)nun);
+    for (int i = 1; i < nun; i++) /* (insertion sort: a few dozen) */
+        for (int j = i; j > 0 && sorted[j - 1] > sorted[j]; j--) {
+            double t = sorted[j];
+            sorted[j] = sorted[j - 1];
+            sorted[j - 1] = t;
+        }
+    double bound = sorted[nun / 2];
+    int below = 0;
+    for (int i = 0; i < nun; i++)
+        below += sorted[i] < bound;
+    /* the swap: cap 0, as many merges as regions below the bound (one round: the regions
+     * mergeable now), only needs under the bound */
+    long projected = sq_lod_projected_updates(lod);
+    adapt_out ao;
+    memset(&ao, 0, sizeof ao);
+    long made = sq_lodx_guard_merge_below(lod, 0, &projected, &ao, 7, below, bound);
+    int merged = 0, merged_held = 0, merged_over = 0;
+    for (int k = 0; k < 2; k++)
+        for (int q = 0; q < m[k]->nnodes; q++)
+            if (need[k][q] >= 0 && lod->lev[k].state[q] == ST_ACTIVE) {
+                merged++;
+                merged_held += held[k][q];
+                merged_over += need[k][q] >= bound;
+            }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "held: %d mergeable, %d held; swap below %.3g m: %ld merged (%d below it)\n", cand, nheld,
+                bound, made, below);
+    CHECK(merged_held == 0); /* the swap never merges a held region */
+    CHECK(merged_over == 0); /* nor one needed as much as its bound */
+    CHECK(made == below && merged == below && below > 0); /* every unheld region below it */
+    /* no bound: as many merges as unheld regions are left among the first ones; the held last */
+    int left = nun - merged;
+    CHECK(left > 0);
+    sq_lodx_guard_merge(lod, 0, &projected, &ao, 7, left);
+    merged_held = 0;
+    for (int k = 0; k < 2; k++)
+        for (int q = 0; q < m[k]->nnodes; q++)
+            if (need[k][q] >= 0 && held[k][q] && lod->lev[k].state[q] == ST_ACTIVE)
+                merged_held++;
+    CHECK(merged_held == 0);
+    CHECK(lod->lev[hk].state[hq] == ST_SPLIT); /* the least needed region, held, kept */
+    lod->lev[hk + 1].hold_of[hc] = hold_was;
+    for (int k = 0; k < 3; k++)
+        if (ao.changed[k])
+            sq_lodx_rebuild_level(lod, k);
+    sq_lod_sync(lod);
+    CHECK(sq_lod_check(lod, &e) == 0);
+    free(sorted);
+    for (int k = 0; k < 2; k++) {
+        free(need[k]);
+        free(held[k]);
+    }
+    sq_body_destroy(b);
+    for (int k = 0; k < 3; k++)
+        sq_mesh_free(m[k]);
+}
+
 /* The sharp step estimate is made again only for a level whose operator changed: a rebuild
  * of every level with no change of state estimates nothing and keeps every level's substeps;
  * after sq_lodx_sharp_invalidate the same rebuild estimates every level with active nodes
