@@ -674,35 +674,15 @@ double sq_lodx_need(const sq_lod *lod, int k, int p)
     return m;
 }
 
-/* 1 when a tool holds node p of level k (active) or one of its children (split): the guard
- * keeps such a region before any other (merged last, split first), whatever its criterion:
- * the criterion sees a contact only once the surface has deformed, and on box-big the
- * stroke's sphere then pushed a coarse node by centimetres */
-static int held_region(const sq_lod *lod, int k, int p)
-{
-    if (lod->lev[k].hold_of && lod->lev[k].hold_of[p] >= 0)
-        return 1;
-    if (k + 1 >= lod->L || !lod->lev[k + 1].hold_of)
-        return 0;
-    const sq_lod_link *ln = &lod->h.link[k];
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
-        if (lod->lev[k + 1].hold_of[ln->child[c]] >= 0)
-            return 1;
-    return 0;
-}
-
 typedef struct merge_cand {
     double need;
-    int k, p, held;
+    int k, p;
 } merge_cand;
 
-/* not held first, then least needed first; ties: finer level first, then node order
- * (deterministic) */
+/* least needed first; ties: finer level first, then node order (deterministic) */
 static int cmp_cand(const void *pa, const void *pb)
 {
     const merge_cand *a = pa, *b = pb;
-    if (a->held != b->held)
-        return a->held - b->held;
     if (a->need != b->need)
         return a->need < b->need ? -1 : 1;
     if (a->k != b->k)
@@ -711,33 +691,6 @@ static int cmp_cand(const void *pa, const void *pb)
 }
 
 long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most)
-{
-    return sq_lodx_guard_merge_below(lod, cap, projected, out, rest, most, INFINITY);
-}
-
-double sq_lodx_split_wanted(const sq_lod *lod)
-{
-    double best = 0;
-    if (lod->def.split <= 0 || !(lod->def.split < INFINITY))
-        return 0;
-    for (int k = 0; k < lod->top; k++) {
-        const sq_lod_level *lk = &lod->lev[k];
-        for (int a = 0; a < lk->nactive; a++) {
-            int i = lk->active_list[a];
-            if (lk->state[i] != ST_ACTIVE || lod->h.link[k].child_start[i] == lod->h.link[k].child_start[i + 1])
-                continue;
-            if (lod->guard_hold[k] && lod->guard_hold[k][i] > lod->guard_clock)
-                continue; /* resting */
-            double d = need_delta(lod, k, i);
-            if (d > lod->def.split)
-                best = fmax(best, d);
-        }
-    }
-    return best;
-}
-
-long sq_lodx_guard_merge_below(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most,
-                               double need_below)
 {
     long made = 0;
     while (*projected > cap && made < most) {
@@ -758,13 +711,8 @@ long sq_lodx_guard_merge_below(sq_lod *lod, long cap, long *projected, adapt_out
                     cand = sq_realloc(cand, sizeof(merge_cand) * (size_t)capc);
                 }
                 cand[nc].need = sq_lodx_need(lod, k, p);
-                if (!(cand[nc].need < need_below))
-                    continue;
                 cand[nc].k = k;
                 cand[nc].p = p;
-                cand[nc].held = held_region(lod, k, p);
-                if (cand[nc].held && need_below < INFINITY)
-                    continue; /* a swap never merges a held region */
                 nc++;
             }
         }
@@ -798,18 +746,14 @@ long sq_lodx_guard_merge_below(sq_lod *lod, long cap, long *projected, adapt_out
 typedef struct lim_cand {
     double need;
     int p, split; /* 1: an active node over the split threshold, 0: a mergeable split node */
-    int held;     /* a tool holds the node or a child (held_region) */
 } lim_cand;
 
-/* merges first, least needed first; then splits, most needed first; a held region's merge
- * last among the merges, its split first among the splits; ties in node order */
+/* merges first, least needed first; then splits, most needed first; ties in node order */
 static int cmp_lim(const void *pa, const void *pb)
 {
     const lim_cand *a = pa, *b = pb;
     if (a->split != b->split)
         return a->split - b->split;
-    if (a->held != b->held)
-        return (a->split ? a->held > b->held : a->held < b->held) ? -1 : 1;
     if (a->need != b->need)
         return (a->split ? a->need > b->need : a->need < b->need) ? -1 : 1;
     return (a->p > b->p) - (a->p < b->p);
@@ -834,7 +778,7 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
                 continue; /* ghost or resting */
             double d = need_delta(lod, k, i);
             if (d > def->split)
-                c[nc++] = (lim_cand){d, i, 1, held_region(lod, k, i)};
+                c[nc++] = (lim_cand){d, i, 1};
         }
     for (int a = 0; a < lk->nsplit_ghost; a++) {
         int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
@@ -844,7 +788,7 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
             continue;
         double need = sq_lodx_need(lod, k, p);
         if (need < def->merge)
-            c[nc++] = (lim_cand){need, p, 0, held_region(lod, k, p)};
+            c[nc++] = (lim_cand){need, p, 0};
     }
     if (nc <= most) {
         free(c);

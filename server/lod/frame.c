@@ -102,20 +102,9 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
  *     of the budget (the node-update cap of sq_lodx_adapt_pair);
  *   - when the next frame would not fit even without a pass, the least needed regions merge
  *     (this frame, as many as its rebuild allows, the rest at the start of the next);
- *   - while a split over the threshold waits at the cap, regions needed far less (under
- *     the threshold and SWAP_RATIO of that split's need) merge, a few a frame (the swap);
- *   - a region a tool holds is merged last and split first (sq_lodx_guard_merge, _limit);
- *   - the next frame always leaves room for a pass of every level (updates_with_a_pass);
  *   - a region the guard merged rests REST_FRAMES frames before it may split again. */
-#define SPLIT_HEADROOM 0.95
+#define SPLIT_HEADROOM 0.8
 #define REST_FRAMES 25
-#define SWAP_AT 0.9     /* a split over the threshold waits and the next frame is past this share
-                         * of the split cap: */
-#define SWAP_TO 0.8     /* regions merge down to this share of it, */
-#define SWAP_RATIO 0.25 /* those needed less than the threshold and less than this share of the
-                         * most needed waiting split (never a region a tool holds), */
-#define SWAP_MOST 16    /* at most this many a frame, least needed first */
-#define FEW_CHANGES 8 /* a pass that changes fewer nodes of a level measures its floor */
 #define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
                           * within 1.1 x, the worst 1.57 x */
 
@@ -198,15 +187,6 @@ static long updates_fitting(const sq_lod *lod, double seconds)
     return fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 0L);
 }
 
-/* node updates the next frame may have and still leave room for a split/merge pass of every
- * level (PASS_MARGIN x its model, before its changed nodes): a layout that fills the budget
- * with ticks leaves no frame a pass fits in, and then neither splits nor merges follow the
- * tools (box-big: frozen for 80 frames after one large split pass) */
-static long updates_with_a_pass(const sq_lod *lod, double seconds)
-{
-    return updates_fitting(lod, seconds - PASS_MARGIN * pass_cost(lod, all_levels(lod), 0));
-}
-
 /* levels whose layout changed (ao.changed) rebuilt, then the coupling over the new layout:
  * one split/merge pass, its parts timed for the cost model. With the guard on (measured
  * costs), the pass's sharp estimates end where the frame must go on to fit its budget: the
@@ -273,19 +253,11 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
             continue;
         if (mask & (1u << k))
             learn_pass(lod, &lod->cost_level[k], t_level[k]);
-        if (nchg[k] < FEW_CHANGES) {
-            /* none or a few changed nodes: the build is its floor (which grows with the level's
-             * active set); divided by a few nodes it would read as 100-300 us per change on
-             * box-big (against 5-20 us in passes of dozens) and hold the splits back */
+        if (nchg[k] == 0)
             learn_pass(lod, &lod->cost_blocks[k], lod->lev[k].blocks_cpu);
-        } else {
-            double per = fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k];
-            if (!lod->cost_change_seen[k] && !lod->cost_given)
-                lod->cost_block_change[k] = per; /* the first measurement replaces the start value */
-            else
-                learn_pass(lod, &lod->cost_block_change[k], per);
-            lod->cost_change_seen[k] = 1;
-        }
+        else
+            learn_pass(lod, &lod->cost_block_change[k],
+                  fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
     }
     learn_pass(lod, &lod->cost_bound, lod->bound_cpu);
     learn_pass(lod, &lod->cost_couple, couple);
@@ -376,7 +348,7 @@ static void stage_guard(lod_frame *fr)
     fr->guard_on = lod->cost_update > 0;
     if (fr->guard_on) {
         /* the layout must fit without a pass; level 0 alone, the cheapest layout */
-        fr->cap_guard = updates_with_a_pass(lod, fr->fr_budget);
+        fr->cap_guard = updates_fitting(lod, fr->fr_budget);
         fr->coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
                                                      (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     }
@@ -548,7 +520,7 @@ static void stage_criterion(lod_frame *fr)
      * is paid */
     double used = lod->cost_given ? lod->cost_update * (double)fr->updates + fr->modeled_pass : now - fr->c_start;
     double left = B - used - lod->cost_fixed;
-    long keep = updates_with_a_pass(lod, B);
+    long keep = updates_fitting(lod, B);
     long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - PASS_MARGIN * pass_cost(lod, all_levels(lod), 0));
     if (fr->cap_user > 0) {
         keep = SQ_MIN(keep, fr->cap_user);
@@ -584,24 +556,6 @@ static void stage_criterion(lod_frame *fr)
         sched = now_sched;
     }
     lod->def.max_node_updates = fr->cap_user;
-    if (!fr->over_budget && split_cap > 0 && fr->projected > SWAP_AT * (double)split_cap) {
-        /* splits over the threshold wait at the cap while regions far less needed hold the
-         * updates (the criterion keeps a region until its need falls under the merge
-         * threshold): those merge, least needed first, a few a frame, and rest, so the most
-         * needed regions get the finer levels (box-big: the press's region stayed fine while
-         * the stroke's path was left coarse) */
-        double want = sq_lodx_split_wanted(lod);
-        if (want > 0) {
-            double pc = PASS_MARGIN * pass_cost(lod, all_levels(lod), sched), rc = 0;
-            for (int k = 0; k + 1 < L; k++)
-                rc = fmax(rc, PASS_MARGIN * region_cost(lod, k));
-            long most = rc > 0 ? (long)fmin(SWAP_MOST, (left - pc) / rc) : SWAP_MOST;
-            if (most > 0)
-                fr->guard_merges += sq_lodx_guard_merge_below(lod, (long)(SWAP_TO * (double)split_cap), &fr->projected,
-                                                              &fr->ao, REST_FRAMES, most,
-                                                              fmax(lod->def.split, SWAP_RATIO * want));
-        }
-    }
     if (fr->projected > keep) {
         /* the next frame would not fit even without a pass: merge the least needed regions,
          * as many as this frame can rebuild (the next frame's layout stage merges the rest) */

@@ -218,7 +218,6 @@ struct sq_lod {
     double cost_blocks[SQ_MAX_LEVELS];   /* a pass's block build of level k with no node
                                           * changed (calibration), s */
     double cost_block_change[SQ_MAX_LEVELS]; /* ... and per changed node of level k, s */
-    int cost_change_seen[SQ_MAX_LEVELS];  /* a pass changed enough nodes of level k to measure it */
     double cost_bound;                   /* a pass's coupled bound (Gershgorin, sharp), s */
     double cost_outside;                 /* the thread's time between two frames (the body's
                                           * work around the lod frame), at most a quarter period, s */
@@ -381,13 +380,6 @@ typedef struct adapt_out {
  * `rest` frames before it may split again. Returns the merges made (levels changed in
  * out->changed). */
 long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most);
-/* ... only regions whose need is below `need_below` (the guard's swap: regions the criterion
- * keeps only by its hysteresis give way to a split over the threshold) */
-long sq_lodx_guard_merge_below(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most,
-                               double need_below);
-/* the largest criterion over the active (not resting) nodes of the levels below the top that
- * are over the split threshold: the most needed split waiting; 0 when none */
-double sq_lodx_split_wanted(const sq_lod *lod);
 /* activeset.c, the guard: when the split/merge pass of levels k, k+1 would change more than
  * `most` regions, keep the merges the criterion wants (least needed first) and then its splits
  * (most needed first) up to `most`, and hold the others out of the pass (their state masked
