@@ -365,6 +365,29 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
     double sum_ref = 0;
     long cnt_ref = 0;
     double period = 1.0 / scene->frame_rate;
+    /* debugging: SQ_TRADEOFF_REF=FILE keeps the reference's samples in FILE (written by the
+     * first run, read by later ones instead of stepping it); SQ_TRADEOFF_TRACE=1 prints each
+     * frame of a budgeted run (error, CPU, active nodes per level) on stderr */
+    const char *ref_file = getenv("SQ_TRADEOFF_REF");
+    int trace = getenv("SQ_TRADEOFF_TRACE") ? atoi(getenv("SQ_TRADEOFF_TRACE")) : 0;
+    trace = trace > 1 || (trace > 0 && budget_s > 0);
+    size_t nu = 3 * (size_t)ref->ntotal * (size_t)(ref->nframes + 1);
+    size_t np = 3 * (size_t)(ref->nprobes + 1) * (size_t)(ref->nframes + 1);
+    if (record && ref_file) {
+        FILE *rf = fopen(ref_file, "rb");
+        if (rf) {
+            int okr = fread(ref->u, sizeof(double), nu, rf) == nu && fread(ref->probe, sizeof(double), np, rf) == np &&
+                      fread(&ref->rms_ref, sizeof(double), 1, rf) == 1 && fread(&ref->max_ref, sizeof(double), 1, rf) == 1;
+            fclose(rf);
+            if (okr) {
+                r->frames = ref->nframes;
+                r->ok = 1;
+                free(u);
+                sq_world_destroy(w);
+                return 0;
+            }
+        }
+    }
     for (long f = 1; f <= ref->nframes; f++) {
         double t0 = sq_now(), c0 = sq_thread_cpu();
         sq_world_step(w, budget_s); /* 0: no budget (deterministic); > 0: the live budget, the guard on */
@@ -424,11 +447,27 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
                 r->probe_err = isfinite(e) ? fmax(r->probe_err, e) : INFINITY;
             }
         }
+        if (trace) {
+            fprintf(stderr, "frame %3ld rms %.3f mm max %.2f mm cpu %.2f ms active", f,
+                    1e3 * sqrt(fs / SQ_MAX(1, ref->ntotal)), 1e3 * fm, 1e3 * c);
+            for (int k = 0; k < SQ_MAX_LEVELS && k < 4; k++)
+                fprintf(stderr, " %d", w->profile[0].active[k]);
+            fprintf(stderr, " splits %d merges %d refused %d\n", w->profile[0].splits, w->profile[0].merges,
+                    w->profile[0].splits_refused);
+        }
         *prog_done += 1;
         sq_progress_update(prog, *prog_done);
     }
     if (record) {
         ref->rms_ref = cnt_ref ? sqrt(sum_ref / cnt_ref) : 0;
+        FILE *rf = ref_file ? fopen(ref_file, "wb") : NULL;
+        if (rf) {
+            fwrite(ref->u, sizeof(double), nu, rf);
+            fwrite(ref->probe, sizeof(double), np, rf);
+            fwrite(&ref->rms_ref, sizeof(double), 1, rf);
+            fwrite(&ref->max_ref, sizeof(double), 1, rf);
+            fclose(rf);
+        }
     }
     r->frames = ref->nframes;
     r->sim_s = w->time;
@@ -857,6 +896,10 @@ int sq_cmd_tradeoff(int argc, char **argv)
     for (int i = 0; i < n; i++) {
         if (i == gmed)
             continue; /* not a run: the medians of the guarded runs, below */
+        if (i > 0 && getenv("SQ_TRADEOFF_ONLY_GUARDED") && strcmp(v[i].kind, getenv("SQ_TRADEOFF_ONLY_GUARDED"))) {
+            done += nframes; /* debugging: only the reference and the runs with the live budget */
+            continue;
+        }
         if (i > 0 && !strcmp(v[i].kind, "fixed") && v[i].level == finest && v[i].fraction == v[0].fraction &&
             r[0].ok) {
             /* the same run as the reference (--reference-step 0.9): its numbers, zero error */
