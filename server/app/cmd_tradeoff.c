@@ -1033,6 +1033,18 @@ int sq_cmd_tradeoff(int argc, char **argv)
                 if (fine >= 0)
                     fprintf(f, "; vs fixed L%d (rms %.3g m): x%.2f updates, x%.2f wall", finest, r[fine].rms,
                             r[fine].ups / r[i].ups, r[fine].wps / r[i].wps);
+                /* the equal-error rule takes the cheapest fixed level at or below the adaptive
+                 * error, so a setting a little more accurate than a level is compared with the
+                 * next finer one; name also the cheapest level within 1.5x its error, in CPU time */
+                int near = -1;
+                for (int j = 0; j < n; j++)
+                    if (!strcmp(v[j].kind, "fixed") && r[j].ok && r[j].rms <= 1.5 * r[i].rms &&
+                        (near < 0 || r[j].cps < r[near].cps))
+                        near = j;
+                if (near >= 0 && r[i].cps > 0)
+                    fprintf(f, "; cheapest fixed level within 1.5x its error: L%d (rms %.3g m, %.3g CPU s/s: x%.2f "
+                               "the adaptive CPU time)",
+                            v[near].level, r[near].rms, r[near].cps, r[near].cps / r[i].cps);
                 fprintf(f, "\n");
             }
             if (besti >= 0)

@@ -63,6 +63,12 @@ check "no resets in any setting" bash -c "! tail -n +2 '$tcsv' | awk -F, '\$19 !
 check "tradeoff.png is a PNG" bash -c "head -c 8 '$TMP/to/tradeoff.png' | od -An -tx1 | tr -d ' \n' | grep -q '^89504e470d0a1a0a'"
 check "tradeoff.png not tiny" [ "$(stat -c %s "$TMP/to/tradeoff.png")" -gt 10000 ]
 check "summary names the headline" grep -q '^headline: ' "$TMP/to/summary.txt"
+# each adaptive setting also names the cheapest fixed level within 1.5x its error, in CPU time
+# (its error printed to 3 digits: 1 % slack on the 1.5x)
+check "summary: each adaptive setting's cheapest fixed level within 1.5x its error" \
+    bash -c "grep '^  adaptive split' '$TMP/to/summary.txt' | awk '{ a = \$0; sub(/.* rms /, \"\", a); split(a, x, \" \");
+        b = \$0; if (!sub(/.*within 1.5x its error: L[0-9]+ \\(rms /, \"\", b)) bad++; split(b, y, \" \");
+        if (!(y[1] + 0 <= 1.5 * 1.01 * x[1])) bad++; n++ } END { exit (n < 1 || bad > 0) }'"
 
 # --reference-step 0.9: the reference is the fixed finest run itself, reused for the fixed L2 row
 # (same cost, zero error), and the header says which step the reference took
