@@ -169,6 +169,7 @@ typedef struct op_ctx {
     double *u[SQ_MAX_LEVELS]; /* values of each level's nodes under the product (3 n_m) */
     double *y;           /* unscaled product, compact */
     int scratch;         /* 1: idx and u are the lod_sharp's kept arrays (ctx_free cleans them) */
+    const double *dense; /* tests (sq_lodx_sharp_lanczos_dense): this 3 nact x 3 nact matrix instead */
 } op_ctx;
 
 /* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
@@ -245,6 +246,16 @@ static double row_sums(op_ctx *c)
 /* yc = M^-1/2 (A_kk + C_k) M^-1/2 xc over the free axes of level k's active nodes */
 static void op_apply(op_ctx *c, const double *xc, double *yc)
 {
+    if (c->dense) {
+        size_t N = 3 * (size_t)c->nact;
+        for (size_t i = 0; i < N; i++) {
+            double t = 0;
+            for (size_t j = 0; j < N; j++)
+                t += c->dense[i * N + j] * xc[j];
+            yc[i] = t;
+        }
+        return;
+    }
     sq_lod *lod = c->lod;
     int k = c->k;
     const sq_lod_level *lk = &lod->lev[k];
@@ -328,6 +339,62 @@ static double dot(const double *a, const double *b, size_t n)
     return s;
 }
 
+/* s: the unit eigenvector of the Lanczos tridiagonal T (alpha on the diagonal, beta beside it,
+ * order m <= ITERS_COLD) for its largest eigenvalue theta, by inverse iteration on T - sigma I
+ * (sigma just above theta) with a pivoted tridiagonal solve: stable whatever the basis did,
+ * unlike the three-term recurrence from s[0] = 1 */
+static void ritz_coefficients(const double *alpha, const double *beta, int m, double theta, double *s)
+{
+    double scale = 0;
+    for (int i = 0; i < m; i++)
+        scale = fmax(scale, fabs(alpha[i]) + (i + 1 < m ? fabs(beta[i]) : 0) + (i > 0 ? fabs(beta[i - 1]) : 0));
+    double tiny = fmax(scale, 1e-300) * 1e-15, sigma = theta + fmax(fabs(theta), tiny) * 1e-10;
+    double d[ITERS_COLD + 1], du[ITERS_COLD + 1], du2[ITERS_COLD + 1], dl[ITERS_COLD + 1], b[ITERS_COLD + 1];
+    for (int i = 0; i < m; i++)
+        s[i] = 1;
+    for (int it = 0; it < 3; it++) {
+        for (int i = 0; i < m; i++) {
+            d[i] = alpha[i] - sigma;
+            du[i] = dl[i] = i + 1 < m ? beta[i] : 0;
+            du2[i] = 0;
+            b[i] = s[i];
+        }
+        for (int i = 0; i + 1 < m; i++) { /* elimination with row interchanges */
+            if (fabs(d[i]) >= fabs(dl[i])) {
+                if (d[i] == 0)
+                    d[i] = tiny;
+                double f = dl[i] / d[i];
+                d[i + 1] -= f * du[i];
+                b[i + 1] -= f * b[i];
+            } else {
+                double f = d[i] / dl[i], t = d[i + 1];
+                d[i] = dl[i];
+                d[i + 1] = du[i] - f * t;
+                if (i + 2 < m) {
+                    du2[i] = du[i + 1];
+                    du[i + 1] = -f * du2[i];
+                }
+                du[i] = t;
+                t = b[i];
+                b[i] = b[i + 1];
+                b[i + 1] = t - f * b[i + 1];
+            }
+        }
+        if (d[m - 1] == 0)
+            d[m - 1] = tiny;
+        for (int i = m - 1; i >= 0; i--)
+            b[i] = (b[i] - (i + 1 < m ? du[i] * b[i + 1] : 0) - (i + 2 < m ? du2[i] * b[i + 2] : 0)) / d[i];
+        double n2 = 0;
+        for (int i = 0; i < m; i++)
+            n2 += b[i] * b[i];
+        double n = sqrt(n2);
+        if (!(n > 0) || !isfinite(n))
+            break; /* keep the last s */
+        for (int i = 0; i < m; i++)
+            s[i] = b[i] / n;
+    }
+}
+
 /* upper estimate of lambda_max of the operator from start vector q (unit, free axes only):
  * Lanczos, then the Ritz vector (into q), its Rayleigh quotient plus its residual norm. With a
  * deadline (thread CPU time, 0: none), a product starts only when it ends before the deadline
@@ -387,13 +454,12 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
             return NAN;
     }
     double theta = sq_level_tridiag_max(alpha, beta, m);
-    /* eigenvector s of T for theta (recurrence), the Ritz vector Q s */
+    /* eigenvector s of T for theta, the Ritz vector Q s (inverse iteration: the forward
+     * recurrence s[i+1] = ((theta - alpha[i]) s[i] - beta[i-1] s[i-1]) / beta[i] used before
+     * grows the other eigenvectors' parts without bound once theta has converged, and the
+     * Ritz vector it gave could be far from the top one: docs/stability.md) */
     double s[ITERS_COLD + 1];
-    s[0] = 1;
-    if (m > 1)
-        s[1] = (theta - alpha[0]) / beta[0];
-    for (int i = 1; i + 1 < m; i++)
-        s[i + 1] = ((theta - alpha[i]) * s[i] - beta[i - 1] * s[i - 1]) / beta[i];
+    ritz_coefficients(alpha, beta, m, theta, s);
     memset(q, 0, sizeof(double) * N);
     for (int j = 0; j < m; j++)
         for (size_t i = 0; i < N; i++)
@@ -408,10 +474,39 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
             double r = w[i] - rho * q[i];
             r2 += r * r;
         }
+        /* never below the largest Ritz value theta (at or below lambda_max: a Ritz vector
+         * spoilt by rounding gave rho + ||r|| at 0.66 of theta on box-big) */
         est = rho + sqrt(r2);
         if (!isfinite(est))
             est = INFINITY; /* the ceiling decides */
+        else
+            est = fmax(est, theta);
     }
+    return est;
+}
+
+double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters)
+{
+    struct lod_sharp S;
+    memset(&S, 0, sizeof S);
+    sq_lod *lod = sq_calloc(1, sizeof *lod);
+    lod->sharp = &S;
+    op_ctx c;
+    memset(&c, 0, sizeof c);
+    c.lod = lod;
+    c.nact = n / 3;
+    c.dense = A;
+    size_t N = 3 * (size_t)c.nact;
+    double *q = sq_malloc(sizeof(double) * SQ_MAX(N, 1)), nq = 0;
+    for (size_t i = 0; i < N; i++)
+        nq += start[i] * start[i];
+    for (size_t i = 0; i < N; i++)
+        q[i] = start[i] / sqrt(nq);
+    int done = 0;
+    double est = lanczos(&c, q, SQ_MIN(iters, ITERS_COLD), &done, 0, 0);
+    free(q);
+    free(S.basis);
+    free(lod);
     return est;
 }
 

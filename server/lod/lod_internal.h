@@ -458,6 +458,9 @@ void sq_lodx_sharp_late(const sq_lod *lod, long *late, long *made_later);
  * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
  * and the scaled diagonal C_k (*off, same order); both to free */
 double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off);
+/* tests: the estimate (Lanczos, Ritz vector, rho + ||r||, not capped) of the dense symmetric
+ * n x n matrix A (n a multiple of 3) from start, iters steps (at most 40) */
+double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
