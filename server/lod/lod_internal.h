@@ -343,6 +343,22 @@ static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
         }
 }
 
+/* an interpolated node's displacement d and velocity v (first three lanes) stored at dd, dv,
+ * zero on the axes its fixed mask fx holds */
+static inline void sq_lodx_store_free(unsigned char fx, sq_v4 d, sq_v4 v, double *dd, double *dv)
+{
+    if (!fx) {
+        dd[0] = d[0], dd[1] = d[1], dd[2] = d[2];
+        dv[0] = v[0], dv[1] = v[1], dv[2] = v[2];
+        return;
+    }
+    for (int a = 0; a < 3; a++) {
+        int free_axis = !(fx & (1u << a));
+        dd[a] = free_axis ? d[a] : 0.0;
+        dv[a] = free_axis ? v[a] : 0.0;
+    }
+}
+
 /* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
  * axes of the destination stay zero. The three components in the lanes of one vector, each
  * lane summed as the scalar sums were: d += b_m d_m, m = 0..3 */
@@ -355,18 +371,7 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
         d += bm * v4_load(src->d + 3 * (size_t)tn[m]);
         v += bm * v4_load(src->v + 3 * (size_t)tn[m]);
     }
-    unsigned char fx = dst->model.fixed[i];
-    double *dd = dst->d + 3 * (size_t)i, *dv = dst->v + 3 * (size_t)i;
-    if (!fx) {
-        dd[0] = d[0], dd[1] = d[1], dd[2] = d[2];
-        dv[0] = v[0], dv[1] = v[1], dv[2] = v[2];
-        return;
-    }
-    for (int a = 0; a < 3; a++) {
-        int free_axis = !(fx & (1u << a));
-        dd[a] = free_axis ? d[a] : 0.0;
-        dv[a] = free_axis ? v[a] : 0.0;
-    }
+    sq_lodx_store_free(dst->model.fixed[i], d, v, dst->d + 3 * (size_t)i, dst->v + 3 * (size_t)i);
 }
 
 /* substep exponent a level runs at in the adaptive frame */

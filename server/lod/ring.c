@@ -240,18 +240,7 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
                 v += w * (v0 + fv * (v4_load(V1 + n3) - v0));
             }
         }
-        unsigned char fx = fixed[j];
-        double *dj = Dk + 3 * (size_t)j, *vj = Vk + 3 * (size_t)j;
-        if (!fx) {
-            dj[0] = d[0], dj[1] = d[1], dj[2] = d[2];
-            vj[0] = v[0], vj[1] = v[1], vj[2] = v[2];
-            continue;
-        }
-        for (int c = 0; c < 3; c++) {
-            int free_axis = !(fx & (1u << c));
-            dj[c] = free_axis ? d[c] : 0.0;
-            vj[c] = free_axis ? v[c] : 0.0;
-        }
+        sq_lodx_store_free(fixed[j], d, v, Dk + 3 * (size_t)j, Vk + 3 * (size_t)j);
     }
 }
 
