@@ -40,6 +40,27 @@ static sq_tool guard_poke(double t)
 #define C_CHANGE 20e-6
 #define PERIOD 20e-3
 
+/* the poked cube without gravity, adaptive (split 0.01, merge 0.002) */
+static sq_body_def guard_def(sq_mesh **m)
+{
+    sq_body_def def = lh_cube_def(m, 4);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
+    return def;
+}
+
+/* two bodies of def: b[0] as it comes, b[1] on the given costs; 0 when either is not made */
+static int guard_pair(const sq_body_def *def, sq_body *b[2])
+{
+    sq_err e = {{0}};
+    b[0] = sq_body_create(def, &e);
+    b[1] = sq_body_create(def, &e);
+    if (!b[0] || !b[1])
+        return 0;
+    sq_lodx_set_costs(b[1]->lod, C_UPDATE, C_FRAME, C_LEVEL, C_PASS, C_CHANGE);
+    return 1;
+}
+
 /* the model's cost of one frame from its profile and the levels a pass rebuilt, for the
  * unguarded run (which has no model): fixed + updates + per pass its levels and changes */
 static double unguarded_cost(const sq_frame_profile *p, int levels_changed, long nodes_changed)
@@ -65,13 +86,12 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         CHECK(0);
         return;
     }
-    sq_body_def def = lh_cube_def(m, 4);
-    def.gravity[2] = 0;
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
-    sq_err e = {{0}};
-    sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
-    TH_REQUIRE(b[0] && b[1]);
-    sq_lodx_set_costs(b[1]->lod, C_UPDATE, C_FRAME, C_LEVEL, C_PASS, C_CHANGE);
+    sq_body_def def = guard_def(m);
+    sq_body *b[2];
+    int made = guard_pair(&def, b);
+    CHECK(made);
+    if (!made)
+        return;
     double B = def.lod.budget * PERIOD;
     int frames = 100, over_unguarded = 0, over = 0, finest_max = 0, refused = 0;
     double worst = 0, worst_unguarded = 0;
@@ -113,6 +133,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         refused += p[1].splits_refused;
         splits += p[1].splits;
         merges += p[1].merges;
+        sq_err e = {{0}};
         CHECK(sq_lod_check(b[1]->lod, &e) == 0);
     }
     if (getenv("SQ_LOD_VERBOSE"))
@@ -287,13 +308,12 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
         CHECK(0);
         return;
     }
-    sq_body_def def = lh_cube_def(m, 4);
-    def.gravity[2] = 0;
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
-    sq_err e = {{0}};
-    sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
-    TH_REQUIRE(b[0] && b[1]);
-    sq_lodx_set_costs(b[1]->lod, C_UPDATE, C_FRAME, C_LEVEL, C_PASS, C_CHANGE);
+    sq_body_def def = guard_def(m);
+    sq_body *b[2];
+    int made = guard_pair(&def, b);
+    CHECK(made);
+    if (!made)
+        return;
     for (int c = 0; c < 2; c++) {
         CHECK(b[c]->lod->reserve_bytes == 0);
         for (int k = 0; k < 4; k++)
