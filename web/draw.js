@@ -60,8 +60,14 @@ export function frameLoop() {
     wire: opts.wire, nodes: opts.nodes, floor: opts.floor, tools, arrowScale, arrowWidth: view.size * 0.012,
     grabMarker: view.size * 0.015, pointSize: Math.max(3, 4 * (window.devicePixelRatio || 1)) });
   drawLabels(tools, w, h);
-  const dt = performance.now() - t0;
+  const t1 = performance.now();
+  const dt = t1 - t0;
   app.drawMs = app.drawMs === undefined ? dt : app.drawMs * 0.9 + dt * 0.1;
+  // the picture's own time counts too: frames that arrive while it draws wait for the next
+  // one (a frame decoded after the next loop began was otherwise seen only from that loop on,
+  // so an 80 ms picture counted as a few ms of waiting); the next loop counts from here
+  pictures.busyMs += Math.min(t1 - loopAt, 1000);
+  lastLoopAt = t1;
 }
 let nodesFrame = -1;
 let lastDrawAt = 0;
