@@ -40,18 +40,16 @@ static sq_tool guard_poke(double t)
 #define C_CHANGE 20e-6
 #define PERIOD 20e-3
 
-/* the poked cube without gravity, adaptive (split 0.01, merge 0.002) */
-static sq_body_def guard_def(sq_mesh **m)
+/* the poked cube's meshes (m) and def (no gravity, adaptive: split 0.01, merge 0.002), and two
+ * bodies of it: b[0] as it comes, b[1] on the given costs; 0 when any is not made */
+static int guard_pair(sq_mesh **m, sq_body_def *def, sq_body *b[2])
 {
-    sq_body_def def = lh_cube_def(m, 4);
-    def.gravity[2] = 0;
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
-    return def;
-}
-
-/* two bodies of def: b[0] as it comes, b[1] on the given costs; 0 when either is not made */
-static int guard_pair(const sq_body_def *def, sq_body *b[2])
-{
+    b[0] = b[1] = NULL;
+    if (!guard_meshes(m))
+        return 0;
+    *def = lh_cube_def(m, 4);
+    def->gravity[2] = 0;
+    def->lod = lh_lod(SQ_LOD_ADAPTIVE, 0.01, 0.002);
     sq_err e = {{0}};
     b[0] = sq_body_create(def, &e);
     b[1] = sq_body_create(def, &e);
@@ -82,13 +80,9 @@ static double unguarded_cost(const sq_frame_profile *p, int levels_changed, long
 SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
 {
     sq_mesh *m[4];
-    if (!guard_meshes(m)) {
-        CHECK(0);
-        return;
-    }
-    sq_body_def def = guard_def(m);
+    sq_body_def def;
     sq_body *b[2];
-    int made = guard_pair(&def, b);
+    int made = guard_pair(m, &def, b);
     CHECK(made);
     if (!made)
         return;
@@ -304,13 +298,9 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
 SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
 {
     sq_mesh *m[4];
-    if (!guard_meshes(m)) {
-        CHECK(0);
-        return;
-    }
-    sq_body_def def = guard_def(m);
+    sq_body_def def;
     sq_body *b[2];
-    int made = guard_pair(&def, b);
+    int made = guard_pair(m, &def, b);
     CHECK(made);
     if (!made)
         return;
