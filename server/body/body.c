@@ -102,8 +102,19 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
     if (b->ready[k])
         return 0;
     sq_level *L = &b->level[k];
-    if (sq_level_init(L, b->def.levels[k], &b->def.material, b->def.op, b->def.constraints,
-                      b->def.nconstraints, err) < 0)
+    /* a copy of a body (sq_body_create_like) borrows the level's operator when it is built from
+     * the same mesh, operator, material and constraints: the same blocks, read only */
+    const sq_body *like = b->like;
+    int same_model = like && k < like->nuse && like->ready[k] && like->def.levels[k] == b->def.levels[k] &&
+                     like->def.op == b->def.op &&
+                     !memcmp(&like->def.material, &b->def.material, sizeof b->def.material) &&
+                     like->def.nconstraints == b->def.nconstraints &&
+                     !memcmp(like->def.constraints, b->def.constraints,
+                             sizeof(sq_constraint) * (size_t)b->def.nconstraints);
+    if (same_model)
+        sq_level_init_shared(L, &like->level[k]);
+    else if (sq_level_init(L, b->def.levels[k], &b->def.material, b->def.op, b->def.constraints,
+                           b->def.nconstraints, err) < 0)
         return sq_err_prefix(err, "body '%s' level %d", b->name, k);
     if ((b->def.elasticity == SQ_ELASTICITY_COROTATIONAL &&
          sq_level_corot_enable(L, &b->def.material, b->def.op, err) < 0) ||
@@ -113,14 +124,9 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
     }
     /* a copy of a body on the same level (sq_body_create_like): its sharp estimate, the same
      * numbers as estimating again on the same mesh, material, constraints, frame and fraction */
-    const sq_body *like = b->like;
-    int reuse = like && k < like->nuse && like->ready[k] && like->def.levels[k] == b->def.levels[k] &&
-                like->def.frame_dt == b->def.frame_dt && like->def.step_fraction == b->def.step_fraction &&
-                like->def.op == b->def.op && like->def.elasticity == b->def.elasticity &&
-                like->def.nodal_pressure == b->def.nodal_pressure &&
-                !memcmp(&like->def.material, &b->def.material, sizeof b->def.material) &&
-                like->def.nconstraints == b->def.nconstraints &&
-                !memcmp(like->def.constraints, b->def.constraints, sizeof(sq_constraint) * (size_t)b->def.nconstraints);
+    int reuse = same_model && like->def.frame_dt == b->def.frame_dt &&
+                like->def.step_fraction == b->def.step_fraction && like->def.elasticity == b->def.elasticity &&
+                like->def.nodal_pressure == b->def.nodal_pressure;
     if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
         (!reuse && sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction,
                                               SQ_LANCZOS_ITERS, err) < 0)) {
@@ -346,13 +352,16 @@ static sq_body *create(const sq_body_def *def, const sq_body *like, sq_err *err)
                 sq_body_destroy(b);
                 return NULL;
             }
-        b->lod = sq_lod_create(b->level, b->nuse, &b->def.lod, err);
+        /* a copy borrows the hierarchy and the mesh tables of like's state, and its static loads */
+        const sq_lod *like_lod = like && like->lod ? like->lod : NULL;
+        b->lod = like_lod ? sq_lod_create_like(b->level, b->nuse, &b->def.lod, like_lod, err)
+                          : sq_lod_create(b->level, b->nuse, &b->def.lod, err);
         if (!b->lod) {
             sq_err_prefix(err, "body '%s'", b->name);
             sq_body_destroy(b);
             return NULL;
         }
-        sq_lod_set_loads(b->lod, &b->def.material, b->def.gravity); /* set-up before frame 1 */
+        sq_lod_set_loads_like(b->lod, &b->def.material, b->def.gravity, like_lod); /* set-up before frame 1 */
         sq_lod_set_step_rule(b->lod, b->def.sharp_step, b->def.step_fraction);
         sq_lod_node_levels(b->lod, b->node_level);
     } else {

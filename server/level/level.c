@@ -178,25 +178,42 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     return 0;
 }
 
+void sq_level_init_shared(sq_level *L, const sq_level *src)
+{
+    memset(L, 0, sizeof *L);
+    L->model = src->model;
+    L->model_shared = 1;
+    size_t n3 = 3 * (size_t)L->model.n;
+    /* as sq_level_init: one spare double after d, v and acc */
+    L->d = sq_calloc(n3 + 1, sizeof(double));
+    L->v = sq_calloc(n3 + 1, sizeof(double));
+    L->f = sq_calloc(n3, sizeof(double));
+    L->w = sq_calloc(n3, sizeof(double));
+    L->acc = sq_calloc(n3 + 1, sizeof(double));
+    L->omega_max = src->omega_max; /* sq_level_set_material's figure for this model */
+}
+
 void sq_level_free(sq_level *L)
 {
     if (!L)
         return;
-    free(L->model.K);
-    free(L->model.D);
-    free(L->model.lap);
-    free(L->model.mass);
-    free(L->model.vol);
-    free(L->model.hbar);
-    free(L->model.fixed);
+    if (!L->model_shared) {
+        free(L->model.K);
+        free(L->model.D);
+        free(L->model.lap);
+        free(L->model.mass);
+        free(L->model.vol);
+        free(L->model.hbar);
+        free(L->model.fixed);
+        free(L->model.up_start);
+        free(L->model.up_col);
+        free(L->model.Kup);
+    }
     free(L->d);
     free(L->v);
     free(L->f);
     free(L->w);
     free(L->acc);
-    free(L->model.up_start);
-    free(L->model.up_col);
-    free(L->model.Kup);
     sq_level_corot_free(L);
     sq_level_anp_free(L);
     memset(L, 0, sizeof *L);
@@ -204,6 +221,8 @@ void sq_level_free(sq_level *L)
 
 int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err)
 {
+    if (L->model_shared) /* its blocks are another level's: make a new level instead (body/set.c) */
+        return sq_err_set(err, "level shares its operator with another level: it cannot change its material");
     if (sq_material_check(mat, err) < 0)
         return -1;
     if (op != SQ_OPERATOR_FEM && op != SQ_OPERATOR_PAPER)

@@ -91,6 +91,7 @@ typedef struct sq_level_model {
  * step settings chosen for it */
 typedef struct sq_level {
     sq_level_model model;  /* constant part (owned; read-only outside init/set_material) */
+    int model_shared;      /* 1: model is another level's (sq_level_init_shared), not freed here */
 
     double *d;             /* state: displacement (n x 3), m */
     double *v;             /* state: velocity (n x 3), m/s */
@@ -154,6 +155,11 @@ typedef struct sq_hold {
 int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_operator_kind op,
                   const sq_constraint *cons, int ncons, sq_err *err);
 void sq_level_free(sq_level *L);
+/* a level over the same constant model as src (its mesh, operator blocks, masses, constrained
+ * axes: borrowed, not copied; src must outlive L and its model must not change meanwhile), with
+ * its own state at rest and src's Gershgorin bound; the element models (corot, anp) are not
+ * copied (enable them on L as for a new level). sq_level_free then frees only L's own arrays */
+void sq_level_init_shared(sq_level *L, const sq_level *src);
 
 /* recompute K (and D), masses and the bound after a material/operator change */
 int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);

@@ -705,6 +705,34 @@ void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[
     sq_lodx_static_loads(lod, gravity);
 }
 
+void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gravity[3], const sq_lod *like)
+{
+    sq_lod_set_material(lod, mat);
+    int same = like && like->stat_done && like->L == lod->L && like->stat_top == lod->top &&
+               like->stat_k == lod->lv[0].model.K && !memcmp(like->stat_g, gravity, sizeof like->stat_g) &&
+               lod->have_mat && !memcmp(&like->stat_mat, &lod->mat, sizeof lod->mat);
+    for (int k = 0; same && k < lod->L; k++)
+        same = like->lv[k].model.K == lod->lv[k].model.K && !like->lv[k].corot == !lod->lv[k].corot;
+    if (!same) {
+        sq_lodx_static_loads(lod, gravity);
+        return;
+    }
+    lod->stat_done = 1;
+    lod->stat_top = like->stat_top;
+    lod->stat_mat = like->stat_mat;
+    lod->stat_k = like->stat_k;
+    memcpy(lod->stat_g, like->stat_g, sizeof lod->stat_g);
+    for (int k = 0; k < lod->L; k++) {
+        free(lod->lev[k].d_static);
+        lod->lev[k].d_static = NULL;
+        if (like->lev[k].d_static) {
+            size_t bytes = sizeof(double) * 3 * (size_t)SQ_MAX(lod->lv[k].model.n, 1);
+            lod->lev[k].d_static = sq_malloc(bytes);
+            memcpy(lod->lev[k].d_static, like->lev[k].d_static, bytes);
+        }
+    }
+}
+
 /* ---------------------------------------------------------------- the guard's merges */
 
 /* delta = hbar^2 |Lap(d - d_static)| at active node i of level k, as the criterion judges it

@@ -112,6 +112,12 @@ typedef struct sq_lod sq_lod;
 
 /* adaptive state over levels[0..nlevels-1] (borrowed from the body) */
 sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_err *err);
+/* the same over levels of the same meshes as like's (a scratch copy: the load check,
+ * scene/world.c): the hierarchy and the per-level tables that depend on the meshes alone
+ * (criterion weights, tets around each node, tet gradients) are like's, read only, not built
+ * again; like must outlive the new state. Other meshes: as sq_lod_create */
+sq_lod *sq_lod_create_like(sq_level *levels, int nlevels, const sq_lod_def *def, const sq_lod *like,
+                           sq_err *err);
 void sq_lod_destroy(sq_lod *lod);
 int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err);
 /* all nodes back to the coarsest level (state of the levels is reset by the body) */
@@ -163,6 +169,10 @@ void sq_lod_set_material(sq_lod *lod, const sq_material *mat);
  * static equilibrium under gravity (the criterion judges the displacement from it, so a sag
  * alone refines nothing) are set up here instead of in the first frame */
 void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[3]);
+/* the same, taking the static equilibria from like (copied) when like solved them for the same
+ * gravity, material, top level and level-0 operator (the same numbers a solve gives: the
+ * operator is the same blocks, sq_level_init_shared); else solved as sq_lod_set_loads does */
+void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gravity[3], const sq_lod *like);
 
 /* the step rule ("step_bound": docs/stability.md, docs/lod.md "Coupling the levels"): sharp = 0
  * (default) gives each level its own Gershgorin exponent plus the interface extra; sharp = 1

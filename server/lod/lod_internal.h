@@ -201,6 +201,9 @@ struct sq_lod {
     int top;                             /* highest level that may be active */
     sq_lod_def def;
     sq_hierarchy h;
+    int shared;                          /* 1: h and the per-level mesh tables (crit_weight,
+                                          * node_tet_start, node_tet, inc_corner, inc_block,
+                                          * tet_geom) are another state's (sq_lod_create_like) */
     /* the coupling blocks were built for this material, operator and level-0 K */
     int have_mat;
     sq_material mat;

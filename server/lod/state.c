@@ -254,7 +254,9 @@ static int start_level(const sq_lod *lod)
     return lod->def.split <= 0 ? lod->top : lod->def.level;
 }
 
-sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_err *err)
+/* like (may be NULL): a state over the same meshes whose hierarchy and mesh-derived per-level
+ * tables this one borrows instead of building them (sq_lod_create_like) */
+static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, const sq_lod *like, sq_err *err)
 {
     if (nlevels < 1 || nlevels > SQ_MAX_LEVELS) {
         sq_err_set(err, "lod: %d levels given, need 1 to %d", nlevels, SQ_MAX_LEVELS);
@@ -276,7 +278,13 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
     lod->def = *def;
     lod->top = top_of(def, nlevels);
     lod->nl_gen = -1;
-    if (sq_hierarchy_build(&lod->h, meshes, nlevels, err)) {
+    int share = like && like->L == nlevels;
+    for (int k = 0; share && k < nlevels; k++)
+        share = like->h.mesh[k] == meshes[k];
+    if (share) {
+        lod->h = like->h; /* read only after sq_hierarchy_build */
+        lod->shared = 1;
+    } else if (sq_hierarchy_build(&lod->h, meshes, nlevels, err)) {
         free(lod);
         return NULL;
     }
@@ -299,7 +307,8 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->lev[k].split_ghost = sq_malloc(sizeof(int) * n);
         lod->lev[k].coarse_ghost = sq_malloc(sizeof(int) * n);
         lod->lev[k].hold_of = sq_malloc(sizeof(int) * n);
-        lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
+        if (!share)
+            lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
         lod->lev[k].ring = sq_malloc(sizeof(int) * n);
         /* one spare double: the ring kernels load 4 lanes per node */
         lod->lev[k].d_start = sq_calloc(3 * n + 1, sizeof(double));
@@ -325,13 +334,23 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
         lod->lev[k].front_off2 = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].inner = sq_calloc(n, 1);
         lod->lev[k].front_off = sq_calloc(n + 1, sizeof(int));
-        node_tets(levels[k].model.mesh, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
-        {
-            const sq_mesh *mm = levels[k].model.mesh;
+        const sq_mesh *mm = levels[k].model.mesh;
+        /* the element-block cache (written by the frames): always the state's own */
+        lod->lev[k].blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
+        for (int t = 0; t < mm->ntets; t++)
+            lod->lev[k].blocks_slot[t] = -1;
+        if (share) {
+            /* the tables below depend on the mesh alone and are read only once made */
+            const sq_lod_level *lk = &like->lev[k];
+            lod->lev[k].crit_weight = lk->crit_weight;
+            lod->lev[k].node_tet_start = lk->node_tet_start;
+            lod->lev[k].node_tet = lk->node_tet;
+            lod->lev[k].inc_corner = lk->inc_corner;
+            lod->lev[k].inc_block = lk->inc_block;
+            lod->lev[k].tet_geom = lk->tet_geom;
+        } else {
+            node_tets(mm, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
             int ninc = lod->lev[k].node_tet_start[n];
-            lod->lev[k].blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
-            for (int t = 0; t < mm->ntets; t++)
-                lod->lev[k].blocks_slot[t] = -1;
             lod->lev[k].inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
             lod->lev[k].inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
             for (int j = 0; j < (int)n; j++)
@@ -344,14 +363,13 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
                     for (int q = 0; q < 4; q++)
                         lod->lev[k].inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
                 }
-        }
-        const sq_mesh *mk = levels[k].model.mesh;
-        lod->lev[k].tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mk->ntets);
-        for (int t = 0; t < mk->ntets; t++) {
-            double a[4][3];
-            double *g = lod->lev[k].tet_geom + 13 * (size_t)t;
-            g[0] = sq_tet_gradients(mk, t, a);
-            memcpy(g + 1, a, sizeof(a));
+            lod->lev[k].tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mm->ntets);
+            for (int t = 0; t < mm->ntets; t++) {
+                double a[4][3];
+                double *g = lod->lev[k].tet_geom + 13 * (size_t)t;
+                g[0] = sq_tet_gradients(mm, t, a);
+                memcpy(g + 1, a, sizeof(a));
+            }
         }
         for (size_t i = 0; i < n; i++)
             lod->lev[k].hold_of[i] = -1;
@@ -361,6 +379,16 @@ sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_e
     set_uniform_level(lod, start_level(lod));
     sq_lod_sync(lod);
     return lod;
+}
+
+sq_lod *sq_lod_create(sq_level *levels, int nlevels, const sq_lod_def *def, sq_err *err)
+{
+    return create(levels, nlevels, def, NULL, err);
+}
+
+sq_lod *sq_lod_create_like(sq_level *levels, int nlevels, const sq_lod_def *def, const sq_lod *like, sq_err *err)
+{
+    return create(levels, nlevels, def, like, err);
 }
 
 void sq_lod_destroy(sq_lod *lod)
@@ -378,7 +406,6 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].split_ghost);
         free(lod->lev[k].coarse_ghost);
         free(lod->lev[k].hold_of);
-        free(lod->lev[k].crit_weight);
         free(lod->lev[k].ring);
         free(lod->lev[k].d_start);
         free(lod->lev[k].v_start);
@@ -421,15 +448,18 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].front_D);
         free(lod->lev[k].ring_K);
         free(lod->lev[k].ring_D);
-        free(lod->lev[k].node_tet_start);
-        free(lod->lev[k].node_tet);
-        free(lod->lev[k].inc_corner);
         free(lod->lev[k].blocks_slot);
         for (int c = 0; c < lod->lev[k].blocks_nchunk; c++)
             free(lod->lev[k].blocks_chunk[c]);
         free(lod->lev[k].blocks_chunk);
-        free(lod->lev[k].inc_block);
-        free(lod->lev[k].tet_geom);
+        if (!lod->shared) {
+            free(lod->lev[k].crit_weight);
+            free(lod->lev[k].node_tet_start);
+            free(lod->lev[k].node_tet);
+            free(lod->lev[k].inc_corner);
+            free(lod->lev[k].inc_block);
+            free(lod->lev[k].tet_geom);
+        }
         free(lod->lev[k].src_level);
         free(lod->lev[k].src_rend);
         free(lod->lev[k].hot);
@@ -441,7 +471,8 @@ void sq_lod_destroy(sq_lod *lod)
     free(lod->abs_sum);
     free(lod->he);
     free(lod->hold_entry_of);
-    sq_hierarchy_free(&lod->h);
+    if (!lod->shared)
+        sq_hierarchy_free(&lod->h);
     free(lod);
 }
 
