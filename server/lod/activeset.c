@@ -707,7 +707,9 @@ void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[
 
 void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gravity[3], const sq_lod *like)
 {
+    lod->like = like; /* the own-operator row sums of levels over like's operator blocks: like's */
     sq_lod_set_material(lod, mat);
+    lod->like = NULL;
     int same = like && like->stat_done && like->L == lod->L && like->stat_top == lod->top &&
                like->stat_k == lod->lv[0].model.K && !memcmp(like->stat_g, gravity, sizeof like->stat_g) &&
                lod->have_mat && !memcmp(&like->stat_mat, &lod->mat, sizeof lod->mat);

@@ -565,13 +565,21 @@ static double block_norm(const double *B)
     return m;
 }
 
-/* Gershgorin row sums of each level's own operator (material dependent) */
+/* Gershgorin row sums of each level's own operator (material dependent); a level over the same
+ * operator blocks as lod->like's (sq_lod_set_loads_like: a scratch copy) takes like's sums */
 static void own_rows(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
         const sq_level *L = &lod->lv[k];
         if (!lod->lev[k].own_rowsum)
             lod->lev[k].own_rowsum = sq_malloc(sizeof(double) * (size_t)L->model.n);
+        const sq_lod *like = lod->like;
+        if (like && k < like->L && like->lv[k].model.K == L->model.K && like->lv[k].model.n == L->model.n &&
+            like->lv[k].model.mass == L->model.mass && like->lev[k].own_rowsum) {
+            memcpy(lod->lev[k].own_rowsum, like->lev[k].own_rowsum, sizeof(double) * (size_t)L->model.n);
+            lod->lev[k].own_rate = like->lev[k].own_rate;
+            continue;
+        }
         for (int i = 0; i < L->model.n; i++) {
             double s = 0;
             for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++)

@@ -204,6 +204,8 @@ struct sq_lod {
     int shared;                          /* 1: h and the per-level mesh tables (crit_weight,
                                           * node_tet_start, node_tet, inc_corner, inc_block,
                                           * tet_geom) are another state's (sq_lod_create_like) */
+    const struct sq_lod *like;           /* during sq_lod_set_loads_like only: the state whose
+                                          * operator-derived sums (own_rowsum) are taken */
     /* the coupling blocks were built for this material, operator and level-0 K */
     int have_mat;
     sq_material mat;
