@@ -73,8 +73,12 @@ typedef struct sq_body sq_body;
  * 2^20 substeps per frame, ...) */
 sq_body *sq_body_create(const sq_body_def *def, sq_err *err);
 /* the same for a copy of body `like` with another def on the same meshes (e.g. another lod): a
- * level whose mesh, material, operator, constraints, frame and step fraction equal like's takes
- * like's sharp step estimate instead of estimating again (the same numbers, none of its cost) */
+ * level whose mesh, material, operator and constraints equal like's borrows like's operator
+ * (read only, sq_level_init_shared) and, with the same frame and step fraction too, takes its
+ * sharp step estimate; an adaptive copy of an adaptive like borrows the lod hierarchy and mesh
+ * tables and copies the static loads and own-operator row sums (lod.h sq_lod_create_like,
+ * sq_lod_set_loads_like): the same numbers as building them again, none of the cost or memory.
+ * like must outlive the copy and not change its material or lod while the copy lives */
 sq_body *sq_body_create_like(const sq_body *like, const sq_body_def *def, sq_err *err);
 void sq_body_destroy(sq_body *b);
 

@@ -184,7 +184,9 @@ int sq_world_realtime_check(sq_world *w, double period_s, char *msg, size_t n)
     int wb = 0, wk = 0, wn = 0, ws = 0, nb = 0;
     double load0 = sq_thread_cpu();
     /* a scratch world: the same scene, tools and frame count, its bodies fresh copies forced fully
-     * coarse; the world checked is only read (its tools copied, one force pass timed per body) */
+     * coarse; the world checked is only read (its tools copied, one force pass timed per body).
+     * The copies borrow each body's operators, lod hierarchy and mesh tables (read only by the
+     * frames: sq_body_create_like) and are destroyed before w can change */
     sq_world *s = sq_calloc(1, sizeof *s);
     *s = *w;
     s->nbodies = 0;
