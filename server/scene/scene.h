@@ -133,7 +133,7 @@ void sq_world_reset(sq_world *w);
  * levels and the frame's fixed cost are in it; w is only read (its tools copied, one force pass
  * per body timed on its state to name the part that grows with the steps). The copies borrow
  * the bodies' operators, hierarchies and mesh tables (read only) and have their own state only:
- * on box-big about 30-50 ms of CPU and 28 MB while it runs. Returns 1 and a warning in msg
+ * on box-big 26-31 ms of CPU and 20 MB while it runs (docs/lod.md). Returns 1 and a warning in msg
  * when it exceeds the budget (the body's budget fraction of period_s), with the numbers and
  * what to do; else 0 and the figures in msg. */
 int sq_world_realtime_check(sq_world *w, double period_s, char *msg, size_t n);
