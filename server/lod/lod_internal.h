@@ -349,9 +349,11 @@ static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
 }
 
 /* an interpolated node's displacement d and velocity v (first three lanes) stored at dd, dv,
- * zero on the axes its fixed mask fx holds */
-static inline void sq_lodx_store_free(unsigned char fx, sq_v4 d, sq_v4 v, double *dd, double *dv)
+ * zero on the axes its fixed mask fx holds (the vectors by address: a 32-byte vector passed by
+ * value changes ABI between builds with and without AVX, which gcc notes) */
+static inline void sq_lodx_store_free(unsigned char fx, const sq_v4 *dp, const sq_v4 *vp, double *dd, double *dv)
 {
+    const sq_v4 d = *dp, v = *vp;
     if (!fx) {
         dd[0] = d[0], dd[1] = d[1], dd[2] = d[2];
         dv[0] = v[0], dv[1] = v[1], dv[2] = v[2];
@@ -376,7 +378,7 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
         d += bm * v4_load(src->d + 3 * (size_t)tn[m]);
         v += bm * v4_load(src->v + 3 * (size_t)tn[m]);
     }
-    sq_lodx_store_free(dst->model.fixed[i], d, v, dst->d + 3 * (size_t)i, dst->v + 3 * (size_t)i);
+    sq_lodx_store_free(dst->model.fixed[i], &d, &v, dst->d + 3 * (size_t)i, dst->v + 3 * (size_t)i);
 }
 
 /* substep exponent a level runs at in the adaptive frame */

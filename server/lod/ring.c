@@ -240,7 +240,7 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
                 v += w * (v0 + fv * (v4_load(V1 + n3) - v0));
             }
         }
-        sq_lodx_store_free(fixed[j], d, v, Dk + 3 * (size_t)j, Vk + 3 * (size_t)j);
+        sq_lodx_store_free(fixed[j], &d, &v, Dk + 3 * (size_t)j, Vk + 3 * (size_t)j);
     }
 }
 
