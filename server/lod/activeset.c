@@ -707,34 +707,15 @@ void sq_lod_set_loads(sq_lod *lod, const sq_material *mat, const double gravity[
 
 /* ---------------------------------------------------------------- the guard's merges */
 
-/* delta = hbar^2 |Lap(d - d_static)| at active node i of level k, as the criterion judges it
- * (criterion.c delta_at; ghost neighbours the last cascade did not push read on demand) */
-static double need_delta(const sq_lod *lod, int k, int i)
-{
-    const sq_lod_level *lk = &lod->lev[k];
-    const sq_level *L = &lod->lv[k];
-    const double *w = lk->crit_weight, *ds = lk->d_static;
-    double s[3] = {0, 0, 0};
-    for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
-        int j = L->model.col[q];
-        double dj[3], vj[3];
-        sq_lodx_value(lod, k, j, dj, vj);
-        for (int a = 0; a < 3; a++)
-            s[a] += w[q] * (dj[a] - (ds ? ds[3 * j + a] : 0.0));
-    }
-    double h2 = L->model.hbar[i] * L->model.hbar[i];
-    return h2 / L->model.vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
-}
-
 double sq_lodx_need(const sq_lod *lod, int k, int p)
 {
     const sq_lod_link *ln = &lod->h.link[k];
     int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
     if (c0 == c1)
-        return need_delta(lod, k, p);
+        return sq_lodx_delta(lod, k, p);
     double m = 0;
     for (int c = c0; c < c1; c++)
-        m = fmax(m, need_delta(lod, k + 1, ln->child[c]));
+        m = fmax(m, sq_lodx_delta(lod, k + 1, ln->child[c]));
     return m;
 }
 
@@ -840,7 +821,7 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
         for (int i = 0; i < n; i++) {
             if (lk->state[i] != ST_ACTIVE)
                 continue; /* ghost or resting */
-            double d = need_delta(lod, k, i);
+            double d = sq_lodx_delta(lod, k, i);
             if (d > def->split)
                 c[nc++] = (lim_cand){d, i, 1};
         }

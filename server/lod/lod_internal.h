@@ -414,6 +414,9 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
  * until sq_lodx_guard_limit_undo); returns the regions held out */
 long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
 void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
+/* criterion.c: the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
+ * neighbours the last cascade did not push read on demand (sq_lodx_value) */
+double sq_lodx_delta(const sq_lod *lod, int k, int i);
 /* the need of split node p of level k: its children's largest criterion (its own without
  * children), as the merge rule judges it, m */
 double sq_lodx_need(const sq_lod *lod, int k, int p);
