@@ -340,20 +340,10 @@ static const double *krow(sq_lod *lod, int k, int i)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level_model *M = &lod->lv[k].model;
-    if (!lk->krow_at) {
-        lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
-        for (int j = 0; j < M->n; j++)
-            lk->krow_at[j] = -1;
-    }
+    sq_lodx_krow_index(lk, M);
     if (lk->krow_at[i] < 0) {
         int len = M->row_start[i + 1] - M->row_start[i];
-        if (!lk->krow_chunk_len) { /* a chunk holds the longest row at least */
-            long most = SQ_KROW_CHUNK;
-            for (int j = 0; j < M->n; j++)
-                most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
-            lk->krow_chunk_len = most;
-        }
-        long CH = lk->krow_chunk_len;
+        long CH = sq_lodx_krow_chunk_len(lk, M);
         if (lk->krow_used % CH + len > CH) /* no straddling: the next chunk */
             lk->krow_used += CH - lk->krow_used % CH;
         if (lk->krow_used + len > lk->krow_cap) {
