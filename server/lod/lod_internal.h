@@ -381,20 +381,7 @@ static inline int sub_log2(const sq_lod *lod, int k)
 }
 
 /* position of column j in CSR row i of the mesh adjacency (sorted), or -1 */
-static inline int adj_find(const sq_mesh *m, int i, int j)
-{
-    int lo = m->adj_start[i], hi = m->adj_start[i + 1] - 1;
-    while (lo <= hi) {
-        int mid = (lo + hi) / 2;
-        if (m->adj[mid] == j)
-            return mid;
-        if (m->adj[mid] < j)
-            lo = mid + 1;
-        else
-            hi = mid - 1;
-    }
-    return -1;
-}
+static inline int adj_find(const sq_mesh *m, int i, int j) { return sq_csr_find(m->adj_start, m->adj, i, j); }
 
 /* counters of one frame's adaptation */
 typedef struct adapt_out {
