@@ -1,4 +1,4 @@
-/* test_scene_helpers.h - small helpers shared by the scene and world unit tests: scratch
+/* test_scene_helpers.h - small functions shared by the scene and world unit tests: scratch
  * directories and meshes, the shipped scenes. */
 #ifndef SQ_TEST_SCENE_HELPERS_H
 #define SQ_TEST_SCENE_HELPERS_H

@@ -1,4 +1,4 @@
-/* test_sim_helpers.h - small helpers shared by the unit tests: the shipped meshes, boxes,
+/* test_sim_helpers.h - small functions shared by the unit tests: the shipped meshes, boxes,
  * materials, forces, tools (the sim, physics, mesh and level-of-detail tests). */
 #ifndef SQ_TEST_SIM_HELPERS_H
 #define SQ_TEST_SIM_HELPERS_H
