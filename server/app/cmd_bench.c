@@ -217,6 +217,29 @@ static int operator_row(const char *name, const sq_mesh *m, const sq_material *m
     return 0;
 }
 
+/* rows for the shipped levels meshes/<shape>/<shape>_l0..3.msh, named "<label>, <path>" (a level
+ * not found is noted and skipped); -1 when a row fails */
+static int shipped_rows(const char *shape, const char *label, const sq_material *mat, const sq_constraint *c,
+                        const double p[3])
+{
+    for (int l = 0; l < 4; l++) {
+        char path[64], name[128];
+        snprintf(path, sizeof path, "meshes/%s/%s_l%d.msh", shape, shape, l);
+        sq_err err = {{0}};
+        sq_mesh *m = sq_mesh_load(path, &err);
+        if (!m) {
+            printf("# %s: not available (%s)\n", path, err.msg);
+            continue;
+        }
+        snprintf(name, sizeof name, "%s, %s", label, path);
+        int rc = operator_row(name, m, mat, c, p);
+        sq_mesh_free(m);
+        if (rc < 0)
+            return -1;
+    }
+    return 0;
+}
+
 static int bench_operators(void)
 {
     sq_material mat;
@@ -244,21 +267,8 @@ static int bench_operators(void)
         if (rc < 0)
             return 1;
     }
-    for (int l = 0; l < 4; l++) {
-        char path[64], name[128];
-        snprintf(path, sizeof path, "meshes/cube/cube_l%d.msh", l);
-        sq_err err = {{0}};
-        sq_mesh *m = sq_mesh_load(path, &err);
-        if (!m) {
-            printf("# %s: not available (%s)\n", path, err.msg);
-            continue;
-        }
-        snprintf(name, sizeof name, "cube corner, %s", path);
-        int rc = operator_row(name, m, &mat, &bottom, corner);
-        sq_mesh_free(m);
-        if (rc < 0)
-            return 1;
-    }
+    if (shipped_rows("cube", "cube corner", &mat, &bottom, corner) < 0)
+        return 1;
     /* a clamped beam 1 x 0.1 x 0.1 m along x (y, z in [-0.05, 0.05]), clamped at x = 0, tip
      * centre (1, 0, 0); a rubber-like mu = 4 MPa, lambda = 10 MPa keeps the sag small */
     sq_material rub = mat;
@@ -281,21 +291,8 @@ static int bench_operators(void)
         if (rc < 0)
             return 1;
     }
-    for (int l = 0; l < 4; l++) {
-        char path[64], name[128];
-        snprintf(path, sizeof path, "meshes/beam/beam_l%d.msh", l);
-        sq_err err = {{0}};
-        sq_mesh *m = sq_mesh_load(path, &err);
-        if (!m) {
-            printf("# %s: not available (%s)\n", path, err.msg);
-            continue;
-        }
-        snprintf(name, sizeof name, "beam tip, %s", path);
-        int rc = operator_row(name, m, &rub, &clamp, tip);
-        sq_mesh_free(m);
-        if (rc < 0)
-            return 1;
-    }
+    if (shipped_rows("beam", "beam tip", &rub, &clamp, tip) < 0)
+        return 1;
     /* Euler-Bernoulli cantilever under its own weight: w = q L^4 / (8 E I), q = rho g A */
     double E, nu;
     sq_material_E_nu(&rub, &E, &nu);

@@ -34,6 +34,17 @@ static sq_grab *find_grab(sq_body *b, int id)
     return NULL;
 }
 
+/* squared distance from `at` of finest surface vertex s where it is now; its displacement in u */
+static double surf_dist2(const sq_body *b, const sq_mesh *fm, int s, const double at[3], double u[3])
+{
+    double d2 = 0;
+    sq_body_surface_disp(b, s, u);
+    const double *x = fm->x + 3 * (size_t)fm->surf_nodes[s];
+    for (int c = 0; c < 3; c++)
+        d2 += (x[c] + u[c] - at[c]) * (x[c] + u[c] - at[c]);
+    return d2;
+}
+
 /* capture surface vertices for a grab tool around its origin (or pos without one) */
 static sq_grab *capture(sq_body *b, const sq_tool *tool)
 {
@@ -50,11 +61,7 @@ static sq_grab *capture(sq_body *b, const sq_tool *tool)
     int cap = 0, nearest = -1;
     double r2 = tool->radius * tool->radius, best = INFINITY;
     for (int s = 0; s < fm->nsurf; s++) {
-        double u[3], d2 = 0;
-        sq_body_surface_disp(b, s, u);
-        const double *x = fm->x + 3 * (size_t)fm->surf_nodes[s];
-        for (int c = 0; c < 3; c++)
-            d2 += (x[c] + u[c] - at[c]) * (x[c] + u[c] - at[c]);
+        double u[3], d2 = surf_dist2(b, fm, s, at, u);
         if (d2 < best) {
             best = d2;
             nearest = s;
@@ -88,11 +95,7 @@ int sq_body_grab_reach(const sq_body *b, const double at[3], double radius, doub
     double best = INFINITY, r2 = radius * radius;
     int n = 0;
     for (int s = 0; s < fm->nsurf; s++) {
-        double u[3], d2 = 0;
-        sq_body_surface_disp(b, s, u);
-        const double *x = fm->x + 3 * (size_t)fm->surf_nodes[s];
-        for (int c = 0; c < 3; c++)
-            d2 += (x[c] + u[c] - at[c]) * (x[c] + u[c] - at[c]);
+        double u[3], d2 = surf_dist2(b, fm, s, at, u);
         best = fmin(best, d2);
         n += d2 <= r2;
     }

@@ -118,51 +118,16 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src)
  * proportional to K): R from I + grad d, and R D_T R^T v added. */
 static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int iters, int store)
 {
-    sq_corot *C = L->corot;
-    const double mu = C->mu, lam = C->lambda;
-    const int visc = mat->use_viscosity;
-    const double b = visc ? 0 : mat->rayleigh_stiffness;
-    const double *d = L->d, *v = L->v;
-    for (int t = 0; t < C->ntets; t++) {
-        double G[10], q[4], F[9], R[9], S[9], sig[9];
-        tet_load(C, t, G, q);
+    for (int t = 0; t < L->corot->ntets; t++) {
         const int *tv = L->model.mesh->tets + 4 * (size_t)t;
-        tet_grad(G, tv, d, v, b, F, 1.0);
-        tet_rotation(q, F, iters, R);
-        if (store)
-            tet_store_q(C, t, q);
-        rt_mul(R, F, S);
-        add_stress(S, mu, lam, 1.0, sig, 0);
-        if (visc) {
-            double Lv[9];
-            tet_grad(G, tv, NULL, v, 0, Lv, 0.0);
-            rt_mul(R, Lv, S);
-            add_stress(S, mat->phi, mat->psi, 0.0, sig, 1);
-        }
-        /* P = V R sigma; node k < 3 gets -P a_k, node 3 the opposite of their sum */
-        const double V = G[9];
-        double P[9];
-        for (int r = 0; r < 3; r++)
-            for (int c = 0; c < 3; c++)
-                P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
-        double s0 = 0, s1 = 0, s2 = 0;
-        for (int k = 0; k < 3; k++) {
-            const double *a = G + 3 * k;
-            const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
-            const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
-            const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
+        double f12[12];
+        tet_force(L->corot, mat, t, tv, L->d, L->v, iters, store, f12);
+        for (int k = 0; k < 4; k++) {
             double *fk = f + 3 * (size_t)tv[k];
-            fk[0] -= f0;
-            fk[1] -= f1;
-            fk[2] -= f2;
-            s0 += f0;
-            s1 += f1;
-            s2 += f2;
+            fk[0] += f12[3 * k];
+            fk[1] += f12[3 * k + 1];
+            fk[2] += f12[3 * k + 2];
         }
-        double *f3 = f + 3 * (size_t)tv[3];
-        f3[0] += s0;
-        f3[1] += s1;
-        f3[2] += s2;
     }
 }
 
@@ -387,18 +352,8 @@ double sq_level_corot_energy(const sq_level *L)
 {
     const sq_corot *C = L->corot;
     double e = 0;
-    for (int t = 0; t < C->ntets; t++) {
-        double G[10], q[4], F[9], R[9], S[9];
-        tet_load(C, t, G, q);
-        tet_grad(G, L->model.mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
-        tet_rotation(q, F, 50, R);
-        rt_mul(R, F, S);
-        double e00 = S[0] - 1, e11 = S[4] - 1, e22 = S[8] - 1;
-        double e01 = 0.5 * (S[1] + S[3]), e02 = 0.5 * (S[2] + S[6]), e12 = 0.5 * (S[5] + S[7]);
-        double tr = e00 + e11 + e22;
-        double ee = e00 * e00 + e11 * e11 + e22 * e22 + 2 * (e01 * e01 + e02 * e02 + e12 * e12);
-        e += G[9] * (C->mu * ee + 0.5 * C->lambda * tr * tr);
-    }
+    for (int t = 0; t < C->ntets; t++)
+        e += tet_energy(C, t, L->model.mesh->tets + 4 * (size_t)t, L->d);
     return e;
 }
 

@@ -173,6 +173,69 @@ static inline void add_stress(const double S[9], double s, double l, double diag
         sig[k] = add ? sig[k] + o[k] : o[k];
 }
 
+/* the element force of tet t, the scalar pass's arithmetic, with its corners tv[0..3] indexing
+ * d and v (the level's nodes, or the corner values a caller gathered): f12[3 k + c] is the
+ * force on corner k; P = V R sigma, corner k < 3 gets -P a_k, corner 3 the opposite of their
+ * sum. Rayleigh damping: R and the stress from F = I + grad(d + b v); viscosities: R from
+ * I + grad d, and R D_T R^T v added. store: the rotation kept as the next call's start. */
+static inline void tet_force(sq_corot *C, const sq_material *mat, int t, const int *tv, const double *d,
+                             const double *v, int iters, int store, double f12[12])
+{
+    const int visc = mat->use_viscosity;
+    const double b = visc ? 0 : mat->rayleigh_stiffness;
+    double G[10], q[4], F[9], R[9], S[9], sig[9];
+    tet_load(C, t, G, q);
+    tet_grad(G, tv, d, v, b, F, 1.0);
+    tet_rotation(q, F, iters, R);
+    if (store)
+        tet_store_q(C, t, q);
+    rt_mul(R, F, S);
+    add_stress(S, C->mu, C->lambda, 1.0, sig, 0);
+    if (visc) {
+        double Lv[9];
+        tet_grad(G, tv, NULL, v, 0, Lv, 0.0);
+        rt_mul(R, Lv, S);
+        add_stress(S, mat->phi, mat->psi, 0.0, sig, 1);
+    }
+    const double V = G[9];
+    double P[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
+    double s0 = 0, s1 = 0, s2 = 0;
+    for (int k = 0; k < 3; k++) {
+        const double *a = G + 3 * k;
+        const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
+        const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
+        const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
+        f12[3 * k] = -f0;
+        f12[3 * k + 1] = -f1;
+        f12[3 * k + 2] = -f2;
+        s0 += f0;
+        s1 += f1;
+        s2 += f2;
+    }
+    f12[9] = s0;
+    f12[10] = s1;
+    f12[11] = s2;
+}
+
+/* the elastic energy of tet t at displacement d (corners tv[0..3] indexing d), its rotation
+ * converged from the stored one (50 improvements at most) */
+static inline double tet_energy(const sq_corot *C, int t, const int *tv, const double *d)
+{
+    double G[10], q[4], F[9], R[9], S[9];
+    tet_load(C, t, G, q);
+    tet_grad(G, tv, d, NULL, 0, F, 1.0);
+    tet_rotation(q, F, 50, R);
+    rt_mul(R, F, S);
+    double e00 = S[0] - 1, e11 = S[4] - 1, e22 = S[8] - 1;
+    double e01 = 0.5 * (S[1] + S[3]), e02 = 0.5 * (S[2] + S[6]), e12 = 0.5 * (S[5] + S[7]);
+    double tr = e00 + e11 + e22;
+    double ee = e00 * e00 + e11 * e11 + e22 * e22 + 2 * (e01 * e01 + e02 * e02 + e12 * e12);
+    return G[9] * (C->mu * ee + 0.5 * C->lambda * tr * tr);
+}
+
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
 #define COROT_SIMD 1

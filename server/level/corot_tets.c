@@ -11,68 +11,20 @@
  *
  * lod/ couples levels tet by tet (docs/lod.md, "Corotational elasticity"): it gathers a tet's
  * corner values itself (active nodes, ghost values, values interpolated in time) and weights
- * the element force. These give it the element force of one tet from given corner values with
- * the arithmetic of the scalar pass (corot_tets), four at once with the vector pass's. */
+ * the element force. These give it the element force of one tet from given corner values by
+ * the scalar pass's own kernel (tet_force, corot_impl.h), four at once with the vector pass's. */
 
 void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, const double *d4, const double *v4,
                               int iters, int store, double *f4)
 {
     static const int tv[4] = {0, 1, 2, 3};
-    sq_corot *C = L->corot;
-    const double mu = C->mu, lam = C->lambda;
-    const int visc = mat->use_viscosity;
-    const double b = visc ? 0 : mat->rayleigh_stiffness;
-    double G[10], q[4], F[9], R[9], S[9], sig[9];
-    tet_load(C, t, G, q);
-    tet_grad(G, tv, d4, v4, b, F, 1.0);
-    tet_rotation(q, F, iters, R);
-    if (store)
-        tet_store_q(C, t, q);
-    rt_mul(R, F, S);
-    add_stress(S, mu, lam, 1.0, sig, 0);
-    if (visc) {
-        double Lv[9];
-        tet_grad(G, tv, NULL, v4, 0, Lv, 0.0);
-        rt_mul(R, Lv, S);
-        add_stress(S, mat->phi, mat->psi, 0.0, sig, 1);
-    }
-    const double V = G[9];
-    double P[9];
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
-    double s0 = 0, s1 = 0, s2 = 0;
-    for (int k = 0; k < 3; k++) {
-        const double *a = G + 3 * k;
-        const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
-        const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
-        const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
-        f4[3 * k] = -f0;
-        f4[3 * k + 1] = -f1;
-        f4[3 * k + 2] = -f2;
-        s0 += f0;
-        s1 += f1;
-        s2 += f2;
-    }
-    f4[9] = s0;
-    f4[10] = s1;
-    f4[11] = s2;
+    tet_force(L->corot, mat, t, tv, d4, v4, iters, store, f4);
 }
 
 double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4)
 {
     static const int tv[4] = {0, 1, 2, 3};
-    const sq_corot *C = L->corot;
-    double G[10], q[4], F[9], R[9], S[9];
-    tet_load(C, t, G, q);
-    tet_grad(G, tv, d4, NULL, 0, F, 1.0);
-    tet_rotation(q, F, 50, R);
-    rt_mul(R, F, S);
-    double e00 = S[0] - 1, e11 = S[4] - 1, e22 = S[8] - 1;
-    double e01 = 0.5 * (S[1] + S[3]), e02 = 0.5 * (S[2] + S[6]), e12 = 0.5 * (S[5] + S[7]);
-    double tr = e00 + e11 + e22;
-    double ee = e00 * e00 + e11 * e11 + e22 * e22 + 2 * (e01 * e01 + e02 * e02 + e12 * e12);
-    return G[9] * (C->mu * ee + 0.5 * C->lambda * tr * tr);
+    return tet_energy(L->corot, t, tv, d4);
 }
 
 #ifdef COROT_SIMD

@@ -14,22 +14,6 @@
 #define SQ_LEVEL_AVX2 1
 #endif
 
-/* position of column j in row i of the CSR adjacency, or -1 */
-static int csr_find(const int *row_start, const int *col, int i, int j)
-{
-    int lo = row_start[i], hi = row_start[i + 1] - 1;
-    while (lo <= hi) {
-        int mid = (lo + hi) / 2;
-        if (col[mid] == j)
-            return mid;
-        if (col[mid] < j)
-            lo = mid + 1;
-        else
-            hi = mid - 1;
-    }
-    return -1;
-}
-
 /* does constraint c select the rest point x? (eps: tolerance in metres) */
 static int constraint_selects(const sq_constraint *c, const double *x, double eps)
 {
@@ -76,7 +60,7 @@ static int assemble(const sq_level *L, sq_operator_kind op, double s, double l, 
             }
             for (int q = 0; q < 4; q++) {
                 int j = tv[q];
-                int e = csr_find(L->model.row_start, L->model.col, i, j);
+                int e = sq_csr_find(L->model.row_start, L->model.col, i, j);
                 if (e < 0)
                     return sq_err_set(err, "%s: nodes %d and %d share tetrahedron %d but are not "
                                            "adjacent in the mesh topology; re-finalize the mesh",

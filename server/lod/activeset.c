@@ -340,20 +340,10 @@ static const double *krow(sq_lod *lod, int k, int i)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level_model *M = &lod->lv[k].model;
-    if (!lk->krow_at) {
-        lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
-        for (int j = 0; j < M->n; j++)
-            lk->krow_at[j] = -1;
-    }
+    sq_lodx_krow_index(lk, M);
     if (lk->krow_at[i] < 0) {
         int len = M->row_start[i + 1] - M->row_start[i];
-        if (!lk->krow_chunk_len) { /* a chunk holds the longest row at least */
-            long most = SQ_KROW_CHUNK;
-            for (int j = 0; j < M->n; j++)
-                most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
-            lk->krow_chunk_len = most;
-        }
-        long CH = lk->krow_chunk_len;
+        long CH = sq_lodx_krow_chunk_len(lk, M);
         if (lk->krow_used % CH + len > CH) /* no straddling: the next chunk */
             lk->krow_used += CH - lk->krow_used % CH;
         if (lk->krow_used + len > lk->krow_cap) {
@@ -737,34 +727,15 @@ void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gra
 
 /* ---------------------------------------------------------------- the guard's merges */
 
-/* delta = hbar^2 |Lap(d - d_static)| at active node i of level k, as the criterion judges it
- * (criterion.c delta_at; ghost neighbours the last cascade did not push read on demand) */
-static double need_delta(const sq_lod *lod, int k, int i)
-{
-    const sq_lod_level *lk = &lod->lev[k];
-    const sq_level *L = &lod->lv[k];
-    const double *w = lk->crit_weight, *ds = lk->d_static;
-    double s[3] = {0, 0, 0};
-    for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
-        int j = L->model.col[q];
-        double dj[3], vj[3];
-        sq_lodx_value(lod, k, j, dj, vj);
-        for (int a = 0; a < 3; a++)
-            s[a] += w[q] * (dj[a] - (ds ? ds[3 * j + a] : 0.0));
-    }
-    double h2 = L->model.hbar[i] * L->model.hbar[i];
-    return h2 / L->model.vol[i] * sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
-}
-
 double sq_lodx_need(const sq_lod *lod, int k, int p)
 {
     const sq_lod_link *ln = &lod->h.link[k];
     int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
     if (c0 == c1)
-        return need_delta(lod, k, p);
+        return sq_lodx_delta(lod, k, p);
     double m = 0;
     for (int c = c0; c < c1; c++)
-        m = fmax(m, need_delta(lod, k + 1, ln->child[c]));
+        m = fmax(m, sq_lodx_delta(lod, k + 1, ln->child[c]));
     return m;
 }
 
@@ -870,7 +841,7 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
         for (int i = 0; i < n; i++) {
             if (lk->state[i] != ST_ACTIVE)
                 continue; /* ghost or resting */
-            double d = need_delta(lod, k, i);
+            double d = sq_lodx_delta(lod, k, i);
             if (d > def->split)
                 c[nc++] = (lim_cand){d, i, 1};
         }

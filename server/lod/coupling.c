@@ -753,19 +753,9 @@ static long map_chunk(sq_lod_level *lk, size_t chunk, size_t per, double c0, dou
  * opened there, 1.5 MB, paid its first touches in that frame); returns the pages left */
 static long reserve_krow(sq_lod_level *lk, const sq_level_model *M, double c0, double seconds, long *pages)
 {
-    if (!lk->krow_at) {
-        lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
-        for (int j = 0; j < M->n; j++)
-            lk->krow_at[j] = -1;
+    if (sq_lodx_krow_index(lk, M))
         *pages += (long)(sizeof(int) * (size_t)M->n / PAGE_BYTES + 1);
-    }
-    if (!lk->krow_chunk_len) { /* a chunk holds the longest row at least (as krow) */
-        long most = SQ_KROW_CHUNK;
-        for (int j = 0; j < M->n; j++)
-            most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
-        lk->krow_chunk_len = most;
-    }
-    long CH = lk->krow_chunk_len;
+    long CH = sq_lodx_krow_chunk_len(lk, M);
     size_t chunk = sizeof(double) * 12 * (size_t)CH;
     long left = 0;
     for (int round = 0; round < 2; round++) {

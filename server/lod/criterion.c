@@ -89,8 +89,10 @@ double *sq_lodx_criterion_weights(const sq_mesh *m)
 
 /* ---------------------------------------------------------------- split / merge */
 
-/* delta_i = hbar_i^2 |Lap(d)_i| at node i of level k (boundary-corrected Laplacian) */
-static double delta_at(const sq_lod *lod, int k, int i)
+/* delta_i = hbar_i^2 |Lap(d - d_static)_i| at node i of level k (boundary-corrected
+ * Laplacian); the one computation of the criterion: the split/merge pass here, sq_lod_delta
+ * and the guard's ranking (activeset.c) all call it */
+double sq_lodx_delta(const sq_lod *lod, int k, int i)
 {
     const sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
@@ -132,7 +134,7 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
     if (level < 0 || level >= lod->L || node < 0 || node >= lod->lv[level].model.n)
         return 0;
     sq_lod_flush((sq_lod *)lod); /* ghost values pushed on demand are part of the state */
-    return delta_at(lod, level, node);
+    return sq_lodx_delta(lod, level, node);
 }
 
 /* merge node p of level k: it starts from its value interpolated from its child tet, its
@@ -174,7 +176,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         for (int i = 0; i < Lk->model.n; i++) {
             if (lk->state[i] != ST_ACTIVE)
                 continue;
-            if (!forced && !(delta_at(lod, k, i) > def->split))
+            if (!forced && !(sq_lodx_delta(lod, k, i) > def->split))
                 continue;
             int nch = ln->child_start[i + 1] - ln->child_start[i];
             long extra = nch * cost_f - cost_k;
@@ -215,13 +217,13 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 continue;
             if (c1 == c0) {
                 /* no child: judge the node on its own (interpolated) field */
-                if (!(delta_at(lod, k, p) < def->merge))
+                if (!(sq_lodx_delta(lod, k, p) < def->merge))
                     continue;
             } else {
                 for (int c = c0; c < c1 && ok; c++)
-                    if (!(delta_at(lod, k + 1, ln->child[c]) < def->merge))
+                    if (!(sq_lodx_delta(lod, k + 1, ln->child[c]) < def->merge))
                         ok = 0;
-                if (ok && parent_test && !(delta_at(lod, k, p) < def->merge))
+                if (ok && parent_test && !(sq_lodx_delta(lod, k, p) < def->merge))
                     ok = 0;
                 if (!ok)
                     continue;

@@ -388,20 +388,7 @@ static inline int sub_log2(const sq_lod *lod, int k)
 }
 
 /* position of column j in CSR row i of the mesh adjacency (sorted), or -1 */
-static inline int adj_find(const sq_mesh *m, int i, int j)
-{
-    int lo = m->adj_start[i], hi = m->adj_start[i + 1] - 1;
-    while (lo <= hi) {
-        int mid = (lo + hi) / 2;
-        if (m->adj[mid] == j)
-            return mid;
-        if (m->adj[mid] < j)
-            lo = mid + 1;
-        else
-            hi = mid - 1;
-    }
-    return -1;
-}
+static inline int adj_find(const sq_mesh *m, int i, int j) { return sq_csr_find(m->adj_start, m->adj, i, j); }
 
 /* counters of one frame's adaptation */
 typedef struct adapt_out {
@@ -421,6 +408,32 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
  * until sq_lodx_guard_limit_undo); returns the regions held out */
 long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
 void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
+/* criterion.c: the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
+ * neighbours the last cascade did not push read on demand (sq_lodx_value) */
+double sq_lodx_delta(const sq_lod *lod, int k, int i);
+/* the column-form row cache of level k (krow, activeset.c; reserved ahead by coupling.c): its
+ * node index, made on first use with every node -1 (1 when made by this call) */
+static inline int sq_lodx_krow_index(sq_lod_level *lk, const sq_level_model *M)
+{
+    if (lk->krow_at)
+        return 0;
+    lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
+    for (int j = 0; j < M->n; j++)
+        lk->krow_at[j] = -1;
+    return 1;
+}
+/* its blocks per chunk, set on first use: SQ_KROW_CHUNK, or the longest row if longer (a chunk
+ * holds a whole row) */
+static inline long sq_lodx_krow_chunk_len(sq_lod_level *lk, const sq_level_model *M)
+{
+    if (!lk->krow_chunk_len) {
+        long most = SQ_KROW_CHUNK;
+        for (int j = 0; j < M->n; j++)
+            most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
+        lk->krow_chunk_len = most;
+    }
+    return lk->krow_chunk_len;
+}
 /* the need of split node p of level k: its children's largest criterion (its own without
  * children), as the merge rule judges it, m */
 double sq_lodx_need(const sq_lod *lod, int k, int p);

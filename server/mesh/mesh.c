@@ -15,21 +15,16 @@
 /* outward counter-clockwise faces of a positively oriented tet, face k opposite vertex k */
 const int sq_tet_face[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {0, 2, 1}};
 
+/* free what sq_mesh_finalize derives from x and tets (faces, surface, adjacency, locator) */
+static void clear_derived(sq_mesh *m);
+
 void sq_mesh_free(sq_mesh *m)
 {
     if (!m)
         return;
     free(m->x);
     free(m->tets);
-    free(m->tris);
-    free(m->on_boundary);
-    free(m->surf_nodes);
-    free(m->surf_of_node);
-    free(m->surf_tris);
-    free(m->adj_start);
-    free(m->adj);
-    free(m->tri_tet);
-    sq_locator_free(m->locator);
+    clear_derived(m);
     free(m);
 }
 
@@ -265,14 +260,14 @@ static void clear_derived(sq_mesh *m)
     m->tri_tet = NULL;
     m->on_boundary = NULL;
     m->ntris = m->nsurf = 0;
+    sq_locator_free(m->locator);
+    m->locator = NULL;
 }
 
 int sq_mesh_finalize(sq_mesh *m, sq_err *err)
 {
     const int n = m->nnodes, nt = m->ntets;
     clear_derived(m);
-    sq_locator_free(m->locator);
-    m->locator = NULL;
 
     /* bounding box */
     for (int c = 0; c < 3; c++) {

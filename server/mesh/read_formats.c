@@ -61,6 +61,19 @@ static int msh_nodes_22(rd *r, build *b)
     return expect_end(r, "$EndNodes");
 }
 
+/* the four node numbers that end a tetrahedron's element line (both .msh versions); -1, reported,
+ * when the line is cut short or a number is bad */
+static int read_tet_nodes(rd *r, long long v[4])
+{
+    for (int k = 0; k < 4; k++) {
+        if (!sq_rd_more_on_line(r))
+            return sq_rd_fail(r, "tetrahedron has fewer than 4 nodes%s%s; the line is cut short", "", "");
+        if (sq_rd_read_long(r, &v[k], "tetrahedron node") < 0)
+            return -1;
+    }
+    return 0;
+}
+
 static int msh_elements_22(rd *r, build *b)
 {
     long long n;
@@ -89,12 +102,8 @@ static int msh_elements_22(rd *r, build *b)
                 return -1;
         }
         long long v[4];
-        for (int k = 0; k < 4; k++) {
-            if (!sq_rd_more_on_line(r))
-                return sq_rd_fail(r, "tetrahedron has fewer than 4 nodes%s%s; the line is cut short", "", "");
-            if (sq_rd_read_long(r, &v[k], "tetrahedron node") < 0)
-                return -1;
-        }
+        if (read_tet_nodes(r, v) < 0)
+            return -1;
         sq_rd_build_add_tet(b, v, line);
     }
     return expect_end(r, "$EndElements");
@@ -172,12 +181,8 @@ static int msh_elements_41(rd *r, build *b)
             long long id, v[4];
             if (sq_rd_read_long(r, &id, "element tag") < 0)
                 return -1;
-            for (int k = 0; k < 4; k++) {
-                if (!sq_rd_more_on_line(r))
-                    return sq_rd_fail(r, "tetrahedron has fewer than 4 nodes%s%s; the line is cut short", "", "");
-                if (sq_rd_read_long(r, &v[k], "tetrahedron node") < 0)
-                    return -1;
-            }
+            if (read_tet_nodes(r, v) < 0)
+                return -1;
             sq_rd_build_add_tet(b, v, line);
         }
         total += cnt;

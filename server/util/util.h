@@ -31,6 +31,23 @@ static inline int sq_cancelled(void)
     return sq_cancel_flag && __atomic_load_n(sq_cancel_flag, __ATOMIC_RELAXED);
 }
 
+/* position of column j in row i of a CSR pattern whose rows are sorted (row i is
+ * col[row_start[i] .. row_start[i + 1] - 1]), or -1: the mesh adjacency, a level's rows */
+static inline int sq_csr_find(const int *row_start, const int *col, int i, int j)
+{
+    int lo = row_start[i], hi = row_start[i + 1] - 1;
+    while (lo <= hi) {
+        int mid = (lo + hi) / 2;
+        if (col[mid] == j)
+            return mid;
+        if (col[mid] < j)
+            lo = mid + 1;
+        else
+            hi = mid - 1;
+    }
+    return -1;
+}
+
 /* progress bar on stderr, only when stderr is a terminal (or force is set) */
 typedef struct sq_progress {
     const char *label;

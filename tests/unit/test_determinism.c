@@ -26,6 +26,7 @@
 
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 
 #define DET_FRAMES 40
 /* cube-poke's sphere first holds nodes in frame 44 and lets go after frame 77 (`squish run`'s
@@ -154,8 +155,7 @@ static int by_name(const void *a, const void *b)
 
 SQ_TEST(determinism_shipped_scene_hashes)
 {
-    char dir[1024];
-    snprintf(dir, sizeof dir, "%s/../../meshes/scenes", sq_test_data());
+    const char *dir = th_scenes_dir();
     DIR *dp = opendir(dir);
     CHECK(dp != NULL);
     if (!dp)
@@ -214,7 +214,7 @@ SQ_TEST(determinism_shipped_scene_hashes)
 SQ_TEST(determinism_same_run_twice)
 {
     char path[1200];
-    snprintf(path, sizeof path, "%s/../../meshes/scenes/cube-poke.json", sq_test_data());
+    snprintf(path, sizeof path, "%s/cube-poke.json", th_scenes_dir());
     int s1 = 0, s2 = 0;
     uint64_t a = run_and_hash(path, DET_FRAMES_CUBE_POKE, 0, &s1);
     uint64_t b = run_and_hash(path, DET_FRAMES_CUBE_POKE, 0, &s2);

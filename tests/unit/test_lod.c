@@ -8,6 +8,7 @@
 #include "lod/lod.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"
+#include "test_sim_helpers.h"
 
 /* ------------------------------------------------------------------ hierarchy */
 
@@ -103,8 +104,7 @@ SQ_TEST(lod_hierarchy_boxes_jittered_and_scaled)
     CHECK_CONTAINS(e.msg, "level 1");
     CHECK(sq_hierarchy_build(&h, mm, SQ_MAX_LEVELS + 1, &e) == -1);
     CHECK_CONTAINS(e.msg, "levels");
-    for (int k = 0; k < 4; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 4);
 }
 
 /* ------------------------------------------------------------------ forced modes */
@@ -135,8 +135,8 @@ static double *run_cube(sq_mesh **m, int nlevels, sq_lod_def lod, int frames, in
 
 SQ_TEST(lod_forced_finest_and_coarsest_match_fixed_runs)
 {
-    sq_mesh *m[3] = {lh_cube(2, 0, 1, 1), lh_cube(4, 0.1, 1, 2), lh_cube(6, 0, 1, 3)};
-    if (!m[0] || !m[1] || !m[2]) {
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){2, 4, 6})) {
         CHECK(0);
         return;
     }
@@ -201,8 +201,7 @@ SQ_TEST(lod_forced_finest_and_coarsest_match_fixed_runs)
     }
     sq_body_destroy(bf);
     sq_body_destroy(ba);
-    for (int k = 0; k < 3; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ shipped meshes */
@@ -214,13 +213,8 @@ static void shipped_hierarchy(const char *shape, int brute_force)
     sq_err e = {{0}};
     int ok = 1;
     for (int k = 0; k < 4; k++) {
-        char path[1024];
-        snprintf(path, sizeof path, "%s/../../meshes/%s/%s_l%d.msh", sq_test_data(), shape, shape, k);
-        m[k] = sq_mesh_load(path, &e);
-        if (!m[k]) {
-            fprintf(stderr, "%s\n", e.msg);
-            ok = 0;
-        }
+        m[k] = th_shipped_mesh("%s/%s_l%d.msh", shape, shape, k);
+        ok &= m[k] != NULL;
     }
     CHECK(ok);
     if (ok) {
@@ -247,8 +241,7 @@ static void shipped_hierarchy(const char *shape, int brute_force)
         }
         sq_hierarchy_free(&h);
     }
-    for (int k = 0; k < 4; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 4);
 }
 
 SQ_TEST(lod_hierarchy_shipped_cube)

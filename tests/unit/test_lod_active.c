@@ -6,24 +6,12 @@
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 #include "test_lod_helpers.h"
 #include "test_sim_helpers.h"
 
 /* four cube levels: 3, 6 (jittered), 12, 18 (jittered) cells */
-static int four_meshes(sq_mesh **m)
-{
-    m[0] = lh_cube(3, 0, 1, 1);
-    m[1] = lh_cube(6, 0.1, 1, 2);
-    m[2] = lh_cube(12, 0, 1, 3);
-    m[3] = lh_cube(18, 0.1, 1, 4);
-    return m[0] && m[1] && m[2] && m[3];
-}
-
-static void free4(sq_mesh **m)
-{
-    for (int k = 0; k < 4; k++)
-        sq_mesh_free(m[k]);
-}
+static int four_meshes(sq_mesh **m) { return lh_cube_levels(m, 4, (const int[]){3, 6, 12, 18}); }
 
 /* a sphere pressing the top 8 cm over 0.6 s, held, released at 1.2 s, moving sideways while
  * it presses so regions split and merge during the poke */
@@ -104,7 +92,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
         free(pre[k]);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
-    free4(m);
+    lh_free_meshes(m, 4);
 }
 
 /* Nothing refined (split = inf): the end-of-frame push updates the finest surface and what it
@@ -185,7 +173,7 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
         free(v[k]);
     }
     sq_body_destroy(b);
-    free4(m);
+    lh_free_meshes(m, 4);
 }
 
 /* A cube resting in its static sag under its own weight: the criterion judges the motion from
@@ -193,8 +181,11 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
  * is far above the split threshold (judged from zero it would split most of the body). */
 SQ_TEST(lod_static_sag_splits_nothing)
 {
-    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
-    TH_REQUIRE(m[0] && m[1]);
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){3, 6})) {
+        CHECK(0);
+        return;
+    }
     sq_body_def def = lh_cube_def(m, 2);
     double split = 0.002;
     def.lod = lh_lod(SQ_LOD_ADAPTIVE, split, split / 4);
@@ -235,8 +226,7 @@ SQ_TEST(lod_static_sag_splits_nothing)
     CHECK(filt < 1e-6);
     CHECK(splits == 0);
     sq_body_destroy(b);
-    sq_mesh_free(m[0]);
-    sq_mesh_free(m[1]);
+    lh_free_meshes(m, 2);
 }
 
 /* The guard holds the rate by merging, not only by refusing splits: a body refined under a
@@ -245,8 +235,11 @@ SQ_TEST(lod_static_sag_splits_nothing)
  * region stayed: only new splits were refused.) */
 SQ_TEST(lod_guard_merges_when_the_frame_does_not_fit)
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
+        CHECK(0);
+        return;
+    }
     sq_body_def def = lh_cube_def(m, 3);
     def.gravity[2] = 0;
     def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
@@ -278,8 +271,7 @@ SQ_TEST(lod_guard_merges_when_the_frame_does_not_fit)
     CHECK(merged > 0);
     CHECK(said == 5);
     sq_body_destroy(b);
-    for (int k = 0; k < 3; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 3);
 }
 
 /* level k of two lods: every list, block and bound the rebuild makes, equal bit for bit */
@@ -384,7 +376,7 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
         sq_body_destroy(b[0]);
         sq_body_destroy(b[1]);
     }
-    free4(m);
+    lh_free_meshes(m, 4);
 }
 
 /* Under a static load the mixed layout's own equilibrium differs from each level's, so a
@@ -400,16 +392,12 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
  * for a late threshold crossing under other rounding (the sanitizer build). */
 SQ_TEST(lod_static_load_settles_without_split_merge_churn)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/../../meshes/scenes/organ.json", sq_test_data());
-    sq_err e = {{0}};
-    sq_scene *sc = sq_scene_load(path, &e);
+    sq_scene *sc = th_shipped_scene("organ");
     CHECK(sc != NULL);
-    if (!sc) {
-        fprintf(stderr, "%s: %s\n", path, e.msg);
+    if (!sc)
         return;
-    }
     sc->ntools = 0;
+    sq_err e = {{0}};
     sq_world *w = sq_world_create(sc, &e);
     CHECK(w != NULL);
     if (!w) {

@@ -11,19 +11,7 @@
 #include "test_lod_helpers.h"
 
 /* three cube levels: 3, 6 (jittered) and 12 cells */
-static int poke_meshes(sq_mesh **m)
-{
-    m[0] = lh_cube(3, 0, 1, 1);
-    m[1] = lh_cube(6, 0.1, 1, 2);
-    m[2] = lh_cube(12, 0, 1, 3);
-    return m[0] && m[1] && m[2];
-}
-
-static void free_meshes(sq_mesh **m, int n)
-{
-    for (int k = 0; k < n; k++)
-        sq_mesh_free(m[k]);
-}
+static int poke_meshes(sq_mesh **m) { return lh_cube_levels(m, 3, (const int[]){3, 6, 12}); }
 
 /* the scripted poke: a 0.2 m sphere presses the top face 0.1 m deep over 0.5 s, holds, and
  * is released at t = 1 s */
@@ -36,13 +24,7 @@ static sq_tool poke_tool(double t)
 /* levels initialised for the paper's material, each at its own step for 50 Hz */
 static int make_levels(sq_level *lv, sq_mesh **m, int n, const sq_material *mat)
 {
-    sq_constraint c;
-    memset(&c, 0, sizeof c);
-    c.kind = SQ_REGION_BOX;
-    c.a[0] = c.a[1] = c.a[2] = -1;
-    c.b[0] = c.b[1] = 2;
-    c.b[2] = 1e-3;
-    c.axes = 7;
+    sq_constraint c = lh_bottom_fixed();
     sq_err e = {{0}};
     for (int k = 0; k < n; k++)
         if (sq_level_init(&lv[k], m[k], mat, SQ_OPERATOR_FEM, &c, 1, &e) ||
@@ -57,15 +39,12 @@ static int make_levels(sq_level *lv, sq_mesh **m, int n, const sq_material *mat)
 
 SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
 {
-    sq_mesh *m[2] = {lh_cube(4, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){4, 6})) {
         CHECK(0);
         return;
     }
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
+    sq_material mat = lh_paper_material();
     sq_level lv[2];
     CHECK(make_levels(lv, m, 2, &mat));
     sq_lod_def def = lh_lod(SQ_LOD_ADAPTIVE, INFINITY, 0.001);
@@ -109,7 +88,7 @@ SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
     sq_lod_destroy(lod);
     for (int k = 0; k < 2; k++)
         sq_level_free(&lv[k]);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }
 
 /* ------------------------------------------------------------------ scripted poke */
@@ -129,7 +108,7 @@ SQ_TEST(lod_poke_refines_near_tool_and_merges_back)
     CHECK(b != NULL);
     if (!b) {
         fprintf(stderr, "%s\n", e.msg);
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return;
     }
     sq_frame_profile prof;
@@ -182,7 +161,7 @@ SQ_TEST(lod_poke_refines_near_tool_and_merges_back)
     CHECK(all_coarse_frame > 0);
     CHECK(all_coarse_frame * def.frame_dt < release + 2.5);
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ energy */
@@ -192,15 +171,12 @@ SQ_TEST(lod_poke_refines_near_tool_and_merges_back)
  * the field */
 SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
 {
-    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){3, 6})) {
         CHECK(0);
         return;
     }
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
+    sq_material mat = lh_paper_material();
     sq_level lv[2];
     CHECK(make_levels(lv, m, 2, &mat));
     sq_lod_def adapt = lh_lod(SQ_LOD_ADAPTIVE, 0.004, 0.002), frozen = adapt;
@@ -251,7 +227,7 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
     sq_lod_destroy(lod);
     for (int k = 0; k < 2; k++)
         sq_level_free(&lv[k]);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }
 
 /* the frame's stages: each one's time is recorded, the named profile times are those stages
@@ -271,7 +247,7 @@ SQ_TEST(lod_frame_stage_times_add_up)
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return;
     }
     int bad = 0, frames_adapting = 0, step_timed = 0, frames_updating = 0;
@@ -310,7 +286,7 @@ SQ_TEST(lod_frame_stage_times_add_up)
     CHECK(strcmp(sq_lod_stage_name(SQ_LOD_STAGES), "?") == 0);
     CHECK(strcmp(sq_lod_stage_name(SQ_LOD_STAGE_PULL), "pull") == 0);
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ tool feedback */
@@ -320,8 +296,8 @@ SQ_TEST(lod_frame_stage_times_add_up)
  * operator is translation invariant across levels, so internal forces sum to zero */
 static void feedback_balance(double split, double merge, int want_mixed)
 {
-    sq_mesh *m[2] = {lh_cube(4, 0, 1, 1), lh_cube(8, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){4, 8})) {
         CHECK(0);
         return;
     }
@@ -334,7 +310,7 @@ static void feedback_balance(double split, double merge, int want_mixed)
     CHECK(b != NULL);
     if (!b) {
         fprintf(stderr, "%s\n", e.msg);
-        free_meshes(m, 2);
+        lh_free_meshes(m, 2);
         return;
     }
     sq_tool t = lh_sphere(0.5, 0.5, 1.2, 0.3, 1); /* 0.1 m into the top face */
@@ -363,7 +339,7 @@ static void feedback_balance(double split, double merge, int want_mixed)
      * rounding */
     CHECK(lh_norm3(sum) <= 1e-6 * fabs(fb.force[2]));
     sq_body_destroy(b);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }
 
 SQ_TEST(lod_tool_feedback_balances_supports_forced_finest)
@@ -395,7 +371,7 @@ SQ_TEST(lod_budget_refuses_splits_and_warns)
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return;
     }
     /* a 1 ns budget: every frame after the first is over it, whatever the machine */
@@ -415,7 +391,7 @@ SQ_TEST(lod_budget_refuses_splits_and_warns)
     CHECK(warned == 59);
     CHECK(prof.active[0] >= m[0]->nnodes - 1); /* stayed (almost) coarse under the poke */
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* the node-update cap: a poke that needs more stays under the cap in >= 99% of frames, with
@@ -457,15 +433,15 @@ SQ_TEST(lod_node_update_cap_holds)
     CHECK(over[0] > 10);             /* the poke does need more than the cap */
     CHECK(over[1] * 100 <= frames);  /* >= 99% of the frames within the cap */
     CHECK(refused[1] > 0 && refused[0] == 0);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ sleep */
 
 SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)
 {
-    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){3, 6})) {
         CHECK(0);
         return;
     }
@@ -476,7 +452,7 @@ SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 2);
+        lh_free_meshes(m, 2);
         return;
     }
     sq_frame_profile prof;
@@ -501,7 +477,7 @@ SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)
     CHECK(prof.node_updates > 0);
     CHECK(!sq_body_is_sleeping(b));
     sq_body_destroy(b);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }
 
 /* the ring rows are summed from element blocks cached per tet: a material change must rebuild
@@ -511,15 +487,12 @@ SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)
  * material is restored; a stale cache would keep the ring rows of the first material. */
 SQ_TEST(lod_ring_blocks_follow_material_change)
 {
-    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){3, 6})) {
         CHECK(0);
         return;
     }
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
+    sq_material mat = lh_paper_material();
     sq_material stiff = mat;
     stiff.mu *= 2;
     stiff.lambda *= 2;
@@ -565,5 +538,5 @@ SQ_TEST(lod_ring_blocks_follow_material_change)
     sq_lod_destroy(lod);
     for (int k = 0; k < 2; k++)
         sq_level_free(&lv[k]);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }

@@ -136,10 +136,7 @@ static double *dense_operator(sq_lod *lod, const sq_material *mat, const dof *do
 /* the bent cube's material (mu 40 kPa, lambda 100 kPa, 1000 kg/m^3), Rayleigh damped or not */
 static sq_material bent_material(int damped)
 {
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
+    sq_material mat = lh_paper_material();
     if (damped) {
         mat.rayleigh_mass = 2;
         mat.rayleigh_stiffness = 1e-3;
@@ -150,16 +147,8 @@ static sq_material bent_material(int damped)
 /* three cube levels (2, 4 jittered, 6 cells), bottom fixed, a bent field refined in part */
 static sq_lod *bent_lod(sq_mesh **m, sq_level *lv, const sq_material *mat)
 {
-    m[0] = lh_cube(2, 0, 1, 1);
-    m[1] = lh_cube(4, 0.1, 1, 2);
-    m[2] = lh_cube(6, 0, 1, 3);
-    sq_constraint c;
-    memset(&c, 0, sizeof c);
-    c.kind = SQ_REGION_BOX;
-    c.a[0] = c.a[1] = c.a[2] = -1;
-    c.b[0] = c.b[1] = 2;
-    c.b[2] = 1e-3;
-    c.axes = 7;
+    lh_cube_levels(m, 3, (const int[]){2, 4, 6});
+    sq_constraint c = lh_bottom_fixed();
     sq_err e = {{0}};
     for (int k = 0; k < 3; k++)
         if (!m[k] || sq_level_init(&lv[k], m[k], mat, SQ_OPERATOR_FEM, &c, 1, &e) ||

@@ -10,13 +10,8 @@
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 #include "test_lod_helpers.h"
-
-static void free_meshes(sq_mesh **m, int n)
-{
-    for (int k = 0; k < n; k++)
-        sq_mesh_free(m[k]);
-}
 
 /* the cube body, corotational, with Rayleigh stiffness damping (the rotated b R K R^T v path) */
 static sq_body_def corot_cube(sq_mesh **m, int n, sq_lod_def lod)
@@ -67,8 +62,8 @@ static double max_diff(const double *a, const double *b, int n, double *amax)
 
 SQ_TEST(lod_corot_forced_finest_and_coarsest_match_fixed_runs)
 {
-    sq_mesh *m[3] = {lh_cube(2, 0, 1, 1), lh_cube(4, 0.1, 1, 2), lh_cube(6, 0, 1, 3)};
-    if (!m[0] || !m[1] || !m[2]) {
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){2, 4, 6})) {
         CHECK(0);
         return;
     }
@@ -142,7 +137,7 @@ SQ_TEST(lod_corot_forced_finest_and_coarsest_match_fixed_runs)
     sq_body_destroy(bf);
     sq_body_destroy(ba);
     sq_body_destroy(bl);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ rigid rotation */
@@ -154,8 +149,8 @@ SQ_TEST(lod_corot_forced_finest_and_coarsest_match_fixed_runs)
  * elasticity on the same layout gives thousands of newtons */
 static double rigid_force(int corot, int level_force[3], double out[3])
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    if (!m[0] || !m[1] || !m[2]) {
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
         CHECK(0);
         return -1;
     }
@@ -169,7 +164,7 @@ static double rigid_force(int corot, int level_force[3], double out[3])
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return -1;
     }
     sq_frame_profile prof;
@@ -225,7 +220,7 @@ static double rigid_force(int corot, int level_force[3], double out[3])
     }
     CHECK(prof.reset == 0);
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
     return worst;
 }
 
@@ -248,8 +243,8 @@ SQ_TEST(lod_corot_rigid_rotation_gives_zero_force_at_every_level)
 
 SQ_TEST(lod_corot_poke_and_drag_stable_refines_and_merges_back)
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    if (!m[0] || !m[1] || !m[2]) {
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
         CHECK(0);
         return;
     }
@@ -260,7 +255,7 @@ SQ_TEST(lod_corot_poke_and_drag_stable_refines_and_merges_back)
     CHECK(b != NULL);
     if (!b) {
         fprintf(stderr, "%s\n", e.msg);
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return;
     }
     sq_frame_profile prof;
@@ -317,7 +312,7 @@ SQ_TEST(lod_corot_poke_and_drag_stable_refines_and_merges_back)
     CHECK(all_coarse_frame > 0);
     CHECK(all_coarse_frame * def.frame_dt < release + 2.5);
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* ------------------------------------------------------------------ energy */
@@ -327,22 +322,13 @@ SQ_TEST(lod_corot_poke_and_drag_stable_refines_and_merges_back)
  * before each frame */
 SQ_TEST(lod_corot_energy_across_split_merge_and_undamped_run)
 {
-    sq_mesh *m[2] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){3, 6})) {
         CHECK(0);
         return;
     }
-    sq_material mat = {0};
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
-    sq_constraint c;
-    memset(&c, 0, sizeof c);
-    c.kind = SQ_REGION_BOX;
-    c.a[0] = c.a[1] = c.a[2] = -1;
-    c.b[0] = c.b[1] = 2;
-    c.b[2] = 1e-3;
-    c.axes = 7;
+    sq_material mat = lh_paper_material();
+    sq_constraint c = lh_bottom_fixed();
     sq_level lv[2];
     sq_err e = {{0}};
     for (int k = 0; k < 2; k++)
@@ -409,7 +395,7 @@ SQ_TEST(lod_corot_energy_across_split_merge_and_undamped_run)
     sq_lod_destroy(lod);
     for (int k = 0; k < 2; k++)
         sq_level_free(&lv[k]);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }
 
 /* ------------------------------------------------------------------ tool feedback */
@@ -419,8 +405,8 @@ SQ_TEST(lod_corot_energy_across_split_merge_and_undamped_run)
  * whose weights sum to 1) */
 SQ_TEST(lod_corot_tool_feedback_balances_supports_mixed_levels)
 {
-    sq_mesh *m[2] = {lh_cube(4, 0, 1, 1), lh_cube(8, 0.1, 1, 2)};
-    if (!m[0] || !m[1]) {
+    sq_mesh *m[2];
+    if (!lh_cube_levels(m, 2, (const int[]){4, 8})) {
         CHECK(0);
         return;
     }
@@ -432,7 +418,7 @@ SQ_TEST(lod_corot_tool_feedback_balances_supports_mixed_levels)
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 2);
+        lh_free_meshes(m, 2);
         return;
     }
     sq_tool t = lh_sphere(0.5, 0.5, 1.2, 0.3, 1);
@@ -457,7 +443,7 @@ SQ_TEST(lod_corot_tool_feedback_balances_supports_mixed_levels)
     CHECK(prof.active[0] > 0 && prof.active[1] > 0);
     CHECK(lh_norm3(sum) <= 1e-6 * fabs(fb.force[2])); /* the linear test's bound */
     sq_body_destroy(b);
-    free_meshes(m, 2);
+    lh_free_meshes(m, 2);
 }
 
 /* ------------------------------------------------------------------ reset */
@@ -467,8 +453,8 @@ SQ_TEST(lod_corot_tool_feedback_balances_supports_mixed_levels)
  * tets listed, rotated and refined */
 SQ_TEST(lod_corot_run_after_reset_is_the_run_from_rest)
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    if (!m[0] || !m[1] || !m[2]) {
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
         CHECK(0);
         return;
     }
@@ -477,7 +463,7 @@ SQ_TEST(lod_corot_run_after_reset_is_the_run_from_rest)
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return;
     }
     double *first[3] = {NULL, NULL, NULL};
@@ -505,7 +491,7 @@ SQ_TEST(lod_corot_run_after_reset_is_the_run_from_rest)
     for (int k = 0; k < 3; k++)
         free(first[k]);
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }
 
 /* The criterion judges the motion from each level's static equilibrium; for a corotational
@@ -519,22 +505,17 @@ SQ_TEST(lod_corot_run_after_reset_is_the_run_from_rest)
  * relative residual 1e-6, far below the merge threshold 0.006 m. */
 SQ_TEST(lod_corot_static_criterion_is_the_corotational_equilibrium)
 {
-    char dir[1024], path[1100];
-    snprintf(dir, sizeof dir, "%s/../../meshes/scenes", sq_test_data());
-    snprintf(path, sizeof path, "%s/organ.json", dir);
-    sq_err e = {{0}};
-    sq_scene *sc = sq_scene_load(path, &e);
+    sq_scene *sc = th_shipped_scene("organ");
     CHECK(sc != NULL);
-    if (!sc) {
-        fprintf(stderr, "%s: %s\n", path, e.msg);
+    if (!sc)
         return;
-    }
     sc->ntools = 0;
     sc->bodies[0].elasticity = SQ_ELASTICITY_COROTATIONAL;
     sc->bodies[0].lod.mode = SQ_LOD_ADAPTIVE;
     sc->bodies[0].lod.max_level = 1;
     sc->bodies[0].lod.split = INFINITY;
     sc->bodies[0].lod.merge = 0.006;
+    sq_err e = {{0}};
     sq_world *w = sq_world_create(sc, &e);
     CHECK(w != NULL);
     if (!w) {
@@ -573,8 +554,8 @@ SQ_TEST(lod_corot_static_criterion_is_the_corotational_equilibrium)
  * between their steps. */
 SQ_TEST(lod_corot_profile_counts_the_interface)
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    if (!m[0] || !m[1] || !m[2]) {
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
         CHECK(0);
         return;
     }
@@ -583,7 +564,7 @@ SQ_TEST(lod_corot_profile_counts_the_interface)
     sq_body *b = sq_body_create(&def, &e);
     CHECK(b != NULL);
     if (!b) {
-        free_meshes(m, 3);
+        lh_free_meshes(m, 3);
         return;
     }
     sq_frame_profile prof, pc, pl;
@@ -612,5 +593,5 @@ SQ_TEST(lod_corot_profile_counts_the_interface)
     CHECK(pc.ring_rows == pl.ring_rows);
     CHECK(pc.ring_values >= pl.ring_values);
     sq_body_destroy(b);
-    free_meshes(m, 3);
+    lh_free_meshes(m, 3);
 }

@@ -8,18 +8,12 @@
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 #include "test_lod_helpers.h"
 #include "test_sim_helpers.h"
 
 /* four cube levels: 3, 6 (jittered), 12, 18 (jittered) cells */
-static int guard_meshes(sq_mesh **m)
-{
-    m[0] = lh_cube(3, 0, 1, 1);
-    m[1] = lh_cube(6, 0.1, 1, 2);
-    m[2] = lh_cube(12, 0, 1, 3);
-    m[3] = lh_cube(18, 0.1, 1, 4);
-    return m[0] && m[1] && m[2] && m[3];
-}
+static int guard_meshes(sq_mesh **m) { return lh_cube_levels(m, 4, (const int[]){3, 6, 12, 18}); }
 
 /* a sphere pressing the top 8 cm over 0.6 s while moving sideways, held, released at 1.2 s */
 static sq_tool guard_poke(double t)
@@ -144,8 +138,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
     CHECK(b[1]->lod->guard_resplit == 0);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
-    for (int k = 0; k < 4; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 4);
 }
 
 /* The guard merges the least needed regions first: after a poke refines a body (no budget),
@@ -153,8 +146,11 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
  * children's largest criterion, and the merged ones rest (not split for REST frames). */
 SQ_TEST(lod_guard_merges_least_needed_first)
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
+        CHECK(0);
+        return;
+    }
     sq_body_def def = lh_cube_def(m, 3);
     def.gravity[2] = 0;
     def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.02, 0.004);
@@ -227,8 +223,7 @@ SQ_TEST(lod_guard_merges_least_needed_first)
     sq_lod_sync(lod);
     CHECK(sq_lod_check(lod, &e) == 0);
     sq_body_destroy(b);
-    for (int k = 0; k < 3; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 3);
 }
 
 /* The sharp step estimate is made again only for a level whose operator changed: a rebuild
@@ -237,8 +232,11 @@ SQ_TEST(lod_guard_merges_least_needed_first)
  * again and finds the same substeps (the operator is the same). */
 SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
 {
-    sq_mesh *m[3] = {lh_cube(3, 0, 1, 1), lh_cube(6, 0.1, 1, 2), lh_cube(12, 0, 1, 3)};
-    TH_REQUIRE(m[0] && m[1] && m[2]);
+    sq_mesh *m[3];
+    if (!lh_cube_levels(m, 3, (const int[]){3, 6, 12})) {
+        CHECK(0);
+        return;
+    }
     sq_body_def def = lh_cube_def(m, 3);
     def.gravity[2] = 0;
     def.sharp_step = 1;
@@ -286,8 +284,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     CHECK(calls2 - calls1 == levels_active);
     CHECK(same2);
     sq_body_destroy(b);
-    for (int k = 0; k < 3; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 3);
 }
 
 /* the reserve (docs/lod.md "A pass's cost without page faults") is held only under a budget:
@@ -332,21 +329,18 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
     CHECK(used[1] > 0 && grown[1] == 0); /* with one, none */
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
-    for (int k = 0; k < 4; k++)
-        sq_mesh_free(m[k]);
+    lh_free_meshes(m, 4);
 }
 
 /* at load (docs/lod.md "Guaranteed frame rate"): a scene whose fully coarse frame cannot fit
  * the period is reported with its numbers; the shipped cube-poke at its own 50 Hz is not */
 SQ_TEST(lod_guard_load_check_reports_a_scene_that_cannot_run)
 {
-    char path[600];
-    snprintf(path, sizeof path, "%s/../../meshes/scenes/cube-poke.json", sq_test_data());
-    sq_err e = {{0}};
-    sq_scene *sc = sq_scene_load(path, &e);
+    sq_scene *sc = th_shipped_scene("cube-poke");
     CHECK(sc != NULL);
     if (!sc)
         return;
+    sq_err e = {{0}};
     sq_world *w = sq_world_create(sc, &e);
     CHECK(w != NULL);
     if (w) {
@@ -371,8 +365,7 @@ SQ_TEST(lod_guard_load_check_reports_a_scene_that_cannot_run)
  * split "inf" (split_inf) keeps it fully coarse */
 static sq_scene *rt_scene(int split_inf)
 {
-    char dir[1024], json[2048];
-    snprintf(dir, sizeof dir, "%s/../../meshes/scenes", sq_test_data());
+    char json[2048];
     snprintf(json, sizeof json,
              "{\"name\": \"rt-coarse\", \"gravity\": [0, 0, 0], \"frame_rate\": 200, \"duration\": 1,"
              " \"bodies\": [{\"name\": \"cube\", \"levels\": [\"../cube/cube_l0.msh\", \"../cube/cube_l1.msh\", \"../cube/cube_l2.msh\", \"../cube/cube_l3.msh\"],"
@@ -382,7 +375,7 @@ static sq_scene *rt_scene(int split_inf)
              " \"lod\": {\"mode\": \"adaptive\", \"level\": 0, %s}}]}",
              split_inf ? "\"split\": \"inf\"" : "\"split\": 0.005, \"merge\": 0.002");
     sq_err e = {{0}};
-    sq_scene *sc = sq_scene_parse(json, dir, "rt-coarse", &e);
+    sq_scene *sc = sq_scene_parse(json, th_scenes_dir(), "rt-coarse", &e);
     if (!sc)
         fprintf(stderr, "rt-coarse: %s\n", e.msg);
     return sc;

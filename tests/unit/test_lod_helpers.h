@@ -64,6 +64,49 @@ static inline sq_mesh *lh_cube(int n, double jitter, double scale, uint64_t seed
     return j;
 }
 
+/* the tests' cube levels m[0..n-1]: level k has cells[k] cells per side on the unit cube, its
+ * interior nodes jittered by up to 0.1 cell on odd k (seed k + 1); every level is made (NULL
+ * where it failed, each freed by lh_free_meshes); 1 when all are made */
+static inline int lh_cube_levels(sq_mesh **m, int n, const int *cells)
+{
+    int ok = 1;
+    for (int k = 0; k < n; k++) {
+        m[k] = lh_cube(cells[k], k % 2 ? 0.1 : 0, 1, (uint64_t)k + 1);
+        ok &= m[k] != NULL;
+    }
+    return ok;
+}
+
+static inline void lh_free_meshes(sq_mesh **m, int n)
+{
+    for (int k = 0; k < n; k++)
+        sq_mesh_free(m[k]);
+}
+
+/* the cube's support: the bottom face (z below 1 mm) fixed on all three axes */
+static inline sq_constraint lh_bottom_fixed(void)
+{
+    sq_constraint c;
+    memset(&c, 0, sizeof c);
+    c.kind = SQ_REGION_BOX;
+    c.a[0] = c.a[1] = c.a[2] = -1;
+    c.b[0] = c.b[1] = 2;
+    c.b[2] = 1e-3;
+    c.axes = 7;
+    return c;
+}
+
+/* the paper's material alone (mu 40 kPa, lambda 100 kPa, 1000 kg/m^3), every other field 0 */
+static inline sq_material lh_paper_material(void)
+{
+    sq_material mat;
+    memset(&mat, 0, sizeof mat);
+    mat.mu = 40000;
+    mat.lambda = 100000;
+    mat.density = 1000;
+    return mat;
+}
+
 /* lod definition with the body defaults */
 static inline sq_lod_def lh_lod(sq_lod_mode mode, double split, double merge)
 {
@@ -91,12 +134,7 @@ static inline sq_body_def lh_cube_def(sq_mesh **m, int nlevels)
     def.gravity[0] = def.gravity[1] = 0;
     def.gravity[2] = -9.81;
     def.nconstraints = 1;
-    sq_constraint *c = &def.constraints[0];
-    c->kind = SQ_REGION_BOX;
-    c->a[0] = c->a[1] = c->a[2] = -1;
-    c->b[0] = c->b[1] = 2;
-    c->b[2] = 1e-3;
-    c->axes = 7;
+    def.constraints[0] = lh_bottom_fixed();
     return def;
 }
 

@@ -12,6 +12,7 @@
 #include "lod/lod.h"
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 
 typedef struct run_result {
     double updates_per_s;  /* node updates per simulated second */
@@ -82,15 +83,11 @@ static int run_variant(sq_scene *sc, const sq_lod_def *lod, int frames, float *r
 /* the table for one scene; checks the ordering when `check` */
 static void measure_scene(const char *name, double seconds, const double *splits, int nsplits, int check)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/../../meshes/scenes/%s.json", sq_test_data(), name);
-    sq_err e = {{0}};
-    sq_scene *sc = sq_scene_load(path, &e);
+    sq_scene *sc = th_shipped_scene(name);
     CHECK(sc != NULL);
-    if (!sc) {
-        fprintf(stderr, "%s\n", e.msg);
+    if (!sc)
         return;
-    }
+    sq_err e = {{0}};
     int frames = (int)(seconds * sc->frame_rate + 0.5);
     sq_lod_def base = sc->bodies[0].lod;
     int nl = SQ_MIN(sc->bodies[0].nlevels, base.max_level + 1);

@@ -18,36 +18,28 @@
 #include "lod/lod.h"
 #include "scene/scene.h"
 #include "sq_test.h"
+#include "test_scene_helpers.h"
 
 /* the shipped scene with its "lod" replaced (a fixed body loads only its simulated level) */
 static sq_scene *load_with_lod(const char *name, const char *lod_from, const char *lod_to)
 {
-    char dir[1024], path[1100];
-    snprintf(dir, sizeof dir, "%s/../../meshes/scenes", sq_test_data());
-    snprintf(path, sizeof path, "%s/%s.json", dir, name);
-    FILE *fp = fopen(path, "rb");
-    if (!fp) {
-        fprintf(stderr, "%s: cannot open\n", path);
-        return NULL;
-    }
     static char text[65536], out[65536 + 256];
-    size_t n = fread(text, 1, sizeof text - 1, fp);
-    fclose(fp);
-    text[n] = 0;
+    if (th_shipped_scene_text(name, text, sizeof text))
+        return NULL;
     /* adaptive lod runs linear elasticity only: a corotational scene is read as linear */
     char *el = strstr(text, "\"corotational\"");
     if (el)
         memcpy(el, "\"linear\"      ", 14);
     char *at = strstr(text, lod_from);
     if (!at || strlen(lod_to) > 256 + strlen(lod_from)) {
-        fprintf(stderr, "%s: no '%s'\n", path, lod_from);
+        fprintf(stderr, "%s: no '%s'\n", name, lod_from);
         return NULL;
     }
     snprintf(out, sizeof out, "%.*s%s%s", (int)(at - text), text, lod_to, at + strlen(lod_from));
     sq_err e = {{0}};
-    sq_scene *sc = sq_scene_parse(out, dir, name, &e);
+    sq_scene *sc = sq_scene_parse(out, th_scenes_dir(), name, &e);
     if (!sc)
-        fprintf(stderr, "%s: %s\n", path, e.msg);
+        fprintf(stderr, "%s: %s\n", name, e.msg);
     return sc;
 }
 

@@ -5,6 +5,7 @@
 
 #include "mesh/mesh.h"
 #include "sq_test.h"
+#include "test_sim_helpers.h"
 
 static sq_mesh *load_data(const char *name, sq_err *err)
 {
@@ -273,14 +274,9 @@ SQ_TEST(mesh_shipped_meshes)
         sq_mesh_info info[4];
         int ok = 1;
         for (int k = 0; k < 4; k++) {
-            char path[1024];
-            snprintf(path, sizeof path, "%s/../../meshes/%s/%s_l%d.msh", sq_test_data(), shapes[s].shape,
-                     shapes[s].shape, k);
-            sq_err err = {0};
-            sq_mesh *m = sq_mesh_load(path, &err);
+            sq_mesh *m = th_shipped_mesh("%s/%s_l%d.msh", shapes[s].shape, shapes[s].shape, k);
             CHECK(m != NULL);
             if (!m) {
-                printf("    %s\n", err.msg);
                 ok = 0;
                 break;
             }
@@ -386,10 +382,7 @@ SQ_TEST(mesh_io_mutated_files)
  * contains them; points outside get the tet under the nearest surface point */
 SQ_TEST(mesh_locate_sphere)
 {
-    char path[1024];
-    snprintf(path, sizeof path, "%s/../../meshes/sphere/sphere_l2.msh", sq_test_data());
-    sq_err err = {0};
-    sq_mesh *m = sq_mesh_load(path, &err);
+    sq_mesh *m = th_shipped_mesh("sphere/sphere_l2.msh");
     CHECK(m != NULL);
     if (!m)
         return;

@@ -86,9 +86,7 @@ SQ_TEST(physics_damped_run_settles_to_static_solution)
     sq_mesh *m = th_box(3, 3, 3, 1, 1, 1);
     TH_REQUIRE(m);
     for (int op = 0; op < 2; op++) {
-        sq_body_def def = sq_body_def_default();
-        def.nlevels = 1;
-        def.levels[0] = m;
+        sq_body_def def = th_body_def(m);
         def.op = (sq_operator_kind)op;
         def.gravity[2] = -9.81;
         def.nconstraints = 1;
@@ -209,9 +207,7 @@ SQ_TEST(physics_tool_force_balance_at_rest)
 {
     sq_mesh *m = th_box(4, 4, 4, 1, 1, 1);
     TH_REQUIRE(m);
-    sq_body_def def = sq_body_def_default();
-    def.nlevels = 1;
-    def.levels[0] = m;
+    sq_body_def def = th_body_def(m);
     def.gravity[2] = -9.81;
     def.nconstraints = 1;
     def.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
@@ -349,11 +345,9 @@ SQ_TEST(physics_sharp_step_bound_is_safe_and_tight)
  * it by more than 2 % */
 SQ_TEST(physics_sharp_bound_lanczos_converged_on_shipped_mesh)
 {
-    char path[600];
-    snprintf(path, sizeof path, "%s/../../meshes/sphere/sphere_l1.msh", sq_test_data());
-    sq_err e = {{0}};
-    sq_mesh *m = sq_mesh_load(path, &e);
+    sq_mesh *m = th_shipped_mesh("sphere/sphere_l1.msh");
     TH_REQUIRE(m);
+    sq_err e = {{0}};
     sq_material mat = th_material(71429, 285714, 1000);
     sq_constraint cap = {SQ_REGION_HALFSPACE, {0, 0, -0.4}, {0, 0, 1}, 7};
     sq_level L;
@@ -414,10 +408,7 @@ SQ_TEST(physics_square_beam_bending_split_is_a_mesh_effect)
     CHECK(fabs(rb - 1) < 1e-9);
     sq_mesh_free(box);
     for (int k = 1; k <= 2; k++) {
-        char path[600];
-        snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l%d.msh", sq_test_data(), k);
-        sq_err e = {{0}};
-        sq_mesh *m = sq_mesh_load(path, &e);
+        sq_mesh *m = th_shipped_mesh("beam/beam_l%d.msh", k);
         TH_REQUIRE(m);
         double r = tip_ratio(m, &split);
         fprintf(stderr, "    beam_l%d (%d nodes): tip y / tip z %.6f (frequency split %.2f %%)\n", k, m->nnodes, r,

@@ -139,9 +139,7 @@ static sq_body *arc_body(sq_mesh **mp, sq_elasticity_kind el)
     *mp = m;
     if (!m)
         return NULL;
-    sq_body_def def = sq_body_def_default();
-    def.nlevels = 1;
-    def.levels[0] = m;
+    sq_body_def def = th_body_def(m);
     CHECK(sq_material_from_E_nu(&def.material, 2e6, 0.45, NULL) == 0);
     def.material.density = 1000;
     def.material.rayleigh_mass = 30;
@@ -302,20 +300,14 @@ SQ_TEST(corot_arc_drag_beam_against_neo_hookean)
 /* ---- wiring: scene key, refusals, set, reset ------------------------------------------- */
 
 #include "scene/scene.h"
+#include "test_scene_helpers.h"
 
 /* the shipped sphere-grab scene (corotational) with one substring replaced */
 static sq_scene *sphere_grab_with(const char *from, const char *to, sq_err *e)
 {
-    char dir[1024], path[1100];
-    snprintf(dir, sizeof dir, "%s/../../meshes/scenes", sq_test_data());
-    snprintf(path, sizeof path, "%s/sphere-grab.json", dir);
-    FILE *fp = fopen(path, "rb");
-    if (!fp)
-        return NULL;
     static char text[65536], out[66000];
-    size_t n = fread(text, 1, sizeof text - 1, fp);
-    fclose(fp);
-    text[n] = 0;
+    if (th_shipped_scene_text("sphere-grab", text, sizeof text))
+        return NULL;
     char *at = from ? strstr(text, from) : NULL;
     if (from && !at)
         return NULL;
@@ -323,7 +315,7 @@ static sq_scene *sphere_grab_with(const char *from, const char *to, sq_err *e)
         snprintf(out, sizeof out, "%.*s%s%s", (int)(at - text), text, to, at + strlen(from));
     else
         snprintf(out, sizeof out, "%s", text);
-    return sq_scene_parse(out, dir, "sphere-grab", e);
+    return sq_scene_parse(out, th_scenes_dir(), "sphere-grab", e);
 }
 
 SQ_TEST(corot_scene_key_and_refusals)

@@ -5,24 +5,12 @@
 #include "sq_test.h"
 #include "test_sim_helpers.h"
 
-/* meshes/ is beside tests/ (the runner starts in the repository root; SQ_TEST_DATA moves tests/data) */
-static sq_mesh *load_cube(int level)
-{
-    char path[1024];
-    sq_err e = {{0}};
-    snprintf(path, sizeof path, "%s/../../meshes/cube/cube_l%d.msh", sq_test_data(), level);
-    sq_mesh *m = sq_mesh_load(path, &e);
-    if (!m)
-        fprintf(stderr, "    %s\n", e.msg);
-    return m;
-}
-
 SQ_TEST(physics_paper_cube_resolutions_agree)
 {
     enum { NRES = 3, FRAMES = 75 }; /* 1.5 s at 50 Hz: two oscillation periods */
     sq_mesh *m[NRES];
     for (int r = 0; r < NRES; r++) {
-        m[r] = load_cube(r + 1);
+        m[r] = th_shipped_mesh("cube/cube_l%d.msh", r + 1);
         CHECK(m[r] != NULL);
         if (!m[r])
             return;
@@ -35,9 +23,7 @@ SQ_TEST(physics_paper_cube_resolutions_agree)
     for (int op = 0; op < nops; op++) {
         sq_body *b[NRES];
         for (int r = 0; r < NRES; r++) {
-            sq_body_def def = sq_body_def_default(); /* the paper's material, light damping */
-            def.nlevels = 1;
-            def.levels[0] = m[r];
+            sq_body_def def = th_body_def(m[r]); /* the paper's material, light damping */
             def.op = (sq_operator_kind)op;
             def.gravity[2] = -9.81;
             def.nconstraints = 1;

@@ -76,10 +76,7 @@ SQ_TEST(locking_beam_tip_today_nodal_smoothed)
     for (int k = 0; k < 6; k++) {
         sq_mesh *m = NULL;
         if (k < 4) {
-            char path[600];
-            snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l%d.msh", sq_test_data(), k);
-            sq_err e = {{0}};
-            m = sq_mesh_load(path, &e);
+            m = th_shipped_mesh("beam/beam_l%d.msh", k);
         } else {
             int c = k == 4 ? 2 : 4;
             m = th_box(10 * c, c, c, 1, 0.1, 0.1);
@@ -151,9 +148,7 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
 {
     sq_mesh *m = th_box(20, 2, 2, 1, 0.1, 0.1);
     TH_REQUIRE(m);
-    sq_body_def def = sq_body_def_default();
-    def.nlevels = 1;
-    def.levels[0] = m;
+    sq_body_def def = th_body_def(m);
     CHECK(sq_material_from_E_nu(&def.material, 1e7, 0.45, NULL) == 0);
     def.material.density = 1000;
     def.material.rayleigh_mass = 40;
@@ -216,11 +211,9 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
  * face is shared by two tets) */
 SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
 {
-    char path[600];
-    snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l1.msh", sq_test_data());
-    sq_err e = {{0}};
-    sq_mesh *m = sq_mesh_load(path, &e);
+    sq_mesh *m = th_shipped_mesh("beam/beam_l1.msh");
     TH_REQUIRE(m);
+    sq_err e = {{0}};
     sq_material mat = th_material(1, 1, 1000);
     CHECK(sq_material_from_E_nu(&mat, 1e7, 0.45, NULL) == 0);
     sq_level L;
@@ -329,9 +322,7 @@ SQ_TEST(locking_smoothed_body_settles_and_refuses)
 {
     sq_mesh *m = th_box(20, 2, 2, 1, 0.1, 0.1);
     TH_REQUIRE(m);
-    sq_body_def def = sq_body_def_default();
-    def.nlevels = 1;
-    def.levels[0] = m;
+    sq_body_def def = th_body_def(m);
     CHECK(sq_material_from_E_nu(&def.material, 1e7, 0.45, NULL) == 0);
     def.material.density = 1000;
     def.material.rayleigh_mass = 40;

@@ -153,11 +153,9 @@ SQ_TEST(locking_sharp_bound_own_operator_safe_and_tight)
  * 4 % above the dense value for the element-wise K at nu 0.45.) */
 SQ_TEST(locking_sharp_bound_substeps_drop_on_beam_l1)
 {
-    char path[600];
-    snprintf(path, sizeof path, "%s/../../meshes/beam/beam_l1.msh", sq_test_data());
-    sq_err e = {{0}};
-    sq_mesh *m = sq_mesh_load(path, &e);
+    sq_mesh *m = th_shipped_mesh("beam/beam_l1.msh");
     TH_REQUIRE(m);
+    sq_err e = {{0}};
     sq_constraint clamp = {SQ_REGION_BOX, {-1, -1, -1}, {0.001, 1, 1}, 7};
     static const double nus[2] = {0.3, 0.45};
     for (int q = 0; q < 2; q++) {
@@ -237,9 +235,7 @@ SQ_TEST(locking_sharp_bound_follows_pressure_and_material)
 {
     sq_mesh *m = th_box(20, 2, 2, 1, 0.1, 0.1);
     TH_REQUIRE(m);
-    sq_body_def def = sq_body_def_default();
-    def.nlevels = 1;
-    def.levels[0] = m;
+    sq_body_def def = th_body_def(m);
     CHECK(sq_material_from_E_nu(&def.material, 1e7, 0.45, NULL) == 0);
     def.material.density = 1000;
     def.material.rayleigh_mass = 4;

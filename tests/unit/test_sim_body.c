@@ -6,10 +6,8 @@
 /* cube [0,1]^3 at n^3 cells, bottom face fixed, gravity -z, the paper's material */
 static sq_body_def cube_def(const sq_mesh *m)
 {
-    sq_body_def def = sq_body_def_default();
+    sq_body_def def = th_body_def(m);
     def.name = "cube";
-    def.nlevels = 1;
-    def.levels[0] = m;
     def.gravity[2] = -9.81;
     def.nconstraints = 1;
     def.constraints[0].kind = SQ_REGION_BOX;

@@ -1,13 +1,16 @@
-/* test_sim_helpers.h - small helpers shared by the sim and physics unit tests. */
+/* test_sim_helpers.h - small functions shared by the unit tests: the shipped meshes, boxes,
+ * materials, forces, tools (the sim, physics, mesh and level-of-detail tests). */
 #ifndef SQ_TEST_SIM_HELPERS_H
 #define SQ_TEST_SIM_HELPERS_H
 
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "body/body.h"
+#include "sq_test.h"
 
 /* CHECK(p != NULL) and leave the test when it fails: the rest needs p (use after sq_test.h) */
 #define TH_REQUIRE(p)                                                                   \
@@ -62,6 +65,25 @@ static inline double th_sym_eig_max(double *A, int nf)
     return lam;
 }
 
+/* the shipped mesh meshes/<printf(fmt, ...)> (meshes/ is beside tests/: the runner starts in the
+ * repository root, SQ_TEST_DATA moves tests/data along with it); NULL, its error printed, when it
+ * does not load: the caller checks */
+static inline sq_mesh *th_shipped_mesh(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static inline sq_mesh *th_shipped_mesh(const char *fmt, ...)
+{
+    char rel[512], path[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(rel, sizeof rel, fmt, ap);
+    va_end(ap);
+    snprintf(path, sizeof path, "%s/../../meshes/%s", sq_test_data(), rel);
+    sq_err e = {{0}};
+    sq_mesh *m = sq_mesh_load(path, &e);
+    if (!m)
+        fprintf(stderr, "    %s\n", e.msg);
+    return m;
+}
+
 /* a box mesh or fail the test (returns NULL) */
 static inline sq_mesh *th_box(int nx, int ny, int nz, double sx, double sy, double sz)
 {
@@ -71,6 +93,15 @@ static inline sq_mesh *th_box(int nx, int ny, int nz, double sx, double sy, doub
     if (!m)
         fprintf(stderr, "sq_mesh_box: %s\n", e.msg);
     return m;
+}
+
+/* the body defaults with the one level m */
+static inline sq_body_def th_body_def(const sq_mesh *m)
+{
+    sq_body_def def = sq_body_def_default();
+    def.nlevels = 1;
+    def.levels[0] = m;
+    return def;
 }
 
 /* an undamped material with standard Lamé parameters */

@@ -8,9 +8,7 @@
 /* a 10 cm cube body, bottom fixed, gravity, scene-default damping; NULL + err if refused */
 static sq_body *cube_body(sq_mesh *m, const sq_material *mat, double step_fraction, double frame_dt, sq_err *err)
 {
-    sq_body_def def = sq_body_def_default();
-    def.nlevels = 1;
-    def.levels[0] = m;
+    sq_body_def def = th_body_def(m);
     def.material = *mat;
     def.gravity[2] = -9.81;
     def.frame_dt = frame_dt;
@@ -245,9 +243,7 @@ SQ_TEST(stability_slivers_accepted_or_refused)
             continue;
         }
         sq_material mat = mat_E_nu(1e5, 0.3, 0);
-        sq_body_def def = sq_body_def_default();
-        def.nlevels = 1;
-        def.levels[0] = m;
+        sq_body_def def = th_body_def(m);
         def.material = mat;
         def.gravity[2] = -9.81;
         def.nconstraints = 1;

@@ -181,14 +181,10 @@ SQ_TEST(world_scripted_grab_origin_is_activating_keyframe)
 /* the shipped beam scene: front beam y in [-0.05, 0.05], back beam 0.3 m behind */
 static sq_world *beam_world(sq_scene **sc)
 {
-    char path[600];
-    snprintf(path, sizeof path, "%s/../../meshes/scenes/beam.json", sq_test_data());
-    sq_err e = {{0}};
-    *sc = sq_scene_load(path, &e);
-    if (!*sc) {
-        printf("    %s\n", e.msg);
+    *sc = th_shipped_scene("beam");
+    if (!*sc)
         return NULL;
-    }
+    sq_err e = {{0}};
     sq_world *w = sq_world_create(*sc, &e);
     if (!w)
         printf("    %s\n", e.msg);
