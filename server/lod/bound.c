@@ -28,6 +28,7 @@
 
 #define ITERS_COLD 40  /* Lanczos steps without a previous Ritz vector (as fixed mode) */
 #define ITERS_WARM 16  /* from the previous Ritz vector */
+#define ITERS_REF 120  /* the check's reference run (SQ_SHARP_CHECK, a debug path) */
 #define BASIS_MAX_DOUBLES (8L << 20) /* Krylov basis kept for the Ritz vector: at most 64 MB */
 
 struct lod_sharp {
@@ -340,7 +341,7 @@ static double dot(const double *a, const double *b, size_t n)
 }
 
 /* s: the unit eigenvector of the Lanczos tridiagonal T (alpha on the diagonal, beta beside it,
- * order m <= ITERS_COLD) for its largest eigenvalue theta, by inverse iteration on T - sigma I
+ * order m <= ITERS_REF) for its largest eigenvalue theta, by inverse iteration on T - sigma I
  * (sigma just above theta) with a pivoted tridiagonal solve: stable whatever the basis did,
  * unlike the three-term recurrence from s[0] = 1 */
 static void ritz_coefficients(const double *alpha, const double *beta, int m, double theta, double *s)
@@ -349,7 +350,7 @@ static void ritz_coefficients(const double *alpha, const double *beta, int m, do
     for (int i = 0; i < m; i++)
         scale = fmax(scale, fabs(alpha[i]) + (i + 1 < m ? fabs(beta[i]) : 0) + (i > 0 ? fabs(beta[i - 1]) : 0));
     double tiny = fmax(scale, 1e-300) * 1e-15, sigma = theta + fmax(fabs(theta), tiny) * 1e-10;
-    double d[ITERS_COLD + 1], du[ITERS_COLD + 1], du2[ITERS_COLD + 1], dl[ITERS_COLD + 1], b[ITERS_COLD + 1];
+    double d[ITERS_REF + 1], du[ITERS_REF + 1], du2[ITERS_REF + 1], dl[ITERS_REF + 1], b[ITERS_REF + 1];
     for (int i = 0; i < m; i++)
         s[i] = 1;
     for (int it = 0; it < 3; it++) {
@@ -685,23 +686,143 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
 /* level k's substeps from its estimate w2 (damping as docs/physics.md section 3: c = a + b
  * omega^2): the smallest 2^n within step_fraction of the bound; above 2^20 (or no estimate)
  * the Gershgorin substeps coupling_bound gave stay */
-static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
+/* the damped stable step of an undamped rate w2 (1/s^2), s */
+static double step_bound_of(const sq_material *mat, double w2)
 {
-    const sq_material *mat = &lod->mat;
-    const sq_level *Lk = &lod->lv[k];
     double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
-    double bound = (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+    return (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+}
+
+/* the exponent n of level k's 2^n substeps per frame for the estimate w2 (non-decreasing in
+ * w2); 21: above 2^20, -1: no estimate (NaN or negative) */
+static int exponent_of(const sq_lod *lod, const struct lod_sharp *S, int k, double w2)
+{
+    const sq_level *Lk = &lod->lv[k];
+    double bound = step_bound_of(&lod->mat, w2);
     double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
     int n = 0;
     while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
         n++;
-    if (n > 20 || !(w2 >= 0))
+    return w2 >= 0 ? n : -1;
+}
+
+static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
+{
+    int n = exponent_of(lod, S, k, w2);
+    if (n > 20 || n < 0)
         return; /* keep the Gershgorin substeps */
     S->nsub[k] = n;
-    lod->lev[k].extra_log2 = n - Lk->substeps_log2;
+    lod->lev[k].extra_log2 = n - lod->lv[k].substeps_log2;
     if (getenv("SQ_SHARP_TRACE"))
         fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d", k,
                 lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
+}
+
+/* SQ_SHARP_CHECK=1 (a debug path, never taken in normal runs): level k's estimate est against a
+ * reference of the same operator, ITERS_REF Lanczos steps with full reorthogonalisation from the
+ * cold start, whose largest Ritz value theta_ref is at or below lambda_max (its residual
+ * beta |s_m| shows how far it may be below); prints one line. SQ_SHARP_CHECK=2 also assembles the
+ * operator densely (up to 3,000 axes) and prints its largest asymmetry and where it is */
+static void check_estimate(sq_lod *lod, struct lod_sharp *S, int k, double est)
+{
+    op_ctx c;
+    ctx_init(&c, lod, k);
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    size_t N = 3 * (size_t)c.nact;
+    int nfree = 0;
+    for (int a = 0; a < c.nact; a++)
+        for (int x = 0; x < 3; x++)
+            nfree += !(Lk->model.fixed[lk->active_list[a]] & (1u << x));
+    int iters = SQ_MIN(ITERS_REF, nfree);
+    double *Q = sq_calloc(N * (size_t)(iters + 1), sizeof(double)), *w = sq_malloc(sizeof(double) * SQ_MAX(N, 1));
+    unsigned long long st = 88172645463325252ULL;
+    for (int a = 0; a < c.nact; a++)
+        for (int x = 0; x < 3; x++) {
+            st ^= st << 13, st ^= st >> 7, st ^= st << 17;
+            double rnd = 0.5 + (double)(st >> 11) / 9007199254740992.0;
+            Q[3 * a + x] = (Lk->model.fixed[lk->active_list[a]] & (1u << x)) ? 0 : rnd;
+        }
+    double nq = sqrt(dot(Q, Q, N));
+    for (size_t i = 0; i < N; i++)
+        Q[i] /= nq;
+    double alpha[ITERS_REF + 1], beta[ITERS_REF + 1], s[ITERS_REF + 1];
+    int m = 0;
+    for (int j = 0; j < iters; j++) {
+        double *qj = Q + N * (size_t)j;
+        op_apply(&c, qj, w);
+        alpha[m] = dot(w, qj, N);
+        for (int pass = 0; pass < 2; pass++) /* full reorthogonalisation, twice */
+            for (int l = 0; l <= j; l++) {
+                double h = dot(w, Q + N * (size_t)l, N);
+                for (size_t i = 0; i < N; i++)
+                    w[i] -= h * Q[N * (size_t)l + i];
+            }
+        double b = sqrt(dot(w, w, N));
+        beta[m++] = b;
+        if (!(b > 1e-13 * fabs(alpha[0])))
+            break;
+        for (size_t i = 0; i < N; i++)
+            Q[N * (size_t)(j + 1) + i] = w[i] / b;
+    }
+    double theta = sq_level_tridiag_max(alpha, beta, m);
+    ritz_coefficients(alpha, beta, m, theta, s);
+    double resid = fabs(beta[m - 1] * s[m - 1]);
+    int ne = exponent_of(lod, S, k, est), nr = exponent_of(lod, S, k, theta), nh = exponent_of(lod, S, k, theta + resid);
+    /* the substep this estimate gives against the stable step at theta_ref (> 1: beyond it) */
+    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
+    double over = frame_dt / ldexp(1.0, ne) / step_bound_of(&lod->mat, theta);
+    fprintf(stderr, "sharp-check L%d: %d active, %d free axes, est %.9g, ref %.9g (resid %.3g, %d steps), est/ref %.6f, "
+            "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, ceiling %.6g\n",
+            k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->gersh[k]);
+    if (getenv("SQ_SHARP_CHECK")[0] == '2' && N <= 3000) {
+        double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
+        for (size_t j = 0; j < N; j++) {
+            x[j] = 1;
+            op_apply(&c, x, w);
+            x[j] = 0;
+            for (size_t i = 0; i < N; i++)
+                A[i * N + j] = w[i];
+        }
+        double amax = 0, dmax = 0;
+        size_t wi = 0, wj = 0;
+        for (size_t i = 0; i < N * N; i++)
+            amax = fmax(amax, fabs(A[i]));
+        /* over the free axes only (the Lanczos vectors are zero on the constrained ones; a
+         * constrained column is read by free rows, its row is zero: not an asymmetry of the
+         * operator Lanczos sees) */
+        for (size_t i = 0; i < N; i++)
+            for (size_t j = i + 1; j < N; j++) {
+                if ((Lk->model.fixed[lk->active_list[i / 3]] & (1u << (i % 3))) ||
+                    (Lk->model.fixed[lk->active_list[j / 3]] & (1u << (j % 3))))
+                    continue;
+                double d = fabs(A[i * N + j] - A[j * N + i]);
+                if (d > dmax) {
+                    dmax = d;
+                    wi = i;
+                    wj = j;
+                }
+            }
+        int ai = (int)(wi / 3), aj = (int)(wj / 3);
+        int srci = 0, srcj = 0;
+        for (int mm = 0; mm < lod->L; mm++) {
+            const sq_lod_level *lm = &lod->lev[mm];
+            for (int q = 0; lm->nring && q < lm->src_start[lm->nring]; q++)
+                if (lm->src_level[q] == k) {
+                    srci += lm->src_node[q] == lk->active_list[ai];
+                    srcj += lm->src_node[q] == lk->active_list[aj];
+                }
+        }
+        fprintf(stderr, "sharp-check L%d: asymmetry max |A_ij - A_ji| %.3g of max |A| %.3g (%.3g) at axes %zu, %zu: "
+                "%.6g vs %.6g; nodes %d (%s, source %d times), %d (%s, source %d times)\n",
+                k, dmax, amax, dmax / amax, wi, wj, A[wi * N + wj], A[wj * N + wi], lk->active_list[ai],
+                c.fpos[ai] >= 0 ? "frontier" : "inner", srci, lk->active_list[aj], c.fpos[aj] >= 0 ? "frontier" : "inner", srcj);
+        free(A);
+        free(x);
+    }
+    free(Q);
+    free(w);
+    ctx_free(&c);
 }
 
 /* one estimate of level k by the deadline (0: none): 1 made and taken; 0 not in time (none of
@@ -730,6 +851,8 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
     S->lambda[k] = w2;
     S->calls++;
     take_estimate(lod, S, k, w2);
+    if (getenv("SQ_SHARP_CHECK") && S->nsub[k] >= 0)
+        check_estimate(lod, S, k, w2);
     if (getenv("SQ_SHARP_TRACE")) /* (after take_estimate's line; alone when Gershgorin's kept) */
         fprintf(stderr, "%s%.3f ms (%.0f units, %.1f ns per unit and product)\n",
                 S->nsub[k] >= 0 ? ", " : "sharp: Gershgorin kept, ", 1e3 * spent, units,
