@@ -38,6 +38,7 @@ struct lod_sharp {
     double lambda[SQ_MAX_LEVELS];  /* the upper estimate used, 1/s^2 (0: no active node) */
     double gersh[SQ_MAX_LEVELS];   /* its Gershgorin ceiling, 1/s^2 */
     int iters[SQ_MAX_LEVELS];      /* Lanczos steps of the last estimate */
+    int stopped[SQ_MAX_LEVELS];    /* 1: its Lanczos run stopped in the ceiling's bin (stop_rule) */
     long calls;                    /* estimates made (one per level per rebuild) */
     double cpu_s;                  /* their thread CPU time, s */
     /* an estimate is made again only when what it reads changed (level_key) */
@@ -171,6 +172,13 @@ typedef struct op_ctx {
     double *y;           /* unscaled product, compact */
     int scratch;         /* 1: idx and u are the lod_sharp's kept arrays (ctx_free cleans them) */
     const double *dense; /* tests (sq_lodx_sharp_lanczos_dense): this 3 nact x 3 nact matrix instead */
+    /* the early stop (lanczos, stop_rule): the Gershgorin ceiling (0: no early stop), the rule
+     * (1 on, 0 off), for the dense tests the bins' unit (substep bins of a factor 4 in w2 from
+     * it), and how the run stopped (0: all its steps, 1: in the ceiling's bin) */
+    double ceiling;
+    int rule;
+    double bin_unit;
+    int stopped;
 } op_ctx;
 
 /* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
@@ -332,6 +340,26 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     }
 }
 
+/* the damped stable step of an undamped rate w2 (1/s^2), s */
+static double step_bound_of(const sq_material *mat, double w2)
+{
+    double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
+    return (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+}
+
+/* the exponent n of level k's 2^n substeps per frame for the estimate w2 (non-decreasing in
+ * w2); 21: above 2^20, -1: no estimate (NaN or negative) */
+static int exponent_of(const sq_lod *lod, const struct lod_sharp *S, int k, double w2)
+{
+    const sq_level *Lk = &lod->lv[k];
+    double bound = step_bound_of(&lod->mat, w2);
+    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
+    int n = 0;
+    while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
+        n++;
+    return w2 >= 0 ? n : -1;
+}
+
 static double dot(const double *a, const double *b, size_t n)
 {
     double s = 0;
@@ -396,6 +424,29 @@ static void ritz_coefficients(const double *alpha, const double *beta, int m, do
     }
 }
 
+/* the substep bin of w2: the level's exponent (exponent_of), or for the dense tests
+ * floor(log4(w2 / bin_unit)) */
+static int bin_of(const op_ctx *c, double w2)
+{
+    if (c->dense)
+        return w2 > 0 ? (int)floor(log(w2 / c->bin_unit) / log(4.0)) : -1000;
+    return exponent_of(c->lod, c->lod->sharp, c->k, w2);
+}
+
+/* the early stop after m Lanczos steps: 1 when the largest Ritz value theta (at or below
+ * lambda_max, in exact arithmetic and to rounding in practice) is in the Gershgorin ceiling's
+ * bin: lambda_max, the full run's estimate (at least its theta, at most the ceiling) and the
+ * ceiling are then all in that bin, so the substeps are decided and further products would
+ * not change them; else 0, go on. A rule on the residual (stop when theta + 2 beta_m |s_m| is
+ * in theta's bin) was tried and dropped: a Ritz pair converged on a lower eigenvalue passes it
+ * (docs/stability.md) */
+static int stop_rule(op_ctx *c, const double *alpha, const double *beta, int m)
+{
+    if (c->rule <= 0 || !(c->ceiling > 0) || (c->dense && !(c->bin_unit > 0)))
+        return 0;
+    return bin_of(c, sq_level_tridiag_max(alpha, beta, m)) == bin_of(c, c->ceiling);
+}
+
 /* upper estimate of lambda_max of the operator from start vector q (unit, free axes only):
  * Lanczos, then the Ritz vector (into q), its Rayleigh quotient plus its residual norm. With a
  * deadline (thread CPU time, 0: none), a product starts only when it ends before the deadline
@@ -420,6 +471,7 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
     memcpy(Q, q, sizeof(double) * N);
     int m = 0;
     double bprev = 0, tlast = deadline > 0 ? sq_thread_cpu() : 0;
+    c->stopped = 0;
     for (int j = 0; j < iters; j++) {
         double *qj = Q + N * (size_t)j;
         if (deadline > 0 && j > 0) {
@@ -443,12 +495,14 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
         m++;
         if (!(b > 1e-12 * fabs(a)) || j + 1 == iters)
             break;
+        if ((c->stopped = stop_rule(c, alpha, beta, m)) != 0)
+            break;
         for (size_t i = 0; i < N; i++)
             Q[N * (size_t)(j + 1) + i] = w[i] / b;
         bprev = b;
     }
     *done = m;
-    if (deadline > 0) { /* the Ritz vector's product too */
+    if (deadline > 0 && c->stopped != 1) { /* the Ritz vector's product too */
         double now = sq_thread_cpu();
         tprod = fmax(tprod, now - tlast);
         if (now + tprod > deadline)
@@ -466,6 +520,14 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
         for (size_t i = 0; i < N; i++)
             q[i] += s[j] * Q[N * (size_t)j + i];
     double nq = sqrt(dot(q, q, N)), est = INFINITY;
+    if (c->stopped == 1) {
+        /* decided by the ceiling's bin: the ceiling is the estimate (a rigorous bound in the
+         * same bin), the Ritz vector kept for the next warm start without its product */
+        if (isfinite(nq) && nq > 0)
+            for (size_t i = 0; i < N; i++)
+                q[i] /= nq;
+        return c->ceiling;
+    }
     if (isfinite(nq) && nq > 0) {
         for (size_t i = 0; i < N; i++)
             q[i] /= nq;
@@ -486,7 +548,8 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
     return est;
 }
 
-double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters)
+double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *start, int iters, double ceiling,
+                                        double bin_unit, int rule, int *steps, int *stopped)
 {
     struct lod_sharp S;
     memset(&S, 0, sizeof S);
@@ -497,6 +560,9 @@ double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, 
     c.lod = lod;
     c.nact = n / 3;
     c.dense = A;
+    c.ceiling = ceiling;
+    c.bin_unit = bin_unit;
+    c.rule = rule;
     size_t N = 3 * (size_t)c.nact;
     double *q = sq_malloc(sizeof(double) * SQ_MAX(N, 1)), nq = 0;
     for (size_t i = 0; i < N; i++)
@@ -505,10 +571,28 @@ double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, 
         q[i] = start[i] / sqrt(nq);
     int done = 0;
     double est = lanczos(&c, q, SQ_MIN(iters, ITERS_COLD), &done, 0, 0);
+    if (ceiling > 0)
+        est = fmin(est, ceiling);
+    if (steps)
+        *steps = done;
+    if (stopped)
+        *stopped = c.stopped;
     free(q);
     free(S.basis);
     free(lod);
     return est;
+}
+
+double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters)
+{
+    return sq_lodx_sharp_lanczos_dense_stop(A, n, start, iters, 0, 0, 0, NULL, NULL);
+}
+
+/* the early stop of the estimates (stop_rule): on, or off with SQ_SHARP_STOP=0 (to compare) */
+static int sharp_rule(void)
+{
+    const char *e = getenv("SQ_SHARP_STOP");
+    return e && *e ? atoi(e) != 0 : 1;
 }
 
 /* the operator of level k: lists, masses, the off-level row sums; returns the Gershgorin ceiling */
@@ -633,7 +717,10 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     if (nq > 0) {
         for (size_t i = 0; i < N; i++)
             q[i] /= nq;
+        c.ceiling = *gersh;
+        c.rule = sharp_rule();
         est = lanczos(&c, q, warm ? ITERS_WARM : ITERS_COLD, &done, deadline, tprod);
+        S->stopped[k] = c.stopped;
         if (isnan(est)) { /* not made in time */
             S->iters[k] = done;
             free(q);
@@ -668,6 +755,12 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
     double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
     double *y = sq_malloc(sizeof(double) * N);
     for (size_t j = 0; j < N; j++) {
+        /* a constrained axis's column stays zero: op_apply zeroes the constrained rows only
+         * (the Lanczos vectors are zero on those axes), so the column a free row reads from a
+         * constrained axis was here before, and the matrix looked asymmetric (up to 0.23 of its
+         * largest entry on the organ, glued at its base: docs/stability.md) */
+        if (lod->lv[k].model.fixed[lod->lev[k].active_list[j / 3]] & (1u << (j % 3)))
+            continue;
         x[j] = 1;
         op_apply(&c, x, y);
         x[j] = 0;
@@ -686,26 +779,6 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
 /* level k's substeps from its estimate w2 (damping as docs/physics.md section 3: c = a + b
  * omega^2): the smallest 2^n within step_fraction of the bound; above 2^20 (or no estimate)
  * the Gershgorin substeps coupling_bound gave stay */
-/* the damped stable step of an undamped rate w2 (1/s^2), s */
-static double step_bound_of(const sq_material *mat, double w2)
-{
-    double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
-    return (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
-}
-
-/* the exponent n of level k's 2^n substeps per frame for the estimate w2 (non-decreasing in
- * w2); 21: above 2^20, -1: no estimate (NaN or negative) */
-static int exponent_of(const sq_lod *lod, const struct lod_sharp *S, int k, double w2)
-{
-    const sq_level *Lk = &lod->lv[k];
-    double bound = step_bound_of(&lod->mat, w2);
-    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
-    int n = 0;
-    while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
-        n++;
-    return w2 >= 0 ? n : -1;
-}
-
 static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
 {
     int n = exponent_of(lod, S, k, w2);
@@ -714,8 +787,9 @@ static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
     S->nsub[k] = n;
     lod->lev[k].extra_log2 = n - lod->lv[k].substeps_log2;
     if (getenv("SQ_SHARP_TRACE"))
-        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d", k,
-                lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
+        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps%s, 2^%d", k,
+                lod->lev[k].nactive, w2, S->gersh[k], S->iters[k],
+                S->stopped[k] ? " (stopped: in the ceiling's bin)" : "", n);
 }
 
 /* SQ_SHARP_CHECK=1 (a debug path, never taken in normal runs): level k's estimate est against a
@@ -773,8 +847,8 @@ static void check_estimate(sq_lod *lod, struct lod_sharp *S, int k, double est)
     double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
     double over = frame_dt / ldexp(1.0, ne) / step_bound_of(&lod->mat, theta);
     fprintf(stderr, "sharp-check L%d: %d active, %d free axes, est %.9g, ref %.9g (resid %.3g, %d steps), est/ref %.6f, "
-            "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, ceiling %.6g\n",
-            k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->gersh[k]);
+            "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, stop %d, ceiling %.6g\n",
+            k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->stopped[k], S->gersh[k]);
     if (getenv("SQ_SHARP_CHECK")[0] == '2' && N <= 3000) {
         double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
         for (size_t j = 0; j < N; j++) {
