@@ -562,7 +562,7 @@ SQ_TEST(lod_sharp_estimate_not_below_lambda_max_on_small_operators)
 /* the early stop of the estimate (bound.c's stop_rule): a Lanczos run stops once its largest Ritz
  * value is in the substep bin of the Gershgorin ceiling, and the estimate is then the ceiling.
  * On 600 pseudo-random spring networks (symmetric positive, orders 24-60, every node tied to
- * four others and to the ground, 1e6 scale: Gershgorin 1.1-2x lambda_max, as on the levels), from
+ * four others and to the ground, 1e6 scale), from
  * the cold start's positive vector, 16 steps, with bins of a factor 4 in w2 (2^n substeps)
  * placed at random, against the dense eigenvalue and the same run without the stop: a
  * stopped estimate is at or above lambda_max (rounding: 1e-9 relative) and in the bin of the
