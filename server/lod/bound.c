@@ -183,18 +183,13 @@ typedef struct op_ctx {
 
 /* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
  * reaches: on level k (in) and elsewhere (out); a ring ghost through its sources */
-static void col_split(const op_ctx *c, int m, int l, double *in, double *out)
+static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double *out)
 {
-    const sq_lod *lod = c->lod;
-    int k = c->k;
     const sq_lod_level *lm = &lod->lev[m];
     *in = *out = 0;
     if (lm->active[l]) {
-        /* a level-k active node's 1 / sqrt(mass) is in isq already (the same expression) */
-        if (m == k && c->idx[l] >= 0)
-            *in = c->isq[c->idx[l]];
-        else
-            *(m == k ? in : out) = 1 / sqrt(lod->lv[m].model.mass[l]);
+        double s = 1 / sqrt(lod->lv[m].model.mass[l]);
+        *(m == k ? in : out) = s;
         return;
     }
     int rl = lm->ring_index[l];
@@ -221,7 +216,7 @@ static double row_sums(op_ctx *c)
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
-            col_split(c, k, Lk->model.col[e], &in, &out);
+            col_split(lod, k, Lk->model.col[e], k, &in, &out);
             tot[a] += bn * (in + out) * c->isq[a];
             c->off[a] += bn * out * c->isq[a];
         }
@@ -234,7 +229,7 @@ static double row_sums(op_ctx *c)
             double rin = 0, rout = 0;
             for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
                 double bn = bnorm(lm->ring_K + 9 * (size_t)e), in, out;
-                col_split(c, m, lm->ring_col[e], &in, &out);
+                col_split(lod, m, lm->ring_col[e], k, &in, &out);
                 rin += bn * in;
                 rout += bn * out;
             }
