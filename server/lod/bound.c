@@ -170,6 +170,8 @@ typedef struct op_ctx {
     double *off;         /* per active index: scaled row sum of |O| (C_k), 1/s^2 */
     double *u[SQ_MAX_LEVELS]; /* values of each level's nodes under the product (3 n_m) */
     double *y;           /* unscaled product, compact */
+    double *gsplit[SQ_MAX_LEVELS]; /* row_sums: per ring ghost of each level, its col_split (in,
+                                    * out) once computed (NaN before), NULL outside row_sums */
     int scratch;         /* 1: idx and u are the lod_sharp's kept arrays (ctx_free cleans them) */
     const double *dense; /* tests (sq_lodx_sharp_lanczos_dense): this 3 nact x 3 nact matrix instead */
     /* the early stop (lanczos, stop_rule): the Gershgorin ceiling (0: no early stop), the rule
@@ -183,8 +185,10 @@ typedef struct op_ctx {
 
 /* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
  * reaches: on level k (in) and elsewhere (out); a ring ghost through its sources */
-static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double *out)
+static void col_split(const op_ctx *c, int m, int l, double *in, double *out)
 {
+    const sq_lod *lod = c->lod;
+    int k = c->k;
     const sq_lod_level *lm = &lod->lev[m];
     *in = *out = 0;
     if (lm->active[l]) {
@@ -195,9 +199,21 @@ static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double
     int rl = lm->ring_index[l];
     if (rl < 0)
         return;
+    /* a ghost is a column of many rows: its sums once per operator (the same sums in the same
+     * order, so the same values) */
+    double *memo = c->gsplit[m] ? c->gsplit[m] + 2 * (size_t)rl : NULL;
+    if (memo && !isnan(memo[0])) {
+        *in = memo[0];
+        *out = memo[1];
+        return;
+    }
     for (int q = lm->src_start[rl]; q < lm->src_start[rl + 1]; q++) {
         double s = fabs(lm->src_weight[q]) / sqrt(lod->lv[lm->src_level[q]].model.mass[lm->src_node[q]]);
         *(lm->src_level[q] == k ? in : out) += s;
+    }
+    if (memo) {
+        memo[0] = *in;
+        memo[1] = *out;
     }
 }
 
@@ -210,13 +226,19 @@ static double row_sums(op_ctx *c)
     const sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
     double *tot = sq_calloc((size_t)c->nact, sizeof(double));
+    for (int m = 0; m < lod->L; m++) {
+        int nr = lod->lev[m].nring;
+        c->gsplit[m] = nr > 0 ? sq_malloc(sizeof(double) * 2 * (size_t)nr) : NULL;
+        for (int r = 0; r < 2 * nr; r++)
+            c->gsplit[m][r] = NAN;
+    }
     for (int a = 0; a < c->nact; a++) {
         int i = lk->active_list[a];
         const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
-            col_split(lod, k, Lk->model.col[e], k, &in, &out);
+            col_split(c, k, Lk->model.col[e], &in, &out);
             tot[a] += bn * (in + out) * c->isq[a];
             c->off[a] += bn * out * c->isq[a];
         }
@@ -229,7 +251,7 @@ static double row_sums(op_ctx *c)
             double rin = 0, rout = 0;
             for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
                 double bn = bnorm(lm->ring_K + 9 * (size_t)e), in, out;
-                col_split(lod, m, lm->ring_col[e], k, &in, &out);
+                col_split(c, m, lm->ring_col[e], &in, &out);
                 rin += bn * in;
                 rout += bn * out;
             }
@@ -249,6 +271,10 @@ static double row_sums(op_ctx *c)
             g = fmax(g, tot[a]);
     }
     free(tot);
+    for (int m = 0; m < lod->L; m++) {
+        free(c->gsplit[m]);
+        c->gsplit[m] = NULL;
+    }
     return g;
 }
 
