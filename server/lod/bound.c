@@ -28,6 +28,7 @@
 
 #define ITERS_COLD 40  /* Lanczos steps without a previous Ritz vector (as fixed mode) */
 #define ITERS_WARM 16  /* from the previous Ritz vector */
+#define ITERS_REF 120  /* the check's reference run (SQ_SHARP_CHECK, a debug path) */
 #define BASIS_MAX_DOUBLES (8L << 20) /* Krylov basis kept for the Ritz vector: at most 64 MB */
 
 struct lod_sharp {
@@ -37,6 +38,7 @@ struct lod_sharp {
     double lambda[SQ_MAX_LEVELS];  /* the upper estimate used, 1/s^2 (0: no active node) */
     double gersh[SQ_MAX_LEVELS];   /* its Gershgorin ceiling, 1/s^2 */
     int iters[SQ_MAX_LEVELS];      /* Lanczos steps of the last estimate */
+    int stopped[SQ_MAX_LEVELS];    /* 1: its Lanczos run stopped in the ceiling's bin (stop_rule) */
     long calls;                    /* estimates made (one per level per rebuild) */
     double cpu_s;                  /* their thread CPU time, s */
     /* an estimate is made again only when what it reads changed (level_key) */
@@ -168,14 +170,25 @@ typedef struct op_ctx {
     double *off;         /* per active index: scaled row sum of |O| (C_k), 1/s^2 */
     double *u[SQ_MAX_LEVELS]; /* values of each level's nodes under the product (3 n_m) */
     double *y;           /* unscaled product, compact */
+    double *gsplit[SQ_MAX_LEVELS]; /* row_sums: per ring ghost of each level, its col_split (in,
+                                    * out) once computed (NaN before), NULL outside row_sums */
     int scratch;         /* 1: idx and u are the lod_sharp's kept arrays (ctx_free cleans them) */
     const double *dense; /* tests (sq_lodx_sharp_lanczos_dense): this 3 nact x 3 nact matrix instead */
+    /* the early stop (lanczos, stop_rule): the Gershgorin ceiling (0: no early stop), the rule
+     * (1 on, 0 off), for the dense tests the bins' unit (substep bins of a factor 4 in w2 from
+     * it), and how the run stopped (0: all its steps, 1: in the ceiling's bin) */
+    double ceiling;
+    int rule;
+    double bin_unit;
+    int stopped;
 } op_ctx;
 
 /* coupling of column l of level m seen from level k, each weight over sqrt(mass) of the node it
  * reaches: on level k (in) and elsewhere (out); a ring ghost through its sources */
-static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double *out)
+static void col_split(const op_ctx *c, int m, int l, double *in, double *out)
 {
+    const sq_lod *lod = c->lod;
+    int k = c->k;
     const sq_lod_level *lm = &lod->lev[m];
     *in = *out = 0;
     if (lm->active[l]) {
@@ -186,9 +199,21 @@ static void col_split(const sq_lod *lod, int m, int l, int k, double *in, double
     int rl = lm->ring_index[l];
     if (rl < 0)
         return;
+    /* a ghost is a column of many rows: its sums once per operator (the same sums in the same
+     * order, so the same values) */
+    double *memo = c->gsplit[m] ? c->gsplit[m] + 2 * (size_t)rl : NULL;
+    if (memo && !isnan(memo[0])) {
+        *in = memo[0];
+        *out = memo[1];
+        return;
+    }
     for (int q = lm->src_start[rl]; q < lm->src_start[rl + 1]; q++) {
         double s = fabs(lm->src_weight[q]) / sqrt(lod->lv[lm->src_level[q]].model.mass[lm->src_node[q]]);
         *(lm->src_level[q] == k ? in : out) += s;
+    }
+    if (memo) {
+        memo[0] = *in;
+        memo[1] = *out;
     }
 }
 
@@ -201,13 +226,19 @@ static double row_sums(op_ctx *c)
     const sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
     double *tot = sq_calloc((size_t)c->nact, sizeof(double));
+    for (int m = 0; m < lod->L; m++) {
+        int nr = lod->lev[m].nring;
+        c->gsplit[m] = nr > 0 ? sq_malloc(sizeof(double) * 2 * (size_t)nr) : NULL;
+        for (int r = 0; r < 2 * nr; r++)
+            c->gsplit[m][r] = NAN;
+    }
     for (int a = 0; a < c->nact; a++) {
         int i = lk->active_list[a];
         const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
-            col_split(lod, k, Lk->model.col[e], k, &in, &out);
+            col_split(c, k, Lk->model.col[e], &in, &out);
             tot[a] += bn * (in + out) * c->isq[a];
             c->off[a] += bn * out * c->isq[a];
         }
@@ -220,7 +251,7 @@ static double row_sums(op_ctx *c)
             double rin = 0, rout = 0;
             for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
                 double bn = bnorm(lm->ring_K + 9 * (size_t)e), in, out;
-                col_split(lod, m, lm->ring_col[e], k, &in, &out);
+                col_split(c, m, lm->ring_col[e], &in, &out);
                 rin += bn * in;
                 rout += bn * out;
             }
@@ -240,6 +271,10 @@ static double row_sums(op_ctx *c)
             g = fmax(g, tot[a]);
     }
     free(tot);
+    for (int m = 0; m < lod->L; m++) {
+        free(c->gsplit[m]);
+        c->gsplit[m] = NULL;
+    }
     return g;
 }
 
@@ -331,6 +366,26 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     }
 }
 
+/* the damped stable step of an undamped rate w2 (1/s^2), s */
+static double step_bound_of(const sq_material *mat, double w2)
+{
+    double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
+    return (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
+}
+
+/* the exponent n of level k's 2^n substeps per frame for the estimate w2 (non-decreasing in
+ * w2); 21: above 2^20, -1: no estimate (NaN or negative) */
+static int exponent_of(const sq_lod *lod, const struct lod_sharp *S, int k, double w2)
+{
+    const sq_level *Lk = &lod->lv[k];
+    double bound = step_bound_of(&lod->mat, w2);
+    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
+    int n = 0;
+    while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
+        n++;
+    return w2 >= 0 ? n : -1;
+}
+
 static double dot(const double *a, const double *b, size_t n)
 {
     double s = 0;
@@ -340,7 +395,7 @@ static double dot(const double *a, const double *b, size_t n)
 }
 
 /* s: the unit eigenvector of the Lanczos tridiagonal T (alpha on the diagonal, beta beside it,
- * order m <= ITERS_COLD) for its largest eigenvalue theta, by inverse iteration on T - sigma I
+ * order m <= ITERS_REF) for its largest eigenvalue theta, by inverse iteration on T - sigma I
  * (sigma just above theta) with a pivoted tridiagonal solve: stable whatever the basis did,
  * unlike the three-term recurrence from s[0] = 1 */
 static void ritz_coefficients(const double *alpha, const double *beta, int m, double theta, double *s)
@@ -349,7 +404,7 @@ static void ritz_coefficients(const double *alpha, const double *beta, int m, do
     for (int i = 0; i < m; i++)
         scale = fmax(scale, fabs(alpha[i]) + (i + 1 < m ? fabs(beta[i]) : 0) + (i > 0 ? fabs(beta[i - 1]) : 0));
     double tiny = fmax(scale, 1e-300) * 1e-15, sigma = theta + fmax(fabs(theta), tiny) * 1e-10;
-    double d[ITERS_COLD + 1], du[ITERS_COLD + 1], du2[ITERS_COLD + 1], dl[ITERS_COLD + 1], b[ITERS_COLD + 1];
+    double d[ITERS_REF + 1], du[ITERS_REF + 1], du2[ITERS_REF + 1], dl[ITERS_REF + 1], b[ITERS_REF + 1];
     for (int i = 0; i < m; i++)
         s[i] = 1;
     for (int it = 0; it < 3; it++) {
@@ -395,6 +450,29 @@ static void ritz_coefficients(const double *alpha, const double *beta, int m, do
     }
 }
 
+/* the substep bin of w2: the level's exponent (exponent_of), or for the dense tests
+ * floor(log4(w2 / bin_unit)) */
+static int bin_of(const op_ctx *c, double w2)
+{
+    if (c->dense)
+        return w2 > 0 ? (int)floor(log(w2 / c->bin_unit) / log(4.0)) : -1000;
+    return exponent_of(c->lod, c->lod->sharp, c->k, w2);
+}
+
+/* the early stop after m Lanczos steps: 1 when the largest Ritz value theta (at or below
+ * lambda_max, in exact arithmetic and to rounding in practice) is in the Gershgorin ceiling's
+ * bin: lambda_max, the full run's estimate (at least its theta, at most the ceiling) and the
+ * ceiling are then all in that bin, so the substeps are decided and further products would
+ * not change them; else 0, go on. A rule on the residual (stop when theta + 2 beta_m |s_m| is
+ * in theta's bin) was tried and dropped: a Ritz pair converged on a lower eigenvalue passes it
+ * (docs/stability.md) */
+static int stop_rule(op_ctx *c, const double *alpha, const double *beta, int m)
+{
+    if (c->rule <= 0 || !(c->ceiling > 0) || (c->dense && !(c->bin_unit > 0)))
+        return 0;
+    return bin_of(c, sq_level_tridiag_max(alpha, beta, m)) == bin_of(c, c->ceiling);
+}
+
 /* upper estimate of lambda_max of the operator from start vector q (unit, free axes only):
  * Lanczos, then the Ritz vector (into q), its Rayleigh quotient plus its residual norm. With a
  * deadline (thread CPU time, 0: none), a product starts only when it ends before the deadline
@@ -419,6 +497,7 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
     memcpy(Q, q, sizeof(double) * N);
     int m = 0;
     double bprev = 0, tlast = deadline > 0 ? sq_thread_cpu() : 0;
+    c->stopped = 0;
     for (int j = 0; j < iters; j++) {
         double *qj = Q + N * (size_t)j;
         if (deadline > 0 && j > 0) {
@@ -442,12 +521,14 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
         m++;
         if (!(b > 1e-12 * fabs(a)) || j + 1 == iters)
             break;
+        if ((c->stopped = stop_rule(c, alpha, beta, m)) != 0)
+            break;
         for (size_t i = 0; i < N; i++)
             Q[N * (size_t)(j + 1) + i] = w[i] / b;
         bprev = b;
     }
     *done = m;
-    if (deadline > 0) { /* the Ritz vector's product too */
+    if (deadline > 0 && c->stopped != 1) { /* the Ritz vector's product too */
         double now = sq_thread_cpu();
         tprod = fmax(tprod, now - tlast);
         if (now + tprod > deadline)
@@ -465,6 +546,14 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
         for (size_t i = 0; i < N; i++)
             q[i] += s[j] * Q[N * (size_t)j + i];
     double nq = sqrt(dot(q, q, N)), est = INFINITY;
+    if (c->stopped == 1) {
+        /* decided by the ceiling's bin: the ceiling is the estimate (a rigorous bound in the
+         * same bin), the Ritz vector kept for the next warm start without its product */
+        if (isfinite(nq) && nq > 0)
+            for (size_t i = 0; i < N; i++)
+                q[i] /= nq;
+        return c->ceiling;
+    }
     if (isfinite(nq) && nq > 0) {
         for (size_t i = 0; i < N; i++)
             q[i] /= nq;
@@ -485,7 +574,8 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
     return est;
 }
 
-double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters)
+double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *start, int iters, double ceiling,
+                                        double bin_unit, int rule, int *steps, int *stopped)
 {
     struct lod_sharp S;
     memset(&S, 0, sizeof S);
@@ -496,6 +586,9 @@ double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, 
     c.lod = lod;
     c.nact = n / 3;
     c.dense = A;
+    c.ceiling = ceiling;
+    c.bin_unit = bin_unit;
+    c.rule = rule;
     size_t N = 3 * (size_t)c.nact;
     double *q = sq_malloc(sizeof(double) * SQ_MAX(N, 1)), nq = 0;
     for (size_t i = 0; i < N; i++)
@@ -504,10 +597,28 @@ double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, 
         q[i] = start[i] / sqrt(nq);
     int done = 0;
     double est = lanczos(&c, q, SQ_MIN(iters, ITERS_COLD), &done, 0, 0);
+    if (ceiling > 0)
+        est = fmin(est, ceiling);
+    if (steps)
+        *steps = done;
+    if (stopped)
+        *stopped = c.stopped;
     free(q);
     free(S.basis);
     free(lod);
     return est;
+}
+
+double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters)
+{
+    return sq_lodx_sharp_lanczos_dense_stop(A, n, start, iters, 0, 0, 0, NULL, NULL);
+}
+
+/* the early stop of the estimates (stop_rule): on, or off with SQ_SHARP_STOP=0 (to compare) */
+static int sharp_rule(void)
+{
+    const char *e = getenv("SQ_SHARP_STOP");
+    return e && *e ? atoi(e) != 0 : 1;
 }
 
 /* the operator of level k: lists, masses, the off-level row sums; returns the Gershgorin ceiling */
@@ -632,7 +743,10 @@ static double level_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *ge
     if (nq > 0) {
         for (size_t i = 0; i < N; i++)
             q[i] /= nq;
+        c.ceiling = *gersh;
+        c.rule = sharp_rule();
         est = lanczos(&c, q, warm ? ITERS_WARM : ITERS_COLD, &done, deadline, tprod);
+        S->stopped[k] = c.stopped;
         if (isnan(est)) { /* not made in time */
             S->iters[k] = done;
             free(q);
@@ -667,6 +781,12 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
     double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
     double *y = sq_malloc(sizeof(double) * N);
     for (size_t j = 0; j < N; j++) {
+        /* a constrained axis's column stays zero: op_apply zeroes the constrained rows only
+         * (the Lanczos vectors are zero on those axes), so the column a free row reads from a
+         * constrained axis was here before, and the matrix looked asymmetric (up to 0.23 of its
+         * largest entry on the organ, glued at its base: docs/stability.md) */
+        if (lod->lv[k].model.fixed[lod->lev[k].active_list[j / 3]] & (1u << (j % 3)))
+            continue;
         x[j] = 1;
         op_apply(&c, x, y);
         x[j] = 0;
@@ -687,21 +807,122 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
  * the Gershgorin substeps coupling_bound gave stay */
 static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
 {
-    const sq_material *mat = &lod->mat;
-    const sq_level *Lk = &lod->lv[k];
-    double c = mat->rayleigh_mass + mat->rayleigh_stiffness * w2;
-    double bound = (w2 > 0 || c > 0) ? 4.0 / (c + sqrt(c * c + 4 * w2)) : INFINITY;
-    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
-    int n = 0;
-    while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
-        n++;
-    if (n > 20 || !(w2 >= 0))
+    int n = exponent_of(lod, S, k, w2);
+    if (n > 20 || n < 0)
         return; /* keep the Gershgorin substeps */
     S->nsub[k] = n;
-    lod->lev[k].extra_log2 = n - Lk->substeps_log2;
+    lod->lev[k].extra_log2 = n - lod->lv[k].substeps_log2;
     if (getenv("SQ_SHARP_TRACE"))
-        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps, 2^%d", k,
-                lod->lev[k].nactive, w2, S->gersh[k], S->iters[k], n);
+        fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps%s, 2^%d", k,
+                lod->lev[k].nactive, w2, S->gersh[k], S->iters[k],
+                S->stopped[k] ? " (stopped: in the ceiling's bin)" : "", n);
+}
+
+/* SQ_SHARP_CHECK=1 (a debug path, never taken in normal runs): level k's estimate est against a
+ * reference of the same operator, ITERS_REF Lanczos steps with full reorthogonalisation from the
+ * cold start, whose largest Ritz value theta_ref is at or below lambda_max (its residual
+ * beta |s_m| shows how far it may be below); prints one line. SQ_SHARP_CHECK=2 also assembles the
+ * operator densely (up to 3,000 axes) and prints its largest asymmetry and where it is */
+static void check_estimate(sq_lod *lod, struct lod_sharp *S, int k, double est)
+{
+    op_ctx c;
+    ctx_init(&c, lod, k);
+    const sq_lod_level *lk = &lod->lev[k];
+    const sq_level *Lk = &lod->lv[k];
+    size_t N = 3 * (size_t)c.nact;
+    int nfree = 0;
+    for (int a = 0; a < c.nact; a++)
+        for (int x = 0; x < 3; x++)
+            nfree += !(Lk->model.fixed[lk->active_list[a]] & (1u << x));
+    int iters = SQ_MIN(ITERS_REF, nfree);
+    double *Q = sq_calloc(N * (size_t)(iters + 1), sizeof(double)), *w = sq_malloc(sizeof(double) * SQ_MAX(N, 1));
+    unsigned long long st = 88172645463325252ULL;
+    for (int a = 0; a < c.nact; a++)
+        for (int x = 0; x < 3; x++) {
+            st ^= st << 13, st ^= st >> 7, st ^= st << 17;
+            double rnd = 0.5 + (double)(st >> 11) / 9007199254740992.0;
+            Q[3 * a + x] = (Lk->model.fixed[lk->active_list[a]] & (1u << x)) ? 0 : rnd;
+        }
+    double nq = sqrt(dot(Q, Q, N));
+    for (size_t i = 0; i < N; i++)
+        Q[i] /= nq;
+    double alpha[ITERS_REF + 1], beta[ITERS_REF + 1], s[ITERS_REF + 1];
+    int m = 0;
+    for (int j = 0; j < iters; j++) {
+        double *qj = Q + N * (size_t)j;
+        op_apply(&c, qj, w);
+        alpha[m] = dot(w, qj, N);
+        for (int pass = 0; pass < 2; pass++) /* full reorthogonalisation, twice */
+            for (int l = 0; l <= j; l++) {
+                double h = dot(w, Q + N * (size_t)l, N);
+                for (size_t i = 0; i < N; i++)
+                    w[i] -= h * Q[N * (size_t)l + i];
+            }
+        double b = sqrt(dot(w, w, N));
+        beta[m++] = b;
+        if (!(b > 1e-13 * fabs(alpha[0])))
+            break;
+        for (size_t i = 0; i < N; i++)
+            Q[N * (size_t)(j + 1) + i] = w[i] / b;
+    }
+    double theta = sq_level_tridiag_max(alpha, beta, m);
+    ritz_coefficients(alpha, beta, m, theta, s);
+    double resid = fabs(beta[m - 1] * s[m - 1]);
+    int ne = exponent_of(lod, S, k, est), nr = exponent_of(lod, S, k, theta), nh = exponent_of(lod, S, k, theta + resid);
+    /* the substep this estimate gives against the stable step at theta_ref (> 1: beyond it) */
+    double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
+    double over = frame_dt / ldexp(1.0, ne) / step_bound_of(&lod->mat, theta);
+    fprintf(stderr, "sharp-check L%d: %d active, %d free axes, est %.9g, ref %.9g (resid %.3g, %d steps), est/ref %.6f, "
+            "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, stop %d, ceiling %.6g\n",
+            k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->stopped[k], S->gersh[k]);
+    if (getenv("SQ_SHARP_CHECK")[0] == '2' && N <= 3000) {
+        double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
+        for (size_t j = 0; j < N; j++) {
+            x[j] = 1;
+            op_apply(&c, x, w);
+            x[j] = 0;
+            for (size_t i = 0; i < N; i++)
+                A[i * N + j] = w[i];
+        }
+        double amax = 0, dmax = 0;
+        size_t wi = 0, wj = 0;
+        for (size_t i = 0; i < N * N; i++)
+            amax = fmax(amax, fabs(A[i]));
+        /* over the free axes only (the Lanczos vectors are zero on the constrained ones; a
+         * constrained column is read by free rows, its row is zero: not an asymmetry of the
+         * operator Lanczos sees) */
+        for (size_t i = 0; i < N; i++)
+            for (size_t j = i + 1; j < N; j++) {
+                if ((Lk->model.fixed[lk->active_list[i / 3]] & (1u << (i % 3))) ||
+                    (Lk->model.fixed[lk->active_list[j / 3]] & (1u << (j % 3))))
+                    continue;
+                double d = fabs(A[i * N + j] - A[j * N + i]);
+                if (d > dmax) {
+                    dmax = d;
+                    wi = i;
+                    wj = j;
+                }
+            }
+        int ai = (int)(wi / 3), aj = (int)(wj / 3);
+        int srci = 0, srcj = 0;
+        for (int mm = 0; mm < lod->L; mm++) {
+            const sq_lod_level *lm = &lod->lev[mm];
+            for (int q = 0; lm->nring && q < lm->src_start[lm->nring]; q++)
+                if (lm->src_level[q] == k) {
+                    srci += lm->src_node[q] == lk->active_list[ai];
+                    srcj += lm->src_node[q] == lk->active_list[aj];
+                }
+        }
+        fprintf(stderr, "sharp-check L%d: asymmetry max |A_ij - A_ji| %.3g of max |A| %.3g (%.3g) at axes %zu, %zu: "
+                "%.6g vs %.6g; nodes %d (%s, source %d times), %d (%s, source %d times)\n",
+                k, dmax, amax, dmax / amax, wi, wj, A[wi * N + wj], A[wj * N + wi], lk->active_list[ai],
+                c.fpos[ai] >= 0 ? "frontier" : "inner", srci, lk->active_list[aj], c.fpos[aj] >= 0 ? "frontier" : "inner", srcj);
+        free(A);
+        free(x);
+    }
+    free(Q);
+    free(w);
+    ctx_free(&c);
 }
 
 /* one estimate of level k by the deadline (0: none): 1 made and taken; 0 not in time (none of
@@ -730,6 +951,8 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
     S->lambda[k] = w2;
     S->calls++;
     take_estimate(lod, S, k, w2);
+    if (getenv("SQ_SHARP_CHECK") && S->nsub[k] >= 0)
+        check_estimate(lod, S, k, w2);
     if (getenv("SQ_SHARP_TRACE")) /* (after take_estimate's line; alone when Gershgorin's kept) */
         fprintf(stderr, "%s%.3f ms (%.0f units, %.1f ns per unit and product)\n",
                 S->nsub[k] >= 0 ? ", " : "sharp: Gershgorin kept, ", 1e3 * spent, units,

@@ -486,6 +486,11 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off);
 /* tests: the estimate (Lanczos, Ritz vector, rho + ||r||, not capped) of the dense symmetric
  * n x n matrix A (n a multiple of 3) from start, iters steps (at most 40) */
 double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters);
+/* the same with the early stop (bound.c's stop_rule; rule 1 on, 0 off) against the ceiling (the
+ * estimate capped by it), substep bins floor(log4(w2 / bin_unit)); its steps and whether it
+ * stopped early (1) */
+double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *start, int iters, double ceiling,
+                                        double bin_unit, int rule, int *steps, int *stopped);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);

@@ -51,7 +51,7 @@ static const det_pin pins[] = {
     {"beam", "scene", 0xa64a8da1a5a16ca5ull},
     {"box-big", "scene", 0xf2903b7a7526738cull}, /* only once `make meshes` has made its meshes */
     {"column", "scene", 0x8537284037d534bfull},
-    {"cube-poke", "scene", 0xd7995e7c6deefb09ull},
+    {"cube-poke", "scene", 0x7f69eaa33d71a5c7ull},
     {"cube-poke", "fixed", 0xe130ee33772bddefull},
     {"organ", "scene", 0xd0a49bcc32ec2f54ull},
     {"organ", "fixed", 0xdce4ff797d752cd3ull},
@@ -63,7 +63,7 @@ static const det_pin pins[] = {
     {"beam", "scene", 0xc4b5d5aafce9c039ull},
     {"box-big", "scene", 0x7f08ee2f62f3a3d4ull}, /* only once `make meshes` has made its meshes */
     {"column", "scene", 0xc7e07417af5b4521ull},
-    {"cube-poke", "scene", 0x5df89dbc04360fffull},
+    {"cube-poke", "scene", 0x224bec84d974c1cdull},
     {"cube-poke", "fixed", 0x9a1fc3755b64429aull},
     {"organ", "scene", 0x03e2e0e0ebf37354ull},
     {"organ", "fixed", 0xaf01e98ce32a5dfaull},
