@@ -198,7 +198,7 @@ static void learn_pass(const sq_lod *lod, double *cost, double measured)
 #define BLOCK_CHANGE_MIN 3e-6
 #define BLOCK_CHANGE_MAX 400e-6
 #define BLOCK_FIT_MIN 4
-static void learn_blocks(sq_lod *lod, int k, long nchg, double t)
+void sq_lodx_learn_blocks(sq_lod *lod, int k, long nchg, double t)
 {
     if (lod->cost_given)
         return;
@@ -321,14 +321,14 @@ static void rebuild_pass(lod_frame *fr, int lists, double after, int calibrating
                 1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
                 1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
     /* learn: each level's list rebuild; its block build, fitted over its last passes as a
-     * floor plus a cost per changed node (learn_blocks); the bound; the rest (sources,
+     * floor plus a cost per changed node (sq_lodx_learn_blocks); the bound; the rest (sources,
      * needed set) */
     for (int k = 0; k < L; k++) {
         if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
             learn_pass(lod, &lod->cost_level[k], t_level[k]);
-        learn_blocks(lod, k, nchg[k], lod->lev[k].blocks_cpu);
+        sq_lodx_learn_blocks(lod, k, nchg[k], lod->lev[k].blocks_cpu);
     }
     learn_pass(lod, &lod->cost_bound, lod->bound_cpu);
     if (lod->couple_cold && !lod->cost_given) /* the calibration's was a cold one (first touches): replaced */

@@ -453,6 +453,10 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds);
 long sq_minor_faults(void);
 /* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
 void sq_lodx_coupling_bound(sq_lod *lod);
+/* frame.c: a pass's block build of level k (nchg changed nodes, t s of thread CPU) into the
+ * guard's model of it, cost_blocks[k] + cost_block_change[k] x changes, fitted over the
+ * level's last LOD_COST_WIN passes (no-op on given costs) */
+void sq_lodx_learn_blocks(sq_lod *lod, int k, long nchg, double t);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
 void sq_lodx_sharp_bound(sq_lod *lod);
 void sq_lodx_sharp_free(sq_lod *lod);

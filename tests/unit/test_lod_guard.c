@@ -148,6 +148,65 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         sq_mesh_free(m[k]);
 }
 
+/* The block-build cost of a level is fitted over its last passes as a floor plus a cost per
+ * changed node (sq_lodx_learn_blocks), on measured costs. The passes fed are 24 real level-1
+ * block builds of a guarded box-big run (SQ_GUARD_TRACE=1, 2026-12-02: changed nodes, ms),
+ * whose time hardly grows with the changes (68 changes 0.31 ms, 1 change 0.14-0.29 ms). The
+ * rule before the fit (the floor of the calibration pass, 20 us on a smaller active set, then
+ * a 3 %-decaying maximum of (time - floor) / changes from 100 us) gives 239 us per change on
+ * them (computed below), so a pass of 100 changes was modelled at 24 ms and passes took few
+ * changes. Checked: the cost per change within [3, 20] us (the fit's slope, clamped at
+ * 3 us, against the old rule's 239), the model covers every one of the last 16 passes (the
+ * floor is their upper envelope: tolerance 1e-12 s, rounding) and is at most their largest
+ * time for any of them, and a 100-change pass is modelled under 1 ms. Given costs are
+ * left alone. */
+SQ_TEST(lod_guard_block_cost_fits_floor_and_per_change)
+{
+    static const double pass[24][2] = {{9, 0.26}, {31, 0.22}, {68, 0.31}, {33, 0.27}, {24, 0.30}, {11, 0.20},
+                                       {43, 0.30}, {1, 0.14},  {14, 0.18}, {26, 0.25}, {6, 0.16},  {22, 0.25},
+                                       {13, 0.18}, {4, 0.32},  {2, 0.27},  {4, 0.13},  {3, 0.23},  {12, 0.13},
+                                       {1, 0.16},  {1, 0.29},  {2, 0.13},  {10, 0.22}, {10, 0.19}, {6, 0.38}};
+    sq_mesh *m[4];
+    sq_body_def def;
+    sq_body *b[2];
+    int made = guard_pair(m, &def, b);
+    CHECK(made);
+    if (!made)
+        return;
+    sq_lod *lod = b[0]->lod; /* measured costs */
+    CHECK(!lod->cost_given);
+    lod->cost_blocks[1] = 20e-6;       /* as after the calibration pass */
+    lod->cost_block_change[1] = 100e-6; /* its start value */
+    double old_floor = 20e-6, old_change = 100e-6, tmax = 0;
+    for (int i = 0; i < 24; i++) {
+        double t = 1e-3 * pass[i][1];
+        sq_lodx_learn_blocks(lod, 1, (long)pass[i][0], t);
+        old_change = fmax(fmax(0.0, t - old_floor) / pass[i][0], 0.97 * old_change);
+        if (i >= 8)
+            tmax = fmax(tmax, t);
+    }
+    double fl = lod->cost_blocks[1], ch = lod->cost_block_change[1];
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "block cost fit: floor %.3f ms, %.1f us per change (the rule before: %.0f us)\n", 1e3 * fl,
+                1e6 * ch, 1e6 * old_change);
+    CHECK(old_change > 200e-6); /* the inflation the fit removes */
+    CHECK(ch >= 3e-6 && ch <= 20e-6);
+    for (int i = 8; i < 24; i++)
+        CHECK(fl + ch * pass[i][0] >= 1e-3 * pass[i][1] - 1e-12);
+    CHECK(fl <= tmax);
+    CHECK(fl + 100 * ch < 1e-3);
+    /* given costs stay */
+    sq_lod *given = b[1]->lod;
+    double g0 = given->cost_blocks[1], g1 = given->cost_block_change[1];
+    for (int i = 0; i < 24; i++)
+        sq_lodx_learn_blocks(given, 1, (long)pass[i][0], 1e-3 * pass[i][1]);
+    CHECK(given->cost_blocks[1] == g0 && given->cost_block_change[1] == g1);
+    sq_body_destroy(b[0]);
+    sq_body_destroy(b[1]);
+    for (int k = 0; k < 4; k++)
+        sq_mesh_free(m[k]);
+}
+
 /* The guard merges the least needed regions first: after a poke refines a body (no budget),
  * merging down to a node-update cap takes mergeable regions in increasing order of their
  * children's largest criterion, and the merged ones rest (not split for REST frames). */
