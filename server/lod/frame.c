@@ -109,7 +109,7 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
  *   - when the next frame would not fit even without a pass, the least needed regions merge
  *     (this frame, as many as its rebuild allows, the rest at the start of the next);
  *   - a region the guard merged rests REST_FRAMES frames before it may split again. */
-#define SPLIT_HEADROOM 0.9
+#define SPLIT_HEADROOM 0.8
 #define REST_FRAMES 25
 #define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
                           * within 1.1 x, the worst 1.57 x */
@@ -159,17 +159,6 @@ static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
     return c;
 }
 
-/* ... as planned: PASS_MARGIN x the model, but the bound at its model: its sharp estimates
- * end by a deadline that leaves the rest of the pass and of the frame their room
- * (rebuild_pass; an estimate that would overrun is owed, its level on Gershgorin substeps
- * meanwhile). On box-big every pass estimates every level again (each level's coupled rows
- * change: SQ_SHARP_TRACE=1), so the bound is planned for the whole pass, not per level */
-static double pass_plan(const sq_lod *lod, unsigned mask, unsigned done)
-{
-    double c = pass_cost(lod, mask, done);
-    return c > 0 ? PASS_MARGIN * c - (done ? 0 : (PASS_MARGIN - 1) * lod->cost_bound) : 0;
-}
-
 /* a measured cost into its decaying maximum (given costs stay): 10 % a frame for the terms
  * measured every frame */
 static void learn(const sq_lod *lod, double *cost, double measured)
@@ -186,54 +175,6 @@ static void learn_pass(const sq_lod *lod, double *cost, double measured)
         *cost = fmax(measured, 0.97 * *cost);
 }
 
-/* a level's block build in a pass, cost_blocks[k] + cost_block_change[k] x its changed nodes,
- * fitted over its last LOD_COST_WIN passes: the cost per change by least squares (between
- * BLOCK_CHANGE_MIN and BLOCK_CHANGE_MAX), the floor the smallest that covers every one of
- * those passes (their upper envelope at that slope). Until the passes span at least two
- * change counts (BLOCK_FIT_MIN of them), the floor is a decaying maximum of the passes that
- * changed none of the level's nodes and the cost per change one of the rest above it (the
- * model before the fit). Dividing a pass's time above a floor measured on a smaller active
- * set by a few changes made the cost per change of levels 1-2 10-30x what larger passes
- * measure (docs/lod.md, "Where the guarded run's error comes from") */
-#define BLOCK_CHANGE_MIN 3e-6
-#define BLOCK_CHANGE_MAX 400e-6
-#define BLOCK_FIT_MIN 4
-void sq_lodx_learn_blocks(sq_lod *lod, int k, long nchg, double t)
-{
-    if (lod->cost_given)
-        return;
-    int i = lod->cost_win_next[k];
-    lod->cost_win_n[k][i] = (double)nchg;
-    lod->cost_win_t[k][i] = t;
-    lod->cost_win_next[k] = (i + 1) % LOD_COST_WIN;
-    if (lod->cost_win_len[k] < LOD_COST_WIN)
-        lod->cost_win_len[k]++;
-    int m = lod->cost_win_len[k];
-    const double *n = lod->cost_win_n[k], *y = lod->cost_win_t[k];
-    double sn = 0, sy = 0;
-    for (int j = 0; j < m; j++) {
-        sn += n[j];
-        sy += y[j];
-    }
-    double mn = sn / m, my = sy / m, snn = 0, sny = 0;
-    for (int j = 0; j < m; j++) {
-        snn += (n[j] - mn) * (n[j] - mn);
-        sny += (n[j] - mn) * (y[j] - my);
-    }
-    if (m < BLOCK_FIT_MIN || snn <= 0) {
-        if (nchg == 0)
-            learn_pass(lod, &lod->cost_blocks[k], t);
-        else
-            learn_pass(lod, &lod->cost_block_change[k], fmax(0.0, t - lod->cost_blocks[k]) / (double)nchg);
-        return;
-    }
-    double slope = fmin(fmax(sny / snn, BLOCK_CHANGE_MIN), BLOCK_CHANGE_MAX), floor = 0;
-    for (int j = 0; j < m; j++)
-        floor = fmax(floor, y[j] - slope * n[j]);
-    lod->cost_block_change[k] = slope;
-    lod->cost_blocks[k] = floor;
-}
-
 /* every level that may take part in a pass: up to the highest simulated level + 1 */
 static unsigned all_levels(const sq_lod *lod)
 {
@@ -243,16 +184,6 @@ static unsigned all_levels(const sq_lod *lod)
             hi = k;
     hi = SQ_MIN(hi + 1, lod->top);
     return (2u << hi) - 1;
-}
-
-/* the cheapest pass (one pair of levels), as planned (pass_plan): every layout
- * the guard keeps leaves room for it, so that some pass always fits (the layout never freezes) */
-static double pass_room(const sq_lod *lod)
-{
-    double c = INFINITY;
-    for (int k = 0; k + 1 < lod->L && k < lod->top; k++)
-        c = fmin(c, pass_plan(lod, 3u << k, 0));
-    return isfinite(c) ? c : 0;
 }
 
 /* node updates that fit in `seconds` of a frame's budget after its fixed cost */
@@ -268,7 +199,7 @@ static long updates_fitting(const sq_lod *lod, double seconds)
  * rest of the pass (sources and lists: cost_couple), the frame's fixed cost and `after` (its
  * ticks when the pass runs before them); an estimate that cannot is left for a frame with
  * room, its level on its Gershgorin substeps (bound.c). after < 0: no limit */
-static void rebuild_pass(lod_frame *fr, int lists, double after, int calibrating)
+static void rebuild_pass(lod_frame *fr, int lists, double after)
 {
     sq_lod *lod = fr->lod;
     int L = lod->L;
@@ -320,22 +251,22 @@ static void rebuild_pass(lod_frame *fr, int lists, double after, int calibrating
                 nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
                 1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
                 1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
-    /* learn: each level's list rebuild; its block build, fitted over its last passes as a
-     * floor plus a cost per changed node (sq_lodx_learn_blocks); the bound; the rest (sources,
-     * needed set) */
+    /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
+     * changed (the calibration pass), else per changed node above the floor; the bound; the
+     * rest (sources, needed set) */
     for (int k = 0; k < L; k++) {
         if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
             learn_pass(lod, &lod->cost_level[k], t_level[k]);
-        sq_lodx_learn_blocks(lod, k, nchg[k], lod->lev[k].blocks_cpu);
+        if (nchg[k] == 0)
+            learn_pass(lod, &lod->cost_blocks[k], lod->lev[k].blocks_cpu);
+        else
+            learn_pass(lod, &lod->cost_block_change[k],
+                  fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
     }
     learn_pass(lod, &lod->cost_bound, lod->bound_cpu);
-    if (lod->couple_cold && !lod->cost_given) /* the calibration's was a cold one (first touches): replaced */
-        lod->cost_couple = couple;
-    else
-        learn_pass(lod, &lod->cost_couple, couple);
-    lod->couple_cold = calibrating;
+    learn_pass(lod, &lod->cost_couple, couple);
     fr->c_pass += t - c0;
     fr->modeled_pass += model;
     fr->rebuilt |= mask;
@@ -372,7 +303,7 @@ static void calibrate(lod_frame *fr)
     for (int k = 0; k <= lod->top && k < lod->L; k++)
         fr->ao.changed[k] = 1;
     sq_lodx_sharp_invalidate(lod);
-    rebuild_pass(fr, 1, -1, 1);
+    rebuild_pass(fr, 1, -1);
     fr->passes = 0;
     fr->modeled_pass = 0;
     lod->cost_calibrated = 1;
@@ -394,7 +325,9 @@ static void stage_guard(lod_frame *fr)
     fr->prev_time = lod->last_time;
     fr->fr_budget = lod->def.budget * budget_s;
     /* the thread's time between two frames of this body (the body's own work around the lod
-     * frame: tool holds, node levels, health), up to a quarter of the period, is not the lod's */
+     * frame: tool holds, node levels, health; the caller's between its steps, less what it
+     * declared not the product's, sq_lod_untimed), up to a quarter of the period, is not the
+     * lod's */
     fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end - lod->untimed : 0;
     lod->untimed = 0;
     if (budget_s > 0 && lod->last_c_end > 0) {
@@ -423,9 +356,8 @@ static void stage_guard(lod_frame *fr)
         calibrate(fr);
     fr->guard_on = lod->cost_update > 0;
     if (fr->guard_on) {
-        /* the layout must fit with room for the cheapest pass (pass_room); level 0 alone, the
-         * cheapest layout */
-        fr->cap_guard = updates_fitting(lod, fr->fr_budget - pass_room(lod));
+        /* the layout must fit without a pass; level 0 alone, the cheapest layout */
+        fr->cap_guard = updates_fitting(lod, fr->fr_budget);
         fr->coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
                                                      (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     }
@@ -454,7 +386,7 @@ static void stage_layout(lod_frame *fr)
         merged = 1;
     }
     if (merged) {
-        rebuild_pass(fr, 0, lod->cost_update * (double)fr->projected, 0);
+        rebuild_pass(fr, 0, lod->cost_update * (double)fr->projected);
         fr->projected = sq_lod_projected_updates(lod);
     }
     int nmax = 0;
@@ -603,15 +535,15 @@ static void stage_criterion(lod_frame *fr)
      * is paid */
     double used = lod->cost_given ? lod->cost_update * (double)fr->updates + fr->modeled_pass : now - fr->c_start;
     double left = B - used - lod->cost_fixed;
-    long keep = updates_fitting(lod, B - pass_room(lod));
-    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - pass_room(lod));
+    long keep = updates_fitting(lod, B);
+    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - PASS_MARGIN * pass_cost(lod, all_levels(lod), 0));
     if (fr->cap_user > 0) {
         keep = SQ_MIN(keep, fr->cap_user);
         split_cap = SQ_MIN(split_cap, fr->cap_user);
     }
     unsigned sched = 0;
     for (int k = 0; k + 1 < L && k < lod->top; k++) {
-        double pc = pass_plan(lod, 3u << k, sched);
+        double pc = PASS_MARGIN * pass_cost(lod, 3u << k, sched);
         if (pc > left) {
             fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
             continue;
@@ -635,14 +567,14 @@ static void stage_criterion(lod_frame *fr)
         unsigned now_sched = 0;
         for (int m = 0; m < L; m++)
             now_sched |= fr->ao.changed[m] ? 1u << m : 0u;
-        left -= pass_plan(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
+        left -= PASS_MARGIN * pass_cost(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
         sched = now_sched;
     }
     lod->def.max_node_updates = fr->cap_user;
     if (fr->projected > keep) {
         /* the next frame would not fit even without a pass: merge the least needed regions,
          * as many as this frame can rebuild (the next frame's layout stage merges the rest) */
-        double pc = pass_plan(lod, all_levels(lod), sched), rc = 0;
+        double pc = PASS_MARGIN * pass_cost(lod, all_levels(lod), sched), rc = 0;
         for (int k = 0; k + 1 < L; k++)
             rc = fmax(rc, PASS_MARGIN * region_cost(lod, k));
         long most = rc > 0 ? (long)fmin(1e9, (left - pc) / rc) : 1000000000L;
@@ -654,7 +586,7 @@ static void stage_criterion(lod_frame *fr)
 /* the levels whose layout changed rebuilt, then the coupling over the new layout */
 static void stage_adapt(lod_frame *fr)
 {
-    rebuild_pass(fr, 1, 0, 0);
+    rebuild_pass(fr, 1, 0);
 }
 
 /* (3) every ghost from the active nodes at the end of the frame: the rendered finest level,

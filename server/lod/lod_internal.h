@@ -26,7 +26,6 @@ enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
 enum { ST_RESTING = 3, ST_LIMITED_ACTIVE = 4, ST_LIMITED_SPLIT = 5 };
 #define SQ_BLOCKS_CHUNK 1024  /* element-block cache slots per chunk (1.2 MB, 2.4 viscous) */
 #define SQ_KROW_CHUNK 16384   /* column-form row blocks per chunk (1.5 MB), at least */
-#define LOD_COST_WIN 16        /* passes per level the guard fits its block-build cost over */
 
 /* a node that carries one or more tool holds this frame (the body's fixed-mode convention:
  * the node jumps to its target when the hold starts, with velocity (target - old) / time left,
@@ -226,12 +225,6 @@ struct sq_lod {
                                           * changed (calibration), s */
     double cost_block_change[SQ_MAX_LEVELS]; /* ... and per changed node of level k, s */
     double cost_bound;                   /* a pass's coupled bound (Gershgorin, sharp), s */
-    /* the last LOD_COST_WIN passes that rebuilt level k: the level's changed nodes and its
-     * block build's thread CPU time, s (the fit of cost_blocks + cost_block_change x changes) */
-    double cost_win_n[SQ_MAX_LEVELS][LOD_COST_WIN], cost_win_t[SQ_MAX_LEVELS][LOD_COST_WIN];
-    int cost_win_len[SQ_MAX_LEVELS], cost_win_next[SQ_MAX_LEVELS];
-    int couple_cold;                     /* 1: cost_couple is the calibration pass's (first
-                                          * touches), replaced by the next pass's */
     double cost_outside;                 /* the thread's time between two frames (the body's
                                           * work around the lod frame), at most a quarter period, s */
     double last_c_end;                   /* thread CPU clock at the last frame's end, s */
@@ -453,10 +446,6 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds);
 long sq_minor_faults(void);
 /* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
 void sq_lodx_coupling_bound(sq_lod *lod);
-/* frame.c: a pass's block build of level k (nchg changed nodes, t s of thread CPU) into the
- * guard's model of it, cost_blocks[k] + cost_block_change[k] x changes, fitted over the
- * level's last LOD_COST_WIN passes (no-op on given costs) */
-void sq_lodx_learn_blocks(sq_lod *lod, int k, long nchg, double t);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
 void sq_lodx_sharp_bound(sq_lod *lod);
 void sq_lodx_sharp_free(sq_lod *lod);
