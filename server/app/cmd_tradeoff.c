@@ -35,6 +35,7 @@
 #include "app/tradeoff.h"
 #include "scene/scene.h"
 #include "body/body.h"
+#include "net/net.h"
 
 #define TO_MAX_VARIANTS 40
 #define TO_MAX_GUARDED 15 /* --guarded runs at most */
@@ -64,8 +65,13 @@ typedef struct to_result {
     double rms, ups, wps;  /* RMS error (m), node updates and wall seconds per simulated second */
     double cpu;            /* thread CPU s inside sq_world_step */
     double cps;            /* thread CPU s per simulated second */
-    double cpu_max1;       /* slowest frame after frame 1, thread CPU s */
-    long cpu_late1;        /* frames after frame 1 over the frame period in thread CPU time */
+    double cpu_max1;       /* slowest frame after frame 1, thread CPU s (with a budget: step +
+                            * publish, what the server's session thread does per frame) */
+    long cpu_late1;        /* frames after frame 1 over the frame period in thread CPU time (same) */
+    double cpu_pub;        /* with a budget: thread CPU s of publishing every frame (surface
+                            * state and frame encoding, as `squish serve`), not in cpu */
+    double cpu_smp;        /* thread CPU s of the error sampling (not the product's: kept out
+                            * of the guard's time around the frame, sq_world_untimed) */
     int substeps_finest;   /* substeps per frame at the variant's finest simulated level, body 0 */
     long resets;
     int pareto;
@@ -388,16 +394,51 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
             }
         }
     }
+    /* with the live budget the run models the server's session thread (server/net/session.c):
+     * each frame is stepped, then published (every body's surface state and its encoded frame,
+     * as `squish serve` sends it); the guard sees publishing as the thread's time around the
+     * lod frame, as in the server, and the late-frame count and slowest frame include it. The
+     * error sampling below is the harness's, not the product's: its thread CPU time is kept
+     * out of the guard's view (sq_world_untimed) */
+    sq_codec codec[SQ_MAX_BODIES];
+    float *pub_xyz = NULL;
+    unsigned char *pub_lev = NULL;
+    if (budget_s > 0) {
+        int maxs = 1;
+        for (int b = 0; b < w->nbodies; b++) {
+            const sq_mesh *m = sq_body_surface_mesh(w->bodies[b]);
+            float *rest = sq_malloc(sizeof(float) * 3 * (size_t)(m->nsurf + 1));
+            for (int i = 0; i < m->nsurf; i++)
+                for (int c = 0; c < 3; c++)
+                    rest[3 * i + c] = (float)m->x[3 * m->surf_nodes[i] + c];
+            sq_codec_init(&codec[b], m->nsurf, rest);
+            codec[b].precision = (float)(SQ_CODEC_PRECISION * codec[b].diagonal); /* serve's default */
+            free(rest);
+            maxs = SQ_MAX(maxs, m->nsurf);
+        }
+        pub_xyz = sq_malloc(sizeof(float) * 3 * (size_t)maxs);
+        pub_lev = sq_malloc((size_t)maxs);
+    }
     for (long f = 1; f <= ref->nframes; f++) {
         double t0 = sq_now(), c0 = sq_thread_cpu();
         sq_world_step(w, budget_s); /* 0: no budget (deterministic); > 0: the live budget, the guard on */
-        double c = sq_thread_cpu() - c0;
+        double c1 = sq_thread_cpu(), c = c1 - c0, cp = 0;
         r->wall += sq_now() - t0;
         r->cpu += c;
+        if (budget_s > 0) {
+            for (int b = 0; b < w->nbodies; b++) {
+                sq_world_surface_state(w, b, pub_xyz, pub_lev);
+                sq_blob_unref(sq_encode_frame(&codec[b], (uint32_t)b, (uint32_t)w->frame, w->time, 0, pub_xyz,
+                                              pub_lev, w->tools, w->feedback[b], w->ntools));
+            }
+            cp = sq_thread_cpu() - c1;
+            r->cpu_pub += cp;
+        }
+        double cs0 = sq_thread_cpu();
         if (f > 1) {
             /* after the first frame (one-off set-up), as `squish tradeoff --bench` counts */
-            r->cpu_max1 = fmax(r->cpu_max1, c);
-            r->cpu_late1 += c > period;
+            r->cpu_max1 = fmax(r->cpu_max1, c + cp);
+            r->cpu_late1 += c + cp > period;
         }
         for (int b = 0; b < w->nbodies; b++)
             r->updates += (double)w->profile[b].node_updates;
@@ -447,9 +488,13 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
                 r->probe_err = isfinite(e) ? fmax(r->probe_err, e) : INFINITY;
             }
         }
+        double cs = sq_thread_cpu() - cs0;
+        r->cpu_smp += cs;
+        if (budget_s > 0)
+            sq_world_untimed(w, cs);
         if (trace) {
-            fprintf(stderr, "frame %3ld rms %.3f mm max %.2f mm cpu %.2f ms active", f,
-                    1e3 * sqrt(fs / SQ_MAX(1, ref->ntotal)), 1e3 * fm, 1e3 * c);
+            fprintf(stderr, "frame %3ld rms %.3f mm max %.2f mm cpu %.2f ms publish %.2f sampling %.2f active", f,
+                    1e3 * sqrt(fs / SQ_MAX(1, ref->ntotal)), 1e3 * fm, 1e3 * c, 1e3 * cp, 1e3 * cs);
             for (int k = 0; k < SQ_MAX_LEVELS && k < 4; k++)
                 fprintf(stderr, " %d", w->profile[0].active[k]);
             fprintf(stderr, " splits %d merges %d refused %d\n", w->profile[0].splits, w->profile[0].merges,
@@ -468,6 +513,12 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
             fwrite(&ref->max_ref, sizeof(double), 1, rf);
             fclose(rf);
         }
+    }
+    if (budget_s > 0) {
+        for (int b = 0; b < w->nbodies; b++)
+            sq_codec_free(&codec[b]);
+        free(pub_xyz);
+        free(pub_lev);
     }
     r->frames = ref->nframes;
     r->sim_s = w->time;
@@ -608,6 +659,8 @@ static void guarded_summary(FILE *f, const to_variant *v, const to_result *r, in
     TO_SPREAD("thread CPU s per simulated s", cps, 1, "%.3g");
     TO_SPREAD("frames over the period in CPU time, after frame 1", cpu_late1, 1, "%.0f");
     TO_SPREAD("slowest frame after frame 1, CPU ms", cpu_max1, 1e3, "%.3g");
+    TO_SPREAD("publishing, CPU s/s (in late/slowest, not above)", cpu_pub / r[i].sim_s, 1, "%.3g");
+    TO_SPREAD("error sampling (not the product's), CPU s/s", cpu_smp / r[i].sim_s, 1, "%.3g");
     TO_SPREAD("wall s per simulated s (includes other load)", wps, 1, "%.3g");
 #undef TO_SPREAD
     int fc = -1, ff = -1, ua = -1;

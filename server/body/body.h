@@ -102,6 +102,11 @@ void sq_body_reset(sq_body *b);
 int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback *feedback,
                   sq_frame_profile *prof, double frame_budget_s);
 
+/* thread CPU time (s) spent on this thread since the last frame on work that is not the
+ * product's (a measuring harness): kept out of the budget guard's time around the frame
+ * (adaptive bodies; sq_lod_untimed) */
+void sq_body_untimed(sq_body *b, double cpu_s);
+
 /* read-only views */
 const sq_body_def *sq_body_get_def(const sq_body *b);
 int sq_body_nlevels(const sq_body *b);

@@ -107,6 +107,12 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     }
 }
 
+void sq_body_untimed(sq_body *b, double cpu_s)
+{
+    if (b->lod)
+        sq_lod_untimed(b->lod, cpu_s);
+}
+
 int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback *feedback,
                   sq_frame_profile *prof, double frame_budget_s)
 {

@@ -66,6 +66,12 @@ typedef struct lod_frame {
     int sharp_made;                  /* owed sharp estimates made at this frame's end */
 } lod_frame;
 
+void sq_lod_untimed(sq_lod *lod, double cpu_s)
+{
+    if (cpu_s > 0)
+        lod->untimed += cpu_s;
+}
+
 /* run one stage and add its wall time to its entry */
 static inline void run(lod_frame *fr, void (*stage)(lod_frame *), int which)
 {
@@ -319,8 +325,11 @@ static void stage_guard(lod_frame *fr)
     fr->prev_time = lod->last_time;
     fr->fr_budget = lod->def.budget * budget_s;
     /* the thread's time between two frames of this body (the body's own work around the lod
-     * frame: tool holds, node levels, health), up to a quarter of the period, is not the lod's */
-    fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end : 0;
+     * frame: tool holds, node levels, health; the caller's between its steps, less what it
+     * declared not the product's, sq_lod_untimed), up to a quarter of the period, is not the
+     * lod's */
+    fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end - lod->untimed : 0;
+    lod->untimed = 0;
     if (budget_s > 0 && lod->last_c_end > 0) {
         double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
         if (!lod->cost_given)

@@ -146,6 +146,12 @@ typedef struct sq_lod_frame_in {
  * NULL: active counts, updates, splits/merges, stage times). */
 void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq_frame_profile *prof);
 
+/* thread CPU time (s) the caller spent on this thread since the last frame on work that is
+ * not the product's (a measuring harness: `squish tradeoff`'s error sampling): kept out of the
+ * guard's time around the frame (docs/lod.md, "Guaranteed frame rate"); adds up until the
+ * next frame */
+void sq_lod_untimed(sq_lod *lod, double cpu_s);
+
 /* level active at each node of the finest level (out has n_finest entries); the walk is
  * skipped when the states did not change since the last call with the same buffer */
 void sq_lod_node_levels(sq_lod *lod, unsigned char *out);

@@ -233,6 +233,8 @@ struct sq_lod {
     double cost_outside;                 /* the thread's time between two frames (the body's
                                           * work around the lod frame), at most a quarter period, s */
     double last_c_end;                   /* thread CPU clock at the last frame's end, s */
+    double untimed;                      /* thread CPU time since then that is not the product's
+                                          * (sq_lod_untimed: a measuring harness), s */
     double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
     double cost_fault;                   /* a first touch of a page, s (sq_lodx_reserve_blocks) */
     long reserve_pending;                /* pages sq_lodx_reserve_blocks left for a later frame */

@@ -141,6 +141,10 @@ int sq_world_realtime_check(sq_world *w, double period_s, char *msg, size_t n);
  * steps with all tools; budget_s is the compute budget for splitting decisions
  * (0 = unlimited, e.g. batch runs) */
 void sq_world_step(sq_world *w, double budget_s);
+/* thread CPU time (s) the caller spent on this thread since the last step on work that is not
+ * the product's (a measuring harness, e.g. `squish tradeoff`'s error sampling): the budget
+ * guard of every adaptive body does not count it as time around its frame (docs/lod.md) */
+void sq_world_untimed(sq_world *w, double cpu_s);
 /* set or add a live tool pose by id (replaces a scripted one with the same id); -1 + err
  * if the table is full or values are invalid. t->origin is ignored: an inactive -> active
  * change (or a new active tool) takes origin = pos, so a grab captures where it was
