@@ -675,6 +675,18 @@ double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *st
     return est;
 }
 
+int sq_lodx_sharp_stop_tridiag(const double *alpha, const double *beta, int m, double ceiling, double bin_unit)
+{
+    static const double none = 0;
+    op_ctx c;
+    memset(&c, 0, sizeof c);
+    c.dense = &none; /* the dense tests' bins */
+    c.ceiling = ceiling;
+    c.bin_unit = bin_unit;
+    c.rule = 1;
+    return stop_rule(&c, alpha, beta, m);
+}
+
 double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters)
 {
     return sq_lodx_sharp_lanczos_dense_stop(A, n, start, iters, 0, 0, 0, NULL, NULL);

@@ -493,6 +493,9 @@ double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, 
  * stopped early (1) */
 double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *start, int iters, double ceiling,
                                         double bin_unit, int rule, int *steps, int *stopped);
+/* tests: stop_rule's decision (1: stop) for the Lanczos tridiagonal (alpha, beta, order m) against
+ * the ceiling, in the dense tests' bins floor(log4(w2 / bin_unit)) */
+int sq_lodx_sharp_stop_tridiag(const double *alpha, const double *beta, int m, double ceiling, double bin_unit);
 /* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);

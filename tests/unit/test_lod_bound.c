@@ -559,6 +559,55 @@ SQ_TEST(lod_sharp_estimate_not_below_lambda_max_on_small_operators)
  * the full run's), an estimate not stopped is the full run's bit for bit, and the stop is
  * taken in a good part of the runs with fewer steps. Returning the Ritz value at the stop
  * instead of the ceiling (tried) fails the first check; stopping one bin early fails the second. */
+/* the early stop's Sturm counts (stop_rule) against what they replaced: bisecting the largest
+ * eigenvalue theta of the tridiagonal (sq_level_tridiag_max, to 1e-15 relative) and comparing
+ * its bin with the ceiling's. 20,000 random tridiagonals of order 1-40 (positive diagonal,
+ * mixed-sign couplings of up to the diagonal's size), a ceiling at 0.25-16 times theta (below
+ * theta too, so that the bin's upper edge is exercised) and a bin
+ * unit that puts theta anywhere in its bin, a quarter of them with theta within 1e-9 relative of
+ * a bin edge (either side): the decisions must agree except where theta is within 1e-13 of an
+ * edge (the bisection's own tolerance is 1e-15; below that the two roundings may differ, and
+ * either answer is safe: a stop returns the rigorous ceiling) */
+SQ_TEST(lod_sharp_stop_by_sturm_counts_is_the_bisection_decision)
+{
+    unsigned long long st = 0x2545F4914F6CDD1DULL;
+#define RND() (st ^= st << 13, st ^= st >> 7, st ^= st << 17, (double)(st >> 11) / 9007199254740992.0)
+    int agree = 0, differ = 0, near_edge_differ = 0, stops = 0, trials = 20000;
+    for (int t = 0; t < trials; t++) {
+        int m = 1 + t % 40;
+        double alpha[40], beta[40];
+        for (int i = 0; i < m; i++) {
+            alpha[i] = 1e6 * (0.2 + RND());
+            beta[i] = 1e6 * (RND() - 0.5) * 2;
+        }
+        double theta = sq_level_tridiag_max(alpha, beta, m);
+        double ceiling = theta * pow(2.0, 6 * RND() - 2), unit;
+        if (t % 4 == 0) /* theta just at an edge of its bin: unit * 4^j = theta (1 +- 1e-9) */
+            unit = theta * (1 + (RND() - 0.5) * 2e-9) / pow(4.0, 3);
+        else
+            unit = theta * pow(4.0, -3 - RND());
+        int old = (int)floor(log(theta / unit) / log(4.0)) == (int)floor(log(ceiling / unit) / log(4.0));
+        int now = sq_lodx_sharp_stop_tridiag(alpha, beta, m, ceiling, unit);
+        stops += now;
+        if (old == now) {
+            agree++;
+            continue;
+        }
+        double x = log(theta / unit) / log(4.0), frac = fabs(x - floor(x + 0.5));
+        if (frac * log(4.0) < 1e-13)
+            near_edge_differ++;
+        else
+            differ++;
+    }
+#undef RND
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "%d trials: %d agree (%d stop), %d differ within 1e-13 of an edge, %d differ elsewhere\n",
+                trials, agree, stops, near_edge_differ, differ);
+    CHECK(differ == 0);
+    CHECK(near_edge_differ <= trials / 1000);
+    CHECK(stops > trials / 10 && stops < trials - trials / 10);
+}
+
 SQ_TEST(lod_sharp_early_stop_keeps_the_bin_of_lambda_max)
 {
     unsigned long long st = 0x9E3779B97F4A7C15ULL;
