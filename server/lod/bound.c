@@ -255,7 +255,13 @@ static double row_sums(op_ctx *c)
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
-            col_split(c, k, Lk->model.col[e], &in, &out);
+            int l = Lk->model.col[e], al = c->idx[l];
+            if (al >= 0) { /* an active column of the level (col_split's value, without the call) */
+                in = c->isq[al];
+                out = 0;
+            } else {
+                col_split(c, k, l, &in, &out);
+            }
             tot[a] += bn * (in + out) * c->isq[a];
             c->off[a] += bn * out * c->isq[a];
         }
