@@ -407,13 +407,7 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
         int maxs = 1;
         for (int b = 0; b < w->nbodies; b++) {
             const sq_mesh *m = sq_body_surface_mesh(w->bodies[b]);
-            float *rest = sq_malloc(sizeof(float) * 3 * (size_t)(m->nsurf + 1));
-            for (int i = 0; i < m->nsurf; i++)
-                for (int c = 0; c < 3; c++)
-                    rest[3 * i + c] = (float)m->x[3 * m->surf_nodes[i] + c];
-            sq_codec_init(&codec[b], m->nsurf, rest);
-            codec[b].precision = (float)(SQ_CODEC_PRECISION * codec[b].diagonal); /* serve's default */
-            free(rest);
+            sq_codec_init_surface(&codec[b], m, SQ_CODEC_PRECISION); /* serve's default */
             maxs = SQ_MAX(maxs, m->nsurf);
         }
         pub_xyz = sq_malloc(sizeof(float) * 3 * (size_t)maxs);

@@ -110,6 +110,17 @@ void sq_codec_init(sq_codec *c, int nsurf, const float *rest_xyz)
     c->precision = (float)(SQ_CODEC_PRECISION * sqrt(diag2));
 }
 
+void sq_codec_init_surface(sq_codec *c, const sq_mesh *m, double precision_rel)
+{
+    float *rest = sq_malloc(sizeof(float) * 3 * (size_t)(m->nsurf + 1));
+    for (int i = 0; i < m->nsurf; i++)
+        for (int k = 0; k < 3; k++)
+            rest[3 * i + k] = (float)m->x[3 * m->surf_nodes[i] + k];
+    sq_codec_init(c, m->nsurf, rest);
+    c->precision = (float)(precision_rel * c->diagonal);
+    free(rest);
+}
+
 void sq_codec_free(sq_codec *c)
 {
     free(c->rest);

@@ -221,6 +221,9 @@ typedef struct sq_codec {
 
 /* set up a codec for a surface of nsurf vertices with rest positions xyz (nsurf x 3) */
 void sq_codec_init(sq_codec *c, int nsurf, const float *rest_xyz);
+/* the same for the surface of mesh m (its surface nodes' rest positions), with the precision
+ * floor precision_rel x the rest diagonal (SQ_CODEC_PRECISION: serve's default) */
+void sq_codec_init_surface(sq_codec *c, const sq_mesh *m, double precision_rel);
 void sq_codec_free(sq_codec *c);
 
 /* topology message: rest positions of the surface (nsurf x 3) and triangles (ntris x 3) */

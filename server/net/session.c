@@ -297,13 +297,7 @@ static int setup(sq_session *s)
     sq_blob *topo[SQ_MAX_BODIES];
     for (int b = 0; b < w->nbodies; b++) {
         const sq_mesh *m = sq_body_surface_mesh(w->bodies[b]);
-        float *rest = sq_malloc(sizeof(float) * 3 * (size_t)(m->nsurf + 1));
-        for (int i = 0; i < m->nsurf; i++)
-            for (int k = 0; k < 3; k++)
-                rest[3 * i + k] = (float)m->x[3 * m->surf_nodes[i] + k];
-        sq_codec_init(&s->codec[b], m->nsurf, rest);
-        s->codec[b].precision = (float)(s->precision * s->codec[b].diagonal);
-        free(rest);
+        sq_codec_init_surface(&s->codec[b], m, s->precision);
         topo[b] = sq_encode_topology(&s->codec[b], (uint32_t)b, 0, 0.0, m->surf_tris, m->ntris);
         maxs = SQ_MAX(maxs, m->nsurf);
     }
