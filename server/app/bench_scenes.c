@@ -129,11 +129,7 @@ static void bench_spmv_threads(int cells)
         fprintf(stderr, "squish tradeoff --bench: %s\n", err.msg);
         return;
     }
-    sq_material mat;
-    memset(&mat, 0, sizeof mat);
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
+    sq_material mat = sq_material_paper();
     sq_level L;
     if (sq_level_init(&L, m, &mat, SQ_OPERATOR_FEM, NULL, 0, &err) < 0) {
         fprintf(stderr, "squish tradeoff --bench: %s\n", err.msg);

@@ -242,11 +242,7 @@ static int shipped_rows(const char *shape, const char *label, const sq_material 
 
 static int bench_operators(void)
 {
-    sq_material mat;
-    memset(&mat, 0, sizeof mat);
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
+    sq_material mat = sq_material_paper();
     printf("# static solutions (CG to relative residual 1e-10) under gravity 9.81 m/s^2, rho = 1000 kg/m^3\n");
     printf("%-40s %8s %14s %14s %10s\n", "case", "nodes", "paper uz (m)", "fem uz (m)", "paper/fem");
     /* the paper's cube: 1 m, bottom face fixed; corner (1,1,1); mu = 40 kPa, lambda = 100 kPa */

@@ -22,9 +22,7 @@ sq_body_def sq_body_def_default(void)
     memset(&d, 0, sizeof d);
     d.name = "body";
     /* the paper's cube material (standard names), lightly damped */
-    d.material.mu = 40000;
-    d.material.lambda = 100000;
-    d.material.density = 1000;
+    d.material = sq_material_paper();
     d.material.rayleigh_mass = 0.5;
     d.material.rayleigh_stiffness = 0.001;
     d.op = SQ_OPERATOR_FEM;

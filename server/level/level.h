@@ -27,6 +27,9 @@ typedef struct sq_material {
     double phi, psi;           /* paper Eq. 7 viscosities (standard-name roles of mu, lambda), Pa s */
 } sq_material;
 
+/* the paper's cube material (mu 40 kPa, lambda 100 kPa, 1000 kg/m^3), undamped, every other
+ * field 0 */
+sq_material sq_material_paper(void);
 /* E (Pa), nu -> mu, lambda; returns -1 and err if out of range */
 int sq_material_from_E_nu(sq_material *m, double E, double nu, sq_err *err);
 void sq_material_E_nu(const sq_material *m, double *E, double *nu);

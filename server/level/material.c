@@ -1,7 +1,18 @@
 /* material.c - elastic material in the standard Lamé names: conversions and range checks. */
 #include <math.h>
+#include <string.h>
 
 #include "level/level.h"
+
+sq_material sq_material_paper(void)
+{
+    sq_material m;
+    memset(&m, 0, sizeof m);
+    m.mu = 40000;
+    m.lambda = 100000;
+    m.density = 1000;
+    return m;
+}
 
 int sq_material_from_E_nu(sq_material *m, double E, double nu, sq_err *err)
 {

@@ -218,12 +218,8 @@ sq_scene *sq_scene_default(sq_err *err)
     sq_body_def *def = &s->bodies[0];
     *def = sq_body_def_default();
     def->name = s->body_names[0];
-    def->material.mu = 40000;
-    def->material.lambda = 100000;
-    def->material.density = 1000;
+    def->material = sq_material_paper();
     def->material.rayleigh_mass = 2.0;
-    def->material.rayleigh_stiffness = 0;
-    def->material.use_viscosity = 0;
     def->op = SQ_OPERATOR_FEM;
     def->nconstraints = 1;
     def->constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};

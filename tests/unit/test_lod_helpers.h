@@ -99,12 +99,7 @@ static inline sq_constraint lh_bottom_fixed(void)
 /* the paper's material alone (mu 40 kPa, lambda 100 kPa, 1000 kg/m^3), every other field 0 */
 static inline sq_material lh_paper_material(void)
 {
-    sq_material mat;
-    memset(&mat, 0, sizeof mat);
-    mat.mu = 40000;
-    mat.lambda = 100000;
-    mat.density = 1000;
-    return mat;
+    return sq_material_paper();
 }
 
 /* lod definition with the body defaults */
