@@ -716,26 +716,16 @@ static long reserve_pages(int cap, const void *p, long used, long limit, size_t 
     return (long)((size_t)*want * size / PAGE_BYTES + 1);
 }
 
-/* one array's pages past its first `used` elements written, from where the last call stopped
- * on this array (*mapped bytes; a pointer not seen before: from its use), 16 pages at a time
- * while the thread CPU since c0 is under seconds; returns the pages left */
-static long map_array(void *p, int cap, long used, size_t size, const void **seen, size_t *mapped, double c0,
-                      double seconds, long *pages)
+/* one array: grown to *want elements of size bytes and its pages past the first `used`
+ * written; returns the new pointer */
+static void *reserve_one(void *p, int *cap, long want, long used, size_t size, long *pages)
 {
-    if (!p)
-        return 0;
-    if (p != *seen) {
-        *seen = p;
-        *mapped = 0;
+    if (want > *cap || !p) {
+        p = sq_realloc(p, size * (size_t)want);
+        *cap = (int)want;
     }
-    size_t from = SQ_MAX(*mapped, size * (size_t)used), end = size * (size_t)cap;
-    while (from < end && sq_thread_cpu() - c0 < seconds) {
-        size_t to = from + 16 * PAGE_BYTES < end ? from + 16 * PAGE_BYTES : end;
-        *pages += touch_pages(p, from, to);
-        from = to;
-    }
-    *mapped = SQ_MAX(*mapped, from);
-    return from < end ? (long)((end - from) / PAGE_BYTES + 1) : 0;
+    *pages += touch_pages(p, size * (size_t)used, size * (size_t)*cap);
+    return p;
 }
 
 /* the last element-block chunk of a level mapped from where the last call stopped (never
@@ -844,20 +834,10 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds)
             long used = a[i].used, want;
             long ref = (i & 1) ? a[i - 1].used : used;
             long np = reserve_pages(*a[i].cap, *a[i].p, ref, limit, a[i].size, &want);
-            /* grown when the copy of its use fits the time left (its new pages are mapped
-             * below, a slice at a time, like the element-block chunks: a whole array mapped
-             * at once, estimated at the cost per fault, waited while it did not fit: 1,000-4,400
-             * pages behind on box-big) */
-            long copy = (long)(a[i].size * (size_t)used / PAGE_BYTES + 1);
-            if (np > 0 && (double)copy * lod->cost_fault > seconds - (sq_thread_cpu() - c0)) {
+            if (np > 0 && (double)np * lod->cost_fault > seconds - (sq_thread_cpu() - c0)) {
                 pending += np;
-            } else {
-                if (np > 0 && (want > *a[i].cap || !*a[i].p)) {
-                    *a[i].p = sq_realloc(*a[i].p, a[i].size * (size_t)want);
-                    *a[i].cap = (int)want;
-                }
-                pending += map_array(*a[i].p, *a[i].cap, used, a[i].size, &lk->res_seen[i], &lk->res_mapped[i],
-                                     c0, seconds, &pages);
+            } else if (np > 0) {
+                *a[i].p = reserve_one(*a[i].p, a[i].cap, want, used, a[i].size, &pages);
             }
             bytes += (long)a[i].size * *a[i].cap;
         }

@@ -89,8 +89,6 @@ typedef struct sq_lod_level {
     int blocks_used, blocks_cap;/* slots in use, slots allocated */
     int blocks_nchunk, blocks_per; /* chunks allocated; doubles per slot they were made for */
     size_t blocks_mapped;       /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
-    const void *res_seen[18];   /* each reserved coupling array as sq_lodx_reserve_blocks last saw it */
-    size_t res_mapped[18];      /* ... and the bytes of it it mapped so far (from the start) */
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
     double blocks_cpu;          /* thread CPU time of the last build of those blocks, s (0: not

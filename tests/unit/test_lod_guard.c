@@ -391,49 +391,6 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
     lh_free_meshes(m, 4);
 }
 
-/* The reserve catches up a slice at a time: an array whose pages would take longer than the
- * time a frame's end gives the reserve (at the cost per fault it assumes, at least 15 us) is
- * still grown and mapped, 16 pages per slice within the time, the rest at later calls; before,
- * such an array waited whole, so it never fit and stayed pending (the reserve 1,000-4,400
- * pages behind on box-big under load, the passes paying the faults). The poked cube's first
- * reserve in calls of 1 ms (its arrays of 4,096 blocks: the 12-double ones about 96 pages,
- * 1.4 ms at 15 us a page) ends with nothing pending within 400 calls, and no call runs past
- * its time by more than 5 ms (one slice is 16 pages: under 1 ms at the 35 us a page measured
- * at load; 5 ms leaves room for a loaded machine; thread CPU time). */
-SQ_TEST(lod_guard_reserve_catches_up_in_slices)
-{
-    sq_mesh *m[4];
-    sq_body_def def;
-    sq_body *b[2];
-    int made = guard_pair(m, &def, b);
-    CHECK(made);
-    if (!made)
-        return;
-    sq_lod *lod = b[0]->lod;
-    CHECK(lod->have_mat && lod->reserve_bytes == 0);
-    int calls = 0;
-    long pages = 0;
-    double worst = 0;
-    for (; calls < 400; calls++) {
-        double c0 = sq_thread_cpu();
-        pages += sq_lodx_reserve_blocks(lod, 1e-3);
-        worst = fmax(worst, sq_thread_cpu() - c0);
-        if (lod->reserve_pending == 0)
-            break;
-    }
-    if (getenv("SQ_LOD_VERBOSE"))
-        fprintf(stderr, "reserve in 1 ms calls: %d calls, %ld pages, %ld pending, %.1f MB held, slowest call %.3f ms\n",
-                calls + 1, pages, lod->reserve_pending, 1e-6 * (double)lod->reserve_bytes, 1e3 * worst);
-    CHECK(lod->reserve_pending == 0);
-    CHECK(pages > 0);
-    CHECK(worst < 6e-3);
-    for (int k = 0; k < 4; k++)
-        CHECK(lod->lev[k].ring_T_cap > 0);
-    sq_body_destroy(b[0]);
-    sq_body_destroy(b[1]);
-    lh_free_meshes(m, 4);
-}
-
 /* at load (docs/lod.md "Guaranteed frame rate"): a scene whose fully coarse frame cannot fit
  * the period is reported with its numbers; the shipped cube-poke at its own 50 Hz is not */
 SQ_TEST(lod_guard_load_check_reports_a_scene_that_cannot_run)
