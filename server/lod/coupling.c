@@ -692,6 +692,17 @@ long sq_minor_faults(void)
     return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_minflt : 0;
 }
 
+void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw)
+{
+    struct rusage ru;
+    if (getrusage(RUSAGE_THREAD, &ru) != 0)
+        memset(&ru, 0, sizeof ru);
+    *user_s = (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec;
+    *sys_s = (double)ru.ru_stime.tv_sec + 1e-6 * (double)ru.ru_stime.tv_usec;
+    *minflt = ru.ru_minflt;
+    *ivcsw = ru.ru_nivcsw;
+}
+
 /* write each page of p[from, to) bytes once (the contents there are free: past the use) */
 static long touch_pages(void *p, size_t from, size_t to)
 {

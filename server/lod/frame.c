@@ -64,6 +64,8 @@ typedef struct lod_frame {
     long reserved_pages;             /* pages it mapped */
     double c_owed;                   /* thread CPU time of the owed sharp estimates, s */
     int sharp_made;                  /* owed sharp estimates made at this frame's end */
+    double u0_user, u0_sys;          /* SQ_GUARD_TRACE: the thread's user, system time at the start */
+    long u0_flt, u0_ivcsw;           /* ... its minor faults and involuntary context switches */
 } lod_frame;
 
 void sq_lod_untimed(sq_lod *lod, double cpu_s)
@@ -672,6 +674,15 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
                 1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
                 1e6 * lod->cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve_pending,
                 1e-6 * (double)lod->reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
+    if (getenv("SQ_GUARD_TRACE") && budget_s > 0) {
+        /* where a frame's thread CPU time went (a frame far over its model: user or system
+         * time, page faults, the thread preempted) */
+        double u, sy;
+        long flt, cs;
+        sq_thread_usage(&u, &sy, &flt, &cs);
+        fprintf(stderr, "usage %ld: user %.2f ms, system %.2f ms, minor faults %ld, involuntary switches %ld\n",
+                lod->guard_clock, 1e3 * (u - fr->u0_user), 1e3 * (sy - fr->u0_sys), flt - fr->u0_flt, cs - fr->u0_ivcsw);
+    }
     long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
     if (prof) {
@@ -727,6 +738,8 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     fr.c_start = sq_thread_cpu();
     fr.mark = fr.t_start;
     fr.c_mark = fr.c_start;
+    if (getenv("SQ_GUARD_TRACE") && in->budget_s > 0)
+        sq_thread_usage(&fr.u0_user, &fr.u0_sys, &fr.u0_flt, &fr.u0_ivcsw);
     for (int t = 0; force && t < in->ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
 

@@ -464,6 +464,9 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds);
 /* the thread's minor page faults so far (coupling.c; a first touch of a page costs 12-15 us on
  * this kind of machine) */
 long sq_minor_faults(void);
+/* the calling thread's user and system CPU time (s), minor faults and involuntary context
+ * switches so far (getrusage; for traces) */
+void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw);
 /* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
 void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
