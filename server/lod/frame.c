@@ -98,8 +98,8 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
  *     + for a split/merge pass: cost_couple + cost_bound + sum over the levels it rebuilds of
  *       (cost_level[k] + cost_blocks[k] + cost_block_change[k] x the level's changed nodes)
  * each term a maximum over its measurements that decays by 10 % a frame (the frame terms) or
- * 3 % a pass (the pass terms, measured only when a pass runs), or given (sq_lodx_set_costs,
- * tests). The floors of a pass are timed once by a pass that changes nothing (calibrate) at
+ * 3 % a pass (the pass terms, measured only when a pass runs), an isolated outlier bounded
+ * (sq_lodx_learn), or given (sq_lodx_set_costs, tests). The floors of a pass are timed once by a pass that changes nothing (calibrate) at
  * the first budgeted frame. The budget is def.budget x the period less the thread's time
  * around the lod frame (cost_outside). The guard:
  *   - at the end of a frame, the split/merge pass of levels k, k+1 runs only if its rebuild
@@ -131,6 +131,9 @@ void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, dou
         lod->cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
     }
     lod->cost_calibrated = lod->cost_given;
+    lod->tr_update = lod->tr_fixed = lod->tr_outside = lod->tr_couple = lod->tr_bound = (sq_cost_track){0, 0};
+    for (int k = 0; k < SQ_MAX_LEVELS; k++)
+        lod->tr_level[k] = lod->tr_blocks[k] = lod->tr_block_change[k] = (sq_cost_track){0, 0};
 }
 
 /* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
@@ -161,20 +164,48 @@ static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
     return c;
 }
 
-/* a measured cost into its decaying maximum (given costs stay): 10 % a frame for the terms
- * measured every frame */
-static void learn(const sq_lod *lod, double *cost, double measured)
+/* A measured cost into its decaying maximum (given costs stay): 10 % a frame for the terms
+ * measured every frame, 3 % a pass for a pass's terms (measured only when one runs; a pass's
+ * block build varies up to 4x per changed node from one pass to the next on box-big). An
+ * isolated spike of the machine is not learned as the cost (docs/lod.md "An isolated spike"):
+ * a measurement above SPIKE_FRAME (SPIKE_PASS) x the term raises it only to that bound, and
+ * the next ordinary measurement puts the term back where it would be without the spike; a
+ * second such measurement within SPIKE_WINDOW measurements is learned whole (a sustained rise
+ * is followed at its second frame or pass). Without outliers the term is the decaying maximum
+ * exactly as before. */
+#define SPIKE_FRAME 2.0 /* box-big: node updates 110-125 ns each a frame; one spike frame 381 ns */
+#define SPIKE_PASS 3.0  /* box-big: a level-0 build 3,855 us per changed node once, ~100 us around */
+#define SPIKE_WINDOW 8
+
+double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double decay, double spike)
 {
-    if (!lod->cost_given)
-        *cost = fmax(measured, 0.9 * *cost);
+    double ref = t->since ? t->base : cost; /* the term without a pending outlier */
+    if (ref <= 0 || measured <= spike * ref) {
+        t->base = fmax(measured, decay * ref);
+        if (t->since && ++t->since > SPIKE_WINDOW)
+            t->since = 0;
+        return t->base;
+    }
+    if (t->since) { /* a second outlier within the window: a real rise */
+        t->since = 0;
+        t->base = fmax(measured, decay * cost);
+        return t->base;
+    }
+    t->since = 1; /* an isolated one so far: bounded */
+    t->base = decay * ref;
+    return spike * ref;
 }
 
-/* ... and 3 % a pass for a pass's terms (measured only when one runs; a pass's block build
- * varies up to 4x per changed node from one pass to the next on box-big) */
-static void learn_pass(const sq_lod *lod, double *cost, double measured)
+static void learn(const sq_lod *lod, double *cost, sq_cost_track *t, double measured)
 {
     if (!lod->cost_given)
-        *cost = fmax(measured, 0.97 * *cost);
+        *cost = sq_lodx_learn(t, *cost, measured, 0.9, SPIKE_FRAME);
+}
+
+static void learn_pass(const sq_lod *lod, double *cost, sq_cost_track *t, double measured)
+{
+    if (!lod->cost_given)
+        *cost = sq_lodx_learn(t, *cost, measured, 0.97, SPIKE_PASS);
 }
 
 /* every level that may take part in a pass: up to the highest simulated level + 1 */
@@ -260,15 +291,15 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
-            learn_pass(lod, &lod->cost_level[k], t_level[k]);
+            learn_pass(lod, &lod->cost_level[k], &lod->tr_level[k], t_level[k]);
         if (nchg[k] == 0)
-            learn_pass(lod, &lod->cost_blocks[k], lod->lev[k].blocks_cpu);
+            learn_pass(lod, &lod->cost_blocks[k], &lod->tr_blocks[k], lod->lev[k].blocks_cpu);
         else
-            learn_pass(lod, &lod->cost_block_change[k],
+            learn_pass(lod, &lod->cost_block_change[k], &lod->tr_block_change[k],
                   fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
     }
-    learn_pass(lod, &lod->cost_bound, lod->bound_cpu);
-    learn_pass(lod, &lod->cost_couple, couple);
+    learn_pass(lod, &lod->cost_bound, &lod->tr_bound, lod->bound_cpu);
+    learn_pass(lod, &lod->cost_couple, &lod->tr_couple, couple);
     fr->c_pass += t - c0;
     fr->modeled_pass += model;
     fr->rebuilt |= mask;
@@ -334,8 +365,7 @@ static void stage_guard(lod_frame *fr)
     lod->untimed = 0;
     if (budget_s > 0 && lod->last_c_end > 0) {
         double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
-        if (!lod->cost_given)
-            lod->cost_outside = fmax(outside, 0.9 * lod->cost_outside);
+        learn(lod, &lod->cost_outside, &lod->tr_outside, outside);
         fr->fr_budget = fmax(0.0, fr->fr_budget - lod->cost_outside);
     }
     fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
@@ -523,7 +553,7 @@ static void stage_criterion(lod_frame *fr)
     fr->c_ticks = now - fr->c_mark;
     fr->c_mark = now;
     if (fr->updates > 0)
-        learn(lod, &lod->cost_update, fr->c_ticks / (double)fr->updates);
+        learn(lod, &lod->cost_update, &lod->tr_update, fr->c_ticks / (double)fr->updates);
     if (fr->in->budget_s > 0 && lod->cost_update > 0 && lod->cost_calibrated)
         fr->guard_on = 1;
     if (!fr->guard_on) {
@@ -648,11 +678,11 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     lod->last_c_end = c_end;
     if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
         fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
-        learn(lod, &lod->cost_update, fr->c_ticks / (double)updates);
+        learn(lod, &lod->cost_update, &lod->tr_update, fr->c_ticks / (double)updates);
     }
     /* what is neither ticks nor passes (nor the reserve and owed estimates, done only with room left):
      * criterion, push, feedback, guard, layout, holds */
-    learn(lod, &lod->cost_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
+    learn(lod, &lod->cost_fixed, &lod->tr_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
 
     lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
     lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */

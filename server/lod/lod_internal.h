@@ -194,6 +194,14 @@ typedef struct sq_lod_level {
     sq_lod_corot *corot;
 } sq_lod_level;
 
+/* a learned cost's robust state (frame.c, sq_lodx_learn): `base` is the decaying maximum of
+ * the measurements that were not isolated outliers; `since` counts the measurements since the
+ * last outlier (0: none within SPIKE_WINDOW) */
+typedef struct {
+    double base;
+    int since;
+} sq_cost_track;
+
 struct sq_lod {
     sq_level *lv;                        /* the body's levels (borrowed), L of them */
     sq_lod_level lev[SQ_MAX_LEVELS];     /* this module's state of each level */
@@ -232,6 +240,10 @@ struct sq_lod {
     double cost_bound;                   /* a pass's coupled bound (Gershgorin, sharp), s */
     double cost_outside;                 /* the thread's time between two frames (the body's
                                           * work around the lod frame), at most a quarter period, s */
+    /* each learned term's robust state (frame.c, sq_lodx_learn): a measurement above
+     * SPIKE_FACTOR x the term is an outlier, held to that bound unless another comes soon */
+    sq_cost_track tr_update, tr_fixed, tr_outside, tr_couple, tr_bound;
+    sq_cost_track tr_level[SQ_MAX_LEVELS], tr_blocks[SQ_MAX_LEVELS], tr_block_change[SQ_MAX_LEVELS];
     double last_c_end;                   /* thread CPU clock at the last frame's end, s */
     double untimed;                      /* thread CPU time since then that is not the product's
                                           * (sq_lod_untimed: a measuring harness), s */
@@ -441,6 +453,11 @@ static inline long sq_lodx_krow_chunk_len(sq_lod_level *lk, const sq_level_model
 double sq_lodx_need(const sq_lod *lod, int k, int p);
 /* frame.c: fixed costs for the guard instead of measured ones (tests: deterministic runs with
  * a budget); all <= 0 returns to measuring */
+/* a measurement into a learned cost (docs/lod.md "Guaranteed frame rate", "An isolated spike"):
+ * the decaying maximum (decay 0.9 a frame, 0.97 a pass), except that a measurement above
+ * `spike` x the term with no other such within the last SPIKE_WINDOW measurements raises it
+ * only to that bound, and the next ordinary one puts it back; returns the new cost */
+double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double decay, double spike);
 void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s,
                        double per_pass_s, double per_change_s);
 
