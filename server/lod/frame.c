@@ -131,9 +131,9 @@ void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, dou
         lod->cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
     }
     lod->cost_calibrated = lod->cost_given;
-    lod->tr_update = lod->tr_fixed = lod->tr_outside = lod->tr_couple = lod->tr_bound = (sq_cost_track){0, 0};
+    lod->tr_update = lod->tr_fixed = lod->tr_outside = lod->tr_couple = lod->tr_bound = (sq_cost_track){0};
     for (int k = 0; k < SQ_MAX_LEVELS; k++)
-        lod->tr_level[k] = lod->tr_blocks[k] = lod->tr_block_change[k] = (sq_cost_track){0, 0};
+        lod->tr_level[k] = lod->tr_blocks[k] = lod->tr_block_change[k] = (sq_cost_track){0};
 }
 
 /* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
@@ -170,8 +170,9 @@ static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
  * isolated spike of the machine is not learned as the cost (docs/lod.md "An isolated spike"):
  * a measurement above SPIKE_FRAME (SPIKE_PASS) x the term raises it only to that bound, and
  * the next ordinary measurement puts the term back where it would be without the spike; a
- * second such measurement within SPIKE_WINDOW measurements is learned whole (a sustained rise
- * is followed at its second frame or pass). Without outliers the term is the decaying maximum
+ * second such measurement within SPIKE_WINDOW measurements, of the first one's size (at most
+ * the bound x it), is learned whole (a sustained rise is followed at its second frame or pass);
+ * one far above the first (a small term's jitter, then a real spike) is a new isolated one. Without outliers the term is the decaying maximum
  * exactly as before. */
 #define SPIKE_FRAME 2.0 /* box-big: node updates 110-125 ns each a frame; one spike frame 381 ns */
 #define SPIKE_PASS 3.0  /* box-big: a level-0 build 3,855 us per changed node once, ~100 us around */
@@ -186,12 +187,13 @@ double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double deca
             t->since = 0;
         return t->base;
     }
-    if (t->since) { /* a second outlier within the window: a real rise */
+    if (t->since && measured <= spike * t->peak) { /* a second outlier of its size: a real rise */
         t->since = 0;
         t->base = fmax(measured, decay * cost);
         return t->base;
     }
     t->since = 1; /* an isolated one so far: bounded */
+    t->peak = measured;
     t->base = decay * ref;
     return spike * ref;
 }

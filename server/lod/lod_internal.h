@@ -196,10 +196,11 @@ typedef struct sq_lod_level {
 
 /* a learned cost's robust state (frame.c, sq_lodx_learn): `base` is the decaying maximum of
  * the measurements that were not isolated outliers; `since` counts the measurements since the
- * last outlier (0: none within SPIKE_WINDOW) */
+ * last outlier (0: none within SPIKE_WINDOW), `peak` that outlier's measurement */
 typedef struct {
     double base;
     int since;
+    double peak;
 } sq_cost_track;
 
 struct sq_lod {

@@ -23,6 +23,14 @@ static sq_tool guard_poke(double t)
     return lh_sphere(x, 0.5, 1.15 - depth, 0.15, t < 1.2);
 }
 
+/* frame f of the poke on body b with the given period (0: no budget) */
+static void poke_frame(sq_body *b, const sq_body_def *def, int f, double period)
+{
+    sq_tool tool = guard_poke(f * def->frame_dt);
+    sq_frame_profile p;
+    sq_body_frame(b, &tool, 1, NULL, &p, period);
+}
+
 /* the given costs: 100 ns per node update, 0.5 ms a frame, per pass 0.3 ms per level rebuilt
  * plus 1 ms, 20 us per changed node (the proportions measured on box-big, scaled to this
  * body); a 20 ms period. With these the unguarded poke's own frames (updates and passes)
@@ -175,15 +183,11 @@ SQ_TEST(lod_guard_untimed_time_is_not_charged)
     /* one body after the other: the thread's time between two frames of a body includes any
      * other body's frames */
     for (int f = 0; f < 8; f++) {
-        sq_tool tool = guard_poke(f * def.frame_dt);
-        sq_frame_profile p;
-        sq_body_frame(b[0], &tool, 1, NULL, &p, PERIOD);
+        poke_frame(b[0], &def, f, PERIOD);
         burn_cpu(3e-3); /* undeclared */
     }
     for (int f = 0; f < 8; f++) {
-        sq_tool tool = guard_poke(f * def.frame_dt);
-        sq_frame_profile p;
-        sq_body_frame(c, &tool, 1, NULL, &p, PERIOD);
+        poke_frame(c, &def, f, PERIOD);
         double c0 = sq_thread_cpu();
         burn_cpu(3e-3);
         sq_body_untimed(c, sq_thread_cpu() - c0); /* declared */
@@ -205,14 +209,22 @@ SQ_TEST(lod_guard_untimed_time_is_not_charged)
  * at ~100 us per changed node once measured 3,855 us; node updates at 120 ns once at 381 ns.
  * Exact arithmetic on given measurements: the tolerance 1.05 only states "back where it was"
  * (the decaying maximum of the ordinary measurements is exactly 100 us / 120 ns here). */
+/* a learned term after n ordinary measurements of `typical` (decay, spike bound as given) */
+static double learned_from(sq_cost_track *t, int n, double typical, double decay, double spike)
+{
+    *t = (sq_cost_track){0};
+    double c = 0;
+    for (int i = 0; i < n; i++)
+        c = sq_lodx_learn(t, c, typical, decay, spike);
+    return c;
+}
+
 SQ_TEST(lod_guard_isolated_spike_is_not_learned)
 {
     const double pd = 0.97, fd = 0.9; /* the decays of a pass term, a frame term */
     /* a pass term: 20 ordinary passes, one spike, then ordinary again */
-    sq_cost_track t = {0, 0};
-    double c = 0;
-    for (int i = 0; i < 20; i++)
-        c = sq_lodx_learn(&t, c, 100e-6, pd, 3.0);
+    sq_cost_track t;
+    double c = learned_from(&t, 20, 100e-6, pd, 3.0);
     CHECK_NEAR(c, 100e-6, 1e-12);
     c = sq_lodx_learn(&t, c, 3855e-6, pd, 3.0);
     CHECK(c <= 3.0 * 100e-6 + 1e-12); /* raised, but only to the bound */
@@ -226,10 +238,8 @@ SQ_TEST(lod_guard_isolated_spike_is_not_learned)
     c = sq_lodx_learn(&t, c, 3855e-6, pd, 3.0);
     CHECK(c >= 3855e-6);
     /* a sustained rise of 4x: bounded at its first pass, whole at its second */
-    sq_cost_track u = {0, 0};
-    double d = 0;
-    for (int i = 0; i < 20; i++)
-        d = sq_lodx_learn(&u, d, 100e-6, pd, 3.0);
+    sq_cost_track u;
+    double d = learned_from(&u, 20, 100e-6, pd, 3.0);
     d = sq_lodx_learn(&u, d, 400e-6, pd, 3.0);
     CHECK(d >= 300e-6 - 1e-12);
     d = sq_lodx_learn(&u, d, 400e-6, pd, 3.0);
@@ -238,20 +248,16 @@ SQ_TEST(lod_guard_isolated_spike_is_not_learned)
     d = sq_lodx_learn(&u, d, 1000e-6, pd, 3.0);
     CHECK(d >= 1000e-6);
     /* spikes that come back within the window (alternating with ordinary passes) are learned */
-    sq_cost_track v = {0, 0};
-    double e = 0;
-    for (int i = 0; i < 20; i++)
-        e = sq_lodx_learn(&v, e, 100e-6, pd, 3.0);
+    sq_cost_track v;
+    double e = learned_from(&v, 20, 100e-6, pd, 3.0);
     e = sq_lodx_learn(&v, e, 3855e-6, pd, 3.0);
     e = sq_lodx_learn(&v, e, 100e-6, pd, 3.0);
     e = sq_lodx_learn(&v, e, 100e-6, pd, 3.0);
     e = sq_lodx_learn(&v, e, 3855e-6, pd, 3.0);
     CHECK(e >= 3855e-6);
     /* a frame term: node updates 120 ns, one frame at 381 ns */
-    sq_cost_track w = {0, 0};
-    double f = 0;
-    for (int i = 0; i < 30; i++)
-        f = sq_lodx_learn(&w, f, 120e-9, fd, 2.0);
+    sq_cost_track w;
+    double f = learned_from(&w, 30, 120e-9, fd, 2.0);
     f = sq_lodx_learn(&w, f, 381e-9, fd, 2.0);
     CHECK(f <= 2.0 * 120e-9 + 1e-15);
     f = sq_lodx_learn(&w, f, 120e-9, fd, 2.0);
@@ -275,23 +281,18 @@ SQ_TEST(lod_guard_isolated_spike_around_the_frame)
         return;
     sq_body *c = b[0]; /* measured costs */
     int f = 0;
-    sq_frame_profile p;
-    for (; f < 10; f++) {
-        sq_tool tool = guard_poke(f * def.frame_dt);
-        sq_body_frame(c, &tool, 1, NULL, &p, PERIOD);
-    }
+    for (; f < 10; f++)
+        poke_frame(c, &def, f, PERIOD);
     double before = c->lod->cost_outside;
     burn_cpu(4e-3);
     double after[3];
     for (int i = 0; i < 3; i++, f++) {
-        sq_tool tool = guard_poke(f * def.frame_dt);
-        sq_body_frame(c, &tool, 1, NULL, &p, PERIOD);
+        poke_frame(c, &def, f, PERIOD);
         after[i] = c->lod->cost_outside;
     }
     for (int i = 0; i < 2; i++, f++) {
         burn_cpu(4e-3);
-        sq_tool tool = guard_poke(f * def.frame_dt);
-        sq_body_frame(c, &tool, 1, NULL, &p, PERIOD);
+        poke_frame(c, &def, f, PERIOD);
     }
     double sustained = c->lod->cost_outside;
     if (getenv("SQ_LOD_VERBOSE"))
