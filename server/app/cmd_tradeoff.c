@@ -172,6 +172,11 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         bi++;
         cJSON *lod = cJSON_CreateObject();
         cJSON_AddStringToObject(lod, "mode", v->adaptive ? "adaptive" : "fixed");
+        /* debugging: SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL=K runs the adaptive rows (unbudgeted and
+         * guarded) with lod.max_level at most K, measured against the same reference (docs/lod.md
+         * "The depth of the adaptive body") */
+        if (v->adaptive && getenv("SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL"))
+            fin = SQ_MIN(fin, atoi(getenv("SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL")));
         cJSON_AddNumberToObject(lod, "max_level", fin);
         cJSON_AddNumberToObject(lod, "level", v->adaptive ? 0 : SQ_MIN(v->level, fin));
         if (v->adaptive) {
@@ -382,7 +387,11 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
     if (record && ref_file) {
         FILE *rf = fopen(ref_file, "rb");
         if (rf) {
-            int okr = fread(ref->u, sizeof(double), nu, rf) == nu && fread(ref->probe, sizeof(double), np, rf) == np &&
+            /* the file's shape first: a reference of another scene (another sampled surface,
+             * probe count or frame count) is not read, but stepped and written again */
+            long shape[3] = {0, 0, 0}, want[3] = {ref->ntotal, ref->nprobes, ref->nframes};
+            int okr = fread(shape, sizeof(long), 3, rf) == 3 && !memcmp(shape, want, sizeof shape) &&
+                      fread(ref->u, sizeof(double), nu, rf) == nu && fread(ref->probe, sizeof(double), np, rf) == np &&
                       fread(&ref->rms_ref, sizeof(double), 1, rf) == 1 && fread(&ref->max_ref, sizeof(double), 1, rf) == 1;
             fclose(rf);
             if (okr) {
@@ -501,6 +510,8 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
         ref->rms_ref = cnt_ref ? sqrt(sum_ref / cnt_ref) : 0;
         FILE *rf = ref_file ? fopen(ref_file, "wb") : NULL;
         if (rf) {
+            long shape[3] = {ref->ntotal, ref->nprobes, ref->nframes};
+            fwrite(shape, sizeof(long), 3, rf);
             fwrite(ref->u, sizeof(double), nu, rf);
             fwrite(ref->probe, sizeof(double), np, rf);
             fwrite(&ref->rms_ref, sizeof(double), 1, rf);
