@@ -172,6 +172,11 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         bi++;
         cJSON *lod = cJSON_CreateObject();
         cJSON_AddStringToObject(lod, "mode", v->adaptive ? "adaptive" : "fixed");
+        /* the scene's share of the frame for the simulation (lod.budget) is the guard's: kept */
+        const cJSON *given = cJSON_GetObjectItemCaseSensitive(body, "lod");
+        const cJSON *share = given ? cJSON_GetObjectItemCaseSensitive(given, "budget") : NULL;
+        if (cJSON_IsNumber(share))
+            cJSON_AddNumberToObject(lod, "budget", share->valuedouble);
         /* debugging: SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL=K runs the adaptive rows (unbudgeted and
          * guarded) with lod.max_level at most K, measured against the same reference (docs/lod.md
          * "The depth of the adaptive body") */
