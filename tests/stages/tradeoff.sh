@@ -85,6 +85,15 @@ sed -e 's#"\.\./cube/#"'"$PWD"'/meshes/cube/#g' \
 "$SQUISH" tradeoff "$TMP/capped.json" --quick --frames 75 --out "$TMP/tocap" >"$TMP/tocap.log" 2>&1
 check "tradeoff keeps the scene's max_node_updates on adaptive rows" \
     bash -c "awk -F, '/,adaptive,fem,adaptive,/ {n++; if (\$11 > 600 * 50) bad = 1} END {exit !(n == 3 && !bad)}' '$TMP/tocap/tradeoff.csv'"
+# the scene's own share of the frame (lod.budget) reaches the guarded runs: with a budget of
+# 1e-6 of the period nothing fits, so the guarded run stays at level 0 (node updates within
+# 1.5x fixed L0's: its first frame and the sharp substeps of the adaptive rows), while without
+# the budget the same setting refines (13x fixed L0's on these 75 frames)
+sed -e 's/"merge": 0.002 }/"merge": 0.002, "budget": 1e-6 }/' -e "s#\"\.\./#\"$PWD/meshes/#g" \
+    meshes/scenes/cube-poke.json >"$TMP/cp-budget.json"
+"$SQUISH" tradeoff "$TMP/cp-budget.json" --quick --frames 75 --guarded 1 --out "$TMP/tob" >"$TMP/tob.log" 2>&1
+check "tradeoff: the scene's lod.budget reaches the guarded run" \
+    bash -c "grep -q '\"budget\": 1e-6' '$TMP/cp-budget.json' && awk -F, '\$1 == \"\\\"fixed L0\\\"\" {l0 = \$11} \$1 == \"\\\"adaptive split 0.005\\\"\" {ad = \$11} \$1 == \"\\\"adaptive split 0.005 guarded run 1\\\"\" {g = \$11} END {exit !(l0 > 0 && ad > 5 * l0 && g > 0 && g <= 1.5 * l0)}' '$TMP/tob/tradeoff.csv'"
 "$SQUISH" tradeoff meshes/scenes/cube-poke.json --quick --frames 10 --guarded 0 --out "$TMP/tog0" >"$TMP/tog0.log" 2>&1
 check "tradeoff --guarded 0: no run with the live budget" \
     bash -c "[ \$? = 0 ] && [ \$(tail -n +2 '$TMP/tog0/tradeoff.csv' | wc -l) = 9 ] && ! grep -q guarded '$TMP/tog0/tradeoff.csv'"
