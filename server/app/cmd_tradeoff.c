@@ -52,6 +52,10 @@ typedef struct to_variant {
     double fraction;
 } to_variant;
 
+/* the cached reference's layout (SQ_TRADEOFF_REF): 2 adds the reference run's cost, so a fixed
+ * row read from the cache keeps its CPU time (format 1 files are stepped and written again) */
+#define REF_FILE_FORMAT 2L
+
 typedef struct to_result {
     int ok;
     char error[300];
@@ -394,12 +398,17 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
         if (rf) {
             /* the file's shape first: a reference of another scene (another sampled surface,
              * probe count or frame count) is not read, but stepped and written again */
-            long shape[3] = {0, 0, 0}, want[3] = {ref->ntotal, ref->nprobes, ref->nframes};
-            int okr = fread(shape, sizeof(long), 3, rf) == 3 && !memcmp(shape, want, sizeof shape) &&
+            long shape[4] = {0, 0, 0, 0}, want[4] = {ref->ntotal, ref->nprobes, ref->nframes, REF_FILE_FORMAT};
+            double cost[3]; /* the reference run's node updates, wall and thread CPU time */
+            int okr = fread(shape, sizeof(long), 4, rf) == 4 && !memcmp(shape, want, sizeof shape) &&
                       fread(ref->u, sizeof(double), nu, rf) == nu && fread(ref->probe, sizeof(double), np, rf) == np &&
-                      fread(&ref->rms_ref, sizeof(double), 1, rf) == 1 && fread(&ref->max_ref, sizeof(double), 1, rf) == 1;
+                      fread(&ref->rms_ref, sizeof(double), 1, rf) == 1 && fread(&ref->max_ref, sizeof(double), 1, rf) == 1 &&
+                      fread(cost, sizeof(double), 3, rf) == 3;
             fclose(rf);
             if (okr) {
+                r->updates = cost[0];
+                r->wall = cost[1];
+                r->cpu = cost[2];
                 r->frames = ref->nframes;
                 r->ok = 1;
                 free(u);
@@ -515,12 +524,14 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
         ref->rms_ref = cnt_ref ? sqrt(sum_ref / cnt_ref) : 0;
         FILE *rf = ref_file ? fopen(ref_file, "wb") : NULL;
         if (rf) {
-            long shape[3] = {ref->ntotal, ref->nprobes, ref->nframes};
-            fwrite(shape, sizeof(long), 3, rf);
+            long shape[4] = {ref->ntotal, ref->nprobes, ref->nframes, REF_FILE_FORMAT};
+            double cost[3] = {r->updates, r->wall, r->cpu};
+            fwrite(shape, sizeof(long), 4, rf);
             fwrite(ref->u, sizeof(double), nu, rf);
             fwrite(ref->probe, sizeof(double), np, rf);
             fwrite(&ref->rms_ref, sizeof(double), 1, rf);
             fwrite(&ref->max_ref, sizeof(double), 1, rf);
+            fwrite(cost, sizeof(double), 3, rf);
             fclose(rf);
         }
     }

@@ -1,8 +1,6 @@
 /* main.c - the `squish` command line front end. */
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "app/commands.h"
 
@@ -30,45 +28,8 @@ static void usage(FILE *f)
     fprintf(f, "\n'squish COMMAND --help' for a command's options.\n");
 }
 
-/* The heap on transparent huge pages (docs/benchmarks.md, "Memory and page faults"). A first
- * touch of a 4 KiB page costs 10-15 us of CPU on the machines we measure on (a fault through the
- * hypervisor) and a 2 MiB huge page about as much, so box-big's load (about 0.5 GB) and the
- * adaptive frame's growing arrays paid seconds and milliseconds in faults. This kernel grants
- * huge pages only to memory marked for them (transparent_hugepage "madvise"), and glibc marks
- * its heap and large blocks only when asked at start-up (the tunable glibc.malloc.hugetlb=1),
- * so the process starts itself again once with it set. Not done when already set, when
- * SQUISH_HUGE_PAGES=0, under valgrind (its preload: the measured process must be this one), or
- * where the kernel has no huge pages; if the exec fails the command simply goes on. */
-static void reexec_on_huge_pages(char **argv)
-{
-    const char *t = getenv("GLIBC_TUNABLES"), *opt = getenv("SQUISH_HUGE_PAGES"), *pre = getenv("LD_PRELOAD");
-    if ((t && strstr(t, "glibc.malloc.hugetlb")) || (opt && !strcmp(opt, "0")) || (pre && strstr(pre, "vgpreload")))
-        return;
-    FILE *f = fopen("/sys/kernel/mm/transparent_hugepage/enabled", "r");
-    char mode[128] = "";
-    if (!f)
-        return;
-    int got = fgets(mode, sizeof mode, f) != NULL;
-    fclose(f);
-    if (!got || strstr(mode, "[never]"))
-        return;
-    char val[1024];
-    if (snprintf(val, sizeof val, "%s%sglibc.malloc.hugetlb=1", t ? t : "", t ? ":" : "") >= (int)sizeof val)
-        return;
-    if (setenv("GLIBC_TUNABLES", val, 1) != 0)
-        return;
-    fflush(NULL);
-    execv("/proc/self/exe", argv);
-    /* not started again: go on as we are, without the variable for children either */
-    if (t)
-        setenv("GLIBC_TUNABLES", t, 1);
-    else
-        unsetenv("GLIBC_TUNABLES");
-}
-
 int main(int argc, char **argv)
 {
-    reexec_on_huge_pages(argv);
     if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h") || !strcmp(argv[1], "help")) {
         usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;
