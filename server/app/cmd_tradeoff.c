@@ -410,6 +410,10 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
                 r->wall = cost[1];
                 r->cpu = cost[2];
                 r->frames = ref->nframes;
+                r->sim_s = (double)ref->nframes / scene->frame_rate;
+                r->ups = r->updates / r->sim_s;
+                r->wps = r->wall / r->sim_s;
+                r->cps = r->cpu / r->sim_s;
                 r->ok = 1;
                 free(u);
                 sq_world_destroy(w);
