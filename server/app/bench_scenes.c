@@ -262,6 +262,7 @@ int sq_bench_scenes(int argc, char **argv)
         for (int b = 0; b < w->nbodies; b++)
             nodes += sq_body_surface_mesh(w->bodies[b])->nnodes;
         double period = 1.0 / s->frame_rate;
+        sq_world_prepare_budget(w); /* at load, as the server */
         for (long f = 0; f < nf; f++) {
             double t0 = sq_now(), c0 = sq_thread_cpu();
             sq_world_step(w, period); /* live budget: splits stop above lod.budget x period */

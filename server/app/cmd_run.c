@@ -257,6 +257,7 @@ int sq_cmd_run(int argc, char **argv)
         if (sq_world_realtime_check(w, budget, msg, sizeof msg))
             fprintf(stderr, "squish run: %s\n", msg);
         printf("%s\n", msg);
+        sq_world_prepare_budget(w); /* the first budgeted frame's set-up, at load */
     }
     if (until_rest)
         printf("run: until rest (kinetic energy < %g J/kg, residual < %g), at most %ld frames (%g s)\n", rest_ke,

@@ -439,6 +439,7 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
         }
         pub_xyz = sq_malloc(sizeof(float) * 3 * (size_t)maxs);
         pub_lev = sq_malloc((size_t)maxs);
+        sq_world_prepare_budget(w); /* at load, as the server and `squish run --realtime` */
     }
     for (long f = 1; f <= ref->nframes; f++) {
         double t0 = sq_now(), c0 = sq_thread_cpu();

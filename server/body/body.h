@@ -106,6 +106,9 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
  * product's (a measuring harness): kept out of the budget guard's time around the frame
  * (adaptive bodies; sq_lod_untimed) */
 void sq_body_untimed(sq_body *b, double cpu_s);
+/* a live budget will follow: an adaptive body's first-budgeted-frame set-up done now, at load
+ * (sq_lod_prepare_budget); nothing for a fixed body */
+void sq_body_prepare_budget(sq_body *b);
 
 /* read-only views */
 const sq_body_def *sq_body_get_def(const sq_body *b);

@@ -113,6 +113,12 @@ void sq_body_untimed(sq_body *b, double cpu_s)
         sq_lod_untimed(b->lod, cpu_s);
 }
 
+void sq_body_prepare_budget(sq_body *b)
+{
+    if (b->lod)
+        sq_lod_prepare_budget(b->lod);
+}
+
 int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback *feedback,
                   sq_frame_profile *prof, double frame_budget_s)
 {

@@ -292,6 +292,7 @@ static int setup(sq_session *s)
         if (sq_world_realtime_check(w, s->period, msg, sizeof msg))
             fprintf(stderr, "squish serve: session %llu, scene \"%.60s\": %s\n", (unsigned long long)s->id,
                     s->scene_name, msg);
+        sq_world_prepare_budget(w); /* the first budgeted frame's set-up, at load */
     }
     int maxs = 1;
     sq_blob *topo[SQ_MAX_BODIES];

@@ -145,6 +145,10 @@ void sq_world_step(sq_world *w, double budget_s);
  * the product's (a measuring harness, e.g. `squish tradeoff`'s error sampling): the budget
  * guard of every adaptive body does not count it as time around its frame (docs/lod.md) */
 void sq_world_untimed(sq_world *w, double cpu_s);
+/* the frames will have a live budget (the server, `squish run --realtime`, the trade-off's
+ * guarded runs): the set-up the first budgeted frame would do, done now, at load, for every
+ * body (sq_body_prepare_budget), so that frame costs what the others do */
+void sq_world_prepare_budget(sq_world *w);
 /* set or add a live tool pose by id (replaces a scripted one with the same id); -1 + err
  * if the table is full or values are invalid. t->origin is ignored: an inactive -> active
  * change (or a new active tool) takes origin = pos, so a grab captures where it was

@@ -306,6 +306,12 @@ void sq_world_untimed(sq_world *w, double cpu_s)
         sq_body_untimed(w->bodies[b], cpu_s);
 }
 
+void sq_world_prepare_budget(sq_world *w)
+{
+    for (int b = 0; b < w->nbodies; b++)
+        sq_body_prepare_budget(w->bodies[b]);
+}
+
 void sq_world_step(sq_world *w, double budget_s)
 {
     double t0 = sq_now();
