@@ -113,7 +113,6 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     L->model.nnz = mesh->adj_start[mesh->nnodes];
     size_t n3 = 3 * (size_t)L->model.n;
     L->model.K = sq_malloc(sizeof(double) * 9 * (size_t)L->model.nnz);
-    sq_advise_huge(L->model.K, sizeof(double) * 9 * (size_t)L->model.nnz);
     L->model.lap = sq_malloc(sizeof(double) * (size_t)L->model.nnz);
     L->model.mass = sq_malloc(sizeof(double) * (size_t)L->model.n);
     L->model.vol = sq_malloc(sizeof(double) * (size_t)L->model.n);
@@ -215,10 +214,8 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
     if (assemble(L, op, mat->mu, mat->lambda, L->model.K, L->model.lap, L->model.mass, L->model.vol, mat->density, err) < 0)
         return -1;
     if (mat->use_viscosity) {
-        if (!L->model.D) {
+        if (!L->model.D)
             L->model.D = sq_malloc(sizeof(double) * 9 * (size_t)L->model.nnz);
-            sq_advise_huge(L->model.D, sizeof(double) * 9 * (size_t)L->model.nnz);
-        }
         if (assemble(L, op, mat->phi, mat->psi, L->model.D, NULL, NULL, NULL, 0, err) < 0)
             return -1;
     } else {
@@ -234,7 +231,6 @@ int sq_level_set_material(sq_level *L, const sq_material *mat, sq_operator_kind 
                 h += L->model.col[e] > i;
         L->model.up_col = sq_malloc(sizeof(int) * (size_t)(h ? h : 1));
         L->model.Kup = sq_calloc(9 * (size_t)h + 4, sizeof(double)); /* + 4: 4-lane loads of the last block */
-        sq_advise_huge(L->model.Kup, sizeof(double) * (9 * (size_t)h + 4));
     }
     int h = 0;
     for (int i = 0; i < L->model.n; i++) {

@@ -3,8 +3,6 @@
 
 #include <errno.h>
 #include <stdarg.h>
-#include <stdint.h>
-#include <sys/mman.h>
 #include <sys/stat.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -127,19 +125,6 @@ void *sq_realloc(void *p, size_t n)
     if (!q)
         oom(n);
     return q;
-}
-
-void sq_advise_huge(void *p, size_t n)
-{
-#ifdef MADV_HUGEPAGE
-    /* the whole pages inside [p, p + n); the kernel backs the 2 MiB-aligned parts of them */
-    uintptr_t a = ((uintptr_t)p + 4095) & ~(uintptr_t)4095, e = ((uintptr_t)p + n) & ~(uintptr_t)4095;
-    if (p && n >= ((size_t)2 << 20) && e > a)
-        (void)madvise((void *)a, e - a, MADV_HUGEPAGE);
-#else
-    (void)p;
-    (void)n;
-#endif
 }
 
 char *sq_strdup(const char *s)

@@ -63,12 +63,6 @@ void sq_progress_end(sq_progress *p);
 void *sq_malloc(size_t n);
 void *sq_calloc(size_t count, size_t size);
 void *sq_realloc(void *p, size_t n);
-/* ask for transparent huge pages under a large array written at load and never grown (a level's
- * stiffness blocks): its first touches then fault once per 2 MiB, not once per 4 KiB (a fault
- * costs 10-15 us on the machines we measure on: docs/benchmarks.md "Page faults at load"); no
- * effect below 2 MiB or where the kernel has no huge pages. Not for arrays that grow or are
- * first touched inside a frame: a huge page's fault may wait for the kernel to compact memory */
-void sq_advise_huge(void *p, size_t n);
 char *sq_strdup(const char *s);
 
 /* read a whole file into a NUL-terminated buffer; NULL and err on failure */
