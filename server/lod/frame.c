@@ -48,6 +48,7 @@ typedef struct lod_frame {
     double c_mark;                   /* thread CPU time the last non-tick stage ended, s */
     unsigned rebuilt;                /* levels rebuilt by this frame's passes (bit k) */
     int passes;                      /* split/merge passes rebuilt (0, 1 or 2) */
+    int unmeasured;                  /* 1: the pass running learns no cost (calibrate's warm-up) */
     long guard_merges;               /* regions the guard merged this frame */
     /* layout and clock */
     long projected;                  /* node updates one frame of the current layout costs */
@@ -297,7 +298,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
-    for (int k = 0; k < L; k++) {
+    for (int k = 0; k < L && !fr->unmeasured; k++) {
         if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
@@ -308,8 +309,10 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
             learn_pass(lod, &lod->cost_block_change[k], &lod->tr_block_change[k],
                   fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
     }
-    learn_pass(lod, &lod->cost_bound, &lod->tr_bound, lod->bound_cpu);
-    learn_pass(lod, &lod->cost_couple, &lod->tr_couple, couple);
+    if (!fr->unmeasured) {
+        learn_pass(lod, &lod->cost_bound, &lod->tr_bound, lod->bound_cpu);
+        learn_pass(lod, &lod->cost_couple, &lod->tr_couple, couple);
+    }
     fr->c_pass += t - c0;
     fr->modeled_pass += model;
     fr->rebuilt |= mask;
@@ -348,38 +351,16 @@ static void calibrate(lod_frame *fr)
      * arrays see their first use. Measured as the floor, it held every later pass out of the
      * budget on a body with a large coarsest level (box_12 at level 0: a 16 ms calibration
      * against 2-3 ms passes, and the pass terms decay only when a pass runs: no split in 100
-     * frames). So the first pass runs unmeasured, its learned terms put back, then the
+     * frames). So the first pass runs unmeasured (nothing learned from it), then the
      * calibration pass is measured warm */
-    if (!lod->cost_given) {
-        double level[SQ_MAX_LEVELS], blocks[SQ_MAX_LEVELS], change[SQ_MAX_LEVELS], couple = lod->cost_couple,
-               bound = lod->cost_bound;
-        sq_cost_track tl[SQ_MAX_LEVELS], tb[SQ_MAX_LEVELS], tc[SQ_MAX_LEVELS], tcouple = lod->tr_couple,
-                      tbound = lod->tr_bound;
-        memcpy(level, lod->cost_level, sizeof level);
-        memcpy(blocks, lod->cost_blocks, sizeof blocks);
-        memcpy(change, lod->cost_block_change, sizeof change);
-        memcpy(tl, lod->tr_level, sizeof tl);
-        memcpy(tb, lod->tr_blocks, sizeof tb);
-        memcpy(tc, lod->tr_block_change, sizeof tc);
+    for (int warm = lod->cost_given ? 1 : 0; warm < 2; warm++) {
         for (int k = 0; k <= lod->top && k < lod->L; k++)
             fr->ao.changed[k] = 1;
         sq_lodx_sharp_invalidate(lod);
+        fr->unmeasured = !warm;
         rebuild_pass(fr, 1, -1);
-        memcpy(lod->cost_level, level, sizeof level);
-        memcpy(lod->cost_blocks, blocks, sizeof blocks);
-        memcpy(lod->cost_block_change, change, sizeof change);
-        memcpy(lod->tr_level, tl, sizeof tl);
-        memcpy(lod->tr_blocks, tb, sizeof tb);
-        memcpy(lod->tr_block_change, tc, sizeof tc);
-        lod->cost_couple = couple;
-        lod->cost_bound = bound;
-        lod->tr_couple = tcouple;
-        lod->tr_bound = tbound;
+        fr->unmeasured = 0;
     }
-    for (int k = 0; k <= lod->top && k < lod->L; k++)
-        fr->ao.changed[k] = 1;
-    sq_lodx_sharp_invalidate(lod);
-    rebuild_pass(fr, 1, -1);
     fr->passes = 0;
     fr->modeled_pass = 0;
     lod->cost_calibrated = 1;
