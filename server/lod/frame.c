@@ -80,7 +80,7 @@ long sq_lod_prepare_budget(sq_lod *lod)
     if (lod->reserve_live || !lod->have_mat)
         return 0;
     lod->reserve_live = 1;
-    return sq_lodx_reserve_blocks(lod, 1e9);
+    return sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
 }
 
 /* run one stage and add its wall time to its entry */
@@ -683,7 +683,7 @@ static void reserve_ahead(lod_frame *fr)
     double c = sq_thread_cpu();
     double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);
     if (room > 0)
-        fr->reserved_pages += sq_lodx_reserve_blocks(fr->lod, room);
+        fr->reserved_pages += sq_lodx_reserve_blocks(fr->lod, room, 1);
     fr->c_reserve += sq_thread_cpu() - c;
 }
 

@@ -478,7 +478,11 @@ void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
 /* grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
  * their pages now, within `seconds` of thread CPU (estimated); returns the pages written */
-long sq_lodx_reserve_blocks(sq_lod *lod, double seconds);
+long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead);
+/* chunks of each cache (element blocks, column-form rows) mapped ahead of use at load, where a
+ * frame keeps one: a refinement's first touches of new cache pages then fall at load, not in
+ * its frames (docs/lod.md "Guaranteed frame rate") */
+#define SQ_RESERVE_LOAD_CHUNKS 8
 /* the thread's minor page faults so far (coupling.c; a first touch of a page costs 12-15 us on
  * this kind of machine) */
 long sq_minor_faults(void);
