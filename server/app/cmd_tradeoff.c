@@ -181,6 +181,11 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         const cJSON *share = given ? cJSON_GetObjectItemCaseSensitive(given, "budget") : NULL;
         if (cJSON_IsNumber(share))
             cJSON_AddNumberToObject(lod, "budget", share->valuedouble);
+        /* and its split/merge period, part of its adaptive setting (kept by every row: the
+         * variants replace the lod object of the scene they are made from) */
+        const cJSON *every = given ? cJSON_GetObjectItemCaseSensitive(given, "adapt_every") : NULL;
+        if (cJSON_IsNumber(every))
+            cJSON_AddNumberToObject(lod, "adapt_every", every->valuedouble);
         /* debugging: SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL=K runs the adaptive rows (unbudgeted and
          * guarded) with lod.max_level at most K, measured against the same reference (docs/lod.md
          * "The depth of the adaptive body") */

@@ -33,6 +33,7 @@ sq_body_def sq_body_def_default(void)
     d.lod.max_level = SQ_MAX_LEVELS - 1;
     d.lod.budget = 0.95;
     d.lod.max_node_updates = 0;
+    d.lod.adapt_every = 1;
     d.frame_dt = 1.0 / 50.0;
     d.step_fraction = 0.9;
     return d;
@@ -304,6 +305,9 @@ int sq_body_check_lod(const sq_body *b, const sq_lod_def *lod, sq_err *err)
                           lod->budget);
     if (lod->max_node_updates < 0)
         return sq_err_set(err, "lod max_node_updates %ld must be >= 0 (0 = no cap)", lod->max_node_updates);
+    if (lod->adapt_every < 0 || lod->adapt_every > SQ_LOD_ADAPT_EVERY_MAX)
+        return sq_err_set(err, "lod adapt_every %d is out of range: give a number of frames in 1..%d", lod->adapt_every,
+                          SQ_LOD_ADAPT_EVERY_MAX);
     return 0;
 }
 

@@ -122,6 +122,13 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
  *   - a region the guard merged rests REST_FRAMES frames before it may split again. */
 #define SPLIT_HEADROOM 0.8
 #define REST_FRAMES 25
+/* the start of the cost per changed node (calibrate): box-big, with the caches' pages mapped at
+ * load, measured 17.5 / 9.3 / 7.6 us per changed node of levels 0 / 1 / 2 (medians of 71
+ * passes, the level's floor included; 90th percentiles 30 / 30 / 15 us). The start was 100 us
+ * (measured once with first-touch page faults in the passes): falling 3 % a pass, it kept the
+ * model 3-10x over the passes for 50 frames, and the guard held back the splits a moving tool
+ * needs (box-big split every second frame: 1.45-1.57 mm against 1.07-1.14 mm from 30 us) */
+#define BLOCK_CHANGE_START 30e-6
 #define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
                           * within 1.1 x, the worst 1.57 x */
 
@@ -364,10 +371,10 @@ static void calibrate(lod_frame *fr)
     fr->passes = 0;
     fr->modeled_pass = 0;
     lod->cost_calibrated = 1;
-    /* a start for the cost per changed node until a pass measures it (box-big measured up to
-     * 100 us on this kind of machine): conservative, the first passes then stay small */
+    /* a start for the cost per changed node until passes measure it (the decaying maximum then
+     * rises at once to a higher measurement, and falls 3 % a pass) */
     for (int k = 0; k < lod->L && !lod->cost_given; k++)
-        lod->cost_block_change[k] = fmax(lod->cost_block_change[k], 100e-6);
+        lod->cost_block_change[k] = fmax(lod->cost_block_change[k], BLOCK_CHANGE_START);
 }
 
 /* ---------------------------------------------------------------- the stages */
@@ -572,6 +579,10 @@ static void stage_criterion(lod_frame *fr)
     int L = lod->L;
     for (int k = 0; k < L; k++)
         sq_lodx_eval_ring(lod, k, fr->nticks);
+    /* def.adapt_every: the split/merge pairs run every Nth frame only (the caps' merges below
+     * run every frame) */
+    int every = lod->def.adapt_every;
+    int pairs = every <= 1 || lod->frames % every == 0;
     double now = sq_thread_cpu();
     fr->c_ticks = now - fr->c_mark;
     fr->c_mark = now;
@@ -580,7 +591,7 @@ static void stage_criterion(lod_frame *fr)
     if (fr->in->budget_s > 0 && lod->cost_update > 0 && lod->cost_calibrated)
         fr->guard_on = 1;
     if (!fr->guard_on) {
-        for (int k = 0; k + 1 < L && k < lod->top; k++)
+        for (int k = 0; k + 1 < L && k < lod->top && pairs; k++)
             sq_lodx_adapt_pair(lod, k, !fr->over_budget, &fr->projected, &fr->ao);
         sq_lodx_enforce_cap(lod, &fr->projected, &fr->ao);
         return;
@@ -597,7 +608,7 @@ static void stage_criterion(lod_frame *fr)
         split_cap = SQ_MIN(split_cap, fr->cap_user);
     }
     unsigned sched = 0;
-    for (int k = 0; k + 1 < L && k < lod->top; k++) {
+    for (int k = 0; k + 1 < L && k < lod->top && pairs; k++) {
         double pc = PASS_MARGIN * pass_cost(lod, 3u << k, sched);
         if (pc > left) {
             fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
@@ -814,4 +825,5 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     sharp_owed(&fr);                               /* step estimates a pass left owed */
     reserve_ahead(&fr);                            /* coupling arrays mapped ahead of need */
     frame_profile(&fr, prof);                      /* cost model, profile, events */
+    lod->frames++;
 }

@@ -23,7 +23,9 @@ typedef struct sq_lod_def {
     int max_level;        /* highest level index used (caps the levels list) */
     double budget;        /* fraction of the frame period above which splits stop (0.95) */
     long max_node_updates;/* hard cap on node updates per frame (0 = none) */
+    int adapt_every;      /* frames between split/merge passes: 1 (or 0) every frame, N every Nth */
 } sq_lod_def;
+#define SQ_LOD_ADAPT_EVERY_MAX 1000 /* adapt_every: at most a split/merge pass every 1000 frames */
 
 /* the stages of an adaptive frame, in the order sq_lod_frame runs them (lod/frame.c); the
  * pull and step stages run at every tick of the finest substep clock, their times summed */

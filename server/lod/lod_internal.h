@@ -258,6 +258,7 @@ struct sq_lod {
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
     long guard_clock;                    /* frames run with a budget (hysteresis clock) */
+    long frames;                         /* frames run (sq_lod_frame), for def.adapt_every */
     int *guard_hold[SQ_MAX_LEVELS];      /* per node of level k: no split before this guard
                                           * clock (a region the guard merged rests), NULL: none */
     long guard_merged_total;             /* regions the guard merged so far (tests) */

@@ -242,6 +242,9 @@ static int check_def(const sq_lod_def *def, int L, sq_err *err)
     if (def->max_node_updates < 0)
         return sq_err_set(err, "lod.max_node_updates = %ld: must be >= 0 (0 = no cap)",
                           def->max_node_updates);
+    if (def->adapt_every < 0 || def->adapt_every > SQ_LOD_ADAPT_EVERY_MAX)
+        return sq_err_set(err, "lod.adapt_every = %d: must be a number of frames in 1..%d (1: a split/merge "
+                          "pass every frame)", def->adapt_every, SQ_LOD_ADAPT_EVERY_MAX);
     if (def->level < 0 || def->level > top_of(def, L))
         return sq_err_set(err, "lod.level = %d: the starting level must be in [0, %d]", def->level,
                           top_of(def, L));

@@ -90,7 +90,7 @@ static void do_set(sq_session *s, const sq_job *j)
     int changed_mat = r->set.has_E || r->set.has_nu || r->set.has_density || r->set.has_operator ||
                       r->set.has_mass || r->set.has_stiffness;
     int changed_lod = r->set.has_mode || r->set.has_level || r->set.has_split || r->set.has_merge ||
-                      r->set.has_max_level || r->set.has_budget;
+                      r->set.has_max_level || r->set.has_budget || r->set.has_adapt_every;
     for (int b = b0; b < b1; b++) {
         sq_body *body = w->bodies[b];
         const sq_body_def *d = sq_body_get_def(body);
@@ -139,6 +139,7 @@ static void do_set(sq_session *s, const sq_job *j)
                 (l.max_level = loaded_level(w, b, r->set.max_level, "max_level", err.msg, sizeof err.msg)) < 0)
                 rc = -1;
             if (r->set.has_budget) l.budget = r->set.budget;
+            if (r->set.has_adapt_every) l.adapt_every = r->set.adapt_every;
             if (!rc)
                 rc = sq_body_set_lod(body, &l, &err);
             if (rc && changed_mat) /* all or nothing for this body */

@@ -101,9 +101,9 @@ typedef struct sq_request {
         int has_pressure, nodal_pressure;
         int has_mass, has_stiffness;   /* damping */
         double mass, stiffness;
-        int has_mode, has_level, has_split, has_merge, has_max_level, has_budget;
+        int has_mode, has_level, has_split, has_merge, has_max_level, has_budget, has_adapt_every;
         sq_lod_mode mode;
-        int level, max_level;
+        int level, max_level, adapt_every;
         double split, merge, budget;
     } set;
     struct {

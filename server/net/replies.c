@@ -115,6 +115,7 @@ cJSON *sq_settings_json(const sq_world *w, int bi)
     cJSON_AddNumberToObject(l, "merge", d->lod.merge);
     cJSON_AddNumberToObject(l, "max_level", sq_world_listed_level(w, bi, d->lod.max_level));
     cJSON_AddNumberToObject(l, "budget", d->lod.budget);
+    cJSON_AddNumberToObject(l, "adapt_every", SQ_MAX(d->lod.adapt_every, 1));
     cJSON *lv = cJSON_AddArrayToObject(o, "levels");
     for (int k = 0; k < sq_body_nlevels(b); k++) {
         cJSON *e = cJSON_CreateObject();

@@ -344,7 +344,7 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
     static const char *const fm[] = {"E", "nu", "density", NULL};
     static const char *const fd[] = {"mass", "stiffness", NULL};
     static const char *const fl[] = {"mode", "level", "split", "merge", "max_level", "budget",
-                                     NULL};
+                                     "adapt_every", NULL};
     if (check_fields(o, "set", f, err) || decode_body(o, "set.body", &r->set.body, err))
         return -1;
     int given = 0, e;
@@ -439,6 +439,11 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
             if (get_number(v, "set.lod.budget", 0, 1, 1, &r->set.budget, err))
                 return -1;
             r->set.has_budget = given = 1;
+        }
+        if ((v = cJSON_GetObjectItemCaseSensitive(m, "adapt_every"))) {
+            if (get_int(v, "set.lod.adapt_every", 1, SQ_LOD_ADAPT_EVERY_MAX, &r->set.adapt_every, err))
+                return -1;
+            r->set.has_adapt_every = given = 1;
         }
     }
     if (!given)

@@ -204,7 +204,7 @@ static int region_selects(const sq_constraint *k, const double *x)
 static int parse_lod(pctx *c, const cJSON *obj, const char *path, int nlisted, sq_lod_def *lod)
 {
     static const char *const keys[] = {"mode", "level", "split", "merge", "max_level", "budget",
-                                       "max_node_updates", NULL};
+                                       "max_node_updates", "adapt_every", NULL};
     /* defaults of the engine (sq_body_def_default) */
     *lod = sq_body_def_default().lod;
     lod->mode = SQ_LOD_FIXED;
@@ -270,6 +270,10 @@ static int parse_lod(pctx *c, const cJSON *obj, const char *path, int nlisted, s
         return -1;
     if (found)
         lod->max_node_updates = v;
+    if (scene_get_int(c, obj, path, "adapt_every", 1, SQ_LOD_ADAPT_EVERY_MAX, &v, &found))
+        return -1;
+    if (found)
+        lod->adapt_every = (int)v;
     return 0;
 }
 

@@ -61,6 +61,8 @@ test('malformed input of every kind: coded error, connection open, session uncha
     ['{"type":"set","material":{"nu":0.5}}', 'out_of_range'],
     ['{"type":"set","material":{"E":-5}}', 'out_of_range'],
     ['{"type":"set","lod":{"budget":2}}', 'out_of_range'],
+    ['{"type":"set","lod":{"adapt_every":0}}', 'out_of_range'],
+    ['{"type":"set","lod":{"adapt_every":2.5}}', 'out_of_range'],
     ['{"type":"join","session":123456789}', 'unknown_session'],
     ['{"type":"open","scene":"no-such-scene"}', 'unknown_scene'],
     ['{"type":"set","body":7,"operator":"fem"}', 'unknown_body'],

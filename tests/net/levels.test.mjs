@@ -67,6 +67,19 @@ test('settings and set count levels as listed too; a level the body did not load
   await c.close();
 });
 
+test('lod.adapt_every: 1 by default in settings, set and reported back, out of range refused by name', async () => {
+  const c = await SquishClient.connect(srv.url);
+  const o = await c.open('cube-poke');
+  assert.equal(o.bodies[0].settings.lod.adapt_every, 1);
+  const a = await c.set({ lod: { adapt_every: 3 } });
+  assert.equal(a.bodies[0].settings.lod.adapt_every, 3);
+  await assert.rejects(c.set({ lod: { adapt_every: 5000 } }),
+    e => e.code === 'out_of_range' && /set\.lod\.adapt_every/.test(e.message));
+  const s = await c.set({ lod: { split: 0.01 } }); // another lod change keeps it
+  assert.equal(s.bodies[0].settings.lod.adapt_every, 3);
+  await c.close();
+});
+
 test('a body asleep keeps reporting its active nodes (and no node updates)', async () => {
   const c = await SquishClient.connect(srv.url);
   const o = await c.open('cube-poke');

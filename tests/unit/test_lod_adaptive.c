@@ -436,6 +436,48 @@ SQ_TEST(lod_node_update_cap_holds)
     lh_free_meshes(m, 3);
 }
 
+/* lod.adapt_every: with 3, splits and merges happen only at frames 0, 3, 6, ... of the body (the
+ * poke still refines); with 1 (the default) they also happen between them */
+SQ_TEST(lod_adapt_every_spaces_the_split_merge_passes)
+{
+    sq_mesh *m[3];
+    if (!poke_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    int off_beat[2] = {0, 0}, changes[2] = {0, 0}, frames = 120;
+    long peak[2] = {0, 0};
+    for (int run = 0; run < 2; run++) {
+        sq_body_def def = lh_cube_def(m, 3);
+        def.gravity[2] = 0;
+        def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+        def.lod.adapt_every = run ? 3 : 1;
+        sq_err e = {{0}};
+        sq_body *b = sq_body_create(&def, &e);
+        CHECK(b != NULL);
+        if (!b)
+            break;
+        sq_frame_profile prof;
+        for (int f = 0; f < frames; f++) {
+            sq_tool tool = poke_tool(f * def.frame_dt);
+            sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+            int n = prof.splits + prof.merges;
+            changes[run] += n > 0;
+            off_beat[run] += n > 0 && f % 3 != 0;
+            peak[run] = SQ_MAX(peak[run], (long)prof.active[1] + prof.active[2]);
+            CHECK(sq_lod_check(b->lod, &e) == 0);
+        }
+        sq_body_destroy(b);
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "adapt_every 1: %d frames with changes (%d off the 3-beat), peak refined %ld; "
+                "3: %d (%d), peak %ld\n", changes[0], off_beat[0], peak[0], changes[1], off_beat[1], peak[1]);
+    CHECK(off_beat[0] > 0);               /* every frame may change the layout by default */
+    CHECK(off_beat[1] == 0);              /* every third frame only */
+    CHECK(changes[1] > 2 && peak[1] > 0); /* and the poke still refines */
+    lh_free_meshes(m, 3);
+}
+
 /* ------------------------------------------------------------------ sleep */
 
 SQ_TEST(lod_sleeping_body_costs_nothing_and_wakes_on_touch)

@@ -130,6 +130,9 @@ static const struct {
     {SCENE("{" BODY_KEYS ", \"lod\": {\"split\": \"big\"}}"), "t.json: bodies[0].lod.split: \"big\" is not a threshold"},
     {SCENE("{" BODY_KEYS ", \"lod\": {\"budget\": 1.5}}"), "t.json: bodies[0].lod.budget: 1.5 is out of range"},
     {SCENE("{" BODY_KEYS ", \"lod\": {\"max_node_updates\": -3}}"), "t.json: bodies[0].lod.max_node_updates"},
+    {SCENE("{" BODY_KEYS ", \"lod\": {\"adapt_every\": 0}}"), "t.json: bodies[0].lod.adapt_every: 0 is out of range"},
+    {SCENE("{" BODY_KEYS ", \"lod\": {\"adapt_every\": 1.5}}"), "t.json: bodies[0].lod.adapt_every: 1.5 is not an integer"},
+    {SCENE("{" BODY_KEYS ", \"lod\": {\"adapt_every\": 1001}}"), "t.json: bodies[0].lod.adapt_every: 1001 is out of range"},
     {SCENE("{" BODY_KEYS ", \"lod\": {\"levels\": 2}}"), "t.json: bodies[0].lod.levels: unknown key"},
     {SCENE("{" BODY_KEYS ", \"offset\": [0, 1]}"), "t.json: bodies[0].offset: expected an array of 3 numbers"},
     {SCENE("{" BODY_KEYS ", \"step_fraction\": 2}"), "t.json: bodies[0].step_fraction: 2 is out of range"},
@@ -219,7 +222,7 @@ SQ_TEST(scene_valid_full_values)
         "   \"fixed\": [{\"box\": [[-1, -1, -1], [2, 2, 0.001]]},"
         "             {\"halfspace\": {\"point\": [0, 0, 0], \"normal\": [-2, 0, 0]}, \"axes\": \"x\"}],"
         "   \"lod\": {\"mode\": \"adaptive\", \"level\": 0, \"split\": 0.02, \"merge\": 0.01, \"max_level\": 1,"
-        "            \"budget\": 0.8, \"max_node_updates\": 100000},"
+        "            \"budget\": 0.8, \"max_node_updates\": 100000, \"adapt_every\": 3},"
         "   \"step_fraction\": 0.5}],"
         " \"tools\": [{\"id\": 7, \"name\": \"finger\", \"shape\": \"box\", \"size\": [0.2, 0.4, 0.6],"
         "   \"keyframes\": [{\"t\": 0.5, \"pos\": [0.5, 0.5, 1.2], \"active\": true},"
@@ -254,7 +257,7 @@ SQ_TEST(scene_valid_full_values)
     CHECK(d->levels[0]->nnodes == 27 && d->levels[1]->nnodes == 64);
     CHECK(s->meshes[0][2] == NULL);
     CHECK(d->lod.split == 0.02 && d->lod.merge == 0.01 && d->lod.budget == 0.8);
-    CHECK(d->lod.max_node_updates == 100000);
+    CHECK(d->lod.max_node_updates == 100000 && d->lod.adapt_every == 3);
     CHECK(d->step_fraction == 0.5);
     CHECK_NEAR(d->frame_dt, 1.0 / 40, 1e-15);
     CHECK(d->gravity[1] == -1 && d->gravity[2] == -9);
@@ -293,6 +296,7 @@ SQ_TEST(scene_defaults_of_a_minimal_scene)
     CHECK(d->lod.mode == SQ_LOD_FIXED && d->nlevels == 1 && d->lod.level == 0);
     CHECK(d->levels[0]->nnodes == 64 && s->level_index[0][0] == 1 && s->meshes[0][1] == NULL);
     CHECK(d->lod.split == def0.lod.split && d->lod.budget == def0.lod.budget);
+    CHECK(d->lod.adapt_every == 1);
     CHECK(d->step_fraction == 0.9);
     CHECK(s->ntools == 0 && s->nprobes == 1 && !strcmp(s->probes[0].name, "probe0"));
     sq_scene_free(s);
