@@ -75,13 +75,6 @@ void sq_lod_untimed(sq_lod *lod, double cpu_s)
         lod->untimed += cpu_s;
 }
 
-long sq_lod_prepare_budget(sq_lod *lod)
-{
-    if (lod->reserve_live || !lod->have_mat)
-        return 0;
-    lod->reserve_live = 1;
-    return sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
-}
 
 /* run one stage and add its wall time to its entry */
 static inline void run(lod_frame *fr, void (*stage)(lod_frame *), int which)
@@ -109,7 +102,8 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
  * each term a maximum over its measurements that decays by 10 % a frame (the frame terms) or
  * 3 % a pass (the pass terms, measured only when a pass runs), an isolated outlier bounded
  * (sq_lodx_learn), or given (sq_lodx_set_costs, tests). The floors of a pass are timed once by a pass that changes nothing (calibrate) at
- * the first budgeted frame. The budget is def.budget x the period less the thread's time
+ * load when the caller says a budget follows (sq_lod_prepare_budget), else at the first
+ * budgeted frame. The budget is def.budget x the period less the thread's time
  * around the lod frame (cost_outside). The guard:
  *   - at the end of a frame, the split/merge pass of levels k, k+1 runs only if its rebuild
  *     fits in what is left of this frame (PASS_MARGIN x the model), and changes at most the
@@ -375,6 +369,27 @@ static void calibrate(lod_frame *fr)
      * rises at once to a higher measurement, and falls 3 % a pass) */
     for (int k = 0; k < lod->L && !lod->cost_given; k++)
         lod->cost_block_change[k] = fmax(lod->cost_block_change[k], BLOCK_CHANGE_START);
+}
+
+/* a live budget follows: every array a pass writes reserved and mapped, and the guard's pass
+ * terms calibrated, now (at load) instead of in the first budgeted frame */
+long sq_lod_prepare_budget(sq_lod *lod)
+{
+    if (lod->reserve_live || !lod->have_mat)
+        return 0;
+    lod->reserve_live = 1;
+    long pages = sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
+    if (!lod->cost_calibrated) {
+        sq_lod_frame_in in;
+        memset(&in, 0, sizeof in);
+        in.mat = &lod->mat;
+        lod_frame fr;
+        memset(&fr, 0, sizeof fr);
+        fr.lod = lod;
+        fr.in = &in;
+        calibrate(&fr);
+    }
+    return pages;
 }
 
 /* ---------------------------------------------------------------- the stages */

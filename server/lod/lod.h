@@ -154,9 +154,10 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
  * next frame */
 void sq_lod_untimed(sq_lod *lod, double cpu_s);
 /* a live budget will follow (the server, `squish run --realtime`, the trade-off's guarded runs):
- * the coupling arrays every pass writes reserved and their pages mapped now, at load, instead
- * of in the first budgeted frame (docs/lod.md "Guaranteed frame rate"); returns the pages
- * mapped. Without it the first budgeted frame does it */
+ * the coupling arrays every pass writes reserved and their pages mapped, and the guard's pass
+ * costs calibrated (two passes that change nothing), now, at load, instead of in the first
+ * budgeted frame (docs/lod.md "Guaranteed frame rate"); returns the pages mapped. Without it
+ * the first budgeted frame does both */
 long sq_lod_prepare_budget(sq_lod *lod);
 
 /* level active at each node of the finest level (out has n_finest entries); the walk is
