@@ -720,6 +720,35 @@ static long touch_pages(void *p, size_t from, size_t to)
     return n;
 }
 
+/* map the pages of live data (each page read and written back: the contents are kept) */
+static long keep_pages(void *p, size_t bytes)
+{
+    volatile unsigned char *c = p;
+    long n = 0;
+    for (size_t b = 0; p && b < bytes; b += PAGE_BYTES - (b % PAGE_BYTES), n++)
+        c[b] = c[b];
+    return n;
+}
+
+long sq_lodx_map_state(sq_lod *lod)
+{
+    long pages = 0;
+    for (int k = 0; k < lod->L; k++) {
+        sq_level *L = &lod->lv[k];
+        sq_lod_level *lk = &lod->lev[k];
+        size_t n = (size_t)L->model.n, n3 = 3 * n * sizeof(double);
+        if (!lk->w_tick) /* (made on first use otherwise, sq_lodx_form_w) */
+            lk->w_tick = sq_calloc(3 * n + 1, sizeof(double));
+        void *const a[] = {L->d, L->v, L->f, L->acc, lk->d_start, lk->v_start, lk->w_tick};
+        for (size_t i = 0; i < sizeof a / sizeof a[0]; i++)
+            pages += keep_pages(a[i], n3);
+        pages += keep_pages(lk->push_stamp, n * sizeof(unsigned));
+        pages += keep_pages(lk->in_needed, n);
+        pages += keep_pages(lk->mark, n);
+    }
+    return pages;
+}
+
 /* the pages a reserve of one array would write: 0 when it needs nothing */
 static long reserve_pages(int cap, const void *p, long used, long limit, size_t size, long *want)
 {

@@ -378,7 +378,7 @@ long sq_lod_prepare_budget(sq_lod *lod)
     if (lod->reserve_live || !lod->have_mat)
         return 0;
     lod->reserve_live = 1;
-    long pages = sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
+    long pages = sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS) + sq_lodx_map_state(lod);
     if (!lod->cost_calibrated) {
         sq_lod_frame_in in;
         memset(&in, 0, sizeof in);
