@@ -394,6 +394,30 @@ SQ_TEST(lod_budget_refuses_splits_and_warns)
     lh_free_meshes(m, 3);
 }
 
+/* the poke's cube (3 levels, no gravity), adaptive at split 0.05 with the given node-update cap
+ * and split/merge period; NULL (a failed check) if it cannot be made */
+static sq_body *poke_body(sq_mesh **m, long max_node_updates, int adapt_every)
+{
+    sq_body_def def = lh_cube_def(m, 3);
+    def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    def.lod.max_node_updates = max_node_updates;
+    def.lod.adapt_every = adapt_every;
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    CHECK(b != NULL);
+    return b;
+}
+
+/* frame f of the scripted poke, unbudgeted, and the lod's consistency after it */
+static void poke_frame(sq_body *b, int f, sq_frame_profile *prof)
+{
+    sq_tool tool = poke_tool(f * sq_body_get_def(b)->frame_dt);
+    sq_body_frame(b, &tool, 1, NULL, prof, 0);
+    sq_err e = {{0}};
+    CHECK(sq_lod_check(b->lod, &e) == 0);
+}
+
 /* the node-update cap: a poke that needs more stays under the cap in >= 99% of frames, with
  * splits refused while at the cap */
 SQ_TEST(lod_node_update_cap_holds)
@@ -407,23 +431,15 @@ SQ_TEST(lod_node_update_cap_holds)
     int over[2] = {0, 0}, refused[2] = {0, 0}, frames = 120;
     long cap = 600;
     for (int run = 0; run < 2; run++) {
-        sq_body_def def = lh_cube_def(m, 3);
-        def.gravity[2] = 0;
-        def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
-        def.lod.max_node_updates = run ? cap : 0;
-        sq_err e = {{0}};
-        sq_body *b = sq_body_create(&def, &e);
-        CHECK(b != NULL);
+        sq_body *b = poke_body(m, run ? cap : 0, 1);
         if (!b)
             break;
         sq_frame_profile prof;
         for (int f = 0; f < frames; f++) {
-            sq_tool tool = poke_tool(f * def.frame_dt);
-            sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+            poke_frame(b, f, &prof);
             peak[run] = SQ_MAX(peak[run], prof.node_updates);
             over[run] += prof.node_updates > cap;
             refused[run] += prof.splits_refused;
-            CHECK(sq_lod_check(b->lod, &e) == 0);
         }
         sq_body_destroy(b);
     }
@@ -448,24 +464,16 @@ SQ_TEST(lod_adapt_every_spaces_the_split_merge_passes)
     int off_beat[2] = {0, 0}, changes[2] = {0, 0}, frames = 120;
     long peak[2] = {0, 0};
     for (int run = 0; run < 2; run++) {
-        sq_body_def def = lh_cube_def(m, 3);
-        def.gravity[2] = 0;
-        def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
-        def.lod.adapt_every = run ? 3 : 1;
-        sq_err e = {{0}};
-        sq_body *b = sq_body_create(&def, &e);
-        CHECK(b != NULL);
+        sq_body *b = poke_body(m, 0, run ? 3 : 1);
         if (!b)
             break;
         sq_frame_profile prof;
         for (int f = 0; f < frames; f++) {
-            sq_tool tool = poke_tool(f * def.frame_dt);
-            sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+            poke_frame(b, f, &prof);
             int n = prof.splits + prof.merges;
             changes[run] += n > 0;
             off_beat[run] += n > 0 && f % 3 != 0;
             peak[run] = SQ_MAX(peak[run], (long)prof.active[1] + prof.active[2]);
-            CHECK(sq_lod_check(b->lod, &e) == 0);
         }
         sq_body_destroy(b);
     }
