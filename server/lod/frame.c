@@ -75,7 +75,6 @@ void sq_lod_untimed(sq_lod *lod, double cpu_s)
         lod->untimed += cpu_s;
 }
 
-
 /* run one stage and add its wall time to its entry */
 static inline void run(lod_frame *fr, void (*stage)(lod_frame *), int which)
 {

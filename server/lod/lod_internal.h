@@ -256,7 +256,8 @@ struct sq_lod {
                                           * reserved from the first budgeted frame on */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
-    int cost_calibrated;                 /* 1: a rebuild pass was timed (first budgeted frame) */
+    int cost_calibrated;                 /* 1: a rebuild pass was timed (at load, sq_lod_prepare_budget,
+                                          * or in the first budgeted frame) */
     long guard_clock;                    /* frames run with a budget (hysteresis clock) */
     long frames;                         /* frames run (sq_lod_frame), for def.adapt_every */
     int *guard_hold[SQ_MAX_LEVELS];      /* per node of level k: no split before this guard
