@@ -36,6 +36,8 @@ sq_body_def sq_body_def_default(void)
     d.lod.adapt_every = 1;
     d.frame_dt = 1.0 / 50.0;
     d.step_fraction = 0.9;
+    d.integrator = SQ_INTEGRATOR_EXPLICIT;
+    d.implicit = sq_implicit_def_default();
     return d;
 }
 
@@ -126,9 +128,11 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
     int reuse = same_model && like->def.frame_dt == b->def.frame_dt &&
                 like->def.step_fraction == b->def.step_fraction && like->def.elasticity == b->def.elasticity &&
                 like->def.nodal_pressure == b->def.nodal_pressure;
-    if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
-        (!reuse && sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction,
-                                              SQ_LANCZOS_ITERS, err) < 0)) {
+    if (b->def.integrator == SQ_INTEGRATOR_IMPLICIT)
+        sq_body_explicit_estimate(b, L, &b->def.material, reuse);
+    else if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+             (!reuse && sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt, b->def.step_fraction,
+                                                   SQ_LANCZOS_ITERS, err) < 0)) {
         sq_level_free(L);
         return sq_err_prefix(err, "body '%s' level %d (%d nodes)", b->name, k, b->def.levels[k]->nnodes);
     }
@@ -148,6 +152,22 @@ int sq_body_ensure_level(sq_body *b, int k, sq_err *err)
         b->hold_of[k][i] = -1;
     b->ready[k] = 1;
     return 0;
+}
+
+void sq_body_explicit_estimate(const sq_body *b, sq_level *L, const sq_material *m, int reuse)
+{
+    /* an implicit body needs no explicit step, but keeps the figures (what explicit would
+     * take: substeps in stats and the trade-off): past 2^20 substeps they are capped there */
+    sq_err ignore = {{0}};
+    if (sq_level_choose_step(L, m, b->def.frame_dt, b->def.step_fraction, &ignore) < 0) {
+        L->substeps_log2 = 20;
+        L->dt = b->def.frame_dt / 1048576.0;
+    }
+    if (!reuse && sq_level_choose_step_sharp(L, m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
+                                             &ignore) < 0) {
+        L->nsub = 1048576;
+        L->dt_fixed = b->def.frame_dt / L->nsub;
+    }
 }
 
 /* forget which nodes of level k a tool held (released: reset or lod change) */
@@ -250,6 +270,18 @@ int sq_body_check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_m
     return 0;
 }
 
+int sq_body_check_integrator(sq_integrator_kind k, const sq_implicit_def *imp, sq_lod_mode mode, sq_err *err)
+{
+    if (k != SQ_INTEGRATOR_EXPLICIT && k != SQ_INTEGRATOR_IMPLICIT)
+        return sq_err_set(err, "integrator %d is unknown: use \"explicit\" or \"implicit\"", (int)k);
+    if (sq_implicit_def_check(imp, err) < 0)
+        return -1;
+    if (k == SQ_INTEGRATOR_IMPLICIT && mode != SQ_LOD_FIXED)
+        return sq_err_set(err, "the implicit integrator runs with fixed lod only (adaptive levels still step "
+                               "explicitly): use \"lod\": {\"mode\": \"fixed\"} or \"integrator\": \"explicit\"");
+    return 0;
+}
+
 static int check_def(const sq_body_def *def, sq_err *err)
 {
     if (def->nlevels < 1 || def->nlevels > SQ_MAX_LEVELS)
@@ -284,7 +316,8 @@ static int check_def(const sq_body_def *def, sq_err *err)
             return sq_err_set(err, "constraint %d: axes mask %u must be 1..7 (bits x=1, y=2, z=4)", c, cn->axes);
     }
     if (sq_body_check_elasticity(def->elasticity, def->op, def->lod.mode, err) < 0 ||
-        sq_body_check_pressure(def->nodal_pressure, def->elasticity, def->op, def->lod.mode, err) < 0)
+        sq_body_check_pressure(def->nodal_pressure, def->elasticity, def->op, def->lod.mode, err) < 0 ||
+        sq_body_check_integrator(def->integrator, &def->implicit, def->lod.mode, err) < 0)
         return -1;
     return sq_material_check(&def->material, err);
 }

@@ -33,6 +33,8 @@ typedef struct sq_body_def {
     int sharp_step;       /* 1 = step from a Lanczos estimate of the bound (Gershgorin as ceiling):
                              fixed mode any integer substep count, adaptive mode 2^n per level from
                              the coupled operator (lod/bound.c); 0 (default) = Gershgorin, 2^n */
+    sq_integrator_kind integrator; /* explicit (default) or implicit (backward Euler, fixed lod) */
+    sq_implicit_def implicit;      /* the implicit step's settings (sq_implicit_def_default) */
     int nodal_pressure;   /* SQ_PRESSURE_*: 1 average nodal pressure tets, 2 smoothed (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
@@ -93,6 +95,12 @@ int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err);
  * (SQ_PRESSURE_SMOOTHED) tets; the last two are refused (nothing changes) with the paper operator,
  * corotational elasticity or adaptive lod; the state is kept */
 int sq_body_set_pressure(sq_body *b, int nodal, sq_err *err);
+
+/* explicit <-> implicit and the implicit settings; implicit is refused (nothing changes) in
+ * adaptive lod mode, and settings out of range are refused naming the valid range; state kept */
+int sq_body_set_integrator(sq_body *b, sq_integrator_kind k, const sq_implicit_def *imp, sq_err *err);
+/* is this integrator allowed with lod mode `mode`? 0, or -1 + err naming the fix */
+int sq_body_check_integrator(sq_integrator_kind k, const sq_implicit_def *imp, sq_lod_mode mode, sq_err *err);
 
 /* back to rest (zero displacement and velocity, coarse level) */
 void sq_body_reset(sq_body *b);

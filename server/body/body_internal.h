@@ -69,6 +69,8 @@ struct sq_body {
 void sq_body_interp3(const sq_mesh *m, const double *field, int t, const double bary[4], double out[3]);
 /* initialise level k if it is not yet (operator, step bounds, masks); state at rest */
 int sq_body_ensure_level(sq_body *b, int k, sq_err *err);
+/* the explicit step figures of level L of an implicit body (never refused: capped at 2^20) */
+void sq_body_explicit_estimate(const sq_body *b, sq_level *L, const sq_material *m, int reuse);
 /* forget which nodes of level k a tool held (released: reset or lod change) */
 void sq_body_clear_held(sq_body *b, int k);
 /* copy displacement and velocity from level src to level dst by interpolation */
@@ -86,6 +88,8 @@ int sq_body_check_lod(const sq_body *b, const sq_lod_def *lod, sq_err *err);
  * sharp bound's any integer count (adaptive mode keeps 2^n per level) */
 static inline int sq_body_fixed_nsub(const sq_body *b, const sq_level *L)
 {
+    if (b->def.integrator == SQ_INTEGRATOR_IMPLICIT)
+        return b->def.implicit.substeps;
     return b->def.sharp_step ? L->nsub : 1 << L->substeps_log2;
 }
 

@@ -22,8 +22,52 @@ static void mark_held(sq_body *b, int k, const sq_hold *holds, int nholds)
     }
 }
 
+/* the implicit frame's steps (level/implicit.c): substeps backward Euler steps of
+ * frame_dt / substeps, held nodes projected out; feedback from the force at each step's end
+ * state; CG stopped by the frame budget when there is one (budget_s > 0) */
+static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                           sq_frame_profile *prof)
+{
+    const sq_material *mat = &b->def.material;
+    const double *g = b->def.gravity;
+    const sq_implicit_def *def = &b->def.implicit;
+    const int nsub = def->substeps;
+    const double h = b->def.frame_dt / nsub, inv = 1.0 / nsub;
+    const double deadline = budget_s > 0 ? sq_thread_cpu() + budget_s : 0;
+    sq_implicit_stats st, tot;
+    memset(&tot, 0, sizeof tot);
+    for (int s = 0; s < nsub; s++) {
+        sq_level_implicit_step(L, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
+        tot.iterations += st.iterations;
+        tot.residual = SQ_MAX(tot.residual, st.residual);
+        tot.unconverged |= st.unconverged;
+        tot.newton += st.newton;
+        tot.newton_residual = SQ_MAX(tot.newton_residual, st.newton_residual);
+        if (nk && force) {
+            sq_level_forces(L, mat, g, NULL); /* the end state's force */
+            for (int k = 0; k < nk; k++) {
+                int i = b->khold[k].node, t = b->khold[k].tool;
+                if (t >= 0 && t < ntools)
+                    for (int c = 0; c < 3; c++)
+                        force[t][c] += inv * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
+            }
+        }
+    }
+    if (prof) {
+        prof->cg_iterations = tot.iterations;
+        prof->cg_residual = tot.residual;
+        prof->newton_iterations = tot.newton;
+        prof->newton_residual = tot.newton_residual;
+        if (tot.unconverged) {
+            sq_frame_event(prof, SQ_HEALTH_SOLVE_UNCONVERGED, tot.residual, tot.iterations, def->tol,
+                           def->max_iter, b->name);
+            sq_body_count_health(b, SQ_HEALTH_SOLVE_UNCONVERGED, tot.residual);
+        }
+    }
+}
+
 static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools, double (*force)[3],
-                        sq_frame_profile *prof)
+                        sq_frame_profile *prof, double budget_s)
 {
     sq_level *L = &b->level[b->cur];
     const sq_material *mat = &b->def.material;
@@ -69,17 +113,41 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         count[idx]++;
     }
     /* held nodes: displacement set to the target, velocity to (target - old) / frame_dt, on the
-     * free axes (the one hold rule of both modes: sq_level_apply_hold) */
+     * free axes (the one hold rule of both modes: sq_level_apply_hold); implicit: the velocity
+     * only, the displacement reaching the target through the frame's steps */
+    const int implicit = b->def.integrator == SQ_INTEGRATOR_IMPLICIT;
     for (int h = 0; h < nk; h++) {
         sq_hold *kh = &b->khold[h];
         int i = kh->node;
         for (int c = 0; c < 3; c++)
             kh->target[c] /= count[h];
+        double keep[3];
+        memcpy(keep, L->d + 3 * (size_t)i, sizeof keep);
         sq_level_apply_hold(L, i, kh->target, L->d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
+        if (implicit)
+            memcpy(L->d + 3 * (size_t)i, keep, sizeof keep);
         mask[i] = 0;
         hold_of[i] = -1;
     }
 
+    if (implicit) {
+        implicit_steps(b, L, nk, ntools, force, budget_s, prof);
+        for (int h = 0; h < nk; h++) { /* at the target exactly (the steps' sum of h u, to round-off) */
+            int i = b->khold[h].node;
+            for (int c = 0; c < 3; c++)
+                if (!(L->model.fixed[i] & (1u << c)))
+                    L->d[3 * (size_t)i + c] = b->khold[h].target[c];
+            mask[i] = 1;
+        }
+        mark_held(b, b->cur, b->khold, nk);
+        if (prof) {
+            prof->node_updates = (long)(L->model.n - nk) * b->def.implicit.substeps;
+            prof->active[b->cur] = L->model.n;
+            prof->substeps[b->cur] = b->def.implicit.substeps;
+            prof->awake_nodes = L->model.n;
+        }
+        return;
+    }
     /* substeps: forces on all nodes, feedback on held nodes, integrate the others */
     int nsub = sq_body_fixed_nsub(b, L);
     double sdt = b->def.sharp_step ? L->dt_fixed : L->dt;
@@ -160,7 +228,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
             mark_held(b, b->fine, b->holds, nholds);
             sq_lod_node_levels(b->lod, b->node_level);
         } else {
-            frame_fixed(b, b->holds, nholds, ntools, force, prof);
+            frame_fixed(b, b->holds, nholds, ntools, force, prof, frame_budget_s);
         }
     }
     double t2 = sq_now();

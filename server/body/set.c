@@ -27,9 +27,11 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         if (sq_level_init(&fresh[k], b->def.levels[k], m, op, b->def.constraints, b->def.nconstraints, err) < 0 ||
             (b->def.elasticity == SQ_ELASTICITY_COROTATIONAL && sq_level_corot_enable(&fresh[k], m, op, err) < 0) ||
             (b->def.nodal_pressure && sq_level_anp_enable(&fresh[k], m, op, b->def.nodal_pressure, err) < 0) ||
-            sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+            (b->def.integrator == SQ_INTEGRATOR_IMPLICIT
+                 ? (sq_body_explicit_estimate(b, &fresh[k], m, !b->def.sharp_step), 0)
+                 : sq_level_choose_step(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, err)) < 0 ||
             /* the Lanczos estimate only where it is used (a set flood must stay cheap) */
-            (b->def.sharp_step &&
+            (b->def.sharp_step && b->def.integrator != SQ_INTEGRATOR_IMPLICIT &&
              sq_level_choose_step_sharp(&fresh[k], m, b->def.frame_dt, b->def.step_fraction, SQ_LANCZOS_ITERS,
                                         err) < 0)) {
             if (fresh[k].model.n)
@@ -64,7 +66,8 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         return -1;
     int was_adaptive = b->def.lod.mode == SQ_LOD_ADAPTIVE;
     if (sq_body_check_elasticity(b->def.elasticity, b->def.op, lod->mode, err) < 0 ||
-        sq_body_check_pressure(b->def.nodal_pressure, b->def.elasticity, b->def.op, lod->mode, err) < 0)
+        sq_body_check_pressure(b->def.nodal_pressure, b->def.elasticity, b->def.op, lod->mode, err) < 0 ||
+        sq_body_check_integrator(b->def.integrator, &b->def.implicit, lod->mode, err) < 0)
         return -1;
     if (lod->mode == SQ_LOD_ADAPTIVE) {
         for (int k = 0; k < b->nuse; k++)
@@ -201,4 +204,29 @@ void sq_body_set_sleep(sq_body *b, int frames, double ke_speed, double residual)
     b->sleep_residual = residual;
     b->calm = 0;
     b->sleeping = 0;
+}
+
+int sq_body_set_integrator(sq_body *b, sq_integrator_kind k, const sq_implicit_def *imp, sq_err *err)
+{
+    if (sq_body_check_integrator(k, imp, b->def.lod.mode, err) < 0)
+        return -1;
+    if (k == SQ_INTEGRATOR_EXPLICIT && b->def.integrator == SQ_INTEGRATOR_IMPLICIT) {
+        /* back to explicit: every loaded level must have an explicit step within 2^20 substeps */
+        for (int j = 0; j < SQ_MAX_LEVELS; j++) {
+            if (!b->ready[j])
+                continue;
+            sq_level *L = &b->level[j];
+            if (sq_level_choose_step(L, &b->def.material, b->def.frame_dt, b->def.step_fraction, err) < 0 ||
+                (b->def.sharp_step && sq_level_choose_step_sharp(L, &b->def.material, b->def.frame_dt,
+                                                                 b->def.step_fraction, SQ_LANCZOS_ITERS, err) < 0)) {
+                sq_body_explicit_estimate(b, L, &b->def.material, 1); /* as it was */
+                return sq_err_prefix(err, "integrator \"explicit\" refused for body '%s' level %d", b->name, j);
+            }
+        }
+    }
+    b->def.integrator = k;
+    b->def.implicit = *imp;
+    b->sleeping = 0;
+    b->calm = 0;
+    return 0;
 }

@@ -200,6 +200,7 @@ void sq_level_free(sq_level *L)
     free(L->acc);
     sq_level_corot_free(L);
     sq_level_anp_free(L);
+    sq_level_implicit_free(L);
     memset(L, 0, sizeof *L);
 }
 

@@ -60,6 +60,7 @@ typedef struct sq_constraint {
 
 typedef struct sq_corot sq_corot;
 typedef struct sq_anp sq_anp;
+typedef struct sq_implicit sq_implicit;
 
 /* the volumetric (and deviatoric) treatment of a body's tets ("pressure" in scenes and set):
  * element-wise (the standard tets), average nodal pressure, or nodal pressure with the
@@ -115,6 +116,7 @@ typedef struct sq_level {
     double bound_sharp;    /* s */
     int nsub;              /* substeps per frame */
     double dt_fixed;       /* frame_dt / nsub, s */
+    sq_implicit *implicit; /* backward Euler scratch (level/implicit.c), allocated by the first step */
 } sq_level;
 
 /* health warnings (body/body.h counts them per kind; docs/physics.md "Health"): a kind and up
@@ -130,6 +132,8 @@ typedef enum sq_health_kind {
     SQ_HEALTH_BUDGET_OVER,      /* adaptive: last frame over budget; values: ms, budget %, budget ms */
     SQ_HEALTH_BUDGET_PREDICTED, /* adaptive: next frame predicted over; values: budget %, budget ms, updates */
     SQ_HEALTH_NODE_CAP,         /* adaptive: node-update cap reached; value: the cap */
+    SQ_HEALTH_SOLVE_UNCONVERGED, /* implicit: CG stopped above its tolerance; values: residual,
+                                    iterations, tolerance, cap */
     SQ_HEALTH_NKINDS
 } sq_health_kind;
 
@@ -394,5 +398,47 @@ void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const 
                                const double *v, int store, double *f);
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
 int sq_level_corot_inverted(const sq_level *L);
+
+
+/* ---- backward Euler (level/implicit.c; docs/physics.md section 12) ---- */
+
+/* the integrator of a body: explicit (symplectic Euler at the stability bound) or implicit */
+typedef enum sq_integrator_kind { SQ_INTEGRATOR_EXPLICIT = 0, SQ_INTEGRATOR_IMPLICIT = 1 } sq_integrator_kind;
+/* CG preconditioners of the implicit solve */
+enum { SQ_PRECOND_JACOBI = 0, SQ_PRECOND_BLOCK = 1 };
+#define SQ_IMPLICIT_MAX_SUBSTEPS 64
+#define SQ_IMPLICIT_MAX_ITER 10000
+#define SQ_IMPLICIT_MAX_NEWTON 10
+
+/* the implicit step's settings (scene keys "implicit": {...}, protocol set) */
+typedef struct sq_implicit_def {
+    int substeps;   /* steps per frame, 1..SQ_IMPLICIT_MAX_SUBSTEPS (default 1: h = frame_dt) */
+    double tol;     /* CG stop: relative residual |r| / |b|, in (0, 1) (default 1e-6) */
+    int max_iter;   /* CG iteration cap per solve, 1..SQ_IMPLICIT_MAX_ITER (default 500) */
+    int precond;    /* SQ_PRECOND_* (default block Jacobi) */
+    int newton;     /* corotational: Newton iterations per step, 1..SQ_IMPLICIT_MAX_NEWTON (default 1) */
+} sq_implicit_def;
+
+/* what one step's solve did */
+typedef struct sq_implicit_stats {
+    int iterations;         /* CG iterations, all Newton iterations together */
+    double residual;        /* largest final relative CG residual of the step's solves */
+    int unconverged;        /* 1: a solve stopped at the cap, the deadline or a breakdown */
+    int newton;             /* Newton iterations done */
+    double newton_residual; /* corotational, newton > 1: |P (h f(d1, v1) - M dv)| / |rhs| after the last */
+} sq_implicit_stats;
+
+sq_implicit_def sq_implicit_def_default(void);
+/* range checks; -1 + err naming the key and its valid range */
+int sq_implicit_def_check(const sq_implicit_def *d, sq_err *err);
+
+/* one backward Euler step of size h on every node with mask[i] != 0 (mask may be NULL): nodes
+ * with mask[i] == 0 (held by a tool) move at their velocity v_i (prescribed: d_i += h v_i on the
+ * unconstrained axes) and are projected out of the solve, as are constrained axes. CG stops at def->tol, at
+ * def->max_iter, or once the thread's CPU clock (sq_thread_cpu) passes deadline (0: none) */
+void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[3], double h,
+                            const unsigned char *mask, const sq_implicit_def *def, double deadline,
+                            sq_implicit_stats *st);
+void sq_level_implicit_free(sq_level *L);
 
 #endif

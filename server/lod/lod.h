@@ -60,6 +60,10 @@ typedef struct sq_frame_profile {
     int sleeping;                      /* 1 if the body slept (no updates) this frame */
     int awake_nodes, sleeping_nodes;
     int reset;                         /* 1 if a blow-up was detected and the body reset */
+    int cg_iterations;                 /* implicit: CG iterations of the frame's solves (0: explicit) */
+    double cg_residual;                /* implicit: largest final relative CG residual of the frame */
+    int newton_iterations;             /* implicit: Newton iterations of the frame's steps */
+    double newton_residual;            /* implicit corotational, newton > 1: the last relative residual */
     char event[160];                   /* human-readable event of this frame, or empty */
     sq_health_kind event_kind;         /* its kind (SQ_HEALTH_NONE: no event) */
     double event_value[4];             /* its values (sq_health_sentence) */

@@ -1,0 +1,479 @@
+/* implicit.c - backward Euler on one level, matrix-free, by preconditioned conjugate gradients.
+ *
+ * One step of size h from (d0, v0): with P the projection onto the free axes (not constrained,
+ * not held by a tool this frame), v1 = v0 + P dv and d1 = d0 + h P v1, and the force linearised
+ * at the step's start, f(d1, v1) = f0 - h K P v1 - C P dv, backward Euler M dv = h f(d1, v1) is
+ *
+ *     P (c_m M + c_k K + c_d D) P dv = h P (f0 - h K P v0),
+ *
+ * c_m = 1 + h a, c_k = h b + h^2 with Rayleigh damping C = a M + b K, or c_m = 1, c_k = h^2,
+ * c_d = h with the viscosity blocks D. K is the operator the explicit step applies: the linear
+ * blocks, the nodal-pressure / smoothed operator (level/anp.c), or for corotational elasticity
+ * the warped stiffness R K_T R^T per tet with the rotations of the step's start (one Newton
+ * step; further Newton iterations re-linearise at the new state and report their residual).
+ * docs/physics.md section 12.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "level/corot_impl.h"
+#include "level/level.h"
+
+struct sq_implicit {
+    int n, ntets;
+    double *x, *r, *z, *p, *q;    /* CG vectors (3 n) */
+    double *rhs, *kv, *dv;        /* right-hand side, K P v0, the solved dv (3 n) */
+    double *d0, *v0;              /* the step's start state (3 n), for Newton iterations */
+    double *pre;                  /* Jacobi: inverse diagonal (3 n); block: inverse 3x3 (9 n) */
+    double *rot;                  /* corotational: R per tet (9 ntets), the linearisation's */
+    int *diag;                    /* CSR index of the diagonal block of each row (n) */
+    unsigned char *freeax;        /* free axes per node this step, bits x=1 y=2 z=4 (n) */
+};
+
+static void *imp_calloc(size_t count, size_t size) { return sq_calloc(count ? count : 1, size); }
+
+static sq_implicit *imp_get(sq_level *L)
+{
+    if (L->implicit)
+        return L->implicit;
+    const sq_level_model *M = &L->model;
+    sq_implicit *I = sq_calloc(1, sizeof *I);
+    size_t n3 = 3 * (size_t)M->n;
+    I->n = M->n;
+    I->ntets = M->mesh->ntets;
+    double **vecs[] = {&I->x, &I->r, &I->z, &I->p, &I->q, &I->rhs, &I->kv, &I->dv, &I->d0, &I->v0};
+    for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
+        *vecs[k] = imp_calloc(n3, sizeof(double));
+    I->pre = imp_calloc(9 * (size_t)M->n, sizeof(double));
+    I->rot = imp_calloc(9 * (size_t)I->ntets, sizeof(double));
+    I->diag = imp_calloc((size_t)M->n, sizeof(int));
+    I->freeax = imp_calloc((size_t)M->n, 1);
+    for (int i = 0; i < M->n; i++) {
+        I->diag[i] = -1;
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++)
+            if (M->col[e] == i)
+                I->diag[i] = e;
+    }
+    L->implicit = I;
+    return I;
+}
+
+void sq_level_implicit_free(sq_level *L)
+{
+    sq_implicit *I = L->implicit;
+    if (!I)
+        return;
+    double *vecs[] = {I->x, I->r, I->z, I->p, I->q, I->rhs, I->kv, I->dv, I->d0, I->v0, I->pre, I->rot};
+    for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
+        free(vecs[k]);
+    free(I->diag);
+    free(I->freeax);
+    free(I);
+    L->implicit = NULL;
+}
+
+/* the operator of one solve: y = P (c_m M + c_k K + c_d D) P x */
+typedef struct imp_op {
+    const sq_level *L;
+    const sq_material *mat;
+    const sq_implicit *I;
+    double cm, ck, cd;
+} imp_op;
+
+/* y = K x for the operator the step applies (x already projected) */
+static void apply_k(const imp_op *o, const double *x, double *y)
+{
+    const sq_level *L = o->L;
+    const sq_level_model *M = &L->model;
+    const size_t n3 = 3 * (size_t)M->n;
+    if (L->anp) {
+        sq_level_anp_apply(L, x, y);
+        return;
+    }
+    if (L->corot) {
+        const sq_corot *C = L->corot;
+        memset(y, 0, sizeof(double) * n3);
+        for (int t = 0; t < C->ntets; t++) {
+            const int *tv = M->mesh->tets + 4 * (size_t)t;
+            const double *R = o->I->rot + 9 * (size_t)t;
+            double G[10], F[9], S[9], sig[9], P[9];
+            tet_load(C, t, G, NULL);
+            tet_grad(G, tv, x, NULL, 0, F, 0.0);
+            rt_mul(R, F, S);
+            add_stress(S, C->mu, C->lambda, 0.0, sig, 0);
+            const double V = G[9];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++)
+                    P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
+            double s0 = 0, s1 = 0, s2 = 0;
+            for (int k = 0; k < 3; k++) {
+                const double *a = G + 3 * k;
+                const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
+                const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
+                const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
+                double *yk = y + 3 * (size_t)tv[k];
+                yk[0] += f0, yk[1] += f1, yk[2] += f2;
+                s0 += f0, s1 += f1, s2 += f2;
+            }
+            double *y3 = y + 3 * (size_t)tv[3];
+            y3[0] -= s0, y3[1] -= s1, y3[2] -= s2;
+        }
+        return;
+    }
+    for (int i = 0; i < M->n; i++) {
+        double s0 = 0, s1 = 0, s2 = 0;
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+            const double *B = M->K + 9 * (size_t)e, *xj = x + 3 * (size_t)M->col[e];
+            s0 += B[0] * xj[0] + B[1] * xj[1] + B[2] * xj[2];
+            s1 += B[3] * xj[0] + B[4] * xj[1] + B[5] * xj[2];
+            s2 += B[6] * xj[0] + B[7] * xj[1] + B[8] * xj[2];
+        }
+        y[3 * i] = s0, y[3 * i + 1] = s1, y[3 * i + 2] = s2;
+    }
+}
+
+/* zero the axes that are not free */
+static void project(const sq_implicit *I, double *x)
+{
+    for (int i = 0; i < I->n; i++) {
+        unsigned fa = I->freeax[i];
+        if (fa == 7)
+            continue;
+        for (int c = 0; c < 3; c++)
+            if (!(fa & (1u << c)))
+                x[3 * i + c] = 0;
+    }
+}
+
+static void apply_a(const imp_op *o, const double *x, double *y)
+{
+    const sq_level_model *M = &o->L->model;
+    apply_k(o, x, y);
+    for (int i = 0; i < M->n; i++) {
+        const double mi = o->cm * M->mass[i];
+        for (int c = 0; c < 3; c++)
+            y[3 * i + c] = mi * x[3 * i + c] + o->ck * y[3 * i + c];
+    }
+    if (o->cd != 0 && M->D) /* viscosity blocks: y += c_d D x */
+        for (int i = 0; i < M->n; i++) {
+            double out[3] = {0, 0, 0};
+            sq_level_row(M, M->D, x, i, out); /* out = -D x */
+            for (int c = 0; c < 3; c++)
+                y[3 * i + c] -= o->cd * out[c];
+        }
+    project(o->I, y);
+}
+
+/* corotational: the rotations of the current state (converged from the stored ones and stored),
+ * copied per tet for the warped stiffness */
+static void corot_linearise(sq_level *L)
+{
+    sq_implicit *I = L->implicit;
+    const sq_corot *C = L->corot;
+    sq_level_corot_converge(L);
+    for (int t = 0; t < C->ntets; t++) {
+        double G[10], q[4];
+        tet_load(C, t, G, q);
+        quat_mat(q, I->rot + 9 * (size_t)t);
+    }
+}
+
+/* 3x3 symmetric inverse of B (row-major) into out; rows/columns of axes not in fa are taken
+ * as identity and come out zero; 0 if singular (then out = 0) */
+static int inv3_free(const double *Bin, unsigned fa, double *out)
+{
+    double B[9];
+    memcpy(B, Bin, sizeof B);
+    for (int c = 0; c < 3; c++)
+        if (!(fa & (1u << c)))
+            for (int k = 0; k < 3; k++) {
+                B[3 * c + k] = B[3 * k + c] = (k == c);
+            }
+    double c00 = B[4] * B[8] - B[5] * B[7], c01 = B[5] * B[6] - B[3] * B[8], c02 = B[3] * B[7] - B[4] * B[6];
+    double det = B[0] * c00 + B[1] * c01 + B[2] * c02;
+    memset(out, 0, 9 * sizeof(double));
+    if (!(fabs(det) > 0) || !isfinite(det))
+        return 0;
+    double id = 1.0 / det;
+    out[0] = c00 * id;
+    out[1] = (B[2] * B[7] - B[1] * B[8]) * id;
+    out[2] = (B[1] * B[5] - B[2] * B[4]) * id;
+    out[3] = c01 * id;
+    out[4] = (B[0] * B[8] - B[2] * B[6]) * id;
+    out[5] = (B[2] * B[3] - B[0] * B[5]) * id;
+    out[6] = c02 * id;
+    out[7] = (B[1] * B[6] - B[0] * B[7]) * id;
+    out[8] = (B[0] * B[4] - B[1] * B[3]) * id;
+    for (int c = 0; c < 3; c++)
+        if (!(fa & (1u << c)))
+            for (int k = 0; k < 3; k++)
+                out[3 * c + k] = out[3 * k + c] = 0;
+    return 1;
+}
+
+/* the diagonal blocks of c_m M + c_k K + c_d D into pre (9 per node); corotational: the
+ * rotated element blocks R K_T,ii R^T summed over the node's tets */
+static void diag_blocks(const imp_op *o, double *blk)
+{
+    const sq_level *L = o->L;
+    const sq_level_model *M = &L->model;
+    const sq_implicit *I = o->I;
+    memset(blk, 0, sizeof(double) * 9 * (size_t)M->n);
+    if (L->corot) {
+        const sq_corot *C = L->corot;
+        for (int t = 0; t < C->ntets; t++) {
+            const int *tv = M->mesh->tets + 4 * (size_t)t;
+            const double *R = I->rot + 9 * (size_t)t;
+            double G[10];
+            tet_load(C, t, G, NULL);
+            double a[4][3];
+            for (int c = 0; c < 3; c++) {
+                a[0][c] = G[c], a[1][c] = G[3 + c], a[2][c] = G[6 + c];
+                a[3][c] = -(a[0][c] + a[1][c] + a[2][c]);
+            }
+            for (int k = 0; k < 4; k++) {
+                double B[9] = {0}, RB[9];
+                sq_level_tet_block(SQ_OPERATOR_FEM, G[9], a[k], a[k], C->mu, C->lambda, B);
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        RB[3 * r + c] = R[3 * r] * B[c] + R[3 * r + 1] * B[3 + c] + R[3 * r + 2] * B[6 + c];
+                double *out = blk + 9 * (size_t)tv[k];
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        out[3 * r + c] += o->ck * (RB[3 * r] * R[3 * c] + RB[3 * r + 1] * R[3 * c + 1] +
+                                                   RB[3 * r + 2] * R[3 * c + 2]);
+            }
+        }
+    } else {
+        for (int i = 0; i < M->n; i++)
+            if (I->diag[i] >= 0)
+                for (int k = 0; k < 9; k++)
+                    blk[9 * (size_t)i + k] = o->ck * M->K[9 * (size_t)I->diag[i] + k];
+    }
+    for (int i = 0; i < M->n; i++) {
+        double *out = blk + 9 * (size_t)i;
+        if (o->cd != 0 && M->D && I->diag[i] >= 0)
+            for (int k = 0; k < 9; k++)
+                out[k] += o->cd * M->D[9 * (size_t)I->diag[i] + k];
+        for (int c = 0; c < 3; c++)
+            out[4 * c] += o->cm * M->mass[i];
+    }
+}
+
+/* the preconditioner's data for this solve */
+static void precond_setup(const imp_op *o, int kind)
+{
+    const sq_level_model *M = &o->L->model;
+    sq_implicit *I = (sq_implicit *)o->I;
+    double *blk = sq_malloc(sizeof(double) * 9 * (size_t)M->n);
+    diag_blocks(o, blk);
+    for (int i = 0; i < M->n; i++) {
+        const double *B = blk + 9 * (size_t)i;
+        double *out = I->pre + 9 * (size_t)i;
+        unsigned fa = I->freeax[i];
+        if (kind == SQ_PRECOND_BLOCK) {
+            if (!inv3_free(B, fa, out)) /* singular block: fall back to its diagonal */
+                for (int c = 0; c < 3; c++)
+                    out[4 * c] = (fa & (1u << c)) && B[4 * c] > 0 ? 1.0 / B[4 * c] : 0;
+        } else {
+            for (int c = 0; c < 3; c++)
+                out[c] = (fa & (1u << c)) && B[4 * c] > 0 ? 1.0 / B[4 * c] : 0;
+        }
+    }
+    free(blk);
+}
+
+static void precond_apply(const sq_implicit *I, int kind, const double *r, double *z)
+{
+    if (kind == SQ_PRECOND_BLOCK) {
+        for (int i = 0; i < I->n; i++) {
+            const double *B = I->pre + 9 * (size_t)i, *ri = r + 3 * (size_t)i;
+            double *zi = z + 3 * (size_t)i;
+            zi[0] = B[0] * ri[0] + B[1] * ri[1] + B[2] * ri[2];
+            zi[1] = B[3] * ri[0] + B[4] * ri[1] + B[5] * ri[2];
+            zi[2] = B[6] * ri[0] + B[7] * ri[1] + B[8] * ri[2];
+        }
+    } else {
+        for (int i = 0; i < I->n; i++)
+            for (int c = 0; c < 3; c++)
+                z[3 * i + c] = I->pre[9 * (size_t)i + c] * r[3 * i + c];
+    }
+}
+
+static double dot(const double *a, const double *b, size_t n)
+{
+    double s = 0;
+    for (size_t k = 0; k < n; k++)
+        s += a[k] * b[k];
+    return s;
+}
+
+/* A x = b (b projected) from x = 0; stops at |r| <= tol |b|, at max_iter, or when the thread's
+ * CPU clock passes deadline (> 0); returns iterations, *relres the final |r| / |b| */
+static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, double *x, double deadline,
+               double *relres, int *capped)
+{
+    sq_implicit *I = (sq_implicit *)o->I;
+    const size_t n3 = 3 * (size_t)I->n;
+    double *r = I->r, *z = I->z, *p = I->p, *q = I->q;
+    memset(x, 0, sizeof(double) * n3);
+    memcpy(r, b, sizeof(double) * n3);
+    const double bnorm = sqrt(dot(b, b, n3));
+    *relres = 0;
+    *capped = 0;
+    if (!(bnorm > 0))
+        return 0;
+    precond_apply(I, def->precond, r, z);
+    memcpy(p, z, sizeof(double) * n3);
+    double rz = dot(r, z, n3), rr = bnorm * bnorm;
+    int it = 0;
+    while (sqrt(rr) > def->tol * bnorm) {
+        if (it >= def->max_iter || (deadline > 0 && (it & 3) == 3 && sq_thread_cpu() > deadline)) {
+            *capped = 1;
+            break;
+        }
+        apply_a(o, p, q);
+        const double pq = dot(p, q, n3);
+        if (!(pq > 0)) {
+            *capped = 1; /* breakdown (round-off at convergence, or a non-positive operator) */
+            break;
+        }
+        const double alpha = rz / pq;
+        for (size_t k = 0; k < n3; k++) {
+            x[k] += alpha * p[k];
+            r[k] -= alpha * q[k];
+        }
+        precond_apply(I, def->precond, r, z);
+        const double rz2 = dot(r, z, n3);
+        rr = dot(r, r, n3);
+        const double beta = rz2 / rz;
+        rz = rz2;
+        for (size_t k = 0; k < n3; k++)
+            p[k] = z[k] + beta * p[k];
+        it++;
+    }
+    *relres = sqrt(rr) / bnorm;
+    return it;
+}
+
+/* the force of the current state into L->f (corotational: rotations converged and stored) */
+static void forces_now(sq_level *L, const sq_material *mat, const double g[3])
+{
+    if (L->corot)
+        corot_linearise(L);
+    sq_level_forces(L, mat, g, NULL);
+}
+
+int sq_implicit_def_check(const sq_implicit_def *d, sq_err *err)
+{
+    if (d->substeps < 1 || d->substeps > SQ_IMPLICIT_MAX_SUBSTEPS)
+        return sq_err_set(err, "implicit substeps %d out of range: give 1..%d steps per frame", d->substeps,
+                          SQ_IMPLICIT_MAX_SUBSTEPS);
+    if (!(d->tol > 0) || !(d->tol < 1))
+        return sq_err_set(err, "cg_tolerance %g out of range: give a relative residual in (0, 1), e.g. 1e-6",
+                          d->tol);
+    if (d->max_iter < 1 || d->max_iter > SQ_IMPLICIT_MAX_ITER)
+        return sq_err_set(err, "cg_max_iterations %d out of range: give 1..%d", d->max_iter, SQ_IMPLICIT_MAX_ITER);
+    if (d->precond < 0 || d->precond > SQ_PRECOND_BLOCK)
+        return sq_err_set(err, "unknown preconditioner %d: use \"jacobi\" or \"block_jacobi\"", d->precond);
+    if (d->newton < 1 || d->newton > SQ_IMPLICIT_MAX_NEWTON)
+        return sq_err_set(err, "newton_iterations %d out of range: give 1..%d", d->newton, SQ_IMPLICIT_MAX_NEWTON);
+    return 0;
+}
+
+sq_implicit_def sq_implicit_def_default(void)
+{
+    sq_implicit_def d = {.substeps = 1, .tol = 1e-6, .max_iter = 500, .precond = SQ_PRECOND_BLOCK, .newton = 1};
+    return d;
+}
+
+void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[3], double h,
+                            const unsigned char *mask, const sq_implicit_def *def, double deadline,
+                            sq_implicit_stats *st)
+{
+    sq_implicit *I = imp_get(L);
+    const sq_level_model *M = &L->model;
+    const int n = M->n;
+    const size_t n3 = 3 * (size_t)n;
+    for (int i = 0; i < n; i++)
+        I->freeax[i] = (mask && !mask[i]) ? 0 : (unsigned char)(~M->fixed[i] & 7u);
+    imp_op o = {.L = L, .mat = mat, .I = I};
+    if (mat->use_viscosity && M->D && !L->corot) {
+        o.cm = 1 + h * mat->rayleigh_mass;
+        o.ck = h * h;
+        o.cd = h;
+    } else {
+        o.cm = 1 + h * mat->rayleigh_mass;
+        o.ck = h * mat->rayleigh_stiffness + h * h;
+        o.cd = 0;
+    }
+    if (L->corot && mat->use_viscosity)
+        o.ck = h * h; /* corotational viscosity is not in the implicit operator: docs/physics.md */
+    memcpy(I->d0, L->d, sizeof(double) * n3);
+    memcpy(I->v0, L->v, sizeof(double) * n3);
+
+    /* f0 at the step's start (corotational: the rotations of the linearisation) */
+    forces_now(L, mat, g);
+    /* rhs = h P (f0 - h K w), w = P v0 + H u: the free nodes' velocities and the held nodes'
+     * prescribed ones u (their displacement advances by h u in the step: a tool's motion enters
+     * the solve as a known increment, not as a jump of the start state) */
+    for (int i = 0; i < n; i++) {
+        unsigned fx = M->fixed[i];
+        for (int c = 0; c < 3; c++)
+            I->x[3 * i + c] = (fx & (1u << c)) ? 0 : L->v[3 * i + c];
+    }
+    apply_k(&o, I->x, I->kv);
+    for (size_t k = 0; k < n3; k++)
+        I->rhs[k] = h * (L->f[k] - h * I->kv[k]);
+    project(I, I->rhs);
+    double rhs0 = sqrt(dot(I->rhs, I->rhs, n3));
+    /* held nodes move first: d += h u on their unconstrained axes */
+    if (mask)
+        for (int i = 0; i < n; i++)
+            if (!mask[i])
+                for (int c = 0; c < 3; c++)
+                    if (!(M->fixed[i] & (1u << c)))
+                        L->d[3 * i + c] += h * L->v[3 * i + c];
+
+    memset(st, 0, sizeof *st);
+    memset(I->dv, 0, sizeof(double) * n3);
+    for (int nt = 0; nt < def->newton; nt++) {
+        precond_setup(&o, def->precond);
+        double relres;
+        int capped;
+        st->iterations += pcg(&o, def, I->rhs, I->x, deadline, &relres, &capped);
+        if (nt == 0 || relres > st->residual)
+            st->residual = relres;
+        st->unconverged |= capped;
+        for (size_t k = 0; k < n3; k++)
+            I->dv[k] += I->x[k];
+        /* the new state: v1 = v0 + P dv, d1 = d0 + h P v1 */
+        for (int i = 0; i < n; i++) {
+            unsigned fa = I->freeax[i];
+            for (int c = 0; c < 3; c++) {
+                size_t k = 3 * (size_t)i + c;
+                if (fa & (1u << c)) {
+                    L->v[k] = I->v0[k] + I->dv[k];
+                    L->d[k] = I->d0[k] + h * L->v[k];
+                }
+            }
+        }
+        st->newton = nt + 1;
+        if (!L->corot || def->newton == 1)
+            break;
+        /* Newton residual P (h f(d1, v1) - M dv), re-linearised at the new state */
+        forces_now(L, mat, g);
+        for (int i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++) {
+                size_t k = 3 * (size_t)i + c;
+                I->rhs[k] = h * L->f[k] - M->mass[i] * I->dv[k];
+            }
+        project(I, I->rhs);
+        st->newton_residual = rhs0 > 0 ? sqrt(dot(I->rhs, I->rhs, n3)) / rhs0 : 0;
+        if (st->newton_residual <= def->tol)
+            break;
+    }
+    /* L->f holds the last force pass's values (the step's start, or with Newton iterations an
+     * intermediate state): the caller evaluates the end state's force when it needs it */
+}
