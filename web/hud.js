@@ -58,6 +58,9 @@ export function onStats(m) {
     buildLegend(shown, Math.max(legendListed, m.active_nodes.length), m.active_nodes);
   }
   $('hud-updates').textContent = fmt(m.node_updates);
+  // implicit bodies: the frame's CG iterations and final relative residual ('-' when none is implicit)
+  if (typeof m.cg_iterations === 'number')
+    $('hud-cg').textContent = m.cg_iterations > 0 ? `${fmt(m.cg_iterations)} (res ${m.cg_residual.toExponential(1)})` : '-';
   if (Array.isArray(m.bodies)) {
     // health warnings by kind, summed over bodies (sleep and wake are routine: left out)
     const sum = {};

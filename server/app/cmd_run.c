@@ -293,7 +293,7 @@ int sq_cmd_run(int argc, char **argv)
     fprintf(fs, "frame,time,node_updates,wall_ms");
     for (int k = 0; k < maxl; k++)
         fprintf(fs, ",active_l%d", k);
-    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,health,missed\n");
+    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,health,missed,cg_iterations,cg_residual\n");
     write_probe_rows(fp, w);
 
     double mass[SQ_MAX_BODIES];
@@ -316,7 +316,8 @@ int sq_cmd_run(int argc, char **argv)
         sq_world_step(w, budget);
         long nu = 0;
         int active[SQ_MAX_LEVELS] = {0}, splits = 0, merges = 0, resets = 0, refused = 0;
-        double ke = 0;
+        long cg_it = 0;
+        double ke = 0, cg_res = 0;
         char health[96] = ""; /* the frame's health warning kinds, '+' between bodies */
         for (int b = 0; b < w->nbodies; b++) {
             const sq_frame_profile *pr = &w->profile[b];
@@ -324,6 +325,8 @@ int sq_cmd_run(int argc, char **argv)
                 snprintf(health + strlen(health), sizeof health - strlen(health), "%s%s", health[0] ? "+" : "",
                          sq_health_kind_name(pr->event_kind));
             nu += pr->node_updates;
+            cg_it += pr->cg_iterations;
+            cg_res = SQ_MAX(cg_res, pr->cg_residual);
             iface[0] += pr->ring_values;
             iface[1] += pr->ring_rows;
             iface[2] += pr->frontier_rows;
@@ -351,8 +354,8 @@ int sq_cmd_run(int argc, char **argv)
         fprintf(fs, "%ld,%.9e,%ld,%.3f", w->frame, w->time, nu, 1000.0 * w->last_frame_s);
         for (int k = 0; k < maxl; k++)
             fprintf(fs, ",%d", active[k]);
-        fprintf(fs, ",%d,%d,%d,%.9e,%d,%s,%ld\n", splits, merges, resets, ke, refused, health,
-                w->deadline_misses - missed0);
+        fprintf(fs, ",%d,%d,%d,%.9e,%d,%s,%ld,%ld,%.3e\n", splits, merges, resets, ke, refused, health,
+                w->deadline_misses - missed0, cg_it, cg_res);
         write_probe_rows(fp, w);
         write_tool_rows(ft, w);
         sq_progress_update(&prog, (double)w->frame);

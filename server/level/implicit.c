@@ -365,6 +365,18 @@ static void forces_now(sq_level *L, const sq_material *mat, const double g[3])
     sq_level_forces(L, mat, g, NULL);
 }
 
+/* kinetic + elastic + gravity potential energy of the state, J */
+static double total_energy(const sq_level *L, const double g[3])
+{
+    const sq_level_model *M = &L->model;
+    double e = sq_level_elastic_energy(L);
+    for (int i = 0; i < M->n; i++) {
+        const double *v = L->v + 3 * (size_t)i, *d = L->d + 3 * (size_t)i;
+        e += M->mass[i] * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g[0] * d[0] + g[1] * d[1] + g[2] * d[2]));
+    }
+    return e;
+}
+
 int sq_implicit_def_check(const sq_implicit_def *d, sq_err *err)
 {
     if (d->substeps < 1 || d->substeps > SQ_IMPLICIT_MAX_SUBSTEPS)
@@ -412,6 +424,9 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
         o.ck = h * h; /* corotational viscosity is not in the implicit operator: docs/physics.md */
     memcpy(I->d0, L->d, sizeof(double) * n3);
     memcpy(I->v0, L->v, sizeof(double) * n3);
+    /* corotational without holds: the start energy, for the Newton iterations' energy guard */
+    const int e0_known = L->corot && !mask;
+    const double e0 = e0_known ? total_energy(L, g) : 0;
 
     /* f0 at the step's start (corotational: the rotations of the linearisation) */
     forces_now(L, mat, g);
@@ -438,7 +453,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
 
     memset(st, 0, sizeof *st);
     memset(I->dv, 0, sizeof(double) * n3);
-    for (int nt = 0; nt < def->newton; nt++) {
+    for (int nt = 0;; nt++) {
         precond_setup(&o, def->precond);
         double relres;
         int capped;
@@ -460,18 +475,29 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             }
         }
         st->newton = nt + 1;
-        if (!L->corot || def->newton == 1)
-            break;
-        /* Newton residual P (h f(d1, v1) - M dv), re-linearised at the new state */
-        forces_now(L, mat, g);
-        for (int i = 0; i < n; i++)
-            for (int c = 0; c < 3; c++) {
-                size_t k = 3 * (size_t)i + c;
-                I->rhs[k] = h * L->f[k] - M->mass[i] * I->dv[k];
-            }
-        project(I, I->rhs);
-        st->newton_residual = rhs0 > 0 ? sqrt(dot(I->rhs, I->rhs, n3)) / rhs0 : 0;
-        if (st->newton_residual <= def->tol)
+        if (!L->corot)
+            break; /* linear (and nodal-pressure) bodies: the one solve is the step */
+        /* corotational: the Newton iterations asked for, and more (up to the maximum) while the
+         * energy of a body no tool holds is above the step's start: the warped stiffness is not
+         * the exact tangent, so one iteration alone may add energy; converged, backward Euler
+         * cannot */
+        int more = nt + 1 < def->newton;
+        if (!more && e0_known && nt + 1 < SQ_IMPLICIT_MAX_NEWTON)
+            more = total_energy(L, g) > e0 + 1e-12 * fabs(e0);
+        if (more || def->newton > 1) {
+            /* Newton residual P (h f(d1, v1) - M dv), re-linearised at the new state */
+            forces_now(L, mat, g);
+            for (int i = 0; i < n; i++)
+                for (int c = 0; c < 3; c++) {
+                    size_t k = 3 * (size_t)i + c;
+                    I->rhs[k] = h * L->f[k] - M->mass[i] * I->dv[k];
+                }
+            project(I, I->rhs);
+            st->newton_residual = rhs0 > 0 ? sqrt(dot(I->rhs, I->rhs, n3)) / rhs0 : 0;
+            if (st->newton_residual <= def->tol)
+                more = 0;
+        }
+        if (!more)
             break;
     }
     /* L->f holds the last force pass's values (the step's start, or with Newton iterations an

@@ -87,6 +87,10 @@ static void do_set(sq_session *s, const sq_job *j)
     sq_lod_def old_lod[SQ_MAX_BODIES];
     sq_elasticity_kind old_el[SQ_MAX_BODIES];
     int old_np[SQ_MAX_BODIES];
+    sq_integrator_kind old_in[SQ_MAX_BODIES];
+    sq_implicit_def old_imp[SQ_MAX_BODIES];
+    int changed_int = r->set.has_integrator || r->set.has_substeps || r->set.has_tol || r->set.has_max_iter ||
+                      r->set.has_precond || r->set.has_newton;
     int changed_mat = r->set.has_E || r->set.has_nu || r->set.has_density || r->set.has_operator ||
                       r->set.has_mass || r->set.has_stiffness;
     int changed_lod = r->set.has_mode || r->set.has_level || r->set.has_split || r->set.has_merge ||
@@ -99,8 +103,21 @@ static void do_set(sq_session *s, const sq_job *j)
         old_lod[b] = d->lod;
         old_el[b] = d->elasticity;
         old_np[b] = d->nodal_pressure;
+        old_in[b] = d->integrator;
+        old_imp[b] = d->implicit;
         sq_err err = {{0}};
         int rc = 0;
+        /* integrator: the implicit settings merged into the body's; explicit first (before a
+         * change to adaptive lod), implicit last (it needs fixed lod, which this request may set) */
+        sq_implicit_def imp = d->implicit;
+        if (r->set.has_substeps) imp.substeps = r->set.implicit.substeps;
+        if (r->set.has_tol) imp.tol = r->set.implicit.tol;
+        if (r->set.has_max_iter) imp.max_iter = r->set.implicit.max_iter;
+        if (r->set.has_precond) imp.precond = r->set.implicit.precond;
+        if (r->set.has_newton) imp.newton = r->set.implicit.newton;
+        sq_integrator_kind ik = r->set.has_integrator ? r->set.integrator : d->integrator;
+        if (changed_int && ik == SQ_INTEGRATOR_EXPLICIT)
+            rc = sq_body_set_integrator(body, ik, &imp, &err);
         /* pressure: element first, nodal or smoothed last (they need fem, linear and fixed lod) */
         if (r->set.has_pressure && !r->set.nodal_pressure)
             rc = sq_body_set_pressure(body, 0, &err);
@@ -161,10 +178,19 @@ static void do_set(sq_session *s, const sq_job *j)
             if (changed_mat)
                 sq_body_set_material(body, &old_m[b], old_op[b], NULL);
         }
+        if (!rc && changed_int && ik == SQ_INTEGRATOR_IMPLICIT &&
+            (rc = sq_body_set_integrator(body, ik, &imp, &err)) < 0) {
+            if (changed_lod)
+                sq_body_set_lod(body, &old_lod[b], NULL);
+            if (changed_mat)
+                sq_body_set_material(body, &old_m[b], old_op[b], NULL);
+        }
         if (rc && r->set.has_elasticity)
             sq_body_set_elasticity(body, old_el[b], NULL);
         if (rc && r->set.has_pressure)
             sq_body_set_pressure(body, old_np[b], NULL);
+        if (rc && changed_int) /* back as it was */
+            sq_body_set_integrator(body, old_in[b], &old_imp[b], NULL);
         if (rc) {
             /* undo the bodies already changed, then refuse */
             for (int k = b0; k < b; k++) {
@@ -180,6 +206,8 @@ static void do_set(sq_session *s, const sq_job *j)
                     sq_body_set_elasticity(w->bodies[k], old_el[k], NULL);
                 if (r->set.has_pressure && old_np[k])
                     sq_body_set_pressure(w->bodies[k], old_np[k], NULL);
+                if (changed_int)
+                    sq_body_set_integrator(w->bodies[k], old_in[k], &old_imp[k], NULL);
             }
             char msg[400];
             snprintf(msg, sizeof msg, "body %d (\"%.40s\"): %.260s", b, s->scene->body_names[b], err.msg);
@@ -194,6 +222,8 @@ static void do_set(sq_session *s, const sq_job *j)
     double budget = frac * s->period;
     if (p.seconds > budget) {
         for (int k = b0; k < b1; k++) {
+            if (changed_int)
+                sq_body_set_integrator(w->bodies[k], old_in[k], &old_imp[k], NULL);
             if (changed_lod)
                 sq_body_set_lod(w->bodies[k], &old_lod[k], NULL);
             if (changed_mat)

@@ -99,6 +99,10 @@ typedef struct sq_request {
         int has_elasticity;
         sq_elasticity_kind elasticity;
         int has_pressure, nodal_pressure;
+        int has_integrator;            /* "integrator" given */
+        sq_integrator_kind integrator;
+        int has_substeps, has_tol, has_max_iter, has_precond, has_newton; /* "implicit" fields */
+        sq_implicit_def implicit;      /* the given fields (the others unused) */
         int has_mass, has_stiffness;   /* damping */
         double mass, stiffness;
         int has_mode, has_level, has_split, has_merge, has_max_level, has_budget, has_adapt_every;

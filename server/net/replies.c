@@ -108,6 +108,13 @@ cJSON *sq_settings_json(const sq_world *w, int bi)
     cJSON_AddStringToObject(o, "pressure", d->nodal_pressure == SQ_PRESSURE_SMOOTHED ? "smoothed"
                                             : d->nodal_pressure                      ? "nodal"
                                                                                      : "element");
+    cJSON_AddStringToObject(o, "integrator", d->integrator == SQ_INTEGRATOR_IMPLICIT ? "implicit" : "explicit");
+    cJSON *im = cJSON_AddObjectToObject(o, "implicit");
+    cJSON_AddNumberToObject(im, "substeps", d->implicit.substeps);
+    cJSON_AddNumberToObject(im, "cg_tolerance", d->implicit.tol);
+    cJSON_AddNumberToObject(im, "cg_max_iterations", d->implicit.max_iter);
+    cJSON_AddStringToObject(im, "preconditioner", d->implicit.precond == SQ_PRECOND_JACOBI ? "jacobi" : "block_jacobi");
+    cJSON_AddNumberToObject(im, "newton_iterations", d->implicit.newton);
     cJSON *l = cJSON_AddObjectToObject(o, "lod");
     cJSON_AddStringToObject(l, "mode", d->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed");
     cJSON_AddNumberToObject(l, "level", sq_world_listed_level(w, bi, d->lod.level));
@@ -214,7 +221,7 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
     int maxl = 0, sleeping = 0;
     int bact[SQ_MAX_BODIES][SQ_MAX_LEVELS] = {{0}}, bsub[SQ_MAX_BODIES][SQ_MAX_LEVELS] = {{0}};
     int blen[SQ_MAX_BODIES] = {0};
-    double updates = 0;
+    double updates = 0, cg_it = 0, cg_res = 0;
     for (int b = 0; b < p->nbodies; b++) {
         for (int k = 0; k < p->nlevels[b]; k++) {
             int li = s->scene ? s->scene->level_index[b][k] : k;
@@ -227,6 +234,8 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
         maxl = SQ_MAX(maxl, blen[b]);
         sleeping += p->sleeping[b] != 0;
         updates += (double)p->node_updates[b];
+        cg_it += p->cg_iterations[b];
+        cg_res = SQ_MAX(cg_res, p->cg_residual[b]);
     }
     double act[SQ_MAX_LEVELS] = {0};
     for (int b = 0; b < p->nbodies; b++)
@@ -234,6 +243,8 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
             act[l] += bact[b][l];
     cJSON_AddItemToObject(o, "active_nodes", cJSON_CreateDoubleArray(act, maxl));
     cJSON_AddNumberToObject(o, "node_updates", updates);
+    cJSON_AddNumberToObject(o, "cg_iterations", cg_it);
+    cJSON_AddNumberToObject(o, "cg_residual", cg_res);
     cJSON_AddNumberToObject(o, "sleeping", sleeping);
     cJSON *fb = cJSON_AddArrayToObject(o, "feedback");
     for (int b = 0; b < p->nbodies; b++)
@@ -252,6 +263,8 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
         cJSON_AddNumberToObject(e, "id", b);
         cJSON_AddItemToObject(e, "active_nodes", cJSON_CreateIntArray(bact[b], blen[b]));
         cJSON_AddNumberToObject(e, "node_updates", (double)p->node_updates[b]);
+        cJSON_AddNumberToObject(e, "cg_iterations", p->cg_iterations[b]);
+        cJSON_AddNumberToObject(e, "cg_residual", p->cg_residual[b]);
         cJSON_AddItemToObject(e, "substeps", cJSON_CreateIntArray(bsub[b], blen[b]));
         cJSON_AddBoolToObject(e, "sleeping", p->sleeping[b]);
         cJSON_AddNumberToObject(e, "splits", p->splits[b]);

@@ -211,6 +211,8 @@ static const char *const operators[] = {"fem", "paper", NULL};
 static const char *const elasticities[] = {"linear", "corotational", NULL};
 static const char *const pressures[] = {"element", "nodal", "smoothed", NULL}; /* SQ_PRESSURE_* */
 static const char *const lod_modes[] = {"fixed", "adaptive", NULL};
+static const char *const integrators[] = {"explicit", "implicit", NULL};
+static const char *const preconditioners[] = {"jacobi", "block_jacobi", NULL}; /* SQ_PRECOND_* */
 
 static int decode_hello(const cJSON *o, sq_request *r, sq_net_error *err)
 {
@@ -340,8 +342,10 @@ static int decode_body(const cJSON *o, const char *path, int *body, sq_net_error
 static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
 {
     static const char *const f[] = {"type", "ref", "body", "material", "operator", "damping",
-                                    "lod", "elasticity", "pressure", NULL};
+                                    "lod", "elasticity", "pressure", "integrator", "implicit", NULL};
     static const char *const fm[] = {"E", "nu", "density", NULL};
+    static const char *const fi[] = {"substeps", "cg_tolerance", "cg_max_iterations", "preconditioner",
+                                     "newton_iterations", NULL};
     static const char *const fd[] = {"mass", "stiffness", NULL};
     static const char *const fl[] = {"mode", "level", "split", "merge", "max_level", "budget",
                                      "adapt_every", NULL};
@@ -391,6 +395,45 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
             return -1;
         r->set.has_pressure = given = 1;
         r->set.nodal_pressure = e;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(o, "integrator"))) {
+        if (get_enum(v, "set.integrator", integrators, &e, err))
+            return -1;
+        r->set.has_integrator = given = 1;
+        r->set.integrator = e ? SQ_INTEGRATOR_IMPLICIT : SQ_INTEGRATOR_EXPLICIT;
+    }
+    if ((m = cJSON_GetObjectItemCaseSensitive(o, "implicit"))) {
+        if (expect_object(m, "set.implicit", err) || check_fields(m, "set.implicit", fi, err))
+            return -1;
+        sq_implicit_def *im = &r->set.implicit;
+        if ((v = cJSON_GetObjectItemCaseSensitive(m, "substeps"))) {
+            if (get_int(v, "set.implicit.substeps", 1, SQ_IMPLICIT_MAX_SUBSTEPS, &im->substeps, err))
+                return -1;
+            r->set.has_substeps = given = 1;
+        }
+        if ((v = cJSON_GetObjectItemCaseSensitive(m, "cg_tolerance"))) {
+            if (get_number(v, "set.implicit.cg_tolerance", 0, 1, 1, &im->tol, err))
+                return -1;
+            if (!(im->tol < 1))
+                return fail(err, SQ_CODE_OUT_OF_RANGE, "set.implicit.cg_tolerance: %g is outside (0, 1); send a "
+                            "relative residual such as 1e-6", im->tol);
+            r->set.has_tol = given = 1;
+        }
+        if ((v = cJSON_GetObjectItemCaseSensitive(m, "cg_max_iterations"))) {
+            if (get_int(v, "set.implicit.cg_max_iterations", 1, SQ_IMPLICIT_MAX_ITER, &im->max_iter, err))
+                return -1;
+            r->set.has_max_iter = given = 1;
+        }
+        if ((v = cJSON_GetObjectItemCaseSensitive(m, "preconditioner"))) {
+            if (get_enum(v, "set.implicit.preconditioner", preconditioners, &im->precond, err))
+                return -1;
+            r->set.has_precond = given = 1;
+        }
+        if ((v = cJSON_GetObjectItemCaseSensitive(m, "newton_iterations"))) {
+            if (get_int(v, "set.implicit.newton_iterations", 1, SQ_IMPLICIT_MAX_NEWTON, &im->newton, err))
+                return -1;
+            r->set.has_newton = given = 1;
+        }
     }
     if ((m = cJSON_GetObjectItemCaseSensitive(o, "damping"))) {
         if (expect_object(m, "set.damping", err) || check_fields(m, "set.damping", fd, err))
@@ -448,7 +491,8 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
     }
     if (!given)
         return fail(err, SQ_CODE_BAD_FIELD,
-                    "set: nothing to change; give material, operator, elasticity, pressure, damping or lod");
+                    "set: nothing to change; give material, operator, elasticity, pressure, damping, lod, "
+                    "integrator or implicit");
     return 0;
 }
 

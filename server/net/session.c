@@ -161,6 +161,8 @@ static void snapshot_locked(sq_session *s, double frame_s)
         memcpy(p->active[b], f->active, sizeof p->active[b]);
         memcpy(p->substeps[b], f->substeps, sizeof p->substeps[b]);
         p->node_updates[b] = f->node_updates;
+        p->cg_iterations[b] = f->cg_iterations;
+        p->cg_residual[b] = f->cg_residual;
         p->sleeping[b] = sq_body_is_sleeping(w->bodies[b]);
         p->splits[b] = f->splits;
         p->merges[b] = f->merges;

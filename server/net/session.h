@@ -60,6 +60,8 @@ typedef struct sq_snapshot {
     int active[SQ_MAX_BODIES][SQ_MAX_LEVELS];
     int substeps[SQ_MAX_BODIES][SQ_MAX_LEVELS];
     long node_updates[SQ_MAX_BODIES];
+    int cg_iterations[SQ_MAX_BODIES];    /* implicit bodies: the frame's CG iterations (0: explicit) */
+    double cg_residual[SQ_MAX_BODIES];   /* and its largest final relative residual */
     int sleeping[SQ_MAX_BODIES], splits[SQ_MAX_BODIES], merges[SQ_MAX_BODIES];
     int ntools;
     sq_tool tools[SQ_MAX_TOOLS];

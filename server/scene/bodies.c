@@ -289,10 +289,68 @@ static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
 
 /* ---- bodies ------------------------------------------------------------------------ */
 
+/* "integrator": "explicit" | "implicit" and the "implicit" settings object (docs/scenes.md) */
+static int parse_integrator(pctx *c, sq_body_def *def, const cJSON *obj, const char *path)
+{
+    char p[256];
+    const cJSON *in = scene_get(obj, "integrator");
+    scene_join(p, sizeof p, path, "integrator");
+    if (in && !(cJSON_IsString(in) && (!strcmp(in->valuestring, "explicit") || !strcmp(in->valuestring, "implicit"))))
+        return scene_fail(c, p, "expected \"explicit\" (default: symplectic Euler at the stability bound) or "
+                          "\"implicit\" (backward Euler, any step; fixed lod); see docs/physics.md section 12");
+    def->integrator = in && !strcmp(in->valuestring, "implicit") ? SQ_INTEGRATOR_IMPLICIT : SQ_INTEGRATOR_EXPLICIT;
+    def->implicit = sq_implicit_def_default();
+    int bad = 0;
+    const cJSON *im = scene_get_typed(c, obj, path, "implicit", 0, 0, &bad);
+    if (bad)
+        return -1;
+    if (!im)
+        return 0;
+    static const char *const keys[] = {"substeps", "cg_tolerance", "cg_max_iterations", "preconditioner",
+                                       "newton_iterations", NULL};
+    char ip[256];
+    scene_join(ip, sizeof ip, path, "implicit");
+    if (scene_check_keys(c, im, ip, keys))
+        return -1;
+    long v;
+    int found;
+    if (scene_get_int(c, im, ip, "substeps", 1, SQ_IMPLICIT_MAX_SUBSTEPS, &v, &found))
+        return -1;
+    if (found)
+        def->implicit.substeps = (int)v;
+    if (scene_get_int(c, im, ip, "cg_max_iterations", 1, SQ_IMPLICIT_MAX_ITER, &v, &found))
+        return -1;
+    if (found)
+        def->implicit.max_iter = (int)v;
+    if (scene_get_int(c, im, ip, "newton_iterations", 1, SQ_IMPLICIT_MAX_NEWTON, &v, &found))
+        return -1;
+    if (found)
+        def->implicit.newton = (int)v;
+    double tol;
+    if (scene_get_number(c, im, ip, "cg_tolerance", &tol, &found))
+        return -1;
+    if (found) {
+        if (!(tol > 0 && tol < 1)) {
+            scene_join(p, sizeof p, ip, "cg_tolerance");
+            return scene_fail(c, p, "%g is out of range: give a relative residual in (0, 1), e.g. 1e-6", tol);
+        }
+        def->implicit.tol = tol;
+    }
+    const cJSON *pc = scene_get(im, "preconditioner");
+    if (pc) {
+        scene_join(p, sizeof p, ip, "preconditioner");
+        if (!(cJSON_IsString(pc) && (!strcmp(pc->valuestring, "jacobi") || !strcmp(pc->valuestring, "block_jacobi"))))
+            return scene_fail(c, p, "expected \"jacobi\" (diagonal) or \"block_jacobi\" (default: 3x3 nodal blocks)");
+        def->implicit.precond = !strcmp(pc->valuestring, "jacobi") ? SQ_PRECOND_JACOBI : SQ_PRECOND_BLOCK;
+    }
+    return 0;
+}
+
 int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
 {
     static const char *const keys[] = {"name", "levels", "scale", "offset", "material", "operator", "fixed",
-                                       "lod", "step_fraction", "elasticity", "step_bound", "pressure", NULL};
+                                       "lod", "step_fraction", "elasticity", "step_bound", "pressure",
+                                       "integrator", "implicit", NULL};
     if (!cJSON_IsObject(obj))
         return scene_fail(c, path, "expected an object, got %s; see docs/scenes.md", scene_type_name(obj));
     if (scene_check_keys(c, obj, path, keys))
@@ -408,6 +466,9 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
                           : !strcmp(pr->valuestring, "nodal")    ? SQ_PRESSURE_NODAL
                           : !strcmp(pr->valuestring, "smoothed") ? SQ_PRESSURE_SMOOTHED
                                                                  : SQ_PRESSURE_ELEMENT;
+
+    if (parse_integrator(c, def, obj, path))
+        return -1;
 
     /* constraints */
     const cJSON *fx = scene_get_typed(c, obj, path, "fixed", 1, 0, &bad);
@@ -564,6 +625,11 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
     if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->op != SQ_OPERATOR_FEM)
         return scene_fail(c, p, "\"corotational\" needs \"operator\": \"fem\" (the paper operator has no corotational "
                           "form here); use \"elasticity\": \"linear\" with the paper operator");
+    if (def->integrator == SQ_INTEGRATOR_IMPLICIT && def->lod.mode != SQ_LOD_FIXED) {
+        scene_join(p, sizeof p, path, "integrator");
+        return scene_fail(c, p, "\"implicit\" runs with fixed lod only (adaptive levels still step explicitly): use "
+                          "\"lod\": {\"mode\": \"fixed\"} or \"integrator\": \"explicit\"");
+    }
     if (def->nodal_pressure && (def->elasticity != SQ_ELASTICITY_LINEAR || def->op != SQ_OPERATOR_FEM ||
                                 def->lod.mode != SQ_LOD_FIXED)) {
         scene_join(p, sizeof p, path, "pressure");
