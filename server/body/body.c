@@ -442,5 +442,8 @@ void sq_body_destroy(sq_body *b)
     free(b->holds);
     free(b->khold);
     free(b->kcount);
+    free(b->save_d);
+    free(b->save_v);
+    free(b->save_q);
     free(b);
 }

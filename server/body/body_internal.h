@@ -54,12 +54,22 @@ struct sq_body {
     sq_health_stat health[SQ_HEALTH_NKINDS];
     long frames;
 
+    /* explicit fixed step: a diverged frame is re-run from its start with 2x substeps (at most
+     * SQ_RETRY_MAX times); the factor that held is kept for the next frames and halved after
+     * SQ_RETRY_CALM frames without a retry */
+    double *save_d, *save_v, *save_q;      /* the frame's start state (after the holds) */
+    size_t save_n3, save_nq;
+    int boost, boost_calm;
+
     /* sleep */
     int sleeping, calm;
     int sleep_frames;                      /* calm frames before sleeping (0: never sleep) */
     double sleep_ke_speed;                 /* rms speed below this many bbox diagonals per second */
     double sleep_residual;                 /* sq_body_residual-style measure below this */
 };
+
+#define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */
+#define SQ_RETRY_CALM 50  /* frames at a raised count before trying half of it */
 
 /* Lanczos steps of the sharp step bound (fixed mode; docs/stability.md) */
 #define SQ_LANCZOS_ITERS 40
@@ -94,6 +104,9 @@ static inline int sq_body_fixed_nsub(const sq_body *b, const sq_level *L)
 }
 
 /* ---- health.c ---- */
+/* the blow-up test of the simulated state: non-finite values, displacement beyond 10 bbox
+ * diagonals, or kinetic energy above 0.5 M (10 diag / frame_dt)^2; SQ_HEALTH_NONE if healthy */
+sq_health_kind sq_body_diverged(const sq_body *b, double *value);
 /* count a health warning (kind NONE: nothing) with its value at the body's current frame */
 void sq_body_count_health(sq_body *b, sq_health_kind k, double value);
 /* after the frame's steps: health (a blow-up resets the body to rest and returns 1) and the

@@ -66,6 +66,29 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
     }
 }
 
+/* the explicit frame's start state (after the holds): d, v and the corotational rotations */
+static void save_frame_start(sq_body *b, const sq_level *L)
+{
+    size_t n3 = 3 * (size_t)L->model.n, nq = sq_level_corot_state_len(L);
+    if (b->save_n3 != n3 || b->save_nq != nq) {
+        b->save_d = sq_realloc(b->save_d, sizeof(double) * n3);
+        b->save_v = sq_realloc(b->save_v, sizeof(double) * n3);
+        b->save_q = sq_realloc(b->save_q, sizeof(double) * (nq ? nq : 1));
+        b->save_n3 = n3;
+        b->save_nq = nq;
+    }
+    memcpy(b->save_d, L->d, sizeof(double) * n3);
+    memcpy(b->save_v, L->v, sizeof(double) * n3);
+    sq_level_corot_save(L, b->save_q);
+}
+
+static void load_frame_start(sq_body *b, sq_level *L)
+{
+    memcpy(L->d, b->save_d, sizeof(double) * b->save_n3);
+    memcpy(L->v, b->save_v, sizeof(double) * b->save_n3);
+    sq_level_corot_load(L, b->save_q);
+}
+
 static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                         sq_frame_profile *prof, double budget_s)
 {
@@ -148,20 +171,47 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         }
         return;
     }
-    /* substeps: forces on all nodes, feedback on held nodes, integrate the others */
-    int nsub = sq_body_fixed_nsub(b, L);
-    double sdt = b->def.sharp_step ? L->dt_fixed : L->dt;
-    double inv = 1.0 / nsub;
-    for (int s = 0; s < nsub; s++) {
-        if ((s & 15) == 15 && sq_cancelled())
-            break; /* the server is stopping: the frame is abandoned */
-        sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
-        for (int h = 0; h < nk; h++) {
-            int i = b->khold[h].node, t = b->khold[h].tool;
-            if (force && t >= 0 && t < ntools)
-                for (int c = 0; c < 3; c++)
-                    force[t][c] += inv * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
+    /* substeps: forces on all nodes, feedback on held nodes, integrate the others; a frame that
+     * diverges is re-run from its start with twice the substeps (retry_guard) */
+    const int nsub0 = sq_body_fixed_nsub(b, L);
+    const double sdt0 = b->def.sharp_step ? L->dt_fixed : L->dt;
+    int factor = b->boost > 1 ? b->boost : 1, nsub = nsub0 * factor, retried = 0;
+    save_frame_start(b, L);
+    for (int attempt = 0;; attempt++) {
+        const double sdt = sdt0 / factor, inv = 1.0 / nsub;
+        int s;
+        for (s = 0; s < nsub; s++) {
+            if ((s & 15) == 15 && sq_cancelled())
+                break; /* the server is stopping: the frame is abandoned */
+            sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
+            for (int h = 0; h < nk; h++) {
+                int i = b->khold[h].node, t = b->khold[h].tool;
+                if (force && t >= 0 && t < ntools)
+                    for (int c = 0; c < 3; c++)
+                        force[t][c] += inv * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
+            }
         }
+        double value;
+        if (s < nsub || attempt >= SQ_RETRY_MAX || (long)nsub * 2 > (1L << 22) ||
+            sq_body_diverged(b, &value) == SQ_HEALTH_NONE)
+            break;
+        /* diverged: back to the frame's start, twice the substeps */
+        load_frame_start(b, L);
+        if (force)
+            memset(force, 0, sizeof(double) * 3 * (size_t)SQ_MAX(ntools, 0));
+        if (prof)
+            sq_frame_event(prof, SQ_HEALTH_STEP_REFINED, 2.0 * nsub, nsub, 0, 0, b->name);
+        factor *= 2;
+        nsub *= 2;
+        retried = 1;
+    }
+    if (retried) {
+        sq_body_count_health(b, SQ_HEALTH_STEP_REFINED, nsub);
+        b->boost = factor;
+        b->boost_calm = 0;
+    } else if (b->boost > 1 && ++b->boost_calm >= SQ_RETRY_CALM) {
+        b->boost /= 2; /* try half the raise again */
+        b->boost_calm = 0;
     }
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;

@@ -10,7 +10,7 @@
 
 /* health: non-finite values, displacement beyond 10 bbox diagonals, or kinetic energy above
  * 0.5 M (10 diag / frame_dt)^2 (a mean speed of ten diagonals per frame); returns the kind (SQ_HEALTH_NONE: healthy) */
-static sq_health_kind health(const sq_body *b, double *value)
+sq_health_kind sq_body_diverged(const sq_body *b, double *value)
 {
     double dlim2 = 100 * b->diag * b->diag;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
@@ -63,7 +63,7 @@ void sq_body_count_health(sq_body *b, sq_health_kind k, double value)
 int sq_body_check_health(sq_body *b, sq_frame_profile *prof, int nholds)
 {
     double value = 0;
-    sq_health_kind why = prof->sleeping ? SQ_HEALTH_NONE : health(b, &value);
+    sq_health_kind why = prof->sleeping ? SQ_HEALTH_NONE : sq_body_diverged(b, &value);
     if (why != SQ_HEALTH_NONE) {
         sq_body_reset(b);
         prof->reset = 1;

@@ -115,6 +115,8 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
 
 void sq_body_reset(sq_body *b)
 {
+    b->boost = 0;
+    b->boost_calm = 0;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         if (!b->ready[k])
             continue;

@@ -77,6 +77,8 @@ void sq_body_substeps(const sq_body *b, int substeps[SQ_MAX_LEVELS])
     }
     const sq_level *L = &b->level[b->cur];
     substeps[b->cur] = sq_body_fixed_nsub(b, L);
+    if (b->def.integrator == SQ_INTEGRATOR_EXPLICIT && b->boost > 1)
+        substeps[b->cur] *= b->boost; /* raised after a diverged frame (frame.c) */
 }
 
 const sq_health_stat *sq_body_health(const sq_body *b) { return b->health; }

@@ -104,6 +104,23 @@ void sq_level_corot_reset(sq_level *L)
             C->q[4 * CW * (size_t)b + l] = 1;
 }
 
+size_t sq_level_corot_state_len(const sq_level *L)
+{
+    return L->corot ? 4 * CW * (size_t)L->corot->nblocks : 0;
+}
+
+void sq_level_corot_save(const sq_level *L, double *q)
+{
+    if (L->corot)
+        memcpy(q, L->corot->q, sizeof(double) * sq_level_corot_state_len(L));
+}
+
+void sq_level_corot_load(sq_level *L, const double *q)
+{
+    if (L->corot)
+        memcpy(L->corot->q, q, sizeof(double) * sq_level_corot_state_len(L));
+}
+
 void sq_level_corot_copy(sq_level *dst, const sq_level *src)
 {
     if (dst->corot && src->corot && dst->corot->ntets == src->corot->ntets)

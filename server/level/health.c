@@ -19,6 +19,7 @@ static const char *const names[SQ_HEALTH_NKINDS] = {
     [SQ_HEALTH_BUDGET_PREDICTED] = "budget_predicted",
     [SQ_HEALTH_NODE_CAP] = "node_cap",
     [SQ_HEALTH_SOLVE_UNCONVERGED] = "solve_unconverged",
+    [SQ_HEALTH_STEP_REFINED] = "step_refined",
 };
 
 const char *sq_health_kind_name(sq_health_kind k)
@@ -73,6 +74,10 @@ void sq_health_sentence(char *buf, size_t cap, sq_health_kind k, const double v[
         snprintf(buf, cap,
                  "warning: '%.20s': implicit solve stopped at residual %.2g after %d CG iterations (tol %.2g, "
                  "cap %d): raise cg_max_iterations or substeps", name, v[0], (int)v[1], v[2], (int)v[3]);
+        break;
+    case SQ_HEALTH_STEP_REFINED:
+        snprintf(buf, cap, "warning: '%.30s': the explicit step diverged at %ld substeps; frame re-run at %ld "
+                 "substeps (not streamed before)", name, (long)v[1], (long)v[0]);
         break;
     default: /* none, wake: no sentence */
         buf[0] = 0;

@@ -134,6 +134,8 @@ typedef enum sq_health_kind {
     SQ_HEALTH_NODE_CAP,         /* adaptive: node-update cap reached; value: the cap */
     SQ_HEALTH_SOLVE_UNCONVERGED, /* implicit: CG stopped above its tolerance; values: residual,
                                     iterations, tolerance, cap */
+    SQ_HEALTH_STEP_REFINED,     /* explicit: a diverged frame re-run with more substeps; values:
+                                   substeps that held, substeps that diverged */
     SQ_HEALTH_NKINDS
 } sq_health_kind;
 
@@ -375,6 +377,10 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
 void sq_level_corot_free(sq_level *L);
 void sq_level_corot_reset(sq_level *L);                        /* rotations to identity */
 void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: copy the rotations */
+/* the stored rotations as a flat array: its length (0 without corot), save into q, load from q */
+size_t sq_level_corot_state_len(const sq_level *L);
+void sq_level_corot_save(const sq_level *L, double *q);
+void sq_level_corot_load(sq_level *L, const double *q);
 void sq_level_corot_converge(sq_level *L);                     /* rotations converged to the current d */
 void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
                          const unsigned char *mask);
