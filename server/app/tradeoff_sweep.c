@@ -38,10 +38,11 @@ typedef enum sw_load {
     SW_DEEP,       /* sphere centre driven to the body centre (fully inside), then out */
     SW_GRAB,       /* grab the top corner and pull it 10 body sizes away, then release */
     SW_PERIODIC,   /* a poke every 2 s for the whole run (the very long run) */
+    SW_ARC,        /* beam mesh: grab the tip and drag it through 90 degrees about the clamp in 0.5 s */
     SW_NONE        /* gravity only */
 } sw_load;
 
-typedef enum sw_mesh_kind { SW_MESH_BOX = 0, SW_MESH_SLIVER, SW_MESH_FLAT } sw_mesh_kind;
+typedef enum sw_mesh_kind { SW_MESH_BOX = 0, SW_MESH_SLIVER, SW_MESH_FLAT, SW_MESH_BEAM } sw_mesh_kind;
 
 typedef struct sw_case {
     const char *group;
@@ -57,6 +58,9 @@ typedef struct sw_case {
     double mesh_param;      /* sliver flatness / flat box thickness ratio */
     double above_bound;     /* > 0: test-only: step the level at this multiple of the bound */
     double split;           /* > 0: adaptive over three box levels (2, 3, 5 cells) at this split */
+    sq_elasticity_kind elasticity;
+    sq_integrator_kind integrator; /* implicit rows: one step per frame unless substeps > 1 */
+    int substeps;
 } sw_case;
 
 typedef struct sw_result {
@@ -117,6 +121,11 @@ static sq_mesh *case_mesh(const sw_case *c, sq_err *err)
     double size[3] = {SW_SIZE, SW_SIZE, SW_SIZE}, origin[3] = {0, 0, 0};
     if (c->mesh == SW_MESH_SLIVER)
         return sliver_mesh(c->mesh_param, err);
+    if (c->mesh == SW_MESH_BEAM) {
+        /* the arc-drag beam: 20 x 2 x 2 cm, 1 cm cells, clamped at x = 0 */
+        double bs[3] = {0.2, 0.02, 0.02};
+        return sq_mesh_box(20, 2, 2, bs, origin, err);
+    }
     if (c->mesh == SW_MESH_FLAT) {
         /* a plate: thickness mesh_param x the side, one cell thick (needle-like tets) */
         size[2] = SW_SIZE * c->mesh_param;
@@ -165,6 +174,20 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
         tool->pos[2] = (top + r) * (1 - f) + zc * f;
         return 1;
     }
+    case SW_ARC: {
+        /* grab the tip (radius 15.2 mm about its centre) and drag it through 90 degrees about the
+         * clamp over 0.5 s, then hold */
+        tool->shape = SQ_TOOL_GRAB;
+        tool->radius = 0.0152;
+        tool->active = 1;
+        tool->origin[0] = 0.205, tool->origin[1] = 0.01, tool->origin[2] = 0.01;
+        tool->has_origin = 1;
+        double th = 0.5 * M_PI * SQ_MIN(1.0, t / 0.5);
+        tool->pos[0] = tool->origin[0] + 0.2 * (cos(th) - 1);
+        tool->pos[1] = tool->origin[1];
+        tool->pos[2] = tool->origin[2] + 0.2 * sin(th);
+        return 1;
+    }
     case SW_GRAB: {
         /* grab the top corner and pull it 10 sides up and out over 0.5 s, release at 1 s */
         tool->shape = SQ_TOOL_GRAB;
@@ -174,6 +197,11 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
         tool->pos[0] = m->bbox_max[0] + 10 * side * f;
         tool->pos[1] = m->bbox_max[1];
         tool->pos[2] = top + 10 * side * f;
+        /* captured at the corner itself (at 10 Hz the first frame's pose is already 2 sizes off) */
+        tool->origin[0] = m->bbox_max[0];
+        tool->origin[1] = m->bbox_max[1];
+        tool->origin[2] = top;
+        tool->has_origin = 1;
         return 1;
     }
     }
@@ -279,6 +307,19 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
     def.constraints[0].a[2] = m->bbox_min[2] + 1e-9 * SW_SIZE;
     def.constraints[0].b[2] = 1;
     def.constraints[0].axes = 7;
+    if (c->mesh == SW_MESH_BEAM) { /* clamped at x = 0 instead */
+        memset(&def.constraints[0], 0, sizeof def.constraints[0]);
+        def.constraints[0].kind = SQ_REGION_HALFSPACE;
+        def.constraints[0].a[0] = 1e-9;
+        def.constraints[0].b[0] = 1;
+        def.constraints[0].axes = 7;
+    }
+    def.elasticity = c->elasticity;
+    def.integrator = c->integrator;
+    if (c->integrator == SQ_INTEGRATOR_IMPLICIT) {
+        def.implicit.substeps = c->substeps > 0 ? c->substeps : 1;
+        def.implicit.max_iter = SQ_IMPLICIT_MAX_ITER;
+    }
     if (c->frame_vs_bound > 0) {
         /* a frame period of frame_vs_bound x the level's bound: find the bound first */
         sq_body *probe = sq_body_create(&def, &err);
@@ -324,8 +365,9 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
         }
     }
     double release = c->load == SW_NONE ? 0 : 1.0; /* last tool action ends at 1 s (periodic: never) */
-    double e_load = -INFINITY, e_late = -INFINITY, e_abs = 0, dmax = 0;
-    int nonfinite = 0, max_fine = 0;
+    double e_load = -INFINITY, e_late = -INFINITY, e_abs = 0, dmax = 0, cg_res = 0;
+    int nonfinite = 0, max_fine = 0, cg_max = 0, unconverged = 0;
+    long cg_sum = 0;
     for (long f = 1; f <= nframes; f++) {
         double t = f * def.frame_dt;
         sq_tool tool;
@@ -334,6 +376,10 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
         sq_body_frame(b, &tool, nt, NULL, &prof, 0);
         if (c->split > 0)
             max_fine = SQ_MAX(max_fine, prof.active[2]);
+        cg_sum += prof.cg_iterations;
+        cg_max = SQ_MAX(cg_max, prof.cg_iterations);
+        cg_res = fmax(cg_res, prof.cg_residual);
+        unconverged += prof.event_kind == SQ_HEALTH_SOLVE_UNCONVERGED;
         if (prof.reset) {
             r->resets++;
             if (!r->note[0])
@@ -361,6 +407,13 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
     r->max_disp = dmax;
     if (c->split > 0 && !r->note[0])
         snprintf(r->note, sizeof r->note, "finest level active on up to %d of %d nodes", max_fine, m->nnodes);
+    if (c->integrator == SQ_INTEGRATOR_IMPLICIT && !r->note[0])
+        snprintf(r->note, sizeof r->note,
+                 "implicit, %d step(s) of %.3g s per frame (explicit: %d substeps): CG %.0f iterations per frame "
+                 "(max %d), residual <= %.2g, %d unconverged frames",
+                 def.implicit.substeps, r->dt, sq_body_get_def(b)->sharp_step ? sq_body_level(b, 0)->nsub
+                                                                            : 1 << sq_body_level(b, 0)->substeps_log2,
+                 nframes ? (double)cg_sum / nframes : 0.0, cg_max, cg_res, unconverged);
     r->e_load = e_load;
     r->e_late = e_late;
     /* bounded: the late energy does not exceed what the loading phase reached; slack 10% of the
@@ -410,7 +463,7 @@ static int set_E_nu(sq_material *m, double E, double nu)
     return sq_material_from_E_nu(m, E, nu, &e);
 }
 
-/* build the list; returns the count (cs has room for 96) */
+/* build the list; returns the count (cs has room for 128) */
 static int build_cases(sw_case *cs, int quick)
 {
     int n = 0;
@@ -551,6 +604,60 @@ static int build_cases(sw_case *cs, int quick)
     cs[n - 1].split = 3e-3;
     cs[n - 1].load = SW_GRAB;
     cs[n - 1].mat.rayleigh_mass = cs[n - 1].mat.rayleigh_stiffness = 0;
+    cs[n - 1].seconds = quick ? 2 : 5;
+    /* issue 23: the corotational beam dragged through 90 degrees in 0.5 s, explicit at its
+     * bound and implicit at one step per frame */
+    for (int in = 0; in < 2; in++) {
+        n = add(cs, n, "arc", in ? "corotational beam, 90 deg in 0.5 s, implicit%.0s" :
+                                   "corotational beam, 90 deg in 0.5 s, explicit%.0s", 0);
+        sw_case *c = &cs[n - 1];
+        c->mesh = SW_MESH_BEAM;
+        c->load = SW_ARC;
+        c->elasticity = SQ_ELASTICITY_COROTATIONAL;
+        c->integrator = in ? SQ_INTEGRATOR_IMPLICIT : SQ_INTEGRATOR_EXPLICIT;
+        set_E_nu(&c->mat, 2e6, 0.45);
+        c->mat.rayleigh_mass = 30;
+        c->mat.rayleigh_stiffness = 0;
+        c->seconds = quick ? 1 : 2;
+    }
+    /* the implicit integrator at the extremes: stiffness to E 1e10, nu to 0.499, frames to 0.1 s */
+    static const double iEs[] = {1e6, 1e8, 1e10};
+    static const double ihz[] = {50, 10};
+    for (size_t k = 0; k < SQ_COUNTOF(iEs); k++)
+        for (size_t j = 0; j < SQ_COUNTOF(ihz); j++) {
+            char name[96];
+            snprintf(name, sizeof name, "implicit, E = %g Pa, h = %g s%%.0s", iEs[k], 1 / ihz[j]);
+            n = add(cs, n, "implicit", name, 0);
+            sw_case *c = &cs[n - 1];
+            set_E_nu(&c->mat, iEs[k], 0.3);
+            c->integrator = SQ_INTEGRATOR_IMPLICIT;
+            c->frame_rate = ihz[j];
+            c->seconds = quick ? 2 : 5;
+        }
+    static const double inus[] = {0.49, 0.499};
+    for (size_t k = 0; k < SQ_COUNTOF(inus); k++)
+        for (int stiff = 0; stiff < 2; stiff++) {
+            char name[96];
+            snprintf(name, sizeof name, "implicit, nu = %g, E = %g Pa, h = 0.1 s%%.0s", inus[k], stiff ? 1e10 : 1e5);
+            n = add(cs, n, "implicit", name, 0);
+            sw_case *c = &cs[n - 1];
+            set_E_nu(&c->mat, stiff ? 1e10 : 1e5, inus[k]);
+            c->integrator = SQ_INTEGRATOR_IMPLICIT;
+            c->frame_rate = 10;
+            c->seconds = quick ? 2 : 5;
+        }
+    n = add(cs, n, "implicit", "implicit, grab %g body sizes, undamped, h = 0.1 s", 10);
+    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].integrator = SQ_INTEGRATOR_IMPLICIT;
+    cs[n - 1].frame_rate = 10;
+    cs[n - 1].mat.rayleigh_mass = cs[n - 1].mat.rayleigh_stiffness = 0;
+    cs[n - 1].seconds = quick ? 2 : 5;
+    n = add(cs, n, "implicit", "implicit corotational, grab %g body sizes, E 1e10 Pa, h = 0.1 s", 10);
+    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].integrator = SQ_INTEGRATOR_IMPLICIT;
+    cs[n - 1].elasticity = SQ_ELASTICITY_COROTATIONAL;
+    set_E_nu(&cs[n - 1].mat, 1e10, 0.45);
+    cs[n - 1].frame_rate = 10;
     cs[n - 1].seconds = quick ? 2 : 5;
     /* the very long run: a poke every 2 s */
     n = add(cs, n, "long", "%g s simulated, a poke every 2 s", quick ? 120 : 3600);
@@ -699,7 +806,7 @@ int sq_cmd_sweep(int argc, char **argv)
                 strerror(errno));
         return 1;
     }
-    static sw_case cs[96];
+    static sw_case cs[128];
     static sw_result rs[96];
     int n = build_cases(cs, quick);
     double total = 0;

@@ -20,6 +20,8 @@ double sq_body_level_dt(const sq_body *b, int level)
 {
     if (!(level >= 0 && level < SQ_MAX_LEVELS && b->ready[level]))
         return 0;
+    if (b->def.lod.mode == SQ_LOD_FIXED && b->def.integrator == SQ_INTEGRATOR_IMPLICIT)
+        return b->def.frame_dt / b->def.implicit.substeps; /* the implicit step */
     return b->def.lod.mode == SQ_LOD_FIXED && b->def.sharp_step ? b->level[level].dt_fixed : b->level[level].dt;
 }
 

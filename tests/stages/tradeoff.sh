@@ -12,7 +12,7 @@ rc=$?
 check "sweep exits 0 (no accepted case failed)" [ "$rc" = 0 ]
 csv=$TMP/sweep/sweep.csv
 check "sweep.csv header" bash -c "head -n 1 '$csv' | grep -q '^group,case,status,failed,substeps,bound_s,dt_s,'"
-check "sweep.csv has every group" bash -c "for g in young poisson density damping step tool mesh adaptive long; do grep -q \"^\$g,\" '$csv' || exit 1; done"
+check "sweep.csv has every group" bash -c "for g in young poisson density damping step tool mesh adaptive arc implicit long; do grep -q \"^\$g,\" '$csv' || exit 1; done"
 check "sweep.csv at least 50 cases" [ "$(tail -n +2 "$csv" | wc -l)" -ge 50 ]
 check "no UNSTABLE row" bash -c "! grep -q ',UNSTABLE,' '$csv'"
 check "summary: 0 accepted cases failed" grep -q '; 0 accepted cases failed$' "$TMP/sweep.log"
