@@ -34,6 +34,18 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
     const int nsub = def->substeps;
     const double h = b->def.frame_dt / nsub, inv = 1.0 / nsub;
     const double deadline = budget_s > 0 ? sq_thread_cpu() + budget_s : 0;
+    if (def->precond == SQ_PRECOND_MULTIGRID) {
+        /* the body's coarser levels are the hierarchy (built once; block Jacobi without any) */
+        const sq_level *coarse[SQ_MAX_LEVELS];
+        int nc = 0;
+        for (int k = b->cur - 1; k >= 0; k--) {
+            sq_err ignore = {{0}};
+            if (sq_body_ensure_level(b, k, &ignore) < 0)
+                break;
+            coarse[nc++] = &b->level[k];
+        }
+        sq_level_implicit_set_coarse(L, coarse, nc);
+    }
     sq_implicit_stats st, tot;
     memset(&tot, 0, sizeof tot);
     for (int s = 0; s < nsub; s++) {

@@ -20,8 +20,31 @@
 #include "level/corot_impl.h"
 #include "level/level.h"
 
+/* one coarser level of the multigrid preconditioner: the level (its linear operator, masses
+ * and constrained axes), its V-cycle vectors, the inverse diagonal blocks of its matrix, the
+ * smoother's damping, and for every node of the next finer level the tet of this level's rest
+ * mesh containing it with its barycentrics (the prolongation; its transpose restricts) */
+typedef struct mg_level {
+    const sq_level *L;
+    int n;
+    double *x, *b, *r, *t;     /* 3 n */
+    double *dinv;              /* 9 n */
+    double omega;
+    int nfine;                 /* nodes of the finer level */
+    int *tet;                  /* nfine */
+    double *bary;              /* 4 nfine */
+} mg_level;
+
 struct sq_implicit {
     int n, ntets;
+    double *zo;                   /* the previous preconditioned residual (flexible CG) */
+    /* multigrid: the coarser levels (coarse[0] next to this one), the finest level's V-cycle
+     * vectors and smoother damping, and the coefficients the dampings were estimated for */
+    int nmg;
+    mg_level mg[SQ_MAX_LEVELS];
+    double *vx, *vb, *vr, *vt;
+    double omega0, omega_cm, omega_ck;
+    int omega_age;
     double *x, *r, *z, *p, *q;    /* CG vectors (3 n) */
     double *rhs, *kv, *dv;        /* right-hand side, K P v0, the solved dv (3 n) */
     double *d0, *v0;              /* the step's start state (3 n), for Newton iterations */
@@ -33,6 +56,18 @@ struct sq_implicit {
 
 static void *imp_calloc(size_t count, size_t size) { return sq_calloc(count ? count : 1, size); }
 
+static void mg_free(sq_implicit *I)
+{
+    for (int j = 0; j < I->nmg; j++) {
+        mg_level *g = &I->mg[j];
+        double *vecs[] = {g->x, g->b, g->r, g->t, g->dinv, g->bary};
+        for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
+            free(vecs[k]);
+        free(g->tet);
+    }
+    I->nmg = 0;
+}
+
 static sq_implicit *imp_get(sq_level *L)
 {
     if (L->implicit)
@@ -42,7 +77,8 @@ static sq_implicit *imp_get(sq_level *L)
     size_t n3 = 3 * (size_t)M->n;
     I->n = M->n;
     I->ntets = M->mesh->ntets;
-    double **vecs[] = {&I->x, &I->r, &I->z, &I->p, &I->q, &I->rhs, &I->kv, &I->dv, &I->d0, &I->v0};
+    double **vecs[] = {&I->x, &I->r, &I->z, &I->p, &I->q, &I->rhs, &I->kv, &I->dv, &I->d0, &I->v0, &I->zo,
+                       &I->vx, &I->vb, &I->vr, &I->vt};
     for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
         *vecs[k] = imp_calloc(n3, sizeof(double));
     I->pre = imp_calloc(9 * (size_t)M->n, sizeof(double));
@@ -64,9 +100,11 @@ void sq_level_implicit_free(sq_level *L)
     sq_implicit *I = L->implicit;
     if (!I)
         return;
-    double *vecs[] = {I->x, I->r, I->z, I->p, I->q, I->rhs, I->kv, I->dv, I->d0, I->v0, I->pre, I->rot};
+    double *vecs[] = {I->x, I->r, I->z, I->p, I->q, I->rhs, I->kv, I->dv, I->d0, I->v0, I->pre, I->rot, I->zo,
+                      I->vx, I->vb, I->vr, I->vt};
     for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
         free(vecs[k]);
+    mg_free(I);
     free(I->diag);
     free(I->freeax);
     free(I);
@@ -261,6 +299,204 @@ static void diag_blocks(const imp_op *o, double *blk)
     }
 }
 
+static double dot(const double *a, const double *b, size_t n);
+
+/* y = D^-1 r with the 3x3 inverse blocks dinv (9 per node) */
+static void block_apply(const double *dinv, int n, const double *r, double *z)
+{
+    for (int i = 0; i < n; i++) {
+        const double *B = dinv + 9 * (size_t)i, *ri = r + 3 * (size_t)i;
+        double *zi = z + 3 * (size_t)i;
+        zi[0] = B[0] * ri[0] + B[1] * ri[1] + B[2] * ri[2];
+        zi[1] = B[3] * ri[0] + B[4] * ri[1] + B[5] * ri[2];
+        zi[2] = B[6] * ri[0] + B[7] * ri[1] + B[8] * ri[2];
+    }
+}
+
+/* inverse diagonal blocks of c_m M + c_k K + c_d D of a coarse level (linear K), constrained
+ * axes zeroed */
+static void coarse_dinv(const imp_op *o, mg_level *g)
+{
+    const sq_level_model *M = &g->L->model;
+    for (int i = 0; i < M->n; i++) {
+        double B[9] = {0};
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++)
+            if (M->col[e] == i)
+                for (int k = 0; k < 9; k++)
+                    B[k] = o->ck * M->K[9 * (size_t)e + k] + (o->cd != 0 && M->D ? o->cd * M->D[9 * (size_t)e + k] : 0);
+        for (int c = 0; c < 3; c++)
+            B[4 * c] += o->cm * M->mass[i];
+        if (!inv3_free(B, ~M->fixed[i] & 7u, g->dinv + 9 * (size_t)i))
+            memset(g->dinv + 9 * (size_t)i, 0, 9 * sizeof(double));
+    }
+}
+
+/* y = (c_m M + c_k K + c_d D) x on coarse level g, constrained axes zeroed */
+static void coarse_apply(const imp_op *o, const mg_level *g, const double *x, double *y)
+{
+    const sq_level_model *M = &g->L->model;
+    for (int i = 0; i < M->n; i++) {
+        double s0 = 0, s1 = 0, s2 = 0;
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+            const double *B = M->K + 9 * (size_t)e, *xj = x + 3 * (size_t)M->col[e];
+            s0 += B[0] * xj[0] + B[1] * xj[1] + B[2] * xj[2];
+            s1 += B[3] * xj[0] + B[4] * xj[1] + B[5] * xj[2];
+            s2 += B[6] * xj[0] + B[7] * xj[1] + B[8] * xj[2];
+        }
+        double out[3] = {0, 0, 0};
+        if (o->cd != 0 && M->D)
+            sq_level_row(M, M->D, x, i, out);
+        const double m = o->cm * M->mass[i];
+        const double yi[3] = {m * x[3 * i] + o->ck * s0 - o->cd * out[0], m * x[3 * i + 1] + o->ck * s1 - o->cd * out[1],
+                              m * x[3 * i + 2] + o->ck * s2 - o->cd * out[2]};
+        for (int c = 0; c < 3; c++)
+            y[3 * i + c] = (M->fixed[i] & (1u << c)) ? 0 : yi[c];
+    }
+}
+
+/* level j of the cycle: 0 the solved level, j >= 1 coarse level mg[j - 1] */
+static int cyc_n(const sq_implicit *I, int j) { return j ? I->mg[j - 1].n : I->n; }
+
+static void cyc_apply(const imp_op *o, int j, const double *x, double *y)
+{
+    if (j == 0)
+        apply_a(o, x, y);
+    else
+        coarse_apply(o, &o->I->mg[j - 1], x, y);
+}
+
+static const double *cyc_dinv(const sq_implicit *I, int j) { return j ? I->mg[j - 1].dinv : I->pre; }
+
+/* largest eigenvalue of D^-1 A at cycle level j, by 12 power iterations from a fixed rough
+ * start (deterministic), times 1.25 for the power method's underestimate */
+static double cyc_lambda(const imp_op *o, int j, double *x, double *y, double *z)
+{
+    const sq_implicit *I = o->I;
+    const int n = cyc_n(I, j);
+    const size_t n3 = 3 * (size_t)n;
+    /* a rough start (signs from a hash of the index): the top of D^-1 A is the roughest mode */
+    for (size_t k = 0; k < n3; k++)
+        x[k] = (((k * 2654435761u) >> 7) & 1) ? 1.0 : -1.0;
+    double lam = 1;
+    for (int it = 0; it < 12; it++) {
+        block_apply(cyc_dinv(I, j), n, x, z);
+        double zn = sqrt(dot(z, z, n3));
+        if (!(zn > 0))
+            return 1;
+        for (size_t k = 0; k < n3; k++)
+            z[k] /= zn;
+        cyc_apply(o, j, z, y);
+        block_apply(cyc_dinv(I, j), n, y, x); /* x = D^-1 A z */
+        lam = dot(z, x, n3);
+        (void)y;
+    }
+    return 1.25 * (lam > 0 ? lam : 1);
+}
+
+/* one damped block-Jacobi sweep x += omega D^-1 (b - A x) at cycle level j (t: scratch) */
+static void cyc_smooth(const imp_op *o, int j, double omega, const double *b, double *x, double *r, double *t)
+{
+    const sq_implicit *I = o->I;
+    const int n = cyc_n(I, j);
+    const size_t n3 = 3 * (size_t)n;
+    cyc_apply(o, j, x, t);
+    for (size_t k = 0; k < n3; k++)
+        r[k] = b[k] - t[k];
+    block_apply(cyc_dinv(I, j), n, r, t);
+    for (size_t k = 0; k < n3; k++)
+        x[k] += omega * t[k];
+}
+
+/* the coarsest level: 40 block-Jacobi CG iterations (or to 1e-3 relative) */
+static void coarsest_solve(const imp_op *o, mg_level *g, const double *b, double *x)
+{
+    const size_t n3 = 3 * (size_t)g->n;
+    double *r = g->r, *z = g->t;
+    double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
+    memset(x, 0, sizeof(double) * n3);
+    memcpy(r, b, sizeof(double) * n3);
+    double bn = sqrt(dot(b, b, n3));
+    block_apply(g->dinv, g->n, r, z);
+    memcpy(p, z, sizeof(double) * n3);
+    double rz = dot(r, z, n3);
+    for (int it = 0; it < 40 && bn > 0 && sqrt(dot(r, r, n3)) > 1e-3 * bn; it++) {
+        coarse_apply(o, g, p, q);
+        double pq = dot(p, q, n3);
+        if (!(pq > 0))
+            break;
+        double al = rz / pq;
+        for (size_t k = 0; k < n3; k++) {
+            x[k] += al * p[k];
+            r[k] -= al * q[k];
+        }
+        block_apply(g->dinv, g->n, r, z);
+        double rz2 = dot(r, z, n3);
+        for (size_t k = 0; k < n3; k++)
+            p[k] = z[k] + (rz2 / rz) * p[k];
+        rz = rz2;
+    }
+    free(p);
+    free(q);
+}
+
+/* V-cycle at level j: x ~ A_j^-1 b (2 pre- and 2 post-smoothing sweeps) */
+static __attribute__((noinline)) void vcycle(const imp_op *o, int j, const double *b, double *x)
+{
+    sq_implicit *I = (sq_implicit *)o->I;
+    if (j >= I->nmg || j >= SQ_MAX_LEVELS - 1) {
+        coarsest_solve(o, &I->mg[SQ_MAX(I->nmg, 1) - 1], b, x); /* nmg >= 1 here */
+        return;
+    }
+    const int n = cyc_n(I, j);
+    const size_t n3 = 3 * (size_t)n;
+    double *r = j ? I->mg[j - 1].r : I->vr, *t = j ? I->mg[j - 1].t : I->vt;
+    const double omega = j ? I->mg[j - 1].omega : I->omega0;
+    memset(x, 0, sizeof(double) * n3);
+    for (int s = 0; s < 2; s++)
+        cyc_smooth(o, j, omega, b, x, r, t);
+    cyc_apply(o, j, x, t);
+    for (size_t k = 0; k < n3; k++)
+        r[k] = b[k] - t[k];
+    /* restrict to level j + 1 (coarse level mg[j]): b_c = P^T r, constrained axes zeroed */
+    mg_level *c = &I->mg[j];
+    memset(c->b, 0, sizeof(double) * 3 * (size_t)c->n);
+    const int *tets = c->L->model.mesh->tets;
+    for (int i = 0; i < n; i++) {
+        const int *tv = tets + 4 * (size_t)c->tet[i];
+        const double *w = c->bary + 4 * (size_t)i;
+        for (int k = 0; k < 4; k++)
+            for (int q = 0; q < 3; q++)
+                c->b[3 * (size_t)tv[k] + q] += w[k] * r[3 * (size_t)i + q];
+    }
+    for (int i = 0; i < c->n; i++)
+        for (int q = 0; q < 3; q++)
+            if (c->L->model.fixed[i] & (1u << q))
+                c->b[3 * (size_t)i + q] = 0;
+    vcycle(o, j + 1, c->b, c->x);
+    /* prolongate and correct: x += P x_c, then this level's projection */
+    for (int i = 0; i < n; i++) {
+        const int *tv = tets + 4 * (size_t)c->tet[i];
+        const double *w = c->bary + 4 * (size_t)i;
+        for (int q = 0; q < 3; q++) {
+            double e = 0;
+            for (int k = 0; k < 4; k++)
+                e += w[k] * c->x[3 * (size_t)tv[k] + q];
+            t[3 * (size_t)i + q] = e;
+        }
+    }
+    if (j == 0)
+        project(I, t);
+    else
+        for (int i = 0; i < n; i++)
+            for (int q = 0; q < 3; q++)
+                if (I->mg[j - 1].L->model.fixed[i] & (1u << q))
+                    t[3 * (size_t)i + q] = 0;
+    for (size_t k = 0; k < n3; k++)
+        x[k] += t[k];
+    for (int s = 0; s < 2; s++)
+        cyc_smooth(o, j, omega, b, x, r, t);
+}
+
 /* the preconditioner's data for this solve */
 static void precond_setup(const imp_op *o, int kind)
 {
@@ -272,33 +508,83 @@ static void precond_setup(const imp_op *o, int kind)
         const double *B = blk + 9 * (size_t)i;
         double *out = I->pre + 9 * (size_t)i;
         unsigned fa = I->freeax[i];
-        if (kind == SQ_PRECOND_BLOCK) {
-            if (!inv3_free(B, fa, out)) /* singular block: fall back to its diagonal */
+        if (kind != SQ_PRECOND_JACOBI) {
+            if (!inv3_free(B, fa, out)) { /* singular block: fall back to its diagonal */
+                memset(out, 0, 9 * sizeof(double));
                 for (int c = 0; c < 3; c++)
                     out[4 * c] = (fa & (1u << c)) && B[4 * c] > 0 ? 1.0 / B[4 * c] : 0;
+            }
         } else {
             for (int c = 0; c < 3; c++)
                 out[c] = (fa & (1u << c)) && B[4 * c] > 0 ? 1.0 / B[4 * c] : 0;
         }
     }
     free(blk);
+    if (kind == SQ_PRECOND_MULTIGRID && I->nmg > 0) {
+        for (int j = 0; j < I->nmg; j++)
+            coarse_dinv(o, &I->mg[j]);
+        /* the smoothers' dampings: estimated again when the coefficients change, or every 64
+         * solves (the corotational operator turns with the body) */
+        if (o->cm != I->omega_cm || o->ck != I->omega_ck || I->omega_age++ >= 64) {
+            I->omega0 = 1.0 / cyc_lambda(o, 0, I->vx, I->vr, I->vt);
+            for (int j = 0; j < I->nmg; j++)
+                I->mg[j].omega = 1.0 / cyc_lambda(o, j + 1, I->mg[j].x, I->mg[j].r, I->mg[j].t);
+            I->omega_cm = o->cm;
+            I->omega_ck = o->ck;
+            I->omega_age = 0;
+        }
+    }
 }
 
-static void precond_apply(const sq_implicit *I, int kind, const double *r, double *z)
+static void precond_apply(const imp_op *o, int kind, const double *r, double *z)
 {
-    if (kind == SQ_PRECOND_BLOCK) {
-        for (int i = 0; i < I->n; i++) {
-            const double *B = I->pre + 9 * (size_t)i, *ri = r + 3 * (size_t)i;
-            double *zi = z + 3 * (size_t)i;
-            zi[0] = B[0] * ri[0] + B[1] * ri[1] + B[2] * ri[2];
-            zi[1] = B[3] * ri[0] + B[4] * ri[1] + B[5] * ri[2];
-            zi[2] = B[6] * ri[0] + B[7] * ri[1] + B[8] * ri[2];
-        }
+    const sq_implicit *I = o->I;
+    if (kind == SQ_PRECOND_MULTIGRID && I->nmg > 0) {
+        vcycle(o, 0, r, z);
+        project(I, z);
+    } else if (kind != SQ_PRECOND_JACOBI) {
+        block_apply(I->pre, I->n, r, z);
     } else {
         for (int i = 0; i < I->n; i++)
             for (int c = 0; c < 3; c++)
                 z[3 * i + c] = I->pre[9 * (size_t)i + c] * r[3 * i + c];
     }
+}
+
+int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse)
+{
+    sq_implicit *I = imp_get(L);
+    if (ncoarse > SQ_MAX_LEVELS - 1)
+        ncoarse = SQ_MAX_LEVELS - 1;
+    /* the same hierarchy as already built: nothing to do */
+    int same = I->nmg == ncoarse;
+    for (int j = 0; same && j < ncoarse; j++)
+        same = I->mg[j].L == coarse[j] && I->mg[j].n == coarse[j]->model.n;
+    if (same)
+        return ncoarse;
+    mg_free(I);
+    const sq_mesh *fine = L->model.mesh;
+    for (int j = 0; j < ncoarse; j++) {
+        mg_level *g = &I->mg[j];
+        memset(g, 0, sizeof *g);
+        g->L = coarse[j];
+        g->n = coarse[j]->model.n;
+        size_t n3 = 3 * (size_t)g->n;
+        g->x = imp_calloc(n3, sizeof(double));
+        g->b = imp_calloc(n3, sizeof(double));
+        g->r = imp_calloc(n3, sizeof(double));
+        g->t = imp_calloc(n3, sizeof(double));
+        g->dinv = imp_calloc(3 * n3, sizeof(double));
+        g->nfine = fine->nnodes;
+        g->tet = imp_calloc((size_t)g->nfine, sizeof(int));
+        g->bary = imp_calloc(4 * (size_t)g->nfine, sizeof(double));
+        for (int i = 0; i < g->nfine; i++)
+            g->tet[i] = sq_mesh_locate(coarse[j]->model.mesh, fine->x + 3 * (size_t)i, g->bary + 4 * (size_t)i);
+        fine = coarse[j]->model.mesh;
+        I->nmg = j + 1;
+    }
+    I->omega_cm = I->omega_ck = -1;
+    return I->nmg;
 }
 
 static double dot(const double *a, const double *b, size_t n)
@@ -311,25 +597,34 @@ static double dot(const double *a, const double *b, size_t n)
 
 /* A x = b (b projected) from x = 0; stops at |r| <= tol |b|, at max_iter, or when the thread's
  * CPU clock passes deadline (> 0); returns iterations, *relres the final |r| / |b| */
-static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, double *x, double deadline,
-               double *relres, int *capped)
+static int pcg_run(const imp_op *o, const sq_implicit_def *def, int precond, int max_iter, int warm, const double *b,
+                   double *x, double deadline, double *relres, int *capped)
 {
     sq_implicit *I = (sq_implicit *)o->I;
     const size_t n3 = 3 * (size_t)I->n;
     double *r = I->r, *z = I->z, *p = I->p, *q = I->q;
-    memset(x, 0, sizeof(double) * n3);
-    memcpy(r, b, sizeof(double) * n3);
     const double bnorm = sqrt(dot(b, b, n3));
     *relres = 0;
     *capped = 0;
-    if (!(bnorm > 0))
+    if (!(bnorm > 0)) {
+        memset(x, 0, sizeof(double) * n3);
         return 0;
-    precond_apply(I, def->precond, r, z);
+    }
+    if (warm) { /* from the given x: r = b - A x */
+        apply_a(o, x, q);
+        for (size_t k = 0; k < n3; k++)
+            r[k] = b[k] - q[k];
+    } else {
+        memset(x, 0, sizeof(double) * n3);
+        memcpy(r, b, sizeof(double) * n3);
+    }
+    precond_apply(o, precond, r, z);
     memcpy(p, z, sizeof(double) * n3);
-    double rz = dot(r, z, n3), rr = bnorm * bnorm;
+    memcpy(I->zo, z, sizeof(double) * n3);
+    double rz = dot(r, z, n3), rr = dot(r, r, n3);
     int it = 0;
     while (sqrt(rr) > def->tol * bnorm) {
-        if (it >= def->max_iter || (deadline > 0 && (it & 3) == 3 && sq_thread_cpu() > deadline)) {
+        if (it >= max_iter || (deadline > 0 && (it & 3) == 3 && sq_thread_cpu() > deadline)) {
             *capped = 1;
             break;
         }
@@ -344,10 +639,16 @@ static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, dou
             x[k] += alpha * p[k];
             r[k] -= alpha * q[k];
         }
-        precond_apply(I, def->precond, r, z);
+        precond_apply(o, precond, r, z);
         const double rz2 = dot(r, z, n3);
         rr = dot(r, r, n3);
-        const double beta = rz2 / rz;
+        /* flexible (Polak-Ribiere) beta: the multigrid cycle is not a fixed linear map (its
+         * coarsest solve stops early); for the fixed preconditioners it equals the usual one up
+         * to round-off (r.z_old = 0 in exact arithmetic) */
+        double beta = rz2 / rz;
+        if (precond == SQ_PRECOND_MULTIGRID)
+            beta = (rz2 - dot(r, I->zo, n3)) / rz;
+        memcpy(I->zo, z, sizeof(double) * n3);
         rz = rz2;
         for (size_t k = 0; k < n3; k++)
             p[k] = z[k] + beta * p[k];
@@ -355,6 +656,25 @@ static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, dou
     }
     *relres = sqrt(rr) / bnorm;
     return it;
+}
+
+/* A x = b (b projected) from x = 0; stops at |r| <= tol |b|, at max_iter, or when the thread's
+ * CPU clock passes deadline (> 0); returns iterations, *relres the final |r| / |b|. Multigrid
+ * gets SQ_MG_TRIES iterations: when it has not converged by then (a hierarchy too coarse for
+ * the material, as near-incompressible bodies on linear tets), the solve goes on from there
+ * with block Jacobi */
+#define SQ_MG_TRIES 100
+static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, double *x, double deadline,
+               double *relres, int *capped)
+{
+    if (def->precond != SQ_PRECOND_MULTIGRID || o->I->nmg == 0)
+        return pcg_run(o, def, def->precond == SQ_PRECOND_MULTIGRID ? SQ_PRECOND_BLOCK : def->precond, def->max_iter,
+                       0, b, x, deadline, relres, capped);
+    int it = pcg_run(o, def, SQ_PRECOND_MULTIGRID, SQ_MIN(def->max_iter, SQ_MG_TRIES), 0, b, x, deadline, relres,
+                     capped);
+    if (!*capped || it >= def->max_iter || (deadline > 0 && sq_thread_cpu() > deadline))
+        return it;
+    return it + pcg_run(o, def, SQ_PRECOND_BLOCK, def->max_iter - it, 1, b, x, deadline, relres, capped);
 }
 
 /* the force of the current state into L->f (corotational: rotations converged and stored) */
@@ -387,8 +707,9 @@ int sq_implicit_def_check(const sq_implicit_def *d, sq_err *err)
                           d->tol);
     if (d->max_iter < 1 || d->max_iter > SQ_IMPLICIT_MAX_ITER)
         return sq_err_set(err, "cg_max_iterations %d out of range: give 1..%d", d->max_iter, SQ_IMPLICIT_MAX_ITER);
-    if (d->precond < 0 || d->precond > SQ_PRECOND_BLOCK)
-        return sq_err_set(err, "unknown preconditioner %d: use \"jacobi\" or \"block_jacobi\"", d->precond);
+    if (d->precond < 0 || d->precond > SQ_PRECOND_MULTIGRID)
+        return sq_err_set(err, "unknown preconditioner %d: use \"jacobi\", \"block_jacobi\" or \"multigrid\"",
+                          d->precond);
     if (d->newton < 1 || d->newton > SQ_IMPLICIT_MAX_NEWTON)
         return sq_err_set(err, "newton_iterations %d out of range: give 1..%d", d->newton, SQ_IMPLICIT_MAX_NEWTON);
     return 0;

@@ -411,7 +411,7 @@ int sq_level_corot_inverted(const sq_level *L);
 /* the integrator of a body: explicit (symplectic Euler at the stability bound) or implicit */
 typedef enum sq_integrator_kind { SQ_INTEGRATOR_EXPLICIT = 0, SQ_INTEGRATOR_IMPLICIT = 1 } sq_integrator_kind;
 /* CG preconditioners of the implicit solve */
-enum { SQ_PRECOND_JACOBI = 0, SQ_PRECOND_BLOCK = 1 };
+enum { SQ_PRECOND_JACOBI = 0, SQ_PRECOND_BLOCK = 1, SQ_PRECOND_MULTIGRID = 2 };
 #define SQ_IMPLICIT_MAX_SUBSTEPS 64
 #define SQ_IMPLICIT_MAX_ITER 10000
 #define SQ_IMPLICIT_MAX_NEWTON 10
@@ -446,5 +446,11 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
                             const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st);
 void sq_level_implicit_free(sq_level *L);
+/* the multigrid preconditioner's hierarchy: coarse[0] the next coarser level (another mesh of
+ * the same shape), coarse[1] the one below, ...; each fine node is located in the coarser rest
+ * mesh (sq_mesh_locate) and its barycentrics are the prolongation (their transpose restricts).
+ * The levels are borrowed (they must outlive L's solves). Returns the levels used; with none,
+ * SQ_PRECOND_MULTIGRID is block Jacobi */
+int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse);
 
 #endif

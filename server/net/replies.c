@@ -113,7 +113,9 @@ cJSON *sq_settings_json(const sq_world *w, int bi)
     cJSON_AddNumberToObject(im, "substeps", d->implicit.substeps);
     cJSON_AddNumberToObject(im, "cg_tolerance", d->implicit.tol);
     cJSON_AddNumberToObject(im, "cg_max_iterations", d->implicit.max_iter);
-    cJSON_AddStringToObject(im, "preconditioner", d->implicit.precond == SQ_PRECOND_JACOBI ? "jacobi" : "block_jacobi");
+    cJSON_AddStringToObject(im, "preconditioner", d->implicit.precond == SQ_PRECOND_JACOBI      ? "jacobi"
+                                                  : d->implicit.precond == SQ_PRECOND_MULTIGRID ? "multigrid"
+                                                                                                : "block_jacobi");
     cJSON_AddNumberToObject(im, "newton_iterations", d->implicit.newton);
     cJSON *l = cJSON_AddObjectToObject(o, "lod");
     cJSON_AddStringToObject(l, "mode", d->lod.mode == SQ_LOD_ADAPTIVE ? "adaptive" : "fixed");

@@ -212,7 +212,7 @@ static const char *const elasticities[] = {"linear", "corotational", NULL};
 static const char *const pressures[] = {"element", "nodal", "smoothed", NULL}; /* SQ_PRESSURE_* */
 static const char *const lod_modes[] = {"fixed", "adaptive", NULL};
 static const char *const integrators[] = {"explicit", "implicit", NULL};
-static const char *const preconditioners[] = {"jacobi", "block_jacobi", NULL}; /* SQ_PRECOND_* */
+static const char *const preconditioners[] = {"jacobi", "block_jacobi", "multigrid", NULL}; /* SQ_PRECOND_* */
 
 static int decode_hello(const cJSON *o, sq_request *r, sq_net_error *err)
 {

@@ -339,9 +339,13 @@ static int parse_integrator(pctx *c, sq_body_def *def, const cJSON *obj, const c
     const cJSON *pc = scene_get(im, "preconditioner");
     if (pc) {
         scene_join(p, sizeof p, ip, "preconditioner");
-        if (!(cJSON_IsString(pc) && (!strcmp(pc->valuestring, "jacobi") || !strcmp(pc->valuestring, "block_jacobi"))))
-            return scene_fail(c, p, "expected \"jacobi\" (diagonal) or \"block_jacobi\" (default: 3x3 nodal blocks)");
-        def->implicit.precond = !strcmp(pc->valuestring, "jacobi") ? SQ_PRECOND_JACOBI : SQ_PRECOND_BLOCK;
+        if (!(cJSON_IsString(pc) && (!strcmp(pc->valuestring, "jacobi") || !strcmp(pc->valuestring, "block_jacobi") ||
+                                     !strcmp(pc->valuestring, "multigrid"))))
+            return scene_fail(c, p, "expected \"jacobi\" (diagonal), \"block_jacobi\" (default: 3x3 nodal blocks) or "
+                              "\"multigrid\" (the body's coarser levels as a V-cycle)");
+        def->implicit.precond = !strcmp(pc->valuestring, "jacobi")      ? SQ_PRECOND_JACOBI
+                                : !strcmp(pc->valuestring, "multigrid") ? SQ_PRECOND_MULTIGRID
+                                                                        : SQ_PRECOND_BLOCK;
     }
     return 0;
 }
