@@ -124,6 +124,8 @@ bench: deps node-deps
 	$(BUILD)/squish bench
 	@echo "=== step bounds per shipped fixed-lod scene: Gershgorin (2^n) against sharp (Lanczos, any integer) substeps"
 	@for f in meshes/scenes/*.json; do echo "$$f"; $(BUILD)/squish run $$f --frames 0 --out $(BUILD)/bench-bounds | grep "step bounds" || true; done
+	@echo "=== the implicit integrator: SOFA reference beam, stiff cantilever, preconditioners (a minute)"
+	$(BUILD)/squish bench implicit
 	@echo "=== scenes: frame-budget headroom, threads"
 	$(BUILD)/squish tradeoff --bench
 	@echo "=== speed against accuracy (quick grid)"

@@ -21,6 +21,7 @@ static int usage(FILE *f)
     fprintf(f, "usage: squish bench [step] [--sizes LIST] [--seconds T] [--op fem|paper|both|corot]\n"
                "       squish bench operators\n"
                "       squish bench cube [--meshes DIR] [--seconds T] [--out FILE]\n"
+               "       squish bench implicit [--quick]\n"
                "  step       node-steps per second of the fixed-resolution step on box meshes\n"
                "             (LIST: node counts such as 1k,10k,100k,1M; default all four); fem, paper\n"
                "             and fem with corotational elasticity (fem-corot) by default; --op corot:\n"
@@ -29,7 +30,9 @@ static int usage(FILE *f)
                "             paper vs fem operator\n"
                "  cube       the paper's section 2.6: corner (1,1,1) vertical displacement over time of\n"
                "             the 1 m cube (bottom fixed, gravity) at three resolutions (DIR/cube_l1..l3.msh,\n"
-               "             default meshes/cube), both operators; CSV on stdout or FILE\n");
+               "             default meshes/cube), both operators; CSV on stdout or FILE\n"
+               "  implicit   the implicit integrator: SOFA's reference beam (16 x 16 x 76 nodes, 10 CG\n"
+               "             iterations), a stiff cantilever at 50 Hz, CG iterations per preconditioner\n");
     return f == stdout ? 0 : 2;
 }
 
@@ -377,13 +380,15 @@ int sq_cmd_bench(int argc, char **argv)
     int seconds_given = 0;
     const char *what = "all", *sizes = "1k,10k,100k,1M";
     double seconds = 1.0;
-    int op_mask = 7;
+    int op_mask = 7, quick = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h"))
             return usage(stdout);
         else if (!strcmp(argv[i], "step") || !strcmp(argv[i], "operators") || !strcmp(argv[i], "all") ||
-                 !strcmp(argv[i], "cube"))
+                 !strcmp(argv[i], "cube") || !strcmp(argv[i], "implicit"))
             what = argv[i];
+        else if (!strcmp(argv[i], "--quick"))
+            quick = 1;
         else if (!strcmp(argv[i], "--sizes") && i + 1 < argc)
             sizes = argv[++i];
         else if (!strcmp(argv[i], "--meshes") && i + 1 < argc)
@@ -418,6 +423,8 @@ int sq_cmd_bench(int argc, char **argv)
         }
     }
     int rc = 0;
+    if (!strcmp(what, "implicit"))
+        return sq_bench_implicit(quick);
     if (!strcmp(what, "cube"))
         return bench_cube(meshdir, seconds_given ? seconds : 4.0, out);
     if (!strcmp(what, "step") || !strcmp(what, "all"))

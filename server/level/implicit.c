@@ -29,7 +29,11 @@ typedef struct mg_level {
     int n;
     double *x, *b, *r, *t;     /* 3 n */
     double *dinv;              /* 9 n */
+    double *acc;               /* zero scratch of the fused K pass (3 n + 1) */
     double omega;
+    double *chol;              /* coarsest level, 3 n <= SQ_MG_DENSE: dense Cholesky factor of its
+                                  matrix (lower, row-major), for chol_cm/ck/cd; else NULL */
+    double chol_cm, chol_ck, chol_cd;
     int nfine;                 /* nodes of the finer level */
     int *tet;                  /* nfine */
     double *bary;              /* 4 nfine */
@@ -38,6 +42,9 @@ typedef struct mg_level {
 struct sq_implicit {
     int n, ntets;
     double *zo;                   /* the previous preconditioned residual (flexible CG) */
+    double *dvprev;               /* the last step's dv: the next solve's start (3 n) */
+    int have_prev;
+    double *acc;                  /* zero scratch of the fused K pass (3 n + 1) */
     /* multigrid: the coarser levels (coarse[0] next to this one), the finest level's V-cycle
      * vectors and smoother damping, and the coefficients the dampings were estimated for */
     int nmg;
@@ -60,7 +67,7 @@ static void mg_free(sq_implicit *I)
 {
     for (int j = 0; j < I->nmg; j++) {
         mg_level *g = &I->mg[j];
-        double *vecs[] = {g->x, g->b, g->r, g->t, g->dinv, g->bary};
+        double *vecs[] = {g->x, g->b, g->r, g->t, g->dinv, g->bary, g->chol, g->acc};
         for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
             free(vecs[k]);
         free(g->tet);
@@ -78,9 +85,9 @@ static sq_implicit *imp_get(sq_level *L)
     I->n = M->n;
     I->ntets = M->mesh->ntets;
     double **vecs[] = {&I->x, &I->r, &I->z, &I->p, &I->q, &I->rhs, &I->kv, &I->dv, &I->d0, &I->v0, &I->zo,
-                       &I->vx, &I->vb, &I->vr, &I->vt};
+                       &I->vx, &I->vb, &I->vr, &I->vt, &I->dvprev, &I->acc};
     for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
-        *vecs[k] = imp_calloc(n3, sizeof(double));
+        *vecs[k] = imp_calloc(n3 + 1, sizeof(double)); /* + 1: the fused pass reads 4 lanes a node */
     I->pre = imp_calloc(9 * (size_t)M->n, sizeof(double));
     I->rot = imp_calloc(9 * (size_t)I->ntets, sizeof(double));
     I->diag = imp_calloc((size_t)M->n, sizeof(int));
@@ -101,7 +108,7 @@ void sq_level_implicit_free(sq_level *L)
     if (!I)
         return;
     double *vecs[] = {I->x, I->r, I->z, I->p, I->q, I->rhs, I->kv, I->dv, I->d0, I->v0, I->pre, I->rot, I->zo,
-                      I->vx, I->vb, I->vr, I->vt};
+                      I->vx, I->vb, I->vr, I->vt, I->dvprev, I->acc};
     for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
         free(vecs[k]);
     mg_free(I);
@@ -159,16 +166,9 @@ static void apply_k(const imp_op *o, const double *x, double *y)
         }
         return;
     }
-    for (int i = 0; i < M->n; i++) {
-        double s0 = 0, s1 = 0, s2 = 0;
-        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
-            const double *B = M->K + 9 * (size_t)e, *xj = x + 3 * (size_t)M->col[e];
-            s0 += B[0] * xj[0] + B[1] * xj[1] + B[2] * xj[2];
-            s1 += B[3] * xj[0] + B[4] * xj[1] + B[5] * xj[2];
-            s2 += B[6] * xj[0] + B[7] * xj[1] + B[8] * xj[2];
-        }
-        y[3 * i] = s0, y[3 * i + 1] = s1, y[3 * i + 2] = s2;
-    }
+    sq_level_neg_k(M, x, y, o->I->acc); /* the step's fused pass: y = -K x */
+    for (size_t k = 0; k < n3; k++)
+        y[k] = -y[k];
 }
 
 /* zero the axes that are not free */
@@ -335,14 +335,9 @@ static void coarse_dinv(const imp_op *o, mg_level *g)
 static void coarse_apply(const imp_op *o, const mg_level *g, const double *x, double *y)
 {
     const sq_level_model *M = &g->L->model;
+    sq_level_neg_k(M, x, y, g->acc); /* y = -K x, the fused pass */
     for (int i = 0; i < M->n; i++) {
-        double s0 = 0, s1 = 0, s2 = 0;
-        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
-            const double *B = M->K + 9 * (size_t)e, *xj = x + 3 * (size_t)M->col[e];
-            s0 += B[0] * xj[0] + B[1] * xj[1] + B[2] * xj[2];
-            s1 += B[3] * xj[0] + B[4] * xj[1] + B[5] * xj[2];
-            s2 += B[6] * xj[0] + B[7] * xj[1] + B[8] * xj[2];
-        }
+        const double s0 = -y[3 * i], s1 = -y[3 * i + 1], s2 = -y[3 * i + 2];
         double out[3] = {0, 0, 0};
         if (o->cd != 0 && M->D)
             sq_level_row(M, M->D, x, i, out);
@@ -407,9 +402,90 @@ static void cyc_smooth(const imp_op *o, int j, double omega, const double *b, do
         x[k] += omega * t[k];
 }
 
-/* the coarsest level: 40 block-Jacobi CG iterations (or to 1e-3 relative) */
+/* the coarsest level's dense factor: its matrix with constrained rows and columns as identity,
+ * Cholesky-factored in place (lower triangle); 0, or -1 if not positive definite */
+#define SQ_MG_DENSE 2400
+static int coarse_factor(const imp_op *o, mg_level *g)
+{
+    const sq_level_model *M = &g->L->model;
+    const int N = 3 * g->n;
+    if (!g->chol)
+        g->chol = sq_malloc(sizeof(double) * (size_t)N * (size_t)N);
+    double *A = g->chol;
+    memset(A, 0, sizeof(double) * (size_t)N * (size_t)N);
+    for (int i = 0; i < M->n; i++)
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+            const int j = M->col[e];
+            for (int r = 0; r < 3; r++)
+                for (int c = 0; c < 3; c++) {
+                    double v = o->ck * M->K[9 * (size_t)e + 3 * r + c];
+                    if (o->cd != 0 && M->D)
+                        v += o->cd * M->D[9 * (size_t)e + 3 * r + c];
+                    if (i == j && r == c)
+                        v += o->cm * M->mass[i];
+                    A[(size_t)(3 * i + r) * N + 3 * j + c] = v;
+                }
+        }
+    for (int i = 0; i < M->n; i++)
+        for (int r = 0; r < 3; r++)
+            if (M->fixed[i] & (1u << r)) {
+                const int q = 3 * i + r;
+                for (int k = 0; k < N; k++)
+                    A[(size_t)q * N + k] = A[(size_t)k * N + q] = 0;
+                A[(size_t)q * N + q] = 1;
+            }
+    for (int j = 0; j < N; j++) {
+        double *Aj = A + (size_t)j * N;
+        double d = Aj[j];
+        for (int k = 0; k < j; k++)
+            d -= Aj[k] * Aj[k];
+        if (!(d > 0))
+            return -1;
+        d = sqrt(d);
+        Aj[j] = d;
+        for (int i = j + 1; i < N; i++) {
+            double *Ai = A + (size_t)i * N, s = Ai[j];
+            for (int k = 0; k < j; k++)
+                s -= Ai[k] * Aj[k];
+            Ai[j] = s / d;
+        }
+    }
+    g->chol_cm = o->cm, g->chol_ck = o->ck, g->chol_cd = o->cd;
+    return 0;
+}
+
+/* the coarsest level: by its dense factor when it is small (SQ_MG_DENSE unknowns), else 40
+ * block-Jacobi CG iterations (or to 1e-3 relative) */
 static void coarsest_solve(const imp_op *o, mg_level *g, const double *b, double *x)
 {
+    const int N = 3 * g->n;
+    if (N <= SQ_MG_DENSE) {
+        if ((!g->chol || g->chol_cm != o->cm || g->chol_ck != o->ck || g->chol_cd != o->cd) &&
+            coarse_factor(o, g) < 0) {
+            free(g->chol);
+            g->chol = NULL;
+        }
+        if (g->chol) {
+            const double *A = g->chol;
+            for (int i = 0; i < N; i++) { /* L y = b */
+                double s = b[i];
+                for (int k = 0; k < i; k++)
+                    s -= A[(size_t)i * N + k] * x[k];
+                x[i] = s / A[(size_t)i * N + i];
+            }
+            for (int i = N - 1; i >= 0; i--) { /* L^T x = y */
+                double s = x[i];
+                for (int k = i + 1; k < N; k++)
+                    s -= A[(size_t)k * N + i] * x[k];
+                x[i] = s / A[(size_t)i * N + i];
+            }
+            for (int i = 0; i < g->n; i++)
+                for (int r = 0; r < 3; r++)
+                    if (g->L->model.fixed[i] & (1u << r))
+                        x[3 * i + r] = 0;
+            return;
+        }
+    }
     const size_t n3 = 3 * (size_t)g->n;
     double *r = g->r, *z = g->t;
     double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
@@ -439,7 +515,10 @@ static void coarsest_solve(const imp_op *o, mg_level *g, const double *b, double
     free(q);
 }
 
-/* V-cycle at level j: x ~ A_j^-1 b (2 pre- and 2 post-smoothing sweeps) */
+/* V-cycle at level j: x ~ A_j^-1 b (SQ_MG_SWEEPS pre- and post-smoothing sweeps) */
+#ifndef SQ_MG_SWEEPS
+#define SQ_MG_SWEEPS 2
+#endif
 static __attribute__((noinline)) void vcycle(const imp_op *o, int j, const double *b, double *x)
 {
     sq_implicit *I = (sq_implicit *)o->I;
@@ -451,8 +530,11 @@ static __attribute__((noinline)) void vcycle(const imp_op *o, int j, const doubl
     const size_t n3 = 3 * (size_t)n;
     double *r = j ? I->mg[j - 1].r : I->vr, *t = j ? I->mg[j - 1].t : I->vt;
     const double omega = j ? I->mg[j - 1].omega : I->omega0;
-    memset(x, 0, sizeof(double) * n3);
-    for (int s = 0; s < 2; s++)
+    /* pre-smoothing from x = 0: the first sweep is x = omega D^-1 b (no product) */
+    block_apply(cyc_dinv(I, j), n, b, x);
+    for (size_t k = 0; k < n3; k++)
+        x[k] *= omega;
+    for (int s = 1; s < SQ_MG_SWEEPS; s++)
         cyc_smooth(o, j, omega, b, x, r, t);
     cyc_apply(o, j, x, t);
     for (size_t k = 0; k < n3; k++)
@@ -493,7 +575,7 @@ static __attribute__((noinline)) void vcycle(const imp_op *o, int j, const doubl
                     t[3 * (size_t)i + q] = 0;
     for (size_t k = 0; k < n3; k++)
         x[k] += t[k];
-    for (int s = 0; s < 2; s++)
+    for (int s = 0; s < SQ_MG_SWEEPS; s++)
         cyc_smooth(o, j, omega, b, x, r, t);
 }
 
@@ -570,10 +652,11 @@ int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int
         g->L = coarse[j];
         g->n = coarse[j]->model.n;
         size_t n3 = 3 * (size_t)g->n;
-        g->x = imp_calloc(n3, sizeof(double));
-        g->b = imp_calloc(n3, sizeof(double));
-        g->r = imp_calloc(n3, sizeof(double));
-        g->t = imp_calloc(n3, sizeof(double));
+        g->x = imp_calloc(n3 + 1, sizeof(double));
+        g->b = imp_calloc(n3 + 1, sizeof(double));
+        g->r = imp_calloc(n3 + 1, sizeof(double));
+        g->t = imp_calloc(n3 + 1, sizeof(double));
+        g->acc = imp_calloc(n3 + 1, sizeof(double));
         g->dinv = imp_calloc(3 * n3, sizeof(double));
         g->nfine = fine->nnodes;
         g->tet = imp_calloc((size_t)g->nfine, sizeof(int));
@@ -664,13 +747,13 @@ static int pcg_run(const imp_op *o, const sq_implicit_def *def, int precond, int
  * the material, as near-incompressible bodies on linear tets), the solve goes on from there
  * with block Jacobi */
 #define SQ_MG_TRIES 100
-static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, double *x, double deadline,
+static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, double *x, int warm, double deadline,
                double *relres, int *capped)
 {
     if (def->precond != SQ_PRECOND_MULTIGRID || o->I->nmg == 0)
         return pcg_run(o, def, def->precond == SQ_PRECOND_MULTIGRID ? SQ_PRECOND_BLOCK : def->precond, def->max_iter,
-                       0, b, x, deadline, relres, capped);
-    int it = pcg_run(o, def, SQ_PRECOND_MULTIGRID, SQ_MIN(def->max_iter, SQ_MG_TRIES), 0, b, x, deadline, relres,
+                       warm, b, x, deadline, relres, capped);
+    int it = pcg_run(o, def, SQ_PRECOND_MULTIGRID, SQ_MIN(def->max_iter, SQ_MG_TRIES), warm, b, x, deadline, relres,
                      capped);
     if (!*capped || it >= def->max_iter || (deadline > 0 && sq_thread_cpu() > deadline))
         return it;
@@ -778,7 +861,14 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
         precond_setup(&o, def->precond);
         double relres;
         int capped;
-        st->iterations += pcg(&o, def, I->rhs, I->x, deadline, &relres, &capped);
+        /* the first solve starts from the last step's dv (projected): smooth motion needs few
+         * iterations; Newton corrections start from zero */
+        int warm = nt == 0 && I->have_prev;
+        if (warm) {
+            memcpy(I->x, I->dvprev, sizeof(double) * n3);
+            project(I, I->x);
+        }
+        st->iterations += pcg(&o, def, I->rhs, I->x, warm, deadline, &relres, &capped);
         if (nt == 0 || relres > st->residual)
             st->residual = relres;
         st->unconverged |= capped;
@@ -801,9 +891,10 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
         /* corotational: the Newton iterations asked for, and more (up to the maximum) while the
          * energy of a body no tool holds is above the step's start: the warped stiffness is not
          * the exact tangent, so one iteration alone may add energy; converged, backward Euler
-         * cannot */
+         * cannot (a solve stopped by its cap is reported instead: more iterations of it would
+         * not be converged either) */
         int more = nt + 1 < def->newton;
-        if (!more && e0_known && nt + 1 < SQ_IMPLICIT_MAX_NEWTON)
+        if (!more && e0_known && !capped && nt + 1 < SQ_IMPLICIT_MAX_NEWTON)
             more = total_energy(L, g) > e0 + 1e-12 * fabs(e0);
         if (more || def->newton > 1) {
             /* Newton residual P (h f(d1, v1) - M dv), re-linearised at the new state */
@@ -821,6 +912,8 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
         if (!more)
             break;
     }
+    memcpy(I->dvprev, I->dv, sizeof(double) * n3);
+    I->have_prev = 1;
     /* L->f holds the last force pass's values (the step's start, or with Newton iterations an
      * intermediate state): the caller evaluates the end state's force when it needs it */
 }

@@ -592,6 +592,14 @@ static void forces_all(const sq_level_model *M, double *d, double *v, double *f,
         forces_pass_plain(M, d, v, f, acc, a, g, dt, mask);
 }
 
+void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double *acc)
+{
+    static const double zero[3] = {0, 0, 0};
+    /* the force pass of displacement x, no velocity, mass, damping or gravity: y = -K x (x is
+     * only read: dt = 0) */
+    forces_all(M, (double *)x, (double *)x, y, acc, 0, 0, zero, 0, NULL);
+}
+
 void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
                    const unsigned char *mask)
 {

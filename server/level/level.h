@@ -318,6 +318,10 @@ void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
 void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
                    const unsigned char *mask);
 
+/* y = -K x (n x 3) by the step's fused upper-half pass: x must have one readable double past
+ * its 3 n (the pass loads four lanes per node), acc an all-zero scratch of 3 n + 1 (left zero) */
+void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double *acc);
+
 /* Laplacian of the displacement at node i, -(1/vol_i) sum_j lap_ij d_j (m^-1); lap_ij is the
  * (positive semi-definite) stiffness of -Lap, hence the minus sign */
 void sq_level_laplacian(const sq_level *L, int i, double out[3]);
