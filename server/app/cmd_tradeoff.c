@@ -50,6 +50,9 @@ typedef struct to_variant {
     double split;          /* adaptive: threshold (m); INFINITY = never split */
     sq_operator_kind op;
     double fraction;
+    int implicit;          /* integrator rows: backward Euler at `substeps` steps a frame, CG to tol */
+    int substeps;
+    double tol;
 } to_variant;
 
 /* the cached reference's layout (SQ_TRADEOFF_REF): 2 adds the reference run's cost, so a fixed
@@ -77,6 +80,7 @@ typedef struct to_result {
     double cpu_smp;        /* thread CPU s of the error sampling (not the product's: kept out
                             * of the guard's time around the frame, sq_world_untimed) */
     int substeps_finest;   /* substeps per frame at the variant's finest simulated level, body 0 */
+    long cg_iterations;    /* implicit rows: CG iterations of all frames and bodies */
     long resets;
     int pareto;
 } to_result;
@@ -212,6 +216,13 @@ static char *variant_text(cJSON *root, const to_variant *v, int finest_override,
         /* one model for every variant (the paper operator runs linear elasticity only): linear,
          * whatever the scene chose, so every row's error is discretisation, not model */
         set_item(body, "elasticity", cJSON_CreateString("linear"));
+        /* the integrator: explicit at its bound on every row but the integrator rows */
+        set_item(body, "integrator", cJSON_CreateString(v->implicit ? "implicit" : "explicit"));
+        cJSON *imp = cJSON_CreateObject();
+        cJSON_AddNumberToObject(imp, "substeps", v->implicit ? v->substeps : 1);
+        cJSON_AddNumberToObject(imp, "cg_tolerance", v->implicit ? v->tol : 1e-6);
+        cJSON_AddNumberToObject(imp, "cg_max_iterations", SQ_IMPLICIT_MAX_ITER);
+        set_item(body, "implicit", imp);
     }
     return cJSON_PrintUnformatted(root);
 }
@@ -229,9 +240,9 @@ static int build_grid(to_variant *v, int finest, double s0, int quick, double re
 {
     int n = 0;
     /* the reference first */
-    v[n++] = (to_variant){"reference", "reference", 0, finest, 0, SQ_OPERATOR_FEM, ref_fraction};
+    v[n++] = (to_variant){"reference", "reference", 0, finest, 0, SQ_OPERATOR_FEM, ref_fraction, 0, 0, 0};
     for (int k = 0; k <= finest; k++) {
-        v[n] = (to_variant){"", "fixed", 0, k, 0, SQ_OPERATOR_FEM, 0.9};
+        v[n] = (to_variant){"", "fixed", 0, k, 0, SQ_OPERATOR_FEM, 0.9, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "fixed L%d", k);
         n++;
     }
@@ -242,39 +253,57 @@ static int build_grid(to_variant *v, int finest, double s0, int quick, double re
     if (finest > 0)
         for (int i = 0; i < nf; i++) {
             double s = isinf(f[i]) ? INFINITY : f[i] * s0;
-            v[n] = (to_variant){"", "adaptive", 1, 0, s, SQ_OPERATOR_FEM, 0.9};
+            v[n] = (to_variant){"", "adaptive", 1, 0, s, SQ_OPERATOR_FEM, 0.9, 0, 0, 0};
             if (isinf(s))
                 snprintf(v[n].name, sizeof v[n].name, "adaptive split inf");
             else
                 snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g", s);
             n++;
         }
-    v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.5};
+    v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.5, 0, 0, 0};
     snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.5", finest);
     n++;
     if (!quick) {
         /* finer than the reference: its error is the floor below which differences are noise
          * (tool contact sets change with the step) */
-        v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.1};
+        v[n] = (to_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.1, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.1", finest);
         n++;
     }
     if (!quick && finest > 0) {
-        v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.25};
+        v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.25, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.25", s0);
         n++;
-        v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.5};
+        v[n] = (to_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.5, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.5", s0);
         n++;
     }
-    v[n] = (to_variant){"", "operator", 0, finest, 0, SQ_OPERATOR_PAPER, 0.9};
+    /* the integrator axis: backward Euler on the finest level at 1, 2 and 4 steps a frame (CG to
+     * 1e-6), and at one step with looser and tighter tolerances */
+    static const int subs[] = {1, 2, 4};
+    for (size_t k = 0; k < SQ_COUNTOF(subs); k++) {
+        if (quick && subs[k] == 2)
+            continue;
+        v[n] = (to_variant){"", "integrator", 0, finest, 0, SQ_OPERATOR_FEM, 0.9, 1, subs[k], 1e-6};
+        snprintf(v[n].name, sizeof v[n].name, "implicit L%d x%d tol 1e-6", finest, subs[k]);
+        n++;
+    }
+    static const double tols[] = {1e-3, 1e-9};
+    for (size_t k = 0; k < SQ_COUNTOF(tols); k++) {
+        if (quick && k)
+            continue;
+        v[n] = (to_variant){"", "integrator", 0, finest, 0, SQ_OPERATOR_FEM, 0.9, 1, 1, tols[k]};
+        snprintf(v[n].name, sizeof v[n].name, "implicit L%d x1 tol %g", finest, tols[k]);
+        n++;
+    }
+    v[n] = (to_variant){"", "operator", 0, finest, 0, SQ_OPERATOR_PAPER, 0.9, 0, 0, 0};
     snprintf(v[n].name, sizeof v[n].name, "paper fixed L%d", finest);
     n++;
     if (!quick && finest > 0) {
-        v[n] = (to_variant){"", "operator", 1, 0, s0, SQ_OPERATOR_PAPER, 0.9};
+        v[n] = (to_variant){"", "operator", 1, 0, s0, SQ_OPERATOR_PAPER, 0.9, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "paper adaptive split %.3g", s0);
         n++;
-        v[n] = (to_variant){"", "operator", 0, 0, 0, SQ_OPERATOR_PAPER, 0.9};
+        v[n] = (to_variant){"", "operator", 0, 0, 0, SQ_OPERATOR_PAPER, 0.9, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "paper fixed L0");
         n++;
     }
@@ -467,8 +496,10 @@ static int run_variant(const sq_scene *scene, to_ref *ref, int record, to_result
             r->cpu_max1 = fmax(r->cpu_max1, c + cp);
             r->cpu_late1 += c + cp > period;
         }
-        for (int b = 0; b < w->nbodies; b++)
+        for (int b = 0; b < w->nbodies; b++) {
             r->updates += (double)w->profile[b].node_updates;
+            r->cg_iterations += w->profile[b].cg_iterations;
+        }
         /* surface samples */
         double *ur = ref->u + 3 * (size_t)ref->ntotal * (size_t)f;
         int off = 0;
@@ -944,12 +975,12 @@ int sq_cmd_tradeoff(int argc, char **argv)
     int gmed = -1, g0 = n;
     if (finest > 0 && guarded > 0) {
         for (int k = 0; k < guarded; k++) {
-            v[n] = (to_variant){"", "guarded_run", 1, 0, s0, SQ_OPERATOR_FEM, 0.9};
+            v[n] = (to_variant){"", "guarded_run", 1, 0, s0, SQ_OPERATOR_FEM, 0.9, 0, 0, 0};
             snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g guarded run %d", s0, k + 1);
             n++;
         }
         gmed = n;
-        v[n] = (to_variant){"", "guarded", 1, 0, s0, SQ_OPERATOR_FEM, 0.9};
+        v[n] = (to_variant){"", "guarded", 1, 0, s0, SQ_OPERATOR_FEM, 0.9, 0, 0, 0};
         snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g guarded median", s0);
         n++;
     }
@@ -1022,11 +1053,11 @@ int sq_cmd_tradeoff(int argc, char **argv)
      * the runs with the live budget (not deterministic: they neither sit on it nor push a
      * setting off it) */
     for (int i = 0; i < n; i++) {
-        if (!r[i].ok || v[i].op != SQ_OPERATOR_FEM || !strncmp(v[i].kind, "guarded", 7))
-            continue;
+        if (!r[i].ok || v[i].op != SQ_OPERATOR_FEM || !strncmp(v[i].kind, "guarded", 7) || v[i].implicit)
+            continue; /* implicit rows: their cost is CG iterations, not node updates (cpu/s compares) */
         int dominated = 0;
         for (int j = 0; j < n && !dominated; j++)
-            if (j != i && r[j].ok && v[j].op == SQ_OPERATOR_FEM && strncmp(v[j].kind, "guarded", 7) &&
+            if (j != i && r[j].ok && v[j].op == SQ_OPERATOR_FEM && strncmp(v[j].kind, "guarded", 7) && !v[j].implicit &&
                 r[j].ups <= r[i].ups && r[j].rms <= r[i].rms &&
                 (r[j].ups < r[i].ups || r[j].rms < r[i].rms))
                 dominated = 1;
@@ -1045,15 +1076,17 @@ int sq_cmd_tradeoff(int argc, char **argv)
         }
         fprintf(f, "setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,"
                    "node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,rms_rel,probe_err_m,final_rms_m,"
-                   "final_max_m,resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error\n");
+                   "final_max_m,resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error,integrator,cg_iterations_per_frame\n");
         for (int i = 0; i < n; i++) {
             fprintf(f, "\"%s\",%s,%s,%s,%d,%.6g,%.3g,%d,%ld,%.6g,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%.6e,%ld,%d,%.6e,%ld,"
-                       "%.6e,\"%s\"\n",
+                       "%.6e,\"%s\",%s,%.1f\n",
                     v[i].name, v[i].kind, v[i].op == SQ_OPERATOR_PAPER ? "paper" : "fem",
                     v[i].adaptive ? "adaptive" : "fixed", v[i].adaptive ? -1 : v[i].level, v[i].adaptive ? v[i].split : 0,
                     v[i].fraction, r[i].substeps_finest, r[i].frames, r[i].sim_s, r[i].ups, r[i].wps, r[i].rms,
                     r[i].max_err, ref.rms_ref > 0 ? r[i].rms / ref.rms_ref : 0, r[i].probe_err, r[i].final_rms,
-                    r[i].final_max, r[i].resets, r[i].pareto, r[i].cps, r[i].cpu_late1, r[i].cpu_max1, r[i].error);
+                    r[i].final_max, r[i].resets, r[i].pareto, r[i].cps, r[i].cpu_late1, r[i].cpu_max1, r[i].error,
+                    v[i].implicit ? "implicit" : "explicit",
+                    v[i].implicit && r[i].frames ? (double)r[i].cg_iterations / r[i].frames : 0.0);
         }
         if (fclose(f)) {
             fprintf(stderr, "squish tradeoff: writing %s failed: %s\n", path, strerror(errno));
@@ -1087,7 +1120,8 @@ int sq_cmd_tradeoff(int argc, char **argv)
                         v[i].op == SQ_OPERATOR_PAPER ? "(model difference, not discretisation error)"
                         : r[i].resets                ? "(resets!)"
                         : !strncmp(v[i].kind, "guarded", 7) ? "(live budget: not deterministic, off the front)"
-                                                            : "");
+                        : v[i].implicit ? "(implicit: cost in cpu/s; updates/s counts steps, not CG iterations)"
+                                        : "");
             }
             /* the headline: adaptive settings against the fixed levels at equal RMS error */
             int fine = -1;
