@@ -4,7 +4,7 @@
 import { test, before, after } from 'node:test';
 import assert from 'node:assert/strict';
 import { SquishClient, SquishError } from './client.mjs';
-import { startServer } from './harness.mjs';
+import { startServer, sleep } from './harness.mjs';
 
 let srv;
 before(async () => { srv = await startServer(['--grace', '1', '--scenes', 'meshes/scenes']); });
@@ -78,5 +78,38 @@ test('set pressure: nodal on a fixed linear fem body, refused with corotational'
   await assert.rejects(c.set({ pressure: 'nodal' }), refused(/linear elasticity/));
   a = await c.set({ elasticity: 'linear', pressure: 'nodal' });
   assert.equal(a.bodies[0].settings.pressure, 'nodal');
+  await c.close();
+});
+
+test('set integrator: implicit on a fixed body, CG figures in stats; bad settings and adaptive lod refused, nothing changes', async () => {
+  const c = await SquishClient.connect(srv.url);
+  await c.open('sphere-grab');
+  let a = await c.set({ integrator: 'implicit', implicit: { substeps: 2, cg_tolerance: 1e-5, preconditioner: 'multigrid' } });
+  let st = a.bodies[0].settings;
+  assert.equal(st.integrator, 'implicit');
+  assert.equal(st.implicit.substeps, 2);
+  assert.equal(st.implicit.cg_tolerance, 1e-5);
+  assert.equal(st.implicit.preconditioner, 'multigrid');
+  assert.equal(st.implicit.cg_max_iterations, 500);
+  // the solve runs: a frame later the stats carry its CG iterations and residual
+  let s;
+  for (let k = 0; k < 50; k++) {
+    s = await c.stats();
+    if (s.cg_iterations > 0) break;
+    await sleep(40);
+  }
+  assert.ok(s.cg_iterations > 0, `cg_iterations ${s.cg_iterations}`);
+  assert.ok(s.bodies[0].cg_residual <= 1e-5, `cg_residual ${s.bodies[0].cg_residual}`);
+  await assert.rejects(c.set({ implicit: { cg_tolerance: 0 } }), e => e.code === 'out_of_range' && /cg_tolerance/.test(e.message));
+  await assert.rejects(c.set({ implicit: { cg_max_iterations: 10001 } }), e => e.code === 'out_of_range' && /10000/.test(e.message));
+  await assert.rejects(c.set({ integrator: 'verlet' }), e => e.code === 'out_of_range' && /set\.integrator/.test(e.message));
+  await assert.rejects(c.set({ lod: { mode: 'adaptive' } }), refused(/implicit integrator runs with fixed lod/));
+  a = await c.set({ damping: { mass: 1.5 } });
+  st = a.bodies[0].settings;
+  assert.equal(st.integrator, 'implicit');
+  assert.equal(st.implicit.cg_tolerance, 1e-5);
+  assert.equal(st.lod.mode, 'fixed');
+  a = await c.set({ integrator: 'explicit' });
+  assert.equal(a.bodies[0].settings.integrator, 'explicit');
   await c.close();
 });

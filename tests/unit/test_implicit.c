@@ -460,3 +460,74 @@ SQ_TEST(implicit_multigrid_over_the_coarser_levels)
     for (int k = 0; k < 3; k++)
         sq_mesh_free(ms[k]);
 }
+
+/* ---- scene keys ------------------------------------------------------------------------ */
+
+#include "scene/scene.h"
+#include "test_scene_helpers.h"
+
+/* the shipped sphere-grab scene (fixed lod) with "elasticity": ... replaced by `to` */
+static sq_scene *sphere_grab_keys(const char *from, const char *to, sq_err *e)
+{
+    static char text[65536], out[66000];
+    if (th_shipped_scene_text("sphere-grab", text, sizeof text))
+        return NULL;
+    char *at = strstr(text, from);
+    if (!at)
+        return NULL;
+    snprintf(out, sizeof out, "%.*s%s%s", (int)(at - text), text, to, at + strlen(from));
+    return sq_scene_parse(out, th_scenes_dir(), "sphere-grab", e);
+}
+
+SQ_TEST(implicit_scene_keys_and_refusals)
+{
+    const char *el = "\"elasticity\": \"corotational\",";
+    sq_err e = {{0}};
+    sq_scene *sc = sphere_grab_keys(el, "\"elasticity\": \"corotational\", \"integrator\": \"implicit\", \"implicit\": "
+                                        "{\"substeps\": 2, \"cg_tolerance\": 1e-5, \"cg_max_iterations\": 300, "
+                                        "\"preconditioner\": \"multigrid\", \"newton_iterations\": 2},", &e);
+    TH_REQUIRE(sc);
+    const sq_body_def *d = &sc->bodies[0];
+    CHECK(d->integrator == SQ_INTEGRATOR_IMPLICIT);
+    CHECK(d->implicit.substeps == 2 && d->implicit.tol == 1e-5 && d->implicit.max_iter == 300);
+    CHECK(d->implicit.precond == SQ_PRECOND_MULTIGRID && d->implicit.newton == 2);
+    sq_scene_free(sc);
+    /* without the keys: explicit, the defaults */
+    sc = sphere_grab_keys(el, el, &e);
+    TH_REQUIRE(sc);
+    CHECK(sc->bodies[0].integrator == SQ_INTEGRATOR_EXPLICIT);
+    CHECK(sc->bodies[0].implicit.substeps == 1 && sc->bodies[0].implicit.tol == 1e-6);
+    sq_scene_free(sc);
+    static const char *const bad[][2] = {
+        {"\"integrator\": \"rk4\",", "bodies[0].integrator"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"cg_tolerance\": 0},", "cg_tolerance"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"cg_tolerance\": -1},", "(0, 1)"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"cg_max_iterations\": 0},", "cg_max_iterations"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"cg_max_iterations\": 20000},", "cg_max_iterations"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"substeps\": 100},", "substeps"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"preconditioner\": \"ilu\"},", "multigrid"},
+        {"\"integrator\": \"implicit\", \"implicit\": {\"tolerance\": 1e-3},", "tolerance"},
+        {"\"integrator\": \"implicit\", \"implicit\": [1],", "bodies[0].implicit"},
+    };
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+        memset(&e, 0, sizeof e);
+        sc = sphere_grab_keys(el, bad[k][0], &e);
+        CHECK(sc == NULL);
+        CHECK_CONTAINS(e.msg, bad[k][1]);
+        sq_scene_free(sc);
+    }
+    /* implicit with adaptive lod: refused at load, naming the fix */
+    memset(&e, 0, sizeof e);
+    static char text[65536], out[66000], out2[66000];
+    CHECK(th_shipped_scene_text("sphere-grab", text, sizeof text) == 0);
+    char *at = strstr(text, "\"mode\": \"fixed\", \"level\": 1");
+    TH_REQUIRE(at);
+    snprintf(out, sizeof out, "%.*s\"mode\": \"adaptive\"%s", (int)(at - text), text, at + strlen("\"mode\": \"fixed\", \"level\": 1"));
+    at = strstr(out, el);
+    TH_REQUIRE(at);
+    snprintf(out2, sizeof out2, "%.*s\"integrator\": \"implicit\",%s", (int)(at - out), out, at + strlen(el));
+    sc = sq_scene_parse(out2, th_scenes_dir(), "sphere-grab", &e);
+    CHECK(sc == NULL);
+    CHECK_CONTAINS(e.msg, "fixed lod");
+    sq_scene_free(sc);
+}

@@ -295,3 +295,46 @@ SQ_TEST(net_request_nu_range_as_scene_files)
     CHECK_CONTAINS(e.message, "outside [0, 0.5)");
     expect_code("{\"type\":\"set\",\"material\":{\"nu\":\"0.3\"}}", "bad_field");
 }
+
+/* set.integrator and set.implicit: decoded with their values; each bad value refused with the
+ * code and a message naming the field and its range */
+SQ_TEST(net_request_set_integrator)
+{
+    sq_request r;
+    sq_net_error e;
+    CHECK(dec("{\"type\":\"set\",\"integrator\":\"implicit\",\"implicit\":{\"substeps\":4,\"cg_tolerance\":1e-5,"
+              "\"cg_max_iterations\":300,\"preconditioner\":\"multigrid\",\"newton_iterations\":3}}",
+              &r, &e) == 0);
+    CHECK(r.set.has_integrator && r.set.integrator == SQ_INTEGRATOR_IMPLICIT);
+    CHECK(r.set.has_substeps && r.set.implicit.substeps == 4);
+    CHECK(r.set.has_tol && r.set.implicit.tol == 1e-5);
+    CHECK(r.set.has_max_iter && r.set.implicit.max_iter == 300);
+    CHECK(r.set.has_precond && r.set.implicit.precond == SQ_PRECOND_MULTIGRID);
+    CHECK(r.set.has_newton && r.set.implicit.newton == 3);
+    CHECK(dec("{\"type\":\"set\",\"integrator\":\"explicit\"}", &r, &e) == 0);
+    CHECK(r.set.integrator == SQ_INTEGRATOR_EXPLICIT && !r.set.has_tol);
+    static const char *const bad[][2] = {
+        {"{\"type\":\"set\",\"integrator\":\"rk4\"}", "out_of_range"},
+        {"{\"type\":\"set\",\"integrator\":3}", "bad_field"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_tolerance\":0}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_tolerance\":-1e-6}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_tolerance\":1}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_tolerance\":1e999}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_tolerance\":\"tight\"}}", "bad_field"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_max_iterations\":0}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_max_iterations\":10001}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"cg_max_iterations\":2.5}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"substeps\":0}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"substeps\":65}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"newton_iterations\":11}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"preconditioner\":\"ilu\"}}", "out_of_range"},
+        {"{\"type\":\"set\",\"implicit\":{\"warp\":1}}", "bad_field"},
+        {"{\"type\":\"set\",\"implicit\":7}", "bad_field"},
+    };
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++)
+        expect_code(bad[k][0], bad[k][1]);
+    CHECK(dec("{\"type\":\"set\",\"implicit\":{\"cg_tolerance\":0}}", &r, &e) == -1);
+    CHECK(strstr(e.message, "cg_tolerance") != NULL);
+    CHECK(dec("{\"type\":\"set\",\"implicit\":{\"cg_max_iterations\":10001}}", &r, &e) == -1);
+    CHECK(strstr(e.message, "10000") != NULL);
+}
