@@ -32,7 +32,7 @@ check "stats.csv rows" [ "$(wc -l <"$TMP/a/stats.csv")" = 31 ]
 "$SQUISH" run "$DATA/small-cube.json" --frames 400 --out "$TMP/h" >"$TMP/h.log" 2>&1
 hf=$(grep -oE '^frame [0-9]+ .*sleeping until touched' "$TMP/h.log" | grep -oE '^frame [0-9]+' | grep -oE '[0-9]+')
 check "stats.csv health column: sleep in the frame the log names, nothing else" bash -c "
-    [ -n '$hf' ] && [ \"\$(awk -F, 'NR > 1 && \$(NF-1) != \"\" { print \$1 \":\" \$(NF-1) }' '$TMP/h/stats.csv')\" = '$hf:sleep' ]"
+    [ -n '$hf' ] && [ \"\$(awk -F, 'NR > 1 && \$(NF-3) != \"\" { print \$1 \":\" \$(NF-3) }' '$TMP/h/stats.csv')\" = '$hf:sleep' ]"
 check "final.vtk is legacy VTK" bash -c "head -n 1 '$TMP/a/final.vtk' | grep -q '^# vtk DataFile Version'"
 # tools.csv: one row per frame (one tool, one body); the sphere presses at t = 0.2 s (frame 10):
 # it constrains nodes and the body pushes it up (fz > 0); released from frame 15 on (inactive)

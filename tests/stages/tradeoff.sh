@@ -41,13 +41,16 @@ rc=$?
 check "tradeoff exits 0" [ "$rc" = 0 ]
 tcsv=$TMP/to/tradeoff.csv
 check "tradeoff.csv header" bash -c "head -n 1 '$tcsv' | grep -q '^setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,'"
-check "tradeoff.csv rows (quick grid: 9 settings)" [ "$(tail -n +2 "$tcsv" | grep -cv ',guarded')" = 9 ]
+check "tradeoff.csv rows (quick grid: 12 settings)" [ "$(tail -n +2 "$tcsv" | grep -cv ',guarded')" = 12 ]
+# the integrator axis: implicit x1 and x4 at CG 1e-6 and x1 at 1e-3, each with its CG iterations
+check "tradeoff.csv: 3 implicit rows with CG iterations, off the front" \
+    bash -c "[ \$(grep -c '^\"implicit L2 x[14] tol [0-9e.-]*\",integrator,fem,fixed,2,' '$tcsv') = 3 ] && grep ',integrator,fem,' '$tcsv' | awk -F, '{ if (!(\$20 == 0 && \$(NF-1) == \"implicit\" && \$NF > 0 && \$19 == 0)) bad = 1 } END { exit bad }'"
 # the scene's adaptive setting with the live budget (the guard on): 3 runs and a row of their medians,
 # every number finite, the error measured (the tool touches), never on the Pareto front
 check "tradeoff.csv: 3 guarded runs and their median row" \
     bash -c "[ \$(grep -c '^\"adaptive split 0.005 guarded run [123]\",guarded_run,fem,adaptive,' '$tcsv') = 3 ] && [ \$(grep -c '^\"adaptive split 0.005 guarded median\",guarded,fem,adaptive,' '$tcsv') = 1 ] && [ \$(grep -c ',guarded' '$tcsv') = 4 ]"
 check "tradeoff.csv header names the CPU columns" \
-    bash -c "head -n 1 '$tcsv' | grep -q ',resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error$'"
+    bash -c "head -n 1 '$tcsv' | grep -q ',resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error,integrator,cg_iterations_per_frame$'"
 check "guarded rows: finite, error and cost measured, off the front" \
     bash -c "grep ',guarded' '$tcsv' | awk -F, '{for (c = 8; c <= 23; c++) if (\$c !~ /^-?[0-9.]+(e[-+][0-9]+)?$/) bad = 1; if (!(\$9 == 75 && \$11 > 0 && \$12 > 0 && \$13 > 0 && \$14 >= \$13 && \$20 == 0 && \$21 > 0 && \$22 >= 0 && \$23 > 0)) bad = 1; n++} END {exit !(n == 4 && !bad)}'"
 check "summary: the live-budget spread, said not deterministic, and the aims" \
@@ -96,7 +99,7 @@ check "tradeoff: the scene's lod.budget reaches the guarded run" \
     bash -c "grep -q '\"budget\": 1e-6' '$TMP/cp-budget.json' && awk -F, '\$1 == \"\\\"fixed L0\\\"\" {l0 = \$11} \$1 == \"\\\"adaptive split 0.005\\\"\" {ad = \$11} \$1 == \"\\\"adaptive split 0.005 guarded run 1\\\"\" {g = \$11} END {exit !(l0 > 0 && ad > 5 * l0 && g > 0 && g <= 1.5 * l0)}' '$TMP/tob/tradeoff.csv'"
 "$SQUISH" tradeoff meshes/scenes/cube-poke.json --quick --frames 10 --guarded 0 --out "$TMP/tog0" >"$TMP/tog0.log" 2>&1
 check "tradeoff --guarded 0: no run with the live budget" \
-    bash -c "[ \$? = 0 ] && [ \$(tail -n +2 '$TMP/tog0/tradeoff.csv' | wc -l) = 9 ] && ! grep -q guarded '$TMP/tog0/tradeoff.csv'"
+    bash -c "[ \$? = 0 ] && [ \$(tail -n +2 '$TMP/tog0/tradeoff.csv' | wc -l) = 12 ] && ! grep -q guarded '$TMP/tog0/tradeoff.csv'"
 "$SQUISH" tradeoff meshes/scenes/cube-poke.json --guarded 16 >"$TMP/u6.log" 2>&1
 check "tradeoff bad --guarded: exit 2, named" bash -c "[ $? = 2 ] && grep -q -- '--guarded needs' '$TMP/u6.log'"
 "$SQUISH" tradeoff meshes/scenes/cube-poke.json --reference-step 0 >"$TMP/u5.log" 2>&1
