@@ -58,6 +58,11 @@ struct sq_implicit {
     double *pre;                  /* Jacobi: inverse diagonal (3 n); block: inverse 3x3 (9 n) */
     double *rot;                  /* corotational: R per tet (9 ntets), the linearisation's */
     int *diag;                    /* CSR index of the diagonal block of each row (n) */
+    /* corotational: the warped stiffness assembled in the level's upper-half layout (Kup
+     * blocks, up_start[n] x 9) at each linearisation, and for each tet the index of each of its
+     * 6 edges in that layout (6 ntets, corner pairs 01 02 03 12 13 23) */
+    double *kup_r;
+    int *tet_edge;
     unsigned char *freeax;        /* free axes per node this step, bits x=1 y=2 z=4 (n) */
 };
 
@@ -114,6 +119,8 @@ void sq_level_implicit_free(sq_level *L)
     mg_free(I);
     free(I->diag);
     free(I->freeax);
+    free(I->kup_r);
+    free(I->tet_edge);
     free(I);
     L->implicit = NULL;
 }
@@ -136,34 +143,12 @@ static void apply_k(const imp_op *o, const double *x, double *y)
         sq_level_anp_apply(L, x, y);
         return;
     }
-    if (L->corot) {
-        const sq_corot *C = L->corot;
-        memset(y, 0, sizeof(double) * n3);
-        for (int t = 0; t < C->ntets; t++) {
-            const int *tv = M->mesh->tets + 4 * (size_t)t;
-            const double *R = o->I->rot + 9 * (size_t)t;
-            double G[10], F[9], S[9], sig[9], P[9];
-            tet_load(C, t, G, NULL);
-            tet_grad(G, tv, x, NULL, 0, F, 0.0);
-            rt_mul(R, F, S);
-            add_stress(S, C->mu, C->lambda, 0.0, sig, 0);
-            const double V = G[9];
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++)
-                    P[3 * r + c] = V * (R[3 * r] * sig[c] + R[3 * r + 1] * sig[3 + c] + R[3 * r + 2] * sig[6 + c]);
-            double s0 = 0, s1 = 0, s2 = 0;
-            for (int k = 0; k < 3; k++) {
-                const double *a = G + 3 * k;
-                const double f0 = P[0] * a[0] + P[1] * a[1] + P[2] * a[2];
-                const double f1 = P[3] * a[0] + P[4] * a[1] + P[5] * a[2];
-                const double f2 = P[6] * a[0] + P[7] * a[1] + P[8] * a[2];
-                double *yk = y + 3 * (size_t)tv[k];
-                yk[0] += f0, yk[1] += f1, yk[2] += f2;
-                s0 += f0, s1 += f1, s2 += f2;
-            }
-            double *y3 = y + 3 * (size_t)tv[3];
-            y3[0] -= s0, y3[1] -= s1, y3[2] -= s2;
-        }
+    if (L->corot) { /* the warped stiffness assembled at the linearisation, by the fused pass */
+        sq_level_model W = *M;
+        W.Kup = o->I->kup_r;
+        sq_level_neg_k(&W, x, y, o->I->acc);
+        for (size_t k = 0; k < n3; k++)
+            y[k] = -y[k];
         return;
     }
     sq_level_neg_k(M, x, y, o->I->acc); /* the step's fused pass: y = -K x */
@@ -209,11 +194,62 @@ static void corot_linearise(sq_level *L)
 {
     sq_implicit *I = L->implicit;
     const sq_corot *C = L->corot;
+    const sq_level_model *M = &L->model;
     sq_level_corot_converge(L);
+    if (!I->kup_r) {
+        I->kup_r = imp_calloc(9 * (size_t)M->up_start[M->n], sizeof(double));
+        I->tet_edge = imp_calloc(6 * (size_t)C->ntets, sizeof(int));
+        for (int t = 0; t < C->ntets; t++) {
+            const int *tv = M->mesh->tets + 4 * (size_t)t;
+            int k = 0;
+            for (int p = 0; p < 4; p++)
+                for (int q = p + 1; q < 4; q++, k++) {
+                    int i = SQ_MIN(tv[p], tv[q]), j = SQ_MAX(tv[p], tv[q]), at = -1;
+                    for (int e = M->up_start[i]; e < M->up_start[i + 1]; e++)
+                        if (M->up_col[e] == j)
+                            at = e;
+                    I->tet_edge[6 * (size_t)t + k] = at;
+                }
+        }
+    }
+    memset(I->kup_r, 0, sizeof(double) * 9 * (size_t)M->up_start[M->n]);
     for (int t = 0; t < C->ntets; t++) {
         double G[10], q[4];
         tet_load(C, t, G, q);
-        quat_mat(q, I->rot + 9 * (size_t)t);
+        double *R = I->rot + 9 * (size_t)t;
+        quat_mat(q, R);
+        /* the tet's off-diagonal blocks R K_pq R^T, added to the upper half (transposed when the
+         * corners' nodes come in the other order); the diagonal follows from translation
+         * invariance, as for the linear blocks */
+        const int *tv = M->mesh->tets + 4 * (size_t)t;
+        double a[4][3];
+        for (int c = 0; c < 3; c++) {
+            a[0][c] = G[c], a[1][c] = G[3 + c], a[2][c] = G[6 + c];
+            a[3][c] = -(a[0][c] + a[1][c] + a[2][c]);
+        }
+        int k = 0;
+        for (int p = 0; p < 4; p++)
+            for (int qq = p + 1; qq < 4; qq++, k++) {
+                const int e = I->tet_edge[6 * (size_t)t + k];
+                if (e < 0)
+                    continue;
+                double B[9] = {0}, RB[9], W[9];
+                sq_level_tet_block(SQ_OPERATOR_FEM, G[9], a[p], a[qq], C->mu, C->lambda, B);
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        RB[3 * r + c] = R[3 * r] * B[c] + R[3 * r + 1] * B[3 + c] + R[3 * r + 2] * B[6 + c];
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++)
+                        W[3 * r + c] = RB[3 * r] * R[3 * c] + RB[3 * r + 1] * R[3 * c + 1] + RB[3 * r + 2] * R[3 * c + 2];
+                double *out = I->kup_r + 9 * (size_t)e;
+                if (tv[p] < tv[qq])
+                    for (int r = 0; r < 9; r++)
+                        out[r] += W[r];
+                else
+                    for (int r = 0; r < 3; r++)
+                        for (int c = 0; c < 3; c++)
+                            out[3 * r + c] += W[3 * c + r];
+            }
     }
 }
 
