@@ -63,6 +63,12 @@ struct sq_implicit {
      * 6 edges in that layout (6 ntets, corner pairs 01 02 03 12 13 23) */
     double *kup_r;
     int *tet_edge;
+    /* the energy guard: the total energy of the last step's end state and a hash of that state
+     * (d and v bits, gravity), so the next step's start energy is not computed again when
+     * nothing changed the state in between */
+    double e_cache;
+    unsigned long long e_hash;
+    int e_valid;
     unsigned char *freeax;        /* free axes per node this step, bits x=1 y=2 z=4 (n) */
 };
 
@@ -804,6 +810,22 @@ static void forces_now(sq_level *L, const sq_material *mat, const double g[3])
     sq_level_forces(L, mat, g, NULL);
 }
 
+/* FNV-1a over the bits of d, v and g: equal exactly when the state is the same */
+static unsigned long long state_hash(const sq_level *L, const double g[3])
+{
+    unsigned long long h = 1469598103934665603ull;
+    const size_t n3 = 3 * (size_t)L->model.n;
+    const double *arr[3] = {L->d, L->v, g};
+    const size_t len[3] = {n3, n3, 3};
+    for (int a = 0; a < 3; a++)
+        for (size_t k = 0; k < len[a]; k++) {
+            unsigned long long bits;
+            memcpy(&bits, arr[a] + k, sizeof bits);
+            h = (h ^ bits) * 1099511628211ull;
+        }
+    return h;
+}
+
 /* kinetic + elastic + gravity potential energy of the state, J */
 static double total_energy(const sq_level *L, const double g[3])
 {
@@ -866,7 +888,10 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     memcpy(I->v0, L->v, sizeof(double) * n3);
     /* corotational without holds: the start energy, for the Newton iterations' energy guard */
     const int e0_known = L->corot && !mask;
-    const double e0 = e0_known ? total_energy(L, g) : 0;
+    double e0 = 0;
+    if (e0_known)
+        e0 = I->e_valid && I->e_hash == state_hash(L, g) ? I->e_cache : total_energy(L, g);
+    I->e_valid = 0;
 
     /* f0 at the step's start (corotational: the rotations of the linearisation) */
     forces_now(L, mat, g);
@@ -930,8 +955,15 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
          * cannot (a solve stopped by its cap is reported instead: more iterations of it would
          * not be converged either) */
         int more = nt + 1 < def->newton;
-        if (!more && e0_known && !capped && nt + 1 < SQ_IMPLICIT_MAX_NEWTON)
-            more = total_energy(L, g) > e0 + 1e-12 * fabs(e0);
+        if (!more && e0_known && !capped && nt + 1 < SQ_IMPLICIT_MAX_NEWTON) {
+            const double e1 = total_energy(L, g);
+            more = e1 > e0 + 1e-12 * fabs(e0);
+            if (!more) { /* the next step's start energy, if nothing changes the state */
+                I->e_cache = e1;
+                I->e_hash = state_hash(L, g);
+                I->e_valid = 1;
+            }
+        }
         if (more || def->newton > 1) {
             /* Newton residual P (h f(d1, v1) - M dv), re-linearised at the new state */
             forces_now(L, mat, g);
