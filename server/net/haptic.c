@@ -126,7 +126,7 @@ static int solve3(const double A[9], const double b[3], double x[3])
     return 0;
 }
 
-void sq_haptic_eval(const sq_tool_model *m, int valid, const sq_haptic_coupling *cp,
+void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out)
 {
     memset(out, 0, sizeof *out);
@@ -166,7 +166,8 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, const sq_haptic_coupling 
             memset(out->torque, 0, sizeof out->torque);
     }
     /* the damper on the tool-device relative velocity (device time differences) */
-    if (st->has_last && cp->damping > 0) {
+    int contact = (out->flags & SQ_HAPTIC_F_CONTACT) && !(out->flags & SQ_HAPTIC_F_RELEASED);
+    if (st->has_last && cp->damping > 0 && contact && st->contact && st->frame == frame) {
         double dt = t - st->t;
         if (dt > 1e-5 && dt < 0.1)
             for (int c = 0; c < 3; c++) {
@@ -176,6 +177,8 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, const sq_haptic_coupling 
     }
     memcpy(out->force, f, sizeof f);
     st->has_last = 1;
+    st->contact = contact;
+    st->frame = frame;
     st->t = t;
     memcpy(st->xd, xd, sizeof st->xd);
     memcpy(st->p, out->tool, sizeof st->p);
@@ -245,8 +248,11 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
                 if (sq_body_tool_model(w->bodies[b], i, &w->tools[i], &m))
                     continue;
                 sum->nnodes += m.nnodes;
+                /* f0: the frame's feedback (the held nodes' reaction averaged over its
+                 * substeps, what frames report), steadier than the end state's (m.f0), which
+                 * carries the fastest oscillations of the nodes around the tool */
                 for (int c = 0; c < 3; c++) {
-                    sum->f0[c] += m.f0[c];
+                    sum->f0[c] += w->feedback[b][i].force[c];
                     sum->torque[c] += m.torque[c];
                     nsum[c] += m.nnodes * m.normal[c];
                 }

@@ -43,6 +43,8 @@ typedef struct sq_haptic_coupling {
 typedef struct sq_haptic_state {
     int has_last;
     double t, xd[3], p[3];           /* last device time, device and tool positions */
+    long frame;                      /* the model's frame at the last pose */
+    int contact;                     /* the last pose was in contact */
 } sq_haptic_state;
 
 /* one evaluation: what a pose gets back */
@@ -55,9 +57,11 @@ typedef struct sq_haptic_out {
 
 /* the force for device position xd at device time t from model m (valid 0: none yet) with the
  * coupling: tool p solves k (xd - p) + f(p) = 0, f(p) = f0 + K (p - p0) (K is negative
- * semi-definite, so k I - K is invertible for k > 0); force = f(p) + c (v_p - v_d). A push
+ * semi-definite, so k I - K is invertible for k > 0); force = f(p) + c (v_p - v_d), the damper
+ * acting only between two poses in contact on the same frame's model (a new model moves the
+ * tool at once: that jump is not a velocity). A push
  * never pulls: where f(p) points into the body the contact is lost (force 0, p = xd). Pure. */
-void sq_haptic_eval(const sq_tool_model *m, int valid, const sq_haptic_coupling *cp,
+void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out);
 
 /* one open channel */

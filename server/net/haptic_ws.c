@@ -297,7 +297,7 @@ void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
         return;
     }
     sq_haptic_out out;
-    sq_haptic_eval(&ch->model, ch->model_valid, &ch->coupling, &ch->state, p.pos, p.t, &out);
+    sq_haptic_eval(&ch->model, ch->model_valid, ch->model_frame, &ch->coupling, &ch->state, p.pos, p.t, &out);
     if (ch->shape != SQ_TOOL_BOX)
         memset(out.torque, 0, sizeof out.torque);
     memcpy(ch->pose, out.tool, sizeof ch->pose);
