@@ -126,62 +126,134 @@ static int solve3(const double A[9], const double b[3], double x[3])
     return 0;
 }
 
+/* the coupled tool position p and force f of one model for device position xd; returns flags */
+static unsigned coupled(const sq_tool_model *m, int valid, const sq_haptic_coupling *cp,
+                        const double xd[3], double f[3], double p[3], double torque[3])
+{
+    memset(f, 0, 3 * sizeof *f);
+    memset(torque, 0, 3 * sizeof *torque);
+    memcpy(p, xd, 3 * sizeof *p);
+    if (!valid)
+        return SQ_HAPTIC_F_NO_MODEL;
+    if (m->nnodes <= 0)
+        return 0;
+    if (cp->stiffness > 0) {
+        /* (k I - K) p = k xd + f0 - K p0 */
+        double A[9], b[3];
+        for (int r = 0; r < 3; r++) {
+            b[r] = cp->stiffness * xd[r] + m->f0[r];
+            for (int c = 0; c < 3; c++) {
+                A[3 * r + c] = (r == c ? cp->stiffness : 0) - m->K[3 * r + c];
+                b[r] -= m->K[3 * r + c] * m->p0[c];
+            }
+        }
+        if (solve3(A, b, p))
+            memcpy(p, xd, 3 * sizeof *p);
+    }
+    model_force(m, p, f);
+    if (m->push && f[0] * m->normal[0] + f[1] * m->normal[1] + f[2] * m->normal[2] > 0) {
+        /* the reaction of a push points out of the body (against the normal): past the
+         * contact the model would pull; the contact is lost */
+        memset(f, 0, 3 * sizeof *f);
+        memcpy(p, xd, 3 * sizeof *p);
+        return SQ_HAPTIC_F_CONTACT | SQ_HAPTIC_F_RELEASED;
+    }
+    memcpy(torque, m->torque, 3 * sizeof *torque);
+    return SQ_HAPTIC_F_CONTACT;
+}
+
 void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out)
 {
     memset(out, 0, sizeof *out);
-    memcpy(out->tool, xd, sizeof out->tool);
-    double f[3] = {0, 0, 0};
-    if (!valid) {
-        out->flags |= SQ_HAPTIC_F_NO_MODEL;
-    } else if (m->nnodes > 0) {
-        out->flags |= SQ_HAPTIC_F_CONTACT;
-        double p[3];
-        if (cp->stiffness > 0) {
-            /* (k I - K) p = k xd + f0 - K p0 */
-            double A[9], b[3];
-            for (int r = 0; r < 3; r++) {
-                b[r] = cp->stiffness * xd[r] + m->f0[r];
-                for (int c = 0; c < 3; c++) {
-                    A[3 * r + c] = (r == c ? cp->stiffness : 0) - m->K[3 * r + c];
-                    b[r] -= m->K[3 * r + c] * m->p0[c];
-                }
-            }
-            if (solve3(A, b, p))
-                memcpy(p, xd, sizeof p);
-        } else {
-            memcpy(p, xd, sizeof p);
+    double f[3];
+    /* a new frame's model: blended in over SQ_HAPTIC_BLEND s of device time from the one the
+     * last pose used, so that the force has no step at the frame rate */
+    if (!st->has_model || frame != st->frame) {
+        if (st->has_model) {
+            st->prev = st->model;
+            st->prev_valid = st->model_valid;
+            st->blend_t0 = t;
+            st->blending = 1;
         }
-        model_force(m, p, f);
-        if (m->push && f[0] * m->normal[0] + f[1] * m->normal[1] + f[2] * m->normal[2] > 0) {
-            /* the reaction of a push points out of the body (against the normal): past the
-             * contact the model would pull; the contact is lost */
-            memset(f, 0, sizeof f);
-            memcpy(p, xd, sizeof p);
-            out->flags |= SQ_HAPTIC_F_RELEASED;
+        st->model = *m;
+        st->model_valid = valid;
+        st->has_model = 1;
+        st->frame = frame;
+    }
+    double w = st->blending ? (t - st->blend_t0) / SQ_HAPTIC_BLEND : 1;
+    if (!(w < 1))
+        st->blending = 0, w = 1;
+    if (w < 0)
+        w = 0;
+    out->flags = coupled(&st->model, st->model_valid, cp, xd, f, out->tool, out->torque);
+    if (st->blending) {
+        double f1[3], p1[3], q1[3];
+        unsigned fl = coupled(&st->prev, st->prev_valid, cp, xd, f1, p1, q1);
+        for (int c = 0; c < 3; c++) {
+            f[c] = w * f[c] + (1 - w) * f1[c];
+            out->tool[c] = w * out->tool[c] + (1 - w) * p1[c];
+            out->torque[c] = w * out->torque[c] + (1 - w) * q1[c];
         }
-        memcpy(out->tool, p, sizeof out->tool);
-        memcpy(out->torque, m->torque, sizeof out->torque);
-        if (m->push && (out->flags & SQ_HAPTIC_F_RELEASED))
-            memset(out->torque, 0, sizeof out->torque);
+        if ((fl & SQ_HAPTIC_F_CONTACT) && !(fl & SQ_HAPTIC_F_RELEASED))
+            out->flags = (out->flags & ~SQ_HAPTIC_F_RELEASED) | SQ_HAPTIC_F_CONTACT;
+        if (!(fl & SQ_HAPTIC_F_NO_MODEL))
+            out->flags &= ~SQ_HAPTIC_F_NO_MODEL;
     }
     /* the damper on the tool-device relative velocity (device time differences) */
     int contact = (out->flags & SQ_HAPTIC_F_CONTACT) && !(out->flags & SQ_HAPTIC_F_RELEASED);
-    if (st->has_last && cp->damping > 0 && contact && st->contact && st->frame == frame) {
-        double dt = t - st->t;
+    double dt = st->has_last ? t - st->t : 0;
+    if (st->has_last && cp->damping > 0 && contact && st->contact) {
         if (dt > 1e-5 && dt < 0.1)
             for (int c = 0; c < 3; c++) {
                 double vp = (out->tool[c] - st->p[c]) / dt, vd = (xd[c] - st->xd[c]) / dt;
                 f[c] += cp->damping * (vp - vd);
             }
     }
+    /* passivity observer and controller: the energy absorbed up to this pose */
+    if (st->has_last) {
+        double dx2 = 0;
+        for (int c = 0; c < 3; c++) {
+            st->energy -= st->force[c] * (xd[c] - st->xd[c]);
+            dx2 += (xd[c] - st->xd[c]) * (xd[c] - st->xd[c]);
+        }
+        if (st->energy < 0 && dx2 > 0 && dt > 1e-5 && dt < 0.1) {
+            /* a damper alpha on v = dx / dt dissipates alpha |v|^2 dt over the next step */
+            double alpha = fmin(SQ_HAPTIC_PC_MAX, -st->energy * dt / dx2);
+            for (int c = 0; c < 3; c++)
+                f[c] -= alpha * (xd[c] - st->xd[c]) / dt;
+            out->flags |= SQ_HAPTIC_F_DISSIPATING;
+        }
+    }
+    if (!contact && !(out->flags & SQ_HAPTIC_F_DISSIPATING))
+        st->energy = fmin(st->energy, 0); /* out of contact the body keeps nothing to give back */
     memcpy(out->force, f, sizeof f);
+    memcpy(st->force, f, sizeof f);
     st->has_last = 1;
     st->contact = contact;
-    st->frame = frame;
     st->t = t;
     memcpy(st->xd, xd, sizeof st->xd);
     memcpy(st->p, out->tool, sizeof st->p);
+}
+
+/* a push is frictionless: its reaction and stiffness along the contact normal n only,
+ * f0 <- min(0, n.f0) n, K <- min(0, n.K n) n n^T */
+static void frictionless(sq_tool_model *m)
+{
+    const double *n = m->normal;
+    double fn = 0, kn = 0;
+    for (int r = 0; r < 3; r++) {
+        fn += n[r] * m->f0[r];
+        for (int c = 0; c < 3; c++)
+            kn += n[r] * m->K[3 * r + c] * n[c];
+    }
+    fn = fmin(fn, 0);
+    kn = fmin(kn, 0);
+    for (int r = 0; r < 3; r++) {
+        m->f0[r] = fn * n[r];
+        for (int c = 0; c < 3; c++)
+            m->K[3 * r + c] = kn * n[r] * n[c];
+    }
 }
 
 void sq_haptic_hub_init(sq_haptic_hub *h)
@@ -263,6 +335,8 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
             if (nn > 0)
                 for (int c = 0; c < 3; c++)
                     sum->normal[c] = nsum[c] / nn;
+            if (sum->push && sum->nnodes > 0)
+                frictionless(sum);
         }
     }
     pthread_mutex_lock(&h->mu);

@@ -32,6 +32,10 @@
 #define SQ_HAPTIC_F_CONTACT 1u       /* the model had held nodes */
 #define SQ_HAPTIC_F_RELEASED 2u      /* a push whose model would pull: force 0 */
 #define SQ_HAPTIC_F_NO_MODEL 4u      /* no frame since the channel opened: force 0 */
+#define SQ_HAPTIC_F_DISSIPATING 8u   /* the passivity controller added damping to this force */
+#define SQ_HAPTIC_BLEND 0.01         /* s of device time over which a new frame's model is
+                                        blended in */
+#define SQ_HAPTIC_PC_MAX 200.0       /* largest damping the passivity controller adds, N s/m */
 
 /* the virtual coupling between device and tool: spring and damper */
 typedef struct sq_haptic_coupling {
@@ -44,6 +48,12 @@ typedef struct sq_haptic_state {
     int has_last;
     double t, xd[3], p[3];           /* last device time, device and tool positions */
     long frame;                      /* the model's frame at the last pose */
+    int has_model, model_valid, prev_valid, blending;
+    sq_tool_model model, prev;       /* the model of the last pose, the one blended from */
+    double blend_t0;                 /* device time the blend began */
+    double force[3];                 /* the force answered to the last pose, N */
+    double energy;                   /* J absorbed from the device so far: sum of
+                                        -force_k . (xd_k+1 - xd_k) (passivity observer) */
     int contact;                     /* the last pose was in contact */
 } sq_haptic_state;
 
@@ -59,7 +69,10 @@ typedef struct sq_haptic_out {
  * coupling: tool p solves k (xd - p) + f(p) = 0, f(p) = f0 + K (p - p0) (K is negative
  * semi-definite, so k I - K is invertible for k > 0); force = f(p) + c (v_p - v_d), the damper
  * acting only between two poses in contact on the same frame's model (a new model moves the
- * tool at once: that jump is not a velocity). A push
+ * tool at once: that jump is not a velocity). A passivity observer keeps the energy the channel
+ * has absorbed from the device (force held over each device step); when it is negative (the
+ * channel gave energy back that it never took: a new frame's model can), a damper on the device
+ * velocity, at most SQ_HAPTIC_PC_MAX, takes that energy back over the next step. A push
  * never pulls: where f(p) points into the body the contact is lost (force 0, p = xd). Pure. */
 void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out);
