@@ -225,9 +225,17 @@ def test_input(url):
     check(fr > 40, f"the viewer kept its frame rate during the flood: {fr:.1f} frames/s (> 40 of 50)")
     rl = [e for e in errors if e["code"] == "rate_limited"]
     check(1 <= len(rl) <= elapsed + 2, f"rate errors sent at most once a second ({len(rl)})")
-    # the session still steps and answers
-    f = c.haptic(ch, [0.5, 0.5, 1.07], 10.0)
-    check(f["contact"], "after the flood the channel answers")
+    # the session still steps and answers (once the server has read the flood's backlog and
+    # the bucket has refilled: a pose dropped then gets no answer, so ask up to 5 times)
+    f = None
+    for attempt in range(5):
+        time.sleep(0.5)
+        try:
+            f = c.haptic(ch, [0.5, 0.5, 1.07], 10.0 + attempt, timeout=1.0)
+            break
+        except TimeoutError:
+            pass
+    check(f is not None and f["contact"], "after the flood the channel answers")
     c.haptic_close(2)
     errors.clear()
     c.send_raw(encode_pose(ch, 5, 11.0, (0.5, 0.5, 1.07)))
