@@ -13,7 +13,7 @@ static const struct {
 } codes[SQ_CODE_COUNT] = {
     [SQ_CODE_BAD_JSON] = {"bad_json",
          "not valid UTF-8, not valid JSON, not an object, trailing bytes, or a binary "
-         "message from the client"},
+         "message from the client that is not a haptic pose (magic `SQHP`)"},
     [SQ_CODE_TOO_LARGE] = {"too_large",
          "text message longer than `limits.max_message` (the message is dropped)"},
     [SQ_CODE_BAD_TYPE] = {"bad_type",

@@ -210,6 +210,19 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
                 f[c] += cp->damping * (vp - vd);
             }
     }
+    /* the channel's first pose in contact: the body already holds the energy of its force
+     * (opened on a pressed tool); credited as 0.5 |f0|^2 / k, k the stiffest diagonal of K
+     * (an underestimate of a spring's f^2 / 2k) */
+    if (contact && !st->ever_contact) {
+        double k = 0, f2 = 0;
+        for (int c = 0; c < 3; c++) {
+            k = fmax(k, -st->model.K[4 * c]);
+            f2 += st->model.f0[c] * st->model.f0[c];
+        }
+        if (k > 0)
+            st->energy += 0.5 * f2 / k;
+        st->ever_contact = 1;
+    }
     /* passivity observer and controller: the energy absorbed up to this pose */
     if (st->has_last) {
         double dx2 = 0;

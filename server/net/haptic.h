@@ -49,6 +49,7 @@ typedef struct sq_haptic_state {
     double t, xd[3], p[3];           /* last device time, device and tool positions */
     long frame;                      /* the model's frame at the last pose */
     int has_model, model_valid, prev_valid, blending;
+    int ever_contact;                /* a pose of this channel has been in contact */
     sq_tool_model model, prev;       /* the model of the last pose, the one blended from */
     double blend_t0;                 /* device time the blend began */
     double force[3];                 /* the force answered to the last pose, N */
