@@ -139,6 +139,12 @@ int net_haptic_request(client *c, const char *text, size_t len)
                        "the id of a tool of the session");
         goto done;
     }
+    if (!(tool->valuedouble >= 0 && tool->valuedouble <= SQ_NET_MAX_TOOL_ID)) {
+        snprintf(m, sizeof m, "haptic.tool: %g is outside [0, %d]; send the id of a tool of the "
+                 "session", tool->valuedouble, SQ_NET_MAX_TOOL_ID);
+        net_send_error(c, &req, SQ_CODE_OUT_OF_RANGE, m);
+        goto done;
+    }
     const cJSON *open = cJSON_GetObjectItemCaseSensitive(o, "open");
     if (open && !cJSON_IsBool(open)) {
         net_send_error(c, &req, SQ_CODE_BAD_FIELD, "haptic.open: must be true or false");
@@ -188,7 +194,13 @@ int net_haptic_request(client *c, const char *text, size_t len)
         for (int i = 0; i < SQ_MAX_TOOLS && !ch; i++)
             if (!h->ch[i].id)
                 ch = &h->ch[i];
-        memset(ch, 0, sizeof *ch); /* SQ_MAX_TOOLS slots: one per tool, never full */
+        if (!ch) { /* one slot per tool of at most SQ_MAX_TOOLS: cannot happen */
+            pthread_mutex_unlock(&h->mu);
+            cJSON_Delete(rep);
+            net_send_error(c, &req, SQ_CODE_INTERNAL, "haptic: no free channel slot");
+            goto done;
+        }
+        memset(ch, 0, sizeof *ch);
         ch->id = h->next_id++;
         ch->tool = id;
         ch->tokens = SQ_HAPTIC_BURST;
