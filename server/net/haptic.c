@@ -210,10 +210,11 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
                 f[c] += cp->damping * (vp - vd);
             }
     }
-    /* the channel's first pose in contact: the body already holds the energy of its force
-     * (opened on a pressed tool); credited as 0.5 |f0|^2 / k, k the stiffest diagonal of K
-     * (an underestimate of a spring's f^2 / 2k) */
-    if (contact && !st->ever_contact) {
+    /* the channel's very first pose already in contact (opened on a pressed tool): the body
+     * holds the energy of its force, credited as 0.5 |f0|^2 / k, k the stiffest diagonal of K
+     * (an underestimate of a spring's f^2 / 2k). A contact that starts later gets no credit:
+     * the device brings its energy in itself */
+    if (contact && !st->ever_contact && !st->has_last) {
         double k = 0, f2 = 0;
         for (int c = 0; c < 3; c++) {
             k = fmax(k, -st->model.K[4 * c]);
@@ -223,6 +224,7 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
             st->energy += 0.5 * f2 / k;
         st->ever_contact = 1;
     }
+    st->ever_contact |= contact;
     /* passivity observer and controller: the energy absorbed up to this pose */
     if (st->has_last) {
         double dx2 = 0;

@@ -46,7 +46,7 @@ cat "$tmp/device.out"
 count "$tmp/device.out"
 [ "$rc" = 0 ] || grep -q '^not ok' "$tmp/device.out" || bad "haptic_test.py device exited with $rc"
 if "$PY" tests/net/example_haptic.py "$url" >"$tmp/example.out" 2>&1 && grep -q '^released' "$tmp/example.out" &&
-   awk '/force/ { if ($6 + 0 > 1) hit = 1 } END { exit !hit }' "$tmp/example.out"; then
+   awk '/force/ { if ($8 + 0 > 1) hit = 1 } END { exit !hit }' "$tmp/example.out"; then
     ok "tests/net/example_haptic.py prints a force curve with the press felt (> 1 N)"
 else
     bad "tests/net/example_haptic.py"; cat "$tmp/example.out"
