@@ -29,7 +29,7 @@ with SquishClient.connect(url, client="example_haptic") as c:
     if lockstep:
         c.step(1)
     z, v = 1.22, 0.0
-    wall0 = time.time()
+    due = time.time()
     for k in range(2000):
         t = k * DT
         hand = 1.22 - 0.15 * (t if t < 1 else 2 - t)
@@ -40,7 +40,8 @@ with SquishClient.connect(url, client="example_haptic") as c:
             print(f"t {t:5.3f} s  z {z:6.4f} m  force {f['force'][2]:7.3f} N  frame {f['frame']}")
         if lockstep and (k + 1) % 20 == 0:
             c.step(1)
-        ahead = wall0 + (k + 1) * DT - time.time()   # real time: one pose per millisecond
+        due = max(due, time.time() - DT) + DT   # one pose per millisecond, no catch-up bursts
+        ahead = due - time.time()
         if ahead > 0:
             time.sleep(ahead)
     print("released")

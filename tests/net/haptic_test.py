@@ -70,13 +70,15 @@ def run_device(url, stiffness, damping):
         v = [0.0, 0.0, 0.0]
         forces, work, w = [], [], 0.0
         n = int(2.5 / DT)
-        wall0 = time.time()
+        due = time.time()
         for k in range(n):
             t = k * DT
-            # the channel's rate limit holds in lockstep too (2000 poses/s): pace at <= 1500/s
-            ahead = wall0 + k / 1500.0 - time.time()
+            # the channel's rate limit holds in lockstep too (2000 poses/s): at most 1500 poses
+            # per second, never catching up in a burst after a slow step
+            ahead = due - time.time()
             if ahead > 0:
                 time.sleep(ahead)
+            due = max(due, time.time()) + 1 / 1500.0
             f = c.haptic(ch, x, t)["force"]
             h = hand_target(t)
             hn = hand_target(t + DT)
@@ -199,6 +201,9 @@ def test_input(url):
           f"drops counted in stats.haptic: {st}")
     # the flood: 20 kHz for 2 s on the controller's channel while the viewer counts frames
     pose = [encode_pose(ch, 1000 + k, 1 + k * 5e-5, (0.5, 0.5, 1.07)) for k in range(40000)]
+    b0, tb = v.frames_received, time.time()
+    time.sleep(2.0)  # the viewer's frame rate without the flood, the baseline
+    base = (v.frames_received - b0) / (time.time() - tb)
     f0 = v.frames_received
     got = []
     c.on("haptic", got.append)
@@ -222,7 +227,8 @@ def test_input(url):
     check(rate > 15000, f"the flood ran at {rate:.0f} poses/s (> 15 kHz)")
     check(st["dropped_rate"] > 0 and len(got) <= 2000 * (elapsed + 0.5) + 100,
           f"the channel answered at most max_rate ({len(got)} in {elapsed:.2f} s), dropped {st['dropped_rate']}")
-    check(fr > 40, f"the viewer kept its frame rate during the flood: {fr:.1f} frames/s (> 40 of 50)")
+    check(fr > 0.85 * base, f"the viewer kept its frame rate during the flood: {fr:.1f} frames/s "
+                            f"(> 85 % of the {base:.1f} before it)")
     rl = [e for e in errors if e["code"] == "rate_limited"]
     check(1 <= len(rl) <= elapsed + 2, f"rate errors sent at most once a second ({len(rl)})")
     # the session still steps and answers (once the server has read the flood's backlog and
