@@ -139,6 +139,10 @@ bench: deps node-deps
 	$(BUILD)/squish render meshes/scenes/organ.json --bench
 	@echo "=== service: bytes per vertex, tool-to-frame latency, 200 viewers"
 	SQUISH=$(BUILD)/squish node tests/net/bench-service.mjs --seconds 10
+	@echo "=== haptic channel: pose-in to force-out at 1 kHz, 20 viewers, frame CPU with and without it"
+	SQUISH=$(BUILD)/squish node tests/net/bench-haptic.mjs --viewers 20 --seconds 5 --rounds 2
+	@echo "=== haptic model accuracy: force at mid-frame against a 500 Hz reference, slow press, cube-poke and organ"
+	SQUISH=$(BUILD)/squish /usr/bin/python3 tests/net/haptic_accuracy.py
 
 # regenerate the shipped level-of-detail meshes (needs gmsh; not part of `make test`)
 # the generated family (meshes/box: box-big.json's levels, made by squish itself; its fine levels

@@ -162,6 +162,26 @@ class Emitter {
  * 'event' (reset, control, shutdown, ...), 'control' (the `event` of kind control), 'message'
  * (every text message), 'servererror' (an `error` matching no pending request), 'close'.
  */
+/** haptic channel messages: pose 48 bytes in, force 104 bytes out (little-endian) */
+export const HAPTIC_POSE_BYTES = 48, HAPTIC_FORCE_BYTES = 104;
+export const HAPTIC_CONTACT = 1, HAPTIC_RELEASED = 2, HAPTIC_NO_MODEL = 4, HAPTIC_DISSIPATING = 8;
+export function encodePose(channel, seq, t, pos) {
+  const b = new ArrayBuffer(HAPTIC_POSE_BYTES), v = new DataView(b), u = new Uint8Array(b);
+  u.set([0x53, 0x51, 0x48, 0x50]);
+  v.setUint16(4, 1, true); v.setUint8(6, 1);
+  v.setUint32(8, channel, true); v.setUint32(12, seq, true); v.setFloat64(16, t, true);
+  for (let c = 0; c < 3; c++) v.setFloat64(24 + 8 * c, pos[c], true);
+  return u;
+}
+export function decodeForce(bytes) {
+  const v = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const f64 = (o) => [v.getFloat64(o, true), v.getFloat64(o + 8, true), v.getFloat64(o + 16, true)];
+  const flags = v.getUint8(7);
+  return { channel: v.getUint32(8, true), seq: v.getUint32(12, true), frame: v.getUint32(16, true),
+           t: v.getFloat64(24, true), flags, contact: !!(flags & 1), released: !!(flags & 2),
+           noModel: !!(flags & 4), force: f64(32), torque: f64(56), tool: f64(80) };
+}
+
 export class SquishClient extends Emitter {
   /**
    * Connect and say hello. options: { client, role ('control'|'view'), token, origin (Node
@@ -186,6 +206,8 @@ export class SquishClient extends Emitter {
     this.options = options;
     this.nextRef = 1;
     this.pending = new Map();
+    this._hapticWaits = new Map(); // pose seq -> waiting haptic() call
+    this._hapticSeq = 0;
     this.bodies = new Map();      // body id -> { rest, triangles }
     this.session = null;
     this.opened = null;           // the last opened/joined reply
@@ -236,8 +258,17 @@ export class SquishClient extends Emitter {
     }
   }
 
-  // messages are handled in arrival order: in Node at once, in browsers through a queue
+  // messages are handled in arrival order: in Node at once, in browsers through a queue;
+  // haptic forces at once everywhere (they are small and need no decoder)
   _receive(data, isBinary) {
+    if (isBinary && data.length === HAPTIC_FORCE_BYTES && data[0] === 0x53 && data[1] === 0x51 &&
+        data[2] === 0x48 && data[3] === 0x50) {
+      const f = decodeForce(data);
+      const w = this._hapticWaits.get(f.seq);
+      if (w) { this._hapticWaits.delete(f.seq); clearTimeout(w.timer); w.resolve(f); }
+      this.emit('haptic', f);
+      return;
+    }
     if (nodeInflate || !isBinary || !this.decode) { this._handle(data, isBinary, null); return; }
     const decoded = this._decode(data);
     this._chain = this._chain.then(() => decoded).then((m) => this._handle(data, true, m),
@@ -398,6 +429,30 @@ export class SquishClient extends Emitter {
     return { reply, nodes: await bin };
   }
   ping(t = Date.now()) { return this.request({ type: 'ping', t }); }
+
+  // ---- haptic channel (docs/protocol.md, "Haptic channel")
+  /** Open the haptic channel of tool `tool`: resolves with { channel, max_rate, stiffness, damping, ... }. */
+  hapticOpen(tool, { stiffness, damping } = {}) {
+    const m = { type: 'haptic', tool };
+    if (stiffness !== undefined) m.stiffness = stiffness;
+    if (damping !== undefined) m.damping = damping;
+    return this.request(m);
+  }
+  hapticClose(tool) { return this.request({ type: 'haptic', tool, open: false }); }
+  /** Send one pose (device position pos [x, y, z] m at device time t s); returns its seq. */
+  hapticSend(channel, pos, t) {
+    const seq = this._hapticSeq = (this._hapticSeq + 1) >>> 0;
+    this.ws.send(encodePose(channel, seq, t, pos));
+    return seq;
+  }
+  /** Send a pose and resolve with its force { seq, frame, flags, contact, released, force, torque, tool, t }. */
+  haptic(channel, pos, t, timeoutMs = 10000) {
+    const seq = this.hapticSend(channel, pos, t);
+    return new Promise((resolve, reject) => {
+      const timer = setTimeout(() => { this._hapticWaits.delete(seq); reject(new Error(`no haptic force for pose ${seq} within ${timeoutMs} ms`)); }, timeoutMs);
+      this._hapticWaits.set(seq, { resolve, timer });
+    });
+  }
 
   /** Close the connection; resolves with the close code. */
   close() {

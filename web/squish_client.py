@@ -38,7 +38,7 @@ except ImportError as _e:  # pragma: no cover - depends on the machine
         "squish_client needs the websockets package: on Debian `apt-get install python3-websockets` "
         "and run the script with /usr/bin/python3 (or `pip install websockets`)") from _e
 
-__all__ = ["SquishClient", "SquishError", "decode_binary", "decode_header", "Frame", "Topology",
+__all__ = ["SquishClient", "SquishError", "encode_pose", "decode_force", "decode_binary", "decode_header", "Frame", "Topology",
            "Nodes", "KIND_TOPOLOGY", "KIND_FRAME", "KIND_NODES", "HEADER_BYTES"]
 
 HEADER_BYTES = 64
@@ -47,6 +47,32 @@ TOOL_SHAPES = ("sphere", "box", "grab")
 _HEADER = struct.Struct("<4sHBBIIdII3f3fII")
 _TOOL = struct.Struct("<IBBH3ff3f")
 _NODE = struct.Struct("<3fB")
+# haptic channel (docs/protocol.md, "Haptic channel"): pose in (48 bytes), force out (104 bytes)
+HAPTIC_MAGIC = b"SQHP"
+HAPTIC_VERSION = 1
+_HPOSE = struct.Struct("<4sHBBIId3d")
+_HFORCE = struct.Struct("<4sHBBIIIId3d3d3d")
+HAPTIC_CONTACT, HAPTIC_RELEASED, HAPTIC_NO_MODEL = 1, 2, 4
+
+
+def encode_pose(channel, seq, t, pos):
+    """The 48-byte binary pose message of a haptic channel."""
+    return _HPOSE.pack(HAPTIC_MAGIC, HAPTIC_VERSION, 1, 0, channel, seq & 0xFFFFFFFF, float(t),
+                       float(pos[0]), float(pos[1]), float(pos[2]))
+
+
+def decode_force(buf):
+    """A 104-byte haptic force message as a dict; ValueError names what is wrong."""
+    if len(buf) != _HFORCE.size:
+        raise ValueError(f"haptic force message of {len(buf)} bytes, expected {_HFORCE.size}")
+    (magic, version, kind, flags, channel, seq, frame, _r, t, fx, fy, fz, tx, ty, tz,
+     px, py, pz) = _HFORCE.unpack(buf)
+    if magic != HAPTIC_MAGIC or version != HAPTIC_VERSION or kind != 2:
+        raise ValueError(f"haptic force message: magic {magic!r} version {version} kind {kind}")
+    return {"channel": channel, "seq": seq, "frame": frame, "flags": flags, "t": t,
+            "contact": bool(flags & HAPTIC_CONTACT), "released": bool(flags & HAPTIC_RELEASED),
+            "no_model": bool(flags & HAPTIC_NO_MODEL),
+            "force": (fx, fy, fz), "torque": (tx, ty, tz), "tool": (px, py, pz)}
 
 
 class SquishError(Exception):
@@ -221,6 +247,9 @@ class SquishClient:
         self._handlers = {}
         self._lock = threading.Lock()
         self._frame_cond = threading.Condition()
+        self._haptic_cond = threading.Condition()
+        self.haptic_forces = {}          # seq -> newest force message with that seq (bounded)
+        self._haptic_seq = 0
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="squish-client", daemon=True)
         self._thread.start()
@@ -298,6 +327,16 @@ class SquishClient:
             self._emit("close", None)
 
     def _handle(self, data):
+        if isinstance(data, bytes) and data[:4] == HAPTIC_MAGIC:
+            f = decode_force(data)
+            with self._haptic_cond:
+                self.haptic_forces[f["seq"]] = f
+                if len(self.haptic_forces) > 4096:
+                    for k in sorted(self.haptic_forces)[:2048]:
+                        del self.haptic_forces[k]
+                self._haptic_cond.notify_all()
+            self._emit("haptic", f)
+            return
         if isinstance(data, bytes):
             if not self.decode:
                 self._emit("binary", data)
@@ -443,6 +482,40 @@ class SquishClient:
             return reply, got.result(self.timeout)
         finally:
             self.off("nodes", on)
+
+    # ------------------------------------------------------------------ haptic channel
+    def haptic_open(self, tool, stiffness=None, damping=None):
+        """Open the haptic channel of tool `tool` (controller only); returns the reply
+        (channel, max_rate, stiffness, damping, ...)."""
+        m = {"type": "haptic", "tool": tool}
+        if stiffness is not None:
+            m["stiffness"] = stiffness
+        if damping is not None:
+            m["damping"] = damping
+        return self.request(m)
+
+    def haptic_close(self, tool):
+        return self.request({"type": "haptic", "tool": tool, "open": False})
+
+    def haptic_send(self, channel, pos, t):
+        """Send one pose (no wait); returns its sequence number."""
+        self._haptic_seq += 1
+        seq = self._haptic_seq & 0xFFFFFFFF
+        self.send_raw(encode_pose(channel, seq, t, pos))
+        return seq
+
+    def haptic_wait(self, seq, timeout=None):
+        """The force message answering pose `seq` (TimeoutError when none comes)."""
+        wait = self.timeout if timeout is None else timeout
+        with self._haptic_cond:
+            ok = self._haptic_cond.wait_for(lambda: seq in self.haptic_forces, wait)
+            if not ok:
+                raise TimeoutError(f"no haptic force for pose {seq} within {wait} s")
+            return self.haptic_forces.pop(seq)
+
+    def haptic(self, channel, pos, t, timeout=None):
+        """Send a pose and return its force: {force, torque, tool, frame, flags, contact, ...}."""
+        return self.haptic_wait(self.haptic_send(channel, pos, t), timeout)
 
     def ping(self, t=0.0):
         return self.request({"type": "ping", "t": t})

@@ -70,6 +70,19 @@ typedef struct sq_tool_feedback {
 
 typedef struct sq_body sq_body;
 
+/* the linear model of one tool's feedback about the state the last frame left (haptic.c):
+ * f(p) = f0 + K (p - p0) for a tool position p near p0; N, N/m */
+typedef struct sq_tool_model {
+    int nnodes;        /* nodes the tool held in the last frame (0: no contact, f0 = K = 0) */
+    int push;          /* 1 sphere/box (unilateral: no pull), 0 grab */
+    double p0[3];      /* tool position of the last frame, m */
+    double f0[3];      /* reaction of the held nodes on the tool in the state the frame left, N */
+    double K[9];       /* d f / d p, row-major 3x3, N/m (negative semi-definite in a contact) */
+    double normal[3];  /* push: mean contact normal, from the tool into the body (unit); 0 else */
+    double torque[3];  /* reaction torque about p0 (box: the tool has no orientation, so it is
+                          the torque at p0, held constant between frames), N m */
+} sq_tool_model;
+
 /* create; computes operators and stability bounds; NULL + err (with numbers) if the
  * setup cannot run (bad material, no nodes left free, step bound needing more than
  * 2^20 substeps per frame, ...) */
@@ -163,6 +176,16 @@ const sq_health_stat *sq_body_health(const sq_body *b);
 long sq_body_frames(const sq_body *b);
 /* tets of the simulated level with det F <= 0 (inverted or flat) */
 int sq_body_inverted_tets(const sq_body *b);
+
+/* the linear model of tool t (index in the tool array of the last sq_body_frame, pose `tool`)
+ * about the state that frame left: the held nodes' reaction and its stiffness with respect to
+ * the tool position, by finite differences of the simulated level's own force pass (the
+ * operator the step uses, corotational rotations included, frozen) with the held nodes moved
+ * together (a grab) or along their contact normals (a push). Returns 0, or -1 (out->nnodes 0)
+ * when the tool held nothing or the holds are not on the simulated level (a fixed body coarser
+ * than its finest loaded level): then f0 = K = 0. Costs four force passes of the held nodes'
+ * rows (linear) or of the whole level (corotational, pressure tets). */
+int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *out);
 
 /* write the finest level (or the fixed level) as VTK with displacement, velocity, level */
 int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err);

@@ -40,6 +40,7 @@ struct sq_body {
     /* tools */
     sq_grab grab[SQ_MAX_TOOLS];
     sq_hold *holds;                        /* this frame's holds on finest nodes */
+    int nholds;                            /* their number (haptic.c reads the last frame's) */
     int cap_holds;
     sq_hold *khold;                        /* holds mapped to the fixed level */
     int *kcount;                           /* holds averaged into each khold */

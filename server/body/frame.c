@@ -267,6 +267,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     /* tools -> holds on finest surface nodes */
     int tool_nodes[SQ_MAX_TOOLS];
     int nholds = sq_body_tool_holds(b, tools, ntools, tool_nodes);
+    b->nholds = nholds; /* kept for the haptic model (haptic.c) */
     double t1 = sq_now();
     b->frames++;
     if (b->sleeping && nholds > 0)

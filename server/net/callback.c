@@ -7,6 +7,7 @@
  * threads (EVENT_WAIT_CANCELLED: drain every outbox, collect rendered snapshots).
  */
 #include "net/server.h"
+#include "net/haptic_ws.h"
 
 #include <arpa/inet.h>
 #include <stdio.h>
@@ -86,7 +87,9 @@ int net_callback(struct lws *wsi, enum lws_callback_reasons reason, void *user, 
             return 0;
         /* messages not read as JSON: their errors say "ref": null */
         static const sq_request unread = {.ref_kind = SQ_REF_NULL};
-        if (c->rx_binary) {
+        if (c->rx_binary && !c->rx_oversize && sq_haptic_is_message((unsigned char *)c->rx, c->rx_len)) {
+            net_haptic_binary(c, (unsigned char *)c->rx, c->rx_len);
+        } else if (c->rx_binary) {
             net_send_error(c, &unread, SQ_CODE_BAD_JSON, "binary messages are not accepted; send JSON text");
         } else if (c->rx_oversize) {
             char m[160];

@@ -5,6 +5,7 @@
  * pause, resume, reset, step and nodes become jobs of the client's session thread (jobs.c).
  */
 #include "net/server.h"
+#include "net/haptic_ws.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -150,6 +151,8 @@ void net_handle_request(client *c, const char *text, size_t len)
     }
     c->tokens -= 1;
 
+    if (net_haptic_request(c, text, len)) /* the haptic channel's own request (haptic_ws.c) */
+        return;
     if (sq_request_decode(text, len, (size_t)opt->max_message, &req, &err)) {
         net_send_error(c, &req, sq_net_code_of(err.code), err.message);
         return;

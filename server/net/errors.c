@@ -13,7 +13,7 @@ static const struct {
 } codes[SQ_CODE_COUNT] = {
     [SQ_CODE_BAD_JSON] = {"bad_json",
          "not valid UTF-8, not valid JSON, not an object, trailing bytes, or a binary "
-         "message from the client"},
+         "message from the client that is not a haptic pose (magic `SQHP`)"},
     [SQ_CODE_TOO_LARGE] = {"too_large",
          "text message longer than `limits.max_message` (the message is dropped)"},
     [SQ_CODE_BAD_TYPE] = {"bad_type",
@@ -49,7 +49,8 @@ static const struct {
     [SQ_CODE_SERVER_FULL] = {"server_full",
          "`max_sessions` sessions are running"},
     [SQ_CODE_RATE_LIMITED] = {"rate_limited",
-         "more than `limits.rate` requests per second (request dropped)"},
+         "more than `limits.rate` requests per second (request dropped), or haptic poses "
+         "faster than the channel's `max_rate` (pose dropped, counted)"},
     [SQ_CODE_BUSY] = {"busy",
          "64 requests of this client already wait for its session thread (request "
          "dropped; wait for replies)"},
@@ -74,6 +75,12 @@ static const struct {
          "a `set` whose predicted CPU cost per frame is over the session's frame "
          "budget (`--frame-budget`); the message gives the prediction (substeps x "
          "nodes x measured cost per node update) and the budget; nothing changed"},
+    [SQ_CODE_BAD_POSE] = {"bad_pose",
+         "a haptic pose message of the wrong size, magic, version or kind, or with a "
+         "non-finite or out-of-bounds position (dropped, counted in `stats.haptic`)"},
+    [SQ_CODE_BAD_CHANNEL] = {"bad_channel",
+         "a haptic pose on a channel this client does not own (never opened, closed, "
+         "another client's, or the client no longer controls the session): dropped, counted"},
     [SQ_CODE_INTERNAL] = {"internal",
          "a request the server has no handler for, or a reply it could not build (out "
          "of memory): a defect of the server, to report"},

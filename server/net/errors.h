@@ -37,6 +37,8 @@ typedef enum sq_net_code {
     SQ_CODE_SHUTTING_DOWN,
     SQ_CODE_THROTTLED,
     SQ_CODE_OVER_BUDGET,
+    SQ_CODE_BAD_POSE,
+    SQ_CODE_BAD_CHANNEL,
     SQ_CODE_INTERNAL,
     SQ_CODE_COUNT
 } sq_net_code;

@@ -6,6 +6,7 @@
  * 50 ms tick pushes stats, ends sessions empty past --grace and watches progress (/healthz).
  */
 #include "net/server.h"
+#include "net/haptic_ws.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -146,6 +147,7 @@ void net_leave_session(client *c)
         net_control_event(r, "left");
     }
     c->ntool_ids = 0;
+    net_haptic_close_owner(r->s, c->serial);
     if (r->nmembers == 0) {
         /* nobody watches: the session keeps its state but stops stepping until someone
          * joins again or the grace period ends it */

@@ -5,6 +5,7 @@
  * scenes (lws thread). Field by field as in docs/protocol.md.
  */
 #include "net/server.h"
+#include "net/haptic_ws.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -289,6 +290,7 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
     cJSON_AddBoolToObject(o, "controller", r->controller != 0);
     cJSON_AddNumberToObject(o, "bytes_sent", (double)r->bytes_sent);
     cJSON_AddNumberToObject(o, "skipped", (double)c->skipped);
+    cJSON_AddItemToObject(o, "haptic", net_haptic_stats_json(s));
     return o;
 }
 

@@ -74,6 +74,7 @@ typedef struct client {
     uint64_t pushed, written;        /* FIFO messages queued / written so far */
     uint64_t nodes_mark;             /* `pushed` when the whole nodes reply was queued */
     char addr[SQ_ADDR_MAX];          /* peer address */
+    double haptic_last_error;        /* when this client last got a haptic pose error */
 } client;
 
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */

@@ -269,8 +269,10 @@ static void budget_account(sq_session *s, double cpu)
 void sq_session_step_frame(sq_session *s, sq_out_kind kind)
 {
     double t0 = sq_now(), c0 = sq_thread_cpu();
+    sq_haptic_before_frame(&s->haptic, s->world); /* the newest haptic poses (none: nothing) */
     sq_world_step(s->world, s->lockstep ? 0 : s->period);
     budget_account(s, sq_thread_cpu() - c0);
+    sq_haptic_after_frame(&s->haptic, s->world); /* the channels' models, outside the budget */
     publish(s, kind, sq_now() - t0);
 }
 
@@ -435,6 +437,7 @@ sq_session *sq_session_start(const sq_scene *scene, const char *name, uint64_t i
     s->wake = wake;
     s->wake_arg = wake_arg;
     pthread_mutex_init(&s->mu, NULL);
+    sq_haptic_hub_init(&s->haptic);
     pthread_condattr_t ca;
     pthread_condattr_init(&ca);
     pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
@@ -493,6 +496,7 @@ void sq_session_stop(sq_session *s)
     free(s->cur);
     free(s->lev);
     pthread_mutex_destroy(&s->mu);
+    sq_haptic_hub_free(&s->haptic);
     pthread_cond_destroy(&s->cv);
     free(s);
 }

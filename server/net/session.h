@@ -15,6 +15,7 @@
 
 #include "net/budget.h"
 #include "net/errors.h"
+#include "net/haptic.h"
 #include "net/net.h"
 #include "net/snapshot.h"
 #include "scene/scene.h"
@@ -107,6 +108,9 @@ typedef struct sq_session {
     int tool_ids[SQ_MAX_TOOLS];      /* ids of the world's tools, for request checks */
     int nrefused;                    /* error replies of the session thread, by code */
     struct { const char *code; long n; } refused[16];
+
+    /* haptic channels: their own lock, never held across a step (net/haptic.h) */
+    sq_haptic_hub haptic;
 
     /* session thread only */
     pthread_t thread;

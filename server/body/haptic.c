@@ -1,0 +1,159 @@
+/* haptic.c - a tool's feedback linearised about the state the last frame left.
+ *
+ * A haptic device asks for a force at about 1 kHz while a body steps at its frame rate. Between
+ * two frames the force at a tool position p is taken from f(p) = f0 + K (p - p0), where p0 is
+ * the tool position of the last frame, f0 the reaction of the nodes it held there, and K the
+ * stiffness of that reaction with respect to the tool position.
+ *
+ * K is measured on the body's own force pass (sq_level_forces_to: the operator the step uses,
+ * with a corotational level's rotations as they stand, frozen): each held node j is moved by
+ * eps P_j e_c, where P_j is how its target follows the tool (a grab: the identity; a sphere:
+ * n n^T along the node's contact normal; a box: the normal of the face it lies on), and the
+ * change of the summed reaction over eps is column c of K. The free nodes do not move in this
+ * difference: K is the instantaneous stiffness of the held nodes (the upper end of what the body
+ * shows before its free nodes respond); velocities are unchanged, so damping cancels.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "body/body_internal.h"
+
+/* how hold h's target moves with the tool: P (3x3) and, for a push, the unit normal n */
+static void hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *tool, double P[9],
+                            double n[3])
+{
+    memset(P, 0, 9 * sizeof *P);
+    memset(n, 0, 3 * sizeof *n);
+    if (tool->shape == SQ_TOOL_GRAB) {
+        P[0] = P[4] = P[8] = 1;
+        return;
+    }
+    const double *x0 = m->x + 3 * (size_t)h->node;
+    double q[3];
+    for (int c = 0; c < 3; c++)
+        q[c] = x0[c] + h->target[c] - tool->pos[c]; /* from the tool centre to the node */
+    if (tool->shape == SQ_TOOL_SPHERE) {
+        double r = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        if (!(r > 0))
+            return;
+        for (int c = 0; c < 3; c++)
+            n[c] = q[c] / r;
+    } else {
+        int axis = 0;
+        double best = INFINITY;
+        for (int c = 0; c < 3; c++) {
+            double gap = fabs(tool->half[c] - fabs(q[c]));
+            if (gap < best) {
+                best = gap;
+                axis = c;
+            }
+        }
+        n[axis] = q[axis] >= 0 ? 1 : -1;
+    }
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            P[3 * r + c] = n[r] * n[c];
+}
+
+int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *out)
+{
+    memset(out, 0, sizeof *out);
+    memcpy(out->p0, tool->pos, sizeof out->p0);
+    out->push = tool->shape != SQ_TOOL_GRAB;
+    int k = sq_body_sim_level(b);
+    if (k != b->fine || !tool->active)
+        return -1;
+    sq_lod_flush(b->lod);
+    sq_level *L = &b->level[k];
+    const sq_mesh *m = b->def.levels[k];
+    const size_t n = (size_t)L->model.n;
+    int nh = 0;
+    for (int h = 0; h < b->nholds; h++)
+        nh += b->holds[h].tool == t;
+    if (nh == 0)
+        return -1;
+
+    unsigned char *mask = sq_calloc(n, 1);
+    double *f0 = sq_malloc(sizeof(double) * 3 * n), *f1 = sq_malloc(sizeof(double) * 3 * n);
+    double *acc = sq_calloc(3 * n + 1, sizeof(double));
+    double *P = sq_malloc(sizeof(double) * 9 * (size_t)nh);
+    int *node = sq_malloc(sizeof(int) * (size_t)nh);
+    double *d0 = sq_malloc(sizeof(double) * 3 * (size_t)nh);
+    double nsum[3] = {0, 0, 0};
+    int j = 0;
+    for (int h = 0; h < b->nholds; h++) {
+        if (b->holds[h].tool != t)
+            continue;
+        double nrm[3];
+        hold_projection(m, &b->holds[h], tool, P + 9 * j, nrm);
+        for (int c = 0; c < 3; c++)
+            nsum[c] += nrm[c];
+        memcpy(d0 + 3 * j, L->d + 3 * (size_t)b->holds[h].node, 3 * sizeof(double));
+        node[j++] = b->holds[h].node;
+        mask[b->holds[h].node] = 1;
+    }
+    const sq_material *mat = &b->def.material;
+    const double *g = b->def.gravity;
+    sq_level_forces_to(L, mat, g, mask, f0, acc);
+
+    /* f0 and the torque about p0: the held nodes' unbalanced force (as the frame's feedback),
+     * each node counted once */
+    for (int i = 0; i < nh; i++) {
+        int q = node[i];
+        if (mask[q] != 1)
+            continue;
+        mask[q] = 2;
+        double fi[3], r[3];
+        for (int c = 0; c < 3; c++) {
+            fi[c] = f0[3 * (size_t)q + c] - L->model.mass[q] * g[c];
+            r[c] = m->x[3 * (size_t)q + c] + L->d[3 * (size_t)q + c] - tool->pos[c];
+            out->f0[c] += fi[c];
+        }
+        out->torque[0] += r[1] * fi[2] - r[2] * fi[1];
+        out->torque[1] += r[2] * fi[0] - r[0] * fi[2];
+        out->torque[2] += r[0] * fi[1] - r[1] * fi[0];
+    }
+
+    /* K by columns: move every held node by eps P_j e_c, difference the summed reaction */
+    const double eps = 1e-6 * (b->diag > 0 ? b->diag : 1.0);
+    for (int c = 0; c < 3; c++) {
+        for (int i = 0; i < nh; i++)
+            for (int r = 0; r < 3; r++)
+                L->d[3 * (size_t)node[i] + r] += eps * P[9 * i + 3 * r + c];
+        sq_level_forces_to(L, mat, g, mask, f1, acc);
+        for (int i = 0; i < nh; i++) /* restored bit for bit: the state is not changed */
+            memcpy(L->d + 3 * (size_t)node[i], d0 + 3 * i, 3 * sizeof(double));
+        for (int i = 0; i < nh; i++)
+            mask[node[i]] = 2;
+        for (int i = 0; i < nh; i++) {
+            int q = node[i];
+            if (mask[q] != 2)
+                continue;
+            mask[q] = 3;
+            for (int r = 0; r < 3; r++)
+                out->K[3 * r + c] += (f1[3 * (size_t)q + r] - f0[3 * (size_t)q + r]) / eps;
+        }
+        for (int i = 0; i < nh; i++)
+            mask[node[i]] = 2;
+    }
+    /* symmetric part: the operator is symmetric, the difference adds rounding only */
+    for (int r = 0; r < 3; r++)
+        for (int c = r + 1; c < 3; c++) {
+            double s = 0.5 * (out->K[3 * r + c] + out->K[3 * c + r]);
+            out->K[3 * r + c] = out->K[3 * c + r] = s;
+        }
+    double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
+    if (out->push && nn > 0)
+        for (int c = 0; c < 3; c++)
+            out->normal[c] = nsum[c] / nn;
+    out->nnodes = nh;
+    free(mask);
+    free(f0);
+    free(f1);
+    free(acc);
+    free(P);
+    free(node);
+    free(d0);
+    return 0;
+}

@@ -1,0 +1,366 @@
+/* haptic.c - the haptic channel's model evaluation, its messages and the session side.
+ *
+ * Everything here but the two frame hooks is pure (unit-tested): the coupling, the pose and
+ * force message codecs. The service thread's part (requests, poses in, forces out) is
+ * haptic_ws.c.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "net/haptic.h"
+#include "scene/scene.h"
+
+static void put_u32(unsigned char *p, uint32_t v)
+{
+    for (int i = 0; i < 4; i++)
+        p[i] = (unsigned char)(v >> (8 * i));
+}
+static uint32_t get_u32(const unsigned char *p)
+{
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+static void put_f64(unsigned char *p, double v)
+{
+    uint64_t u;
+    memcpy(&u, &v, 8);
+    for (int i = 0; i < 8; i++)
+        p[i] = (unsigned char)(u >> (8 * i));
+}
+static double get_f64(const unsigned char *p)
+{
+    uint64_t u = 0;
+    for (int i = 0; i < 8; i++)
+        u |= (uint64_t)p[i] << (8 * i);
+    double v;
+    memcpy(&v, &u, 8);
+    return v;
+}
+
+int sq_haptic_is_message(const unsigned char *msg, size_t len)
+{
+    return len >= 4 && memcmp(msg, "SQHP", 4) == 0;
+}
+
+int sq_haptic_pose_decode(const unsigned char *msg, size_t len, sq_haptic_pose *p, char *why, size_t n)
+{
+    if (!sq_haptic_is_message(msg, len)) {
+        snprintf(why, n, "haptic pose: magic is not SQHP");
+        return -1;
+    }
+    if (len != SQ_HAPTIC_POSE_BYTES) {
+        snprintf(why, n, "haptic pose: %zu bytes, a pose is %d", len, SQ_HAPTIC_POSE_BYTES);
+        return -1;
+    }
+    unsigned version = (unsigned)msg[4] | (unsigned)msg[5] << 8;
+    if (version != SQ_HAPTIC_VERSION) {
+        snprintf(why, n, "haptic pose: version %u, this server speaks %d", version, SQ_HAPTIC_VERSION);
+        return -1;
+    }
+    if (msg[6] != SQ_HAPTIC_KIND_POSE) {
+        snprintf(why, n, "haptic pose: kind %u, a pose is kind %d", msg[6], SQ_HAPTIC_KIND_POSE);
+        return -1;
+    }
+    p->channel = get_u32(msg + 8);
+    p->seq = get_u32(msg + 12);
+    p->t = get_f64(msg + 16);
+    for (int c = 0; c < 3; c++)
+        p->pos[c] = get_f64(msg + 24 + 8 * c);
+    return 0;
+}
+
+void sq_haptic_pose_encode(const sq_haptic_pose *p, unsigned char out[SQ_HAPTIC_POSE_BYTES])
+{
+    memset(out, 0, SQ_HAPTIC_POSE_BYTES);
+    memcpy(out, "SQHP", 4);
+    out[4] = SQ_HAPTIC_VERSION;
+    out[6] = SQ_HAPTIC_KIND_POSE;
+    put_u32(out + 8, p->channel);
+    put_u32(out + 12, p->seq);
+    put_f64(out + 16, p->t);
+    for (int c = 0; c < 3; c++)
+        put_f64(out + 24 + 8 * c, p->pos[c]);
+}
+
+void sq_haptic_force_encode(uint32_t channel, uint32_t seq, uint32_t frame, double t,
+                            const sq_haptic_out *o, unsigned char out[SQ_HAPTIC_FORCE_BYTES])
+{
+    memset(out, 0, SQ_HAPTIC_FORCE_BYTES);
+    memcpy(out, "SQHP", 4);
+    out[4] = SQ_HAPTIC_VERSION;
+    out[6] = SQ_HAPTIC_KIND_FORCE;
+    out[7] = (unsigned char)o->flags;
+    put_u32(out + 8, channel);
+    put_u32(out + 12, seq);
+    put_u32(out + 16, frame);
+    put_f64(out + 24, t);
+    for (int c = 0; c < 3; c++) {
+        put_f64(out + 32 + 8 * c, o->force[c]);
+        put_f64(out + 56 + 8 * c, o->torque[c]);
+        put_f64(out + 80 + 8 * c, o->tool[c]);
+    }
+}
+
+/* f(p) = f0 + K (p - p0) */
+static void model_force(const sq_tool_model *m, const double p[3], double f[3])
+{
+    for (int r = 0; r < 3; r++) {
+        f[r] = m->f0[r];
+        for (int c = 0; c < 3; c++)
+            f[r] += m->K[3 * r + c] * (p[c] - m->p0[c]);
+    }
+}
+
+/* x = A^-1 b for a 3x3 A (row-major); -1 when singular */
+static int solve3(const double A[9], const double b[3], double x[3])
+{
+    double c0 = A[4] * A[8] - A[5] * A[7], c1 = A[5] * A[6] - A[3] * A[8], c2 = A[3] * A[7] - A[4] * A[6];
+    double det = A[0] * c0 + A[1] * c1 + A[2] * c2;
+    if (!(fabs(det) > 1e-300))
+        return -1;
+    double inv[9] = {c0, A[2] * A[7] - A[1] * A[8], A[1] * A[5] - A[2] * A[4],
+                     c1, A[0] * A[8] - A[2] * A[6], A[2] * A[3] - A[0] * A[5],
+                     c2, A[1] * A[6] - A[0] * A[7], A[0] * A[4] - A[1] * A[3]};
+    for (int r = 0; r < 3; r++)
+        x[r] = (inv[3 * r] * b[0] + inv[3 * r + 1] * b[1] + inv[3 * r + 2] * b[2]) / det;
+    return 0;
+}
+
+/* the coupled tool position p and force f of one model for device position xd; returns flags */
+static unsigned coupled(const sq_tool_model *m, int valid, const sq_haptic_coupling *cp,
+                        const double xd[3], double f[3], double p[3], double torque[3])
+{
+    memset(f, 0, 3 * sizeof *f);
+    memset(torque, 0, 3 * sizeof *torque);
+    memcpy(p, xd, 3 * sizeof *p);
+    if (!valid)
+        return SQ_HAPTIC_F_NO_MODEL;
+    if (m->nnodes <= 0)
+        return 0;
+    if (cp->stiffness > 0) {
+        /* (k I - K) p = k xd + f0 - K p0 */
+        double A[9], b[3];
+        for (int r = 0; r < 3; r++) {
+            b[r] = cp->stiffness * xd[r] + m->f0[r];
+            for (int c = 0; c < 3; c++) {
+                A[3 * r + c] = (r == c ? cp->stiffness : 0) - m->K[3 * r + c];
+                b[r] -= m->K[3 * r + c] * m->p0[c];
+            }
+        }
+        if (solve3(A, b, p))
+            memcpy(p, xd, 3 * sizeof *p);
+    }
+    model_force(m, p, f);
+    if (m->push && f[0] * m->normal[0] + f[1] * m->normal[1] + f[2] * m->normal[2] > 0) {
+        /* the reaction of a push points out of the body (against the normal): past the
+         * contact the model would pull; the contact is lost */
+        memset(f, 0, 3 * sizeof *f);
+        memcpy(p, xd, 3 * sizeof *p);
+        return SQ_HAPTIC_F_CONTACT | SQ_HAPTIC_F_RELEASED;
+    }
+    memcpy(torque, m->torque, 3 * sizeof *torque);
+    return SQ_HAPTIC_F_CONTACT;
+}
+
+void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
+                    sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out)
+{
+    memset(out, 0, sizeof *out);
+    double f[3];
+    /* a new frame's model: blended in over SQ_HAPTIC_BLEND s of device time from the one the
+     * last pose used, so that the force has no step at the frame rate */
+    if (!st->has_model || frame != st->frame) {
+        if (st->has_model) {
+            st->prev = st->model;
+            st->prev_valid = st->model_valid;
+            st->blend_t0 = t;
+            st->blending = 1;
+        }
+        st->model = *m;
+        st->model_valid = valid;
+        st->has_model = 1;
+        st->frame = frame;
+    }
+    double w = st->blending ? (t - st->blend_t0) / SQ_HAPTIC_BLEND : 1;
+    if (!(w < 1))
+        st->blending = 0, w = 1;
+    if (w < 0)
+        w = 0;
+    out->flags = coupled(&st->model, st->model_valid, cp, xd, f, out->tool, out->torque);
+    if (st->blending) {
+        double f1[3], p1[3], q1[3];
+        unsigned fl = coupled(&st->prev, st->prev_valid, cp, xd, f1, p1, q1);
+        for (int c = 0; c < 3; c++) {
+            f[c] = w * f[c] + (1 - w) * f1[c];
+            out->tool[c] = w * out->tool[c] + (1 - w) * p1[c];
+            out->torque[c] = w * out->torque[c] + (1 - w) * q1[c];
+        }
+        if ((fl & SQ_HAPTIC_F_CONTACT) && !(fl & SQ_HAPTIC_F_RELEASED))
+            out->flags = (out->flags & ~SQ_HAPTIC_F_RELEASED) | SQ_HAPTIC_F_CONTACT;
+        if (!(fl & SQ_HAPTIC_F_NO_MODEL))
+            out->flags &= ~SQ_HAPTIC_F_NO_MODEL;
+    }
+    /* the damper on the tool-device relative velocity (device time differences) */
+    int contact = (out->flags & SQ_HAPTIC_F_CONTACT) && !(out->flags & SQ_HAPTIC_F_RELEASED);
+    double dt = st->has_last ? t - st->t : 0;
+    if (st->has_last && cp->damping > 0 && contact && st->contact) {
+        if (dt > 1e-5 && dt < 0.1)
+            for (int c = 0; c < 3; c++) {
+                double vp = (out->tool[c] - st->p[c]) / dt, vd = (xd[c] - st->xd[c]) / dt;
+                f[c] += cp->damping * (vp - vd);
+            }
+    }
+    /* the channel's very first pose already in contact (opened on a pressed tool): the body
+     * holds the energy of its force, credited as 0.5 |f0|^2 / k, k the stiffest diagonal of K
+     * (an underestimate of a spring's f^2 / 2k). A contact that starts later gets no credit:
+     * the device brings its energy in itself */
+    if (contact && !st->ever_contact && !st->has_last) {
+        double k = 0, f2 = 0;
+        for (int c = 0; c < 3; c++) {
+            k = fmax(k, -st->model.K[4 * c]);
+            f2 += st->model.f0[c] * st->model.f0[c];
+        }
+        if (k > 0)
+            st->energy += 0.5 * f2 / k;
+        st->ever_contact = 1;
+    }
+    st->ever_contact |= contact;
+    /* passivity observer and controller: the energy absorbed up to this pose */
+    if (st->has_last) {
+        double dx2 = 0;
+        for (int c = 0; c < 3; c++) {
+            st->energy -= st->force[c] * (xd[c] - st->xd[c]);
+            dx2 += (xd[c] - st->xd[c]) * (xd[c] - st->xd[c]);
+        }
+        if (st->energy < 0 && dx2 > 0 && dt > 1e-5 && dt < 0.1) {
+            /* a damper alpha on v = dx / dt dissipates alpha |v|^2 dt over the next step */
+            double alpha = fmin(SQ_HAPTIC_PC_MAX, -st->energy * dt / dx2);
+            for (int c = 0; c < 3; c++)
+                f[c] -= alpha * (xd[c] - st->xd[c]) / dt;
+            out->flags |= SQ_HAPTIC_F_DISSIPATING;
+        }
+    }
+    if (!contact && !(out->flags & SQ_HAPTIC_F_DISSIPATING))
+        st->energy = fmin(st->energy, 0); /* out of contact the body keeps nothing to give back */
+    memcpy(out->force, f, sizeof f);
+    memcpy(st->force, f, sizeof f);
+    st->has_last = 1;
+    st->contact = contact;
+    st->t = t;
+    memcpy(st->xd, xd, sizeof st->xd);
+    memcpy(st->p, out->tool, sizeof st->p);
+}
+
+/* a push is frictionless: its reaction and stiffness along the contact normal n only,
+ * f0 <- min(0, n.f0) n, K <- min(0, n.K n) n n^T */
+static void frictionless(sq_tool_model *m)
+{
+    const double *n = m->normal;
+    double fn = 0, kn = 0;
+    for (int r = 0; r < 3; r++) {
+        fn += n[r] * m->f0[r];
+        for (int c = 0; c < 3; c++)
+            kn += n[r] * m->K[3 * r + c] * n[c];
+    }
+    fn = fmin(fn, 0);
+    kn = fmin(kn, 0);
+    for (int r = 0; r < 3; r++) {
+        m->f0[r] = fn * n[r];
+        for (int c = 0; c < 3; c++)
+            m->K[3 * r + c] = kn * n[r] * n[c];
+    }
+}
+
+void sq_haptic_hub_init(sq_haptic_hub *h)
+{
+    memset(h, 0, sizeof *h);
+    pthread_mutex_init(&h->mu, NULL);
+    h->next_id = 1;
+}
+
+void sq_haptic_hub_free(sq_haptic_hub *h)
+{
+    pthread_mutex_destroy(&h->mu);
+}
+
+void sq_haptic_before_frame(sq_haptic_hub *h, sq_world *w)
+{
+    if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
+        return;
+    int n = 0, ids[SQ_MAX_TOOLS];
+    double pos[SQ_MAX_TOOLS][3];
+    pthread_mutex_lock(&h->mu);
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (h->ch[i].id && h->ch[i].has_pose) {
+            ids[n] = h->ch[i].tool;
+            memcpy(pos[n++], h->ch[i].pose, sizeof pos[0]);
+            h->ch[i].has_pose = 0;
+        }
+    pthread_mutex_unlock(&h->mu);
+    for (int k = 0; k < n; k++)
+        for (int i = 0; i < w->ntools; i++)
+            if (w->tools[i].id == ids[k]) {
+                sq_tool t = w->tools[i];
+                memcpy(t.pos, pos[k], sizeof t.pos);
+                sq_err err = {{0}};
+                (void)sq_world_set_tool(w, &t, &err); /* a pose within bounds: cannot fail */
+            }
+}
+
+void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
+{
+    if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
+        return;
+    int n = 0, ids[SQ_MAX_TOOLS];
+    pthread_mutex_lock(&h->mu);
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (h->ch[i].id)
+            ids[n++] = h->ch[i].tool;
+    pthread_mutex_unlock(&h->mu);
+    sq_tool_model models[SQ_MAX_TOOLS];
+    int valid[SQ_MAX_TOOLS];
+    for (int k = 0; k < n; k++) {
+        sq_tool_model *sum = &models[k];
+        memset(sum, 0, sizeof *sum);
+        valid[k] = 0;
+        for (int i = 0; i < w->ntools; i++) {
+            if (w->tools[i].id != ids[k])
+                continue;
+            valid[k] = 1;
+            memcpy(sum->p0, w->tools[i].pos, sizeof sum->p0);
+            sum->push = w->tools[i].shape != SQ_TOOL_GRAB;
+            double nsum[3] = {0, 0, 0};
+            for (int b = 0; b < w->nbodies; b++) {
+                sq_tool_model m;
+                if (sq_body_tool_model(w->bodies[b], i, &w->tools[i], &m))
+                    continue;
+                sum->nnodes += m.nnodes;
+                /* f0: the frame's feedback (the held nodes' reaction averaged over its
+                 * substeps, what frames report), steadier than the end state's (m.f0), which
+                 * carries the fastest oscillations of the nodes around the tool */
+                for (int c = 0; c < 3; c++) {
+                    sum->f0[c] += w->feedback[b][i].force[c];
+                    sum->torque[c] += m.torque[c];
+                    nsum[c] += m.nnodes * m.normal[c];
+                }
+                for (int c = 0; c < 9; c++)
+                    sum->K[c] += m.K[c];
+            }
+            double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
+            if (nn > 0)
+                for (int c = 0; c < 3; c++)
+                    sum->normal[c] = nsum[c] / nn;
+            if (sum->push && sum->nnodes > 0)
+                frictionless(sum);
+        }
+    }
+    pthread_mutex_lock(&h->mu);
+    for (int k = 0; k < n; k++)
+        for (int i = 0; i < SQ_MAX_TOOLS; i++)
+            if (h->ch[i].id && h->ch[i].tool == ids[k]) {
+                h->ch[i].model = models[k];
+                h->ch[i].model_valid = valid[k];
+                h->ch[i].model_frame = w->frame;
+            }
+    pthread_mutex_unlock(&h->mu);
+}

@@ -1,0 +1,129 @@
+/* haptic.h - the haptic channel: tool poses in at up to 1 kHz, one force out per pose.
+ *
+ * Internal to server/net. A controller opens a channel for one tool of its session (text
+ * request "haptic", docs/protocol.md "Haptic channel"); it then sends small binary pose
+ * messages and gets one binary force message back per pose, answered on the service thread
+ * from the per-frame linear model of the tool's contact (sq_tool_model, body/haptic.c) through
+ * a virtual coupling, never waiting for a frame. The session thread meets the service thread
+ * here only under hub->mu, held for copies, never across a step:
+ *   service thread -> session thread: the newest coupled tool position (applied at the next frame)
+ *   session thread -> service thread: the tool's model after each frame
+ */
+#ifndef SQ_NET_HAPTIC_H
+#define SQ_NET_HAPTIC_H
+
+#include <pthread.h>
+#include <stdint.h>
+
+#include "body/body.h"
+
+#define SQ_HAPTIC_VERSION 1
+#define SQ_HAPTIC_POSE_BYTES 48      /* client -> server, kind 1 */
+#define SQ_HAPTIC_FORCE_BYTES 104    /* server -> client, kind 2 */
+#define SQ_HAPTIC_KIND_POSE 1
+#define SQ_HAPTIC_KIND_FORCE 2
+#define SQ_HAPTIC_MAX_RATE 2000.0    /* poses per second per channel (token bucket) */
+#define SQ_HAPTIC_BURST 100.0        /* its burst */
+#define SQ_HAPTIC_STIFFNESS 1000.0   /* default coupling spring, N/m */
+#define SQ_HAPTIC_DAMPING 2.0        /* default coupling damper, N s/m */
+#define SQ_HAPTIC_STIFFNESS_MAX 1e5
+#define SQ_HAPTIC_DAMPING_MAX 1e3
+/* force flags */
+#define SQ_HAPTIC_F_CONTACT 1u       /* the model had held nodes */
+#define SQ_HAPTIC_F_RELEASED 2u      /* a push whose model would pull: force 0 */
+#define SQ_HAPTIC_F_NO_MODEL 4u      /* no frame since the channel opened: force 0 */
+#define SQ_HAPTIC_F_DISSIPATING 8u   /* the passivity controller added damping to this force */
+#define SQ_HAPTIC_BLEND 0.01         /* s of device time over which a new frame's model is
+                                        blended in */
+#define SQ_HAPTIC_PC_MAX 200.0       /* largest damping the passivity controller adds, N s/m */
+
+/* the virtual coupling between device and tool: spring and damper */
+typedef struct sq_haptic_coupling {
+    double stiffness;                /* N/m; 0 = no coupling: the tool is the device */
+    double damping;                  /* N s/m, on the device-tool relative velocity */
+} sq_haptic_coupling;
+
+/* the state of the coupling between two poses (service thread) */
+typedef struct sq_haptic_state {
+    int has_last;
+    double t, xd[3], p[3];           /* last device time, device and tool positions */
+    long frame;                      /* the model's frame at the last pose */
+    int has_model, model_valid, prev_valid, blending;
+    int ever_contact;                /* a pose of this channel has been in contact */
+    sq_tool_model model, prev;       /* the model of the last pose, the one blended from */
+    double blend_t0;                 /* device time the blend began */
+    double force[3];                 /* the force answered to the last pose, N */
+    double energy;                   /* J absorbed from the device so far: sum of
+                                        -force_k . (xd_k+1 - xd_k) (passivity observer) */
+    int contact;                     /* the last pose was in contact */
+} sq_haptic_state;
+
+/* one evaluation: what a pose gets back */
+typedef struct sq_haptic_out {
+    double force[3];                 /* on the device, N */
+    double torque[3];                /* box: the model's torque, N m */
+    double tool[3];                  /* the coupled tool position, m (forwarded to the step) */
+    unsigned flags;                  /* SQ_HAPTIC_F_* */
+} sq_haptic_out;
+
+/* the force for device position xd at device time t from model m (valid 0: none yet) with the
+ * coupling: tool p solves k (xd - p) + f(p) = 0, f(p) = f0 + K (p - p0) (K is negative
+ * semi-definite, so k I - K is invertible for k > 0); force = f(p) + c (v_p - v_d), the damper
+ * acting only between two poses in contact on the same frame's model (a new model moves the
+ * tool at once: that jump is not a velocity). A passivity observer keeps the energy the channel
+ * has absorbed from the device (force held over each device step); when it is negative (the
+ * channel gave energy back that it never took: a new frame's model can), a damper on the device
+ * velocity, at most SQ_HAPTIC_PC_MAX, takes that energy back over the next step. A push
+ * never pulls: where f(p) points into the body the contact is lost (force 0, p = xd). Pure. */
+void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
+                    sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out);
+
+/* one open channel */
+typedef struct sq_haptic_channel {
+    uint32_t id;                     /* 0: free slot */
+    int tool;                        /* tool id */
+    uint64_t owner;                  /* client serial */
+    int shape;                       /* sq_tool_shape at opening */
+    sq_haptic_coupling coupling;
+    sq_haptic_state state;
+    sq_tool_model model;             /* summed over the bodies */
+    int model_valid;
+    long model_frame;
+    int has_pose;                    /* pose: the newest tool position for the next frame */
+    double pose[3];
+    double tokens, last_refill;      /* rate limit */
+    double last_error;               /* time of the last error message sent (1 per s) */
+    long poses, answered, dropped_rate, dropped_bad;
+} sq_haptic_channel;
+
+typedef struct sq_haptic_hub {
+    pthread_mutex_t mu;
+    int nopen;                       /* atomic: open channels (0: the step is untouched) */
+    uint32_t next_id;
+    long bad_channel;                /* poses on a channel the sender does not own */
+    long bad_pose;                   /* pose messages that could not be decoded */
+    sq_haptic_channel ch[SQ_MAX_TOOLS];
+} sq_haptic_hub;
+
+struct sq_world;
+void sq_haptic_hub_init(sq_haptic_hub *h);
+void sq_haptic_hub_free(sq_haptic_hub *h);
+/* session thread, before a frame: the newest coupled tool positions into the world's tools */
+void sq_haptic_before_frame(sq_haptic_hub *h, struct sq_world *w);
+/* session thread, after a frame: the models of the channels' tools (summed over bodies) */
+void sq_haptic_after_frame(sq_haptic_hub *h, struct sq_world *w);
+
+/* little-endian codecs of the two binary messages */
+typedef struct sq_haptic_pose {
+    uint32_t channel, seq;
+    double t, pos[3];
+} sq_haptic_pose;
+/* 0, or -1 with a message naming what is wrong (size, magic, version, kind) */
+int sq_haptic_pose_decode(const unsigned char *msg, size_t len, sq_haptic_pose *p, char *why, size_t n);
+void sq_haptic_pose_encode(const sq_haptic_pose *p, unsigned char out[SQ_HAPTIC_POSE_BYTES]);
+void sq_haptic_force_encode(uint32_t channel, uint32_t seq, uint32_t frame, double t,
+                            const sq_haptic_out *o, unsigned char out[SQ_HAPTIC_FORCE_BYTES]);
+/* is this binary message a haptic one (magic SQHP)? */
+int sq_haptic_is_message(const unsigned char *msg, size_t len);
+
+#endif

@@ -1,0 +1,323 @@
+/* haptic_ws.c - the service thread's side of the haptic channel (docs/protocol.md, "Haptic
+ * channel"): the "haptic" request that opens or closes a channel, pose messages in and one
+ * force message out per pose, answered here from the tool's model of the last frame
+ * (net/haptic.h) without waiting for the session thread. Bad poses are dropped and counted;
+ * at most one error message per second per channel (or client) says why, so that a flood does
+ * not turn into a flood of replies.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "net/server.h"
+#include "net/haptic_ws.h"
+
+/* the ref of a raw request object, for the reply */
+static void read_ref(const cJSON *o, sq_request *req)
+{
+    memset(req, 0, sizeof *req);
+    req->type = SQ_REQ_NONE;
+    const cJSON *ref = cJSON_GetObjectItemCaseSensitive(o, "ref");
+    if (cJSON_IsString(ref) && strlen(ref->valuestring) < sizeof req->ref_str) {
+        req->ref_kind = SQ_REF_STRING;
+        snprintf(req->ref_str, sizeof req->ref_str, "%s", ref->valuestring);
+    } else if (cJSON_IsNumber(ref) && isfinite(ref->valuedouble)) {
+        req->ref_kind = SQ_REF_NUMBER;
+        req->ref_num = ref->valuedouble;
+    }
+}
+
+static int read_number(client *c, const sq_request *req, const cJSON *o, const char *key,
+                       const char *path, double lo, double hi, int *has, double *v)
+{
+    const cJSON *it = cJSON_GetObjectItemCaseSensitive(o, key);
+    *has = 0;
+    if (!it)
+        return 0;
+    char m[240];
+    if (!cJSON_IsNumber(it)) {
+        snprintf(m, sizeof m, "%s: must be a number", path);
+        net_send_error(c, req, SQ_CODE_BAD_FIELD, m);
+        return -1;
+    }
+    if (!isfinite(it->valuedouble) || it->valuedouble < lo || it->valuedouble > hi) {
+        snprintf(m, sizeof m, "%s: %g is outside [%g, %g]; send a value in range", path,
+                 it->valuedouble, lo, hi);
+        net_send_error(c, req, SQ_CODE_OUT_OF_RANGE, m);
+        return -1;
+    }
+    *has = 1;
+    *v = it->valuedouble;
+    return 0;
+}
+
+static cJSON *channel_json(const sq_haptic_channel *ch)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON_AddNumberToObject(o, "channel", ch->id);
+    cJSON_AddNumberToObject(o, "tool", ch->tool);
+    cJSON_AddNumberToObject(o, "poses", (double)ch->poses);
+    cJSON_AddNumberToObject(o, "answered", (double)ch->answered);
+    cJSON_AddNumberToObject(o, "dropped_rate", (double)ch->dropped_rate);
+    cJSON_AddNumberToObject(o, "dropped_bad", (double)ch->dropped_bad);
+    cJSON_AddNumberToObject(o, "model_frame", (double)ch->model_frame);
+    cJSON_AddNumberToObject(o, "model_nodes", ch->model_valid ? ch->model.nnodes : 0);
+    return o;
+}
+
+cJSON *net_haptic_stats_json(sq_session *s)
+{
+    cJSON *o = cJSON_CreateObject();
+    cJSON *a = cJSON_AddArrayToObject(o, "channels");
+    pthread_mutex_lock(&s->haptic.mu);
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (s->haptic.ch[i].id)
+            cJSON_AddItemToArray(a, channel_json(&s->haptic.ch[i]));
+    cJSON_AddNumberToObject(o, "bad_channel", (double)s->haptic.bad_channel);
+    cJSON_AddNumberToObject(o, "bad_pose", (double)s->haptic.bad_pose);
+    pthread_mutex_unlock(&s->haptic.mu);
+    return o;
+}
+
+void net_haptic_close_owner(sq_session *s, uint64_t owner)
+{
+    sq_haptic_hub *h = &s->haptic;
+    pthread_mutex_lock(&h->mu);
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (h->ch[i].id && h->ch[i].owner == owner) {
+            h->ch[i].id = 0;
+            __atomic_sub_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
+        }
+    pthread_mutex_unlock(&h->mu);
+}
+
+int net_haptic_request(client *c, const char *text, size_t len)
+{
+    /* cheap test first: every other request goes on to the decoder untouched */
+    if (!memmem(text, len, "haptic", 6))
+        return 0;
+    cJSON *o = cJSON_ParseWithLength(text, len);
+    const cJSON *type = o ? cJSON_GetObjectItemCaseSensitive(o, "type") : NULL;
+    if (!cJSON_IsString(type) || strcmp(type->valuestring, "haptic") != 0) {
+        cJSON_Delete(o);
+        return 0;
+    }
+    sq_request req;
+    read_ref(o, &req);
+    char m[320];
+    const cJSON *it;
+    cJSON_ArrayForEach(it, o) {
+        static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping"};
+        int ok = 0;
+        for (size_t k = 0; k < sizeof known / sizeof *known; k++)
+            ok |= !strcmp(it->string, known[k]);
+        if (!ok) {
+            snprintf(m, sizeof m, "haptic.%.60s: unknown field; haptic takes tool, open, stiffness, "
+                     "damping, ref", it->string);
+            net_send_error(c, &req, SQ_CODE_BAD_FIELD, m);
+            cJSON_Delete(o);
+            return 1;
+        }
+    }
+    srec *r = c->sess;
+    if (!c->greeted) {
+        net_send_error(c, &req, SQ_CODE_HELLO_REQUIRED, "haptic: send hello first");
+        goto done;
+    }
+    if (!r || !c->ready) {
+        net_send_error(c, &req, SQ_CODE_NO_SESSION, "haptic: open or join a session first");
+        goto done;
+    }
+    if (r->controller != c->serial) {
+        net_send_error(c, &req, SQ_CODE_NOT_CONTROLLER, "haptic: only the session's controller may "
+                       "open a haptic channel; take_control first");
+        goto done;
+    }
+    const cJSON *tool = cJSON_GetObjectItemCaseSensitive(o, "tool");
+    if (!cJSON_IsNumber(tool) || tool->valuedouble != floor(tool->valuedouble)) {
+        net_send_error(c, &req, SQ_CODE_BAD_FIELD, "haptic.tool: missing or not an integer; send "
+                       "the id of a tool of the session");
+        goto done;
+    }
+    if (!(tool->valuedouble >= 0 && tool->valuedouble <= SQ_NET_MAX_TOOL_ID)) {
+        snprintf(m, sizeof m, "haptic.tool: %g is outside [0, %d]; send the id of a tool of the "
+                 "session", tool->valuedouble, SQ_NET_MAX_TOOL_ID);
+        net_send_error(c, &req, SQ_CODE_OUT_OF_RANGE, m);
+        goto done;
+    }
+    const cJSON *open = cJSON_GetObjectItemCaseSensitive(o, "open");
+    if (open && !cJSON_IsBool(open)) {
+        net_send_error(c, &req, SQ_CODE_BAD_FIELD, "haptic.open: must be true or false");
+        goto done;
+    }
+    int want_open = !open || cJSON_IsTrue(open);
+    int has_k, has_b;
+    double k = SQ_HAPTIC_STIFFNESS, b = SQ_HAPTIC_DAMPING;
+    if (read_number(c, &req, o, "stiffness", "haptic.stiffness", 0, SQ_HAPTIC_STIFFNESS_MAX, &has_k, &k) ||
+        read_number(c, &req, o, "damping", "haptic.damping", 0, SQ_HAPTIC_DAMPING_MAX, &has_b, &b))
+        goto done;
+    int id = (int)tool->valuedouble, shape = -1;
+    sq_session *s = r->s;
+    pthread_mutex_lock(&s->mu);
+    for (int i = 0; i < s->ntool_ids; i++)
+        if (s->tool_ids[i] == id)
+            shape = 0;
+    for (int i = 0; i < s->snap.ntools; i++)
+        if (s->snap.tools[i].id == id)
+            shape = (int)s->snap.tools[i].shape;
+    pthread_mutex_unlock(&s->mu);
+    if (shape < 0) {
+        snprintf(m, sizeof m, "haptic.tool: %d is not a tool of this session; create it with a "
+                 "tool request first", id);
+        net_send_error(c, &req, SQ_CODE_UNKNOWN_TOOL, m);
+        goto done;
+    }
+    sq_haptic_hub *h = &s->haptic;
+    pthread_mutex_lock(&h->mu);
+    sq_haptic_channel *ch = NULL;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (h->ch[i].id && h->ch[i].tool == id)
+            ch = &h->ch[i];
+    cJSON *rep = sq_reply_new("haptic", &req);
+    if (!want_open) {
+        if (ch) {
+            ch->id = 0;
+            __atomic_sub_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
+        }
+        cJSON_AddNumberToObject(rep, "tool", id);
+        cJSON_AddBoolToObject(rep, "open", 0);
+        pthread_mutex_unlock(&h->mu);
+        net_send_json(c, rep);
+        goto done;
+    }
+    if (!ch) {
+        for (int i = 0; i < SQ_MAX_TOOLS && !ch; i++)
+            if (!h->ch[i].id)
+                ch = &h->ch[i];
+        if (!ch) { /* one slot per tool of at most SQ_MAX_TOOLS: cannot happen */
+            pthread_mutex_unlock(&h->mu);
+            cJSON_Delete(rep);
+            net_send_error(c, &req, SQ_CODE_INTERNAL, "haptic: no free channel slot");
+            goto done;
+        }
+        memset(ch, 0, sizeof *ch);
+        ch->id = h->next_id++;
+        ch->tool = id;
+        ch->tokens = SQ_HAPTIC_BURST;
+        ch->last_refill = sq_now();
+        ch->last_error = -1e9;
+        __atomic_add_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
+    }
+    ch->owner = c->serial;
+    ch->shape = shape;
+    if (has_k || !ch->coupling.stiffness)
+        ch->coupling.stiffness = k;
+    if (has_b || !ch->coupling.damping)
+        ch->coupling.damping = b;
+    if (has_k && k == 0)
+        ch->coupling.stiffness = 0;
+    if (has_b && b == 0)
+        ch->coupling.damping = 0;
+    cJSON_AddNumberToObject(rep, "channel", ch->id);
+    cJSON_AddNumberToObject(rep, "tool", id);
+    cJSON_AddBoolToObject(rep, "open", 1);
+    cJSON_AddNumberToObject(rep, "version", SQ_HAPTIC_VERSION);
+    cJSON_AddNumberToObject(rep, "max_rate", SQ_HAPTIC_MAX_RATE);
+    cJSON_AddNumberToObject(rep, "burst", SQ_HAPTIC_BURST);
+    cJSON_AddNumberToObject(rep, "pos_max", SQ_NET_POS_MAX);
+    cJSON_AddNumberToObject(rep, "stiffness", ch->coupling.stiffness);
+    cJSON_AddNumberToObject(rep, "damping", ch->coupling.damping);
+    cJSON_AddNumberToObject(rep, "model_frame", (double)ch->model_frame);
+    pthread_mutex_unlock(&h->mu);
+    net_send_json(c, rep);
+done:
+    cJSON_Delete(o);
+    return 1;
+}
+
+/* an error for a dropped pose, at most one per second per channel (ch NULL: per client) */
+static void pose_error(client *c, double *last, sq_net_code code, const char *msg)
+{
+    static const sq_request none = {.ref_kind = SQ_REF_NULL};
+    double now = sq_now();
+    if (now - *last < 1.0)
+        return;
+    *last = now;
+    net_send_error(c, &none, code, msg);
+}
+
+void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
+{
+    sq_haptic_pose p;
+    char why[200];
+    srec *r = c->sess;
+    if (sq_haptic_pose_decode(msg, len, &p, why, sizeof why)) {
+        if (r) {
+            pthread_mutex_lock(&r->s->haptic.mu);
+            r->s->haptic.bad_pose++;
+            pthread_mutex_unlock(&r->s->haptic.mu);
+        }
+        pose_error(c, &c->haptic_last_error, SQ_CODE_BAD_POSE, why);
+        return;
+    }
+    if (!r || !c->ready) {
+        pose_error(c, &c->haptic_last_error, SQ_CODE_BAD_CHANNEL,
+                   "haptic pose: this client is in no session; open one and send a haptic request");
+        return;
+    }
+    sq_haptic_hub *h = &r->s->haptic;
+    pthread_mutex_lock(&h->mu);
+    sq_haptic_channel *ch = NULL;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (h->ch[i].id && h->ch[i].id == p.channel)
+            ch = &h->ch[i];
+    if (!ch || ch->owner != c->serial || r->controller != c->serial) {
+        h->bad_channel++;
+        pthread_mutex_unlock(&h->mu);
+        snprintf(why, sizeof why, "haptic pose: channel %u is not open for this client%s; send a "
+                 "haptic request for your tool", p.channel,
+                 ch && r->controller != c->serial ? " (it no longer controls the session)" : "");
+        pose_error(c, &c->haptic_last_error, SQ_CODE_BAD_CHANNEL, why);
+        return;
+    }
+    ch->poses++;
+    double now = sq_now();
+    ch->tokens = fmin(SQ_HAPTIC_BURST, ch->tokens + (now - ch->last_refill) * SQ_HAPTIC_MAX_RATE);
+    ch->last_refill = now;
+    if (ch->tokens < 1) {
+        ch->dropped_rate++;
+        snprintf(why, sizeof why, "haptic pose: channel %u sends more than %g poses per second "
+                 "(burst %g); poses dropped (stats.haptic.channels[].dropped_rate)", p.channel,
+                 SQ_HAPTIC_MAX_RATE, SQ_HAPTIC_BURST);
+        double *last = &ch->last_error;
+        pthread_mutex_unlock(&h->mu);
+        pose_error(c, last, SQ_CODE_RATE_LIMITED, why);
+        return;
+    }
+    ch->tokens -= 1;
+    int bad = !isfinite(p.t);
+    for (int k = 0; k < 3; k++)
+        bad |= !isfinite(p.pos[k]) || fabs(p.pos[k]) > SQ_NET_POS_MAX;
+    if (bad) {
+        ch->dropped_bad++;
+        snprintf(why, sizeof why, "haptic pose: channel %u seq %u: time and position must be finite "
+                 "and each coordinate within +-%g m (got %g %g %g at t %g); pose dropped",
+                 p.channel, p.seq, SQ_NET_POS_MAX, p.pos[0], p.pos[1], p.pos[2], p.t);
+        double *last = &ch->last_error;
+        pthread_mutex_unlock(&h->mu);
+        pose_error(c, last, SQ_CODE_BAD_POSE, why);
+        return;
+    }
+    sq_haptic_out out;
+    sq_haptic_eval(&ch->model, ch->model_valid, ch->model_frame, &ch->coupling, &ch->state, p.pos, p.t, &out);
+    if (ch->shape != SQ_TOOL_BOX)
+        memset(out.torque, 0, sizeof out.torque);
+    memcpy(ch->pose, out.tool, sizeof ch->pose);
+    ch->has_pose = 1;
+    ch->answered++;
+    uint32_t frame = (uint32_t)ch->model_frame;
+    pthread_mutex_unlock(&h->mu);
+    sq_blob *b = sq_blob_new(SQ_HAPTIC_FORCE_BYTES, 1);
+    sq_haptic_force_encode(p.channel, p.seq, frame, p.t, &out, b->msg);
+    net_fifo_push(c, b);
+}

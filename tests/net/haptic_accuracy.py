@@ -1,0 +1,124 @@
+"""The haptic model's accuracy between frames (docs/protocol.md, "The model between frames").
+
+    /usr/bin/python3 tests/net/haptic_accuracy.py          (needs build/squish; run by make bench)
+
+A slow press (the scene's own probe, 3 cm/s for cube-poke and the organ) is run twice on a
+--lockstep server: at the scene's 50 Hz with the haptic channel open, and as a reference at
+500 Hz (the same scene with frame_rate 500: the pose is applied every 2 ms, at about every
+substep of the 50 Hz run). At each 50 Hz frame the model (stiffness 0: the tool is the device)
+is asked for the force at the mid-frame pose, 10 ms ahead; the reference's feedback at that
+time is the truth. Also reported: the zero-order hold (the last frame's force, what a client
+without the model gets), and the floor: the 50 Hz run's own frame force against the reference
+at the frame's end (how far the two runs differ before any model is used). Prints the median and 90th percentile relative error of the force
+along the press, over the frames in contact with more than 1 N.
+"""
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+sys.path.insert(0, os.path.join(ROOT, "web"))
+from squish_client import SquishClient  # noqa: E402
+
+SQUISH = os.environ.get("SQUISH", os.path.join(ROOT, "build", "squish"))
+
+# name: (scene file, press start, press direction (unit), speed m/s, press time s, tool radius)
+CASES = {
+    "cube-poke": ("cube-poke.json", (0.5, 0.5, 1.10), (0, 0, -1), 0.03, 1.5, 0.12),
+    "organ": ("organ.json", (0.1, 0.1, 0.16), (0, 0, -1), 0.03, 1.5, 0.03),
+}
+
+
+def scenes(tmp):
+    for name, (f, *_r) in CASES.items():
+        src = os.path.join(ROOT, "meshes", "scenes", f)
+        s = json.load(open(src))
+        for b in s["bodies"]:
+            b["levels"] = [os.path.abspath(os.path.join(os.path.dirname(src), p)) for p in b["levels"]]
+        s["tools"] = []  # the press is driven by this script
+        for rate, suffix in ((50, ""), (500, "-ref")):
+            s["name"] = name + suffix
+            s["frame_rate"] = rate
+            json.dump(s, open(os.path.join(tmp, name + suffix + ".json"), "w"))
+
+
+def pose(start, d, v, t):
+    return [start[i] + d[i] * v * t for i in range(3)]
+
+
+def run(url, name):
+    _f, start, d, v, T, radius = CASES[name]
+    nframes = int(T * 50)
+    # reference: 500 Hz, the pose every 2 ms; feedback of every frame, by time
+    ref = {}
+    with SquishClient.connect(url) as c:
+        c.open(name + "-ref")
+        c.tool(id=2, shape="sphere", pos=pose(start, d, v, 0), radius=radius)
+        for k in range(1, nframes * 10 + 1):
+            c.tool(id=2, pos=pose(start, d, v, k * 0.002))
+            c.step(1)
+            f = c.frames[0].tools[0]["force"]
+            ref[k] = sum(f[i] * -d[i] for i in range(3))  # the reaction along the press
+    # the model: 50 Hz, the channel answers at mid-frame
+    model, hold = {}, {}
+    with SquishClient.connect(url) as c:
+        c.open(name)
+        c.tool(id=2, shape="sphere", pos=pose(start, d, v, 0), radius=radius)
+        ch = c.haptic_open(2, stiffness=0, damping=0)["channel"]
+        for k in range(1, nframes + 1):
+            # the frame ending at 20 k ms is stepped with the pose of its end (as the reference)
+            c.haptic(ch, pose(start, d, v, k * 0.02), k * 0.02)
+            c.step(1)
+            time.sleep(0.002)  # under the channel's rate limit
+            c.haptic(ch, pose(start, d, v, k * 0.02), k * 0.02 + 0.0005)  # the new model, blend start
+            f = c.haptic(ch, pose(start, d, v, k * 0.02 + 0.01), k * 0.02 + 0.011)  # blended in
+            model[k] = sum(f["force"][i] * -d[i] for i in range(3))
+            hold[k] = sum(c.frames[0].tools[0]["force"][i] * -d[i] for i in range(3))
+    errs_m, errs_h, errs_f = [], [], []
+    for k in range(1, nframes + 1):
+        at_frame = ref.get(10 * k)
+        if at_frame is not None and abs(at_frame) >= 1.0:
+            errs_f.append(abs(hold[k] - at_frame) / abs(at_frame))
+        truth = ref.get(10 * k + 5)  # 500 Hz frame 10 k + 5 ends at 20 k + 10 ms
+        if truth is None or abs(truth) < 1.0:
+            continue
+        errs_m.append(abs(model[k] - truth) / abs(truth))
+        errs_h.append(abs(hold[k] - truth) / abs(truth))
+    return errs_m, errs_h, errs_f
+
+
+def q(a, p):
+    s = sorted(a)
+    return s[min(len(s) - 1, int(p * len(s)))] if s else float("nan")
+
+
+def main():
+    tmp = tempfile.mkdtemp(prefix="squish-haptic-acc-")
+    scenes(tmp)
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    srv = subprocess.Popen([SQUISH, "serve", "--host", "127.0.0.1", "--port", str(port), "--scenes", tmp,
+                            "--no-web", "--lockstep", "--rate", "100000"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1.5)
+        url = f"ws://127.0.0.1:{port}/ws"
+        for name in CASES:
+            em, eh, ef = run(url, name)
+            print(f"{name}: slow press 3 cm/s, force at mid-frame against the 500 Hz reference, "
+                  f"{len(em)} frames over 1 N: model median {100 * q(em, 0.5):.1f} % p90 {100 * q(em, 0.9):.1f} %; "
+                  f"zero-order hold median {100 * q(eh, 0.5):.1f} % p90 {100 * q(eh, 0.9):.1f} %; "
+                  f"floor (the 50 Hz frame's own force at its end against the reference) median "
+                  f"{100 * q(ef, 0.5):.1f} % p90 {100 * q(ef, 0.9):.1f} % (aim: model within 5 %)")
+    finally:
+        srv.terminate()
+        srv.wait()
+
+
+if __name__ == "__main__":
+    main()

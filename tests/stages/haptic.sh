@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# haptic stage: the haptic channel (docs/protocol.md, "Haptic channel") against real servers
+# on free loopback ports, driven by tests/net/haptic_test.py (web/squish_client.py, Debian's
+# python3-websockets): a simulated device at 1 kHz on a --lockstep server (passive, no buzz, no
+# reset, deterministic), then bad input and a 20 kHz flood on a realtime server while a viewer's
+# frame rate is checked. Prints "haptic: N passed, N failed".
+set -u
+cd "$(dirname "$0")/../.."
+SQUISH=${SQUISH:-$PWD/build/squish}
+PY=${PYTHON:-/usr/bin/python3}
+pass=0
+fail=0
+ok() { echo "ok - $1"; pass=$((pass + 1)); }
+bad() { echo "not ok - $1"; fail=$((fail + 1)); }
+finish() { echo "haptic: $pass passed, $fail failed"; [ "$fail" = 0 ]; exit $?; }
+
+[ -x "$SQUISH" ] || { bad "server binary $SQUISH not found (make squish)"; finish; }
+"$PY" -c 'import websockets' 2>/dev/null || { bad "$PY has no websockets module (apt-get install python3-websockets, or make deps)"; finish; }
+
+tmp=$(mktemp -d)
+srv_pid=
+stop() { [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null && wait "$srv_pid" 2>/dev/null; srv_pid=; }
+trap 'stop; rm -rf "$tmp"' EXIT
+
+free_port() { "$PY" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1]); s.close()'; }
+start() { # start [flags...]: a server on a free port, url in $url
+    local port
+    port=$(free_port)
+    "$SQUISH" serve --host 127.0.0.1 --port "$port" --scenes meshes/scenes --no-web "$@" >"$tmp/serve.log" 2>&1 &
+    srv_pid=$!
+    for _ in $(seq 100); do
+        "$PY" -c "import urllib.request,sys; urllib.request.urlopen('http://127.0.0.1:$port/healthz')" 2>/dev/null && break
+        sleep 0.1
+    done
+    url="ws://127.0.0.1:$port/ws"
+}
+count() { # count FILE: add the file's ok / not ok lines
+    pass=$((pass + $(grep -c '^ok - ' "$1")))
+    fail=$((fail + $(grep -c '^not ok - ' "$1")))
+}
+
+start --lockstep
+"$PY" tests/net/haptic_test.py device "$url" >"$tmp/device.out" 2>&1
+rc=$?
+cat "$tmp/device.out"
+count "$tmp/device.out"
+[ "$rc" = 0 ] || grep -q '^not ok' "$tmp/device.out" || bad "haptic_test.py device exited with $rc"
+if "$PY" tests/net/example_haptic.py "$url" >"$tmp/example.out" 2>&1 && grep -q '^released' "$tmp/example.out" &&
+   awk '/force/ { if ($8 + 0 > 1) hit = 1 } END { exit !hit }' "$tmp/example.out"; then
+    ok "tests/net/example_haptic.py prints a force curve with the press felt (> 1 N)"
+else
+    bad "tests/net/example_haptic.py"; cat "$tmp/example.out"
+fi
+stop
+
+start
+"$PY" tests/net/haptic_test.py input "$url" >"$tmp/input.out" 2>&1
+rc=$?
+cat "$tmp/input.out"
+count "$tmp/input.out"
+[ "$rc" = 0 ] || grep -q '^not ok' "$tmp/input.out" || bad "haptic_test.py input exited with $rc"
+stop
+finish
