@@ -61,6 +61,11 @@ struct sq_body {
     double *save_d, *save_v, *save_q;      /* the frame's start state (after the holds) */
     size_t save_n3, save_nq;
     int boost, boost_calm;
+    /* the last blow-up test of the state (sq_body_diverged) and the frame it was made in: the
+     * explicit frame's test is the health check's when nothing stepped in between */
+    long div_frame;
+    sq_health_kind div_kind;
+    double div_value;
 
     /* sleep */
     int sleeping, calm;
@@ -108,6 +113,9 @@ static inline int sq_body_fixed_nsub(const sq_body *b, const sq_level *L)
 /* the blow-up test of the simulated state: non-finite values, displacement beyond 10 bbox
  * diagonals, or kinetic energy above 0.5 M (10 diag / frame_dt)^2; SQ_HEALTH_NONE if healthy */
 sq_health_kind sq_body_diverged(const sq_body *b, double *value);
+/* the same, remembered for this frame (b->frames): the explicit frame tests its end state and
+ * the health check after it reads the answer instead of testing again */
+sq_health_kind sq_body_diverged_now(sq_body *b, double *value);
 /* count a health warning (kind NONE: nothing) with its value at the body's current frame */
 void sq_body_count_health(sq_body *b, sq_health_kind k, double value);
 /* after the frame's steps: health (a blow-up resets the body to rest and returns 1) and the

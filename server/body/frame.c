@@ -22,6 +22,18 @@ static void mark_held(sq_body *b, int k, const sq_hold *holds, int nholds)
     }
 }
 
+/* tool feedback: weight w of the force on each held node, less its weight, onto its tool */
+static void add_feedback(const sq_body *b, const sq_level *L, int nk, int ntools, double (*force)[3], double w)
+{
+    const double *g = b->def.gravity;
+    for (int h = 0; h < nk; h++) {
+        int i = b->khold[h].node, t = b->khold[h].tool;
+        if (force && t >= 0 && t < ntools)
+            for (int c = 0; c < 3; c++)
+                force[t][c] += w * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
+    }
+}
+
 /* the implicit frame's steps (level/implicit.c): substeps backward Euler steps of
  * frame_dt / substeps, held nodes projected out; feedback from the force at each step's end
  * state; CG stopped by the frame budget when there is one (budget_s > 0) */
@@ -57,12 +69,7 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
         tot.newton_residual = SQ_MAX(tot.newton_residual, st.newton_residual);
         if (nk && force) {
             sq_level_forces(L, mat, g, NULL); /* the end state's force */
-            for (int k = 0; k < nk; k++) {
-                int i = b->khold[k].node, t = b->khold[k].tool;
-                if (t >= 0 && t < ntools)
-                    for (int c = 0; c < 3; c++)
-                        force[t][c] += inv * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
-            }
+            add_feedback(b, L, nk, ntools, force, inv);
         }
     }
     if (prof) {
@@ -101,12 +108,56 @@ static void load_frame_start(sq_body *b, sq_level *L)
     sq_level_corot_load(L, b->save_q);
 }
 
+/* the explicit frame's substeps: forces on all nodes, feedback on held nodes, integrate the
+ * others; a frame that diverges is re-run from its start with twice the substeps (up to
+ * SQ_RETRY_MAX times; docs/physics.md section 11). Returns the substeps stepped */
+static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], sq_frame_profile *prof)
+{
+    const sq_material *mat = &b->def.material;
+    const double *g = b->def.gravity;
+    unsigned char *mask = b->mask[b->cur];
+    const double sdt0 = b->def.sharp_step ? L->dt_fixed : L->dt;
+    int factor = b->boost > 1 ? b->boost : 1, nsub = sq_body_fixed_nsub(b, L) * factor, retried = 0;
+    save_frame_start(b, L);
+    for (int attempt = 0;; attempt++) {
+        const double sdt = sdt0 / factor, inv = 1.0 / nsub;
+        int s;
+        for (s = 0; s < nsub; s++) {
+            if ((s & 15) == 15 && sq_cancelled())
+                break; /* the server is stopping: the frame is abandoned */
+            sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
+            add_feedback(b, L, nk, ntools, force, inv);
+        }
+        double value;
+        b->div_frame = -1; /* this attempt's end state is new: test it afresh */
+        if (s < nsub || attempt >= SQ_RETRY_MAX || (long)nsub * 2 > (1L << 22) ||
+            sq_body_diverged_now(b, &value) == SQ_HEALTH_NONE)
+            break;
+        /* diverged: back to the frame's start, twice the substeps */
+        load_frame_start(b, L);
+        if (force)
+            memset(force, 0, sizeof(double) * 3 * (size_t)SQ_MAX(ntools, 0));
+        if (prof)
+            sq_frame_event(prof, SQ_HEALTH_STEP_REFINED, 2.0 * nsub, nsub, 0, 0, b->name);
+        factor *= 2;
+        nsub *= 2;
+        retried = 1;
+    }
+    if (retried) {
+        sq_body_count_health(b, SQ_HEALTH_STEP_REFINED, nsub);
+        b->boost = factor;
+        b->boost_calm = 0;
+    } else if (b->boost > 1 && ++b->boost_calm >= SQ_RETRY_CALM) {
+        b->boost /= 2; /* try half the raise again */
+        b->boost_calm = 0;
+    }
+    return nsub;
+}
+
 static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                         sq_frame_profile *prof, double budget_s)
 {
     sq_level *L = &b->level[b->cur];
-    const sq_material *mat = &b->def.material;
-    const double *g = b->def.gravity;
     int *hold_of = b->hold_of[b->cur];
     unsigned char *mask = b->mask[b->cur];
 
@@ -165,6 +216,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         hold_of[i] = -1;
     }
 
+    int nsub;
     if (implicit) {
         implicit_steps(b, L, nk, ntools, force, budget_s, prof);
         for (int h = 0; h < nk; h++) { /* at the target exactly (the steps' sum of h u, to round-off) */
@@ -172,58 +224,10 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             for (int c = 0; c < 3; c++)
                 if (!(L->model.fixed[i] & (1u << c)))
                     L->d[3 * (size_t)i + c] = b->khold[h].target[c];
-            mask[i] = 1;
         }
-        mark_held(b, b->cur, b->khold, nk);
-        if (prof) {
-            prof->node_updates = (long)(L->model.n - nk) * b->def.implicit.substeps;
-            prof->active[b->cur] = L->model.n;
-            prof->substeps[b->cur] = b->def.implicit.substeps;
-            prof->awake_nodes = L->model.n;
-        }
-        return;
-    }
-    /* substeps: forces on all nodes, feedback on held nodes, integrate the others; a frame that
-     * diverges is re-run from its start with twice the substeps (retry_guard) */
-    const int nsub0 = sq_body_fixed_nsub(b, L);
-    const double sdt0 = b->def.sharp_step ? L->dt_fixed : L->dt;
-    int factor = b->boost > 1 ? b->boost : 1, nsub = nsub0 * factor, retried = 0;
-    save_frame_start(b, L);
-    for (int attempt = 0;; attempt++) {
-        const double sdt = sdt0 / factor, inv = 1.0 / nsub;
-        int s;
-        for (s = 0; s < nsub; s++) {
-            if ((s & 15) == 15 && sq_cancelled())
-                break; /* the server is stopping: the frame is abandoned */
-            sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
-            for (int h = 0; h < nk; h++) {
-                int i = b->khold[h].node, t = b->khold[h].tool;
-                if (force && t >= 0 && t < ntools)
-                    for (int c = 0; c < 3; c++)
-                        force[t][c] += inv * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
-            }
-        }
-        double value;
-        if (s < nsub || attempt >= SQ_RETRY_MAX || (long)nsub * 2 > (1L << 22) ||
-            sq_body_diverged(b, &value) == SQ_HEALTH_NONE)
-            break;
-        /* diverged: back to the frame's start, twice the substeps */
-        load_frame_start(b, L);
-        if (force)
-            memset(force, 0, sizeof(double) * 3 * (size_t)SQ_MAX(ntools, 0));
-        if (prof)
-            sq_frame_event(prof, SQ_HEALTH_STEP_REFINED, 2.0 * nsub, nsub, 0, 0, b->name);
-        factor *= 2;
-        nsub *= 2;
-        retried = 1;
-    }
-    if (retried) {
-        sq_body_count_health(b, SQ_HEALTH_STEP_REFINED, nsub);
-        b->boost = factor;
-        b->boost_calm = 0;
-    } else if (b->boost > 1 && ++b->boost_calm >= SQ_RETRY_CALM) {
-        b->boost /= 2; /* try half the raise again */
-        b->boost_calm = 0;
+        nsub = b->def.implicit.substeps;
+    } else {
+        nsub = explicit_steps(b, L, nk, ntools, force, prof);
     }
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;

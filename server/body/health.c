@@ -48,6 +48,16 @@ sq_health_kind sq_body_diverged(const sq_body *b, double *value)
     return SQ_HEALTH_NONE;
 }
 
+sq_health_kind sq_body_diverged_now(sq_body *b, double *value)
+{
+    if (b->div_frame != b->frames) {
+        b->div_kind = sq_body_diverged(b, &b->div_value);
+        b->div_frame = b->frames;
+    }
+    *value = b->div_value;
+    return b->div_kind;
+}
+
 /* count a health warning of this frame */
 void sq_body_count_health(sq_body *b, sq_health_kind k, double value)
 {
@@ -63,7 +73,7 @@ void sq_body_count_health(sq_body *b, sq_health_kind k, double value)
 int sq_body_check_health(sq_body *b, sq_frame_profile *prof, int nholds)
 {
     double value = 0;
-    sq_health_kind why = prof->sleeping ? SQ_HEALTH_NONE : sq_body_diverged(b, &value);
+    sq_health_kind why = prof->sleeping ? SQ_HEALTH_NONE : sq_body_diverged_now(b, &value);
     if (why != SQ_HEALTH_NONE) {
         sq_body_reset(b);
         prof->reset = 1;

@@ -57,7 +57,6 @@ struct sq_implicit {
     double *d0, *v0;              /* the step's start state (3 n), for Newton iterations */
     double *pre;                  /* Jacobi: inverse diagonal (3 n); block: inverse 3x3 (9 n) */
     double *rot;                  /* corotational: R per tet (9 ntets), the linearisation's */
-    int *diag;                    /* CSR index of the diagonal block of each row (n) */
     /* corotational: the warped stiffness assembled in the level's upper-half layout (Kup
      * blocks, up_start[n] x 9) at each linearisation, and for each tet the index of each of its
      * 6 edges in that layout (6 ntets, corner pairs 01 02 03 12 13 23) */
@@ -101,14 +100,7 @@ static sq_implicit *imp_get(sq_level *L)
         *vecs[k] = imp_calloc(n3 + 1, sizeof(double)); /* + 1: the fused pass reads 4 lanes a node */
     I->pre = imp_calloc(9 * (size_t)M->n, sizeof(double));
     I->rot = imp_calloc(9 * (size_t)I->ntets, sizeof(double));
-    I->diag = imp_calloc((size_t)M->n, sizeof(int));
     I->freeax = imp_calloc((size_t)M->n, 1);
-    for (int i = 0; i < M->n; i++) {
-        I->diag[i] = -1;
-        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++)
-            if (M->col[e] == i)
-                I->diag[i] = e;
-    }
     L->implicit = I;
     return I;
 }
@@ -123,7 +115,6 @@ void sq_level_implicit_free(sq_level *L)
     for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
         free(vecs[k]);
     mg_free(I);
-    free(I->diag);
     free(I->freeax);
     free(I->kup_r);
     free(I->tet_edge);
@@ -134,7 +125,6 @@ void sq_level_implicit_free(sq_level *L)
 /* the operator of one solve: y = P (c_m M + c_k K + c_d D) P x */
 typedef struct imp_op {
     const sq_level *L;
-    const sq_material *mat;
     const sq_implicit *I;
     double cm, ck, cd;
 } imp_op;
@@ -292,53 +282,36 @@ static int inv3_free(const double *Bin, unsigned fa, double *out)
     return 1;
 }
 
-/* the diagonal blocks of c_m M + c_k K + c_d D into pre (9 per node); corotational: the
- * rotated element blocks R K_T,ii R^T summed over the node's tets */
-static void diag_blocks(const imp_op *o, double *blk)
+/* the diagonal blocks of c_m M + c_k K + c_d D of model M into blk (9 per node). K's from its
+ * CSR diagonal, or with kup (the corotational warped stiffness in the upper-half layout) from
+ * translation invariance, K_ii = -sum_{j != i} K_ij, as the fused pass uses it */
+static void diag_blocks(const imp_op *o, const sq_level_model *M, const double *kup, double *blk)
 {
-    const sq_level *L = o->L;
-    const sq_level_model *M = &L->model;
-    const sq_implicit *I = o->I;
     memset(blk, 0, sizeof(double) * 9 * (size_t)M->n);
-    if (L->corot) {
-        const sq_corot *C = L->corot;
-        for (int t = 0; t < C->ntets; t++) {
-            const int *tv = M->mesh->tets + 4 * (size_t)t;
-            const double *R = I->rot + 9 * (size_t)t;
-            double G[10];
-            tet_load(C, t, G, NULL);
-            double a[4][3];
-            for (int c = 0; c < 3; c++) {
-                a[0][c] = G[c], a[1][c] = G[3 + c], a[2][c] = G[6 + c];
-                a[3][c] = -(a[0][c] + a[1][c] + a[2][c]);
-            }
-            for (int k = 0; k < 4; k++) {
-                double B[9] = {0}, RB[9];
-                sq_level_tet_block(SQ_OPERATOR_FEM, G[9], a[k], a[k], C->mu, C->lambda, B);
-                for (int r = 0; r < 3; r++)
-                    for (int c = 0; c < 3; c++)
-                        RB[3 * r + c] = R[3 * r] * B[c] + R[3 * r + 1] * B[3 + c] + R[3 * r + 2] * B[6 + c];
-                double *out = blk + 9 * (size_t)tv[k];
-                for (int r = 0; r < 3; r++)
-                    for (int c = 0; c < 3; c++)
-                        out[3 * r + c] += o->ck * (RB[3 * r] * R[3 * c] + RB[3 * r + 1] * R[3 * c + 1] +
-                                                   RB[3 * r + 2] * R[3 * c + 2]);
-            }
-        }
-    } else {
-        for (int i = 0; i < M->n; i++)
-            if (I->diag[i] >= 0)
-                for (int k = 0; k < 9; k++)
-                    blk[9 * (size_t)i + k] = o->ck * M->K[9 * (size_t)I->diag[i] + k];
-    }
     for (int i = 0; i < M->n; i++) {
         double *out = blk + 9 * (size_t)i;
-        if (o->cd != 0 && M->D && I->diag[i] >= 0)
-            for (int k = 0; k < 9; k++)
-                out[k] += o->cd * M->D[9 * (size_t)I->diag[i] + k];
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++)
+            if (M->col[e] == i)
+                for (int k = 0; k < 9; k++) {
+                    if (!kup)
+                        out[k] += o->ck * M->K[9 * (size_t)e + k];
+                    if (o->cd != 0 && M->D)
+                        out[k] += o->cd * M->D[9 * (size_t)e + k];
+                }
         for (int c = 0; c < 3; c++)
             out[4 * c] += o->cm * M->mass[i];
     }
+    if (kup)
+        for (int i = 0; i < M->n; i++)
+            for (int e = M->up_start[i]; e < M->up_start[i + 1]; e++) {
+                const double *B = kup + 9 * (size_t)e;
+                double *bi = blk + 9 * (size_t)i, *bj = blk + 9 * (size_t)M->up_col[e];
+                for (int r = 0; r < 3; r++)
+                    for (int c = 0; c < 3; c++) {
+                        bi[3 * r + c] -= o->ck * B[3 * r + c];
+                        bj[3 * r + c] -= o->ck * B[3 * c + r];
+                    }
+            }
 }
 
 static double dot(const double *a, const double *b, size_t n);
@@ -360,14 +333,10 @@ static void block_apply(const double *dinv, int n, const double *r, double *z)
 static void coarse_dinv(const imp_op *o, mg_level *g)
 {
     const sq_level_model *M = &g->L->model;
+    diag_blocks(o, M, NULL, g->dinv);
     for (int i = 0; i < M->n; i++) {
-        double B[9] = {0};
-        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++)
-            if (M->col[e] == i)
-                for (int k = 0; k < 9; k++)
-                    B[k] = o->ck * M->K[9 * (size_t)e + k] + (o->cd != 0 && M->D ? o->cd * M->D[9 * (size_t)e + k] : 0);
-        for (int c = 0; c < 3; c++)
-            B[4 * c] += o->cm * M->mass[i];
+        double B[9];
+        memcpy(B, g->dinv + 9 * (size_t)i, sizeof B);
         if (!inv3_free(B, ~M->fixed[i] & 7u, g->dinv + 9 * (size_t)i))
             memset(g->dinv + 9 * (size_t)i, 0, 9 * sizeof(double));
     }
@@ -425,7 +394,6 @@ static double cyc_lambda(const imp_op *o, int j, double *x, double *y, double *z
         cyc_apply(o, j, z, y);
         block_apply(cyc_dinv(I, j), n, y, x); /* x = D^-1 A z */
         lam = dot(z, x, n3);
-        (void)y;
     }
     return 1.25 * (lam > 0 ? lam : 1);
 }
@@ -558,9 +526,7 @@ static void coarsest_solve(const imp_op *o, mg_level *g, const double *b, double
 }
 
 /* V-cycle at level j: x ~ A_j^-1 b (SQ_MG_SWEEPS pre- and post-smoothing sweeps) */
-#ifndef SQ_MG_SWEEPS
 #define SQ_MG_SWEEPS 2
-#endif
 static __attribute__((noinline)) void vcycle(const imp_op *o, int j, const double *b, double *x)
 {
     sq_implicit *I = (sq_implicit *)o->I;
@@ -627,7 +593,7 @@ static void precond_setup(const imp_op *o, int kind)
     const sq_level_model *M = &o->L->model;
     sq_implicit *I = (sq_implicit *)o->I;
     double *blk = sq_malloc(sizeof(double) * 9 * (size_t)M->n);
-    diag_blocks(o, blk);
+    diag_blocks(o, M, o->L->corot ? I->kup_r : NULL, blk);
     for (int i = 0; i < M->n; i++) {
         const double *B = blk + 9 * (size_t)i;
         double *out = I->pre + 9 * (size_t)i;
@@ -872,18 +838,11 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     const size_t n3 = 3 * (size_t)n;
     for (int i = 0; i < n; i++)
         I->freeax[i] = (mask && !mask[i]) ? 0 : (unsigned char)(~M->fixed[i] & 7u);
-    imp_op o = {.L = L, .mat = mat, .I = I};
-    if (mat->use_viscosity && M->D && !L->corot) {
-        o.cm = 1 + h * mat->rayleigh_mass;
-        o.ck = h * h;
-        o.cd = h;
-    } else {
-        o.cm = 1 + h * mat->rayleigh_mass;
-        o.ck = h * mat->rayleigh_stiffness + h * h;
-        o.cd = 0;
-    }
-    if (L->corot && mat->use_viscosity)
-        o.ck = h * h; /* corotational viscosity is not in the implicit operator: docs/physics.md */
+    /* c_d: the viscosity blocks (linear operators; corotational viscosity is applied from the
+     * step's start, not in the operator: docs/physics.md); stiffness damping b with Rayleigh */
+    const int visc = mat->use_viscosity != 0;
+    imp_op o = {.L = L, .I = I, .cm = 1 + h * mat->rayleigh_mass,
+                .ck = h * h + (visc ? 0 : h * mat->rayleigh_stiffness), .cd = visc && M->D && !L->corot ? h : 0};
     memcpy(I->d0, L->d, sizeof(double) * n3);
     memcpy(I->v0, L->v, sizeof(double) * n3);
     /* corotational without holds: the start energy, for the Newton iterations' energy guard */

@@ -5,22 +5,16 @@
 # reset, deterministic), then bad input and a 20 kHz flood on a realtime server while a viewer's
 # frame rate is checked. Prints "haptic: N passed, N failed".
 set -u
-cd "$(dirname "$0")/../.."
-SQUISH=${SQUISH:-$PWD/build/squish}
+source "$(dirname "$0")/../lib/stage.sh" haptic
 PY=${PYTHON:-/usr/bin/python3}
-pass=0
-fail=0
-ok() { echo "ok - $1"; pass=$((pass + 1)); }
-bad() { echo "not ok - $1"; fail=$((fail + 1)); }
-finish() { echo "haptic: $pass passed, $fail failed"; [ "$fail" = 0 ]; exit $?; }
+finish() { stage_end; exit $?; }
 
-[ -x "$SQUISH" ] || { bad "server binary $SQUISH not found (make squish)"; finish; }
 "$PY" -c 'import websockets' 2>/dev/null || { bad "$PY has no websockets module (apt-get install python3-websockets, or make deps)"; finish; }
 
-tmp=$(mktemp -d)
+tmp=$TMP
 srv_pid=
 stop() { [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null && wait "$srv_pid" 2>/dev/null; srv_pid=; }
-trap 'stop; rm -rf "$tmp"' EXIT
+trap 'stop; rm -rf "$TMP"' EXIT
 
 free_port() { "$PY" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1]); s.close()'; }
 start() { # start [flags...]: a server on a free port, url in $url

@@ -37,16 +37,8 @@ static sq_body *cantilever(sq_mesh **mp, int nx, double E, double nu, double a, 
 
 static double tip_z(const sq_body *b)
 {
-    const sq_mesh *m = sq_body_mesh(b, 0);
-    const double *d = sq_body_displacement(b, 0);
-    double s = 0;
-    int n = 0;
-    for (int i = 0; i < m->nnodes; i++)
-        if (m->x[3 * i] > 1 - 1e-9) {
-            s += d[3 * i + 2];
-            n++;
-        }
-    return n ? s / n : NAN;
+    int k = sq_body_sim_level(b);
+    return th_tip_z(sq_body_mesh(b, k), sq_body_displacement(b, k), 1);
 }
 
 /* damped to rest, one backward Euler step per frame reaches the static solve: the fixed point of
@@ -65,14 +57,7 @@ SQ_TEST(implicit_damped_run_reaches_static_solve)
     sq_err e = {{0}};
     double g[3] = {0, 0, -9.81};
     CHECK(sq_level_static_solve(&L->model, g, 1e-12, 20000, d, NULL, &e) == 0);
-    double ts = 0;
-    int n = 0;
-    for (int i = 0; i < m->nnodes; i++)
-        if (m->x[3 * i] > 1 - 1e-9) {
-            ts += d[3 * i + 2];
-            n++;
-        }
-    ts /= n;
+    double ts = th_tip_z(m, d, 1);
     double ti = tip_z(b);
     fprintf(stderr, "    tip: implicit %.9g m, static %.9g m\n", ti, ts);
     CHECK(ts < 0);
@@ -180,14 +165,7 @@ SQ_TEST(implicit_stiff_near_incompressible_large_step)
     double *d = malloc(sizeof(double) * 3 * m->nnodes);
     double g[3] = {0, 0, -9.81};
     CHECK(sq_level_static_solve(&L->model, g, 1e-12, 50000, d, NULL, &e) == 0);
-    double ts = 0, ti = tip_z(b);
-    int n = 0;
-    for (int i = 0; i < m->nnodes; i++)
-        if (m->x[3 * i] > 1 - 1e-9) {
-            ts += d[3 * i + 2];
-            n++;
-        }
-    ts /= n;
+    double ts = th_tip_z(m, d, 1), ti = tip_z(b);
     fprintf(stderr, "    E 1e10 nu 0.499 h 0.1 s: resets %d, unconverged %d, tip %.4g m (static %.4g m)\n", resets,
             unconverged, ti, ts);
     CHECK(resets == 0);
@@ -229,27 +207,12 @@ SQ_TEST(implicit_tool_force_balance_at_rest)
     CHECK(fb.id == 7);
     CHECK(fb.nnodes >= 1);
     sq_level *L = sq_body_level(b, 0);
-    double R[3] = {0, 0, 0}, W[3], Mh = 0, Mt = 0, sum[3];
-    for (int i = 0; i < L->model.n; i++) {
-        Mt += L->model.mass[i];
-        if (L->model.fixed[i] == 7)
-            for (int c = 0; c < 3; c++)
-                R[c] -= L->f[3 * i + c];
-        const double *x = m->x + 3 * i;
-        double p[3] = {x[0] + L->d[3 * i] - t.pos[0], x[1] + L->d[3 * i + 1] - t.pos[1],
-                       x[2] + L->d[3 * i + 2] - t.pos[2]};
-        if (m->on_boundary[i] && fabs(th_norm3(p) - t.radius) < 1e-12)
-            Mh += L->model.mass[i];
-    }
-    for (int c = 0; c < 3; c++) {
-        W[c] = Mt * def.gravity[c];
-        sum[c] = -(fb.force[c] + Mh * def.gravity[c]) + R[c] + W[c];
-    }
-    double wn = th_norm3(W);
+    double wn, rz;
+    double off = th_tool_balance(L, m, &t, &fb, def.gravity, &wn, &rz);
     fprintf(stderr, "    implicit balance: tool %.4g N (%d nodes), reactions %.4g N, weight %.4g N, sum %.3g N\n",
-            fb.force[2], fb.nnodes, R[2], W[2], th_norm3(sum));
+            fb.force[2], fb.nnodes, rz, -wn, off);
     CHECK(fb.force[2] > 0.05 * wn);
-    CHECK(th_norm3(sum) <= 1e-6 * wn);
+    CHECK(off <= 1e-6 * wn);
     sq_body_destroy(b);
     sq_mesh_free(m);
 }
@@ -440,16 +403,7 @@ SQ_TEST(implicit_multigrid_over_the_coarser_levels)
             its[pc] += pf.cg_iterations;
             CHECK(pf.event_kind == SQ_HEALTH_NONE);
         }
-        const sq_mesh *m = ms[2];
-        const double *d = sq_body_displacement(b, 2);
-        double s = 0;
-        int n = 0;
-        for (int i = 0; i < m->nnodes; i++)
-            if (m->x[3 * i] > 1 - 1e-9) {
-                s += d[3 * i + 2];
-                n++;
-            }
-        tips[pc] = s / n;
+        tips[pc] = tip_z(b);
         sq_body_destroy(b);
     }
     fprintf(stderr, "    5 frames, %d nodes: CG iterations Jacobi %d, block Jacobi %d, multigrid %d; tips %.9g %.9g %.9g\n",

@@ -138,6 +138,46 @@ static inline double th_kmax(const sq_level *L)
 
 static inline double th_norm3(const double *v) { return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 
+/* mean z displacement of the nodes of m at x >= x_end (to 1e-9 relative): a beam's tip */
+static inline double th_tip_z(const sq_mesh *m, const double *d, double x_end)
+{
+    double s = 0;
+    int n = 0;
+    for (int i = 0; i < m->nnodes; i++)
+        if (m->x[3 * i] > x_end * (1 - 1e-9)) {
+            s += d[3 * i + 2];
+            n++;
+        }
+    return n ? s / n : NAN;
+}
+
+/* a sphere tool pressing a body at rest: |tool force on the body + support reactions + weight|
+ * (N), with the reactions from the fixed nodes' forces in L->f and the tool's own held nodes
+ * (on its surface) carrying their weight; *weight receives |weight|, react_z the reactions' z */
+static inline double th_tool_balance(const sq_level *L, const sq_mesh *m, const sq_tool *t, const sq_tool_feedback *fb,
+                                     const double g[3], double *weight, double *react_z)
+{
+    double R[3] = {0, 0, 0}, W[3], Mh = 0, Mt = 0, sum[3];
+    for (int i = 0; i < L->model.n; i++) {
+        Mt += L->model.mass[i];
+        if (L->model.fixed[i] == 7)
+            for (int c = 0; c < 3; c++)
+                R[c] -= L->f[3 * i + c];
+        const double *x = m->x + 3 * i;
+        double p[3] = {x[0] + L->d[3 * i] - t->pos[0], x[1] + L->d[3 * i + 1] - t->pos[1],
+                       x[2] + L->d[3 * i + 2] - t->pos[2]};
+        if (m->on_boundary[i] && fabs(th_norm3(p) - t->radius) < 1e-12)
+            Mh += L->model.mass[i];
+    }
+    for (int c = 0; c < 3; c++) {
+        W[c] = Mt * g[c];
+        sum[c] = -(fb->force[c] + Mh * g[c]) + R[c] + W[c];
+    }
+    *weight = th_norm3(W);
+    *react_z = R[2];
+    return th_norm3(sum);
+}
+
 /* largest |force| of L->f over the interior nodes and over the boundary nodes of m */
 static inline void th_force_split(const sq_mesh *m, const sq_level *L, double *interior, double *boundary)
 {
