@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # layers stage: the include rule (tests/layers.sh) holds on server/, and the check itself
-# catches each kind of violation on a copy of the tree with one bad include planted.
+# catches each kind of violation on a copy of the tree with one bad include planted; and
+# docs/architecture.md is true to the tree (every .c file named, every file and sq_ symbol it
+# names present: tests/doc_names.sh), with a bad name planted in a copy of the page.
 # Last line: "layers: N passed, N failed".
 set -u
 cd "$(dirname "$0")/../.."
@@ -45,6 +47,30 @@ gone=$(awk '/^## /{infiles=($2=="Files")} /^### /{sec=$2; next} infiles && sec!=
     while read -r f; do [ -e "server/$f" ] || echo "server/$f"; done)
 if [ -z "$gone" ]; then ok "every file docs/architecture.md names exists"
 else bad "docs/architecture.md names files that do not exist: $(echo $gone)"; fi
+
+# every file path and backquoted sq_* symbol docs/architecture.md names exists
+# (tests/doc_names.sh), and that check catches a wrong name planted in a copy of the page,
+# and a named file missing from a copy of the tree
+if out=$(bash tests/doc_names.sh 2>&1); then ok "every file and sq_ symbol docs/architecture.md names exists"
+else bad "docs/architecture.md names what is not in the tree:"; echo "$out"; fi
+plant_doc() { # name line-to-append expected-words [file-to-remove-from-the-copy]
+    rm -rf "$tmp/root"; mkdir -p "$tmp/root/docs" "$tmp/root/tests"
+    cp -r server "$tmp/root/server"; cp -r tests/unit "$tmp/root/tests/unit"; cp tests/layers.sh "$tmp/root/tests/"
+    cp "$arch" "$tmp/root/docs/architecture.md"
+    [ -n "$2" ] && printf '%s\n' "$2" >> "$tmp/root/docs/architecture.md"
+    [ -n "${4:-}" ] && rm -f "$tmp/root/$4"
+    if out=$(bash tests/doc_names.sh "$tmp/root/docs/architecture.md" "$tmp/root" 2>&1); then
+        bad "$1: not caught"
+    elif echo "$out" | grep -q "$3"; then
+        ok "$1: caught ($(echo "$out" | head -n 1 | cut -c1-110))"
+    else
+        bad "$1: caught with the wrong message: $out"
+    fi
+}
+plant_doc "a misspelt sq_ symbol on the page" '- `sq_lod_frmae` runs the stages.' "the symbol 'sq_lod_frmae'"
+plant_doc "a server/ path that does not exist" '- server/lod/guard.c holds the guard.' "the file 'server/lod/guard.c'"
+plant_doc "a module path that does not exist" '- `lod/budget.c`: the guard.' "the file 'server/lod/budget.c'"
+plant_doc "a named file removed from the tree" "" "the file 'server/util/json.c'" server/util/json.c
 
 echo "layers: $pass passed, $fail failed"
 [ "$fail" = 0 ]
