@@ -6,7 +6,8 @@
 #   - a backquoted path `M/x.c` or `M/x.h` whose M is a module of server/: server/M/x.[ch];
 #   - a backquoted path `tests/...` or `web/...` with an extension: that file;
 #   - a backquoted `sq_*` symbol (also inside a longer backquoted span): a whole word
-#     somewhere in server/ (a function, type, macro or member).
+#     somewhere in server/ (a function, type, macro or member); a prefix written `sq_lodx_*`
+#     must start some word there.
 # Usage: tests/doc_names.sh [doc] [root]  (defaults: docs/architecture.md, the repository).
 # Prints each missing name and what to do; exits 1 if there is one.
 set -u
@@ -36,10 +37,14 @@ for f in $files; do
     [ -e "$ROOT/$f" ] || missing "the file" "$f" "rename it on the page to the file that holds it now, or remove it"
 done
 
-syms=$(echo "$ticks" | grep -oE '\bsq_[A-Za-z0-9_]+' | sort -u)
+syms=$(echo "$ticks" | grep -oE '\bsq_[A-Za-z0-9_]+\*?' | sort -u)
 for s in $syms; do
-    grep -rqw --include='*.[ch]' -- "$s" "$ROOT/server" ||
-        missing "the symbol" "$s" "no word '$s' in server/: write the name the code uses (grep -rw in server/), or remove it"
+    case "$s" in
+    *\*) grep -rqE --include='*.[ch]' -- "\b${s%\*}" "$ROOT/server" ||
+        missing "the prefix" "$s" "no word in server/ starts with '${s%\*}': write the prefix the code uses, or remove it" ;;
+    *) grep -rqw --include='*.[ch]' -- "$s" "$ROOT/server" ||
+        missing "the symbol" "$s" "no word '$s' in server/: write the name the code uses (grep -rw in server/), or remove it" ;;
+    esac
 done
 
 [ "$bad" = 0 ] || exit 1
