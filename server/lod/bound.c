@@ -28,7 +28,7 @@
 
 #define ITERS_COLD 40  /* Lanczos steps without a previous Ritz vector (as fixed mode) */
 #define ITERS_WARM 16  /* from the previous Ritz vector */
-#define ITERS_REF 120  /* the check's reference run (SQ_SHARP_CHECK, a debug path) */
+#define ITERS_REF 120  /* the check's reference run (sq_debug()->sharp_check, a debug path) */
 #define BASIS_MAX_DOUBLES (8L << 20) /* Krylov basis kept for the Ritz vector: at most 64 MB */
 
 struct lod_sharp {
@@ -727,11 +727,11 @@ double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, 
     return sq_lodx_sharp_lanczos_dense_stop(A, n, start, iters, 0, 0, 0, NULL, NULL);
 }
 
-/* the early stop of the estimates (stop_rule): on, or off with SQ_SHARP_STOP=0 (to compare) */
+/* the early stop of the estimates (stop_rule): on, or off with sq_debug()->sharp_no_stop (to
+ * compare) */
 static int sharp_rule(void)
 {
-    const char *e = getenv("SQ_SHARP_STOP");
-    return e && *e ? atoi(e) != 0 : 1;
+    return !sq_debug()->sharp_no_stop;
 }
 
 /* the operator of level k: lists, masses, the off-level row sums; returns the Gershgorin ceiling */
@@ -962,16 +962,16 @@ static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
         return; /* keep the Gershgorin substeps */
     S->nsub[k] = n;
     lod->lev[k].extra_log2 = n - lod->lv[k].substeps_log2;
-    if (getenv("SQ_SHARP_TRACE"))
+    if (sq_debug()->sharp_trace)
         fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps%s, 2^%d", k,
                 lod->lev[k].nactive, w2, S->gersh[k], S->iters[k],
                 S->stopped[k] ? " (stopped: in the ceiling's bin)" : "", n);
 }
 
-/* SQ_SHARP_CHECK=1 (a debug path, never taken in normal runs): level k's estimate est against a
+/* sq_debug()->sharp_check 1 (a debug path, never taken in normal runs): level k's estimate est against a
  * reference of the same operator, ITERS_REF Lanczos steps with full reorthogonalisation from the
  * cold start, whose largest Ritz value theta_ref is at or below lambda_max (its residual
- * beta |s_m| shows how far it may be below); prints one line. SQ_SHARP_CHECK=2 also assembles the
+ * beta |s_m| shows how far it may be below); prints one line. sharp_check 2 also assembles the
  * operator densely (up to 3,000 axes) and prints its largest asymmetry and where it is */
 static void check_estimate(sq_lod *lod, struct lod_sharp *S, int k, double est)
 {
@@ -1025,7 +1025,7 @@ static void check_estimate(sq_lod *lod, struct lod_sharp *S, int k, double est)
     fprintf(stderr, "sharp-check L%d: %d active, %d free axes, est %.9g, ref %.9g (resid %.3g, %d steps), est/ref %.6f, "
             "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, stop %d, ceiling %.6g\n",
             k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->stopped[k], S->gersh[k]);
-    if (getenv("SQ_SHARP_CHECK")[0] == '2' && N <= 3000) {
+    if (sq_debug()->sharp_check >= 2 && N <= 3000) {
         double *A = sq_calloc(N * N, sizeof(double)), *x = sq_calloc(N, sizeof(double));
         for (size_t j = 0; j < N; j++) {
             x[j] = 1;
@@ -1101,9 +1101,9 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
     S->lambda[k] = w2;
     S->calls++;
     take_estimate(lod, S, k, w2);
-    if (getenv("SQ_SHARP_CHECK") && S->nsub[k] >= 0)
+    if (sq_debug()->sharp_check && S->nsub[k] >= 0)
         check_estimate(lod, S, k, w2);
-    if (getenv("SQ_SHARP_TRACE")) /* (after take_estimate's line; alone when Gershgorin's kept) */
+    if (sq_debug()->sharp_trace) /* (after take_estimate's line; alone when Gershgorin's kept) */
         fprintf(stderr, "%s%.3f ms (%.0f units, %.1f ns per unit and product)\n",
                 S->nsub[k] >= 0 ? ", " : "sharp: Gershgorin kept, ", 1e3 * spent, units,
                 1e9 * spent / (units * (S->iters[k] + 3)));
@@ -1161,7 +1161,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         S->owed[k] = !estimate_by(lod, S, k, S->deadline);
         if (S->owed[k]) {
             S->late++;
-            if (getenv("SQ_SHARP_TRACE"))
+            if (sq_debug()->sharp_trace)
                 fprintf(stderr, "sharp L%d: %d active, not made by its deadline (%d steps): Gershgorin 2^%d, owed\n",
                         k, lod->lev[k].nactive, S->iters[k], lod->lv[k].substeps_log2 + lod->lev[k].extra_log2);
         }

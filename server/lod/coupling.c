@@ -13,7 +13,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/resource.h>
 
 #include "lod/lod_internal.h"
 
@@ -330,7 +329,7 @@ static void transpose_blocks(const double *src, int nb, double **dst, int *cap)
 
 /* ring rows (half of the mixed tets) and frontier corrections (the other half of the mixed
  * tets, given back) of level k, and the merged frontier rows: every row (the first build for a
- * material, lod->full_rebuild, or many changed nodes), else only the rows with a changed node
+ * material, lod->test.full_rebuild, or many changed nodes), else only the rows with a changed node
  * in their tets, the others copied (build_blocks_incr); the same arrays either way */
 static void build_ring_blocks(sq_lod *lod, int k)
 {
@@ -338,7 +337,7 @@ static void build_ring_blocks(sq_lod *lod, int k)
     const sq_level *L = &lod->lv[k];
     const sq_mesh *mesh = L->model.mesh;
     int n = L->model.n;
-    int incr = lk->blocks_valid && lk->prev_saved && !lod->full_rebuild && (long)lk->nchg * 8 < n;
+    int incr = lk->blocks_valid && lk->prev_saved && !lod->test.full_rebuild && (long)lk->nchg * 8 < n;
     lk->rows_built += lk->nring + lk->nfrontier;
     if (!incr) {
         build_blocks(lod, k, lk->ring, lk->nring, lk->ring_off, &lk->ring_col, &lk->ring_col_cap, &lk->ring_K,
@@ -692,23 +691,6 @@ void sq_lodx_coupling_bound(sq_lod *lod)
                              * pages are mapped at load (sq_lod_prepare_budget) instead */
 #define RESERVE_GROW 3
 #define PAGE_BYTES 4096
-
-long sq_minor_faults(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_minflt : 0;
-}
-
-void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw)
-{
-    struct rusage ru;
-    if (getrusage(RUSAGE_THREAD, &ru) != 0)
-        memset(&ru, 0, sizeof ru);
-    *user_s = (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec;
-    *sys_s = (double)ru.ru_stime.tv_sec + 1e-6 * (double)ru.ru_stime.tv_usec;
-    *minflt = ru.ru_minflt;
-    *ivcsw = ru.ru_nivcsw;
-}
 
 /* write each page of p[from, to) bytes once (the contents there are free: past the use) */
 static long touch_pages(void *p, size_t from, size_t to)

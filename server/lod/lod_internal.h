@@ -16,6 +16,7 @@
 #define SQ_LOD_INTERNAL_H
 
 #include "lod/lod.h"
+#include "lod/lod_test.h"
 
 #include <string.h>
 
@@ -263,16 +264,12 @@ struct sq_lod {
     int *guard_hold[SQ_MAX_LEVELS];      /* per node of level k: no split before this guard
                                           * clock (a region the guard merged rests), NULL: none */
     long guard_merged_total;             /* regions the guard merged so far (tests) */
-    long guard_resplit;                  /* of those, split again within their rest (tests: 0) */
     int guard_hold_until[SQ_MAX_LEVELS]; /* the latest rest in guard_hold[k] */
     double guard_modeled;                /* the last frame's cost by the model for what it did
                                           * (its node updates, fixed cost and passes), s */
     double guard_predicted;              /* the next frame's cost predicted at this frame's end
                                           * (without a pass), s */
-    int corot_tets_always;               /* 1: corotational levels run the tet-by-tet pass even when
-                                          * all their nodes are active (tests compare it) */
-    int full_rebuild;                    /* 1: every block row rebuilt after a split/merge pass (the
-                                          * reference the incremental rebuild is checked against) */
+    sq_lod_test test;                    /* test-only switches and counters (lod_test.h) */
     /* ghost values pushed on demand (activeset.c) */
     int lists_dirty;                     /* read_list / needed out of date */
     int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring, needed_top */
@@ -490,12 +487,6 @@ long sq_lodx_map_state(sq_lod *lod);
  * frame keeps one: a refinement's first touches of new cache pages then fall at load, not in
  * its frames (docs/lod.md "Guaranteed frame rate") */
 #define SQ_RESERVE_LOAD_CHUNKS 8
-/* the thread's minor page faults so far (coupling.c; a first touch of a page costs 12-15 us on
- * this kind of machine) */
-long sq_minor_faults(void);
-/* the calling thread's user and system CPU time (s), minor faults and involuntary context
- * switches so far (getrusage; for traces) */
-void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw);
 /* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
 void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
