@@ -542,21 +542,6 @@ static void stop_edges(op_ctx *c)
     }
 }
 
-/* eigenvalues of the tridiagonal (alpha, beta, order m) above x: the Sturm count of the
- * LDL^T pivots of T - x I (the recurrence and the zero pivot of sq_level_tridiag_max) */
-static int tridiag_above(const double *alpha, const double *beta, int m, double x)
-{
-    double q = 1;
-    int above = 0;
-    for (int i = 0; i < m; i++) {
-        q = alpha[i] - x - (i > 0 ? beta[i - 1] * beta[i - 1] / q : 0);
-        if (q == 0)
-            q = 1e-300;
-        above += q > 0;
-    }
-    return above;
-}
-
 /* the rule, in Sturm counts: theta is in the ceiling's bin (below, top] when T has an
  * eigenvalue above `below` and none above `top`; two counts of order m instead of the
  * bisection of theta (up to 200 counts: 10.7 M instructions of 100 frames of cube-poke).
@@ -568,9 +553,40 @@ static int stop_rule(op_ctx *c, const double *alpha, const double *beta, int m)
         return 0;
     if (!c->have_edges)
         stop_edges(c);
-    if (c->below > -INFINITY && tridiag_above(alpha, beta, m, c->below) == 0)
+    if (c->below > -INFINITY && sq_level_tridiag_above(alpha, beta, m, c->below) == 0)
         return 0;
-    return c->top == INFINITY || tridiag_above(alpha, beta, m, c->top) == 0;
+    return c->top == INFINITY || sq_level_tridiag_above(alpha, beta, m, c->top) == 0;
+}
+
+/* lanczos's run on the shared recurrence (level/level.h sq_level_lanczos_steps): the product,
+ * the deadline before each product, the early stop after each step */
+typedef struct lanczos_run {
+    op_ctx *c;
+    double deadline, tprod, tlast;
+} lanczos_run;
+
+static void run_apply(void *ctx, const double *x, double *y)
+{
+    op_apply(((lanczos_run *)ctx)->c, x, y);
+}
+
+static int run_go(void *ctx, int j)
+{
+    lanczos_run *r = ctx;
+    if (!(r->deadline > 0))
+        return 1;
+    if (j > 0) {
+        double now = sq_thread_cpu();
+        r->tprod = fmax(r->tprod, now - r->tlast);
+        r->tlast = now;
+    }
+    return r->tlast + r->tprod <= r->deadline;
+}
+
+static int run_stop(void *ctx, const double *alpha, const double *beta, int m)
+{
+    op_ctx *c = ((lanczos_run *)ctx)->c;
+    return (c->stopped = stop_rule(c, alpha, beta, m)) != 0;
 }
 
 /* upper estimate of lambda_max of the operator from start vector q (unit, free axes only):
@@ -595,38 +611,17 @@ static double lanczos(op_ctx *c, double *q, int iters, int *done, double deadlin
     double *Q = S->basis, *w = S->basis + N * (size_t)iters;
     double alpha[ITERS_COLD + 1], beta[ITERS_COLD + 1];
     memcpy(Q, q, sizeof(double) * N);
-    int m = 0;
-    double bprev = 0, tlast = deadline > 0 ? sq_thread_cpu() : 0;
     c->stopped = 0;
     c->have_edges = 0;
-    for (int j = 0; j < iters; j++) {
-        double *qj = Q + N * (size_t)j;
-        if (deadline > 0 && j > 0) {
-            double now = sq_thread_cpu();
-            tprod = fmax(tprod, now - tlast);
-            tlast = now;
-        }
-        if (deadline > 0 && tlast + tprod > deadline) {
-            *done = m;
-            return NAN;
-        }
-        op_apply(c, qj, w);
-        double a = dot(w, qj, N), b = 0;
-        for (size_t i = 0; i < N; i++) {
-            w[i] -= a * qj[i] + (j > 0 ? bprev * Q[N * (size_t)(j - 1) + i] : 0);
-            b += w[i] * w[i];
-        }
-        b = sqrt(b);
-        alpha[m] = a;
-        beta[m] = b;
-        m++;
-        if (!(b > 1e-12 * fabs(a)) || j + 1 == iters)
-            break;
-        if ((c->stopped = stop_rule(c, alpha, beta, m)) != 0)
-            break;
-        for (size_t i = 0; i < N; i++)
-            Q[N * (size_t)(j + 1) + i] = w[i] / b;
-        bprev = b;
+    lanczos_run run = {c, deadline, tprod, deadline > 0 ? sq_thread_cpu() : 0};
+    sq_lanczos_op op = {run_apply, run_go, run_stop, &run};
+    int abandoned = 0;
+    int m = sq_level_lanczos_steps(&op, N, Q, 1, w, iters, alpha, beta, &abandoned);
+    tprod = run.tprod;
+    double tlast = run.tlast;
+    if (abandoned) {
+        *done = m;
+        return NAN;
     }
     *done = m;
     if (deadline > 0 && c->stopped != 1) { /* the Ritz vector's product too */
