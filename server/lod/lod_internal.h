@@ -2,6 +2,7 @@
  *   state.c      creation, definition, reset, the level's state lists, ghost values (sync), check
  *   criterion.c  the split/merge criterion, split/merge decisions, the node-update cap
  *   coupling.c   the coupling blocks of the ring and frontier rows, the interface substeps
+ *   reserve.c    the coupling arrays' pages mapped ahead of use (load, frames with room)
  *   ring.c       the ring ghosts' sources, their values and their reactions
  *   holds.c      tool holds onto active nodes
  *   frame.c      sq_lod_frame: the frame as a list of timed stages
@@ -425,7 +426,7 @@ void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
 /* criterion.c: the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
  * neighbours the last cascade did not push read on demand (sq_lodx_value) */
 double sq_lodx_delta(const sq_lod *lod, int k, int i);
-/* the column-form row cache of level k (krow, activeset.c; reserved ahead by coupling.c): its
+/* the column-form row cache of level k (krow, activeset.c; reserved ahead by reserve.c): its
  * node index, made on first use with every node -1 (1 when made by this call) */
 static inline int sq_lodx_krow_index(sq_lod_level *lk, const sq_level_model *M)
 {
@@ -475,7 +476,7 @@ void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, v
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 /* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
-/* grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
+/* reserve.c: grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
  * their pages now, within `seconds` of thread CPU (estimated); returns the pages written */
 long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead);
 /* every level's state and per-node scratch arrays (d, v, forces, step start, d + b v, push
