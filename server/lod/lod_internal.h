@@ -8,7 +8,8 @@
  *   frame.c      sq_lod_frame: the frame as a list of timed stages
  *   views.c      node levels, active lists, energy, projected updates
  *   activeset.c  per-level index lists and the kernels that run over them
- *   bound.c      the sharp per-level step (Lanczos on the coupled operator)
+ *   bound.c      the sharp per-level step: which level is estimated when, deadlines, substeps
+ *   estimate.c   one level's sharp estimate (Lanczos on its block of the coupled operator)
  *   hierarchy.c  the links between consecutive levels
  *   corotational.c  corotational levels: forces and ring reactions tet by tet
  * Not part of the module's contract (lod.h).
