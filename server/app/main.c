@@ -1,8 +1,52 @@
 /* main.c - the `squish` command line front end. */
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "app/commands.h"
+#include "util/util.h"
+
+/* the debug switches (util/util.h sq_debug_options) from the one environment variable SQ_DEBUG:
+ * words separated by commas or spaces, e.g. SQ_DEBUG=guard_trace,sharp_trace or
+ * SQ_DEBUG=sharp_check=2. Returns -1 (and says so) on a word it does not know */
+static int read_debug(const char *s, sq_debug_options *o)
+{
+    static const struct {
+        const char *name;
+        size_t off;
+    } words[] = {
+        {"progress", offsetof(sq_debug_options, progress)},
+        {"guard_trace", offsetof(sq_debug_options, guard_trace)},
+        {"sharp_trace", offsetof(sq_debug_options, sharp_trace)},
+        {"sharp_check", offsetof(sq_debug_options, sharp_check)},
+        {"sharp_no_stop", offsetof(sq_debug_options, sharp_no_stop)},
+        {"static_trace", offsetof(sq_debug_options, static_trace)},
+    };
+    memset(o, 0, sizeof *o);
+    while (s && *s) {
+        size_t n = strcspn(s, ", ");
+        if (n > 0) {
+            size_t k = 0;
+            while (k < n && s[k] != '=')
+                k++;
+            int value = k < n ? atoi(s + k + 1) : 1, found = 0;
+            for (size_t i = 0; i < sizeof words / sizeof words[0]; i++)
+                if (strlen(words[i].name) == k && !strncmp(s, words[i].name, k)) {
+                    *(int *)((char *)o + words[i].off) = value;
+                    found = 1;
+                }
+            if (!found) {
+                fprintf(stderr, "squish: SQ_DEBUG: unknown switch '%.*s'; known: progress, guard_trace, "
+                        "sharp_trace, sharp_check[=2], sharp_no_stop, static_trace\n", (int)n, s);
+                return -1;
+            }
+        }
+        s += n;
+        if (*s)
+            s++;
+    }
+    return 0;
+}
 
 static const struct {
     const char *name;
@@ -30,6 +74,10 @@ static void usage(FILE *f)
 
 int main(int argc, char **argv)
 {
+    sq_debug_options dbg;
+    if (read_debug(getenv("SQ_DEBUG"), &dbg) < 0)
+        return 2;
+    sq_debug_set(&dbg);
     if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h") || !strcmp(argv[1], "help")) {
         usage(argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;

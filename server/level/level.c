@@ -332,6 +332,19 @@ static void scaled_matvec_own(const sq_level *L, const double *rm, const double 
             y[3 * i + r] = (L->model.fixed[i] & (1u << r)) ? 0 : y[3 * i + r] / rm[i];
 }
 
+int sq_level_tridiag_above(const double *alpha, const double *beta, int m, double x)
+{
+    double q = 1;
+    int above = 0;
+    for (int i = 0; i < m; i++) {
+        q = alpha[i] - x - (i > 0 ? beta[i - 1] * beta[i - 1] / q : 0);
+        if (q == 0)
+            q = 1e-300;
+        above += q > 0;
+    }
+    return above;
+}
+
 double sq_level_tridiag_max(const double *alpha, const double *beta, int m)
 {
     double lo = INFINITY, hi = -INFINITY;
@@ -341,15 +354,8 @@ double sq_level_tridiag_max(const double *alpha, const double *beta, int m)
         hi = fmax(hi, alpha[i] + r);
     }
     for (int it = 0; it < 200 && hi - lo > 1e-15 * fmax(fabs(hi), fabs(lo)); it++) {
-        double x = 0.5 * (lo + hi), q = 1;
-        int above = 0; /* eigenvalues > x */
-        for (int i = 0; i < m; i++) {
-            q = alpha[i] - x - (i > 0 ? beta[i - 1] * beta[i - 1] / q : 0);
-            if (q == 0)
-                q = 1e-300;
-            above += q > 0;
-        }
-        if (above > 0)
+        double x = 0.5 * (lo + hi);
+        if (sq_level_tridiag_above(alpha, beta, m, x) > 0)
             lo = x;
         else
             hi = x;
@@ -357,12 +363,68 @@ double sq_level_tridiag_max(const double *alpha, const double *beta, int m)
     return hi;
 }
 
+int sq_level_lanczos_steps(const sq_lanczos_op *op, size_t n, double *Q, int keep, double *w, int iters,
+                           double *alpha, double *beta, int *abandoned)
+{
+    double *q = Q, *qp = keep ? Q : Q + n, bprev = 0;
+    int m = 0;
+    if (abandoned)
+        *abandoned = 0;
+    for (int j = 0; j < iters; j++) {
+        if (op->go && !op->go(op->ctx, j)) {
+            if (abandoned)
+                *abandoned = 1;
+            break;
+        }
+        op->apply(op->ctx, q, w);
+        double a = 0, b = 0;
+        for (size_t i = 0; i < n; i++)
+            a += w[i] * q[i];
+        for (size_t i = 0; i < n; i++) {
+            w[i] -= a * q[i] + (j > 0 ? bprev * qp[i] : 0);
+            b += w[i] * w[i];
+        }
+        b = sqrt(b);
+        alpha[m] = a;
+        beta[m] = b;
+        m++;
+        if (!(b > 1e-12 * fabs(a)) || j + 1 == iters)
+            break;
+        if (op->stop && op->stop(op->ctx, alpha, beta, m))
+            break;
+        /* the next vector: the basis's next column, or the other of the two */
+        double *next = keep ? Q + n * (size_t)(j + 1) : qp;
+        for (size_t i = 0; i < n; i++)
+            next[i] = w[i] / b;
+        qp = q;
+        q = next;
+        bprev = b;
+    }
+    return m;
+}
+
+/* the product of lanczos_max: M^-1/2 K M^-1/2 x (own: the level's own operator) */
+typedef struct lanczos_ctx {
+    const sq_level *L;
+    const double *rm;
+    double *z; /* scratch of scaled_matvec_own, NULL: the element-wise K */
+} lanczos_ctx;
+
+static void lanczos_apply(void *ctx, const double *x, double *y)
+{
+    const lanczos_ctx *c = ctx;
+    if (c->z)
+        scaled_matvec_own(c->L, c->rm, x, y, c->z);
+    else
+        scaled_matvec(c->L, c->rm, x, y);
+}
+
 /* own: 0 the element-wise K, 1 the level's own operator (scaled_matvec_own) */
 static double lanczos_max(const sq_level *L, int iters, int own)
 {
     size_t n3 = 3 * (size_t)L->model.n;
-    double *q0 = sq_calloc(n3, sizeof(double)), *q = sq_malloc(n3 * sizeof(double)),
-           *w = sq_malloc(n3 * sizeof(double)), *z = own && L->anp ? sq_malloc(n3 * sizeof(double)) : NULL;
+    double *Q = sq_calloc(2 * n3 + 1, sizeof(double)), *q = Q,
+           *w = sq_malloc((n3 + 1) * sizeof(double)), *z = own && L->anp ? sq_malloc(n3 * sizeof(double)) : NULL;
     double *alpha = sq_malloc(sizeof(double) * (size_t)(iters + 1)),
            *beta = sq_malloc(sizeof(double) * (size_t)(iters + 1)), *rm = sq_malloc(sizeof(double) * (size_t)SQ_MAX(L->model.n, 1));
     for (int i = 0; i < L->model.n; i++)
@@ -379,33 +441,9 @@ static double lanczos_max(const sq_level *L, int iters, int own)
     if (nn > 0) {
         for (size_t k = 0; k < n3; k++)
             q[k] /= sqrt(nn);
-        int m = 0;
-        double bprev = 0;
-        for (int j = 0; j < iters; j++) {
-            if (z)
-                scaled_matvec_own(L, rm, q, w, z);
-            else
-                scaled_matvec(L, rm, q, w);
-            double a = 0;
-            for (size_t k = 0; k < n3; k++)
-                a += w[k] * q[k];
-            double b = 0;
-            for (size_t k = 0; k < n3; k++) {
-                w[k] -= a * q[k] + bprev * q0[k];
-                b += w[k] * w[k];
-            }
-            b = sqrt(b);
-            alpha[m] = a;
-            beta[m] = b;
-            m++;
-            if (!(b > 1e-12 * fabs(a)))
-                break;
-            for (size_t k = 0; k < n3; k++) {
-                q0[k] = q[k];
-                q[k] = w[k] / b;
-            }
-            bprev = b;
-        }
+        lanczos_ctx c = {L, rm, z};
+        sq_lanczos_op op = {lanczos_apply, NULL, NULL, &c};
+        int m = sq_level_lanczos_steps(&op, n3, Q, 0, w, iters, alpha, beta, NULL);
         theta = sq_level_tridiag_max(alpha, beta, m);
         /* residual of the Ritz pair: beta_m |s_m|, s the eigenvector of T for theta (recurrence) */
         double s0 = 1, s1 = m > 1 ? (theta - alpha[0]) / beta[0] : 0, ns = 1 + s1 * s1, last = m > 1 ? s1 : s0;
@@ -421,8 +459,7 @@ static double lanczos_max(const sq_level *L, int iters, int own)
         else
             theta = INFINITY; /* let the ceiling decide */
     }
-    free(q0);
-    free(q);
+    free(Q);
     free(w);
     free(z);
     free(alpha);

@@ -194,6 +194,27 @@ double sq_level_lanczos_max_own(const sq_level *L, int iters);
 /* largest eigenvalue of the symmetric tridiagonal (alpha diagonal, beta off-diagonal) of
  * size m, by bisection on the Sturm count (to 1e-15 relative): a Lanczos run's Ritz value */
 double sq_level_tridiag_max(const double *alpha, const double *beta, int m);
+/* eigenvalues of that tridiagonal above x: the Sturm count of the LDL^T pivots of T - x I (a
+ * zero pivot read as 1e-300), the count sq_level_tridiag_max bisects on */
+int sq_level_tridiag_above(const double *alpha, const double *beta, int m, double x);
+
+/* the Lanczos recurrence both sharp bounds run (the fixed level's here, lod's per-level one in
+ * lod/bound.c): on a symmetric operator y = A x over n values, from the unit vector Q[0..n),
+ * at most `iters` steps, each w = A q_j - alpha_j q_j - beta_{j-1} q_{j-1}, alpha_j = w . q_j
+ * before, beta_j = |w|; it ends at a step whose beta_j <= 1e-12 |alpha_j| (an invariant
+ * subspace) or after step iters. keep: 1, Q holds the whole basis (n x (iters + 1) doubles,
+ * q_j at Q + n j; w is its last column); 0, Q holds two vectors (2 n doubles) and w its own n.
+ * go (may be NULL): asked before each product (j the step), 0 abandons the run; stop (may be
+ * NULL): asked after each step but the last, nonzero ends the run there. Writes alpha, beta
+ * (iters each) and returns the steps made; *abandoned (may be NULL) is 1 when go ended it */
+typedef struct sq_lanczos_op {
+    void (*apply)(void *ctx, const double *x, double *y);
+    int (*go)(void *ctx, int j);
+    int (*stop)(void *ctx, const double *alpha, const double *beta, int m);
+    void *ctx;
+} sq_lanczos_op;
+int sq_level_lanczos_steps(const sq_lanczos_op *op, size_t n, double *Q, int keep, double *w, int iters,
+                           double *alpha, double *beta, int *abandoned);
 
 /* one row of a block operator A (K or D, CSR over the model's adjacency), for the kernels of
  * level.c and lod (inline: the hot loops of both): out_i -= sum_j A_ij (d_j + b v_j) */

@@ -141,7 +141,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             lod->lev[m].mark[lod->lev[m].read_list[r]] = 0;
     }
 
-    if (lod->full_rebuild)
+    if (lod->test.full_rebuild)
         needed_full(lod);
     else
         needed_counted(lod);

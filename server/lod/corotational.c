@@ -183,7 +183,7 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     sq_lod_level *lk = &lod->lev[k];
     sq_lod_corot *c = lk->corot;
     const sq_mesh *m = L->model.mesh;
-    if (lk->nactive == L->model.n && !lod->corot_tets_always) {
+    if (lk->nactive == L->model.n && !lod->test.corot_tets_always) {
         /* no ghosts: the fixed step's pass */
         sq_level_corot_step_forces(L, mat, gravity);
         return;
@@ -813,7 +813,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
     }
     if (rc == 0)
         memcpy(d, x, sizeof(double) * n3);
-    if (getenv("SQ_STATIC_TRACE"))
+    if (sq_debug()->static_trace)
         fprintf(stderr, "corotational static: level %d, %d nodes, %s after %d iterations, residual %.3g of |M g|, %.1f ms CPU\n",
                 k, M->n, rc == 0 ? "converged" : "not converged (linear equilibrium kept)", it, gn > 0 ? rn / gn : 0,
                 1e3 * (sq_thread_cpu() - t0));

@@ -65,7 +65,7 @@ typedef struct lod_frame {
     long reserved_pages;             /* pages it mapped */
     double c_owed;                   /* thread CPU time of the owed sharp estimates, s */
     int sharp_made;                  /* owed sharp estimates made at this frame's end */
-    double u0_user, u0_sys;          /* SQ_GUARD_TRACE: the thread's user, system time at the start */
+    double u0_user, u0_sys;          /* guard_trace: the thread's user, system time at the start */
     long u0_flt, u0_ivcsw;           /* ... its minor faults and involuntary context switches */
 } lod_frame;
 
@@ -247,7 +247,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
 {
     sq_lod *lod = fr->lod;
     int L = lod->L;
-    int trace = getenv("SQ_GUARD_TRACE") && fr->in->budget_s > 0;
+    int trace = sq_debug()->guard_trace && fr->in->budget_s > 0;
     long flt0 = trace ? sq_minor_faults() : 0;
     long late0 = 0, later0 = 0;
     sq_lodx_sharp_late(lod, &late0, &later0);
@@ -336,7 +336,7 @@ static void rest_mask(sq_lod *lod, int k, int hide)
         else if (!hide && st[p] == ST_RESTING)
             st[p] = ST_ACTIVE;
         else if (!hide && st[p] == ST_SPLIT)
-            lod->guard_resplit++;
+            lod->test.guard_resplit++;
     }
 }
 
@@ -738,7 +738,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     lod->guard_predicted = lod->cost_fixed + lod->cost_update * (double)next;
     double coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
-    if (getenv("SQ_GUARD_TRACE") && budget_s > 0)
+    if (sq_debug()->guard_trace && budget_s > 0)
         fprintf(stderr,
                 "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f; outside %.2f, before this frame %.2f), "
                 "%ld updates, modeled %.2f ms, rebuilt %#x, "
@@ -752,7 +752,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
                 1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
                 1e6 * lod->cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve_pending,
                 1e-6 * (double)lod->reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
-    if (getenv("SQ_GUARD_TRACE") && budget_s > 0) {
+    if (sq_debug()->guard_trace && budget_s > 0) {
         /* where a frame's thread CPU time went (a frame far over its model: user or system
          * time, page faults, the thread preempted) */
         double u, sy;
@@ -816,7 +816,7 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     fr.c_start = sq_thread_cpu();
     fr.mark = fr.t_start;
     fr.c_mark = fr.c_start;
-    if (getenv("SQ_GUARD_TRACE") && in->budget_s > 0)
+    if (sq_debug()->guard_trace && in->budget_s > 0)
         sq_thread_usage(&fr.u0_user, &fr.u0_sys, &fr.u0_flt, &fr.u0_ivcsw);
     for (int t = 0; force && t < in->ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;

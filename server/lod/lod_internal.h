@@ -2,12 +2,14 @@
  *   state.c      creation, definition, reset, the level's state lists, ghost values (sync), check
  *   criterion.c  the split/merge criterion, split/merge decisions, the node-update cap
  *   coupling.c   the coupling blocks of the ring and frontier rows, the interface substeps
+ *   reserve.c    the coupling arrays' pages mapped ahead of use (load, frames with room)
  *   ring.c       the ring ghosts' sources, their values and their reactions
  *   holds.c      tool holds onto active nodes
  *   frame.c      sq_lod_frame: the frame as a list of timed stages
  *   views.c      node levels, active lists, energy, projected updates
  *   activeset.c  per-level index lists and the kernels that run over them
- *   bound.c      the sharp per-level step (Lanczos on the coupled operator)
+ *   bound.c      the sharp per-level step: which level is estimated when, deadlines, substeps
+ *   estimate.c   one level's sharp estimate (Lanczos on its block of the coupled operator)
  *   hierarchy.c  the links between consecutive levels
  *   corotational.c  corotational levels: forces and ring reactions tet by tet
  * Not part of the module's contract (lod.h).
@@ -16,6 +18,7 @@
 #define SQ_LOD_INTERNAL_H
 
 #include "lod/lod.h"
+#include "lod/lod_test.h"
 
 #include <string.h>
 
@@ -263,16 +266,12 @@ struct sq_lod {
     int *guard_hold[SQ_MAX_LEVELS];      /* per node of level k: no split before this guard
                                           * clock (a region the guard merged rests), NULL: none */
     long guard_merged_total;             /* regions the guard merged so far (tests) */
-    long guard_resplit;                  /* of those, split again within their rest (tests: 0) */
     int guard_hold_until[SQ_MAX_LEVELS]; /* the latest rest in guard_hold[k] */
     double guard_modeled;                /* the last frame's cost by the model for what it did
                                           * (its node updates, fixed cost and passes), s */
     double guard_predicted;              /* the next frame's cost predicted at this frame's end
                                           * (without a pass), s */
-    int corot_tets_always;               /* 1: corotational levels run the tet-by-tet pass even when
-                                          * all their nodes are active (tests compare it) */
-    int full_rebuild;                    /* 1: every block row rebuilt after a split/merge pass (the
-                                          * reference the incremental rebuild is checked against) */
+    sq_lod_test test;                    /* test-only switches and counters (lod_test.h) */
     /* ghost values pushed on demand (activeset.c) */
     int lists_dirty;                     /* read_list / needed out of date */
     int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring, needed_top */
@@ -428,7 +427,7 @@ void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
 /* criterion.c: the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
  * neighbours the last cascade did not push read on demand (sq_lodx_value) */
 double sq_lodx_delta(const sq_lod *lod, int k, int i);
-/* the column-form row cache of level k (krow, activeset.c; reserved ahead by coupling.c): its
+/* the column-form row cache of level k (krow, activeset.c; reserved ahead by reserve.c): its
  * node index, made on first use with every node -1 (1 when made by this call) */
 static inline int sq_lodx_krow_index(sq_lod_level *lk, const sq_level_model *M)
 {
@@ -478,7 +477,7 @@ void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, v
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 /* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
 void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
-/* grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
+/* reserve.c: grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
  * their pages now, within `seconds` of thread CPU (estimated); returns the pages written */
 long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead);
 /* every level's state and per-node scratch arrays (d, v, forces, step start, d + b v, push
@@ -490,12 +489,6 @@ long sq_lodx_map_state(sq_lod *lod);
  * frame keeps one: a refinement's first touches of new cache pages then fall at load, not in
  * its frames (docs/lod.md "Guaranteed frame rate") */
 #define SQ_RESERVE_LOAD_CHUNKS 8
-/* the thread's minor page faults so far (coupling.c; a first touch of a page costs 12-15 us on
- * this kind of machine) */
-long sq_minor_faults(void);
-/* the calling thread's user and system CPU time (s), minor faults and involuntary context
- * switches so far (getrusage; for traces) */
-void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw);
 /* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
 void sq_lodx_coupling_bound(sq_lod *lod);
 /* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */

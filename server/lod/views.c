@@ -132,3 +132,8 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
         *elastic = ee;
     return ek + ee;
 }
+
+sq_lod_test *sq_lod_test_of(sq_lod *lod)
+{
+    return &lod->test;
+}

@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <stdarg.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -59,12 +60,44 @@ double sq_thread_cpu(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+long sq_minor_faults(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_minflt : 0;
+}
+
+void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw)
+{
+    struct rusage ru;
+    if (getrusage(RUSAGE_THREAD, &ru) != 0)
+        memset(&ru, 0, sizeof ru);
+    *user_s = (double)ru.ru_utime.tv_sec + 1e-6 * (double)ru.ru_utime.tv_usec;
+    *sys_s = (double)ru.ru_stime.tv_sec + 1e-6 * (double)ru.ru_stime.tv_usec;
+    *minflt = ru.ru_minflt;
+    *ivcsw = ru.ru_nivcsw;
+}
+
+static sq_debug_options debug_options;
+
+void sq_debug_set(const sq_debug_options *o)
+{
+    if (o)
+        debug_options = *o;
+    else
+        memset(&debug_options, 0, sizeof debug_options);
+}
+
+const sq_debug_options *sq_debug(void)
+{
+    return &debug_options;
+}
+
 void sq_progress_begin(sq_progress *p, const char *label, double total)
 {
     p->label = label;
     p->total = total > 0 ? total : 1;
     p->last_draw = 0;
-    p->enabled = isatty(2) || getenv("SQ_PROGRESS") != NULL;
+    p->enabled = isatty(2) || sq_debug()->progress;
     sq_progress_update(p, 0);
 }
 

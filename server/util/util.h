@@ -21,6 +21,30 @@ double sq_now(void);
 /* CPU time of the calling thread in seconds: what a piece of work costs on an idle core,
  * meaningful when other work shares the cores */
 double sq_thread_cpu(void);
+/* the calling thread's minor page faults so far (a first touch of a page costs 12-15 us on
+ * this kind of machine; the lod guard learns that cost) */
+long sq_minor_faults(void);
+/* the calling thread's user and system CPU time (s), minor faults and involuntary context
+ * switches so far (getrusage; for traces) */
+void sq_thread_usage(double *user_s, double *sys_s, long *minflt, long *ivcsw);
+
+/* the debug switches of the whole program: traces on stderr and check paths, never read by a
+ * normal run. All off by default; only the command line sets them (server/app/main.c, from the
+ * one environment variable SQ_DEBUG), tests may set them around a check. Set before any
+ * simulation thread starts; read anywhere. */
+typedef struct sq_debug_options {
+    int progress;      /* draw the progress bar even when stderr is not a terminal */
+    int guard_trace;   /* lod: each budgeted frame's cost model, passes, usage (frame.c) */
+    int sharp_trace;   /* lod: each sharp estimate, or that it was not made (bound.c) */
+    int sharp_check;   /* lod: 1 checks each sharp estimate against a full reference Lanczos
+                        * run, 2 also assembles the operator densely (<= 3,000 axes) and prints
+                        * its asymmetry (bound.c) */
+    int sharp_no_stop; /* lod: the sharp estimates run their full Lanczos steps, no early stop
+                        * (to compare, bound.c) */
+    int static_trace;  /* lod: the corotational static solves (corotational.c) */
+} sq_debug_options;
+void sq_debug_set(const sq_debug_options *o);
+const sq_debug_options *sq_debug(void);
 
 /* cancellation of a long computation: a thread points sq_cancel_flag at an int another
  * thread sets (atomically) to ask it to stop; the frame loops poll sq_cancelled() every few

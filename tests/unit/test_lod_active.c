@@ -3,6 +3,7 @@
 #include <stdint.h>
 
 #include "lod/lod_internal.h"
+#include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
@@ -337,7 +338,7 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
         sq_err e = {{0}};
         sq_body *b[2] = {sq_body_create(&def, &e), sq_body_create(&def, &e)};
         TH_REQUIRE(b[0] && b[1]);
-        b[1]->lod->full_rebuild = 1;
+        sq_lod_test_of(b[1]->lod)->full_rebuild = 1;
         long bad_frames = 0, splits = 0, merges = 0, max_fine = 0;
         for (int f = 0; f < 120; f++) {
             sq_tool tool = moving_poke(f * def.frame_dt);

@@ -183,13 +183,16 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     sq_mesh *m[3] = {NULL, NULL, NULL};
     sq_level lv[3];
     memset(lv, 0, sizeof lv);
-    /* the estimates' values are checked on full Lanczos runs (SQ_SHARP_STOP=0); the early
+    /* the estimates' values are checked on full Lanczos runs (sharp_no_stop); the early
      * stop's (the ceiling, same substeps) after the level loop */
-    setenv("SQ_SHARP_STOP", "0", 1);
+    sq_debug_options dbg = *sq_debug();
+    dbg.sharp_no_stop = 1;
+    sq_debug_set(&dbg);
     sq_lod *lod = bent_lod(m, lv, &mat);
     CHECK(lod != NULL);
     if (!lod) {
-        unsetenv("SQ_SHARP_STOP");
+        dbg.sharp_no_stop = 0;
+        sq_debug_set(&dbg);
         return;
     }
     /* an interface on every level */
@@ -319,7 +322,8 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     /* with the early stop (the default): every level estimated again (warm), the same substeps;
      * a level whose run stopped in its ceiling's bin reports the ceiling, at or above the
      * majorant's block; at least one level stops here (levels 0 and 1: 1 and 2 steps) */
-    unsetenv("SQ_SHARP_STOP");
+    dbg.sharp_no_stop = 0;
+    sq_debug_set(&dbg);
     {
         int sub_full[3], nstop = 0;
         for (int k = 0; k < 3; k++)

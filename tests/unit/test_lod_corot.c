@@ -7,6 +7,7 @@
 #include <stdint.h>
 
 #include "lod/lod_internal.h"
+#include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
@@ -37,7 +38,7 @@ static double *run_corot(sq_mesh **m, int n, sq_lod_def lod, int frames, int lev
         return NULL;
     }
     if (b->lod)
-        b->lod->corot_tets_always = tets_always;
+        sq_lod_test_of(b->lod)->corot_tets_always = tets_always;
     for (int f = 0; f < frames; f++) {
         sq_tool t = lh_sphere(0.5, 0.5, 1.3 - depth * fmin(1.0, f / 10.0), 0.3, f < frames / 2);
         sq_body_frame(b, &t, 1, NULL, NULL, 0);

@@ -5,6 +5,7 @@
 #include <stdint.h>
 
 #include "lod/lod_internal.h"
+#include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
@@ -137,13 +138,13 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
                 "%d over (worst %.2f ms), finest active up to %d, %ld splits, %ld merges (%ld by the guard, "
                 "%ld split again in their rest), %d frames with splits refused\n", 1e3 * B, over_unguarded,
                 1e3 * worst_unguarded, over, 1e3 * worst, finest_max, splits, merges, b[1]->lod->guard_merged_total,
-                b[1]->lod->guard_resplit, refused);
+                sq_lod_test_of(b[1]->lod)->guard_resplit, refused);
     CHECK(over_unguarded > 0);  /* the budget binds */
     CHECK(over == 0);           /* exact model: no frame over after the first */
     CHECK(finest_max > 0);      /* the guard does not simply keep everything coarse */
     CHECK(refused > 0);
     CHECK(b[1]->lod->guard_merged_total > 0); /* the drop made the guard merge */
-    CHECK(b[1]->lod->guard_resplit == 0);
+    CHECK(sq_lod_test_of(b[1]->lod)->guard_resplit == 0);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
     lh_free_meshes(m, 4);
