@@ -12,7 +12,7 @@
 # as file:line and what to do, exits 1 if there is one.
 set -u
 SRC=${1:-$(dirname "$0")/../server}
-ORDER="util mesh level lod body scene render net app"
+ORDER="util mesh level contact lod body scene render net app"
 rank() { local i=0 m; for m in $ORDER; do [ "$m" = "$1" ] && { echo $i; return; }; i=$((i + 1)); done; echo -1; }
 
 bad=0

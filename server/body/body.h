@@ -11,6 +11,7 @@
 #ifndef SQ_BODY_H
 #define SQ_BODY_H
 
+#include "contact/contact.h"
 #include "lod/lod.h"
 
 #define SQ_MAX_TOOLS 8
@@ -186,6 +187,21 @@ int sq_body_inverted_tets(const sq_body *b);
  * than its finest loaded level): then f0 = K = 0. Costs four force passes of the held nodes'
  * rows (linear) or of the whole level (corotational, pressure tets). */
 int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *out);
+
+/* contact (docs/physics.md section 13): the obstacles the body's surface nodes meet, borrowed
+ * (the world's table: it must outlive the body or be replaced); n 0 = none. Fixed lod only:
+ * an adaptive body keeps its frame as it is and meets no obstacle */
+void sq_body_set_obstacles(sq_body *b, const sq_obstacle *obs, int n);
+/* the contact force on the body over the last frame (obstacles and other bodies: the impulses
+ * of its contacts / frame_dt), N; the nodes in contact; the deepest penetration into an
+ * obstacle left at the frame's last step, m */
+void sq_body_contact_force(const sq_body *b, double force[3], int *nodes, double *depth);
+/* body against body after both stepped their frame (the world calls it for each pair): the
+ * simulated levels' surfaces, friction mu. Fixed lod both; returns the node contacts resolved */
+int sq_body_contact_pair(sq_body *a, sq_body *b, double mu);
+/* deepest penetration of a's surface nodes into b's surface (m; searched within b's mean
+ * surface edge x 2) */
+double sq_body_contact_depth(sq_body *a, sq_body *b);
 
 /* write the finest level (or the fixed level) as VTK with displacement, velocity, level */
 int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err);

@@ -3,6 +3,7 @@
 #define SQ_BODY_INTERNAL_H
 
 #include "body/body.h"
+#include "contact/contact.h"
 
 struct sq_lod;
 
@@ -72,6 +73,13 @@ struct sq_body {
     int sleep_frames;                      /* calm frames before sleeping (0: never sleep) */
     double sleep_ke_speed;                 /* rms speed below this many bbox diagonals per second */
     double sleep_residual;                 /* sq_body_residual-style measure below this */
+
+    /* contact (body/contact.c): the world's obstacles (borrowed), this frame's impulses and
+     * the simulated levels' surfaces for body against body */
+    const sq_obstacle *obstacles;
+    int nobstacles;
+    sq_contact_sum contact;
+    sq_contact_surface *csurf[SQ_MAX_LEVELS];
 };
 
 #define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */
@@ -79,6 +87,12 @@ struct sq_body {
 
 /* Lanczos steps of the sharp step bound (fixed mode; docs/stability.md) */
 #define SQ_LANCZOS_ITERS 40
+
+/* ---- contact.c ---- */
+/* one step's contact of level L's surface nodes with the obstacles (mask: NULL or 0 at held
+ * nodes), after the step of length h; impulses into b->contact */
+void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, double h);
+void sq_body_contact_free(sq_body *b);
 
 /* ---- body.c: levels, state transfer, surface map, validation ---- */
 /* interpolate a per-node field (n x 3) of mesh m at tet t with barycentrics bary */

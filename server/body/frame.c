@@ -62,6 +62,7 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
     memset(&tot, 0, sizeof tot);
     for (int s = 0; s < nsub; s++) {
         sq_level_implicit_step(L, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
+        sq_body_contact_step(b, L, nk ? b->mask[b->cur] : NULL, h);
         tot.iterations += st.iterations;
         tot.residual = SQ_MAX(tot.residual, st.residual);
         tot.unconverged |= st.unconverged;
@@ -126,6 +127,7 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
             if ((s & 15) == 15 && sq_cancelled())
                 break; /* the server is stopping: the frame is abandoned */
             sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
+            sq_body_contact_step(b, L, nk ? mask : NULL, sdt);
             add_feedback(b, L, nk, ntools, force, inv);
         }
         double value;
@@ -135,6 +137,7 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
             break;
         /* diverged: back to the frame's start, twice the substeps */
         load_frame_start(b, L);
+        memset(&b->contact, 0, sizeof b->contact);
         if (force)
             memset(force, 0, sizeof(double) * 3 * (size_t)SQ_MAX(ntools, 0));
         if (prof)
@@ -267,6 +270,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         ntools = SQ_MAX_TOOLS;
     double force[SQ_MAX_TOOLS][3];
     memset(force, 0, sizeof force);
+    memset(&b->contact, 0, sizeof b->contact); /* this frame's contact impulses */
 
     /* tools -> holds on finest surface nodes */
     int tool_nodes[SQ_MAX_TOOLS];
@@ -302,8 +306,10 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     prof->t_integrate = SQ_MAX(0.0, t2 - t1 - prof->t_pull - prof->t_push - prof->t_adapt);
 
     /* health: a blow-up resets the body (no feedback then), else the sleep test */
-    if (sq_body_check_health(b, prof, nholds))
+    if (sq_body_check_health(b, prof, nholds)) {
         memset(force, 0, sizeof force);
+        memset(&b->contact, 0, sizeof b->contact);
+    }
     prof->t_health = sq_now() - t2;
 
     if (feedback)

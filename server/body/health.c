@@ -8,7 +8,8 @@
 #include "lod/lod.h"
 #include "body/body_internal.h"
 
-/* health: non-finite values, displacement beyond 10 bbox diagonals, or kinetic energy above
+/* health: non-finite values, displacement beyond 10 bbox diagonals (a free body, with no fixed
+ * region: from its mass-weighted mean displacement, so travelling is not a blow-up), or kinetic energy above
  * 0.5 M (10 diag / frame_dt)^2 (a mean speed of ten diagonals per frame); returns the kind (SQ_HEALTH_NONE: healthy) */
 sq_health_kind sq_body_diverged(const sq_body *b, double *value)
 {
@@ -23,10 +24,23 @@ sq_health_kind sq_body_diverged(const sq_body *b, double *value)
         /* adaptive: the active nodes (ghosts are combinations of them) */
         int na = L->model.n;
         const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
+        double mean[3] = {0, 0, 0};
+        if (b->def.nconstraints == 0) {
+            double m = 0;
+            for (int r = 0; r < na; r++) {
+                int i = al ? al[r] : r;
+                for (int c = 0; c < 3; c++)
+                    mean[c] += L->model.mass[i] * L->d[3 * (size_t)i + c];
+                m += L->model.mass[i];
+            }
+            for (int c = 0; c < 3; c++)
+                mean[c] = m > 0 && isfinite(mean[c]) ? mean[c] / m : 0;
+        }
         for (int r = 0; r < na; r++) {
             int i = al ? al[r] : r;
             const double *d = L->d + 3 * (size_t)i, *v = L->v + 3 * (size_t)i;
-            double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            double e[3] = {d[0] - mean[0], d[1] - mean[1], d[2] - mean[2]};
+            double dd = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
             double vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
             if (!isfinite(dd) || !isfinite(vv)) {
                 *value = (double)i;

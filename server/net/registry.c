@@ -209,6 +209,7 @@ void net_send_session_info(client *c)
     cJSON *bodies = cJSON_Parse(s->bodies_json ? s->bodies_json : "[]");
     cJSON_AddItemToObject(o, "bodies", bodies ? bodies : cJSON_CreateArray());
     cJSON_AddItemToObject(o, "tools", sq_tools_json(s->snap.tools, s->snap.ntools));
+    cJSON_AddItemToObject(o, "obstacles", sq_obstacles_json(s->scene));
     sq_blob *last[SQ_MAX_BODIES] = {0};
     for (int b = 0; b < s->nbodies; b++)
         last[b] = sq_blob_ref(s->last_frame[b]);

@@ -260,6 +260,8 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
             cJSON_AddItemToArray(fb, e);
         }
     cJSON_AddItemToObject(o, "tools", sq_tools_json(p->tools, p->ntools));
+    cJSON_AddItemToObject(o, "obstacles", sq_obstacle_offsets_json(s->scene, (const double (*)[3])p->obstacle_pos,
+                                                                   p->nobstacles));
     cJSON *ba = cJSON_AddArrayToObject(o, "bodies");
     for (int b = 0; b < p->nbodies; b++) {
         cJSON *e = cJSON_CreateObject();
@@ -272,6 +274,12 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
         cJSON_AddBoolToObject(e, "sleeping", p->sleeping[b]);
         cJSON_AddNumberToObject(e, "splits", p->splits[b]);
         cJSON_AddNumberToObject(e, "merges", p->merges[b]);
+        /* contact: the sum of the body's contact forces over the last frame (obstacles and
+         * other bodies), the nodes in contact, the deepest penetration into an obstacle */
+        cJSON *ct = cJSON_AddObjectToObject(e, "contact");
+        cJSON_AddItemToObject(ct, "force", cJSON_CreateDoubleArray(p->contact_force[b], 3));
+        cJSON_AddNumberToObject(ct, "nodes", p->contact_nodes[b]);
+        cJSON_AddNumberToObject(ct, "depth", p->contact_depth[b]);
         /* health warnings since the body was created, by kind (only kinds that occurred) */
         cJSON *hw = cJSON_AddObjectToObject(e, "health");
         for (int k = SQ_HEALTH_NONE + 1; k < SQ_HEALTH_NKINDS; k++)

@@ -168,7 +168,11 @@ static void snapshot_locked(sq_session *s, double frame_s)
         p->merges[b] = f->merges;
         memcpy(p->feedback[b], w->feedback[b], sizeof p->feedback[b]);
         memcpy(p->health[b], sq_body_health(w->bodies[b]), sizeof p->health[b]);
+        sq_body_contact_force(w->bodies[b], p->contact_force[b], &p->contact_nodes[b], &p->contact_depth[b]);
     }
+    p->nobstacles = w->nobstacles;
+    for (int o = 0; o < w->nobstacles; o++)
+        memcpy(p->obstacle_pos[o], w->obstacles[o].point, sizeof p->obstacle_pos[o]);
     p->ntools = w->ntools;
     memcpy(p->tools, w->tools, sizeof p->tools);
 }
@@ -230,6 +234,8 @@ static void publish(sq_session *s, int kind, double frame_s)
             sq_session_post_locked(s, SQ_OUT_TEXT, 0, 0, sq_reply_blob(e));
         }
     }
+    if (kind >= 0 && sq_net_obstacles_move(s->scene))
+        sq_session_post_locked(s, SQ_OUT_TEXT, 0, 0, sq_reply_blob(sq_obstacles_frame_json(w)));
     snapshot_locked(s, frame_s);
     pthread_mutex_unlock(&s->mu);
 }

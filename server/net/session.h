@@ -68,6 +68,11 @@ typedef struct sq_snapshot {
     sq_tool tools[SQ_MAX_TOOLS];
     sq_tool_feedback feedback[SQ_MAX_BODIES][SQ_MAX_TOOLS];
     sq_health_stat health[SQ_MAX_BODIES][SQ_HEALTH_NKINDS]; /* sq_body_health per body */
+    double contact_force[SQ_MAX_BODIES][3];  /* sq_body_contact_force: N */
+    int contact_nodes[SQ_MAX_BODIES];
+    double contact_depth[SQ_MAX_BODIES];     /* m */
+    int nobstacles;
+    double obstacle_pos[SQ_MAX_OBSTACLES][3]; /* each obstacle's point (centre, end a) now, m */
 } sq_snapshot;
 
 typedef enum sq_session_state {
@@ -176,6 +181,13 @@ sq_blob *sq_error_blob(sq_net_code code, const char *message, const sq_request *
 struct cJSON *sq_tools_json(const sq_tool *tools, int ntools);
 /* settings of body bi, as in docs/protocol.md; levels numbered as listed in the scene file */
 struct cJSON *sq_settings_json(const sq_world *w, int bi);
+/* the scene's obstacles (net/obstacles.c): their shapes for opened/joined; does any move
+ * (keyframes)? the offsets of each from its placement (stats, and the "obstacles" message
+ * sent with every frame when one moves) */
+struct cJSON *sq_obstacles_json(const sq_scene *sc);
+int sq_net_obstacles_move(const sq_scene *sc);
+struct cJSON *sq_obstacle_offsets_json(const sq_scene *sc, const double (*pos)[3], int n);
+struct cJSON *sq_obstacles_frame_json(const sq_world *w);
 /* the "bodies" array of opened/joined, printed (malloc) */
 char *sq_bodies_json(const sq_session *s);
 

@@ -279,7 +279,7 @@ static int parse_lod(pctx *c, const cJSON *obj, const char *path, int nlisted, s
 
 /* ---- files ------------------------------------------------------------------------- */
 
-static void resolve(char *out, size_t n, const char *base_dir, const char *rel)
+void scene_resolve(char *out, size_t n, const char *base_dir, const char *rel)
 {
     if (rel[0] == '/' || !base_dir || !base_dir[0])
         snprintf(out, n, "%s", rel);
@@ -396,7 +396,7 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
                         cJSON_IsString(e) ? "an empty string" : scene_type_name(e));
         files[i] = e->valuestring;
         char full[1024];
-        resolve(full, sizeof full, c->base_dir, files[i]);
+        scene_resolve(full, sizeof full, c->base_dir, files[i]);
         struct stat st;
         if (stat(full, &st) != 0 && errno == ENOENT && c->made_by[0])
             return scene_fail(c, p, "mesh file \"%s\" (resolved to %s): " SQ_SCENE_MESHES_NOT_MADE
@@ -543,7 +543,7 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
     def->nlevels = 0;
     for (int k = first; k <= last; k++) {
         char full[1024];
-        resolve(full, sizeof full, c->base_dir, files[k]);
+        scene_resolve(full, sizeof full, c->base_dir, files[k]);
         sq_err e = {{0}};
         sq_mesh *m = sq_mesh_load(full, &e);
         scene_join_index(p, sizeof p, lp, k);

@@ -52,10 +52,40 @@ static int parse_list(pctx *c, sq_scene *s, const cJSON *root, const char *key, 
     return n;
 }
 
+/* "contact": {"bodies": true, "friction": 0.5}; then the warnings of free bodies */
+static int parse_contact(pctx *c, sq_scene *s, const cJSON *root)
+{
+    static const char *const keys[] = {"bodies", "friction", NULL};
+    int bad;
+    const cJSON *ct = scene_get_typed(c, root, "", "contact", 0, 0, &bad);
+    if (bad || (ct && scene_check_keys(c, ct, "contact", keys)))
+        return -1;
+    if (ct && (scene_get_bool(c, ct, "contact", "bodies", &s->body_contact) ||
+               scene_get_number(c, ct, "contact", "friction", &s->body_friction, NULL)))
+        return -1;
+    if (!(s->body_friction >= 0 && s->body_friction <= 10))
+        return scene_fail(c, "contact.friction", "%g is out of range; use 0 <= friction <= 10", s->body_friction);
+    for (int b = 0; b < s->nbodies; b++) {
+        const sq_body_def *d = &s->bodies[b];
+        if (d->nconstraints || !s->nobstacles || s->nwarnings >= SQ_MAX_BODIES)
+            continue; /* free bodies meeting obstacles: what contact needs of them */
+        if (d->elasticity != SQ_ELASTICITY_COROTATIONAL)
+            snprintf(s->warnings[s->nwarnings++], sizeof s->warnings[0],
+                     "%s: bodies[%d] (\"%s\") is free (no \"fixed\" region) with linear elasticity: a rotation of "
+                     "the whole body is taken for strain and inflates it; give \"elasticity\": \"corotational\"",
+                     c->label, b, s->body_names[b]);
+        else if (d->lod.mode != SQ_LOD_FIXED)
+            snprintf(s->warnings[s->nwarnings++], sizeof s->warnings[0],
+                     "%s: bodies[%d] (\"%s\") is adaptive: contact runs on fixed-lod bodies only, so it meets no "
+                     "obstacle; give \"lod\": {\"mode\": \"fixed\"}", c->label, b, s->body_names[b]);
+    }
+    return 0;
+}
+
 static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 {
     static const char *const keys[] = {"name", "description", "meshes_made_by", "gravity", "frame_rate",
-                                       "duration", "bodies", "tools", "probes", NULL};
+                                       "duration", "bodies", "tools", "probes", "obstacles", "contact", NULL};
     if (!cJSON_IsObject(root))
         return scene_fail(c, "", "the top level is %s; a scene is a JSON object {\"name\": ..., \"bodies\": [...]}",
                     scene_type_name(root));
@@ -109,7 +139,14 @@ static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
     if (np < 0)
         return -1;
     s->nprobes = np;
-    return 0;
+
+    int no = parse_list(c, s, root, "obstacles", SQ_MAX_OBSTACLES, scene_parse_obstacle);
+    if (no < 0)
+        return -1;
+    s->nobstacles = no;
+    if (parse_contact(c, s, root))
+        return -1;
+    return scene_check_overlaps(c, s) ? -1 : 0;
 }
 
 sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *label, sq_err *err)
@@ -147,6 +184,8 @@ sq_scene *sq_scene_parse(const char *json, const char *base_dir, const char *lab
         return NULL;
     }
     sq_scene *s = sq_calloc(1, sizeof *s);
+    s->body_contact = 1;
+    s->body_friction = 0.5;
     snprintf(s->path, sizeof s->path, "%s", c.label);
     snprintf(s->name, sizeof s->name, "scene");
     if (parse_root(&c, s, root)) {
@@ -205,6 +244,8 @@ sq_scene *sq_scene_default(sq_err *err)
 {
     sq_scene *s = sq_calloc(1, sizeof *s);
     snprintf(s->name, sizeof s->name, "paper-cube");
+    s->body_contact = 1;
+    s->body_friction = 0.5;
     snprintf(s->description, sizeof s->description,
              "The paper's section 2.6: a 1 m cube, bottom face fixed, sagging under gravity "
              "(mu = 40 kPa, lambda = 100 kPa, 1000 kg/m^3); probe at the corner (1, 1, 1).");
@@ -266,6 +307,8 @@ void sq_scene_free(sq_scene *s)
     for (int b = 0; b < SQ_MAX_BODIES; b++)
         for (int k = 0; k < SQ_MAX_LEVELS; k++)
             sq_mesh_free(s->meshes[b][k]);
+    for (int o = 0; o < SQ_MAX_OBSTACLES; o++)
+        sq_trimesh_free(s->trimeshes[o]);
     free(s);
 }
 

@@ -30,6 +30,14 @@ typedef struct sq_tool_script {
     sq_keyframe keys[SQ_MAX_KEYFRAMES];
 } sq_tool_script;
 
+/* an obstacle of the scene: its placement at t = 0 and optional keyframes of its translation
+ * (pos: the offset from that placement, linear between keyframes; meshes are static) */
+typedef struct sq_obstacle_script {
+    sq_obstacle obstacle;
+    int nkeys;
+    sq_keyframe keys[SQ_MAX_KEYFRAMES];
+} sq_obstacle_script;
+
 typedef struct sq_probe {
     char name[64];
     int body;
@@ -50,6 +58,11 @@ typedef struct sq_scene {
     sq_tool_script tools[SQ_MAX_TOOLS];
     int nprobes;
     sq_probe probes[SQ_MAX_PROBES];
+    int nobstacles;
+    sq_obstacle_script obstacles[SQ_MAX_OBSTACLES];
+    sq_trimesh *trimeshes[SQ_MAX_OBSTACLES];      /* owned: the mesh obstacles' triangles */
+    int body_contact;      /* "contact".bodies: fixed-lod bodies collide with each other (default 1) */
+    double body_friction;  /* "contact".friction between bodies (default 0.5) */
     double duration;       /* default run length of `squish run`, s (key "duration", default 2) */
     int nlisted[SQ_MAX_BODIES];                   /* levels listed in the file per body */
     int nwarnings;                                /* load-time warnings (sq_scene_load prints them) */
@@ -101,6 +114,10 @@ void sq_scene_list_free(sq_scene_list *l);
  * position of the keyframe that activated it (sq_tool.origin) */
 void sq_tool_script_pose(const sq_tool_script *s, double t, sq_tool *out);
 
+/* the obstacle at simulated time t (its translation from the keyframes, velocity over the
+ * frame ending at t of length dt) */
+void sq_obstacle_script_pose(const sq_obstacle_script *s, double t, double dt, sq_obstacle *out);
+
 /* world: one running instance of a scene */
 typedef struct sq_world {
     const sq_scene *scene;   /* borrowed */
@@ -113,6 +130,8 @@ typedef struct sq_world {
     int tool_scripted[SQ_MAX_TOOLS];       /* 1 while driven by the scene's keyframes */
     sq_tool_feedback feedback[SQ_MAX_BODIES][SQ_MAX_TOOLS];
     sq_frame_profile profile[SQ_MAX_BODIES];
+    int nobstacles;
+    sq_obstacle obstacles[SQ_MAX_OBSTACLES]; /* the scene's obstacles at the current time */
     long deadline_misses;
     long resets;
     double last_frame_s;     /* wall-clock compute time of the last frame, s */

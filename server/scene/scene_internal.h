@@ -68,6 +68,18 @@ const cJSON *scene_get_typed(pctx *c, const cJSON *obj, const char *path, const 
 int scene_range_pos(pctx *c, const char *path, const char *key, double v, const char *unit);
 int scene_range_nonneg(pctx *c, const char *path, const char *key, double v, const char *unit);
 
+/* path.keyframes: [{"t", "pos", "active"}...], t >= 0 strictly increasing (pos_what names the
+ * position for the missing-key message); absent: *nkeys 0 (an error when required) */
+int scene_parse_keyframes(pctx *c, const cJSON *obj, const char *path, int required, sq_keyframe *keys, int *nkeys,
+                          const char *pos_what);
+/* a file path of the scene relative to its directory (base_dir), or absolute */
+void scene_resolve(char *out, size_t n, const char *base_dir, const char *rel);
+
+/* ---- obstacles.c: one entry of "obstacles"; the check that no body starts inside one or
+ * inside another body (after the bodies are read) */
+int scene_parse_obstacle(pctx *c, sq_scene *s, const cJSON *obj, int oi, const char *path);
+int scene_check_overlaps(pctx *c, const sq_scene *s);
+
 /* ---- bodies.c, tools.c: one entry of "bodies", "tools", "probes" at index i (path: its
  * JSON path); s->bodies[0..i-1] are read already */
 int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path);

@@ -9,6 +9,56 @@
 #include <stdio.h>
 #include <string.h>
 
+/* ---- keyframes --------------------------------------------------------------------- */
+
+int scene_parse_keyframes(pctx *c, const cJSON *obj, const char *path, int required, sq_keyframe *keys, int *nkeys,
+                          const char *pos_what)
+{
+    /* keyframes: t strictly increasing, pos, active (default true) */
+    char p[256];
+    int found;
+    int bad;
+    const cJSON *kf = scene_get_typed(c, obj, path, "keyframes", 1, required, &bad);
+    *nkeys = 0;
+    if (bad)
+        return -1;
+    if (!kf)
+        return 0;
+    char kp[256];
+    scene_join(kp, sizeof kp, path, "keyframes");
+    int nk = cJSON_GetArraySize(kf);
+    if (nk < 1 || nk > SQ_MAX_KEYFRAMES)
+        return scene_fail(c, kp, "%d keyframes; give 1 to %d", nk, SQ_MAX_KEYFRAMES);
+    int i = 0;
+    for (const cJSON *e = kf->child; e; e = e->next, i++) {
+        static const char *const kkeys[] = {"t", "pos", "active", NULL};
+        scene_join_index(p, sizeof p, kp, i);
+        if (!cJSON_IsObject(e))
+            return scene_fail(c, p, "expected {\"t\": s, \"pos\": [x, y, z], \"active\": true}, got %s; see docs/scenes.md", scene_type_name(e));
+        if (scene_check_keys(c, e, p, kkeys))
+            return -1;
+        sq_keyframe *k = &keys[i];
+        k->active = 1;
+        if (scene_get_required_number(c, e, p, "t", &k->t, "the time in s") || scene_get_bool(c, e, p, "active", &k->active))
+            return -1;
+        if (scene_get_vec3(c, e, p, "pos", k->pos, &found))
+            return -1;
+        if (!found) {
+            char q[256];
+            scene_join(q, sizeof q, p, "pos");
+            return scene_fail(c, q, "missing; give %s", pos_what);
+        }
+        if (k->t < 0 || (i > 0 && !(k->t > keys[i - 1].t))) {
+            char q[256];
+            scene_join(q, sizeof q, p, "t");
+            return scene_fail(c, q, "%g %s; keyframe times must be >= 0 and strictly increasing", k->t,
+                        k->t < 0 ? "is negative" : "is not after the previous keyframe");
+        }
+    }
+    *nkeys = nk;
+    return 0;
+}
+
 /* ---- tools ------------------------------------------------------------------------- */
 
 int scene_parse_tool(pctx *c, sq_scene *s, const cJSON *obj, int ti, const char *path)
@@ -81,43 +131,8 @@ int scene_parse_tool(pctx *c, sq_scene *s, const cJSON *obj, int ti, const char 
             return -1;
     }
 
-    /* keyframes: t strictly increasing, pos, active (default true) */
-    int bad;
-    const cJSON *kf = scene_get_typed(c, obj, path, "keyframes", 1, 1, &bad);
-    if (bad)
+    if (scene_parse_keyframes(c, obj, path, 1, ts->keys, &ts->nkeys, "the tool position [x, y, z] (m)"))
         return -1;
-    char kp[256];
-    scene_join(kp, sizeof kp, path, "keyframes");
-    int nk = cJSON_GetArraySize(kf);
-    if (nk < 1 || nk > SQ_MAX_KEYFRAMES)
-        return scene_fail(c, kp, "%d keyframes; give 1 to %d", nk, SQ_MAX_KEYFRAMES);
-    int i = 0;
-    for (const cJSON *e = kf->child; e; e = e->next, i++) {
-        static const char *const kkeys[] = {"t", "pos", "active", NULL};
-        scene_join_index(p, sizeof p, kp, i);
-        if (!cJSON_IsObject(e))
-            return scene_fail(c, p, "expected {\"t\": s, \"pos\": [x, y, z], \"active\": true}, got %s; see docs/scenes.md", scene_type_name(e));
-        if (scene_check_keys(c, e, p, kkeys))
-            return -1;
-        sq_keyframe *k = &ts->keys[i];
-        k->active = 1;
-        if (scene_get_required_number(c, e, p, "t", &k->t, "the time in s") || scene_get_bool(c, e, p, "active", &k->active))
-            return -1;
-        if (scene_get_vec3(c, e, p, "pos", k->pos, &found))
-            return -1;
-        if (!found) {
-            char q[256];
-            scene_join(q, sizeof q, p, "pos");
-            return scene_fail(c, q, "missing; give the tool position [x, y, z] (m)");
-        }
-        if (k->t < 0 || (i > 0 && !(k->t > ts->keys[i - 1].t))) {
-            char q[256];
-            scene_join(q, sizeof q, p, "t");
-            return scene_fail(c, q, "%g %s; keyframe times must be >= 0 and strictly increasing", k->t,
-                        k->t < 0 ? "is negative" : "is not after the previous keyframe");
-        }
-    }
-    ts->nkeys = nk;
     sq_tool_script_pose(ts, 0, &ts->tool);
     return 0;
 }

@@ -82,6 +82,28 @@ static void profile_at_rest(sq_world *w)
     }
 }
 
+/* the scene's obstacles at time t, and every body meeting them */
+static void pose_obstacles(sq_world *w, double t)
+{
+    const sq_scene *s = w->scene;
+    w->nobstacles = s->nobstacles;
+    for (int o = 0; o < s->nobstacles; o++)
+        sq_obstacle_script_pose(&s->obstacles[o], t, 1.0 / s->frame_rate, &w->obstacles[o]);
+    for (int b = 0; b < w->nbodies; b++)
+        sq_body_set_obstacles(w->bodies[b], w->obstacles, w->nobstacles);
+}
+
+/* body against body after every body stepped its frame (docs/physics.md section 13) */
+static void contact_bodies(sq_world *w)
+{
+    if (!w->scene->body_contact)
+        return;
+    for (int a = 0; a < w->nbodies; a++)
+        for (int b = a + 1; b < w->nbodies; b++)
+            if (!w->profile[a].reset && !w->profile[b].reset)
+                sq_body_contact_pair(w->bodies[a], w->bodies[b], w->scene->body_friction);
+}
+
 int sq_scene_check(const sq_scene *s, sq_err *err)
 {
     for (int b = 0; b < s->nbodies; b++) {
@@ -112,6 +134,7 @@ sq_world *sq_world_create(const sq_scene *scene, sq_err *err)
         }
         w->nbodies = b + 1;
     }
+    pose_obstacles(w, 0);
     restore_tools(w);
     profile_at_rest(w);
     return w;
@@ -296,6 +319,7 @@ void sq_world_reset(sq_world *w)
     w->resets = 0;
     w->last_frame_s = 0;
     memset(w->profile, 0, sizeof w->profile);
+    pose_obstacles(w, 0);
     restore_tools(w);
     profile_at_rest(w);
 }
@@ -318,6 +342,7 @@ void sq_world_step(sq_world *w, double budget_s)
     long next = w->frame + 1;
     double t = frame_time(w, next);
     pose_scripted_tools(w, t);
+    pose_obstacles(w, t);
 
     /* each body gets an equal share of the compute budget for its splitting decisions */
     double share = budget_s > 0 ? budget_s / w->nbodies : 0;
@@ -333,6 +358,7 @@ void sq_world_step(sq_world *w, double budget_s)
         if (prof->reset)
             w->resets++;
     }
+    contact_bodies(w);
     w->frame = next;
     w->time = t;
     w->last_frame_s = sq_now() - t0;

@@ -1,0 +1,134 @@
+/* contact.h - the world's obstacles and contact of surface nodes with them and with other
+ * bodies' surfaces (docs/physics.md section 13).
+ *
+ * Obstacles are rigid: half-spaces (a floor, a wall), axis-aligned boxes, spheres, capsules and
+ * static triangle meshes (an OBJ or STL file: a tray, a table). Each has a signed distance
+ * (negative inside) and an outward normal at any point, and Coulomb friction coefficients.
+ *
+ * The method is speculative contact at the velocity level, once per substep of the explicit
+ * step (and once per step of the implicit one): after a node's symplectic Euler update, a node
+ * that ended inside an obstacle has its normal velocity raised to the value that lands it on
+ * the surface (never above zero), and its tangential velocity reduced by Coulomb friction
+ * bounded by that normal impulse; the position follows the changed velocity. Every impulse
+ * removes kinetic energy at the node it acts on, so contact adds no energy to the step; the
+ * explicit step's stability bound is the body's own (no penalty stiffness enters it).
+ *
+ * Body against body works at the frame level on the simulated levels' surfaces: a surface node
+ * of one body inside another is projected to the other's nearest surface point, the two sides
+ * moved in inverse proportion to their masses, with equal and opposite impulses on the node and
+ * on the triangle's three nodes (barycentric weights).
+ *
+ * Units SI: m, kg, s, N. Module order: util mesh level contact lod body ... (the contact module
+ * needs util only).
+ */
+#ifndef SQ_CONTACT_H
+#define SQ_CONTACT_H
+
+#include "util/util.h"
+
+#define SQ_MAX_OBSTACLES 16
+
+typedef enum sq_obstacle_kind {
+    SQ_OBSTACLE_PLANE = 0,   /* half-space: the solid side is behind the normal */
+    SQ_OBSTACLE_BOX = 1,     /* axis-aligned box */
+    SQ_OBSTACLE_SPHERE = 2,
+    SQ_OBSTACLE_CAPSULE = 3, /* segment a-b swept by a radius */
+    SQ_OBSTACLE_MESH = 4,    /* triangle mesh, solid behind each triangle's normal */
+} sq_obstacle_kind;
+
+/* a triangle mesh read from OBJ or STL, with a bounding-volume hierarchy over its triangles */
+typedef struct sq_trimesh {
+    int nverts, ntris;
+    double *x;         /* vertex positions (nverts x 3), m */
+    int *tris;         /* vertex indices (ntris x 3), counter-clockwise seen from outside */
+    double *normal;    /* unit normal of each triangle (ntris x 3) */
+    double bbox_min[3], bbox_max[3];
+    char source[256];  /* file it came from, for messages */
+    struct sq_bvh *bvh; /* private (contact/bvh.c) */
+} sq_trimesh;
+
+typedef struct sq_obstacle {
+    char name[64];
+    sq_obstacle_kind kind;
+    double point[3];  /* plane: a point on it; box, sphere: centre; capsule: end a */
+    double normal[3]; /* plane: unit outward normal (away from the solid) */
+    double end[3];    /* capsule: end b */
+    double half[3];   /* box: half extents */
+    double radius;    /* sphere, capsule */
+    double thickness; /* mesh: depth behind a triangle that still counts as inside, m */
+    double mu_s, mu_k; /* Coulomb friction: static, kinetic (mu_k <= mu_s) */
+    double velocity[3]; /* m/s: the obstacle's translation rate this frame (keyframed obstacles) */
+    const sq_trimesh *mesh; /* mesh: borrowed, must outlive the obstacle */
+} sq_obstacle;
+
+/* read a triangle mesh: .obj (v and f lines; polygons fanned into triangles) or .stl (ASCII or
+ * binary), scaled by scale then offset. NULL + err naming the file, line and fix */
+sq_trimesh *sq_trimesh_load(const char *path, double scale, const double offset[3], sq_err *err);
+/* from arrays (copied); NULL + err on bad input */
+sq_trimesh *sq_trimesh_from_arrays(int nverts, const double *x, int ntris, const int *tris, const char *source,
+                                   sq_err *err);
+void sq_trimesh_free(sq_trimesh *m);
+
+/* nearest point of m to p within reach (m): its distance, the triangle, the point and the
+ * barycentric weights; -1 when no triangle lies within reach */
+int sq_trimesh_nearest(const sq_trimesh *m, const double p[3], double reach, double *dist, double closest[3],
+                       double bary[3]);
+
+/* is the obstacle well formed? 0, or -1 + err naming the obstacle, the value and the fix */
+int sq_obstacle_check(const sq_obstacle *o, sq_err *err);
+/* signed distance of point x to the obstacle's surface (negative inside) and the outward unit
+ * normal there; +INFINITY (n untouched) far from a mesh obstacle (beyond its thickness) */
+double sq_obstacle_distance(const sq_obstacle *o, const double x[3], double n[3]);
+
+/* what a contact pass did: the impulses it applied (N s, summed over its calls) and the nodes
+ * in contact in its last call */
+typedef struct sq_contact_sum {
+    double impulse[3];
+    int nodes;
+    double depth;     /* deepest penetration left after the last call, m (>= 0) */
+} sq_contact_sum;
+
+/* the nodes a pass may move */
+typedef struct sq_contact_nodes {
+    int n;
+    const int *list;            /* node indices (the level's surface nodes) */
+    const double *X;            /* rest positions (nodes x 3) */
+    const double *mass;         /* lumped masses */
+    const unsigned char *fixed; /* constrained axes per node: a node with any is left alone */
+    const unsigned char *mask;  /* NULL, or 0 for a node the pass must leave alone (a held node) */
+} sq_contact_nodes;
+
+/* one substep's contact after the position update of step h: d and v of the listed nodes
+ * changed in place, impulses added to sum (may be NULL). Returns the nodes in contact */
+int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
+                    double h, sq_contact_sum *sum);
+
+/* a body's surface for body-against-body contact: its triangles in node numbering, the current
+ * positions of their nodes and a bounding-volume hierarchy over them (built at the first
+ * update, refit after) */
+typedef struct sq_contact_surface sq_contact_surface;
+/* n: nodes of the level (tris index them); tris borrowed, must outlive the surface */
+sq_contact_surface *sq_contact_surface_create(int n, int ntris, const int *tris);
+void sq_contact_surface_free(sq_contact_surface *s);
+
+/* one side of a body-against-body contact: a level's surface, nodes and state */
+typedef struct sq_contact_side {
+    sq_contact_surface *surf;
+    const sq_contact_nodes *nodes; /* its surface nodes (the ones tested against the other side) */
+    double *d, *v;                 /* displacement and velocity (node numbering, x 3), changed in place */
+} sq_contact_side;
+
+/* frame-level contact between two bodies after their frame of length h: a's surface nodes
+ * inside b (and b's inside a) are projected to the other's nearest surface point along its
+ * triangle normal, the node and the triangle's three nodes moved in inverse proportion to their
+ * masses (barycentric weights); a closing relative normal velocity is made zero and Coulomb
+ * friction mu bounds the tangential impulse; every impulse on one side has its opposite on the
+ * other. reach: how deep a node may be and still be found (about a surface edge), m.
+ * sum_a, sum_b get the impulses on each side (the projection counted as mass x depth / h).
+ * Returns the node contacts resolved */
+int sq_contact_bodies(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
+                      sq_contact_sum *sum_a, sq_contact_sum *sum_b);
+/* deepest penetration (m) of a's surface nodes into b's surface, searched within reach */
+double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach);
+
+#endif

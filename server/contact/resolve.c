@@ -1,0 +1,284 @@
+/* resolve.c - contact of a body's surface nodes with the obstacles (once per substep) and with
+ * another body's surface (once per frame): docs/physics.md section 13. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "contact/contact_internal.h"
+
+static inline double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* Coulomb friction on a tangential velocity vt given the normal velocity change dvn (>= 0) it may
+ * lean on: stick (vt -> 0) when |vt| <= mu_s dvn, else slide with |vt| reduced by mu_k dvn */
+static void friction(double vt[3], double dvn, double mu_s, double mu_k)
+{
+    double s = sqrt(dot3(vt, vt));
+    if (s <= mu_s * dvn || s <= 1e-300) {
+        vt[0] = vt[1] = vt[2] = 0;
+        return;
+    }
+    double k = 1 - mu_k * dvn / s;
+    k = k < 0 ? 0 : k;
+    for (int c = 0; c < 3; c++)
+        vt[c] *= k;
+}
+
+int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
+                    double h, sq_contact_sum *sum)
+{
+    int touching = 0;
+    double deepest = 0;
+    for (int k = 0; k < nodes->n; k++) {
+        int i = nodes->list[k];
+        if (nodes->fixed[i] || (nodes->mask && !nodes->mask[i]))
+            continue;
+        double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i;
+        const double m = nodes->mass[i];
+        int hit = 0;
+        for (int o = 0; o < nobs; o++) {
+            const sq_obstacle *ob = &obs[o];
+            double x[3], n[3];
+            for (int c = 0; c < 3; c++)
+                x[c] = nodes->X[3 * (size_t)i + c] + di[c];
+            double phi = sq_obstacle_distance(ob, x, n);
+            if (!(phi < 0))
+                continue;
+            hit = 1;
+            double vr[3];
+            for (int c = 0; c < 3; c++)
+                vr[c] = vi[c] - ob->velocity[c];
+            double vn = dot3(vr, n);
+            /* the distance at the step's start (the step moved the node by h v): land on the
+             * surface when it started outside, else stop the approach */
+            double phi0 = phi - h * vn;
+            double vn1 = phi0 > 0 ? -phi0 / h : 0;
+            if (vn1 < vn)
+                vn1 = vn; /* never pull: a separating node keeps its velocity */
+            double dvn = vn1 - vn, vt[3];
+            for (int c = 0; c < 3; c++)
+                vt[c] = vr[c] - vn * n[c];
+            double vt1[3] = {vt[0], vt[1], vt[2]};
+            friction(vt1, dvn, ob->mu_s, ob->mu_k);
+            double dv[3];
+            for (int c = 0; c < 3; c++) {
+                dv[c] = dvn * n[c] + vt1[c] - vt[c];
+                vi[c] += dv[c];
+                di[c] += h * dv[c];
+                if (sum)
+                    sum->impulse[c] += m * dv[c];
+            }
+            /* a node that started inside (deeper than this step's motion) is moved to the
+             * surface without a velocity change */
+            double left = phi + h * dvn;
+            if (left < 0) {
+                for (int c = 0; c < 3; c++)
+                    di[c] -= left * n[c];
+                deepest = deepest > -left ? deepest : -left;
+            }
+        }
+        touching += hit;
+    }
+    if (sum) {
+        sum->nodes = touching;
+        sum->depth = deepest;
+    }
+    return touching;
+}
+
+/* ---- body against body ------------------------------------------------------------- */
+
+struct sq_contact_surface {
+    int n, ntris;
+    const int *tris;
+    double *x;     /* current positions of the nodes (n x 3; only the triangles' nodes are kept) */
+    int *used;     /* the triangles' distinct nodes */
+    int nused;
+    sq_bvh *bvh;
+};
+
+sq_contact_surface *sq_contact_surface_create(int n, int ntris, const int *tris)
+{
+    sq_contact_surface *s = sq_calloc(1, sizeof *s);
+    s->n = n;
+    s->ntris = ntris;
+    s->tris = tris;
+    s->x = sq_calloc(3 * (size_t)(n > 0 ? n : 1), sizeof(double));
+    unsigned char *seen = sq_calloc((size_t)(n > 0 ? n : 1), 1);
+    s->used = sq_malloc(sizeof(int) * (size_t)(3 * ntris + 1));
+    for (int t = 0; t < 3 * ntris; t++)
+        if (!seen[tris[t]]) {
+            seen[tris[t]] = 1;
+            s->used[s->nused++] = tris[t];
+        }
+    free(seen);
+    return s;
+}
+
+void sq_contact_surface_free(sq_contact_surface *s)
+{
+    if (!s)
+        return;
+    sq_bvh_free(s->bvh);
+    free(s->x);
+    free(s->used);
+    free(s);
+}
+
+static void surface_update(sq_contact_surface *s, const double *X, const double *d)
+{
+    for (int k = 0; k < s->nused; k++) {
+        size_t i = 3 * (size_t)s->used[k];
+        for (int c = 0; c < 3; c++)
+            s->x[i + c] = X[i + c] + d[i + c];
+    }
+    if (!s->bvh)
+        s->bvh = sq_bvh_build(s->x, s->tris, s->ntris);
+    else
+        sq_bvh_refit(s->bvh, s->x, s->tris);
+}
+
+/* is p (a node of the other side) inside surface s near triangle t? depth and the outward unit
+ * normal of t at the current positions */
+static int inside_at(const sq_contact_surface *s, const double p[3], double reach, int *tri, double bary[3],
+                     double *depth, double n[3])
+{
+    double dist, q[3];
+    int t = sq_bvh_nearest(s->bvh, s->x, s->tris, p, reach, &dist, q, bary);
+    if (t < 0)
+        return 0;
+    const int *v = s->tris + 3 * (size_t)t;
+    const double *a = s->x + 3 * (size_t)v[0], *b = s->x + 3 * (size_t)v[1], *c = s->x + 3 * (size_t)v[2];
+    double e1[3], e2[3];
+    for (int k = 0; k < 3; k++) {
+        e1[k] = b[k] - a[k];
+        e2[k] = c[k] - a[k];
+    }
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double l = sqrt(dot3(n, n));
+    if (!(l > 0))
+        return 0;
+    for (int k = 0; k < 3; k++)
+        n[k] /= l;
+    double r[3] = {p[0] - q[0], p[1] - q[1], p[2] - q[2]};
+    double side = dot3(r, n);
+    if (side >= 0)
+        return 0;
+    *tri = t;
+    *depth = -side; /* along the normal: what the projection must move */
+    return 1;
+}
+
+static double inv_mass(const sq_contact_nodes *nd, int i)
+{
+    if (nd->fixed[i] || (nd->mask && !nd->mask[i]))
+        return 0;
+    return 1.0 / nd->mass[i];
+}
+
+/* a's nodes against b's surface: one pass */
+static int one_way(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
+                   sq_contact_sum *sa, sq_contact_sum *sb)
+{
+    const sq_contact_nodes *na = a->nodes, *nb = b->nodes;
+    int resolved = 0;
+    for (int k = 0; k < na->n; k++) {
+        int i = na->list[k];
+        double p[3];
+        for (int c = 0; c < 3; c++)
+            p[c] = na->X[3 * (size_t)i + c] + a->d[3 * (size_t)i + c];
+        int t;
+        double bary[3], depth, n[3];
+        if (!inside_at(b->surf, p, reach, &t, bary, &depth, n))
+            continue;
+        const int *tv = b->surf->tris + 3 * (size_t)t;
+        double wp = inv_mass(na, i), wk[3], W = wp;
+        for (int j = 0; j < 3; j++) {
+            wk[j] = inv_mass(nb, tv[j]);
+            W += bary[j] * bary[j] * wk[j];
+        }
+        if (!(W > 0))
+            continue;
+        /* position: the node and the triangle point meet (mass-weighted) */
+        double lam = depth / W;
+        /* velocity: the relative normal velocity no longer closing, friction on the rest */
+        double vr[3];
+        for (int c = 0; c < 3; c++) {
+            vr[c] = a->v[3 * (size_t)i + c];
+            for (int j = 0; j < 3; j++)
+                vr[c] -= bary[j] * b->v[3 * (size_t)tv[j] + c];
+        }
+        double vn = dot3(vr, n), jn = vn < 0 ? -vn / W : 0, vt[3];
+        for (int c = 0; c < 3; c++)
+            vt[c] = vr[c] - vn * n[c];
+        /* the impulse the contact carries this frame: the velocity part and the projection's */
+        double jtot = jn + lam / h, st = sqrt(dot3(vt, vt)), jt = 0;
+        if (st > 1e-300) {
+            double stop = st / W;
+            jt = stop <= mu * jtot ? stop : mu * jtot;
+        }
+        double J[3];
+        for (int c = 0; c < 3; c++)
+            J[c] = jn * n[c] - (st > 1e-300 ? jt * vt[c] / st : 0);
+        for (int c = 0; c < 3; c++) {
+            a->d[3 * (size_t)i + c] += wp * lam * n[c];
+            a->v[3 * (size_t)i + c] += wp * J[c];
+            for (int j = 0; j < 3; j++) {
+                size_t q = 3 * (size_t)tv[j] + c;
+                b->d[q] -= bary[j] * wk[j] * lam * n[c];
+                b->v[q] -= bary[j] * wk[j] * J[c];
+            }
+            double Jc = J[c] + lam / h * n[c];
+            if (sa)
+                sa->impulse[c] += Jc;
+            if (sb)
+                sb->impulse[c] -= Jc;
+        }
+        resolved++;
+    }
+    return resolved;
+}
+
+int sq_contact_bodies(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
+                      sq_contact_sum *sum_a, sq_contact_sum *sum_b)
+{
+    int total = 0, na = 0, nb = 0;
+    /* two sweeps: a node pushed out can push a triangle into the other side's nodes */
+    for (int sweep = 0; sweep < 8; sweep++) {
+        surface_update(b->surf, b->nodes->X, b->d);
+        int ra = one_way(a, b, mu, reach, h, sum_a, sum_b);
+        surface_update(a->surf, a->nodes->X, a->d);
+        int rb = one_way(b, a, mu, reach, h, sum_b, sum_a);
+        if (sweep == 0) {
+            na = ra;
+            nb = rb;
+        }
+        total += ra + rb;
+        if (!ra && !rb)
+            break;
+    }
+    if (sum_a)
+        sum_a->nodes += na;
+    if (sum_b)
+        sum_b->nodes += nb;
+    return total;
+}
+
+double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach)
+{
+    surface_update(b->surf, b->nodes->X, b->d);
+    double deepest = 0;
+    for (int k = 0; k < a->nodes->n; k++) {
+        int i = a->nodes->list[k], t;
+        double p[3], bary[3], depth, n[3];
+        for (int c = 0; c < 3; c++)
+            p[c] = a->nodes->X[3 * (size_t)i + c] + a->d[3 * (size_t)i + c];
+        if (inside_at(b->surf, p, reach, &t, bary, &depth, n) && depth > deepest)
+            deepest = depth;
+    }
+    return deepest;
+}
