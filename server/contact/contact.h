@@ -14,9 +14,8 @@
  * explicit step's stability bound is the body's own (no penalty stiffness enters it).
  *
  * Body against body works at the frame level on the simulated levels' surfaces: a surface node
- * of one body inside another is projected to the other's nearest surface point, the two sides
- * moved in inverse proportion to their masses, with equal and opposite impulses on the node and
- * on the triangle's three nodes (barycentric weights).
+ * of one body inside another gets a separating relative velocity, with equal and opposite
+ * impulses on the node and on the other's triangle's three nodes (barycentric weights).
  *
  * Units SI: m, kg, s, N. Module order: util mesh level contact lod body ... (the contact module
  * needs util only).
@@ -118,14 +117,15 @@ typedef struct sq_contact_side {
     double *d, *v;                 /* displacement and velocity (node numbering, x 3), changed in place */
 } sq_contact_side;
 
-/* frame-level contact between two bodies after their frame of length h: a's surface nodes
- * inside b (and b's inside a) are projected to the other's nearest surface point along its
- * triangle normal, the node and the triangle's three nodes moved in inverse proportion to their
- * masses (barycentric weights); a closing relative normal velocity is made zero and Coulomb
- * friction mu bounds the tangential impulse; every impulse on one side has its opposite on the
- * other. reach: how deep a node may be and still be found (about a surface edge), m.
- * sum_a, sum_b get the impulses on each side (the projection counted as mass x depth / h).
- * Returns the node contacts resolved */
+/* frame-level contact between two bodies after their frame of length h: for each surface node
+ * of a inside b (and of b inside a), at its nearest triangle of the other side within reach,
+ * the relative normal velocity is raised to beta depth / h (beta 0.5: the node leaves over two
+ * frames), never lowered, and Coulomb friction mu bounds the tangential impulse; the node and
+ * the triangle's three nodes (barycentric weights) take equal and opposite impulses in
+ * inverse proportion to their masses. Velocities only: positions are not projected (a
+ * projection adds elastic energy at every frame and pumped a hard squeeze to a blow-up).
+ * reach: how deep a node may be and still be found (about a surface edge), m.
+ * sum_a, sum_b get the impulses on each side. Returns the node contacts resolved */
 int sq_contact_bodies(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
                       sq_contact_sum *sum_a, sq_contact_sum *sum_b);
 /* deepest penetration (m) of a's surface nodes into b's surface, searched within reach */

@@ -203,20 +203,20 @@ static int one_way(sq_contact_side *a, sq_contact_side *b, double mu, double rea
         }
         if (!(W > 0))
             continue;
-        /* position: the node and the triangle point meet (mass-weighted) */
-        double lam = depth / W;
-        /* velocity: the relative normal velocity no longer closing, friction on the rest */
+        /* velocity only (a position projection would add elastic energy at every frame): the
+         * relative normal velocity raised to the one that takes the node out over beta of the
+         * next frame, never lowered; friction on the tangential part, bounded by that impulse */
         double vr[3];
         for (int c = 0; c < 3; c++) {
             vr[c] = a->v[3 * (size_t)i + c];
             for (int j = 0; j < 3; j++)
                 vr[c] -= bary[j] * b->v[3 * (size_t)tv[j] + c];
         }
-        double vn = dot3(vr, n), jn = vn < 0 ? -vn / W : 0, vt[3];
+        const double beta = 0.5;
+        double vn = dot3(vr, n), want = beta * depth / h, jn = vn < want ? (want - vn) / W : 0, vt[3];
         for (int c = 0; c < 3; c++)
             vt[c] = vr[c] - vn * n[c];
-        /* the impulse the contact carries this frame: the velocity part and the projection's */
-        double jtot = jn + lam / h, st = sqrt(dot3(vt, vt)), jt = 0;
+        double jtot = jn, st = sqrt(dot3(vt, vt)), jt = 0;
         if (st > 1e-300) {
             double stop = st / W;
             jt = stop <= mu * jtot ? stop : mu * jtot;
@@ -225,14 +225,12 @@ static int one_way(sq_contact_side *a, sq_contact_side *b, double mu, double rea
         for (int c = 0; c < 3; c++)
             J[c] = jn * n[c] - (st > 1e-300 ? jt * vt[c] / st : 0);
         for (int c = 0; c < 3; c++) {
-            a->d[3 * (size_t)i + c] += wp * lam * n[c];
             a->v[3 * (size_t)i + c] += wp * J[c];
             for (int j = 0; j < 3; j++) {
                 size_t q = 3 * (size_t)tv[j] + c;
-                b->d[q] -= bary[j] * wk[j] * lam * n[c];
                 b->v[q] -= bary[j] * wk[j] * J[c];
             }
-            double Jc = J[c] + lam / h * n[c];
+            double Jc = J[c];
             if (sa)
                 sa->impulse[c] += Jc;
             if (sb)
@@ -247,8 +245,8 @@ int sq_contact_bodies(sq_contact_side *a, sq_contact_side *b, double mu, double 
                       sq_contact_sum *sum_a, sq_contact_sum *sum_b)
 {
     int total = 0, na = 0, nb = 0;
-    /* two sweeps: a node pushed out can push a triangle into the other side's nodes */
-    for (int sweep = 0; sweep < 8; sweep++) {
+    /* up to two sweeps: a changed velocity on one side changes the other's relative velocities */
+    for (int sweep = 0; sweep < 2; sweep++) {
         surface_update(b->surf, b->nodes->X, b->d);
         int ra = one_way(a, b, mu, reach, h, sum_a, sum_b);
         surface_update(a->surf, a->nodes->X, a->d);
