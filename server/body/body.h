@@ -189,8 +189,9 @@ int sq_body_inverted_tets(const sq_body *b);
 int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *out);
 
 /* contact (docs/physics.md section 13): the obstacles the body's surface nodes meet, borrowed
- * (the world's table: it must outlive the body or be replaced); n 0 = none. Fixed lod only:
- * an adaptive body keeps its frame as it is and meets no obstacle */
+ * (the world's table: it must outlive the body or be replaced); n 0 = none. Fixed lod: the
+ * simulated level's surface nodes after every step; adaptive: every level's integrated surface
+ * nodes after each of its steps (lod/lod.h sq_lod_frame_in) */
 void sq_body_set_obstacles(sq_body *b, const sq_obstacle *obs, int n);
 /* the contact force on the body over the last frame (obstacles and other bodies: the impulses
  * of its contacts / frame_dt), N; the nodes in contact; the deepest penetration into an

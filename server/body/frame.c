@@ -292,7 +292,8 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         b->sleeping = 0;
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
             sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
-                                  .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s};
+                                  .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s,
+                                  .obstacles = b->obstacles, .nobstacles = b->nobstacles, .contact = &b->contact};
             memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
             sq_lod_frame(b->lod, &in, force, prof);
             sq_body_count_health(b, prof->event_kind, prof->event_value[0]); /* budget warnings */

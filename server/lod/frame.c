@@ -574,6 +574,12 @@ static void tick_step(lod_frame *fr)
                 sq_level_integrate(Lk, dtk, NULL);
             else
                 sq_lodx_integrate(lod, k, dtk);
+            if (fr->in->nobstacles > 0) { /* contact of the level's integrated surface nodes */
+                const sq_mesh *mk = Lk->model.mesh;
+                sq_contact_nodes nd = {.n = mk->nsurf, .list = mk->surf_nodes, .X = mk->x, .mass = Lk->model.mass,
+                                       .fixed = Lk->model.fixed, .mask = lod->lev[k].integrated};
+                sq_contact_step(fr->in->obstacles, fr->in->nobstacles, &nd, Lk->d, Lk->v, dtk, fr->in->contact);
+            }
         }
         fr->updates += lod->lev[k].nintegrated;
     }

@@ -12,6 +12,7 @@
 #ifndef SQ_LOD_H
 #define SQ_LOD_H
 
+#include "contact/contact.h"
 #include "level/level.h"
 
 typedef enum sq_lod_mode { SQ_LOD_FIXED = 0, SQ_LOD_ADAPTIVE = 1 } sq_lod_mode;
@@ -141,6 +142,10 @@ typedef struct sq_lod_frame_in {
     int nholds;
     int ntools;              /* tools the holds name (force has ntools entries) */
     double budget_s;         /* frame period of the budget, s (0 = no limit) */
+    const sq_obstacle *obstacles; /* met by every level's integrated surface nodes after each of
+                                     its steps (contact/contact.h), nobstacles of them */
+    int nobstacles;
+    sq_contact_sum *contact; /* the contact impulses are added here (may be NULL) */
 } sq_lod_frame_in;
 
 /* one adaptive frame of in->frame_dt: each level steps at its own dt (level->dt), in the

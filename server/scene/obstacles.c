@@ -218,7 +218,7 @@ int scene_check_overlaps(pctx *c, const sq_scene *s)
                 double n[3];
                 sq_obstacle_script_pose(&s->obstacles[o], 0, 1.0 / s->frame_rate, &ob);
                 double phi = sq_obstacle_distance(&ob, x, n);
-                if (phi < -1e-9 && fixed_mode)
+                if (phi < -1e-9)
                     return scene_fail(c, p, "(\"%s\") starts inside obstacle \"%s\": its rest node at [%.4g, %.4g, %.4g] is "
                                       "%.3g m deep; move the body (\"offset\") or the obstacle so they only touch",
                                       s->body_names[b], ob.name, x[0], x[1], x[2], -phi);

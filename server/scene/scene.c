@@ -74,10 +74,6 @@ static int parse_contact(pctx *c, sq_scene *s, const cJSON *root)
                      "%s: bodies[%d] (\"%s\") is free (no \"fixed\" region) with linear elasticity: a rotation of "
                      "the whole body is taken for strain and inflates it; give \"elasticity\": \"corotational\"",
                      c->label, b, s->body_names[b]);
-        else if (d->lod.mode != SQ_LOD_FIXED)
-            snprintf(s->warnings[s->nwarnings++], sizeof s->warnings[0],
-                     "%s: bodies[%d] (\"%s\") is adaptive: contact runs on fixed-lod bodies only, so it meets no "
-                     "obstacle; give \"lod\": {\"mode\": \"fixed\"}", c->label, b, s->body_names[b]);
     }
     return 0;
 }

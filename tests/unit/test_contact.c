@@ -541,3 +541,108 @@ SQ_TEST(contact_obstacle_keyframes_move_it)
     CHECK_NEAR(o.point[0], 0.5, 1e-12);
     CHECK_NEAR(o.velocity[0], 0, 1e-12);
 }
+
+/* ---- adaptive bodies --------------------------------------------------------------------- */
+
+/* the 20 cm cube on three levels (cube_l0..2) dropped 2 cm onto the floor with lod `lod` (JSON)
+ * for `frames` frames; the world (caller frees it and *sc) */
+static sq_world *adaptive_drop(const char *lod, int frames, sq_scene **sc)
+{
+    char text[3000];
+    snprintf(text, sizeof text,
+             "{\"name\": \"t\", \"gravity\": [0, 0, -9.81], \"frame_rate\": 50,"
+             " \"bodies\": [{\"name\": \"block\", \"levels\": [\"../cube/cube_l0.msh\", \"../cube/cube_l1.msh\","
+             "   \"../cube/cube_l2.msh\"], \"scale\": 0.2, \"offset\": [0, 0, 0.02],"
+             "   \"material\": {\"E\": 30000, \"nu\": 0.3, \"density\": 1000, \"damping\": {\"rayleigh_mass\": 2.0}},"
+             "   \"elasticity\": \"corotational\", \"lod\": %s}],"
+             " \"obstacles\": [{\"name\": \"floor\", \"type\": \"plane\", \"point\": [0, 0, 0], \"friction\": 0.5}]}",
+             lod);
+    sq_err e = {{0}};
+    *sc = sq_scene_parse(text, th_scenes_dir(), "t.json", &e);
+    if (!*sc) {
+        printf("    %s\n", e.msg);
+        return NULL;
+    }
+    sq_world *w = sq_world_create(*sc, &e);
+    if (!w) {
+        printf("    %s\n", e.msg);
+        return NULL;
+    }
+    for (int f = 0; f < frames; f++)
+        sq_world_step(w, 0);
+    return w;
+}
+
+/* forced finest (split 0: every region at level 2, at level 2's step, the same contact calls)
+ * equals the fixed finest run to rounding (1e-12 of the largest displacement, as
+ * lod_forced_finest_and_coarsest_match_fixed_runs): contact keeps that property */
+SQ_TEST(contact_adaptive_forced_finest_equals_fixed_finest)
+{
+    sq_scene *sf = NULL, *sa = NULL;
+    sq_world *wf = adaptive_drop("{\"mode\": \"fixed\", \"level\": 2}", 40, &sf);
+    sq_world *wa = adaptive_drop("{\"mode\": \"adaptive\", \"level\": 0, \"max_level\": 2, \"split\": 0, \"merge\": 0}",
+                                 40, &sa);
+    CHECK(wf && wa);
+    if (wf && wa) {
+        const sq_level *Lf = sq_body_level(wf->bodies[0], sq_body_sim_level(wf->bodies[0]));
+        const sq_level *La = sq_body_level(wa->bodies[0], sq_body_sim_level(wa->bodies[0]));
+        CHECK(Lf->model.n == La->model.n);
+        double dmax = 0, diff = 0;
+        for (int i = 0; Lf->model.n == La->model.n && i < 3 * Lf->model.n; i++) {
+            dmax = fmax(dmax, fabs(Lf->d[i]));
+            diff = fmax(diff, fabs(Lf->d[i] - La->d[i]));
+        }
+        double Ff[3], Fa[3];
+        sq_body_contact_force(wf->bodies[0], Ff, NULL, NULL);
+        sq_body_contact_force(wa->bodies[0], Fa, NULL, NULL);
+        printf("    max |d| %.4g m, max diff %.3g m; contact force fixed %.6g N, adaptive %.6g N\n", dmax, diff, Ff[2],
+               Fa[2]);
+        CHECK(dmax > 0.015); /* it fell onto the floor */
+        CHECK(diff <= 1e-12 * dmax);
+        CHECK(Fa[2] > 1);
+        CHECK_NEAR(Fa[2], Ff[2], 1e-9 * fabs(Ff[2]));
+    }
+    sq_world_destroy(wf);
+    sq_world_destroy(wa);
+    sq_scene_free(sf);
+    sq_scene_free(sa);
+}
+
+/* an adaptive body at rest on the floor: the contact acts through the active levels, the
+ * deepest node stays under 1 % of the edge and the mean contact force over the last second is
+ * the weight within 1 %; the contact region refines (level 2 active somewhere) */
+SQ_TEST(contact_adaptive_rests_on_floor)
+{
+    sq_scene *sc = NULL;
+    sq_world *w = adaptive_drop("{\"mode\": \"adaptive\", \"level\": 0, \"max_level\": 2, \"split\": 0.0005, \"merge\": 0.0002}",
+                                100, &sc);
+    CHECK(w != NULL);
+    if (!w) {
+        sq_scene_free(sc);
+        return;
+    }
+    sq_body *b = w->bodies[0];
+    double fz = 0, M = 0;
+    for (int f = 0; f < 50; f++) {
+        sq_world_step(w, 0);
+        double F[3];
+        sq_body_contact_force(b, F, NULL, NULL);
+        fz += F[2] / 50;
+    }
+    const sq_level *L = sq_body_level(b, sq_body_sim_level(b));
+    for (int i = 0; i < L->model.n; i++)
+        M += L->model.mass[i];
+    double low = INFINITY;
+    for (int i = 0; i < L->model.n; i++)
+        low = fmin(low, L->model.mesh->x[3 * i + 2] + L->d[3 * i + 2]);
+    int active[SQ_MAX_LEVELS];
+    sq_body_active_nodes(b, active);
+    printf("    mean contact force %.6g N, weight %.6g N, lowest node %.3g m, active %d %d %d\n", fz, M * 9.81, low,
+           active[0], active[1], active[2]);
+    CHECK_NEAR(fz, M * 9.81, 0.01 * M * 9.81);
+    CHECK(low > -0.01 * 0.2);
+    CHECK(active[1] + active[2] > 0);
+    CHECK(w->resets == 0);
+    sq_world_destroy(w);
+    sq_scene_free(sc);
+}
