@@ -126,6 +126,8 @@ bench: deps node-deps
 	@for f in meshes/scenes/*.json; do echo "$$f"; $(BUILD)/squish run $$f --frames 0 --out $(BUILD)/bench-bounds | grep "step bounds" || true; done
 	@echo "=== the implicit integrator: SOFA reference beam, stiff cantilever, preconditioners (a minute)"
 	$(BUILD)/squish bench implicit
+	@echo "=== contact: a 10k-node box on a tray mesh and on a plane, the shipped contact scenes"
+	$(BUILD)/squish bench contact
 	@echo "=== scenes: frame-budget headroom, threads"
 	$(BUILD)/squish tradeoff --bench
 	@echo "=== speed against accuracy (quick grid)"

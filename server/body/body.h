@@ -197,6 +197,10 @@ void sq_body_set_obstacles(sq_body *b, const sq_obstacle *obs, int n);
  * of its contacts / frame_dt), N; the nodes in contact; the deepest penetration into an
  * obstacle left at the frame's last step, m */
 void sq_body_contact_force(const sq_body *b, double force[3], int *nodes, double *depth);
+/* thread CPU time of the last frame's contact passes (fixed lod: the obstacle passes of every
+ * step and half of each body-against-body pass; adaptive: 0, the lod frame's passes are in
+ * its step time), s */
+double sq_body_contact_cpu(const sq_body *b);
 /* body against body after both stepped their frame (the world calls it for each pair): the
  * simulated levels' surfaces, friction mu. Fixed lod both; returns the node contacts resolved */
 int sq_body_contact_pair(sq_body *a, sq_body *b, double mu);

@@ -79,7 +79,9 @@ struct sq_body {
     const sq_obstacle *obstacles;
     int nobstacles;
     sq_contact_sum contact;
+    double contact_cpu;                    /* this frame's thread CPU time in contact passes, s */
     sq_contact_surface *csurf[SQ_MAX_LEVELS];
+    sq_contact_cache *ccache;              /* the fixed level's mesh-obstacle distances this frame */
 };
 
 #define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */

@@ -24,12 +24,24 @@ void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, do
 {
     if (!b->nobstacles)
         return;
+    double t0 = sq_thread_cpu();
     sq_contact_nodes nd = surface_nodes(L, mask);
+    if (!b->ccache)
+        b->ccache = sq_contact_cache_create();
+    nd.cache = b->ccache;
     sq_contact_step(b->obstacles, b->nobstacles, &nd, L->d, L->v, h, &b->contact);
+    b->contact_cpu += sq_thread_cpu() - t0;
+}
+
+double sq_body_contact_cpu(const sq_body *b)
+{
+    return b->contact_cpu;
 }
 
 void sq_body_contact_free(sq_body *b)
 {
+    sq_contact_cache_free(b->ccache);
+    b->ccache = NULL;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         sq_contact_surface_free(b->csurf[k]);
         b->csurf[k] = NULL;
@@ -73,10 +85,14 @@ int sq_body_contact_pair(sq_body *a, sq_body *b, double mu)
 {
     if (a->lod || b->lod || a->sleeping + b->sleeping == 2)
         return 0;
+    double t0 = sq_thread_cpu();
     sq_contact_nodes na, nb;
     sq_contact_side sa = side_of(a, &na), sb = side_of(b, &nb);
     double reach = 2 * SQ_MAX(mean_edge(a), mean_edge(b));
     int n = sq_contact_bodies(&sa, &sb, mu, reach, a->def.frame_dt, &a->contact, &b->contact);
+    double dt = sq_thread_cpu() - t0;
+    a->contact_cpu += dt / 2;
+    b->contact_cpu += dt / 2;
     if (n) { /* a contact wakes both */
         a->sleeping = b->sleeping = 0;
         a->calm = b->calm = 0;

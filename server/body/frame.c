@@ -138,6 +138,7 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
         /* diverged: back to the frame's start, twice the substeps */
         load_frame_start(b, L);
         memset(&b->contact, 0, sizeof b->contact);
+        sq_contact_cache_reset(b->ccache);
         if (force)
             memset(force, 0, sizeof(double) * 3 * (size_t)SQ_MAX(ntools, 0));
         if (prof)
@@ -271,6 +272,8 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     double force[SQ_MAX_TOOLS][3];
     memset(force, 0, sizeof force);
     memset(&b->contact, 0, sizeof b->contact); /* this frame's contact impulses */
+    b->contact_cpu = 0;
+    sq_contact_cache_reset(b->ccache); /* positions moved (holds, another body): measure afresh */
 
     /* tools -> holds on finest surface nodes */
     int tool_nodes[SQ_MAX_TOOLS];

@@ -87,6 +87,16 @@ typedef struct sq_contact_sum {
     double depth;     /* deepest penetration left after the last call, m (>= 0) */
 } sq_contact_sum;
 
+/* what a body keeps between the steps of a frame to skip mesh obstacles cheaply: each listed
+ * node's position at the frame's first pass and its distance then to the nearest mesh obstacle;
+ * a node that has moved less than that distance since cannot have reached a mesh's surface
+ * (the triangle inequality), so its mesh queries are skipped (contact/resolve.c) */
+typedef struct sq_contact_cache sq_contact_cache;
+sq_contact_cache *sq_contact_cache_create(void);
+void sq_contact_cache_free(sq_contact_cache *c);
+/* a new frame: the next pass measures afresh */
+void sq_contact_cache_reset(sq_contact_cache *c);
+
 /* the nodes a pass may move */
 typedef struct sq_contact_nodes {
     int n;
@@ -95,6 +105,7 @@ typedef struct sq_contact_nodes {
     const double *mass;         /* lumped masses */
     const unsigned char *fixed; /* constrained axes per node: a node with any is left alone */
     const unsigned char *mask;  /* NULL, or 0 for a node the pass must leave alone (a held node) */
+    sq_contact_cache *cache;    /* NULL, or the frame's cache of the mesh obstacles' distances */
 } sq_contact_nodes;
 
 /* one substep's contact after the position update of step h: d and v of the listed nodes

@@ -26,20 +26,84 @@ static void friction(double vt[3], double dvn, double mu_s, double mu_k)
         vt[c] *= k;
 }
 
+struct sq_contact_cache {
+    int valid, cap;
+    double *start;  /* position at the frame's first pass (list order, x 3) */
+    double *radius; /* distance then to the nearest mesh obstacle (0: always query) */
+};
+
+sq_contact_cache *sq_contact_cache_create(void)
+{
+    return sq_calloc(1, sizeof(sq_contact_cache));
+}
+
+void sq_contact_cache_free(sq_contact_cache *c)
+{
+    if (!c)
+        return;
+    free(c->start);
+    free(c->radius);
+    free(c);
+}
+
+void sq_contact_cache_reset(sq_contact_cache *c)
+{
+    if (c)
+        c->valid = 0;
+}
+
+/* the cache's distances from the nodes' current positions (the frame's first pass) */
+static void cache_fill(sq_contact_cache *c, const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes,
+                       const double *d)
+{
+    if (c->cap < nodes->n) {
+        c->cap = nodes->n;
+        c->start = sq_realloc(c->start, sizeof(double) * 3 * (size_t)c->cap);
+        c->radius = sq_realloc(c->radius, sizeof(double) * (size_t)c->cap);
+    }
+    for (int k = 0; k < nodes->n; k++) {
+        int i = nodes->list[k];
+        double *x = c->start + 3 * (size_t)k, r = INFINITY;
+        for (int a = 0; a < 3; a++)
+            x[a] = nodes->X[3 * (size_t)i + a] + d[3 * (size_t)i + a];
+        for (int o = 0; o < nobs; o++)
+            if (obs[o].kind == SQ_OBSTACLE_MESH) {
+                double n[3], phi = sq_obstacle_distance(&obs[o], x, n);
+                r = fmin(r, phi > 0 ? phi : 0); /* beyond the thickness: +inf, behind: 0 */
+            }
+        c->radius[k] = r;
+    }
+    c->valid = 1;
+}
+
 int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
                     double h, sq_contact_sum *sum)
 {
     int touching = 0;
     double deepest = 0;
+    sq_contact_cache *cache = nodes->cache;
+    if (cache && !cache->valid)
+        cache_fill(cache, obs, nobs, nodes, d);
     for (int k = 0; k < nodes->n; k++) {
         int i = nodes->list[k];
         if (nodes->fixed[i] || (nodes->mask && !nodes->mask[i]))
             continue;
         double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i;
         const double m = nodes->mass[i];
-        int hit = 0;
+        int hit = 0, far = 0;
+        if (cache) { /* moved less than its distance to the mesh obstacles: they are out of reach */
+            const double *x0 = cache->start + 3 * (size_t)k;
+            double s = 0;
+            for (int c = 0; c < 3; c++) {
+                double e = nodes->X[3 * (size_t)i + c] + di[c] - x0[c];
+                s += e * e;
+            }
+            far = s < cache->radius[k] * cache->radius[k];
+        }
         for (int o = 0; o < nobs; o++) {
             const sq_obstacle *ob = &obs[o];
+            if (far && ob->kind == SQ_OBSTACLE_MESH)
+                continue;
             double x[3], n[3];
             for (int c = 0; c < 3; c++)
                 x[c] = nodes->X[3 * (size_t)i + c] + di[c];

@@ -68,6 +68,9 @@ static double capsule_distance(const sq_obstacle *o, const double x[3], double n
 static double mesh_distance(const sq_obstacle *o, const double x[3], double n[3])
 {
     const sq_trimesh *m = o->mesh;
+    for (int c = 0; c < 3; c++) /* broad phase: farther than the thickness from the mesh's box */
+        if (x[c] < m->bbox_min[c] - o->thickness || x[c] > m->bbox_max[c] + o->thickness)
+            return INFINITY;
     double dist, q[3], bary[3];
     int t = sq_trimesh_nearest(m, x, o->thickness, &dist, q, bary);
     if (t < 0)
