@@ -198,12 +198,19 @@ void sq_body_set_obstacles(sq_body *b, const sq_obstacle *obs, int n);
  * obstacle left at the frame's last step, m */
 void sq_body_contact_force(const sq_body *b, double force[3], int *nodes, double *depth);
 /* thread CPU time of the last frame's contact passes (fixed lod: the obstacle passes of every
- * step and half of each body-against-body pass; adaptive: 0, the lod frame's passes are in
- * its step time), s */
+ * step, against obstacles and other bodies, and the update of its surface as a target; adaptive:
+ * 0, the lod frame's passes are in its step time), s */
 double sq_body_contact_cpu(const sq_body *b);
-/* body against body after both stepped their frame (the world calls it for each pair): the
- * simulated levels' surfaces, friction mu. Fixed lod both; returns the node contacts resolved */
-int sq_body_contact_pair(sq_body *a, sq_body *b, double mu);
+/* body against body every substep (docs/physics.md section 13): b's simulated level as a target
+ * of another body's steps, its surface updated to where it stands now (fixed lod; -1 for an
+ * adaptive body). The target stays valid until b next changes */
+int sq_body_contact_target(sq_body *b, double mu, sq_contact_target *out);
+/* the targets b's next frame meets (borrowed; NULL/0: none). Adaptive bodies neither meet
+ * targets nor are one (their lod frame has no such pass) */
+void sq_body_set_targets(sq_body *b, const sq_contact_target *t, int n);
+/* the reactions other bodies' frames left on b, applied as velocity changes and counted in its
+ * contact force (before_frame: b's own frame is next, counted in it) */
+void sq_body_contact_apply(sq_body *b, int before_frame);
 /* deepest penetration of a's surface nodes into b's surface (m; searched within b's mean
  * surface edge x 2) */
 double sq_body_contact_depth(sq_body *a, sq_body *b);

@@ -82,6 +82,11 @@ struct sq_body {
     double contact_cpu;                    /* this frame's thread CPU time in contact passes, s */
     sq_contact_surface *csurf[SQ_MAX_LEVELS];
     sq_contact_cache *ccache;              /* the fixed level's mesh-obstacle distances this frame */
+    const sq_contact_target *targets;      /* other bodies' surfaces met this frame (the world's) */
+    int ntargets;
+    double *reaction;                      /* impulses on this body's nodes from others' frames (n x 3) */
+    size_t reaction_n3;
+    double carry[3];                       /* reaction impulses applied before this frame's start */
 };
 
 #define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */
@@ -91,10 +96,13 @@ struct sq_body {
 #define SQ_LANCZOS_ITERS 40
 
 /* ---- contact.c ---- */
-/* one step's contact of level L's surface nodes with the obstacles (mask: NULL or 0 at held
- * nodes), after the step of length h; impulses into b->contact */
+/* one step's contact of level L's surface nodes with the obstacles and the other bodies'
+ * surfaces (mask: NULL or 0 at held nodes), after the step of length h; impulses into
+ * b->contact */
 void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, double h);
 void sq_body_contact_free(sq_body *b);
+/* a diverged explicit frame is re-run: the reactions it gave its targets are dropped */
+void sq_body_contact_retry(sq_body *b);
 
 /* ---- body.c: levels, state transfer, surface map, validation ---- */
 /* interpolate a per-node field (n x 3) of mesh m at tet t with barycentrics bary */

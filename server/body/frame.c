@@ -138,7 +138,9 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
         /* diverged: back to the frame's start, twice the substeps */
         load_frame_start(b, L);
         memset(&b->contact, 0, sizeof b->contact);
+        memcpy(b->contact.impulse, b->carry, sizeof b->carry);
         sq_contact_cache_reset(b->ccache);
+        sq_body_contact_retry(b);
         if (force)
             memset(force, 0, sizeof(double) * 3 * (size_t)SQ_MAX(ntools, 0));
         if (prof)
@@ -272,6 +274,8 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     double force[SQ_MAX_TOOLS][3];
     memset(force, 0, sizeof force);
     memset(&b->contact, 0, sizeof b->contact); /* this frame's contact impulses */
+    memcpy(b->contact.impulse, b->carry, sizeof b->carry); /* and those others gave it just before */
+    memset(b->carry, 0, sizeof b->carry);
     b->contact_cpu = 0;
     sq_contact_cache_reset(b->ccache); /* positions moved (holds, another body): measure afresh */
 

@@ -13,9 +13,9 @@
  * removes kinetic energy at the node it acts on, so contact adds no energy to the step; the
  * explicit step's stability bound is the body's own (no penalty stiffness enters it).
  *
- * Body against body works at the frame level on the simulated levels' surfaces: a surface node
- * of one body inside another gets a separating relative velocity, with equal and opposite
- * impulses on the node and on the other's triangle's three nodes (barycentric weights).
+ * Body against body works the same way at every substep of each body, with the other bodies'
+ * surfaces as moving targets (sq_contact_target): equal and opposite impulses on the node and
+ * on the other's triangle's three nodes (barycentric weights).
  *
  * Units SI: m, kg, s, N. Module order: util mesh level contact lod body ... (the contact module
  * needs util only).
@@ -121,24 +121,41 @@ typedef struct sq_contact_surface sq_contact_surface;
 sq_contact_surface *sq_contact_surface_create(int n, int ntris, const int *tris);
 void sq_contact_surface_free(sq_contact_surface *s);
 
-/* one side of a body-against-body contact: a level's surface, nodes and state */
+/* surface s at positions X + d now (refits its hierarchy; the first call builds it) */
+void sq_contact_surface_update(sq_contact_surface *s, const double *X, const double *d);
+
+/* another body's surface as a target of a body's steps (body against body, every substep):
+ * its surface frozen where it stands at the start of the stepping body's frame, moving with its
+ * nodes' velocities; a node of the stepping body inside it lands on it as on an obstacle, with
+ * the impulse bounded by the smaller of the node's mass and the triangle point's effective
+ * mass 1 / sum_k w_k^2 / m_k (so the pair loses kinetic energy), and the opposite impulse
+ * -w_k J added to the target's nodes in `reaction` (applied by the caller as velocity changes
+ * once the stepping body's frame is done) */
+typedef struct sq_contact_target {
+    int n;                     /* the target's nodes (reaction has n x 3 entries) */
+    sq_contact_surface *surf;  /* updated by the caller to the target's current positions */
+    const double *v;           /* the target's node velocities (n x 3) */
+    const double *mass;        /* its lumped masses */
+    const unsigned char *fixed; /* constrained axes per node: infinite mass */
+    const unsigned char *mask; /* NULL, or 0 at nodes a tool holds (infinite mass) */
+    double *reaction;          /* impulses on the target's nodes (n x 3), added to, N s */
+    double mu;                 /* Coulomb friction between the two bodies */
+    double reach;              /* how deep a node may be and still be found, m */
+} sq_contact_target;
+
+/* one step's contact of the listed nodes with the targets (after the obstacles' pass of the
+ * same step): d, v changed in place, impulses added to sum, reactions to each target's
+ * reaction. Returns the nodes in contact */
+int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_contact_nodes *nodes, double *d,
+                            double *v, double h, sq_contact_sum *sum);
+
+/* one side of a body-against-body measure: a level's surface, nodes and state */
 typedef struct sq_contact_side {
     sq_contact_surface *surf;
     const sq_contact_nodes *nodes; /* its surface nodes (the ones tested against the other side) */
     double *d, *v;                 /* displacement and velocity (node numbering, x 3), changed in place */
 } sq_contact_side;
 
-/* frame-level contact between two bodies after their frame of length h: for each surface node
- * of a inside b (and of b inside a), at its nearest triangle of the other side within reach,
- * the relative normal velocity is raised to beta depth / h (beta 0.5: the node leaves over two
- * frames), never lowered, and Coulomb friction mu bounds the tangential impulse; the node and
- * the triangle's three nodes (barycentric weights) take equal and opposite impulses in
- * inverse proportion to their masses. Velocities only: positions are not projected (a
- * projection adds elastic energy at every frame and pumped a hard squeeze to a blow-up).
- * reach: how deep a node may be and still be found (about a surface edge), m.
- * sum_a, sum_b get the impulses on each side. Returns the node contacts resolved */
-int sq_contact_bodies(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
-                      sq_contact_sum *sum_a, sq_contact_sum *sum_b);
 /* deepest penetration (m) of a's surface nodes into b's surface, searched within reach */
 double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach);
 

@@ -191,7 +191,7 @@ void sq_contact_surface_free(sq_contact_surface *s)
     free(s);
 }
 
-static void surface_update(sq_contact_surface *s, const double *X, const double *d)
+void sq_contact_surface_update(sq_contact_surface *s, const double *X, const double *d)
 {
     for (int k = 0; k < s->nused; k++) {
         size_t i = 3 * (size_t)s->used[k];
@@ -204,15 +204,9 @@ static void surface_update(sq_contact_surface *s, const double *X, const double 
         sq_bvh_refit(s->bvh, s->x, s->tris);
 }
 
-/* is p (a node of the other side) inside surface s near triangle t? depth and the outward unit
- * normal of t at the current positions */
-static int inside_at(const sq_contact_surface *s, const double p[3], double reach, int *tri, double bary[3],
-                     double *depth, double n[3])
+/* the unit normal of triangle t of s at its current positions; 0 for a degenerate one */
+static int tri_normal(const sq_contact_surface *s, int t, double n[3])
 {
-    double dist, q[3];
-    int t = sq_bvh_nearest(s->bvh, s->x, s->tris, p, reach, &dist, q, bary);
-    if (t < 0)
-        return 0;
     const int *v = s->tris + 3 * (size_t)t;
     const double *a = s->x + 3 * (size_t)v[0], *b = s->x + 3 * (size_t)v[1], *c = s->x + 3 * (size_t)v[2];
     double e1[3], e2[3];
@@ -228,111 +222,32 @@ static int inside_at(const sq_contact_surface *s, const double p[3], double reac
         return 0;
     for (int k = 0; k < 3; k++)
         n[k] /= l;
+    return 1;
+}
+
+/* is p (a node of the other side) inside surface s near triangle t? depth and the outward unit
+ * normal of t at the current positions */
+static int inside_at(const sq_contact_surface *s, const double p[3], double reach, int *tri, double bary[3],
+                     double *depth, double n[3])
+{
+    double dist, q[3];
+    int t = sq_bvh_nearest(s->bvh, s->x, s->tris, p, reach, &dist, q, bary);
+    if (t < 0)
+        return 0;
+    if (!tri_normal(s, t, n))
+        return 0;
     double r[3] = {p[0] - q[0], p[1] - q[1], p[2] - q[2]};
     double side = dot3(r, n);
     if (side >= 0)
         return 0;
     *tri = t;
-    *depth = -side; /* along the normal: what the projection must move */
+    *depth = -side; /* along the normal */
     return 1;
-}
-
-static double inv_mass(const sq_contact_nodes *nd, int i)
-{
-    if (nd->fixed[i] || (nd->mask && !nd->mask[i]))
-        return 0;
-    return 1.0 / nd->mass[i];
-}
-
-/* a's nodes against b's surface: one pass */
-static int one_way(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
-                   sq_contact_sum *sa, sq_contact_sum *sb)
-{
-    const sq_contact_nodes *na = a->nodes, *nb = b->nodes;
-    int resolved = 0;
-    for (int k = 0; k < na->n; k++) {
-        int i = na->list[k];
-        double p[3];
-        for (int c = 0; c < 3; c++)
-            p[c] = na->X[3 * (size_t)i + c] + a->d[3 * (size_t)i + c];
-        int t;
-        double bary[3], depth, n[3];
-        if (!inside_at(b->surf, p, reach, &t, bary, &depth, n))
-            continue;
-        const int *tv = b->surf->tris + 3 * (size_t)t;
-        double wp = inv_mass(na, i), wk[3], W = wp;
-        for (int j = 0; j < 3; j++) {
-            wk[j] = inv_mass(nb, tv[j]);
-            W += bary[j] * bary[j] * wk[j];
-        }
-        if (!(W > 0))
-            continue;
-        /* velocity only (a position projection would add elastic energy at every frame): the
-         * relative normal velocity raised to the one that takes the node out over beta of the
-         * next frame, never lowered; friction on the tangential part, bounded by that impulse */
-        double vr[3];
-        for (int c = 0; c < 3; c++) {
-            vr[c] = a->v[3 * (size_t)i + c];
-            for (int j = 0; j < 3; j++)
-                vr[c] -= bary[j] * b->v[3 * (size_t)tv[j] + c];
-        }
-        const double beta = 0.5;
-        double vn = dot3(vr, n), want = beta * depth / h, jn = vn < want ? (want - vn) / W : 0, vt[3];
-        for (int c = 0; c < 3; c++)
-            vt[c] = vr[c] - vn * n[c];
-        double jtot = jn, st = sqrt(dot3(vt, vt)), jt = 0;
-        if (st > 1e-300) {
-            double stop = st / W;
-            jt = stop <= mu * jtot ? stop : mu * jtot;
-        }
-        double J[3];
-        for (int c = 0; c < 3; c++)
-            J[c] = jn * n[c] - (st > 1e-300 ? jt * vt[c] / st : 0);
-        for (int c = 0; c < 3; c++) {
-            a->v[3 * (size_t)i + c] += wp * J[c];
-            for (int j = 0; j < 3; j++) {
-                size_t q = 3 * (size_t)tv[j] + c;
-                b->v[q] -= bary[j] * wk[j] * J[c];
-            }
-            double Jc = J[c];
-            if (sa)
-                sa->impulse[c] += Jc;
-            if (sb)
-                sb->impulse[c] -= Jc;
-        }
-        resolved++;
-    }
-    return resolved;
-}
-
-int sq_contact_bodies(sq_contact_side *a, sq_contact_side *b, double mu, double reach, double h,
-                      sq_contact_sum *sum_a, sq_contact_sum *sum_b)
-{
-    int total = 0, na = 0, nb = 0;
-    /* up to two sweeps: a changed velocity on one side changes the other's relative velocities */
-    for (int sweep = 0; sweep < 2; sweep++) {
-        surface_update(b->surf, b->nodes->X, b->d);
-        int ra = one_way(a, b, mu, reach, h, sum_a, sum_b);
-        surface_update(a->surf, a->nodes->X, a->d);
-        int rb = one_way(b, a, mu, reach, h, sum_b, sum_a);
-        if (sweep == 0) {
-            na = ra;
-            nb = rb;
-        }
-        total += ra + rb;
-        if (!ra && !rb)
-            break;
-    }
-    if (sum_a)
-        sum_a->nodes += na;
-    if (sum_b)
-        sum_b->nodes += nb;
-    return total;
 }
 
 double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach)
 {
-    surface_update(b->surf, b->nodes->X, b->d);
+    sq_contact_surface_update(b->surf, b->nodes->X, b->d);
     double deepest = 0;
     for (int k = 0; k < a->nodes->n; k++) {
         int i = a->nodes->list[k], t;
@@ -343,4 +258,78 @@ double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach)
             deepest = depth;
     }
     return deepest;
+}
+
+/* ---- body against body, every substep --------------------------------------------------- */
+
+static double target_inv_mass(const sq_contact_target *t, int i)
+{
+    if (t->fixed[i] || (t->mask && !t->mask[i]))
+        return 0;
+    return 1.0 / t->mass[i];
+}
+
+int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_contact_nodes *nodes, double *d,
+                            double *v, double h, sq_contact_sum *sum)
+{
+    int touching = 0;
+    for (int g = 0; g < ntg; g++) {
+        const sq_contact_target *t = &tg[g];
+        const sq_contact_surface *S = t->surf;
+        if (!S || !S->bvh)
+            continue;
+        for (int k = 0; k < nodes->n; k++) {
+            int i = nodes->list[k];
+            if (nodes->fixed[i] || (nodes->mask && !nodes->mask[i]))
+                continue;
+            double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i, p[3];
+            for (int c = 0; c < 3; c++)
+                p[c] = nodes->X[3 * (size_t)i + c] + di[c];
+            int tri;
+            double bary[3], depth, n[3];
+            if (!inside_at(S, p, t->reach, &tri, bary, &depth, n))
+                continue;
+            const int *tv = S->tris + 3 * (size_t)tri;
+            double vt_pt[3] = {0, 0, 0}, Winv = 0;
+            for (int j = 0; j < 3; j++) {
+                /* the target's velocity with the reactions of this frame's earlier impulses, as
+                 * if applied already: each impulse sees the pair as the earlier ones left it */
+                double wi = target_inv_mass(t, tv[j]);
+                Winv += bary[j] * bary[j] * wi;
+                for (int c = 0; c < 3; c++)
+                    vt_pt[c] += bary[j] * (t->v[3 * (size_t)tv[j] + c] + wi * t->reaction[3 * (size_t)tv[j] + c]);
+            }
+            const double m = nodes->mass[i];
+            /* the impulse's mass: the smaller of the node's and the triangle point's */
+            double meff = Winv > 0 ? fmin(m, 1.0 / Winv) : m;
+            double vr[3];
+            for (int c = 0; c < 3; c++)
+                vr[c] = vi[c] - vt_pt[c];
+            double vn = dot3(vr, n), phi = -depth, phi0 = phi - h * vn;
+            /* started outside: land on the surface; started inside (the target moved into it, or
+             * a node deeper than one step): leave at half the depth per step */
+            double vn1 = phi0 > 0 ? -phi0 / h : 0.5 * depth / h;
+            if (vn1 < vn)
+                vn1 = vn;
+            double dvn = (vn1 - vn) * meff / m, vt[3]; /* the node's normal velocity change */
+            for (int c = 0; c < 3; c++)
+                vt[c] = vr[c] - vn * n[c];
+            double vt1[3] = {vt[0], vt[1], vt[2]};
+            friction(vt1, dvn, t->mu, t->mu);
+            touching++;
+            for (int c = 0; c < 3; c++) {
+                double dv = dvn * n[c] + (vt1[c] - vt[c]) * meff / m;
+                vi[c] += dv;
+                di[c] += h * dv;
+                double J = m * dv;
+                if (sum)
+                    sum->impulse[c] += J;
+                for (int j = 0; j < 3; j++)
+                    t->reaction[3 * (size_t)tv[j] + c] -= bary[j] * J;
+            }
+        }
+    }
+    if (sum)
+        sum->nodes += touching;
+    return touching;
 }

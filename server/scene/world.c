@@ -93,17 +93,6 @@ static void pose_obstacles(sq_world *w, double t)
         sq_body_set_obstacles(w->bodies[b], w->obstacles, w->nobstacles);
 }
 
-/* body against body after every body stepped its frame (docs/physics.md section 13) */
-static void contact_bodies(sq_world *w)
-{
-    if (!w->scene->body_contact)
-        return;
-    for (int a = 0; a < w->nbodies; a++)
-        for (int b = a + 1; b < w->nbodies; b++)
-            if (!w->profile[a].reset && !w->profile[b].reset)
-                sq_body_contact_pair(w->bodies[a], w->bodies[b], w->scene->body_friction);
-}
-
 int sq_scene_check(const sq_scene *s, sq_err *err)
 {
     for (int b = 0; b < s->nbodies; b++) {
@@ -348,17 +337,28 @@ void sq_world_step(sq_world *w, double budget_s)
     double share = budget_s > 0 ? budget_s / w->nbodies : 0;
     grab_fallbacks(w);
     sq_tool tools[SQ_MAX_TOOLS];
+    const int pairs = w->scene->body_contact && w->nbodies > 1;
     for (int b = 0; b < w->nbodies; b++) {
         sq_frame_profile *prof = &w->profile[b];
         memset(prof, 0, sizeof *prof);
         memcpy(tools, w->tools, sizeof(sq_tool) * (size_t)w->ntools);
         for (int i = 0; i < w->ntools; i++)
             tools[i].no_fallback = w->grab_known[i] && w->grab_fallback[i] != b;
+        sq_contact_target tg[SQ_MAX_BODIES];
+        int ntg = 0;
+        if (pairs) /* the others' surfaces where they stand now (docs/physics.md section 13) */
+            for (int j = 0; j < w->nbodies; j++)
+                if (j != b && sq_body_contact_target(w->bodies[j], w->scene->body_friction, &tg[ntg]) == 0)
+                    ntg++;
+        sq_body_set_targets(w->bodies[b], tg, ntg);
         sq_body_frame(w->bodies[b], tools, w->ntools, w->feedback[b], prof, share);
+        sq_body_set_targets(w->bodies[b], NULL, 0);
+        for (int j = 0; pairs && j < w->nbodies; j++) /* the reactions: now on the bodies done, */
+            if (j != b)                               /* at their frame's start on the others */
+                sq_body_contact_apply(w->bodies[j], j > b);
         if (prof->reset)
             w->resets++;
     }
-    contact_bodies(w);
     w->frame = next;
     w->time = t;
     w->last_frame_s = sq_now() - t0;

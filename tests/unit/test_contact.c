@@ -407,8 +407,12 @@ SQ_TEST(contact_undamped_drop_gains_no_energy)
 }
 
 /* two blocks squeezed without gravity: the right one glued on its far face, the left one free
- * and pushed by a box tool; after the press no node of one is inside the other beyond 1 % of the
- * 0.2 m edge, and the contact forces on the two are equal and opposite within 1 % */
+ * and pushed 2 cm by a box tool: the contact forces on the two are equal and opposite within
+ * 1 % (by construction: every impulse has its opposite), the right block pushes back, nothing
+ * resets. Penetration: the issue's bar is 1 % of the 0.2 m edge, 2 mm; measured 2.13 mm
+ * (1.07 %), the bar is NOT met: the body stepped second moves into the first one's nodes
+ * after the first has stepped (docs/physics.md section 13). Asserted: under 1.25 % (2.5 mm),
+ * the figure the method holds, so a regression fails */
 SQ_TEST(contact_two_bodies_squeezed_equal_and_opposite)
 {
     sq_err e = {{0}};
@@ -445,15 +449,18 @@ SQ_TEST(contact_two_bodies_squeezed_equal_and_opposite)
                 Fl[c] += a[c] / 20;
                 Fr[c] += b[c] / 20;
             }
-            depth = fmax(depth, fmax(sq_body_contact_depth(w->bodies[0], w->bodies[1]),
-                                     sq_body_contact_depth(w->bodies[1], w->bodies[0])));
+            double dd = fmax(sq_body_contact_depth(w->bodies[0], w->bodies[1]),
+                             sq_body_contact_depth(w->bodies[1], w->bodies[0]));
+            if (getenv("SQ_TEST_VERBOSE"))
+                printf("    frame %d: deepest %.3g m\n", f, dd);
+            depth = fmax(depth, dd);
         }
     }
     printf("    force on left %.4g %.4g %.4g N, on right %.4g %.4g %.4g N, deepest %.3g m, %d nodes\n", Fl[0], Fl[1],
            Fl[2], Fr[0], Fr[1], Fr[2], depth, nl);
     CHECK(Fl[0] < -1);   /* the right block pushes back on the left one */
     CHECK_NEAR(Fl[0], -Fr[0], 0.01 * fabs(Fr[0]));
-    CHECK(depth < 0.1 * 0.2);
+    CHECK(depth < 0.0125 * 0.2);
     CHECK(w->resets == 0);
     sq_world_destroy(w);
     sq_scene_free(sc);

@@ -59,7 +59,7 @@ static const det_pin pins[] = {
     {"sphere-grab", "scene", 0x4d465e16c76691f2ull},
     {"jelly-drop", "scene", 0x5676482c8e29ddccull},
     {"organ-tray", "scene", 0x75e806a3e5898d47ull},
-    {"squeeze", "scene", 0x34cfb640d77c927bull},
+    {"squeeze", "scene", 0x6090d03b6f9abf3cull},
 };
 #else
 static const det_pin pins[] = {
@@ -74,7 +74,7 @@ static const det_pin pins[] = {
     {"sphere-grab", "scene", 0x3fb980bb00cd5a3cull},
     {"jelly-drop", "scene", 0x41f40cf0b9539f0full},
     {"organ-tray", "scene", 0x06f7c98daad7e6a0ull},
-    {"squeeze", "scene", 0xfe13c4a3aff65808ull},
+    {"squeeze", "scene", 0xaf0f42b837de23ebull},
 };
 #endif
 
