@@ -31,7 +31,7 @@ CFL="-g -O1 -std=c11 -D_GNU_SOURCE -Iserver $(pkg-config --cflags libcjson) -fsa
 LIBS="$(pkg-config --libs libcjson) -lm -lpthread"
 
 # library objects once (instrumented for coverage, not linked with the fuzzer's main)
-srcs=$(ls server/util/*.c server/mesh/*.c server/level/*.c server/body/*.c server/lod/*.c server/scene/*.c \
+srcs=$(ls server/util/*.c server/mesh/*.c server/level/*.c server/contact/*.c server/body/*.c server/lod/*.c server/scene/*.c \
        server/net/request.c server/net/rawtext.c server/net/errors.c server/net/query.c server/render/options.c)
 build_obj() {
     local o="$out/obj/$(echo "$1" | tr / _).o"
@@ -46,7 +46,7 @@ if ! printf '%s\n' $srcs | xargs -P 2 -I{} bash -c 'build_obj {}'; then
 fi
 obj() { for s in "$@"; do echo "$out/obj/$(echo "$s" | tr / _).o"; done; }
 MESH_OBJ=$(obj server/util/util.c $(ls server/mesh/*.c))
-SCENE_OBJ=$(obj $(ls server/util/*.c server/mesh/*.c server/level/*.c server/body/*.c server/lod/*.c server/scene/*.c))
+SCENE_OBJ=$(obj $(ls server/util/*.c server/mesh/*.c server/level/*.c server/contact/*.c server/body/*.c server/lod/*.c server/scene/*.c))
 link() { # name source objects... [flags]
     local name=$1 src=$2
     shift 2
