@@ -241,7 +241,15 @@ sq_trimesh *sq_trimesh_from_arrays(int nverts, const double *x, int ntris, const
             m->bbox_min[c] = fmin(m->bbox_min[c], x[3 * i + c]);
             m->bbox_max[c] = fmax(m->bbox_max[c], x[3 * i + c]);
         }
-    int degenerate = 0;
+    for (int i = 0; i < 3 * nverts; i++)
+        if (!(fabs(x[i]) <= 1e6)) {
+            sq_err_set(err, "%s: vertex %d has coordinate %g, beyond 1e6 m; check the file's units (\"scale\")",
+                       source, i / 3, x[i]);
+            sq_trimesh_free(m);
+            return NULL;
+        }
+    /* zero-area triangles have no side: dropped (the kept ones are compacted in file order) */
+    int kept = 0;
     for (int t = 0; t < ntris; t++) {
         const double *a = x + 3 * tris[3 * t], *b = x + 3 * tris[3 * t + 1], *c = x + 3 * tris[3 * t + 2];
         double u[3], v[3], n[3];
@@ -253,16 +261,20 @@ sq_trimesh *sq_trimesh_from_arrays(int nverts, const double *x, int ntris, const
         n[1] = u[2] * v[0] - u[0] * v[2];
         n[2] = u[0] * v[1] - u[1] * v[0];
         double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-        if (!(len > 0))
-            degenerate++;
-        for (int k = 0; k < 3; k++)
-            m->normal[3 * t + k] = len > 0 ? n[k] / len : 0;
+        if (!(len > 1e-300) || !isfinite(len))
+            continue;
+        for (int k = 0; k < 3; k++) {
+            m->normal[3 * kept + k] = n[k] / len;
+            m->tris[3 * kept + k] = tris[3 * t + k];
+        }
+        kept++;
     }
-    if (degenerate == ntris) {
+    if (kept == 0) {
         sq_err_set(err, "%s: every triangle has zero area; fix the file", source);
         sq_trimesh_free(m);
         return NULL;
     }
+    m->ntris = ntris = kept;
     m->bvh = sq_bvh_build(m->x, m->tris, ntris);
     return m;
 }

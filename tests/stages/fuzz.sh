@@ -6,9 +6,11 @@
 #   msh      Gmsh .msh 2.2 and 4.1 ASCII                   server/mesh/read_formats.c
 #   medit    Medit .mesh                                   server/mesh/read_formats.c
 #   tetgen   TetGen .node + .ele                           server/mesh/read_formats.c
-#   scene    scene JSON: load, check, 3 frames stepped     server/scene/*.c (+ util, body, lod)
+#   scene    scene JSON: load, check, 3 frames stepped     server/scene/*.c (+ util, body, lod, contact)
+#   obj      OBJ triangle meshes (obstacles)               server/contact/trimesh.c
+#   stl      STL ASCII and binary (obstacles)              server/contact/trimesh.c
 # Seconds per harness: FUZZ_SECONDS if set (`make fuzz`: 600 each), else the short defaults
-# below (95 s of fuzzing in all). FUZZ_ONLY="msh scene" runs a subset. Seeds and
+# below (115 s of fuzzing in all). FUZZ_ONLY="msh scene" runs a subset. Seeds and
 # dictionaries: tests/fuzz/corpus/NAME, tests/fuzz/NAME.dict; new inputs are kept in
 # $out/corpus/NAME; a crash leaves its input in $out/NAME-crash-* (add it to
 # tests/unit/test_parsers.c as a regression). Prints "fuzz: N passed, N failed".
@@ -24,9 +26,9 @@ if ! command -v "$CC_FUZZ" >/dev/null; then
     echo "fuzz: 0 passed, 1 failed"
     exit 1
 fi
-declare -A short=([request]=20 [query]=5 [msh]=20 [medit]=15 [tetgen]=15 [scene]=20)
-declare -A maxlen=([request]=4096 [query]=512 [msh]=8192 [medit]=4096 [tetgen]=4096 [scene]=4096)
-names=${FUZZ_ONLY:-request query msh medit tetgen scene}
+declare -A short=([request]=20 [query]=5 [msh]=20 [medit]=15 [tetgen]=15 [scene]=20 [obj]=10 [stl]=10)
+declare -A maxlen=([request]=4096 [query]=512 [msh]=8192 [medit]=4096 [tetgen]=4096 [scene]=4096 [obj]=4096 [stl]=4096)
+names=${FUZZ_ONLY:-request query msh medit tetgen scene obj stl}
 CFL="-g -O1 -std=c11 -D_GNU_SOURCE -Iserver $(pkg-config --cflags libcjson) -fsanitize=address,undefined -fno-sanitize-recover=undefined"
 LIBS="$(pkg-config --libs libcjson) -lm -lpthread"
 
@@ -46,6 +48,7 @@ if ! printf '%s\n' $srcs | xargs -P 2 -I{} bash -c 'build_obj {}'; then
 fi
 obj() { for s in "$@"; do echo "$out/obj/$(echo "$s" | tr / _).o"; done; }
 MESH_OBJ=$(obj server/util/util.c $(ls server/mesh/*.c))
+TRI_OBJ=$(obj server/util/util.c $(ls server/contact/*.c))
 SCENE_OBJ=$(obj $(ls server/util/*.c server/mesh/*.c server/level/*.c server/contact/*.c server/body/*.c server/lod/*.c server/scene/*.c))
 link() { # name source objects... [flags]
     local name=$1 src=$2
@@ -61,6 +64,8 @@ for n in $names; do
         medit) link medit tests/fuzz/fuzz_mesh.c $MESH_OBJ '-DFUZZ_EXT=".mesh"' ;;
         tetgen) link tetgen tests/fuzz/fuzz_mesh.c $MESH_OBJ '-DFUZZ_EXT=".node"' ;;
         scene) link scene tests/fuzz/fuzz_scene.c $SCENE_OBJ ;;
+        obj) link obj tests/fuzz/fuzz_trimesh.c $TRI_OBJ '-DFUZZ_EXT=".obj"' ;;
+        stl) link stl tests/fuzz/fuzz_trimesh.c $TRI_OBJ '-DFUZZ_EXT=".stl"' ;;
         *) false ;;
     esac && built="$built $n" || { fail=$((fail + 1)); echo "fuzz: harness $n does not build"; }
 done

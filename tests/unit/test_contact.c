@@ -166,6 +166,21 @@ SQ_TEST(contact_trimesh_files_obj_and_stl)
     }
     CHECK(sq_trimesh_load(p, 1, NULL, &e) == NULL);
     CHECK_CONTAINS(e.msg, "short.stl");
+    /* found by fuzzing: zero-area triangles (no side) are dropped, all of them is an error; a
+     * coordinate beyond 1e6 m (the cross product overflowed) is refused naming the units */
+    snprintf(p, sizeof p, "%s/flat.obj", dir);
+    write_text(p, "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n");
+    m = sq_trimesh_load(p, 1, NULL, &e);
+    CHECK(m && m->ntris == 1);
+    if (m)
+        CHECK_NEAR(m->normal[2], 1, 1e-12);
+    sq_trimesh_free(m);
+    write_text(p, "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n");
+    CHECK(sq_trimesh_load(p, 1, NULL, &e) == NULL);
+    CHECK_CONTAINS(e.msg, "zero area");
+    write_text(p, "v 0 0 0\nv 1e300 0 0\nv 0 1e300 0\nf 1 2 3\n");
+    CHECK(sq_trimesh_load(p, 1, NULL, &e) == NULL);
+    CHECK_CONTAINS(e.msg, "units");
 }
 
 SQ_TEST(contact_obstacle_check_names_the_fix)
