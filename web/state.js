@@ -9,6 +9,7 @@ export const FALLBACK_PALETTE = {
   level: ['#4e79a7', '#59a14f', '#edc948', '#f28e2b', '#e15759', '#b07aa1'],
   plain: '#d9a38c', background: '#20242b', floor: '#5b6270', floor_line: '#737b8a', tool: '#c8ccd4',
   probe: '#ff3ea5',
+  obstacle: '#9a948a',
 };
 
 // our own tool ids (scripted scene tools use small ids from 0)
