@@ -605,6 +605,42 @@ int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render
     if (!(aspect > 0.0) || !isfinite(aspect))
         return sq_err_set(err, "render: aspect ratio %g must be > 0", aspect);
 
+    /* a body falling onto a plane obstacle: the frame takes in the bodies' rest box and its
+     * shadow on the plane, when it lies within two box diagonals (a dropped body stays in view) */
+    sq_render_state tmp;
+    if (o->obstacles && has_plane(s) && s->nbodies > 0) {
+        double lo[3], hi[3], d0 = 0.0;
+        for (int k = 0; k < 3; k++) {
+            lo[k] = s->bbox_min[k];
+            hi[k] = s->bbox_max[k];
+            d0 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+        }
+        d0 = sqrt(d0);
+        for (int i = 0; i < s->nobstacles; i++) {
+            const sq_obstacle *ob = &s->obstacles[i].shape;
+            double n[3] = {ob->normal[0], ob->normal[1], ob->normal[2]};
+            if (ob->kind != SQ_OBSTACLE_PLANE || normalize3(n) == 0.0)
+                continue;
+            for (int c = 0; c < 8; c++) {
+                double p[3] = {c & 1 ? s->bbox_max[0] : s->bbox_min[0],
+                               c & 2 ? s->bbox_max[1] : s->bbox_min[1],
+                               c & 4 ? s->bbox_max[2] : s->bbox_min[2]};
+                double off[3] = {p[0] - ob->point[0], p[1] - ob->point[1], p[2] - ob->point[2]};
+                double h = dot3(off, n);
+                if (!(h >= 0.0 && h <= 2.0 * d0 + 1e-9))
+                    continue;
+                for (int k = 0; k < 3; k++) {
+                    lo[k] = fmin(lo[k], p[k] - h * n[k]);
+                    hi[k] = fmax(hi[k], p[k] - h * n[k]);
+                }
+            }
+        }
+        tmp = *s;
+        memcpy(tmp.bbox_min, lo, sizeof lo);
+        memcpy(tmp.bbox_max, hi, sizeof hi);
+        s = &tmp;
+    }
+
     /* scene size; a degenerate or empty scene gets a 1 m frame */
     double ext[3], diag2 = 0.0;
     for (int k = 0; k < 3; k++) {
@@ -612,9 +648,9 @@ int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render
         diag2 += ext[k] * ext[k];
     }
     double diag = sqrt(diag2);
-    sq_render_state tmp;
     if (!(diag > 1e-9) || !isfinite(diag)) {
-        tmp = *s;
+        if (s != &tmp)
+            tmp = *s;
         for (int k = 0; k < 3; k++) {
             double c = s->nbodies ? 0.5 * (s->bbox_min[k] + s->bbox_max[k]) : 0.0;
             tmp.bbox_min[k] = c - 0.5;
