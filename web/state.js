@@ -52,6 +52,10 @@ export const app = {
   pictureRate: 0,        // pictures drawn per second while frames were waiting to be drawn
   autoScale: null,       // render scale chosen automatically (null: not lowered)
   debugDrawDelayMs: 0,   // tests: busy-wait this long in every picture (a slow machine)
+  obstacles: [],         // the scene's obstacles (opened/joined "obstacles")
+  obstacleOffsets: new Map(), // name -> [x, y, z] translation from its placement (moving ones)
+  obstacleMessages: 0,   // "obstacles" messages received
+  obstaclesDrawn: 0,     // obstacles drawn in the last picture (planes included)
 };
 window.squish = app;
 
