@@ -1,5 +1,5 @@
 // draw.js - the pictures: the animation-frame loop (uploads, camera framing beside the panel,
-// tools and force arrows), the force labels and probe rings over the canvas.
+// tools, force arrows and obstacles), the force labels and probe rings over the canvas.
 
 import { len, normalize, addScaled } from './camera.js';
 import { app, view, opts, camera, $, FALLBACK_PALETTE } from './state.js';
@@ -58,7 +58,9 @@ export function frameLoop() {
   }
   view.renderer.draw({ vp: camera.viewProj(), eye: camera.eye(), target: camera.target, useLevels: opts.useLevels,
     wire: opts.wire, nodes: opts.nodes, floor: opts.floor, tools, arrowScale, arrowWidth: view.size * 0.012,
-    grabMarker: view.size * 0.015, pointSize: Math.max(3, 4 * (window.devicePixelRatio || 1)) });
+    grabMarker: view.size * 0.015, pointSize: Math.max(3, 4 * (window.devicePixelRatio || 1)),
+    offsets: app.obstacleOffsets });
+  app.obstaclesDrawn = view.renderer.obstaclesDrawn;
   drawLabels(tools, w, h);
   const t1 = performance.now();
   const dt = t1 - t0;

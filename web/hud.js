@@ -90,6 +90,15 @@ export function onStats(m) {
     });
     $('hud-force').textContent = f.length ? f.join('; ') : '-';
   }
+  // contact of the selected body with the obstacles and other bodies (stats bodies[].contact)
+  if (Array.isArray(m.bodies)) {
+    const sel = Number($('body-select').value || 0);
+    const b = m.bodies.find((x, i) => (x && Number.isInteger(x.id) ? x.id : i) === sel);
+    const c = b && b.contact;
+    $('hud-contact').textContent = c && Array.isArray(c.force)
+      ? `${len(c.force).toFixed(2)} N on ${fmt(c.nodes)} nodes${typeof c.depth === 'number' && c.depth > 0 ? `, ${(c.depth * 1000).toFixed(1)} mm deep` : ''}`
+      : '-';
+  }
   // a viewer of a session nobody controls may take it over
   const kind = app.notice ? app.notice.kind : null;
   if (m.controller === false && app.role === 'view' && !app.takeUnsupported && !['left', 'taken', 'unsupported'].includes(kind)) {

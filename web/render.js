@@ -1,4 +1,4 @@
-// render.js - WebGL2 drawing of the bodies, nodes, tools, force arrows and floor.
+// render.js - WebGL2 drawing of the bodies, nodes, tools, force arrows, obstacles and floor.
 // Building what to draw (the viewer's other modules keep the state: state.js, session.js) is
 // kept apart from drawing it (here).
 
@@ -212,6 +212,84 @@ function arrowMesh(n) {
   return { pos: new Float32Array(pos), normal: new Float32Array(nrm), idx: new Uint32Array(idx) };
 }
 
+// flat-shaded triangles (one normal per face) from positions and indices
+function flatMesh(pos, tris) {
+  const p = new Float32Array(tris.length * 3), n = new Float32Array(tris.length * 3);
+  for (let t = 0; t < tris.length; t += 3) {
+    const a = tris[t] * 3, b = tris[t + 1] * 3, c = tris[t + 2] * 3;
+    const ux = pos[b] - pos[a], uy = pos[b + 1] - pos[a + 1], uz = pos[b + 2] - pos[a + 2];
+    const vx = pos[c] - pos[a], vy = pos[c + 1] - pos[a + 1], vz = pos[c + 2] - pos[a + 2];
+    let nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    const l = Math.hypot(nx, ny, nz) || 1;
+    nx /= l; ny /= l; nz /= l;
+    for (let k = 0; k < 3; k++) {
+      const s = tris[t + k] * 3, d = (t + k) * 3;
+      p[d] = pos[s]; p[d + 1] = pos[s + 1]; p[d + 2] = pos[s + 2];
+      n[d] = nx; n[d + 1] = ny; n[d + 2] = nz;
+    }
+  }
+  return { pos: p, normal: n, idx: Uint32Array.from({ length: tris.length }, (_, i) => i) };
+}
+
+// an orthonormal pair across unit vector n
+function basisOf(n) {
+  const a = Math.abs(n[0]) > 0.9 ? [0, 1, 0] : [1, 0, 0];
+  const d = a[0] * n[0] + a[1] * n[1] + a[2] * n[2];
+  const e1 = [a[0] - d * n[0], a[1] - d * n[1], a[2] - d * n[2]];
+  const l = Math.hypot(...e1) || 1;
+  e1[0] /= l; e1[1] /= l; e1[2] /= l;
+  const e2 = [n[1] * e1[2] - n[2] * e1[1], n[2] * e1[0] - n[0] * e1[2], n[0] * e1[1] - n[1] * e1[0]];
+  return [e1, e2];
+}
+
+// append mesh m moved by (scale, shift) to acc
+function appendMesh(acc, m, scale, shift) {
+  const base = acc.pos.length / 3;
+  for (let i = 0; i < m.pos.length; i += 3) {
+    for (let k = 0; k < 3; k++) { acc.pos.push(m.pos[i + k] * scale[k] + shift[k]); acc.normal.push(m.normal[i + k]); }
+  }
+  for (const i of m.idx) acc.idx.push(base + i);
+}
+
+/**
+ * the solid of an obstacle of opened/joined (box, sphere, capsule, mesh) at its placement, as
+ * {pos, normal, idx}; null for a plane (drawn as a tiled square, see setObstacles) or bad data
+ */
+export function obstacleMesh(o) {
+  const num = (v) => typeof v === 'number' && Number.isFinite(v);
+  const vec = (v) => Array.isArray(v) && v.length === 3 && v.every(num);
+  const acc = { pos: [], normal: [], idx: [] };
+  if (o.type === 'box' && vec(o.center) && vec(o.size)) {
+    appendMesh(acc, cubeMesh(), o.size.map((v) => v / 2), o.center);
+  } else if (o.type === 'sphere' && vec(o.center) && num(o.radius)) {
+    appendMesh(acc, sphereMesh(24, 12), [o.radius, o.radius, o.radius], o.center);
+  } else if (o.type === 'capsule' && vec(o.a) && vec(o.b) && num(o.radius)) {
+    const r = o.radius, ball = sphereMesh(24, 12);
+    appendMesh(acc, ball, [r, r, r], o.a);
+    appendMesh(acc, ball, [r, r, r], o.b);
+    const ax = [o.b[0] - o.a[0], o.b[1] - o.a[1], o.b[2] - o.a[2]], l = Math.hypot(...ax);
+    if (l > 0) {
+      const [e1, e2] = basisOf(ax.map((v) => v / l)), n = 24, base = acc.pos.length / 3;
+      for (let j = 0; j <= n; j++) {
+        const ph = (j / n) * 2 * Math.PI, c = Math.cos(ph), sn = Math.sin(ph);
+        const d = [0, 1, 2].map((k) => c * e1[k] + sn * e2[k]);
+        for (const end of [o.a, o.b]) {
+          acc.pos.push(end[0] + r * d[0], end[1] + r * d[1], end[2] + r * d[2]);
+          acc.normal.push(...d);
+        }
+      }
+      for (let j = 0; j < n; j++) { const q = base + 2 * j; acc.idx.push(q, q + 2, q + 3, q, q + 3, q + 1); }
+    }
+  } else if (o.type === 'mesh' && Array.isArray(o.vertices) && Array.isArray(o.triangles)) {
+    const nv = o.vertices.length / 3;
+    if (!o.triangles.every((i) => Number.isInteger(i) && i >= 0 && i < nv)) return null;
+    return flatMesh(o.vertices, o.triangles);
+  } else {
+    return null;
+  }
+  return { pos: new Float32Array(acc.pos), normal: new Float32Array(acc.normal), idx: new Uint32Array(acc.idx) };
+}
+
 const SOFTWARE_GL = /SwiftShader|llvmpipe|softpipe|Software|Basic Render/i;
 
 /** true if the context renders on the CPU (no GPU): then the viewer draws less */
@@ -256,6 +334,61 @@ export class Renderer {
     this.cube = this.staticMesh(cubeMesh());
     this.arrow = this.staticMesh(arrowMesh(16));
     this.floor = null;
+    this.obstacles = [];   // {name, plane, vao, count, nlines, bufs}
+    this.obstaclesDrawn = 0;
+  }
+
+  /**
+   * the scene's obstacles (opened/joined "obstacles"): solids in the palette's obstacle colour,
+   * a plane as a tiled square of half side `half` around `centre` projected on it (in the floor
+   * colours; it replaces the floor grid)
+   */
+  setObstacles(list, centre, half) {
+    const gl = this.gl;
+    for (const o of this.obstacles) {
+      for (const b of o.bufs) gl.deleteBuffer(b);
+      gl.deleteVertexArray(o.vao);
+    }
+    this.obstacles = [];
+    for (const o of list || []) {
+      const name = String(o.name || '');
+      if (o.type === 'plane') {
+        const p = o.point, nn = o.normal, l = Array.isArray(nn) ? Math.hypot(...nn) : 0;
+        if (!Array.isArray(p) || !(l > 0)) continue;
+        const n = nn.map((v) => v / l), [e1, e2] = basisOf(n);
+        const h = (centre[0] - p[0]) * n[0] + (centre[1] - p[1]) * n[1] + (centre[2] - p[2]) * n[2] + half * 0.0015;
+        const c = [0, 1, 2].map((k) => centre[k] - h * n[k]);
+        const at = (a, b) => [0, 1, 2].map((k) => c[k] + a * e1[k] + b * e2[k]);
+        const quad = [at(-half, -half), at(half, -half), at(half, half), at(-half, -half), at(half, half), at(-half, half)].flat();
+        const lines = [], m = 10;
+        for (let i = -m; i <= m; i++) {
+          const t = (i / m) * half;
+          lines.push(...at(-half, t), ...at(half, t), ...at(t, -half), ...at(t, half));
+        }
+        const vao = gl.createVertexArray();
+        gl.bindVertexArray(vao);
+        const b = this.buffer(gl.ARRAY_BUFFER, new Float32Array([...quad, ...lines]), gl.STATIC_DRAW);
+        gl.enableVertexAttribArray(A_POS);
+        gl.vertexAttribPointer(A_POS, 3, gl.FLOAT, false, 0, 0);
+        gl.bindVertexArray(null);
+        this.obstacles.push({ name, plane: true, vao, bufs: [b], nlines: lines.length / 3 });
+        continue;
+      }
+      const mesh = obstacleMesh(o);
+      if (!mesh || !mesh.idx.length) continue;
+      const vao = gl.createVertexArray();
+      gl.bindVertexArray(vao);
+      const pb = this.buffer(gl.ARRAY_BUFFER, mesh.pos, gl.STATIC_DRAW);
+      gl.enableVertexAttribArray(A_POS);
+      gl.vertexAttribPointer(A_POS, 3, gl.FLOAT, false, 0, 0);
+      const nb = this.buffer(gl.ARRAY_BUFFER, mesh.normal, gl.STATIC_DRAW);
+      gl.enableVertexAttribArray(A_NORMAL);
+      gl.vertexAttribPointer(A_NORMAL, 3, gl.FLOAT, false, 0, 0);
+      gl.vertexAttrib1f(A_LEVEL, 0);
+      const ib = this.buffer(gl.ELEMENT_ARRAY_BUFFER, mesh.idx, gl.STATIC_DRAW);
+      gl.bindVertexArray(null);
+      this.obstacles.push({ name, plane: false, vao, bufs: [pb, nb, ib], count: mesh.idx.length });
+    }
   }
 
   setPalette(p) {
@@ -428,7 +561,8 @@ export class Renderer {
 
   /**
    * draw one picture. opts: {vp, eye, useLevels, wire, nodes, floor, tools: [{shape, pos,
-   * radius, half, active, force, own}], arrowScale(f) -> length}
+   * radius, half, active, force, own}], arrowScale(f) -> length, offsets: Map(obstacle name ->
+   * [x, y, z] translation from its placement)}
    */
   draw(opts) {
     const gl = this.gl;
@@ -477,9 +611,41 @@ export class Renderer {
       }
     }
 
-    // floor and grid
+    // obstacles: solids lit in the obstacle colour, moved by their offsets
+    const offsetOf = (o) => (opts.offsets && opts.offsets.get(o.name)) || null;
+    const model = (o) => { const d = offsetOf(o); return d ? translateScale(d, 1, 1, 1) : IDENTITY; };
+    let drawn = 0;
+    gl.uniform4fv(lit.u.uColor, [...hexToRgb(this.palette.obstacle || '#9a948a'), 1]);
+    for (const o of this.obstacles) {
+      if (o.plane) continue;
+      gl.uniformMatrix4fv(lit.u.uModel, false, model(o));
+      gl.bindVertexArray(o.vao);
+      gl.drawElements(gl.TRIANGLES, o.count, gl.UNSIGNED_INT, 0);
+      drawn++;
+    }
+    gl.uniformMatrix4fv(lit.u.uModel, false, IDENTITY);
+
+    // floor and grid: a plane obstacle stands for the floor
     const flat = this.flat;
-    if (opts.floor && this.floor) {
+    const planes = this.obstacles.filter((o) => o.plane);
+    if (opts.floor && planes.length) {
+      gl.useProgram(flat.p);
+      gl.uniformMatrix4fv(flat.u.uVP, false, opts.vp);
+      gl.uniform1i(flat.u.uUseLevels, 0);
+      gl.uniform1f(flat.u.uPointSize, 1);
+      for (const o of planes) {
+        gl.uniformMatrix4fv(flat.u.uModel, false, model(o));
+        gl.bindVertexArray(o.vao);
+        gl.enable(gl.POLYGON_OFFSET_FILL);
+        gl.polygonOffset(2, 2);
+        gl.uniform4fv(flat.u.uColor, [...hexToRgb(this.palette.floor), 1]);
+        gl.drawArrays(gl.TRIANGLES, 0, 6);
+        gl.disable(gl.POLYGON_OFFSET_FILL);
+        gl.uniform4fv(flat.u.uColor, [...hexToRgb(this.palette.floor_line), 1]);
+        gl.drawArrays(gl.LINES, 6, o.nlines);
+        drawn++;
+      }
+    } else if (opts.floor && this.floor) {
       gl.useProgram(flat.p);
       gl.uniformMatrix4fv(flat.u.uVP, false, opts.vp);
       gl.uniformMatrix4fv(flat.u.uModel, false, IDENTITY);
@@ -540,6 +706,7 @@ export class Renderer {
     }
     gl.depthMask(true);
     gl.disable(gl.BLEND);
+    this.obstaclesDrawn = drawn;
 
     // force arrows on top of everything: the reaction often points into the body
     gl.clear(gl.DEPTH_BUFFER_BIT);

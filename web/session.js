@@ -86,6 +86,11 @@ export function onMessage(m) {
       break;
     case 'stats':
       onStats(m);
+      if (Array.isArray(m.obstacles)) setObstacleOffsets(m.obstacles);
+      break;
+    case 'obstacles':
+      app.obstacleMessages++;
+      if (Array.isArray(m.obstacles)) setObstacleOffsets(m.obstacles);
       break;
     case 'error':
       onError(m);
@@ -141,8 +146,11 @@ function onSession(m) {
   }
   view.renderer && view.renderer.clearBodies();
   app.bodies.clear();
+  app.obstacles = Array.isArray(m.obstacles) ? m.obstacles : [];
+  app.obstacleOffsets = new Map();
   // nothing of the previous scene stays in the panel
   $('hud-force').textContent = '-';
+  $('hud-contact').textContent = '-';
   view.peakForce = 0.01;
   app.stats = null;
   // a re-join of the same scene (after a reconnect) keeps the user's camera
@@ -361,7 +369,18 @@ function firstBodyId() {
   return it.done ? -1 : it.value;
 }
 
-// camera and floor from the rest bounding box of all bodies
+// moving obstacles' translations ([{name, offset}] of an "obstacles" message or stats; the
+// offsets of obstacles opened/joined marks as not moving are always zero and left out)
+function setObstacleOffsets(list) {
+  const moving = new Set(app.obstacles.filter((o) => o && o.moving).map((o) => o.name));
+  for (const o of list) {
+    if (o && moving.has(o.name) && Array.isArray(o.offset) && o.offset.length === 3 && o.offset.every(Number.isFinite))
+      app.obstacleOffsets.set(o.name, o.offset);
+  }
+  view.dirty = true;
+}
+
+// camera, floor and obstacles from the rest bounding box of all bodies
 function refit() {
   const min = [Infinity, Infinity, Infinity], max = [-Infinity, -Infinity, -Infinity];
   for (const b of app.bodies.values()) {
@@ -372,10 +391,15 @@ function refit() {
       if (b.rest[i] > max[a]) max[a] = b.rest[i];
     }
   }
-  if (!(min[0] <= max[0])) return;
+  if (!(min[0] <= max[0])) {
+    if (view.renderer) view.renderer.setObstacles(app.obstacles, [0, 0, 0], 1);
+    return;
+  }
   view.size = Math.max(len(sub(max, min)), 1e-3);
   app.bounds = { min, max };
   if (!fitted) { camera.fit(min, max); fitted = true; }
   if (view.renderer) view.renderer.setFloor(min[2] - view.size * 0.002, (min[0] + max[0]) / 2, (min[1] + max[1]) / 2, view.size * 1.2);
+  // a plane obstacle (the floor) as a square around the bodies' centre, larger than the grid
+  if (view.renderer) view.renderer.setObstacles(app.obstacles, [0, 1, 2].map((k) => (min[k] + max[k]) / 2), view.size * 1.5);
   view.dirty = true;
 }

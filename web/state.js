@@ -9,6 +9,7 @@ export const FALLBACK_PALETTE = {
   level: ['#4e79a7', '#59a14f', '#edc948', '#f28e2b', '#e15759', '#b07aa1'],
   plain: '#d9a38c', background: '#20242b', floor: '#5b6270', floor_line: '#737b8a', tool: '#c8ccd4',
   probe: '#ff3ea5',
+  obstacle: '#9a948a',
 };
 
 // our own tool ids (scripted scene tools use small ids from 0)
@@ -51,6 +52,10 @@ export const app = {
   pictureRate: 0,        // pictures drawn per second while frames were waiting to be drawn
   autoScale: null,       // render scale chosen automatically (null: not lowered)
   debugDrawDelayMs: 0,   // tests: busy-wait this long in every picture (a slow machine)
+  obstacles: [],         // the scene's obstacles (opened/joined "obstacles")
+  obstacleOffsets: new Map(), // name -> [x, y, z] translation from its placement (moving ones)
+  obstacleMessages: 0,   // "obstacles" messages received
+  obstaclesDrawn: 0,     // obstacles drawn in the last picture (planes included)
 };
 window.squish = app;
 

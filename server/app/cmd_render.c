@@ -45,6 +45,7 @@ static void usage(FILE *f)
             "  --supersample S   samples per pixel side, 1..4 (default 2; 1 is fastest)\n"
             "  --no-floor, --no-tools   leave the floor or the tools out\n"
             "  --no-probes              leave the scene's probes out (drawn as beads by default)\n"
+            "  --no-obstacles           leave the scene's obstacles out (a floor plane among them)\n"
             "  --out DIR         output directory (default ./squish-render)\n"
             "  --bench           time the stages of one frame (after --frames, default 25) at\n"
             "                    --size; writes nothing unless --out is given\n",
@@ -193,6 +194,8 @@ int sq_cmd_render(int argc, char **argv)
             o.tools = 0;
         } else if (!strcmp(a, "--no-probes")) {
             o.probes = 0;
+        } else if (!strcmp(a, "--no-obstacles")) {
+            o.obstacles = 0;
         } else if (!strcmp(a, "--frames")) {
             if (!val || parse_long(val, 0, 1000000000L, &v))
                 return usage_error("--frames needs a whole number of frames (0 to 1e9), got '%s'",

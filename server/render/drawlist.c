@@ -1,5 +1,5 @@
 /* drawlist.c - build what to draw from a render state: lit triangles with colours (bodies,
- * floor, tools) and the resolved camera. No OpenGL here. */
+ * floor, obstacles, tools) and the resolved camera. No OpenGL here. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -233,27 +233,14 @@ static void plane_basis(const double up[3], double e1[3], double e2[3])
     cross3(up, e1, e2);
 }
 
-/* a checkered square floor under the bodies, normal = up */
-static void add_floor(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
-                      double diag)
+/* a checkered square of FLOOR_TILES x FLOOR_TILES tiles in the floor colours: centre, unit
+ * normal n, half side */
+static void add_tiles(sq_drawlist *dl, const double centre[3], const double n[3], double half,
+                      const sq_render_opts *o)
 {
-    double e1[3], e2[3], centre[3];
-    plane_basis(s->up, e1, e2);
-    for (int k = 0; k < 3; k++)
-        centre[k] = 0.5 * (s->bbox_min[k] + s->bbox_max[k]);
-    /* height: lowest bbox corner along up, slightly below so the bodies' bottoms win */
-    double h = INFINITY;
-    for (int c = 0; c < 8; c++) {
-        double p[3] = {c & 1 ? s->bbox_max[0] : s->bbox_min[0],
-                       c & 2 ? s->bbox_max[1] : s->bbox_min[1],
-                       c & 4 ? s->bbox_max[2] : s->bbox_min[2]};
-        h = fmin(h, dot3(p, s->up));
-    }
-    h -= 0.002 * diag;
-    double shift = h - dot3(centre, s->up);
-    for (int k = 0; k < 3; k++)
-        centre[k] += shift * s->up[k];
-    double half = 1.5 * diag, tile = 2.0 * half / FLOOR_TILES;
+    double e1[3], e2[3];
+    plane_basis(n, e1, e2);
+    double tile = 2.0 * half / FLOOR_TILES;
     unsigned char c0[3], c1[3];
     for (int k = 0; k < 3; k++) {
         c0[k] = to_byte(o->palette.floor[k]);
@@ -270,11 +257,33 @@ static void add_floor(sq_drawlist *dl, const sq_render_state *s, const sq_render
                 double p[3];
                 for (int k = 0; k < 3; k++)
                     p[k] = centre[k] + a * e1[k] + b * e2[k];
-                q[c] = push_vertex(dl, p, s->up, rgb);
+                q[c] = push_vertex(dl, p, n, rgb);
             }
             push_tri(dl, q[0], q[1], q[2]);
             push_tri(dl, q[0], q[2], q[3]);
         }
+}
+
+/* a checkered square floor under the bodies, normal = up */
+static void add_floor(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
+                      double diag)
+{
+    double centre[3];
+    for (int k = 0; k < 3; k++)
+        centre[k] = 0.5 * (s->bbox_min[k] + s->bbox_max[k]);
+    /* height: lowest bbox corner along up, slightly below so the bodies' bottoms win */
+    double h = INFINITY;
+    for (int c = 0; c < 8; c++) {
+        double p[3] = {c & 1 ? s->bbox_max[0] : s->bbox_min[0],
+                       c & 2 ? s->bbox_max[1] : s->bbox_min[1],
+                       c & 4 ? s->bbox_max[2] : s->bbox_min[2]};
+        h = fmin(h, dot3(p, s->up));
+    }
+    h -= 0.002 * diag;
+    double shift = h - dot3(centre, s->up);
+    for (int k = 0; k < 3; k++)
+        centre[k] += shift * s->up[k];
+    add_tiles(dl, centre, s->up, 1.5 * diag, o);
 }
 
 /* a UV sphere */
@@ -324,6 +333,151 @@ static void add_box(sq_drawlist *dl, const double c[3], const double half[3],
             push_tri(dl, q[0], q[1], q[2]);
             push_tri(dl, q[0], q[2], q[3]);
         }
+}
+
+/* a cylinder of radius r from a to b, open at the ends (a capsule's body) */
+static void add_cylinder(sq_drawlist *dl, const double a[3], const double b[3], double r,
+                         const unsigned char rgb[3])
+{
+    enum { NSEG = 24 };
+    double axis[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e1[3], e2[3];
+    if (normalize3(axis) == 0.0)
+        return;
+    plane_basis(axis, e1, e2);
+    reserve(dl, 2 * (NSEG + 1), 2 * NSEG);
+    int base = dl->nverts;
+    for (int j = 0; j <= NSEG; j++) {
+        double ph = 2.0 * PI * j / NSEG, n[3], p[3];
+        for (int k = 0; k < 3; k++)
+            n[k] = cos(ph) * e1[k] + sin(ph) * e2[k];
+        for (int k = 0; k < 3; k++)
+            p[k] = a[k] + r * n[k];
+        push_vertex(dl, p, n, rgb);
+        for (int k = 0; k < 3; k++)
+            p[k] = b[k] + r * n[k];
+        push_vertex(dl, p, n, rgb);
+    }
+    for (int j = 0; j < NSEG; j++) {
+        int q = base + 2 * j;
+        push_tri(dl, q, q + 2, q + 3);
+        push_tri(dl, q, q + 3, q + 1);
+    }
+}
+
+/* a triangle mesh with flat faces (one normal per triangle); non-finite triangles left out */
+static void add_trimesh(sq_drawlist *dl, const sq_render_obstacle *m, const unsigned char rgb[3])
+{
+    reserve(dl, 3 * m->ntris, m->ntris);
+    for (int t = 0; t < m->ntris; t++) {
+        double p[3][3];
+        int finite = 1;
+        for (int c = 0; c < 3; c++)
+            for (int k = 0; k < 3; k++) {
+                p[c][k] = m->xyz[3 * m->tris[3 * t + c] + k];
+                finite &= isfinite(p[c][k]) != 0;
+            }
+        double e1[3], e2[3], n[3];
+        for (int k = 0; k < 3; k++) {
+            e1[k] = p[1][k] - p[0][k];
+            e2[k] = p[2][k] - p[0][k];
+        }
+        cross3(e1, e2, n);
+        if (!finite || normalize3(n) == 0.0)
+            continue;
+        int q[3];
+        for (int c = 0; c < 3; c++)
+            q[c] = push_vertex(dl, p[c], n, rgb);
+        push_tri(dl, q[0], q[1], q[2]);
+    }
+}
+
+/* does the state hold a plane obstacle (which then stands for the floor)? */
+static int has_plane(const sq_render_state *s)
+{
+    for (int i = 0; i < s->nobstacles; i++)
+        if (s->obstacles[i].shape.kind == SQ_OBSTACLE_PLANE)
+            return 1;
+    return 0;
+}
+
+/* the obstacles: a plane as a tiled square (1.5 scene diagonals each side of the bodies' centre
+ * projected on it, slightly behind it so resting bodies win), the others in the obstacle colour */
+static void add_obstacles(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
+                          double diag)
+{
+    unsigned char rgb[3];
+    for (int k = 0; k < 3; k++)
+        rgb[k] = to_byte(o->palette.obstacle[k]);
+    for (int i = 0; i < s->nobstacles; i++) {
+        const sq_render_obstacle *r = &s->obstacles[i];
+        const sq_obstacle *ob = &r->shape;
+        switch (ob->kind) {
+        case SQ_OBSTACLE_PLANE: {
+            double n[3] = {ob->normal[0], ob->normal[1], ob->normal[2]}, c[3];
+            if (normalize3(n) == 0.0)
+                break;
+            for (int k = 0; k < 3; k++)
+                c[k] = 0.5 * (s->bbox_min[k] + s->bbox_max[k]);
+            double off[3] = {c[0] - ob->point[0], c[1] - ob->point[1], c[2] - ob->point[2]};
+            double h = dot3(off, n) + 0.002 * diag;
+            for (int k = 0; k < 3; k++)
+                c[k] -= h * n[k];
+            add_tiles(dl, c, n, 1.5 * diag, o);
+            break;
+        }
+        case SQ_OBSTACLE_BOX:
+            add_box(dl, ob->point, ob->half, rgb);
+            break;
+        case SQ_OBSTACLE_SPHERE:
+            add_sphere(dl, ob->point, ob->radius, rgb);
+            break;
+        case SQ_OBSTACLE_CAPSULE:
+            add_sphere(dl, ob->point, ob->radius, rgb);
+            add_sphere(dl, ob->end, ob->radius, rgb);
+            add_cylinder(dl, ob->point, ob->end, ob->radius, rgb);
+            break;
+        case SQ_OBSTACLE_MESH:
+            add_trimesh(dl, r, rgb);
+            break;
+        }
+    }
+}
+
+/* how far the obstacles other than planes reach from centre (0 when there are none) */
+static double obstacle_reach(const sq_render_state *s, const double centre[3])
+{
+    double reach = 0.0;
+    for (int i = 0; i < s->nobstacles; i++) {
+        const sq_render_obstacle *r = &s->obstacles[i];
+        const sq_obstacle *ob = &r->shape;
+        double d = 0.0;
+        switch (ob->kind) {
+        case SQ_OBSTACLE_PLANE:
+            break;
+        case SQ_OBSTACLE_BOX:
+        case SQ_OBSTACLE_SPHERE:
+        case SQ_OBSTACLE_CAPSULE: {
+            double ext = ob->kind == SQ_OBSTACLE_BOX ? sqrt(dot3(ob->half, ob->half)) : ob->radius;
+            double pa[3], pb[3];
+            for (int k = 0; k < 3; k++) {
+                pa[k] = ob->point[k] - centre[k];
+                pb[k] = (ob->kind == SQ_OBSTACLE_CAPSULE ? ob->end[k] : ob->point[k]) - centre[k];
+            }
+            d = fmax(sqrt(dot3(pa, pa)), sqrt(dot3(pb, pb))) + ext;
+            break;
+        }
+        case SQ_OBSTACLE_MESH:
+            for (int v = 0; v < r->nverts; v++) {
+                double p[3] = {r->xyz[3 * v] - centre[0], r->xyz[3 * v + 1] - centre[1],
+                               r->xyz[3 * v + 2] - centre[2]};
+                d = fmax(d, sqrt(dot3(p, p)));
+            }
+            break;
+        }
+        if (isfinite(d))
+            reach = fmax(reach, d);
+    }
+    return reach;
 }
 
 static void add_tools(sq_drawlist *dl, const sq_render_state *s, const sq_render_opts *o,
@@ -429,11 +583,12 @@ static int resolve_camera(sq_drawlist *dl, const sq_render_state *s, const sq_ca
         memcpy(dl->up, e2, sizeof e2);
     else
         memcpy(dl->up, s->up, sizeof dl->up);
-    /* clip planes enclosing the bodies and the floor (radius ~2.2 diag around the centre) */
+    /* clip planes enclosing the bodies and the floor (radius ~2.2 diag around the centre) and
+     * the obstacles */
     double dc[3];
     for (int k = 0; k < 3; k++)
         dc[k] = centre[k] - dl->eye[k];
-    double d = sqrt(dot3(dc, dc)), reach = 2.3 * diag;
+    double d = sqrt(dot3(dc, dc)), reach = fmax(2.3 * diag, 1.05 * obstacle_reach(s, centre));
     dl->zfar = d + reach;
     dl->znear = fmax(d - reach, dl->zfar * 1e-3);
     return 0;
@@ -450,6 +605,42 @@ int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render
     if (!(aspect > 0.0) || !isfinite(aspect))
         return sq_err_set(err, "render: aspect ratio %g must be > 0", aspect);
 
+    /* a body falling onto a plane obstacle: the frame takes in the bodies' rest box and its
+     * shadow on the plane, when it lies within two box diagonals (a dropped body stays in view) */
+    sq_render_state tmp;
+    if (o->obstacles && has_plane(s) && s->nbodies > 0) {
+        double lo[3], hi[3], d0 = 0.0;
+        for (int k = 0; k < 3; k++) {
+            lo[k] = s->bbox_min[k];
+            hi[k] = s->bbox_max[k];
+            d0 += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+        }
+        d0 = sqrt(d0);
+        for (int i = 0; i < s->nobstacles; i++) {
+            const sq_obstacle *ob = &s->obstacles[i].shape;
+            double n[3] = {ob->normal[0], ob->normal[1], ob->normal[2]};
+            if (ob->kind != SQ_OBSTACLE_PLANE || normalize3(n) == 0.0)
+                continue;
+            for (int c = 0; c < 8; c++) {
+                double p[3] = {c & 1 ? s->bbox_max[0] : s->bbox_min[0],
+                               c & 2 ? s->bbox_max[1] : s->bbox_min[1],
+                               c & 4 ? s->bbox_max[2] : s->bbox_min[2]};
+                double off[3] = {p[0] - ob->point[0], p[1] - ob->point[1], p[2] - ob->point[2]};
+                double h = dot3(off, n);
+                if (!(h >= 0.0 && h <= 2.0 * d0 + 1e-9))
+                    continue;
+                for (int k = 0; k < 3; k++) {
+                    lo[k] = fmin(lo[k], p[k] - h * n[k]);
+                    hi[k] = fmax(hi[k], p[k] - h * n[k]);
+                }
+            }
+        }
+        tmp = *s;
+        memcpy(tmp.bbox_min, lo, sizeof lo);
+        memcpy(tmp.bbox_max, hi, sizeof hi);
+        s = &tmp;
+    }
+
     /* scene size; a degenerate or empty scene gets a 1 m frame */
     double ext[3], diag2 = 0.0;
     for (int k = 0; k < 3; k++) {
@@ -457,9 +648,9 @@ int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render
         diag2 += ext[k] * ext[k];
     }
     double diag = sqrt(diag2);
-    sq_render_state tmp;
     if (!(diag > 1e-9) || !isfinite(diag)) {
-        tmp = *s;
+        if (s != &tmp)
+            tmp = *s;
         for (int k = 0; k < 3; k++) {
             double c = s->nbodies ? 0.5 * (s->bbox_min[k] + s->bbox_max[k]) : 0.0;
             tmp.bbox_min[k] = c - 0.5;
@@ -473,8 +664,17 @@ int sq_drawlist_build(sq_drawlist *dl, const sq_render_state *s, const sq_render
     for (int bi = 0; bi < s->nbodies; bi++)
         add_body(dl, &s->bodies[bi], o, dl->stress_scale);
     dl->body_tris = dl->ntris;
-    if (o->floor)
+    dl->floor_tris = dl->obstacle_tris = 0;
+    int plane = o->obstacles && has_plane(s);
+    if (o->floor && !plane) {
         add_floor(dl, s, o, diag);
+        dl->floor_tris = dl->ntris - dl->body_tris;
+    }
+    if (o->obstacles) {
+        int before = dl->ntris;
+        add_obstacles(dl, s, o, diag);
+        dl->obstacle_tris = dl->ntris - before;
+    }
     if (o->tools)
         add_tools(dl, s, o, diag);
     if (o->probes)

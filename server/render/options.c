@@ -20,7 +20,7 @@ static const struct {
     {"stress_mid", -1, "#ffffbf"}, {"stress_high", -1, "#d7191c"},
     {"background", -1, "#20242b"}, {"floor", -1, "#5b6270"},
     {"floor_line", -1, "#737b8a"}, {"tool", -1, "#c8ccd4"},
-    {"probe", -1, "#ff3ea5"},
+    {"probe", -1, "#ff3ea5"},      {"obstacle", -1, "#9a948a"},
 };
 
 /* "#rrggbb" -> 0..1 floats; -1 if malformed */
@@ -69,6 +69,8 @@ static float *palette_slot(sq_palette *p, const char *key)
         return p->tool;
     if (!strcmp(key, "probe"))
         return p->probe;
+    if (!strcmp(key, "obstacle"))
+        return p->obstacle;
     return NULL;
 }
 
@@ -118,7 +120,8 @@ int sq_palette_parse(sq_palette *p, const char *json, const char *label, sq_err 
         float *slot = palette_slot(&out, it->string);
         if (!slot) {
             rc = sq_err_set(err, "%s: %s: unknown key; known keys: level, plain, stress_low, "
-                            "stress_mid, stress_high, background, floor, floor_line, tool, probe",
+                            "stress_mid, stress_high, background, floor, floor_line, tool, probe, "
+                            "obstacle",
                             label, it->string);
             break;
         }
@@ -237,6 +240,7 @@ sq_render_opts sq_render_opts_default(void)
     sq_palette_default(&o.palette);
     o.stress_max = 0.0;
     o.floor = 1;
+    o.obstacles = 1;
     o.tools = 1;
     o.probes = 1;
     o.supersample = 2;

@@ -1,4 +1,4 @@
-/* render.h - headless rendering of bodies, tools and a floor to PNG (OSMesa, llvmpipe).
+/* render.h - headless rendering of bodies, tools, obstacles and a floor to PNG (OSMesa, llvmpipe).
  *
  * Stage after scene in the data flow. Three steps, kept apart:
  *   1. capture: copy what to draw (surface positions, levels, tools) out of a world into a
@@ -38,6 +38,7 @@ typedef struct sq_palette {
     float floor_line[3];           /* alternate floor tiles */
     float tool[3];                 /* active tools; inactive ones are drawn at half */
     float probe[3];                /* the scene's probes (beads at their current position) */
+    float obstacle[3];             /* the scene's obstacles (plane obstacles use the floor tiles) */
 } sq_palette;
 
 /* the compiled-in palette: the same values as web/palette.json */
@@ -84,6 +85,8 @@ typedef struct sq_render_opts {
     int floor;          /* draw the floor (default 1) */
     int tools;          /* draw the tools (default 1; inactive grabs are never drawn) */
     int probes;         /* draw the scene's probes (default 1) */
+    int obstacles;      /* draw the scene's obstacles (default 1); a plane obstacle is drawn as a
+                           tiled square in place of the default floor */
     int supersample;    /* 1..4 samples per pixel side, box-filtered (default 2) */
 } sq_render_opts;
 
@@ -105,6 +108,16 @@ typedef struct sq_render_body {
     int cap_verts, cap_tris; /* allocated sizes, for reuse between captures */
 } sq_render_body;
 
+/* an obstacle at its current pose; a mesh obstacle's triangles are copied (shape.mesh is NULL
+ * in the state, so a state outlives the scene it was captured from) */
+typedef struct sq_render_obstacle {
+    sq_obstacle shape;
+    int nverts, ntris;     /* mesh: vertices and triangles */
+    float *xyz;            /* mesh: vertex positions (nverts x 3), m */
+    int *tris;             /* mesh: vertex indices (ntris x 3) */
+    int cap_verts, cap_tris; /* allocated sizes, for reuse between captures */
+} sq_render_obstacle;
+
 typedef struct sq_render_state {
     int nbodies;
     sq_render_body bodies[SQ_MAX_BODIES];
@@ -114,6 +127,8 @@ typedef struct sq_render_state {
     double bbox_min[3], bbox_max[3]; /* rest bounding box of all bodies (framing, floor) */
     int nprobes;
     double probes[SQ_MAX_PROBES][3]; /* probes' current positions (rest point + displacement), m */
+    int nobstacles;
+    sq_render_obstacle obstacles[SQ_MAX_OBSTACLES]; /* current poses */
     long frame;            /* frame number, for captions and file names */
     double time;           /* simulated time, s */
 } sq_render_state;
@@ -127,13 +142,16 @@ int sq_render_state_add_body(sq_render_state *s, int nverts, const float *xyz, c
                              const unsigned char *level, int ntris, const int *tris, sq_err *err);
 /* append a tool (copied); -1 + err when the table is full */
 int sq_render_state_add_tool(sq_render_state *s, const sq_tool *t, sq_err *err);
+/* append an obstacle at its pose (copied, a mesh's triangles too); -1 + err when the table is
+ * full or the obstacle is malformed (sq_obstacle_check) */
+int sq_render_state_add_obstacle(sq_render_state *s, const sq_obstacle *o, sq_err *err);
 /* append a probe at its current position; -1 + err when the table is full */
 int sq_render_state_add_probe(sq_render_state *s, const double p[3], sq_err *err);
 /* set the up vector from a gravity vector (+z if zero) */
 void sq_render_state_set_gravity(sq_render_state *s, const double g[3]);
 
-/* copy a world's bodies (finest surface, current positions and levels), tools, gravity and
- * frame into s, reusing s's buffers. Levels are numbered as in the scene file's `levels`
+/* copy a world's bodies (finest surface, current positions and levels), tools, obstacles (at
+ * their current poses), gravity and frame into s, reusing s's buffers. Levels are numbered as in the scene file's `levels`
  * list (scene->level_index), so a fixed body at listed level 2 shows level 2's colour.
  * Call under the lock that guards the world; then render from s on any thread. */
 int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err);
@@ -153,6 +171,8 @@ typedef struct sq_drawlist {
     unsigned *idx;         /* (ntris x 3) */
     int cap_verts, cap_tris;
     int body_tris;         /* the first body_tris triangles are the bodies' surfaces */
+    int floor_tris;        /* triangles of the default floor (0 when a plane obstacle replaces it) */
+    int obstacle_tris;     /* triangles of the obstacles */
     int skipped_tris;      /* body triangles left out for non-finite positions */
     float background[3];
     /* camera, resolved */

@@ -1,5 +1,5 @@
 /* state.c - the render state: a self-contained copy of what to draw (bodies' surfaces,
- * tools, up axis), filled from arrays or captured from a world (capture.c). */
+ * tools, obstacles, up axis), filled from arrays or captured from a world (capture.c). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -20,6 +20,10 @@ void sq_render_state_free(sq_render_state *s)
         free(b->rest);
         free(b->level);
         free(b->tris);
+    }
+    for (int i = 0; i < SQ_MAX_OBSTACLES; i++) {
+        free(s->obstacles[i].xyz);
+        free(s->obstacles[i].tris);
     }
     sq_render_state_init(s);
 }
@@ -101,6 +105,42 @@ int sq_render_state_add_tool(sq_render_state *s, const sq_tool *t, sq_err *err)
     return 0;
 }
 
+/* copy o into slot r, a mesh's triangles into r's buffers (grown as needed) */
+static void obstacle_copy(sq_render_obstacle *r, const sq_obstacle *o)
+{
+    r->shape = *o;
+    r->shape.mesh = NULL;
+    r->nverts = r->ntris = 0;
+    const sq_trimesh *m = o->kind == SQ_OBSTACLE_MESH ? o->mesh : NULL;
+    if (!m)
+        return;
+    if (m->nverts > r->cap_verts) {
+        free(r->xyz);
+        r->xyz = sq_malloc((size_t)m->nverts * 3 * sizeof(float));
+        r->cap_verts = m->nverts;
+    }
+    if (m->ntris > r->cap_tris) {
+        free(r->tris);
+        r->tris = sq_malloc((size_t)m->ntris * 3 * sizeof(int));
+        r->cap_tris = m->ntris;
+    }
+    for (int i = 0; i < 3 * m->nverts; i++)
+        r->xyz[i] = (float)m->x[i];
+    memcpy(r->tris, m->tris, (size_t)m->ntris * 3 * sizeof(int));
+    r->nverts = m->nverts;
+    r->ntris = m->ntris;
+}
+
+int sq_render_state_add_obstacle(sq_render_state *s, const sq_obstacle *o, sq_err *err)
+{
+    if (s->nobstacles >= SQ_MAX_OBSTACLES)
+        return sq_err_set(err, "render state: more than %d obstacles", SQ_MAX_OBSTACLES);
+    if (sq_obstacle_check(o, err) != 0)
+        return -1;
+    obstacle_copy(&s->obstacles[s->nobstacles++], o);
+    return 0;
+}
+
 int sq_render_state_add_probe(sq_render_state *s, const double p[3], sq_err *err)
 {
     if (s->nprobes >= SQ_MAX_PROBES)
@@ -127,6 +167,7 @@ int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err)
     s->nbodies = 0;
     s->ntools = 0;
     s->nprobes = 0;
+    s->nobstacles = 0;
     if (w->nbodies > SQ_MAX_BODIES)
         return sq_err_set(err, "render capture: world has %d bodies, more than %d", w->nbodies,
                           SQ_MAX_BODIES);
@@ -158,6 +199,9 @@ int sq_render_state_capture(sq_render_state *s, const sq_world *w, sq_err *err)
             s->bbox_min[k] = s->bbox_max[k] = 0.0;
     s->ntools = SQ_MIN(w->ntools, SQ_MAX_TOOLS);
     memcpy(s->tools, w->tools, (size_t)s->ntools * sizeof(sq_tool));
+    /* obstacles at their current poses (the world's table holds them at w->time) */
+    for (int i = 0; i < w->nobstacles && i < SQ_MAX_OBSTACLES; i++)
+        obstacle_copy(&s->obstacles[s->nobstacles++], &w->obstacles[i]);
     /* probes where they are now: rest point plus the body's displacement there */
     for (int i = 0; w->scene && i < w->scene->nprobes && s->nprobes < SQ_MAX_PROBES; i++) {
         double u[3];

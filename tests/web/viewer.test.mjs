@@ -361,3 +361,48 @@ describe('web viewer with a control token', () => {
     }
   });
 });
+
+describe('web viewer obstacles', () => {
+  let server, browser;
+  before(async () => {
+    server = await startServer();
+    browser = await launchBrowser();
+  });
+  after(async () => {
+    if (browser) await browser.close();
+    if (server) await server.stop();
+  });
+
+  it('draws jelly-drop\'s floor plane from opened and moves it by an offset', async () => {
+    const page = await openViewer(browser, `${server.url}?scene=jelly-drop`);
+    try {
+      await page.waitForFunction(() => window.squish.scene === 'jelly-drop' && window.squish.bounds);
+      await waitFrames(page, 3);
+      const obs = await page.evaluate(() => window.squish.obstacles);
+      assert.equal(obs.length, 1, 'opened carries the floor obstacle');
+      assert.equal(obs[0].type, 'plane');
+      assert.equal(obs[0].name, 'floor');
+      await page.waitForFunction(() => window.squish.obstaclesDrawn >= 1, null, { timeout: 10000 });
+      const on = await pixelStats(page);
+      // the floor toggle hides the plane: far fewer pixels are covered
+      await page.locator('#view').focus();
+      await page.keyboard.press('g');
+      await page.waitForFunction(() => window.squish.obstaclesDrawn === 0, null, { timeout: 10000 });
+      await page.waitForTimeout(200);
+      const off = await pixelStats(page);
+      assert.ok(on.nonBackground > off.nonBackground + 0.05,
+        `floor plane covers ${on.nonBackground} of the canvas with it, ${off.nonBackground} without`);
+      await page.keyboard.press('g');
+      await page.waitForFunction(() => window.squish.obstaclesDrawn >= 1, null, { timeout: 10000 });
+      // an offset (as an "obstacles" message gives a moving one) moves the plane out of view
+      await page.evaluate(() => window.squish.obstacleOffsets.set('floor', [0, 0, -1000]));
+      await waitFrames(page, 2);
+      await page.waitForTimeout(200);
+      const moved = await pixelStats(page);
+      assert.ok(moved.nonBackground < on.nonBackground - 0.05, `moved floor still covers ${moved.nonBackground} (${on.nonBackground} in place, ${off.nonBackground} hidden)`);
+      assert.deepEqual(page.problems, [], 'no console errors');
+    } finally {
+      await page.close();
+    }
+  });
+});
