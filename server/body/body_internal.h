@@ -87,6 +87,9 @@ struct sq_body {
     double *reaction;                      /* impulses on this body's nodes from others' frames (n x 3) */
     size_t reaction_n3;
     double carry[3];                       /* reaction impulses applied before this frame's start */
+    unsigned char *touched[SQ_MAX_LEVELS]; /* nodes in contact this frame, per level (n_k): left
+                                              out of the sleep test's residual */
+    int touched_n[SQ_MAX_LEVELS];
 };
 
 #define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */
@@ -101,6 +104,8 @@ struct sq_body {
  * b->contact */
 void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, double h);
 void sq_body_contact_free(sq_body *b);
+/* a new frame's contact: the touched marks cleared (allocated as levels need them) */
+void sq_body_contact_begin(sq_body *b);
 /* a diverged explicit frame is re-run: the reactions it gave its targets are dropped */
 void sq_body_contact_retry(sq_body *b);
 

@@ -31,11 +31,30 @@ void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, do
     if (!b->ccache)
         b->ccache = sq_contact_cache_create();
     nd.cache = b->ccache;
+    nd.touched = b->touched[b->cur];
     if (b->nobstacles)
         sq_contact_step(b->obstacles, b->nobstacles, &nd, L->d, L->v, h, &b->contact);
     if (b->ntargets)
         sq_contact_step_targets(b->targets, b->ntargets, &nd, L->d, L->v, h, &b->contact);
     b->contact_cpu += sq_thread_cpu() - t0;
+}
+
+void sq_body_contact_begin(sq_body *b)
+{
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        int n = b->ready[k] ? b->level[k].model.n : 0;
+        if (!n || (!b->nobstacles && !b->ntargets)) {
+            if (b->touched[k])
+                memset(b->touched[k], 0, (size_t)b->touched_n[k]);
+            continue;
+        }
+        if (b->touched_n[k] != n) {
+            free(b->touched[k]);
+            b->touched[k] = sq_malloc((size_t)n);
+            b->touched_n[k] = n;
+        }
+        memset(b->touched[k], 0, (size_t)n);
+    }
 }
 
 void sq_body_contact_retry(sq_body *b)
@@ -117,6 +136,11 @@ void sq_body_contact_free(sq_body *b)
 {
     free(b->reaction);
     b->reaction = NULL;
+    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
+        free(b->touched[k]);
+        b->touched[k] = NULL;
+        b->touched_n[k] = 0;
+    }
     sq_contact_cache_free(b->ccache);
     b->ccache = NULL;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {

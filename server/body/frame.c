@@ -273,11 +273,18 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         ntools = SQ_MAX_TOOLS;
     double force[SQ_MAX_TOOLS][3];
     memset(force, 0, sizeof force);
+    const sq_contact_sum last_contact = b->contact; /* kept while asleep */
     memset(&b->contact, 0, sizeof b->contact); /* this frame's contact impulses */
     memcpy(b->contact.impulse, b->carry, sizeof b->carry); /* and those others gave it just before */
     memset(b->carry, 0, sizeof b->carry);
     b->contact_cpu = 0;
     sq_contact_cache_reset(b->ccache); /* positions moved (holds, another body): measure afresh */
+    sq_body_contact_begin(b);
+    for (int o = 0; b->sleeping && o < b->nobstacles; o++) { /* a moving obstacle wakes the body */
+        const double *u = b->obstacles[o].velocity;
+        if (u[0] != 0 || u[1] != 0 || u[2] != 0)
+            b->sleeping = b->calm = 0;
+    }
 
     /* tools -> holds on finest surface nodes */
     int tool_nodes[SQ_MAX_TOOLS];
@@ -291,6 +298,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
 
     if (b->sleeping && nholds == 0) {
         prof->sleeping = 1;
+        b->contact = last_contact; /* asleep where it rests: the same support */
         prof->sleeping_nodes = b->level[b->cur].model.n;
         /* asleep, the resolution stays what it was: active nodes are reported as they stand
          * (nothing is updated: node_updates stays 0) */
@@ -300,7 +308,8 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
             sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
                                   .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s,
-                                  .obstacles = b->obstacles, .nobstacles = b->nobstacles, .contact = &b->contact};
+                                  .obstacles = b->obstacles, .nobstacles = b->nobstacles, .contact = &b->contact,
+                                  .touched = b->touched};
             memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
             sq_lod_frame(b->lod, &in, force, prof);
             sq_body_count_health(b, prof->event_kind, prof->event_value[0]); /* budget warnings */

@@ -104,7 +104,9 @@ int sq_body_check_health(sq_body *b, sq_frame_profile *prof, int nholds)
             const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
             for (int r = 0; r < na; r++)
                 M += b->level[k].model.mass[al ? al[r] : r];
-            res = SQ_MAX(res, sq_level_residual(&b->level[k].model, b->level[k].f, b->def.gravity, al, na, NULL));
+            /* nodes in contact carry the contact's reaction: not a residual */
+            res = SQ_MAX(res, sq_level_residual(&b->level[k].model, b->level[k].f, b->def.gravity, al, na,
+                                                b->touched[k]));
         }
         double vrms = M > 0 ? sqrt(2 * ke / M) : 0;
         int calm = nholds == 0 && vrms < b->sleep_ke_speed * b->diag && res < b->sleep_residual;

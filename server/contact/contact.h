@@ -106,6 +106,7 @@ typedef struct sq_contact_nodes {
     const unsigned char *fixed; /* constrained axes per node: a node with any is left alone */
     const unsigned char *mask;  /* NULL, or 0 for a node the pass must leave alone (a held node) */
     sq_contact_cache *cache;    /* NULL, or the frame's cache of the mesh obstacles' distances */
+    unsigned char *touched;     /* NULL, or set to 1 at each node a pass finds in contact (nodes) */
 } sq_contact_nodes;
 
 /* one substep's contact after the position update of step h: d and v of the listed nodes

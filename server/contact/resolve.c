@@ -144,6 +144,8 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
             }
         }
         touching += hit;
+        if (hit && nodes->touched)
+            nodes->touched[i] = 1;
     }
     if (sum) {
         sum->nodes = touching;
@@ -317,6 +319,8 @@ int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_conta
             double vt1[3] = {vt[0], vt[1], vt[2]};
             friction(vt1, dvn, t->mu, t->mu);
             touching++;
+            if (nodes->touched)
+                nodes->touched[i] = 1;
             for (int c = 0; c < 3; c++) {
                 double dv = dvn * n[c] + (vt1[c] - vt[c]) * meff / m;
                 vi[c] += dv;

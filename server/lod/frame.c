@@ -577,7 +577,8 @@ static void tick_step(lod_frame *fr)
             if (fr->in->nobstacles > 0) { /* contact of the level's integrated surface nodes */
                 const sq_mesh *mk = Lk->model.mesh;
                 sq_contact_nodes nd = {.n = mk->nsurf, .list = mk->surf_nodes, .X = mk->x, .mass = Lk->model.mass,
-                                       .fixed = Lk->model.fixed, .mask = lod->lev[k].integrated};
+                                       .fixed = Lk->model.fixed, .mask = lod->lev[k].integrated,
+                                       .touched = fr->in->touched ? fr->in->touched[k] : NULL};
                 sq_contact_step(fr->in->obstacles, fr->in->nobstacles, &nd, Lk->d, Lk->v, dtk, fr->in->contact);
             }
         }

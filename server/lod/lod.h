@@ -146,6 +146,7 @@ typedef struct sq_lod_frame_in {
                                      its steps (contact/contact.h), nobstacles of them */
     int nobstacles;
     sq_contact_sum *contact; /* the contact impulses are added here (may be NULL) */
+    unsigned char **touched; /* NULL, or per level an array (nodes) set to 1 where contact acted */
 } sq_lod_frame_in;
 
 /* one adaptive frame of in->frame_dt: each level steps at its own dt (level->dt), in the

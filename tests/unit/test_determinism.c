@@ -57,7 +57,7 @@ static const det_pin pins[] = {
     {"organ", "fixed", 0xdce4ff797d752cd3ull},
     {"paper-cube", "scene", 0xc5c82c2c051ac668ull},
     {"sphere-grab", "scene", 0x4d465e16c76691f2ull},
-    {"jelly-drop", "scene", 0x5676482c8e29ddccull},
+    {"jelly-drop", "scene", 0xde824b55b83bd7e6ull},
     {"organ-tray", "scene", 0x75e806a3e5898d47ull},
     {"squeeze", "scene", 0x6090d03b6f9abf3cull},
 };
@@ -72,7 +72,7 @@ static const det_pin pins[] = {
     {"organ", "fixed", 0xaf01e98ce32a5dfaull},
     {"paper-cube", "scene", 0x57da013edede2070ull},
     {"sphere-grab", "scene", 0x3fb980bb00cd5a3cull},
-    {"jelly-drop", "scene", 0x41f40cf0b9539f0full},
+    {"jelly-drop", "scene", 0xc1b226d5b6948411ull},
     {"organ-tray", "scene", 0x06f7c98daad7e6a0ull},
     {"squeeze", "scene", 0xaf0f42b837de23ebull},
 };
