@@ -5,6 +5,7 @@
 
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 /* "friction": a number (static = kinetic) or {"static": s, "kinetic": k} */
@@ -54,6 +55,23 @@ static int need_vec3(pctx *c, const cJSON *obj, const char *path, const char *ke
     return 0;
 }
 
+/* the boundary of a tetrahedral mesh (any format sq_mesh_load reads), scaled then offset: its
+ * triangles face outward, so the solid is the mesh's inside */
+static sq_trimesh *tet_boundary(const char *path, double scale, const double offset[3], sq_err *err)
+{
+    sq_mesh *tm = sq_mesh_load(path, err);
+    if (!tm)
+        return NULL;
+    double *x = sq_malloc(sizeof(double) * 3 * (size_t)tm->nnodes);
+    for (int i = 0; i < tm->nnodes; i++)
+        for (int c = 0; c < 3; c++)
+            x[3 * i + c] = scale * tm->x[3 * i + c] + offset[c];
+    sq_trimesh *m = sq_trimesh_from_arrays(tm->nnodes, x, tm->ntris, tm->tris, path, err);
+    free(x);
+    sq_mesh_free(tm);
+    return m;
+}
+
 static int parse_mesh_obstacle(pctx *c, sq_scene *s, const cJSON *obj, int oi, const char *path, sq_obstacle *o)
 {
     char file[512], p[256], full[1024];
@@ -72,7 +90,10 @@ static int parse_mesh_obstacle(pctx *c, sq_scene *s, const cJSON *obj, int oi, c
         return -1;
     scene_resolve(full, sizeof full, c->base_dir, file);
     sq_err e = {{0}};
-    sq_trimesh *m = sq_trimesh_load(full, scale, offset, &e);
+    size_t n = strlen(full);
+    int tet = (n > 4 && (!strcmp(full + n - 4, ".msh") || !strcmp(full + n - 4, ".ele"))) ||
+              (n > 5 && (!strcmp(full + n - 5, ".mesh") || !strcmp(full + n - 5, ".node")));
+    sq_trimesh *m = tet ? tet_boundary(full, scale, offset, &e) : sq_trimesh_load(full, scale, offset, &e);
     if (!m)
         return scene_fail(c, p, "%s", e.msg);
     s->trimeshes[oi] = m;
