@@ -103,7 +103,7 @@ install: squish
 	@set -e; for d in meshes/*/; do d=$${d%/}; n=$${d#meshes/}; [ "$$n" = scenes ] && continue; \
 	  echo "install $$d -> $(DESTDIR)$(DATADIR)/meshes/$$n"; \
 	  install -d $(DESTDIR)$(DATADIR)/meshes/$$n; \
-	  install -m 644 $$d/*.msh $(DESTDIR)$(DATADIR)/meshes/$$n/; done
+	  install -m 644 $$(ls $$d/*.msh $$d/*.obj $$d/*.stl 2>/dev/null) $(DESTDIR)$(DATADIR)/meshes/$$n/; done
 	@set -e; for f in meshes/scenes/*.json; do \
 	  echo "install $$f -> $(DESTDIR)$(DATADIR)/scenes/ (mesh paths ../X/ -> ../meshes/X/)"; \
 	  sed 's#"\.\./\([A-Za-z0-9_-]*\)/#"../meshes/\1/#g' $$f > $(DESTDIR)$(DATADIR)/scenes/$${f##*/}; \
