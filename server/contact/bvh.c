@@ -263,3 +263,39 @@ int sq_bvh_nearest(const sq_bvh *b, const double *x, const int *tris, const doub
         *dist = sqrt(best);
     return found;
 }
+
+int sq_bvh_coplanar_within(const sq_bvh *b, const double *x, const int *tris, const double *normal, const double p[3],
+                           double r, const double n[3], double off)
+{
+    if (!b || b->nnodes == 0)
+        return 1;
+    const double r2 = r * r;
+    int stack[128], top = 0;
+    stack[top++] = 0;
+    while (top > 0) {
+        const bvh_node *nd = &b->node[stack[--top]];
+        if (box_dist2(nd, p) > r2)
+            continue;
+        if (nd->count > 0) {
+            for (int k = nd->start; k < nd->start + nd->count; k++) {
+                const int t = b->order[k], *v = tris + 3 * (size_t)t;
+                const double *tn = normal + 3 * (size_t)t, scale = 1 + fabs(off);
+                int in_plane = dot3(tn, n) > 1 - 1e-12;
+                for (int j = 0; j < 3 && in_plane; j++)
+                    in_plane = fabs(dot3(x + 3 * (size_t)v[j], n) - off) <= 1e-12 * scale;
+                if (in_plane)
+                    continue; /* the cheap test first: a triangle in the plane never disqualifies */
+                double q[3], w[3];
+                if (sq_closest_on_triangle(p, x + 3 * (size_t)v[0], x + 3 * (size_t)v[1], x + 3 * (size_t)v[2], q,
+                                           w) <= r2)
+                    return 0;
+            }
+        } else if (top + 2 <= (int)(sizeof stack / sizeof stack[0])) {
+            stack[top++] = nd->left;
+            stack[top++] = nd->right;
+        } else {
+            return 0; /* too deep to be sure: not coplanar */
+        }
+    }
+    return 1;
+}

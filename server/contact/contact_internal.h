@@ -19,6 +19,11 @@ void sq_bvh_free(sq_bvh *b);
 int sq_bvh_nearest(const sq_bvh *b, const double *x, const int *tris, const double p[3], double reach,
                    double *dist, double closest[3], double bary[3]);
 
+/* are all triangles within r of p in the plane n . x = off (normal n, unit normals given per
+ * triangle)? 1 yes (also when none is within r), 0 no */
+int sq_bvh_coplanar_within(const sq_bvh *b, const double *x, const int *tris, const double *normal, const double p[3],
+                           double r, const double n[3], double off);
+
 /* closest point of triangle (a, b, c) to p, with its barycentric weights; returns |p - q|^2 */
 double sq_closest_on_triangle(const double p[3], const double a[3], const double b[3], const double c[3],
                               double q[3], double bary[3]);

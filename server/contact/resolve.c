@@ -30,6 +30,10 @@ struct sq_contact_cache {
     int valid, cap;
     double *start;  /* position at the frame's first pass (list order, x 3) */
     double *radius; /* distance then to the nearest mesh obstacle (0: always query) */
+    int *tri;       /* a node near one mesh obstacle's flat part: its nearest triangle, else -1 */
+    int *tri_obs;   /* that obstacle */
+    double *flat;   /* how far the node may move from start and the triangle's plane still be the
+                       whole mesh near it (every triangle within 2 flat of start lies in it) */
 };
 
 sq_contact_cache *sq_contact_cache_create(void)
@@ -43,6 +47,9 @@ void sq_contact_cache_free(sq_contact_cache *c)
         return;
     free(c->start);
     free(c->radius);
+    free(c->tri);
+    free(c->tri_obs);
+    free(c->flat);
     free(c);
 }
 
@@ -60,20 +67,84 @@ static void cache_fill(sq_contact_cache *c, const sq_obstacle *obs, int nobs, co
         c->cap = nodes->n;
         c->start = sq_realloc(c->start, sizeof(double) * 3 * (size_t)c->cap);
         c->radius = sq_realloc(c->radius, sizeof(double) * (size_t)c->cap);
+        c->tri = sq_realloc(c->tri, sizeof(int) * (size_t)c->cap);
+        c->tri_obs = sq_realloc(c->tri_obs, sizeof(int) * (size_t)c->cap);
+        c->flat = sq_realloc(c->flat, sizeof(double) * (size_t)c->cap);
     }
     for (int k = 0; k < nodes->n; k++) {
         int i = nodes->list[k];
         double *x = c->start + 3 * (size_t)k, r = INFINITY;
         for (int a = 0; a < 3; a++)
             x[a] = nodes->X[3 * (size_t)i + a] + d[3 * (size_t)i + a];
+        int near = 0, near_obs = -1;
         for (int o = 0; o < nobs; o++)
             if (obs[o].kind == SQ_OBSTACLE_MESH) {
                 double n[3], phi = sq_obstacle_distance(&obs[o], x, n);
                 r = fmin(r, phi > 0 ? phi : 0); /* beyond the thickness: +inf, behind: 0 */
+                if (isfinite(phi)) {
+                    near++;
+                    near_obs = o;
+                }
             }
         c->radius[k] = r;
+        c->tri[k] = -1;
+        if (near == 1) { /* one mesh near: is it flat around the node (a tray's floor)? */
+            const sq_obstacle *ob = &obs[near_obs];
+            const sq_trimesh *m = ob->mesh;
+            double dist, q[3], bary[3];
+            int t = sq_trimesh_nearest(m, x, ob->thickness, &dist, q, bary);
+            if (t >= 0 && dist < 0.25 * ob->thickness) { /* close enough to touch within the frame */
+                /* the flat radius: half the triangle's shortest edge (a node at rest moves far
+                 * less in a frame; one that moves more asks the hierarchy), so few triangles
+                 * are tested for the plane */
+                const int *tv = m->tris + 3 * (size_t)t;
+                double e2 = INFINITY;
+                for (int j = 0; j < 3; j++) {
+                    const double *a = m->x + 3 * (size_t)tv[j], *b = m->x + 3 * (size_t)tv[(j + 1) % 3];
+                    double s2 = 0;
+                    for (int a3 = 0; a3 < 3; a3++)
+                        s2 += (b[a3] - a[a3]) * (b[a3] - a[a3]);
+                    e2 = fmin(e2, s2);
+                }
+                const double rho = fmin(0.25 * ob->thickness, 0.5 * sqrt(e2));
+                const double *tn = m->normal + 3 * (size_t)t;
+                double off = dot3(tn, m->x + 3 * (size_t)m->tris[3 * t]);
+                if (sq_bvh_coplanar_within(m->bvh, m->x, m->tris, m->normal, x, dist + 2 * rho, tn, off)) {
+                    c->tri[k] = t;
+                    c->tri_obs[k] = near_obs;
+                    c->flat[k] = rho;
+                }
+            }
+        }
     }
     c->valid = 1;
+}
+
+/* the mesh obstacle's distance at x from the cached triangle, when x is still within the flat
+ * radius of the cache's start and projects onto the closed triangle (then the triangle's plane is
+ * the nearest surface: every triangle that could be nearer lies in it); 0 to query the hierarchy */
+static int flat_distance(const sq_contact_cache *c, int k, const sq_obstacle *ob, const double x[3], double *phi,
+                         double n[3])
+{
+    const double *x0 = c->start + 3 * (size_t)k;
+    double s = 0;
+    for (int a = 0; a < 3; a++)
+        s += (x[a] - x0[a]) * (x[a] - x0[a]);
+    if (!(s < c->flat[k] * c->flat[k]))
+        return 0;
+    const sq_trimesh *m = ob->mesh;
+    const int t = c->tri[k], *v = m->tris + 3 * (size_t)t;
+    double q[3], w[3];
+    double d2 = sq_closest_on_triangle(x, m->x + 3 * (size_t)v[0], m->x + 3 * (size_t)v[1], m->x + 3 * (size_t)v[2],
+                                       q, w);
+    const double *tn = m->normal + 3 * (size_t)t;
+    double side = (x[0] - q[0]) * tn[0] + (x[1] - q[1]) * tn[1] + (x[2] - q[2]) * tn[2];
+    if (!(d2 <= side * side * (1 + 1e-9) + 1e-24))
+        return 0; /* the plane's foot is outside the triangle (the closest point is not on the
+                     normal through x): the hierarchy decides */
+    memcpy(n, tn, sizeof(double) * 3);
+    *phi = side >= 0 ? side : -side <= ob->thickness ? side : INFINITY;
+    return 1;
 }
 
 int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
@@ -107,7 +178,11 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
             double x[3], n[3];
             for (int c = 0; c < 3; c++)
                 x[c] = nodes->X[3 * (size_t)i + c] + di[c];
-            double phi = sq_obstacle_distance(ob, x, n);
+            double phi;
+            if (cache && cache->tri[k] >= 0 && cache->tri_obs[k] == o && flat_distance(cache, k, ob, x, &phi, n))
+                ; /* near the mesh's flat part: its triangle's plane, no hierarchy query */
+            else
+                phi = sq_obstacle_distance(ob, x, n);
             if (!(phi < 0))
                 continue;
             hit = 1;
