@@ -87,10 +87,13 @@ typedef struct sq_contact_sum {
     double depth;     /* deepest penetration left after the last call, m (>= 0) */
 } sq_contact_sum;
 
-/* what a body keeps between the steps of a frame to skip mesh obstacles cheaply: each listed
- * node's position at the frame's first pass and its distance then to the nearest mesh obstacle;
- * a node that has moved less than that distance since cannot have reached a mesh's surface
- * (the triangle inequality), so its mesh queries are skipped (contact/resolve.c) */
+/* what a body keeps between the steps of a frame to skip obstacles cheaply: each listed node's
+ * displacement at the frame's first pass and its distance then to the nearest obstacle (exact
+ * where positive; obstacles are posed once per frame); a node that has moved less than that
+ * since cannot have reached any obstacle's surface (the triangle inequality), so its tests are
+ * skipped. A node resting on a mesh obstacle's flat part also keeps that triangle's plane, from
+ * frame to frame while it stays near where it was found (contact/resolve.c states why the plane
+ * is then the nearest surface) */
 typedef struct sq_contact_cache sq_contact_cache;
 sq_contact_cache *sq_contact_cache_create(void);
 void sq_contact_cache_free(sq_contact_cache *c);

@@ -24,6 +24,13 @@ int sq_bvh_nearest(const sq_bvh *b, const double *x, const int *tris, const doub
 int sq_bvh_coplanar_within(const sq_bvh *b, const double *x, const int *tris, const double *normal, const double p[3],
                            double r, const double n[3], double off);
 
+/* how many nodes the cache's last fill found on a mesh obstacle's flat part (for tests) */
+int sq_contact_cache_flat_count(const sq_contact_cache *c);
+
+/* a mesh obstacle's signed distance at x (sq_obstacle_distance's), its normal n and the unsigned
+ * distance to the nearest triangle, whose index it returns; -1 (phi +inf) beyond the thickness */
+int sq_obstacle_mesh_nearest(const sq_obstacle *o, const double x[3], double n[3], double *phi, double *dist);
+
 /* closest point of triangle (a, b, c) to p, with its barycentric weights; returns |p - q|^2 */
 double sq_closest_on_triangle(const double p[3], const double a[3], const double b[3], const double c[3],
                               double q[3], double bary[3]);

@@ -26,14 +26,28 @@ static void friction(double vt[3], double dvn, double mu_s, double mu_k)
         vt[c] *= k;
 }
 
+/* a node resting on a mesh obstacle's flat part: the triangle under it as planes (its own, and
+ * the three edges' inward ones), so the distance costs four dot products. It depends only on the
+ * static mesh and its anchor x0, so it is kept from frame to frame while the node stays near x0:
+ * every triangle within dist0 + 2 rho of x0 lies in the plane, so for x within rho of x0 whose
+ * foot lies on the triangle, no other triangle is nearer (one nearer than |side| would lie within
+ * |x - x0| + |side| < dist0 + 2 rho of x0). */
+typedef struct {
+    double x0[3];         /* the anchor */
+    double n[3], off;     /* the triangle's plane: n . x - off */
+    double m[3][3], c[3]; /* inside the closed triangle (as seen along n): m[j] . x >= c[j] */
+    double rho2;          /* squared flat radius around x0 */
+    int obs;              /* the mesh obstacle */
+} flat_tri;
+
 struct sq_contact_cache {
-    int valid, cap;
-    double *start;  /* position at the frame's first pass (list order, x 3) */
-    double *radius; /* distance then to the nearest mesh obstacle (0: always query) */
-    int *tri;       /* a node near one mesh obstacle's flat part: its nearest triangle, else -1 */
-    int *tri_obs;   /* that obstacle */
-    double *flat;   /* how far the node may move from start and the triangle's plane still be the
-                       whole mesh near it (every triangle within 2 flat of start lies in it) */
+    int valid, cap, n;
+    const int *list;  /* the node list the cache was filled for */
+    double *rel;      /* displacement at the frame's first pass (list order, x 3) */
+    double *r2;       /* squared distance then to the nearest obstacle (0: always test) */
+    int *flat;        /* a node near one mesh obstacle's flat part: its flat_tri, else -1 */
+    flat_tri *tris, *next; /* the flat triangles (nflat), and the next frame's being built */
+    int nflat, flat_cap;
 };
 
 sq_contact_cache *sq_contact_cache_create(void)
@@ -45,11 +59,11 @@ void sq_contact_cache_free(sq_contact_cache *c)
 {
     if (!c)
         return;
-    free(c->start);
-    free(c->radius);
-    free(c->tri);
-    free(c->tri_obs);
+    free(c->rel);
+    free(c->r2);
     free(c->flat);
+    free(c->tris);
+    free(c->next);
     free(c);
 }
 
@@ -59,92 +73,162 @@ void sq_contact_cache_reset(sq_contact_cache *c)
         c->valid = 0;
 }
 
-/* the cache's distances from the nodes' current positions (the frame's first pass) */
+int sq_contact_cache_flat_count(const sq_contact_cache *c)
+{
+    return c && c->valid ? c->nflat : 0;
+}
+
+/* the flat part of mesh obstacle ob around x (at distance dist from triangle t): the plane of t
+ * when every triangle within dist + 2 rho of x lies in it, rho = min(thickness / 4, half the
+ * triangle's shortest edge) (a node at rest moves far less; one that moves more asks the
+ * hierarchy again), so few triangles are tested */
+static int flat_of(const sq_obstacle *ob, int t, const double x[3], double dist, flat_tri *f)
+{
+    const sq_trimesh *m = ob->mesh;
+    const int *tv = m->tris + 3 * (size_t)t;
+    const double *tn = m->normal + 3 * (size_t)t;
+    double e2 = INFINITY;
+    for (int j = 0; j < 3; j++) {
+        const double *a = m->x + 3 * (size_t)tv[j], *b = m->x + 3 * (size_t)tv[(j + 1) % 3];
+        const double *o = m->x + 3 * (size_t)tv[(j + 2) % 3];
+        double e[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+        double in[3] = {tn[1] * e[2] - tn[2] * e[1], tn[2] * e[0] - tn[0] * e[2], tn[0] * e[1] - tn[1] * e[0]};
+        double l = sqrt(dot3(in, in));
+        if (!(l > 0))
+            return 0;
+        double r[3] = {o[0] - a[0], o[1] - a[1], o[2] - a[2]};
+        double sgn = dot3(in, r) < 0 ? -1 : 1; /* inward: towards the opposite vertex */
+        for (int c = 0; c < 3; c++)
+            f->m[j][c] = sgn * in[c] / l;
+        f->c[j] = dot3(f->m[j], a) - 1e-12; /* the closed triangle, to a picometre */
+        e2 = fmin(e2, dot3(e, e));
+    }
+    const double rho = fmin(0.25 * ob->thickness, 0.5 * sqrt(e2));
+    memcpy(f->x0, x, sizeof f->x0);
+    memcpy(f->n, tn, sizeof f->n);
+    f->off = dot3(tn, m->x + 3 * (size_t)tv[0]);
+    f->rho2 = rho * rho;
+    return sq_bvh_coplanar_within(m->bvh, m->x, m->tris, m->normal, x, dist + 2 * rho, tn, f->off);
+}
+
+/* the signed distance from f's plane at x when x is within the flat radius of f's anchor and
+ * projects onto the closed triangle; 0 when the hierarchy must decide */
+static int flat_distance(const flat_tri *f, const double x[3], double *side)
+{
+    double e[3] = {x[0] - f->x0[0], x[1] - f->x0[1], x[2] - f->x0[2]};
+    if (!(dot3(e, e) < f->rho2))
+        return 0;
+    for (int j = 0; j < 3; j++)
+        if (!(dot3(f->m[j], x) >= f->c[j]))
+            return 0; /* the plane's foot is outside the triangle */
+    *side = dot3(f->n, x) - f->off;
+    return 1;
+}
+
+/* a mesh obstacle's signed distance as sq_obstacle_distance gives it (+inf beyond the thickness)
+ * from a flat triangle, when it stands */
+static double flat_phi(double side, double thickness)
+{
+    return side >= 0 ? side : -side <= thickness ? side : INFINITY;
+}
+
+/* node k's flat triangle from the last frame, if it still stands at x for obstacle o */
+static const flat_tri *kept_flat(const sq_contact_cache *c, int k, int o, const double x[3], double *side)
+{
+    if (c->flat[k] < 0)
+        return NULL;
+    const flat_tri *f = &c->tris[c->flat[k]];
+    return f->obs == o && flat_distance(f, x, side) ? f : NULL;
+}
+
+static flat_tri *next_flat(sq_contact_cache *c, int nnext)
+{
+    if (nnext == c->flat_cap) {
+        c->flat_cap = c->flat_cap ? 2 * c->flat_cap : 256;
+        c->tris = sq_realloc(c->tris, sizeof(flat_tri) * (size_t)c->flat_cap);
+        c->next = sq_realloc(c->next, sizeof(flat_tri) * (size_t)c->flat_cap);
+    }
+    return &c->next[nnext];
+}
+
+/* the cache's distances from the nodes' current positions (the frame's first pass): obstacles
+ * are posed once per frame and their distances are exact where positive, so a node that moves
+ * less than its distance cannot reach any */
 static void cache_fill(sq_contact_cache *c, const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes,
                        const double *d)
 {
     if (c->cap < nodes->n) {
         c->cap = nodes->n;
-        c->start = sq_realloc(c->start, sizeof(double) * 3 * (size_t)c->cap);
-        c->radius = sq_realloc(c->radius, sizeof(double) * (size_t)c->cap);
-        c->tri = sq_realloc(c->tri, sizeof(int) * (size_t)c->cap);
-        c->tri_obs = sq_realloc(c->tri_obs, sizeof(int) * (size_t)c->cap);
-        c->flat = sq_realloc(c->flat, sizeof(double) * (size_t)c->cap);
+        c->rel = sq_realloc(c->rel, sizeof(double) * 3 * (size_t)c->cap);
+        c->r2 = sq_realloc(c->r2, sizeof(double) * (size_t)c->cap);
+        c->flat = sq_realloc(c->flat, sizeof(int) * (size_t)c->cap);
+        c->list = NULL;
     }
+    if (c->list != nodes->list || c->n != nodes->n) { /* another node list: forget the flat parts */
+        for (int k = 0; k < nodes->n; k++)
+            c->flat[k] = -1;
+        c->list = nodes->list;
+        c->n = nodes->n;
+        c->nflat = 0;
+    }
+    int nnext = 0;
     for (int k = 0; k < nodes->n; k++) {
         int i = nodes->list[k];
-        double *x = c->start + 3 * (size_t)k, r = INFINITY;
-        for (int a = 0; a < 3; a++)
+        double x[3], r = INFINITY;
+        for (int a = 0; a < 3; a++) {
+            c->rel[3 * (size_t)k + a] = d[3 * (size_t)i + a];
             x[a] = nodes->X[3 * (size_t)i + a] + d[3 * (size_t)i + a];
-        int near = 0, near_obs = -1;
-        for (int o = 0; o < nobs; o++)
-            if (obs[o].kind == SQ_OBSTACLE_MESH) {
-                double n[3], phi = sq_obstacle_distance(&obs[o], x, n);
-                r = fmin(r, phi > 0 ? phi : 0); /* beyond the thickness: +inf, behind: 0 */
-                if (isfinite(phi)) {
-                    near++;
-                    near_obs = o;
+        }
+        int near = 0, near_obs = -1, near_tri = -1;
+        double near_dist = 0, side;
+        const flat_tri *kept = NULL;
+        for (int o = 0; o < nobs; o++) {
+            const sq_obstacle *ob = &obs[o];
+            double n[3], phi;
+            const flat_tri *f = ob->kind == SQ_OBSTACLE_MESH ? kept_flat(c, k, o, x, &side) : NULL;
+            if (f) {
+                kept = f;
+                phi = flat_phi(side, ob->thickness);
+            } else if (ob->kind == SQ_OBSTACLE_MESH) { /* sq_obstacle_distance's, keeping the triangle */
+                double dist;
+                int t = ob->mesh ? sq_obstacle_mesh_nearest(ob, x, n, &phi, &dist) : -1;
+                if (t < 0)
+                    phi = INFINITY;
+                else {
+                    near_tri = t;
+                    near_dist = dist;
                 }
-            }
-        c->radius[k] = r;
-        c->tri[k] = -1;
-        if (near == 1) { /* one mesh near: is it flat around the node (a tray's floor)? */
-            const sq_obstacle *ob = &obs[near_obs];
-            const sq_trimesh *m = ob->mesh;
-            double dist, q[3], bary[3];
-            int t = sq_trimesh_nearest(m, x, ob->thickness, &dist, q, bary);
-            if (t >= 0 && dist < 0.25 * ob->thickness) { /* close enough to touch within the frame */
-                /* the flat radius: half the triangle's shortest edge (a node at rest moves far
-                 * less in a frame; one that moves more asks the hierarchy), so few triangles
-                 * are tested for the plane */
-                const int *tv = m->tris + 3 * (size_t)t;
-                double e2 = INFINITY;
-                for (int j = 0; j < 3; j++) {
-                    const double *a = m->x + 3 * (size_t)tv[j], *b = m->x + 3 * (size_t)tv[(j + 1) % 3];
-                    double s2 = 0;
-                    for (int a3 = 0; a3 < 3; a3++)
-                        s2 += (b[a3] - a[a3]) * (b[a3] - a[a3]);
-                    e2 = fmin(e2, s2);
-                }
-                const double rho = fmin(0.25 * ob->thickness, 0.5 * sqrt(e2));
-                const double *tn = m->normal + 3 * (size_t)t;
-                double off = dot3(tn, m->x + 3 * (size_t)m->tris[3 * t]);
-                if (sq_bvh_coplanar_within(m->bvh, m->x, m->tris, m->normal, x, dist + 2 * rho, tn, off)) {
-                    c->tri[k] = t;
-                    c->tri_obs[k] = near_obs;
-                    c->flat[k] = rho;
-                }
+            } else
+                phi = sq_obstacle_distance(ob, x, n);
+            const int found = isfinite(phi);
+            if (ob->kind == SQ_OBSTACLE_MESH && !found)
+                phi = ob->thickness; /* beyond the thickness (or its box's reach): at least that far */
+            r = fmin(r, phi > 0 ? phi : 0); /* behind: 0 */
+            if (ob->kind == SQ_OBSTACLE_MESH && found) {
+                near++;
+                near_obs = o;
             }
         }
+        c->r2[k] = r * r;
+        int slot = -1;
+        if (near == 1 && kept && kept->obs == near_obs) { /* the same flat part as last frame */
+            const flat_tri same = *kept; /* next_flat may move c->tris */
+            *next_flat(c, nnext) = same;
+            slot = nnext++;
+        } else if (near == 1 && !kept && near_tri >= 0 && near_dist < 0.25 * obs[near_obs].thickness) {
+            flat_tri *f = next_flat(c, nnext); /* close enough to touch: is it flat around the node? */
+            if (flat_of(&obs[near_obs], near_tri, x, near_dist, f)) {
+                f->obs = near_obs;
+                slot = nnext++;
+            }
+        }
+        c->flat[k] = slot;
     }
+    flat_tri *t = c->tris;
+    c->tris = c->next;
+    c->next = t;
+    c->nflat = nnext;
     c->valid = 1;
-}
-
-/* the mesh obstacle's distance at x from the cached triangle, when x is still within the flat
- * radius of the cache's start and projects onto the closed triangle (then the triangle's plane is
- * the nearest surface: every triangle that could be nearer lies in it); 0 to query the hierarchy */
-static int flat_distance(const sq_contact_cache *c, int k, const sq_obstacle *ob, const double x[3], double *phi,
-                         double n[3])
-{
-    const double *x0 = c->start + 3 * (size_t)k;
-    double s = 0;
-    for (int a = 0; a < 3; a++)
-        s += (x[a] - x0[a]) * (x[a] - x0[a]);
-    if (!(s < c->flat[k] * c->flat[k]))
-        return 0;
-    const sq_trimesh *m = ob->mesh;
-    const int t = c->tri[k], *v = m->tris + 3 * (size_t)t;
-    double q[3], w[3];
-    double d2 = sq_closest_on_triangle(x, m->x + 3 * (size_t)v[0], m->x + 3 * (size_t)v[1], m->x + 3 * (size_t)v[2],
-                                       q, w);
-    const double *tn = m->normal + 3 * (size_t)t;
-    double side = (x[0] - q[0]) * tn[0] + (x[1] - q[1]) * tn[1] + (x[2] - q[2]) * tn[2];
-    if (!(d2 <= side * side * (1 + 1e-9) + 1e-24))
-        return 0; /* the plane's foot is outside the triangle (the closest point is not on the
-                     normal through x): the hierarchy decides */
-    memcpy(n, tn, sizeof(double) * 3);
-    *phi = side >= 0 ? side : -side <= ob->thickness ? side : INFINITY;
-    return 1;
 }
 
 int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
@@ -157,31 +241,27 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
         cache_fill(cache, obs, nobs, nodes, d);
     for (int k = 0; k < nodes->n; k++) {
         int i = nodes->list[k];
+        double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i;
+        if (cache) { /* moved less than its distance to the obstacles: they are out of reach */
+            const double *r = cache->rel + 3 * (size_t)k;
+            double e0 = di[0] - r[0], e1 = di[1] - r[1], e2 = di[2] - r[2];
+            if (e0 * e0 + e1 * e1 + e2 * e2 < cache->r2[k])
+                continue;
+        }
         if (nodes->fixed[i] || (nodes->mask && !nodes->mask[i]))
             continue;
-        double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i;
         const double m = nodes->mass[i];
-        int hit = 0, far = 0;
-        if (cache) { /* moved less than its distance to the mesh obstacles: they are out of reach */
-            const double *x0 = cache->start + 3 * (size_t)k;
-            double s = 0;
-            for (int c = 0; c < 3; c++) {
-                double e = nodes->X[3 * (size_t)i + c] + di[c] - x0[c];
-                s += e * e;
-            }
-            far = s < cache->radius[k] * cache->radius[k];
-        }
+        int hit = 0;
+        const flat_tri *f = cache && cache->flat[k] >= 0 ? &cache->tris[cache->flat[k]] : NULL;
         for (int o = 0; o < nobs; o++) {
             const sq_obstacle *ob = &obs[o];
-            if (far && ob->kind == SQ_OBSTACLE_MESH)
-                continue;
-            double x[3], n[3];
+            double x[3], n[3], phi, side;
             for (int c = 0; c < 3; c++)
                 x[c] = nodes->X[3 * (size_t)i + c] + di[c];
-            double phi;
-            if (cache && cache->tri[k] >= 0 && cache->tri_obs[k] == o && flat_distance(cache, k, ob, x, &phi, n))
-                ; /* near the mesh's flat part: its triangle's plane, no hierarchy query */
-            else
+            if (f && f->obs == o && flat_distance(f, x, &side)) { /* the mesh's flat part: its plane */
+                phi = flat_phi(side, ob->thickness);
+                memcpy(n, f->n, sizeof n);
+            } else
                 phi = sq_obstacle_distance(ob, x, n);
             if (!(phi < 0))
                 continue;

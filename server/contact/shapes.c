@@ -65,30 +65,33 @@ static double capsule_distance(const sq_obstacle *o, const double x[3], double n
     return unit_from(r, n, up) - o->radius;
 }
 
-static double mesh_distance(const sq_obstacle *o, const double x[3], double n[3])
+int sq_obstacle_mesh_nearest(const sq_obstacle *o, const double x[3], double n[3], double *phi, double *dist)
 {
     const sq_trimesh *m = o->mesh;
+    *phi = INFINITY;
     for (int c = 0; c < 3; c++) /* broad phase: farther than the thickness from the mesh's box */
         if (x[c] < m->bbox_min[c] - o->thickness || x[c] > m->bbox_max[c] + o->thickness)
-            return INFINITY;
-    double dist, q[3], bary[3];
-    int t = sq_trimesh_nearest(m, x, o->thickness, &dist, q, bary);
+            return -1;
+    double q[3], bary[3];
+    int t = sq_trimesh_nearest(m, x, o->thickness, dist, q, bary);
     if (t < 0)
-        return INFINITY;
+        return -1;
     const double *tn = m->normal + 3 * (size_t)t;
     double r[3];
     for (int c = 0; c < 3; c++)
         r[c] = x[c] - q[c];
     double side = dot3(r, tn);
     if (side >= 0) { /* in front: away from the nearest point (the face normal on the face) */
-        if (dist > 1e-12)
+        if (*dist > 1e-12)
             unit_from(r, n, tn);
         else
             memcpy(n, tn, sizeof(double) * 3);
-        return dist;
+        *phi = *dist;
+        return t;
     }
     memcpy(n, tn, sizeof(double) * 3); /* behind: within the thickness counts as inside */
-    return -dist;
+    *phi = -*dist;
+    return t;
 }
 
 double sq_obstacle_distance(const sq_obstacle *o, const double x[3], double n[3])
@@ -108,7 +111,12 @@ double sq_obstacle_distance(const sq_obstacle *o, const double x[3], double n[3]
     case SQ_OBSTACLE_CAPSULE:
         return capsule_distance(o, x, n);
     case SQ_OBSTACLE_MESH:
-        return o->mesh ? mesh_distance(o, x, n) : INFINITY;
+        if (o->mesh) {
+            double phi, dist;
+            sq_obstacle_mesh_nearest(o, x, n, &phi, &dist);
+            return phi;
+        }
+        return INFINITY;
     }
     return INFINITY;
 }

@@ -58,7 +58,7 @@ static const det_pin pins[] = {
     {"paper-cube", "scene", 0xc5c82c2c051ac668ull},
     {"sphere-grab", "scene", 0x4d465e16c76691f2ull},
     {"jelly-drop", "scene", 0xde824b55b83bd7e6ull},
-    {"organ-tray", "scene", 0x75e806a3e5898d47ull},
+    {"organ-tray", "scene", 0x331780692d3a81a1ull},
     {"squeeze", "scene", 0x6090d03b6f9abf3cull},
 };
 #else
@@ -73,7 +73,7 @@ static const det_pin pins[] = {
     {"paper-cube", "scene", 0x57da013edede2070ull},
     {"sphere-grab", "scene", 0x3fb980bb00cd5a3cull},
     {"jelly-drop", "scene", 0xc1b226d5b6948411ull},
-    {"organ-tray", "scene", 0x06f7c98daad7e6a0ull},
+    {"organ-tray", "scene", 0x804c163460c6ed32ull},
     {"squeeze", "scene", 0xaf0f42b837de23ebull},
 };
 #endif
