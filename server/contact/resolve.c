@@ -465,7 +465,9 @@ int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_conta
             double vn = dot3(vr, n), phi = -depth, phi0 = phi - h * vn;
             /* started outside: land on the surface; started inside (the target moved into it, or
              * a node deeper than one step): leave at half the depth per step */
-            double vn1 = phi0 > 0 ? -phi0 / h : 0.5 * depth / h;
+            double vn1 = phi0 > 0 ? -phi0 / h : 0;
+            double mt = Winv > 0 ? 1.0 / Winv : INFINITY;
+            double dpos = phi0 > 0 ? 0 : depth * (isinf(mt) ? 1.0 : mt / (m + mt));
             if (vn1 < vn)
                 vn1 = vn;
             double dvn = (vn1 - vn) * meff / m, vt[3]; /* the node's normal velocity change */
@@ -479,7 +481,7 @@ int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_conta
             for (int c = 0; c < 3; c++) {
                 double dv = dvn * n[c] + (vt1[c] - vt[c]) * meff / m;
                 vi[c] += dv;
-                di[c] += h * dv;
+                di[c] += h * dv + dpos * n[c];
                 double J = m * dv;
                 if (sum)
                     sum->impulse[c] += J;

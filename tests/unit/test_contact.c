@@ -424,10 +424,10 @@ SQ_TEST(contact_undamped_drop_gains_no_energy)
 /* two blocks squeezed without gravity: the right one glued on its far face, the left one free
  * and pushed 2 cm by a box tool: the contact forces on the two are equal and opposite within
  * 1 % (by construction: every impulse has its opposite), the right block pushes back, nothing
- * resets. Penetration: the issue's bar is 1 % of the 0.2 m edge, 2 mm; measured 2.13 mm
- * (1.07 %), the bar is NOT met: the body stepped second moves into the first one's nodes
- * after the first has stepped (docs/physics.md section 13). Asserted: under 1.25 % (2.5 mm),
- * the figure the method holds, so a regression fails */
+ * resets. Penetration: the issue's bar, no node of one inside the other deeper than 1 % of the
+ * 0.2 m edge (2 mm), over the last 20 frames (the tool at rest); measured 0.57 mm (0.28 %)
+ * since a node found inside leaves by a position move (docs/physics.md section 13); with the
+ * earlier exit at half the depth per step it was 2.13 mm (1.07 %) */
 SQ_TEST(contact_two_bodies_squeezed_equal_and_opposite)
 {
     sq_err e = {{0}};
@@ -475,7 +475,7 @@ SQ_TEST(contact_two_bodies_squeezed_equal_and_opposite)
            Fl[2], Fr[0], Fr[1], Fr[2], depth, nl);
     CHECK(Fl[0] < -1);   /* the right block pushes back on the left one */
     CHECK_NEAR(Fl[0], -Fr[0], 0.01 * fabs(Fr[0]));
-    CHECK(depth < 0.0125 * 0.2);
+    CHECK(depth < 0.01 * 0.2);
     CHECK(w->resets == 0);
     sq_world_destroy(w);
     sq_scene_free(sc);

@@ -59,7 +59,7 @@ static const det_pin pins[] = {
     {"sphere-grab", "scene", 0x4d465e16c76691f2ull},
     {"jelly-drop", "scene", 0xde824b55b83bd7e6ull},
     {"organ-tray", "scene", 0x331780692d3a81a1ull},
-    {"squeeze", "scene", 0x6090d03b6f9abf3cull},
+    {"squeeze", "scene", 0xf2292726ff3ba15aull},
 };
 #else
 static const det_pin pins[] = {
@@ -74,7 +74,7 @@ static const det_pin pins[] = {
     {"sphere-grab", "scene", 0x3fb980bb00cd5a3cull},
     {"jelly-drop", "scene", 0xc1b226d5b6948411ull},
     {"organ-tray", "scene", 0x804c163460c6ed32ull},
-    {"squeeze", "scene", 0xaf0f42b837de23ebull},
+    {"squeeze", "scene", 0x497913a17168185dull},
 };
 #endif
 
