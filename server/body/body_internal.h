@@ -90,6 +90,17 @@ struct sq_body {
     unsigned char *touched[SQ_MAX_LEVELS]; /* nodes in contact this frame, per level (n_k): left
                                               out of the sleep test's residual */
     int touched_n[SQ_MAX_LEVELS];
+    /* the implicit integrator's contact constraints (docs/physics.md section 13): where the
+     * obstacle pass met each node of the simulated level (n), and the list of the next solve's
+     * constraints (the last pass's nodes, and the last solve's that still pushed) */
+    sq_contact_point *cpoint;
+    int cpoint_n, cstamp;
+    int ncon;
+    int *con_node;
+    sq_contact_point *con_pt;
+    double *con_normal, *con_u, *con_imp, *con_f; /* per constraint: 3 each */
+    unsigned char *con_stick, *con_mark;   /* per constraint; per node */
+    sq_implicit_contacts con_set;
 };
 
 #define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */
@@ -108,6 +119,10 @@ void sq_body_contact_free(sq_body *b);
 void sq_body_contact_begin(sq_body *b);
 /* a diverged explicit frame is re-run: the reactions it gave its targets are dropped */
 void sq_body_contact_retry(sq_body *b);
+/* implicit: the contact constraints of level L's next step (set on L; none without obstacles) */
+void sq_body_contact_constraints(sq_body *b, sq_level *L);
+/* implicit: after the step of length h, the constraints' impulses and friction into b->contact */
+void sq_body_contact_constrained(sq_body *b, sq_level *L, double h);
 
 /* ---- body.c: levels, state transfer, surface map, validation ---- */
 /* interpolate a per-node field (n x 3) of mesh m at tet t with barycentrics bary */

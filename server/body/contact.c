@@ -32,6 +32,16 @@ void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, do
         b->ccache = sq_contact_cache_create();
     nd.cache = b->ccache;
     nd.touched = b->touched[b->cur];
+    if (b->def.integrator == SQ_INTEGRATOR_IMPLICIT && b->nobstacles) {
+        if (b->cpoint_n != L->model.n) {
+            free(b->cpoint);
+            b->cpoint = sq_calloc((size_t)L->model.n, sizeof *b->cpoint);
+            b->cpoint_n = L->model.n;
+            b->ncon = 0;
+        }
+        nd.points = b->cpoint;
+        nd.stamp = ++b->cstamp;
+    }
     if (b->nobstacles)
         sq_contact_step(b->obstacles, b->nobstacles, &nd, L->d, L->v, h, &b->contact);
     if (b->ntargets)
@@ -57,8 +67,86 @@ void sq_body_contact_begin(sq_body *b)
     }
 }
 
+/* the next solve's constraints: the last solve's that still pushed (a resting node the solve
+ * held on the surface is not inside it, so the pass does not meet it again), with their kind
+ * (sticking or sliding), and the nodes the last obstacle pass met, new ones sliding */
+static double con_jn(const sq_body *b, int k)
+{
+    const double *J = b->con_imp + 3 * (size_t)k, *n = b->con_pt[k].n;
+    return J[0] * n[0] + J[1] * n[1] + J[2] * n[2];
+}
+
+void sq_body_contact_constraints(sq_body *b, sq_level *L)
+{
+    sq_level_implicit_set_contacts(L, NULL);
+    const int n = L->model.n;
+    if (!b->nobstacles || !b->cpoint || b->cpoint_n != n)
+        return;
+    if (!b->con_mark) {
+        const size_t ns = (size_t)(n > 0 ? n : 1);
+        b->con_mark = sq_calloc(ns, 1);
+        b->con_stick = sq_calloc(ns, 1);
+        b->con_node = sq_malloc(ns * sizeof(int));
+        b->con_pt = sq_malloc(ns * sizeof(sq_contact_point));
+        b->con_normal = sq_malloc(3 * ns * sizeof(double));
+        b->con_u = sq_malloc(3 * ns * sizeof(double));
+        b->con_imp = sq_calloc(3 * ns, sizeof(double));
+        b->con_f = sq_calloc(3 * ns, sizeof(double));
+    }
+    int m = 0;
+    for (int k = 0; k < b->ncon; k++) /* kept: pushed in the last solve */
+        if (con_jn(b, k) > 0) {
+            const int i = b->con_node[k];
+            b->con_node[m] = i;
+            b->con_pt[m] = b->con_pt[k];
+            b->con_stick[m] = b->con_stick[k];
+            memmove(b->con_f + 3 * (size_t)m, b->con_f + 3 * (size_t)k, 3 * sizeof(double));
+            b->con_mark[i] = (unsigned char)1;
+            m++;
+        }
+    const int kept = m;
+    for (int i = 0; i < n; i++) /* met by the last pass (its normal replaces a kept one's) */
+        if (b->cstamp > 0 && b->cpoint[i].stamp == b->cstamp) {
+            if (b->con_mark[i]) {
+                for (int k = 0; k < kept; k++)
+                    if (b->con_node[k] == i)
+                        b->con_pt[k] = b->cpoint[i];
+                continue;
+            }
+            b->con_node[m] = i;
+            b->con_pt[m] = b->cpoint[i];
+            b->con_stick[m] = 0;
+            b->con_f[3 * (size_t)m] = b->con_f[3 * (size_t)m + 1] = b->con_f[3 * (size_t)m + 2] = 0;
+            m++;
+        }
+    for (int k = 0; k < m; k++) {
+        const sq_contact_point *p = &b->con_pt[k];
+        b->con_mark[b->con_node[k]] = 0;
+        memcpy(b->con_normal + 3 * (size_t)k, p->n, sizeof p->n);
+        memcpy(b->con_u + 3 * (size_t)k, p->u, sizeof p->u);
+    }
+    b->ncon = m;
+    b->con_set = (sq_implicit_contacts){.n = m, .node = b->con_node, .normal = b->con_normal, .u = b->con_u,
+                                        .stick = b->con_stick, .force = b->con_f, .impulse = b->con_imp};
+    sq_level_implicit_set_contacts(L, &b->con_set);
+}
+
+void sq_body_contact_constrained(sq_body *b, sq_level *L, double h)
+{
+    if (!b->ncon)
+        return;
+    double t0 = sq_thread_cpu();
+    sq_contact_constrained(b->con_pt, b->ncon, b->con_node, b->con_imp, b->con_stick, b->con_f, L->model.mass, L->d,
+                           L->v, h, &b->contact);
+    for (int k = 0; k < b->ncon; k++)
+        if (con_jn(b, k) > 0 && b->touched[b->cur])
+            b->touched[b->cur][b->con_node[k]] = 1;
+    b->contact_cpu += sq_thread_cpu() - t0;
+}
+
 void sq_body_contact_retry(sq_body *b)
 {
+    b->ncon = 0;
     for (int g = 0; g < b->ntargets; g++)
         memset(b->targets[g].reaction, 0, sizeof(double) * 3 * (size_t)b->targets[g].n);
 }
@@ -134,6 +222,15 @@ double sq_body_contact_cpu(const sq_body *b)
 
 void sq_body_contact_free(sq_body *b)
 {
+    void *con[] = {b->cpoint, b->con_node, b->con_pt, b->con_normal, b->con_u, b->con_imp, b->con_mark, b->con_stick, b->con_f};
+    for (size_t k = 0; k < sizeof con / sizeof con[0]; k++)
+        free(con[k]);
+    b->cpoint = NULL;
+    b->con_node = NULL;
+    b->con_pt = NULL;
+    b->con_normal = b->con_u = b->con_imp = b->con_f = NULL;
+    b->con_mark = b->con_stick = NULL;
+    b->cpoint_n = b->ncon = 0;
     free(b->reaction);
     b->reaction = NULL;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {

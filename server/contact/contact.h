@@ -100,6 +100,16 @@ void sq_contact_cache_free(sq_contact_cache *c);
 /* a new frame: the next pass measures afresh */
 void sq_contact_cache_reset(sq_contact_cache *c);
 
+/* where a node met an obstacle in a pass: the outward unit normal there, the obstacle's
+ * velocity and friction, and the pass's stamp (sq_contact_nodes.stamp). The implicit integrator
+ * makes these contacts constraints of its next solve (docs/physics.md section 13) */
+typedef struct sq_contact_point {
+    double n[3];
+    double u[3];
+    double mu_s, mu_k;
+    int stamp;
+} sq_contact_point;
+
 /* the nodes a pass may move */
 typedef struct sq_contact_nodes {
     int n;
@@ -110,12 +120,28 @@ typedef struct sq_contact_nodes {
     const unsigned char *mask;  /* NULL, or 0 for a node the pass must leave alone (a held node) */
     sq_contact_cache *cache;    /* NULL, or the frame's cache of the mesh obstacles' distances */
     unsigned char *touched;     /* NULL, or set to 1 at each node a pass finds in contact (nodes) */
+    sq_contact_point *points;   /* NULL, or (nodes) written with stamp at each node the obstacle
+                                   pass finds inside an obstacle (the last obstacle's) */
+    int stamp;
 } sq_contact_nodes;
 
 /* one substep's contact after the position update of step h: d and v of the listed nodes
  * changed in place, impulses added to sum (may be NULL). Returns the nodes in contact */
 int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
                     double h, sq_contact_sum *sum);
+
+/* after an implicit step that held the listed nodes' velocities as constraints of its solve
+ * (sticking contacts: the whole velocity relative to the obstacle; sliding ones: its normal
+ * part, with the kinetic friction force fric in the solve): the impulses J (3 per contact, N s:
+ * M dv - h f, the constraint's and the friction's) are added to sum, and each contact's next
+ * step set: a sticking one whose tangential impulse exceeds mu_s Jn (Jn = J . n) slides, with
+ * the kinetic force mu_k Jn / h along that impulse; a sliding one slides on with mu_k Jn / h
+ * against its tangential velocity, or sticks once that velocity has stopped or turned (the
+ * turned part is removed: only kinetic energy is taken). Jn <= 0 marks a contact that pulled
+ * (the caller releases it) */
+void sq_contact_constrained(const sq_contact_point *pts, int n, const int *node, const double *J,
+                            unsigned char *stick, double *fric, const double *mass, double *d, double *v,
+                            double h, sq_contact_sum *sum);
 
 /* a body's surface for body-against-body contact: its triangles in node numbering, the current
  * positions of their nodes and a bounding-volume hierarchy over them (built at the first

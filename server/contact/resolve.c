@@ -266,6 +266,14 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
             if (!(phi < 0))
                 continue;
             hit = 1;
+            if (nodes->points) {
+                sq_contact_point *pt = &nodes->points[i];
+                memcpy(pt->n, n, sizeof n);
+                memcpy(pt->u, ob->velocity, sizeof pt->u);
+                pt->mu_s = ob->mu_s;
+                pt->mu_k = ob->mu_k;
+                pt->stamp = nodes->stamp;
+            }
             double vr[3];
             for (int c = 0; c < 3; c++)
                 vr[c] = vi[c] - ob->velocity[c];
@@ -415,6 +423,60 @@ double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach)
             deepest = depth;
     }
     return deepest;
+}
+
+void sq_contact_constrained(const sq_contact_point *pts, int n, const int *node, const double *J,
+                            unsigned char *stick, double *fric, const double *mass, double *d, double *v,
+                            double h, sq_contact_sum *sum)
+{
+    for (int k = 0; k < n; k++) {
+        const sq_contact_point *pt = &pts[k];
+        const double *Jk = J + 3 * (size_t)k;
+        double *fk = fric + 3 * (size_t)k;
+        const double jn = dot3(Jk, pt->n);
+        if (sum)
+            for (int c = 0; c < 3; c++)
+                sum->impulse[c] += Jk[c];
+        if (!(jn > 0)) {
+            fk[0] = fk[1] = fk[2] = 0;
+            continue;
+        }
+        if (stick[k]) { /* stays stuck while the tangential impulse is inside the cone */
+            double jt[3];
+            for (int c = 0; c < 3; c++)
+                jt[c] = Jk[c] - jn * pt->n[c];
+            const double s = sqrt(dot3(jt, jt));
+            stick[k] = s <= pt->mu_s * jn;
+            for (int c = 0; c < 3; c++)
+                fk[c] = stick[k] ? 0 : pt->mu_k * jn / h * jt[c] / s;
+            continue;
+        }
+        const int i = node[k];
+        double *vi = v + 3 * (size_t)i, *di = d + 3 * (size_t)i, vr[3], vt[3];
+        for (int c = 0; c < 3; c++)
+            vr[c] = vi[c] - pt->u[c];
+        const double vn = dot3(vr, pt->n);
+        for (int c = 0; c < 3; c++)
+            vt[c] = vr[c] - vn * pt->n[c];
+        const double m = mass[i];
+        const double s = sqrt(dot3(vt, vt)), turned = dot3(vt, fk);
+        const int fresh = fk[0] == 0 && fk[1] == 0 && fk[2] == 0; /* no friction force yet */
+        /* stuck: a new contact whose slip static friction can stop (Coulomb's rule at the node);
+         * a sliding one once its slip has stopped or turned under the friction force */
+        if (s <= 1e-12 || turned > 0 || (fresh && s <= pt->mu_s * jn / m)) {
+            stick[k] = 1;
+            for (int c = 0; c < 3; c++) {
+                vi[c] -= vt[c];
+                di[c] -= h * vt[c];
+                if (sum)
+                    sum->impulse[c] -= m * vt[c];
+                fk[c] = 0;
+            }
+            continue;
+        }
+        for (int c = 0; c < 3; c++)
+            fk[c] = -pt->mu_k * jn / h * vt[c] / s;
+    }
 }
 
 /* ---- body against body, every substep --------------------------------------------------- */

@@ -69,6 +69,12 @@ struct sq_implicit {
     unsigned long long e_hash;
     int e_valid;
     unsigned char *freeax;        /* free axes per node this step, bits x=1 y=2 z=4 (n) */
+    /* contacts as constraints: the caller's list, and which of its entries this step uses (a
+     * free node: 1), their prescribed part of dv (3 n, zero elsewhere) */
+    const sq_implicit_contacts *cc;
+    unsigned char *cuse;
+    int ncuse, cuse_cap;
+    double *zc;
 };
 
 static void *imp_calloc(size_t count, size_t size) { return sq_calloc(count ? count : 1, size); }
@@ -116,6 +122,8 @@ void sq_level_implicit_free(sq_level *L)
         free(vecs[k]);
     mg_free(I);
     free(I->freeax);
+    free(I->cuse);
+    free(I->zc);
     free(I->kup_r);
     free(I->tet_edge);
     free(I);
@@ -152,7 +160,7 @@ static void apply_k(const imp_op *o, const double *x, double *y)
         y[k] = -y[k];
 }
 
-/* zero the axes that are not free */
+/* zero the axes that are not free, and the normal component at the contacts this step uses */
 static void project(const sq_implicit *I, double *x)
 {
     for (int i = 0; i < I->n; i++) {
@@ -162,6 +170,41 @@ static void project(const sq_implicit *I, double *x)
         for (int c = 0; c < 3; c++)
             if (!(fa & (1u << c)))
                 x[3 * i + c] = 0;
+    }
+    if (I->ncuse)
+        for (int k = 0; k < I->cc->n; k++)
+            if (I->cuse[k]) {
+                const double *nk = I->cc->normal + 3 * (size_t)k;
+                double *xi = x + 3 * (size_t)I->cc->node[k];
+                const double s = I->cc->stick[k] ? 0 : xi[0] * nk[0] + xi[1] * nk[1] + xi[2] * nk[2];
+                for (int c = 0; c < 3; c++)
+                    xi[c] = I->cc->stick[k] ? 0 : xi[c] - s * nk[c];
+            }
+}
+
+void sq_level_implicit_set_contacts(sq_level *L, const sq_implicit_contacts *cc)
+{
+    sq_implicit *I = imp_get(L);
+    I->cc = cc && cc->n > 0 ? cc : NULL;
+}
+
+/* which of the caller's contacts this step uses (free nodes only), their impulses zeroed */
+static void contacts_begin(sq_implicit *I)
+{
+    I->ncuse = 0;
+    const sq_implicit_contacts *cc = I->cc;
+    if (!cc)
+        return;
+    if (I->cuse_cap < cc->n) {
+        free(I->cuse);
+        I->cuse = sq_malloc((size_t)cc->n);
+        I->cuse_cap = cc->n;
+    }
+    for (int k = 0; k < cc->n; k++) {
+        const int i = cc->node[k];
+        I->cuse[k] = i >= 0 && i < I->n && I->freeax[i] == 7;
+        I->ncuse += I->cuse[k];
+        cc->impulse[3 * (size_t)k] = cc->impulse[3 * (size_t)k + 1] = cc->impulse[3 * (size_t)k + 2] = 0;
     }
 }
 
@@ -639,6 +682,8 @@ static void precond_apply(const imp_op *o, int kind, const double *r, double *z)
             for (int c = 0; c < 3; c++)
                 z[3 * i + c] = I->pre[9 * (size_t)i + c] * r[3 * i + c];
     }
+    if (I->ncuse) /* S B^-1 S: symmetric, positive on the contacts' free subspace */
+        project(I, z);
 }
 
 int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse)
@@ -838,6 +883,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     const size_t n3 = 3 * (size_t)n;
     for (int i = 0; i < n; i++)
         I->freeax[i] = (mask && !mask[i]) ? 0 : (unsigned char)(~M->fixed[i] & 7u);
+    contacts_begin(I);
     /* c_d: the viscosity blocks (linear operators; corotational viscosity is applied from the
      * step's start, not in the operator: docs/physics.md); stiffness damping b with Rayleigh */
     const int visc = mat->use_viscosity != 0;
@@ -865,7 +911,29 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     apply_k(&o, I->x, I->kv);
     for (size_t k = 0; k < n3; k++)
         I->rhs[k] = h * (L->f[k] - h * I->kv[k]);
+    if (I->ncuse) /* the contacts' forces (kinetic friction) */
+        for (int k = 0; k < I->cc->n; k++)
+            if (I->cuse[k])
+                for (int c = 0; c < 3; c++)
+                    I->rhs[3 * (size_t)I->cc->node[k] + c] += h * I->cc->force[3 * (size_t)k + c];
     project(I, I->rhs);
+    if (I->ncuse) { /* the contacts' prescribed part z of dv: rhs -= P A z (the solve adds z) */
+        if (!I->zc)
+            I->zc = imp_calloc(n3 + 1, sizeof(double));
+        memset(I->zc, 0, sizeof(double) * n3);
+        for (int k = 0; k < I->cc->n; k++)
+            if (I->cuse[k]) {
+                const double *nk = I->cc->normal + 3 * (size_t)k, *uk = I->cc->u + 3 * (size_t)k;
+                const size_t i3 = 3 * (size_t)I->cc->node[k];
+                double rel[3] = {uk[0] - L->v[i3], uk[1] - L->v[i3 + 1], uk[2] - L->v[i3 + 2]};
+                const double s = rel[0] * nk[0] + rel[1] * nk[1] + rel[2] * nk[2];
+                for (int c = 0; c < 3; c++)
+                    I->zc[i3 + c] = I->cc->stick[k] ? rel[c] : s * nk[c];
+            }
+        apply_a(&o, I->zc, I->kv);
+        for (size_t k = 0; k < n3; k++)
+            I->rhs[k] -= I->kv[k];
+    }
     double rhs0 = sqrt(dot(I->rhs, I->rhs, n3));
     /* held nodes move first: d += h u on their unconstrained axes */
     if (mask)
@@ -889,6 +957,9 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             project(I, I->x);
         }
         st->iterations += pcg(&o, def, I->rhs, I->x, warm, deadline, &relres, &capped);
+        if (nt == 0 && I->ncuse)
+            for (size_t k = 0; k < n3; k++)
+                I->x[k] += I->zc[k];
         if (nt == 0 || relres > st->residual)
             st->residual = relres;
         st->unconverged |= capped;
@@ -941,6 +1012,17 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     }
     memcpy(I->dvprev, I->dv, sizeof(double) * n3);
     I->have_prev = 1;
+    if (I->ncuse) { /* the constraints' impulses: M (v1 - v0) - h f(end state) */
+        forces_now(L, mat, g);
+        for (int k = 0; k < I->cc->n; k++)
+            if (I->cuse[k]) {
+                const int i = I->cc->node[k];
+                for (int c = 0; c < 3; c++) {
+                    const size_t j = 3 * (size_t)i + c;
+                    I->cc->impulse[3 * (size_t)k + c] = M->mass[i] * (L->v[j] - I->v0[j]) - h * L->f[j];
+                }
+            }
+    }
     /* L->f holds the last force pass's values (the step's start, or with Newton iterations an
      * intermediate state): the caller evaluates the end state's force when it needs it */
 }

@@ -471,6 +471,26 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
                             const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st);
 void sq_level_implicit_free(sq_level *L);
+
+/* contacts as constraints of the implicit solve (docs/physics.md section 13): at node node[k]
+ * the new velocity is prescribed, relative to the obstacle's velocity u[k]: along the unit
+ * normal normal[k] only (v1 . n = u . n; a sliding contact), or whole (v1 = u; stick[k] = 1, a
+ * sticking contact); the solve runs over the other directions (the projection's filter: I - n
+ * n^T, or 0, at those nodes), with force[k] added to the node's force. After the step,
+ * impulse[k] (3 per contact) is M (v1 - v0) - h f(end state), N s: the constraint's impulse
+ * and h force[k]. Nodes that are held or have a constrained axis are
+ * not constrained (impulse 0) */
+typedef struct sq_implicit_contacts {
+    int n;
+    const int *node;
+    const double *normal;        /* n x 3 */
+    const double *u;             /* n x 3 */
+    const unsigned char *stick;  /* n */
+    const double *force;         /* n x 3: a force on the node in the step (kinetic friction), N */
+    double *impulse;             /* n x 3, written by the step */
+} sq_implicit_contacts;
+/* the contacts of L's next implicit steps (borrowed until set again; NULL: none) */
+void sq_level_implicit_set_contacts(sq_level *L, const sq_implicit_contacts *cc);
 /* the multigrid preconditioner's hierarchy: coarse[0] the next coarser level (another mesh of
  * the same shape), coarse[1] the one below, ...; each fine node is located in the coarser rest
  * mesh (sq_mesh_locate) and its barycentrics are the prolongation (their transpose restricts).

@@ -308,7 +308,7 @@ static double bottom_x(sq_body *b)
  * (the same physics in the slope's frame). Friction 0.5 > tan 20 = 0.364: the bottom face stays
  * (drift under 1 mm over 2 s once it has landed). Friction 0.2: it slides with
  * a = g (sin 20 - 0.2 cos 20) = 1.5115 m/s^2, fitted over 0.5-1.5 s, within 5 % */
-static double slope_run(double mu, double *drift)
+static double slope_run_with(double mu, const char *body_extra, double *drift)
 {
     const double th = 20 * M_PI / 180, g = 9.81;
     char grav[80], obs[200];
@@ -317,7 +317,7 @@ static double slope_run(double mu, double *drift)
                               "\"friction\": %g}]", mu);
     sq_err e = {{0}};
     /* stiffness damping only: mass damping would drag the sliding block (it damps rigid motion) */
-    sq_scene *sc = cube_scene_damped(grav, 0, "", obs, &e);
+    sq_scene *sc = cube_scene_damped(grav, 0, body_extra, obs, &e);
     if (!sc) {
         printf("    %s\n", e.msg);
         return NAN;
@@ -355,6 +355,8 @@ static double slope_run(double mu, double *drift)
     sq_scene_free(sc);
     return 2 * d2 / det;
 }
+
+static double slope_run(double mu, double *drift) { return slope_run_with(mu, "", drift); }
 
 SQ_TEST(contact_slope_sticks_with_friction_0_5)
 {
@@ -803,4 +805,93 @@ SQ_TEST(contact_cache_matches_uncached_over_a_step)
     CHECK(hit_wall > 0);
     sq_contact_cache_free(cache);
     sq_trimesh_free(m);
+}
+
+/* ---- the implicit integrator: contacts as constraints in the solve ---- */
+
+/* a cube at rest on the floor with the implicit integrator, one backward Euler step a frame:
+ * E (Pa) and the mean contact force over frames 150-199, the deepest node then, the rms
+ * frame-to-frame change of the contact force (N) and the kinetic energy at the end */
+static int implicit_rest(double E, double *fz, double *weight, double *deepest, double *jitter, double *ke)
+{
+    sq_err e = {{0}};
+    char extra[200];
+    snprintf(extra, sizeof extra, ", \"offset\": [0, 0, 0.02], \"integrator\": \"implicit\"");
+    char text[6000];
+    snprintf(text, sizeof text,
+             "{\"name\": \"t\", \"gravity\": [0, 0, -9.81], \"frame_rate\": 50,"
+             " \"bodies\": [{\"name\": \"block\", \"levels\": [\"../cube/cube_l1.msh\"], \"scale\": 0.2,"
+             "   \"material\": {\"E\": %g, \"nu\": 0.3, \"density\": 1000,"
+             "                  \"damping\": {\"rayleigh_mass\": 2.0, \"rayleigh_stiffness\": 0.002}},"
+             "   \"elasticity\": \"corotational\", \"lod\": {\"mode\": \"fixed\"} %s}],"
+             " \"obstacles\": [{\"name\": \"floor\", \"type\": \"plane\", \"point\": [0, 0, 0]}]}",
+             E, extra);
+    sq_scene *sc = sq_scene_parse(text, th_scenes_dir(), "t.json", &e);
+    if (!sc) {
+        printf("    %s\n", e.msg);
+        return -1;
+    }
+    sq_world *w = sq_world_create(sc, &e);
+    if (!w) {
+        printf("    %s\n", e.msg);
+        sq_scene_free(sc);
+        return -1;
+    }
+    double sum = 0, sq = 0, prev = NAN;
+    int n = 0, nj = 0;
+    *deepest = 0;
+    for (int f = 0; f < 200; f++) {
+        sq_world_step(w, 0);
+        if (f >= 150) {
+            double F[3];
+            sq_body_contact_force(w->bodies[0], F, NULL, NULL);
+            sum += F[2];
+            n++;
+            if (!isnan(prev)) {
+                sq += (F[2] - prev) * (F[2] - prev);
+                nj++;
+            }
+            prev = F[2];
+            *deepest = fmax(*deepest, -lowest_z(w->bodies[0]));
+        }
+    }
+    *fz = sum / n;
+    *weight = total_mass(w->bodies[0]) * 9.81;
+    *jitter = sqrt(sq / nj);
+    const sq_level *L = sq_body_level(w->bodies[0], sq_body_sim_level(w->bodies[0]));
+    *ke = 0;
+    for (int i = 0; i < L->model.n; i++)
+        for (int c = 0; c < 3; c++)
+            *ke += 0.5 * L->model.mass[i] * L->v[3 * i + c] * L->v[3 * i + c];
+    int resets = (int)w->resets;
+    sq_world_destroy(w);
+    sq_scene_free(sc);
+    return resets;
+}
+
+SQ_TEST(contact_implicit_rest_on_floor)
+{
+    static const double Es[] = {1e5, 1e8};
+    for (int k = 0; k < 2; k++) {
+        double fz, weight, deepest, jitter, ke;
+        int resets = implicit_rest(Es[k], &fz, &weight, &deepest, &jitter, &ke);
+        printf("    E %.0e: mean contact force %.6g N, weight %.6g N, deepest %.3g m, frame-to-frame rms %.3g N, "
+               "kinetic %.3g J\n", Es[k], fz, weight, deepest, jitter, ke);
+        CHECK(resets == 0);
+        CHECK_NEAR(fz, weight, 0.01 * weight);
+        CHECK(deepest < 0.01 * 0.2);
+    }
+}
+
+SQ_TEST(contact_implicit_slope)
+{
+    const double th = 20 * M_PI / 180, want = 9.81 * (sin(th) - 0.2 * cos(th));
+    double drift, drift2;
+    double a5 = slope_run_with(0.5, ", \"integrator\": \"implicit\"", &drift);
+    double a2 = slope_run_with(0.2, ", \"integrator\": \"implicit\"", &drift2);
+    printf("    friction 0.5: drift %.3g m over 2 s; friction 0.2: acceleration %.4g m/s^2, expected %.4g\n", drift, a2,
+           want);
+    (void)a5;
+    CHECK(drift < 1e-3);
+    CHECK_NEAR(a2, want, 0.05 * want);
 }
