@@ -99,6 +99,7 @@ struct sq_body {
     int *con_node;
     sq_contact_point *con_pt;
     double *con_normal, *con_u, *con_imp, *con_f; /* per constraint: 3 each */
+    double *con_vrel;                      /* per constraint: prescribed normal speed off the obstacle */
     unsigned char *con_stick, *con_mark;   /* per constraint; per node */
     sq_implicit_contacts con_set;
 };
@@ -120,7 +121,7 @@ void sq_body_contact_begin(sq_body *b);
 /* a diverged explicit frame is re-run: the reactions it gave its targets are dropped */
 void sq_body_contact_retry(sq_body *b);
 /* implicit: the contact constraints of level L's next step (set on L; none without obstacles) */
-void sq_body_contact_constraints(sq_body *b, sq_level *L);
+void sq_body_contact_constraints(sq_body *b, sq_level *L, double h);
 /* implicit: after the step of length h, the constraints' impulses and friction into b->contact */
 void sq_body_contact_constrained(sq_body *b, sq_level *L, double h);
 

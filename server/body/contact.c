@@ -76,7 +76,7 @@ static double con_jn(const sq_body *b, int k)
     return J[0] * n[0] + J[1] * n[1] + J[2] * n[2];
 }
 
-void sq_body_contact_constraints(sq_body *b, sq_level *L)
+void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
 {
     sq_level_implicit_set_contacts(L, NULL);
     const int n = L->model.n;
@@ -92,6 +92,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L)
         b->con_u = sq_malloc(3 * ns * sizeof(double));
         b->con_imp = sq_calloc(3 * ns, sizeof(double));
         b->con_f = sq_calloc(3 * ns, sizeof(double));
+        b->con_vrel = sq_calloc(ns, sizeof(double));
     }
     int m = 0;
     for (int k = 0; k < b->ncon; k++) /* kept: pushed in the last solve */
@@ -100,6 +101,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L)
             b->con_node[m] = i;
             b->con_pt[m] = b->con_pt[k];
             b->con_stick[m] = b->con_stick[k];
+            b->con_vrel[m] = 0;
             memmove(b->con_f + 3 * (size_t)m, b->con_f + 3 * (size_t)k, 3 * sizeof(double));
             b->con_mark[i] = (unsigned char)1;
             m++;
@@ -117,13 +119,58 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L)
             b->con_pt[m] = b->cpoint[i];
             b->con_stick[m] = 0;
             b->con_f[3 * (size_t)m] = b->con_f[3 * (size_t)m + 1] = b->con_f[3 * (size_t)m + 2] = 0;
+            b->con_mark[i] = 1;
+            b->con_vrel[m] = 0;
             m++;
         }
+    /* speculative: a surface node outside an obstacle that would cross its surface within the
+     * step (its approach speed with one step of gravity) lands on it at the step's end: its normal
+     * velocity relative to the obstacle is prescribed to -phi / h. Without this the stiff body's
+     * other nodes go on for a whole step after its surface nodes were stopped (compression
+     * energy out of nothing) */
+    const sq_mesh *mesh = L->model.mesh;
+    const unsigned char *mask = b->nheld[b->cur] ? b->mask[b->cur] : NULL;
+    const double *g = b->def.gravity;
+    for (int s = 0; s < mesh->nsurf; s++) {
+        const int i = mesh->surf_nodes[s];
+        if (b->con_mark[i] || L->model.fixed[i] || (mask && !mask[i]))
+            continue;
+        double x[3];
+        for (int c = 0; c < 3; c++)
+            x[c] = mesh->x[3 * (size_t)i + c] + L->d[3 * (size_t)i + c];
+        for (int o = 0; o < b->nobstacles; o++) {
+            const sq_obstacle *ob = &b->obstacles[o];
+            double nrm[3];
+            const double phi = sq_obstacle_distance(ob, x, nrm);
+            if (!(phi >= 0) || !isfinite(phi))
+                continue;
+            double vn = 0;
+            for (int c = 0; c < 3; c++)
+                vn += (L->v[3 * (size_t)i + c] - ob->velocity[c] + h * g[c]) * nrm[c];
+            if (!(vn < 0 && phi + h * vn < 0))
+                continue;
+            sq_contact_point *p = &b->con_pt[m];
+            memcpy(p->n, nrm, sizeof nrm);
+            memcpy(p->u, ob->velocity, sizeof p->u);
+            p->mu_s = ob->mu_s;
+            p->mu_k = ob->mu_k;
+            p->obs = o;
+            p->stamp = 0;
+            b->con_node[m] = i;
+            b->con_stick[m] = 0;
+            b->con_f[3 * (size_t)m] = b->con_f[3 * (size_t)m + 1] = b->con_f[3 * (size_t)m + 2] = 0;
+            b->con_vrel[m] = -phi / h;
+            b->con_mark[i] = 1;
+            m++;
+            break;
+        }
+    }
     for (int k = 0; k < m; k++) {
         const sq_contact_point *p = &b->con_pt[k];
         b->con_mark[b->con_node[k]] = 0;
         memcpy(b->con_normal + 3 * (size_t)k, p->n, sizeof p->n);
-        memcpy(b->con_u + 3 * (size_t)k, p->u, sizeof p->u);
+        for (int c = 0; c < 3; c++)
+            b->con_u[3 * (size_t)k + c] = p->u[c] + b->con_vrel[k] * p->n[c];
     }
     b->ncon = m;
     b->con_set = (sq_implicit_contacts){.n = m, .node = b->con_node, .normal = b->con_normal, .u = b->con_u,
@@ -222,13 +269,13 @@ double sq_body_contact_cpu(const sq_body *b)
 
 void sq_body_contact_free(sq_body *b)
 {
-    void *con[] = {b->cpoint, b->con_node, b->con_pt, b->con_normal, b->con_u, b->con_imp, b->con_mark, b->con_stick, b->con_f};
+    void *con[] = {b->cpoint, b->con_node, b->con_pt, b->con_normal, b->con_u, b->con_imp, b->con_mark, b->con_stick, b->con_f, b->con_vrel};
     for (size_t k = 0; k < sizeof con / sizeof con[0]; k++)
         free(con[k]);
     b->cpoint = NULL;
     b->con_node = NULL;
     b->con_pt = NULL;
-    b->con_normal = b->con_u = b->con_imp = b->con_f = NULL;
+    b->con_normal = b->con_u = b->con_imp = b->con_f = b->con_vrel = NULL;
     b->con_mark = b->con_stick = NULL;
     b->cpoint_n = b->ncon = 0;
     free(b->reaction);

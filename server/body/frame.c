@@ -61,7 +61,7 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
     sq_implicit_stats st, tot;
     memset(&tot, 0, sizeof tot);
     for (int s = 0; s < nsub; s++) {
-        sq_body_contact_constraints(b, L);
+        sq_body_contact_constraints(b, L, h);
         sq_level_implicit_step(L, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
         sq_level_implicit_set_contacts(L, NULL);
         sq_body_contact_constrained(b, L, h);

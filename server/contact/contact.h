@@ -6,7 +6,9 @@
  * (negative inside) and an outward normal at any point, and Coulomb friction coefficients.
  *
  * The method is speculative contact at the velocity level, once per substep of the explicit
- * step (and once per step of the implicit one): after a node's symplectic Euler update, a node
+ * step (with the implicit step, the contacts are constraints of its solve: sq_contact_point,
+ * sq_contact_constrained, level.h's sq_implicit_contacts; this pass then catches the nodes the
+ * constraints did not foresee): after a node's symplectic Euler update, a node
  * that ended inside an obstacle has its normal velocity raised to the value that lands it on
  * the surface (never above zero), and its tangential velocity reduced by Coulomb friction
  * bounded by that normal impulse; the position follows the changed velocity. Every impulse
@@ -107,6 +109,7 @@ typedef struct sq_contact_point {
     double n[3];
     double u[3];
     double mu_s, mu_k;
+    int obs;   /* the obstacle's index */
     int stamp;
 } sq_contact_point;
 
@@ -133,12 +136,13 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
 /* after an implicit step that held the listed nodes' velocities as constraints of its solve
  * (sticking contacts: the whole velocity relative to the obstacle; sliding ones: its normal
  * part, with the kinetic friction force fric in the solve): the impulses J (3 per contact, N s:
- * M dv - h f, the constraint's and the friction's) are added to sum, and each contact's next
- * step set: a sticking one whose tangential impulse exceeds mu_s Jn (Jn = J . n) slides, with
- * the kinetic force mu_k Jn / h along that impulse; a sliding one slides on with mu_k Jn / h
- * against its tangential velocity, or sticks once that velocity has stopped or turned (the
- * turned part is removed: only kinetic energy is taken). Jn <= 0 marks a contact that pulled
- * (the caller releases it) */
+ * M dv - h f, the constraint's and the friction's) are added to sum, and the next step's kind
+ * is set per patch (the contacts with one obstacle), since the nodes of a patch are coupled by
+ * the body: a sticking patch whose tangential impulse exceeds mu_s times its normal impulse
+ * slides, each node with the kinetic force mu_k Jn / h (Jn = J . n) along that impulse; a
+ * sliding patch slides on against its mean slip velocity, or sticks once that slip has stopped
+ * or turned (the slip is then removed: only kinetic energy is taken). Jn <= 0 marks a contact
+ * that pulled (the caller releases it) */
 void sq_contact_constrained(const sq_contact_point *pts, int n, const int *node, const double *J,
                             unsigned char *stick, double *fric, const double *mass, double *d, double *v,
                             double h, sq_contact_sum *sum);

@@ -272,6 +272,7 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
                 memcpy(pt->u, ob->velocity, sizeof pt->u);
                 pt->mu_s = ob->mu_s;
                 pt->mu_k = ob->mu_k;
+                pt->obs = o;
                 pt->stamp = nodes->stamp;
             }
             double vr[3];
@@ -425,57 +426,110 @@ double sq_contact_depth(sq_contact_side *a, sq_contact_side *b, double reach)
     return deepest;
 }
 
+static void tangential(const sq_contact_point *pt, const double *v, double vt[3])
+{
+    double vr[3];
+    for (int c = 0; c < 3; c++)
+        vr[c] = v[c] - pt->u[c];
+    const double vn = dot3(vr, pt->n);
+    for (int c = 0; c < 3; c++)
+        vt[c] = vr[c] - vn * pt->n[c];
+}
+
 void sq_contact_constrained(const sq_contact_point *pts, int n, const int *node, const double *J,
                             unsigned char *stick, double *fric, const double *mass, double *d, double *v,
                             double h, sq_contact_sum *sum)
 {
+    /* per patch: normal impulse, tangential impulse of its sticking nodes, slip momentum and
+     * mass and friction force of its sliding nodes, and whether any node of it sticks */
+    double pn[SQ_MAX_OBSTACLES] = {0}, pt_[SQ_MAX_OBSTACLES][3] = {{0}}, pp[SQ_MAX_OBSTACLES][3] = {{0}};
+    double pm[SQ_MAX_OBSTACLES] = {0}, pf[SQ_MAX_OBSTACLES][3] = {{0}};
+    int pstick[SQ_MAX_OBSTACLES] = {0};
+    for (int k = 0; k < n; k++) {
+        const sq_contact_point *pt = &pts[k];
+        const double *Jk = J + 3 * (size_t)k;
+        const double jn = dot3(Jk, pt->n);
+        if (sum)
+            for (int c = 0; c < 3; c++)
+                sum->impulse[c] += Jk[c];
+        if (!(jn > 0) || pt->obs < 0 || pt->obs >= SQ_MAX_OBSTACLES)
+            continue;
+        const int o = pt->obs, i = node[k];
+        pn[o] += jn;
+        if (stick[k]) {
+            pstick[o] = 1;
+            for (int c = 0; c < 3; c++)
+                pt_[o][c] += Jk[c] - jn * pt->n[c];
+        } else {
+            double vt[3];
+            tangential(pt, v + 3 * (size_t)i, vt);
+            pm[o] += mass[i];
+            for (int c = 0; c < 3; c++) {
+                pp[o][c] += mass[i] * vt[c];
+                pf[o][c] += fric[3 * (size_t)k + c];
+            }
+        }
+    }
+    /* each patch's next kind: 1 stick, 0 slide along dir (unit) */
+    int next[SQ_MAX_OBSTACLES];
+    double dir[SQ_MAX_OBSTACLES][3];
+    for (int o = 0; o < SQ_MAX_OBSTACLES; o++) {
+        next[o] = 1;
+        dir[o][0] = dir[o][1] = dir[o][2] = 0;
+        if (!(pn[o] > 0))
+            continue;
+        double mu_s = 0, mu_k = 0;
+        for (int k = 0; k < n; k++)
+            if (pts[k].obs == o) {
+                mu_s = pts[k].mu_s;
+                mu_k = pts[k].mu_k;
+                break;
+            }
+        (void)mu_k;
+        if (pstick[o]) { /* stays stuck while its tangential impulse is inside the cone */
+            const double s = sqrt(dot3(pt_[o], pt_[o]));
+            if (s > mu_s * pn[o])
+                for (int c = 0; c < 3; c++) {
+                    next[o] = 0;
+                    dir[o][c] = pt_[o][c] / s; /* the friction opposes the slip: along the impulse */
+                }
+        } else if (pm[o] > 0) {
+            const double s = sqrt(dot3(pp[o], pp[o])), turned = dot3(pp[o], pf[o]);
+            const int fresh = pf[o][0] == 0 && pf[o][1] == 0 && pf[o][2] == 0;
+            /* the slip stopped or turned under the friction (or, new, static friction stops it) */
+            if (!(s <= 1e-12 * pm[o] || turned > 0 || (fresh && s <= mu_s * pn[o])))
+                for (int c = 0; c < 3; c++) {
+                    next[o] = 0;
+                    dir[o][c] = -pp[o][c] / s;
+                }
+        }
+    }
     for (int k = 0; k < n; k++) {
         const sq_contact_point *pt = &pts[k];
         const double *Jk = J + 3 * (size_t)k;
         double *fk = fric + 3 * (size_t)k;
         const double jn = dot3(Jk, pt->n);
-        if (sum)
+        fk[0] = fk[1] = fk[2] = 0;
+        if (!(jn > 0) || pt->obs < 0 || pt->obs >= SQ_MAX_OBSTACLES)
+            continue;
+        const int o = pt->obs, i = node[k];
+        if (!next[o]) {
+            stick[k] = 0;
             for (int c = 0; c < 3; c++)
-                sum->impulse[c] += Jk[c];
-        if (!(jn > 0)) {
-            fk[0] = fk[1] = fk[2] = 0;
+                fk[c] = pt->mu_k * jn / h * dir[o][c];
             continue;
         }
-        if (stick[k]) { /* stays stuck while the tangential impulse is inside the cone */
-            double jt[3];
-            for (int c = 0; c < 3; c++)
-                jt[c] = Jk[c] - jn * pt->n[c];
-            const double s = sqrt(dot3(jt, jt));
-            stick[k] = s <= pt->mu_s * jn;
-            for (int c = 0; c < 3; c++)
-                fk[c] = stick[k] ? 0 : pt->mu_k * jn / h * jt[c] / s;
-            continue;
-        }
-        const int i = node[k];
-        double *vi = v + 3 * (size_t)i, *di = d + 3 * (size_t)i, vr[3], vt[3];
-        for (int c = 0; c < 3; c++)
-            vr[c] = vi[c] - pt->u[c];
-        const double vn = dot3(vr, pt->n);
-        for (int c = 0; c < 3; c++)
-            vt[c] = vr[c] - vn * pt->n[c];
-        const double m = mass[i];
-        const double s = sqrt(dot3(vt, vt)), turned = dot3(vt, fk);
-        const int fresh = fk[0] == 0 && fk[1] == 0 && fk[2] == 0; /* no friction force yet */
-        /* stuck: a new contact whose slip static friction can stop (Coulomb's rule at the node);
-         * a sliding one once its slip has stopped or turned under the friction force */
-        if (s <= 1e-12 || turned > 0 || (fresh && s <= pt->mu_s * jn / m)) {
-            stick[k] = 1;
+        if (!stick[k]) { /* sliding to sticking: the slip is removed */
+            double vt[3];
+            tangential(pt, v + 3 * (size_t)i, vt);
             for (int c = 0; c < 3; c++) {
-                vi[c] -= vt[c];
-                di[c] -= h * vt[c];
+                v[3 * (size_t)i + c] -= vt[c];
+                d[3 * (size_t)i + c] -= h * vt[c];
                 if (sum)
-                    sum->impulse[c] -= m * vt[c];
-                fk[c] = 0;
+                    sum->impulse[c] -= mass[i] * vt[c];
             }
-            continue;
         }
-        for (int c = 0; c < 3; c++)
-            fk[c] = -pt->mu_k * jn / h * vt[c] / s;
+        stick[k] = 1;
     }
 }
 
