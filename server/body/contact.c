@@ -149,13 +149,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
                 vn += (L->v[3 * (size_t)i + c] - ob->velocity[c] + h * g[c]) * nrm[c];
             if (!(vn < 0 && phi + h * vn < 0))
                 continue;
-            sq_contact_point *p = &b->con_pt[m];
-            memcpy(p->n, nrm, sizeof nrm);
-            memcpy(p->u, ob->velocity, sizeof p->u);
-            p->mu_s = ob->mu_s;
-            p->mu_k = ob->mu_k;
-            p->obs = o;
-            p->stamp = 0;
+            b->con_pt[m] = sq_contact_point_at(ob, o, nrm, 0);
             b->con_node[m] = i;
             b->con_stick[m] = 0;
             b->con_f[3 * (size_t)m] = b->con_f[3 * (size_t)m + 1] = b->con_f[3 * (size_t)m + 2] = 0;

@@ -113,6 +113,9 @@ typedef struct sq_contact_point {
     int stamp;
 } sq_contact_point;
 
+/* the point of obstacle ob (index o) with outward normal n, stamped */
+sq_contact_point sq_contact_point_at(const sq_obstacle *ob, int o, const double n[3], int stamp);
+
 /* the nodes a pass may move */
 typedef struct sq_contact_nodes {
     int n;

@@ -231,6 +231,14 @@ static void cache_fill(sq_contact_cache *c, const sq_obstacle *obs, int nobs, co
     c->valid = 1;
 }
 
+sq_contact_point sq_contact_point_at(const sq_obstacle *ob, int o, const double n[3], int stamp)
+{
+    sq_contact_point p = {.mu_s = ob->mu_s, .mu_k = ob->mu_k, .obs = o, .stamp = stamp};
+    memcpy(p.n, n, sizeof p.n);
+    memcpy(p.u, ob->velocity, sizeof p.u);
+    return p;
+}
+
 int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *nodes, double *d, double *v,
                     double h, sq_contact_sum *sum)
 {
@@ -266,15 +274,8 @@ int sq_contact_step(const sq_obstacle *obs, int nobs, const sq_contact_nodes *no
             if (!(phi < 0))
                 continue;
             hit = 1;
-            if (nodes->points) {
-                sq_contact_point *pt = &nodes->points[i];
-                memcpy(pt->n, n, sizeof n);
-                memcpy(pt->u, ob->velocity, sizeof pt->u);
-                pt->mu_s = ob->mu_s;
-                pt->mu_k = ob->mu_k;
-                pt->obs = o;
-                pt->stamp = nodes->stamp;
-            }
+            if (nodes->points)
+                nodes->points[i] = sq_contact_point_at(ob, o, n, nodes->stamp);
             double vr[3];
             for (int c = 0; c < 3; c++)
                 vr[c] = vi[c] - ob->velocity[c];
