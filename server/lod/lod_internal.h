@@ -413,17 +413,6 @@ typedef struct adapt_out {
 } adapt_out;
 
 
-/* activeset.c, the guard: merge the least needed mergeable regions (smallest criterion over
- * their children) until *projected <= cap, at most `most` of them; each merged node rests
- * `rest` frames before it may split again. Returns the merges made (levels changed in
- * out->changed). */
-long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most);
-/* activeset.c, the guard: when the split/merge pass of levels k, k+1 would change more than
- * `most` regions, keep the merges the criterion wants (least needed first) and then its splits
- * (most needed first) up to `most`, and hold the others out of the pass (their state masked
- * until sq_lodx_guard_limit_undo); returns the regions held out */
-long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
-void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
 /* criterion.c: the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
  * neighbours the last cascade did not push read on demand (sq_lodx_value) */
 double sq_lodx_delta(const sq_lod *lod, int k, int i);
@@ -450,10 +439,25 @@ static inline long sq_lodx_krow_chunk_len(sq_lod_level *lk, const sq_level_model
     }
     return lk->krow_chunk_len;
 }
+/* ---------------------------------------------------------------- guard.c: the guard */
+/* splits stop where the next frame and a pass of every level would pass this share of the
+ * budget; a region the guard merged rests SQ_GUARD_REST_FRAMES frames before it may split */
+#define SQ_GUARD_SPLIT_HEADROOM 0.8
+#define SQ_GUARD_REST_FRAMES 25
+/* the start of the cost per changed node (calibrate): box-big, with the caches' pages mapped at
+ * load, measured 17.5 / 9.3 / 7.6 us per changed node of levels 0 / 1 / 2 (medians of 71
+ * passes, the level's floor included; 90th percentiles 30 / 30 / 15 us). The start was 100 us
+ * (measured once with first-touch page faults in the passes): falling 3 % a pass, it kept the
+ * model 3-10x over the passes for 50 frames, and the guard held back the splits a moving tool
+ * needs (box-big split every second frame: 1.45-1.57 mm against 1.07-1.14 mm from 30 us) */
+#define SQ_GUARD_BLOCK_CHANGE_START 30e-6
+/* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were within 1.1 x, the worst
+ * 1.57 x */
+#define SQ_GUARD_PASS_MARGIN 1.25
 /* the need of split node p of level k: its children's largest criterion (its own without
  * children), as the merge rule judges it, m */
 double sq_lodx_need(const sq_lod *lod, int k, int p);
-/* frame.c: fixed costs for the guard instead of measured ones (tests: deterministic runs with
+/* fixed costs for the guard instead of measured ones (tests: deterministic runs with
  * a budget); all <= 0 returns to measuring */
 /* a measurement into a learned cost (docs/lod.md "Guaranteed frame rate", "An isolated spike"):
  * the decaying maximum (decay 0.9 a frame, 0.97 a pass), except that a measurement above
@@ -462,6 +466,33 @@ double sq_lodx_need(const sq_lod *lod, int k, int p);
 double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double decay, double spike);
 void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s,
                        double per_pass_s, double per_change_s);
+
+/* a measured cost into its decaying maximum unless the costs are given: 10 % a frame (learn),
+ * 3 % a pass (learn_pass) */
+void sq_lodx_guard_learn(const sq_lod *lod, double *cost, sq_cost_track *t, double measured);
+void sq_lodx_guard_learn_pass(const sq_lod *lod, double *cost, sq_cost_track *t, double measured);
+/* the block rebuild a split or merge between levels k and k+1 costs, s */
+double sq_lodx_guard_region_cost(const sq_lod *lod, int k);
+/* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
+ * already, before its changed nodes, s */
+double sq_lodx_guard_pass_cost(const sq_lod *lod, unsigned mask, unsigned done);
+/* every level that may take part in a pass (bits): up to the highest simulated level + 1 */
+unsigned sq_lodx_guard_all_levels(const sq_lod *lod);
+/* node updates that fit in `seconds` of a frame's budget after its fixed cost */
+long sq_lodx_guard_updates_fitting(const sq_lod *lod, double seconds);
+/* the resting nodes of level k masked out of the split pass (hide 1) or restored (hide 0) */
+void sq_lodx_guard_rest_mask(sq_lod *lod, int k, int hide);
+/* the guard: merge the least needed mergeable regions (smallest criterion over
+ * their children) until *projected <= cap, at most `most` of them; each merged node rests
+ * `rest` frames before it may split again. Returns the merges made (levels changed in
+ * out->changed). */
+long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most);
+/* the guard: when the split/merge pass of levels k, k+1 would change more than
+ * `most` regions, keep the merges the criterion wants (least needed first) and then its splits
+ * (most needed first) up to `most`, and hold the others out of the pass (their state masked
+ * until sq_lodx_guard_limit_undo); returns the regions held out */
+long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
+void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
 
 /* state.c: recompute the active mask, the ghost lists and the integration mask of level k */
 void sq_lodx_rebuild_level(sq_lod *lod, int k);
@@ -521,16 +552,35 @@ double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *st
 /* tests: stop_rule's decision (1: stop) for the Lanczos tridiagonal (alpha, beta, order m) against
  * the ceiling, in the dense tests' bins floor(log4(w2 / bin_unit)) */
 int sq_lodx_sharp_stop_tridiag(const double *alpha, const double *beta, int m, double ceiling, double bin_unit);
-/* coupling.c: frontier forces of level k (correction after a full-row pass; merged rows) */
+/* ring.c: sources of every ring ghost */
+void sq_lodx_build_sources(sq_lod *lod);
+
+/* tick.c: one tick of the finest substep clock, the kernels it runs */
+typedef struct sq_tick_count {
+    long updates;                               /* node integrations */
+    long ring_values, ring_rows, frontier_rows; /* the interface's work (profile) */
+} sq_tick_count;
+/* ring ghost values of every level due at tick t (level k due every stride[k] ticks; sets
+ * lev[k].due) */
+void sq_lodx_tick_pull(sq_lod *lod, long t, const long *stride, sq_tick_count *c);
+/* forces of the due levels, the coupling reactions between levels, integration of the free
+ * active nodes (and their contact) */
+void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const long *stride, sq_tick_count *c);
+/* forces of the inner active nodes of level k (no viscosity), from the rows in column form */
+void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
+/* w_tick of level k (active nodes and ring ghosts) = d + b v, b the material's stiffness
+ * damping: what the row kernels of a due linear level without viscosity read */
+void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k);
+void sq_lodx_integrate(sq_lod *lod, int k, double dt);
+void sq_lodx_save_prev(sq_lod *lod, int k);
+/* frontier forces of level k (correction after a full-row pass; merged rows) */
 void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
 void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-/* ring.c: sources of every ring ghost; ring values of level k at tick t; ring reactions */
-void sq_lodx_build_sources(sq_lod *lod);
+/* ring values of level k at tick t; only the ring ghosts read by the ring rows with a source
+ * on a level in mask (returns how many); ring reactions (returns the rows) */
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
-/* ring.c: only the ring ghosts read by the ring rows with a source on a level in mask; returns
- * how many */
 int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
-int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* returns the rows */
+int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
 /* holds.c: the frame's holds onto active nodes (held nodes prescribed over frame_dt, left out
  * of the integrated lists); the internal force on the held nodes of level k at its step;
  * the tool feedback into force[tool] (may be NULL) and the holds released */
@@ -540,16 +590,10 @@ void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*fo
 
 /* activeset.c: per-level index lists (active, inner, integrated), the nodes whose values at
  * the start of a step are read, the coarse ghosts something reads (the rest are pushed only
- * on demand), and the kernels over those lists */
+ * on demand) */
 void sq_lodx_level_lists(sq_lod *lod, int k);
 void sq_lodx_refresh_lists(sq_lod *lod);
 void sq_lodx_mask_list(sq_lod *lod, int k);
-void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-/* w_tick of level k (active nodes and ring ghosts) = d + b v, b the material's stiffness
- * damping: what the row kernels of a due linear level without viscosity read */
-void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k);
-void sq_lodx_integrate(sq_lod *lod, int k, double dt);
-void sq_lodx_save_prev(sq_lod *lod, int k);
 void sq_lodx_push_needed(sq_lod *lod);
 /* the cascade values of the ring ghosts, before sq_lodx_eval_ring replaces them (for sq_lod_flush) */
 void sq_lodx_save_cascade(sq_lod *lod);
