@@ -17,7 +17,9 @@
  * The row and integration kernels repeat the arithmetic of level/level.c's masked passes
  * (same operations in the same order), so trajectories are unchanged.
  */
-#include "lod/lod_internal.h"
+#include "lod/activeset.h"
+#include "lod/corotational.h"
+#include "lod/lod_vec.h"
 
 #include <math.h>
 #include <stdlib.h>

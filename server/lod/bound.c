@@ -19,6 +19,9 @@
  * rows, and every level's ring rows with their sources, as the frame's step stage applies them.
  */
 #include "lod/lod.h"
+#include "lod/bound_internal.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -26,8 +29,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
-#include "lod/bound_internal.h"
 
 
 /* ---------------------------------------------------------------- skipping unchanged levels */

@@ -20,13 +20,15 @@
  * (sq_level_corot_step_forces), so those runs are the fixed runs bit for bit.
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/corotational.h"
+#include "lod/lod_vec.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 struct sq_lod_corot {
     int *tet, ntet;             /* tets touching an active node, increasing */

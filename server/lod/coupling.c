@@ -8,13 +8,16 @@
  * material change.
  */
 #include "lod/lod.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
+#include "lod/lod_vec.h"
+#include "lod/reserve.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- ring blocks */
 

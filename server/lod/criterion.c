@@ -7,13 +7,15 @@
  * every level is at the same time (frame.c, tick_adapt).
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/criterion.h"
+#include "lod/state.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- criterion operator */
 

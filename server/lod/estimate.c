@@ -6,6 +6,8 @@
  * dense forms the tests compare with, and the debug check (sq_debug()->sharp_check).
  */
 #include "lod/lod.h"
+#include "lod/bound_internal.h"
+#include "lod/lod_test.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -13,8 +15,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
-#include "lod/bound_internal.h"
 
 /* largest absolute row sum of a 3x3 block */
 static double bnorm(const double *B)

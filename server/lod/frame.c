@@ -17,13 +17,23 @@
  * the pull, step, push and criterion + adapt stages.
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/bound.h"
+#include "lod/corotational.h"
+#include "lod/coupling.h"
+#include "lod/criterion.h"
+#include "lod/guard.h"
+#include "lod/holds.h"
+#include "lod/reserve.h"
+#include "lod/ring.h"
+#include "lod/state.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 
 

@@ -8,7 +8,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
+#include "lod/criterion.h"
+#include "lod/guard.h"
+#include "lod/lod_test.h"
 
 /* ---------------------------------------------------------------- the guard's cost model
  *

@@ -8,13 +8,14 @@
  * a level) and sq_lodx_hold_end (its feedback stage).
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/holds.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- tool holds */
 

@@ -1,26 +1,30 @@
-/* lod_internal.h - the adaptive state shared by the files of the lod module, one per stage:
- *   state.c      creation, definition, reset, the level's state lists, ghost values (sync), check
- *   criterion.c  the split/merge criterion, split/merge decisions, the node-update cap
- *   coupling.c   the coupling blocks of the ring and frontier rows, the interface substeps
- *   reserve.c    the coupling arrays' pages mapped ahead of use (load, frames with room)
- *   ring.c       the ring ghosts' sources, their values and their reactions
- *   holds.c      tool holds onto active nodes
- *   frame.c      sq_lod_frame: the frame as a list of timed stages
- *   views.c      node levels, active lists, energy, projected updates
- *   activeset.c  per-level index lists and the kernels that run over them
- *   bound.c      the sharp per-level step: which level is estimated when, deadlines, substeps
- *   estimate.c   one level's sharp estimate (Lanczos on its block of the coupled operator)
- *   hierarchy.c  the links between consecutive levels
- *   corotational.c  corotational levels: forces and ring reactions tet by tet
- * Not part of the module's contract (lod.h).
+/* lod_internal.h - the data of the lod module: a level's adaptive state (sq_lod_level), the
+ * module's state (sq_lod), the node states, and the small inline helpers on them. No function of
+ * a stage is declared here: each file's entry points are in its own header (state.h,
+ * criterion.h, guard.h, coupling.h, reserve.h, bound.h, ring.h, tick.h, holds.h, activeset.h,
+ * corotational.h; lod_vec.h the kernels' vectors; lod_test.h the test hooks), and a file
+ * includes the headers of the files it calls. Every header includes this one and nothing else
+ * of lod's but lod.h, so the includes form no circle. Not part of the module's contract (lod.h).
  */
 #ifndef SQ_LOD_INTERNAL_H
 #define SQ_LOD_INTERNAL_H
 
 #include "lod/lod.h"
-#include "lod/lod_test.h"
 
 #include <string.h>
+
+/* the lod state's test-only switches and counters (its member `test`; the tests reach it
+ * through lod_test.h's sq_lod_test_of): what tests/unit set to compare a path against its
+ * reference, or read to check a decision. No product code sets them. */
+typedef struct sq_lod_test {
+    int corot_tets_always;  /* 1: corotational levels run the tet-by-tet pass even when all their
+                             * nodes are active (corotational.c; tests compare it) */
+    int full_rebuild;       /* 1: every block row rebuilt after a split/merge pass (coupling.c,
+                             * activeset.c; the reference the incremental rebuild is checked
+                             * against) */
+    long guard_resplit;     /* regions the guard merged that were split again within their rest
+                             * (frame.c; tests: 0) */
+} sq_lod_test;
 
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
 /* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (frame.c,
@@ -297,106 +301,6 @@ struct sq_lod {
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
 
-/* 4-lane vectors (lane 3 unused) for the kernels of the tick: a node's 3 components are
- * loaded as 4 lanes, so arrays read that way have one spare double after the last node. The
- * lanes are computed with the same multiplications and additions, in the same order, as the
- * scalar code they replace (-std=c11 contracts nothing into fma), so the results are bitwise
- * those of the scalar code, in every build */
-typedef double sq_v4 __attribute__((vector_size(32)));
-typedef long long sq_v4i __attribute__((vector_size(32)));
-typedef double sq_v2 __attribute__((vector_size(16)));
-
-/* the helpers are macros (statement expressions), not functions: a 32-byte vector passed to or
- * returned from a function has no fixed calling convention without AVX (the ASan build) */
-
-/* 4 doubles from p (any alignment) */
-#define v4_load(p)                                                                                                 \
-    ({                                                                                                             \
-        sq_v4 v4l_;                                                                                                \
-        memcpy(&v4l_, (p), sizeof v4l_);                                                                           \
-        v4l_;                                                                                                      \
-    })
-
-/* a in every lane */
-#define v4_set1(a)                                                                                                 \
-    ({                                                                                                             \
-        const double v4s_ = (a);                                                                                   \
-        (sq_v4){v4s_, v4s_, v4s_, v4s_};                                                                           \
-    })
-
-/* lane c of x in every lane (gcc's and clang's spellings of the same shuffle; the fuzzers
- * build with clang) */
-#if defined(__clang__)
-#define V4_LANE(x, c) __builtin_shufflevector((x), (x), (c), (c), (c), (c))
-#else
-#define V4_LANE(x, c) __builtin_shuffle((x), (sq_v4i){(c), (c), (c), (c)})
-#endif
-
-/* one 3x3 block in column form (T: 3 columns of 4) times w: ((c0 w0 + c1 w1) + c2 w2) in
- * every row, the order of the scalar row sums */
-#define v4_block(T, w)                                                                                             \
-    ({                                                                                                             \
-        const double *v4T_ = (T);                                                                                  \
-        const sq_v4 v4w_ = (w);                                                                                    \
-        const sq_v4 v4t_ = v4_load(v4T_) * V4_LANE(v4w_, 0) + v4_load(v4T_ + 4) * V4_LANE(v4w_, 1);               \
-        v4t_ + v4_load(v4T_ + 8) * V4_LANE(v4w_, 2);                                                               \
-    })
-
-/* the same with w given as 3 doubles at W (each broadcast from memory): the same products and
- * sums, lane by lane */
-#define v4_block_s(T, W)                                                                                           \
-    ({                                                                                                             \
-        const double *v4T_ = (T), *v4W_ = (W);                                                                     \
-        const sq_v4 v4t_ = v4_load(v4T_) * v4_set1(v4W_[0]) + v4_load(v4T_ + 4) * v4_set1(v4W_[1]);             \
-        v4t_ + v4_load(v4T_ + 8) * v4_set1(v4W_[2]);                                                               \
-    })
-
-/* nb row-major 3x3 blocks into column form at T: per block the columns (B0 B3 B6), (B1 B4 B7),
- * (B2 B5 B8), each padded to 4 lanes with a zero */
-static inline void sq_lodx_to_columns(const double *src, int nb, double *T)
-{
-    for (int e = 0; e < nb; e++, src += 9, T += 12)
-        for (int c = 0; c < 3; c++) {
-            T[4 * c] = src[c];
-            T[4 * c + 1] = src[3 + c];
-            T[4 * c + 2] = src[6 + c];
-            T[4 * c + 3] = 0;
-        }
-}
-
-/* an interpolated node's displacement d and velocity v (first three lanes) stored at dd, dv,
- * zero on the axes its fixed mask fx holds (the vectors by address: a 32-byte vector passed by
- * value changes ABI between builds with and without AVX, which gcc notes) */
-static inline void sq_lodx_store_free(unsigned char fx, const sq_v4 *dp, const sq_v4 *vp, double *dd, double *dv)
-{
-    const sq_v4 d = *dp, v = *vp;
-    if (!fx) {
-        dd[0] = d[0], dd[1] = d[1], dd[2] = d[2];
-        dv[0] = v[0], dv[1] = v[1], dv[2] = v[2];
-        return;
-    }
-    for (int a = 0; a < 3; a++) {
-        int free_axis = !(fx & (1u << a));
-        dd[a] = free_axis ? d[a] : 0.0;
-        dv[a] = free_axis ? v[a] : 0.0;
-    }
-}
-
-/* interpolate d and v of node i of level `dst` from tet t of level `src`; constrained
- * axes of the destination stay zero. The three components in the lanes of one vector, each
- * lane summed as the scalar sums were: d += b_m d_m, m = 0..3 */
-static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t, const double *b)
-{
-    const int *tn = src->model.mesh->tets + 4 * t;
-    sq_v4 d = {0, 0, 0, 0}, v = {0, 0, 0, 0};
-    for (int m = 0; m < 4; m++) {
-        const sq_v4 bm = v4_set1(b[m]);
-        d += bm * v4_load(src->d + 3 * (size_t)tn[m]);
-        v += bm * v4_load(src->v + 3 * (size_t)tn[m]);
-    }
-    sq_lodx_store_free(dst->model.fixed[i], &d, &v, dst->d + 3 * (size_t)i, dst->v + 3 * (size_t)i);
-}
-
 /* substep exponent a level runs at in the adaptive frame */
 static inline int sub_log2(const sq_lod *lod, int k)
 {
@@ -412,10 +316,6 @@ typedef struct adapt_out {
     int changed[SQ_MAX_LEVELS];
 } adapt_out;
 
-
-/* criterion.c: the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
- * neighbours the last cascade did not push read on demand (sq_lodx_value) */
-double sq_lodx_delta(const sq_lod *lod, int k, int i);
 /* the column-form row cache of level k (krow, activeset.c; reserved ahead by reserve.c): its
  * node index, made on first use with every node -1 (1 when made by this call) */
 static inline int sq_lodx_krow_index(sq_lod_level *lk, const sq_level_model *M)
@@ -439,188 +339,5 @@ static inline long sq_lodx_krow_chunk_len(sq_lod_level *lk, const sq_level_model
     }
     return lk->krow_chunk_len;
 }
-/* ---------------------------------------------------------------- guard.c: the guard */
-/* splits stop where the next frame and a pass of every level would pass this share of the
- * budget; a region the guard merged rests SQ_GUARD_REST_FRAMES frames before it may split */
-#define SQ_GUARD_SPLIT_HEADROOM 0.8
-#define SQ_GUARD_REST_FRAMES 25
-/* the start of the cost per changed node (calibrate): box-big, with the caches' pages mapped at
- * load, measured 17.5 / 9.3 / 7.6 us per changed node of levels 0 / 1 / 2 (medians of 71
- * passes, the level's floor included; 90th percentiles 30 / 30 / 15 us). The start was 100 us
- * (measured once with first-touch page faults in the passes): falling 3 % a pass, it kept the
- * model 3-10x over the passes for 50 frames, and the guard held back the splits a moving tool
- * needs (box-big split every second frame: 1.45-1.57 mm against 1.07-1.14 mm from 30 us) */
-#define SQ_GUARD_BLOCK_CHANGE_START 30e-6
-/* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were within 1.1 x, the worst
- * 1.57 x */
-#define SQ_GUARD_PASS_MARGIN 1.25
-/* the need of split node p of level k: its children's largest criterion (its own without
- * children), as the merge rule judges it, m */
-double sq_lodx_need(const sq_lod *lod, int k, int p);
-/* fixed costs for the guard instead of measured ones (tests: deterministic runs with
- * a budget); all <= 0 returns to measuring */
-/* a measurement into a learned cost (docs/lod.md "Guaranteed frame rate", "An isolated spike"):
- * the decaying maximum (decay 0.9 a frame, 0.97 a pass), except that a measurement above
- * `spike` x the term with no other such within the last SPIKE_WINDOW measurements raises it
- * only to that bound, and the next ordinary one puts it back; returns the new cost */
-double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double decay, double spike);
-void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s,
-                       double per_pass_s, double per_change_s);
-
-/* a measured cost into its decaying maximum unless the costs are given: 10 % a frame (learn),
- * 3 % a pass (learn_pass) */
-void sq_lodx_guard_learn(const sq_lod *lod, double *cost, sq_cost_track *t, double measured);
-void sq_lodx_guard_learn_pass(const sq_lod *lod, double *cost, sq_cost_track *t, double measured);
-/* the block rebuild a split or merge between levels k and k+1 costs, s */
-double sq_lodx_guard_region_cost(const sq_lod *lod, int k);
-/* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
- * already, before its changed nodes, s */
-double sq_lodx_guard_pass_cost(const sq_lod *lod, unsigned mask, unsigned done);
-/* every level that may take part in a pass (bits): up to the highest simulated level + 1 */
-unsigned sq_lodx_guard_all_levels(const sq_lod *lod);
-/* node updates that fit in `seconds` of a frame's budget after its fixed cost */
-long sq_lodx_guard_updates_fitting(const sq_lod *lod, double seconds);
-/* the resting nodes of level k masked out of the split pass (hide 1) or restored (hide 0) */
-void sq_lodx_guard_rest_mask(sq_lod *lod, int k, int hide);
-/* the guard: merge the least needed mergeable regions (smallest criterion over
- * their children) until *projected <= cap, at most `most` of them; each merged node rests
- * `rest` frames before it may split again. Returns the merges made (levels changed in
- * out->changed). */
-long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most);
-/* the guard: when the split/merge pass of levels k, k+1 would change more than
- * `most` regions, keep the merges the criterion wants (least needed first) and then its splits
- * (most needed first) up to `most`, and hold the others out of the pass (their state masked
- * until sq_lodx_guard_limit_undo); returns the regions held out */
-long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
-void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
-
-/* state.c: recompute the active mask, the ghost lists and the integration mask of level k */
-void sq_lodx_rebuild_level(sq_lod *lod, int k);
-/* state.c: split ghosts of level k from their child tets in level k+1 */
-void sq_lodx_pull_level(sq_lod *lod, int k);
-/* state.c: the end-of-frame cascade (coarse ghosts pushed only where something reads them) */
-void sq_lodx_cascade_needed(sq_lod *lod);
-/* criterion.c: Laplacian weights of the criterion per CSR entry of the mesh adjacency */
-double *sq_lodx_criterion_weights(const sq_mesh *m);
-/* criterion.c: split/merge between levels k and k+1; merges until the node-update cap fits */
-void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out);
-void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, values interpolated */
-void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
-/* coupling.c: ring and frontier blocks up to date for material mat (NULL: the last one seen) */
-void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat);
-/* reserve.c: grow the coupling arrays (ring and frontier rows, element-block cache) ahead of need and map
- * their pages now, within `seconds` of thread CPU (estimated); returns the pages written */
-long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead);
-/* every level's state and per-node scratch arrays (d, v, forces, step start, d + b v, push
- * stamps, marks) mapped, their contents kept: a frame's first writes to a node no frame wrote
- * before (the first push of the finest level's ghosts: 9.6 ms of page faults in box-big's
- * frame 1) then cost no fault; returns the pages touched */
-long sq_lodx_map_state(sq_lod *lod);
-/* chunks of each cache (element blocks, column-form rows) mapped ahead of use at load, where a
- * frame keeps one: a refinement's first touches of new cache pages then fall at load, not in
- * its frames (docs/lod.md "Guaranteed frame rate") */
-#define SQ_RESERVE_LOAD_CHUNKS 8
-/* the interface substeps again (Gershgorin, then the sharp rule if on) for the current blocks */
-void sq_lodx_coupling_bound(sq_lod *lod);
-/* bound.c: the sharp per-level substeps ("step_bound": "sharp"), its state freed */
-void sq_lodx_sharp_bound(sq_lod *lod);
-void sq_lodx_sharp_free(sq_lod *lod);
-/* the next sharp pass estimates every level again (the guard's calibration times it) */
-void sq_lodx_sharp_invalidate(sq_lod *lod);
-/* the sharp estimates of the next passes end by this thread CPU time (0: no limit); a level
- * whose estimate cannot is left on its Gershgorin substeps and owes it (the guard, frame.c) */
-void sq_lodx_sharp_deadline(sq_lod *lod, double cpu_deadline);
-/* the owed estimates made within `seconds` of thread CPU (INFINITY: all), each only when its
- * prediction fits; returns how many were made (their levels' substeps then change) */
-int sq_lodx_sharp_owed(sq_lod *lod, double seconds);
-/* owed estimates: of level k, or of every level (k < 0) */
-int sq_lodx_sharp_owes(const sq_lod *lod, int k);
-/* estimates not made by their deadline so far, and owed ones made later */
-void sq_lodx_sharp_late(const sq_lod *lod, long *late, long *made_later);
-/* for tests: level k's block S_kk + C_k of the majorant (S = M^-1/2 A M^-1/2) as bound.c applies it,
- * dense over 3 x its active nodes (active_list order, constrained axes zero rows and columns),
- * and the scaled diagonal C_k (*off, same order); both to free */
-double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off);
-/* tests: the estimate (Lanczos, Ritz vector, rho + ||r||, not capped) of the dense symmetric
- * n x n matrix A (n a multiple of 3) from start, iters steps (at most 40) */
-double sq_lodx_sharp_lanczos_dense(const double *A, int n, const double *start, int iters);
-/* the same with the early stop (bound.c's stop_rule; rule 1 on, 0 off) against the ceiling (the
- * estimate capped by it), substep bins floor(log4(w2 / bin_unit)); its steps and whether it
- * stopped early (1) */
-double sq_lodx_sharp_lanczos_dense_stop(const double *A, int n, const double *start, int iters, double ceiling,
-                                        double bin_unit, int rule, int *steps, int *stopped);
-/* tests: stop_rule's decision (1: stop) for the Lanczos tridiagonal (alpha, beta, order m) against
- * the ceiling, in the dense tests' bins floor(log4(w2 / bin_unit)) */
-int sq_lodx_sharp_stop_tridiag(const double *alpha, const double *beta, int m, double ceiling, double bin_unit);
-/* ring.c: sources of every ring ghost */
-void sq_lodx_build_sources(sq_lod *lod);
-
-/* tick.c: one tick of the finest substep clock, the kernels it runs */
-typedef struct sq_tick_count {
-    long updates;                               /* node integrations */
-    long ring_values, ring_rows, frontier_rows; /* the interface's work (profile) */
-} sq_tick_count;
-/* ring ghost values of every level due at tick t (level k due every stride[k] ticks; sets
- * lev[k].due) */
-void sq_lodx_tick_pull(sq_lod *lod, long t, const long *stride, sq_tick_count *c);
-/* forces of the due levels, the coupling reactions between levels, integration of the free
- * active nodes (and their contact) */
-void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const long *stride, sq_tick_count *c);
-/* forces of the inner active nodes of level k (no viscosity), from the rows in column form */
-void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-/* w_tick of level k (active nodes and ring ghosts) = d + b v, b the material's stiffness
- * damping: what the row kernels of a due linear level without viscosity read */
-void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k);
-void sq_lodx_integrate(sq_lod *lod, int k, double dt);
-void sq_lodx_save_prev(sq_lod *lod, int k);
-/* frontier forces of level k (correction after a full-row pass; merged rows) */
-void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k);
-void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-/* ring values of level k at tick t; only the ring ghosts read by the ring rows with a source
- * on a level in mask (returns how many); ring reactions (returns the rows) */
-void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
-int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
-int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
-/* holds.c: the frame's holds onto active nodes (held nodes prescribed over frame_dt, left out
- * of the integrated lists); the internal force on the held nodes of level k at its step;
- * the tool feedback into force[tool] (may be NULL) and the holds released */
-void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntools, double frame_dt);
-void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3]);
-void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*force)[3]);
-
-/* activeset.c: per-level index lists (active, inner, integrated), the nodes whose values at
- * the start of a step are read, the coarse ghosts something reads (the rest are pushed only
- * on demand) */
-void sq_lodx_level_lists(sq_lod *lod, int k);
-void sq_lodx_refresh_lists(sq_lod *lod);
-void sq_lodx_mask_list(sq_lod *lod, int k);
-void sq_lodx_push_needed(sq_lod *lod);
-/* the cascade values of the ring ghosts, before sq_lodx_eval_ring replaces them (for sq_lod_flush) */
-void sq_lodx_save_cascade(sq_lod *lod);
-/* d and v of node j of level k for a read inside the frame: the stored value, except for a
- * coarse ghost outside the needed set, interpolated afresh from the coarser level */
-void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3]);
-/* interp_node reading stale coarse-ghost corners on demand */
-void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, const double *b);
-void sq_lodx_free(sq_lod *lod, int k);
-/* static equilibria of the levels up to the top for gravity (once per gravity and material) */
-void sq_lodx_static_loads(sq_lod *lod, const double gravity[3]);
-void sq_lodx_sort_ints(int *a, int n);
-
-/* corotational.c (levels with lv[k].corot): the frame's force pass of a due level k and the
- * ring reactions of level k at tick t computed tet by tet instead of from the linear blocks;
- * the tet lists brought up to the layout (a no-op unless it changed); the weighted energy */
-int sq_lodx_corot_on(const sq_lod *lod);
-void sq_lodx_corot_layout(sq_lod *lod, const sq_material *mat);
-void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double gravity[3], int k);
-int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* ring rows handed back */
-double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic);
-void sq_lodx_corot_free(sq_lod *lod, int k);
-/* corotational.c: the ring weights of corotational levels made exact for affine fields (a
- * rigid motion of the body gives no force), at the end of sq_lodx_build_sources */
-void sq_lodx_corot_affine_sources(sq_lod *lod);
-/* corotational.c: level k's static equilibrium under gravity g with corotational elasticity,
- * from the linear one in d (replaced on success: 0; else -1 and d unchanged) */
-int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *iterations);
 
 #endif

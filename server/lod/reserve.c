@@ -3,12 +3,12 @@
  * writes is grown ahead of need and its pages touched, so that no pass pays first-touch page
  * faults (coupling.c builds into them; frame.c calls the reserve). */
 #include "lod/lod.h"
+#include "lod/reserve.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* A first touch of a page costs 12-15 us on this kind of machine (a page fault): a pass whose
  * rows outgrow an array, or whose element blocks open a new cache chunk, paid 400-570 faults

@@ -6,13 +6,14 @@
  * to the same sources with the same weights (sq_lodx_couple_out: part of the frame's step stage).
  */
 #include "lod/lod.h"
+#include "lod/corotational.h"
+#include "lod/ring.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- coupling
  *

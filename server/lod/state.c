@@ -14,13 +14,21 @@
  * the active nodes (pull, push, cascade, sync), and the consistency check of the tree.
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/bound.h"
+#include "lod/corotational.h"
+#include "lod/coupling.h"
+#include "lod/criterion.h"
+#include "lod/lod_vec.h"
+#include "lod/ring.h"
+#include "lod/state.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- state bookkeeping */
 

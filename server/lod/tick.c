@@ -11,7 +11,10 @@
 #include <string.h>
 
 #include "contact/contact.h"
-#include "lod/lod_internal.h"
+#include "lod/corotational.h"
+#include "lod/holds.h"
+#include "lod/lod_vec.h"
+#include "lod/tick.h"
 
 /* ---------------------------------------------------------------- the tick */
 

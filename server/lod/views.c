@@ -5,13 +5,14 @@
  * updates one frame of the current layout costs.
  */
 #include "lod/lod.h"
+#include "lod/corotational.h"
+#include "lod/lod_test.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 const sq_hierarchy *sq_lod_hierarchy(const sq_lod *lod)
 {

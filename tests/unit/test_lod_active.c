@@ -2,7 +2,6 @@
  * nobody reads are pushed on demand only, and that changes nothing a caller can see. */
 #include <stdint.h>
 
-#include "lod/lod_internal.h"
 #include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"

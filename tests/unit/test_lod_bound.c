@@ -6,7 +6,10 @@
 #include <stdint.h>
 
 #include "lod/lod.h"
-#include "lod/lod_internal.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
+#include "lod/lod_test.h"
+#include "lod/tick.h"
 #include "body/body_internal.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"

@@ -6,7 +6,6 @@
 #include <float.h>
 #include <stdint.h>
 
-#include "lod/lod_internal.h"
 #include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"

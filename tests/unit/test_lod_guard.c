@@ -4,8 +4,12 @@
  * frame did (its node updates, its passes' levels and changed nodes). */
 #include <stdint.h>
 
-#include "lod/lod_internal.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
+#include "lod/guard.h"
 #include "lod/lod_test.h"
+#include "lod/ring.h"
+#include "lod/state.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
