@@ -63,8 +63,8 @@ void sq_lodx_level_lists(sq_lod *lod, int k)
             lk->inner_list[ni++] = i;
     }
     lk->ninner_list = ni;
-    lod->lists_dirty = 1;
-    lod->gen++;
+    lod->push.lists_dirty = 1;
+    lod->view.gen++;
     sq_lodx_mask_list(lod, k);
 }
 
@@ -147,7 +147,7 @@ void sq_lodx_refresh_lists(sq_lod *lod)
         needed_full(lod);
     else
         needed_counted(lod);
-    lod->lists_dirty = 0;
+    lod->push.lists_dirty = 0;
 }
 
 /* the needed set from scratch, by a walk from everything that is read (the reference the
@@ -194,7 +194,7 @@ static void needed_full(sq_lod *lod)
     for (int k = 0; k < L; k++)
         sort_marked(lod->lev[k].needed, lod->lev[k].nneeded, lod->lev[k].in_needed, lod->lv[k].model.n);
     /* the counts no longer describe this set */
-    lod->needed_valid = 0;
+    lod->push.needed_valid = 0;
     for (int k = 0; k < L; k++) {
         for (int c = 0; c < lod->lev[k].nschg; c++)
             lod->lev[k].schg_mark[lod->lev[k].schg[c]] = 0;
@@ -265,9 +265,9 @@ static void needed_counted(sq_lod *lod)
         nchg += lod->lev[k].nschg;
         ntot += lod->lv[k].model.n;
     }
-    if (!lod->needed_valid || lod->needed_top != lod->top || nchg * 8 > ntot) {
+    if (!lod->push.needed_valid || lod->push.needed_top != lod->top || nchg * 8 > ntot) {
         /* from scratch: every seed counted once */
-        lod->needed_counts[0]++;
+        lod->push.needed_counts[0]++;
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
             int n = lod->lv[k].model.n;
@@ -288,7 +288,7 @@ static void needed_counted(sq_lod *lod)
     } else {
         /* the new seeds in first, then the old ones out (no count drops to zero on the way
          * when a seed stays) */
-        lod->needed_counts[1]++;
+        lod->push.needed_counts[1]++;
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
             for (int c = 0; c < lk->nschg; c++)
@@ -317,7 +317,7 @@ lists:
     for (int k = 0; k < L; k++) {
         sq_lod_level *lk = &lod->lev[k];
         int n = lod->lv[k].model.n;
-        if (lod->needed_valid && lod->needed_top == lod->top && nchg * 8 <= ntot)
+        if (lod->push.needed_valid && lod->push.needed_top == lod->top && nchg * 8 <= ntot)
             for (int c = 0; c < lk->nschg; c++)
                 lk->seed_state[lk->schg[c]] = lk->state[lk->schg[c]];
         else
@@ -333,15 +333,15 @@ lists:
             if (lk->in_needed[i])
                 lk->needed[w++] = i;
     }
-    lod->needed_valid = 1;
-    lod->needed_top = lod->top;
+    lod->push.needed_valid = 1;
+    lod->push.needed_top = lod->top;
 }
 
 
 void sq_lodx_push_needed(sq_lod *lod)
 {
     int stale = 0;
-    unsigned no = ++lod->cascade_no;
+    unsigned no = ++lod->push.cascade_no;
     for (int k = 1; k < lod->L; k++) {
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
@@ -353,7 +353,7 @@ void sq_lodx_push_needed(sq_lod *lod)
         }
         stale |= lod->lev[k].nneeded < lod->lev[k].ncoarse_ghost;
     }
-    lod->stale = stale;
+    lod->push.stale = stale;
 }
 
 void sq_lodx_save_cascade(sq_lod *lod)
@@ -384,7 +384,7 @@ void sq_lodx_save_cascade(sq_lod *lod)
  * values), the other corners are current (nothing changed them since the cascade) */
 void sq_lod_flush(sq_lod *lod)
 {
-    if (!lod || !lod->stale)
+    if (!lod || !lod->push.stale)
         return;
     for (int k = 1; k < lod->L; k++) {
         const sq_lod_link *ln = &lod->h.link[k - 1];
@@ -393,7 +393,7 @@ void sq_lod_flush(sq_lod *lod)
         const int *ri = lod->lev[k - 1].ring_index;
         for (int r = 0; r < lod->lev[k].ncoarse_ghost; r++) {
             int j = lod->lev[k].coarse_ghost[r];
-            if (lod->lev[k].push_stamp[j] == lod->cascade_no)
+            if (lod->lev[k].push_stamp[j] == lod->push.cascade_no)
                 continue;
             const int *tn = src->model.mesh->tets + 4 * ln->up_tet[j];
             const double *b = ln->up_bary + 4 * j;
@@ -417,7 +417,7 @@ void sq_lod_flush(sq_lod *lod)
             }
         }
     }
-    lod->stale = 0;
+    lod->push.stale = 0;
 }
 
 void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
@@ -425,7 +425,7 @@ void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
     const sq_level *Lk = &lod->lv[k];
     /* what sq_lod_flush leaves as it is: everything when nothing is stale, a node that is not a
      * coarse ghost, one the last cascade pushed */
-    if (!lod->stale || k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->lev[k].push_stamp[j] == lod->cascade_no) {
+    if (!lod->push.stale || k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->lev[k].push_stamp[j] == lod->push.cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         return;
     }
@@ -456,8 +456,8 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
     const sq_level *Lk = &lod->lv[k];
     /* a coarse ghost the last cascade did not push is always interpolated afresh (whether or
      * not a flush brought its stored value up to date), so a flush never changes the trajectory */
-    if (k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->full_no == lod->cascade_no ||
-        lod->lev[k].push_stamp[j] == lod->cascade_no) {
+    if (k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->push.full_no == lod->push.cascade_no ||
+        lod->lev[k].push_stamp[j] == lod->push.cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         memcpy(v, Lk->v + 3 * (size_t)j, 3 * sizeof(double));
         return;
@@ -521,8 +521,8 @@ void sq_lodx_free(sq_lod *lod, int k)
     free(lk->cascade_value);
     free(lk->push_stamp);
     free(lk->d_static);
-    free(lod->guard_hold[k]);
-    lod->guard_hold[k] = NULL;
+    free(lod->guard.guard_hold[k]);
+    lod->guard.guard_hold[k] = NULL;
     free(lk->limited);
 }
 
@@ -534,14 +534,14 @@ void sq_lodx_free(sq_lod *lod, int k)
  * body with no support has no equilibrium) is judged from zero displacement, as before. */
 void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
 {
-    if (lod->stat_done && lod->stat_k == lod->lv[0].model.K && !memcmp(lod->stat_g, gravity, sizeof lod->stat_g) &&
-        lod->stat_top == lod->top && (!lod->have_mat || !memcmp(&lod->stat_mat, &lod->mat, sizeof lod->mat)))
+    if (lod->statics.stat_done && lod->statics.stat_k == lod->lv[0].model.K && !memcmp(lod->statics.stat_g, gravity, sizeof lod->statics.stat_g) &&
+        lod->statics.stat_top == lod->top && (!lod->cpl.have_mat || !memcmp(&lod->statics.stat_mat, &lod->cpl.mat, sizeof lod->cpl.mat)))
         return;
-    lod->stat_done = 1;
-    lod->stat_top = lod->top;
-    lod->stat_mat = lod->mat;
-    lod->stat_k = lod->lv[0].model.K;
-    memcpy(lod->stat_g, gravity, sizeof lod->stat_g);
+    lod->statics.stat_done = 1;
+    lod->statics.stat_top = lod->top;
+    lod->statics.stat_mat = lod->cpl.mat;
+    lod->statics.stat_k = lod->lv[0].model.K;
+    memcpy(lod->statics.stat_g, gravity, sizeof lod->statics.stat_g);
     int loaded = gravity[0] != 0 || gravity[1] != 0 || gravity[2] != 0;
     for (int k = 0; k < lod->L; k++) {
         free(lod->lev[k].d_static);
@@ -573,20 +573,20 @@ void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gra
     lod->like = like; /* the own-operator row sums of levels over like's operator blocks: like's */
     sq_lod_set_material(lod, mat);
     lod->like = NULL;
-    int same = like && like->stat_done && like->L == lod->L && like->stat_top == lod->top &&
-               like->stat_k == lod->lv[0].model.K && !memcmp(like->stat_g, gravity, sizeof like->stat_g) &&
-               lod->have_mat && !memcmp(&like->stat_mat, &lod->mat, sizeof lod->mat);
+    int same = like && like->statics.stat_done && like->L == lod->L && like->statics.stat_top == lod->top &&
+               like->statics.stat_k == lod->lv[0].model.K && !memcmp(like->statics.stat_g, gravity, sizeof like->statics.stat_g) &&
+               lod->cpl.have_mat && !memcmp(&like->statics.stat_mat, &lod->cpl.mat, sizeof lod->cpl.mat);
     for (int k = 0; same && k < lod->L; k++)
         same = like->lv[k].model.K == lod->lv[k].model.K && !like->lv[k].corot == !lod->lv[k].corot;
     if (!same) {
         sq_lodx_static_loads(lod, gravity);
         return;
     }
-    lod->stat_done = 1;
-    lod->stat_top = like->stat_top;
-    lod->stat_mat = like->stat_mat;
-    lod->stat_k = like->stat_k;
-    memcpy(lod->stat_g, like->stat_g, sizeof lod->stat_g);
+    lod->statics.stat_done = 1;
+    lod->statics.stat_top = like->statics.stat_top;
+    lod->statics.stat_mat = like->statics.stat_mat;
+    lod->statics.stat_k = like->statics.stat_k;
+    memcpy(lod->statics.stat_g, like->statics.stat_g, sizeof lod->statics.stat_g);
     for (int k = 0; k < lod->L; k++) {
         free(lod->lev[k].d_static);
         lod->lev[k].d_static = NULL;

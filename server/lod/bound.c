@@ -67,7 +67,7 @@ static unsigned long long mix_doubles(unsigned long long h, const double *a, lon
 static unsigned long long level_key(const sq_lod *lod, const struct lod_sharp *S, int k)
 {
     unsigned long long h = 0x243F6A8885A308D3ULL;
-    const sq_material *mt = &lod->mat;
+    const sq_material *mt = &lod->cpl.mat;
     const double mv[7] = {mt->mu, mt->lambda, mt->density, mt->rayleigh_mass, mt->rayleigh_stiffness,
                           mt->phi, mt->psi};
     h = mix_doubles(h, mv, 7);
@@ -130,7 +130,7 @@ double sq_lodx_step_bound_of(const sq_material *mat, double w2)
 int sq_lodx_sharp_exponent(const sq_lod *lod, const struct lod_sharp *S, int k, double w2)
 {
     const sq_level *Lk = &lod->lv[k];
-    double bound = sq_lodx_step_bound_of(&lod->mat, w2);
+    double bound = sq_lodx_step_bound_of(&lod->cpl.mat, w2);
     double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
     int n = 0;
     while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
@@ -198,7 +198,7 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
 void sq_lodx_sharp_bound(sq_lod *lod)
 {
     struct lod_sharp *S = lod->sharp;
-    if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
+    if (!S || !S->on || !lod->cpl.have_mat || lod->cpl.mat.use_viscosity)
         return;
     double t0 = sq_thread_cpu();
     int order[SQ_MAX_LEVELS];
@@ -257,7 +257,7 @@ void sq_lodx_sharp_deadline(sq_lod *lod, double cpu_deadline)
 int sq_lodx_sharp_owed(sq_lod *lod, double seconds)
 {
     struct lod_sharp *S = lod->sharp;
-    if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
+    if (!S || !S->on || !lod->cpl.have_mat || lod->cpl.mat.use_viscosity)
         return 0;
     double t0 = sq_thread_cpu(), deadline = isfinite(seconds) ? t0 + fmax(seconds, 1e-12) : 0;
     int made = 0;
@@ -325,7 +325,7 @@ void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)
                 S->idx[k][i] = -1;
         }
     }
-    if (changed && lod->have_mat)
+    if (changed && lod->cpl.have_mat)
         sq_lodx_coupling_bound(lod); /* Gershgorin substeps, then the sharp ones if on */
 }
 

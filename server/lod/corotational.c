@@ -38,7 +38,7 @@ struct sq_lod_corot {
     int gf_cap;                 /* capacity of gf, ring ghosts */
     double *d0, *v0;            /* d (m), v (m/s) of the active corners of mixed tets at the start
                                  * of the level's last step (n x 3; only those nodes written) */
-    long gen;                   /* lod->gen the lists were built at */
+    long gen;                   /* lod->view.gen the lists were built at */
     double **dst;               /* per listed tet and corner: where its force goes (the node's f
                                  * if active, its ring ghost's gf, or NULL), made with the lists */
     int dst_cap;                /* capacity of dst, tets */
@@ -146,13 +146,13 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
     }
     for (int x = 0; x < c->nmact; x++)
         mark[c->mact[x]] = 0;
-    c->gen = lod->gen;
+    c->gen = lod->view.gen;
 }
 
 void sq_lodx_corot_layout(sq_lod *lod, const sq_material *mat)
 {
     for (int k = 0; k < lod->L; k++)
-        if (lod->lv[k].corot && (!lod->lev[k].corot || lod->lev[k].corot->gen != lod->gen))
+        if (lod->lv[k].corot && (!lod->lev[k].corot || lod->lev[k].corot->gen != lod->view.gen))
             build_lists(lod, mat, k);
 }
 
@@ -743,7 +743,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
     const sq_level_model *M = &L->model;
     const sq_mesh *m = M->mesh;
     size_t n3 = 3 * (size_t)M->n;
-    if (!L->corot || !lod->have_mat)
+    if (!L->corot || !lod->cpl.have_mat)
         return -1;
     double *x = sq_malloc(sizeof(double) * n3), *r = sq_malloc(sizeof(double) * n3);
     double *dx = sq_malloc(sizeof(double) * n3);
@@ -788,7 +788,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
             double tr = G[0] + G[4] + G[8];
             for (int rr = 0; rr < 3; rr++)
                 for (int c = 0; c < 3; c++)
-                    S[3 * rr + c] = lod->mat.mu * (G[3 * rr + c] + G[3 * c + rr]) + (rr == c ? lod->mat.lambda * tr : 0);
+                    S[3 * rr + c] = lod->cpl.mat.mu * (G[3 * rr + c] + G[3 * c + rr]) + (rr == c ? lod->cpl.mat.lambda * tr : 0);
             for (int rr = 0; rr < 3; rr++)
                 for (int c = 0; c < 3; c++)
                     P[3 * rr + c] = a[12] * (R[3 * rr] * S[c] + R[3 * rr + 1] * S[3 + c] + R[3 * rr + 2] * S[6 + c]);
@@ -808,7 +808,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
             rc = 0;
             break;
         }
-        if (kr_solve(M, &lod->mat, tg, rot, r, 1e-2, dx) < 0)
+        if (kr_solve(M, &lod->cpl.mat, tg, rot, r, 1e-2, dx) < 0)
             break;
         for (size_t q = 0; q < n3; q++)
             x[q] += dx[q];

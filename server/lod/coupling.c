@@ -67,12 +67,12 @@ static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
     double *E = lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
     memset(E, 0, sizeof(double) * per);
     const double *g = lk->tet_geom + 13 * (size_t)t;
-    const sq_material *mat = &lod->mat;
+    const sq_material *mat = &lod->cpl.mat;
     for (int p = 0; p < 4; p++)
         for (int q = 0; q < 4; q++) {
-            sq_level_tet_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
+            sq_level_tet_block(lod->cpl.op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
             if (visc)
-                sq_level_tet_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
+                sq_level_tet_block(lod->cpl.op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
                           E + 144 + 9 * (4 * p + q));
         }
     return E;
@@ -158,7 +158,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
                          double **bk, int *bk_cap, double **bd, int *bd_cap, double weight)
 {
     const sq_level *L = &lod->lv[k];
-    const sq_material *mat = &lod->mat;
+    const sq_material *mat = &lod->cpl.mat;
     int visc = mat->use_viscosity && L->model.D;
     int total = 0;
     for (int r = 0; r < nn; r++) {
@@ -228,7 +228,7 @@ static int build_blocks_incr(sq_lod *lod, int k, const int *nodes, int nn, const
                              double **bd, int *bd_cap, double weight, int *from)
 {
     const sq_level *L = &lod->lv[k];
-    const sq_material *mat = &lod->mat;
+    const sq_material *mat = &lod->cpl.mat;
     int visc = mat->use_viscosity && L->model.D;
     int total = 0, maxlen = 0;
     for (int r = 0; r < nn; r++) {
@@ -550,11 +550,11 @@ static void coupling_bound(sq_lod *lod)
             rowsum[k] = lod->lev[k].coupled_rowsum;
         /* the sum of |weights| of each ring ghost's sources, once per ghost (a ghost is a column
          * of about ten ring rows) */
-        if (nring > lod->abs_cap) {
-            lod->abs_cap = SQ_MAX(nring, 2 * lod->abs_cap);
-            lod->abs_sum = sq_realloc(lod->abs_sum, sizeof(double) * (size_t)lod->abs_cap);
+        if (nring > lod->cpl.abs_cap) {
+            lod->cpl.abs_cap = SQ_MAX(nring, 2 * lod->cpl.abs_cap);
+            lod->cpl.abs_sum = sq_realloc(lod->cpl.abs_sum, sizeof(double) * (size_t)lod->cpl.abs_cap);
         }
-        double *abs_sum = lod->abs_sum;
+        double *abs_sum = lod->cpl.abs_sum;
         for (int r = 0; r < nring; r++) {
             double sc = 0;
             for (int q = src_start[r]; q < src_start[r + 1]; q++)
@@ -605,11 +605,11 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
 {
     int first = 0;
     int changed = 0;
-    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->k_seen)) {
-        lod->mat = *mat;
-        lod->have_mat = 1;
-        lod->k_seen = lod->lv[0].model.K;
-        lod->op = infer_op(lod, mat);
+    if (mat && (!lod->cpl.have_mat || memcmp(mat, &lod->cpl.mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->cpl.k_seen)) {
+        lod->cpl.mat = *mat;
+        lod->cpl.have_mat = 1;
+        lod->cpl.k_seen = lod->lv[0].model.K;
+        lod->cpl.op = infer_op(lod, mat);
         drop_tet_blocks(lod);
         own_rows(lod);
         first = 1;
@@ -618,7 +618,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
             lod->lev[k].blocks_valid = 0; /* every row again for the new material */
         }
     }
-    if (!lod->have_mat)
+    if (!lod->cpl.have_mat)
         return;
     double c = sq_thread_cpu();
     for (int k = 0; k < lod->L; k++) {
@@ -632,12 +632,12 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
             c = t;
         }
     }
-    lod->bound_cpu = 0;
+    lod->guard.bound_cpu = 0;
     if (changed) {
         coupling_bound(lod);
-        lod->bound_cpu = sq_thread_cpu() - c;
+        lod->guard.bound_cpu = sq_thread_cpu() - c;
     }
-    if (first && lod->reserve_live) /* a new material under a budget: every array reserved and
+    if (first && lod->reserve.reserve_live) /* a new material under a budget: every array reserved and
                                      * mapped, whatever it costs (first budgeted frame: frame.c) */
         sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
 }

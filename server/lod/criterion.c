@@ -102,13 +102,13 @@ double sq_lodx_delta(const sq_lod *lod, int k, int i)
     double s[3] = {0, 0, 0};
     const unsigned char *st = lk->state;
     const unsigned *ps = lk->push_stamp;
-    int all_valid = lod->full_no == lod->cascade_no;
+    int all_valid = lod->push.full_no == lod->push.cascade_no;
     const double *ds = lk->d_static;
     for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
         int j = L->model.col[q];
         const double *dj = L->d + 3 * j;
         double fresh[3], fv[3];
-        if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->cascade_no) {
+        if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->push.cascade_no) {
             /* a neighbour the last cascade did not push (a node that just became active in
              * this split pass sees beyond the old ring): its value now, on demand */
             sq_lodx_value(lod, k, j, fresh, fv);

@@ -361,8 +361,8 @@ static void stop_edges(op_ctx *c)
         const sq_level *Lk = &c->lod->lv[c->k];
         of[0] = ldexp(Lk->dt, Lk->substeps_log2);
         of[1] = S->step_fraction;
-        of[2] = c->lod->mat.rayleigh_mass;
-        of[3] = c->lod->mat.rayleigh_stiffness;
+        of[2] = c->lod->cpl.mat.rayleigh_mass;
+        of[3] = c->lod->cpl.mat.rayleigh_stiffness;
         if (S->have_edges[c->k] && S->edge_n[c->k] == n && !memcmp(S->edge_of[c->k], of, sizeof of)) {
             c->below = S->edge_below[c->k];
             c->top = S->edge_top[c->k];
@@ -843,7 +843,7 @@ void sq_lodx_sharp_check(sq_lod *lod, struct lod_sharp *S, int k, double est)
     int ne = sq_lodx_sharp_exponent(lod, S, k, est), nr = sq_lodx_sharp_exponent(lod, S, k, theta), nh = sq_lodx_sharp_exponent(lod, S, k, theta + resid);
     /* the substep this estimate gives against the stable step at theta_ref (> 1: beyond it) */
     double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
-    double over = frame_dt / ldexp(1.0, ne) / sq_lodx_step_bound_of(&lod->mat, theta);
+    double over = frame_dt / ldexp(1.0, ne) / sq_lodx_step_bound_of(&lod->cpl.mat, theta);
     fprintf(stderr, "sharp-check L%d: %d active, %d free axes, est %.9g, ref %.9g (resid %.3g, %d steps), est/ref %.6f, "
             "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, stop %d, ceiling %.6g\n",
             k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->stopped[k], S->gersh[k]);

@@ -81,7 +81,7 @@ typedef struct lod_frame {
 void sq_lod_untimed(sq_lod *lod, double cpu_s)
 {
     if (cpu_s > 0)
-        lod->untimed += cpu_s;
+        lod->guard.untimed += cpu_s;
 }
 
 /* run one stage and add its wall time to its entry */
@@ -116,8 +116,8 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     long late0 = 0, later0 = 0;
     sq_lodx_sharp_late(lod, &late0, &later0);
     double deadline = 0;
-    if (fr->guard_on && !lod->cost_given && after >= 0)
-        deadline = fmax(fr->c_start + fr->fr_budget - lod->cost_fixed - lod->cost_couple - after, 1e-9);
+    if (fr->guard_on && !lod->guard.cost_given && after >= 0)
+        deadline = fmax(fr->c_start + fr->fr_budget - lod->guard.cost_fixed - lod->guard.cost_couple - after, 1e-9);
     sq_lodx_sharp_deadline(lod, deadline);
     double c0 = sq_thread_cpu(), c = c0;
     unsigned mask = 0;
@@ -138,7 +138,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         nchg[k] = lod->lev[k].nchg;
     double model = sq_lodx_guard_pass_cost(lod, mask, 0);
     for (int k = 0; k < L; k++)
-        model += lod->cost_block_change[k] * (double)nchg[k];
+        model += lod->guard.cost_block_change[k] * (double)nchg[k];
     /* (holds are mapped again onto the new active nodes at the next frame) */
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, fr->in->mat);
@@ -149,7 +149,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     double t = sq_thread_cpu(), blocks = 0;
     for (int k = 0; k < L; k++)
         blocks += lod->lev[k].blocks_cpu;
-    double couple = fmax(0.0, t - c - blocks - lod->bound_cpu); /* sources, lists */
+    double couple = fmax(0.0, t - c - blocks - lod->guard.bound_cpu); /* sources, lists */
     long late1 = 0, later1 = 0;
     sq_lodx_sharp_late(lod, &late1, &later1);
     if (trace)
@@ -158,7 +158,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
                 "bound ended %.2f ms before its deadline\n", mask,
                 nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
                 1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
-                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
+                1e3 * lod->guard.bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
@@ -166,16 +166,16 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
-            sq_lodx_guard_learn_pass(lod, &lod->cost_level[k], &lod->tr_level[k], t_level[k]);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_level[k], &lod->guard.tr_level[k], t_level[k]);
         if (nchg[k] == 0)
-            sq_lodx_guard_learn_pass(lod, &lod->cost_blocks[k], &lod->tr_blocks[k], lod->lev[k].blocks_cpu);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_blocks[k], &lod->guard.tr_blocks[k], lod->lev[k].blocks_cpu);
         else
-            sq_lodx_guard_learn_pass(lod, &lod->cost_block_change[k], &lod->tr_block_change[k],
-                  fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_block_change[k], &lod->guard.tr_block_change[k],
+                  fmax(0.0, lod->lev[k].blocks_cpu - lod->guard.cost_blocks[k]) / (double)nchg[k]);
     }
     if (!fr->unmeasured) {
-        sq_lodx_guard_learn_pass(lod, &lod->cost_bound, &lod->tr_bound, lod->bound_cpu);
-        sq_lodx_guard_learn_pass(lod, &lod->cost_couple, &lod->tr_couple, couple);
+        sq_lodx_guard_learn_pass(lod, &lod->guard.cost_bound, &lod->guard.tr_bound, lod->guard.bound_cpu);
+        sq_lodx_guard_learn_pass(lod, &lod->guard.cost_couple, &lod->guard.tr_couple, couple);
     }
     fr->c_pass += t - c0;
     fr->modeled_pass += model;
@@ -196,7 +196,7 @@ static void calibrate(lod_frame *fr)
      * against 2-3 ms passes, and the pass terms decay only when a pass runs: no split in 100
      * frames). So the first pass runs unmeasured (nothing learned from it), then the
      * calibration pass is measured warm */
-    for (int warm = lod->cost_given ? 1 : 0; warm < 2; warm++) {
+    for (int warm = lod->guard.cost_given ? 1 : 0; warm < 2; warm++) {
         for (int k = 0; k <= lod->top && k < lod->L; k++)
             fr->ao.changed[k] = 1;
         sq_lodx_sharp_invalidate(lod);
@@ -206,25 +206,25 @@ static void calibrate(lod_frame *fr)
     }
     fr->passes = 0;
     fr->modeled_pass = 0;
-    lod->cost_calibrated = 1;
+    lod->guard.cost_calibrated = 1;
     /* a start for the cost per changed node until passes measure it (the decaying maximum then
      * rises at once to a higher measurement, and falls 3 % a pass) */
-    for (int k = 0; k < lod->L && !lod->cost_given; k++)
-        lod->cost_block_change[k] = fmax(lod->cost_block_change[k], SQ_GUARD_BLOCK_CHANGE_START);
+    for (int k = 0; k < lod->L && !lod->guard.cost_given; k++)
+        lod->guard.cost_block_change[k] = fmax(lod->guard.cost_block_change[k], SQ_GUARD_BLOCK_CHANGE_START);
 }
 
 /* a live budget follows: every array a pass writes reserved and mapped, and the guard's pass
  * terms calibrated, now (at load) instead of in the first budgeted frame */
 long sq_lod_prepare_budget(sq_lod *lod)
 {
-    if (lod->reserve_live || !lod->have_mat)
+    if (lod->reserve.reserve_live || !lod->cpl.have_mat)
         return 0;
-    lod->reserve_live = 1;
+    lod->reserve.reserve_live = 1;
     long pages = sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS) + sq_lodx_map_state(lod);
-    if (!lod->cost_calibrated) {
+    if (!lod->guard.cost_calibrated) {
         sq_lod_frame_in in;
         memset(&in, 0, sizeof in);
-        in.mat = &lod->mat;
+        in.mat = &lod->cpl.mat;
         lod_frame fr;
         memset(&fr, 0, sizeof fr);
         fr.lod = lod;
@@ -243,18 +243,18 @@ static void stage_guard(lod_frame *fr)
     sq_lod *lod = fr->lod;
     double budget_s = fr->in->budget_s;
     sq_lodx_static_loads(lod, fr->in->gravity); /* no-op unless gravity or material changed */
-    fr->prev_time = lod->last_time;
+    fr->prev_time = lod->guard.last_time;
     fr->fr_budget = lod->def.budget * budget_s;
     /* the thread's time between two frames of this body (the body's own work around the lod
      * frame: tool holds, node levels, health; the caller's between its steps, less what it
      * declared not the product's, sq_lod_untimed), up to a quarter of the period, is not the
      * lod's */
-    fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end - lod->untimed : 0;
-    lod->untimed = 0;
-    if (budget_s > 0 && lod->last_c_end > 0) {
+    fr->outside_raw = lod->guard.last_c_end > 0 ? fr->c_start - lod->guard.last_c_end - lod->guard.untimed : 0;
+    lod->guard.untimed = 0;
+    if (budget_s > 0 && lod->guard.last_c_end > 0) {
         double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
-        sq_lodx_guard_learn(lod, &lod->cost_outside, &lod->tr_outside, outside);
-        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->cost_outside);
+        sq_lodx_guard_learn(lod, &lod->guard.cost_outside, &lod->guard.tr_outside, outside);
+        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->guard.cost_outside);
     }
     fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
     fr->cap_user = lod->def.max_node_updates;
@@ -262,8 +262,8 @@ static void stage_guard(lod_frame *fr)
     fr->coarse_ms = 0;
     if (budget_s <= 0)
         return;
-    lod->guard_clock++;
-    if (!lod->reserve_live && lod->have_mat) {
+    lod->guard.guard_clock++;
+    if (!lod->reserve.reserve_live && lod->cpl.have_mat) {
         /* the first budgeted frame, unless done at load (sq_lod_prepare_budget): every array a
          * pass writes reserved and mapped, whatever it costs (a run without a budget does not
          * hold them), then kept ahead of need at the end of frames with room (reserve_ahead) */
@@ -271,13 +271,13 @@ static void stage_guard(lod_frame *fr)
         fr->reserved_pages += sq_lod_prepare_budget(lod);
         fr->c_reserve += sq_thread_cpu() - c; /* (not the frame's fixed cost) */
     }
-    if (!lod->cost_calibrated)
+    if (!lod->guard.cost_calibrated)
         calibrate(fr);
-    fr->guard_on = lod->cost_update > 0;
+    fr->guard_on = lod->guard.cost_update > 0;
     if (fr->guard_on) {
         /* the layout must fit without a pass; level 0 alone, the cheapest layout */
         fr->cap_guard = sq_lodx_guard_updates_fitting(lod, fr->fr_budget);
-        fr->coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+        fr->coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
                                                      (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     }
 }
@@ -305,7 +305,7 @@ static void stage_layout(lod_frame *fr)
         merged = 1;
     }
     if (merged) {
-        rebuild_pass(fr, 0, lod->cost_update * (double)fr->projected);
+        rebuild_pass(fr, 0, lod->guard.cost_update * (double)fr->projected);
         fr->projected = sq_lod_projected_updates(lod);
     }
     int nmax = 0;
@@ -360,8 +360,8 @@ static void stage_criterion(lod_frame *fr)
     fr->c_ticks = now - fr->c_mark;
     fr->c_mark = now;
     if (fr->tc.updates > 0)
-        sq_lodx_guard_learn(lod, &lod->cost_update, &lod->tr_update, fr->c_ticks / (double)fr->tc.updates);
-    if (fr->in->budget_s > 0 && lod->cost_update > 0 && lod->cost_calibrated)
+        sq_lodx_guard_learn(lod, &lod->guard.cost_update, &lod->guard.tr_update, fr->c_ticks / (double)fr->tc.updates);
+    if (fr->in->budget_s > 0 && lod->guard.cost_update > 0 && lod->guard.cost_calibrated)
         fr->guard_on = 1;
     if (!fr->guard_on) {
         for (int k = 0; k + 1 < L && k < lod->top && pairs; k++)
@@ -372,8 +372,8 @@ static void stage_criterion(lod_frame *fr)
     double B = fr->fr_budget;
     /* what is left of this frame once the rest of it (push, feedback: within the fixed cost)
      * is paid */
-    double used = lod->cost_given ? lod->cost_update * (double)fr->tc.updates + fr->modeled_pass : now - fr->c_start;
-    double left = B - used - lod->cost_fixed;
+    double used = lod->guard.cost_given ? lod->guard.cost_update * (double)fr->tc.updates + fr->modeled_pass : now - fr->c_start;
+    double left = B - used - lod->guard.cost_fixed;
     long keep = sq_lodx_guard_updates_fitting(lod, B);
     long split_cap = sq_lodx_guard_updates_fitting(lod, SQ_GUARD_SPLIT_HEADROOM * B - SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, sq_lodx_guard_all_levels(lod), 0));
     if (fr->cap_user > 0) {
@@ -462,7 +462,7 @@ static void sharp_owed(lod_frame *fr)
  * frame used, at most a quarter of the budget), so that no pass pays first-touch page faults; the rest waits for a later frame */
 static void reserve_ahead(lod_frame *fr)
 {
-    if (fr->in->budget_s <= 0 || !fr->lod->have_mat || !fr->lod->reserve_live)
+    if (fr->in->budget_s <= 0 || !fr->lod->cpl.have_mat || !fr->lod->reserve.reserve_live)
         return;
     double c = sq_thread_cpu();
     double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);
@@ -482,20 +482,20 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     const adapt_out ao = fr->ao;
     double t_end = sq_now(), c_end = sq_thread_cpu();
     double cpu = c_end - fr->c_start;
-    lod->last_c_end = c_end;
+    lod->guard.last_c_end = c_end;
     if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
         fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
-        sq_lodx_guard_learn(lod, &lod->cost_update, &lod->tr_update, fr->c_ticks / (double)updates);
+        sq_lodx_guard_learn(lod, &lod->guard.cost_update, &lod->guard.tr_update, fr->c_ticks / (double)updates);
     }
     /* what is neither ticks nor passes (nor the reserve and owed estimates, done only with room left):
      * criterion, push, feedback, guard, layout, holds */
-    sq_lodx_guard_learn(lod, &lod->cost_fixed, &lod->tr_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
+    sq_lodx_guard_learn(lod, &lod->guard.cost_fixed, &lod->guard.tr_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
 
-    lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
-    lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */
+    lod->guard.guard_modeled = lod->guard.cost_fixed + lod->guard.cost_update * (double)updates + fr->modeled_pass;
+    lod->guard.last_time = lod->guard.cost_given ? lod->guard.guard_modeled : cpu; /* given costs: deterministic */
     long next = sq_lod_projected_updates(lod);
-    lod->guard_predicted = lod->cost_fixed + lod->cost_update * (double)next;
-    double coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+    lod->guard.guard_predicted = lod->guard.cost_fixed + lod->guard.cost_update * (double)next;
+    double coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     if (sq_debug()->guard_trace && budget_s > 0)
         fprintf(stderr,
@@ -504,13 +504,13 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
                 "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
                 "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us; "
                 "reserve %.2f ms %ld pages (%ld pending, %.1f MB held); owed estimates %.2f ms, %d made, %d owed\n",
-                lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
-                1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard_modeled, fr->rebuilt, ao.splits, ao.merges,
-                fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
-                1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_bound,
-                1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
-                1e6 * lod->cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve_pending,
-                1e-6 * (double)lod->reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
+                lod->guard.guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
+                1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->guard.cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard.guard_modeled, fr->rebuilt, ao.splits, ao.merges,
+                fr->guard_merges, next, 1e3 * lod->guard.guard_predicted, 1e9 * lod->guard.cost_update,
+                1e3 * lod->guard.cost_fixed, 1e3 * lod->guard.cost_couple, 1e3 * lod->guard.cost_bound,
+                1e6 * lod->guard.cost_block_change[0], 1e6 * lod->guard.cost_block_change[1], 1e6 * lod->guard.cost_block_change[2],
+                1e6 * lod->guard.cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve.reserve_pending,
+                1e-6 * (double)lod->reserve.reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
     if (sq_debug()->guard_trace && budget_s > 0) {
         /* where a frame's thread CPU time went (a frame far over its model: user or system
          * time, page faults, the thread preempted) */
@@ -518,7 +518,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         long flt, cs;
         sq_thread_usage(&u, &sy, &flt, &cs);
         fprintf(stderr, "usage %ld: user %.2f ms, system %.2f ms, minor faults %ld, involuntary switches %ld\n",
-                lod->guard_clock, 1e3 * (u - fr->u0_user), 1e3 * (sy - fr->u0_sys), flt - fr->u0_flt, cs - fr->u0_ivcsw);
+                lod->guard.guard_clock, 1e3 * (u - fr->u0_user), 1e3 * (sy - fr->u0_sys), flt - fr->u0_flt, cs - fr->u0_ivcsw);
     }
     long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
@@ -540,7 +540,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         prof->splits = ao.splits;
         prof->merges = ao.merges;
         prof->splits_refused = fr->over_budget || ao.refused;
-        if (budget_s > 0 && lod->cost_update > 0 && coarse_ms > fr->fr_budget * 1e3) {
+        if (budget_s > 0 && lod->guard.cost_update > 0 && coarse_ms > fr->fr_budget * 1e3) {
             prof->splits_refused = 1;
             sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, coarse_ms, lod->lv[0].model.nfree,
                            1 << sub_log2(lod, 0), fr->fr_budget * 1e3, NULL);

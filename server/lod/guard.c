@@ -37,21 +37,21 @@
 void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s, double per_pass_s,
                        double per_change_s)
 {
-    lod->cost_given = per_update_s > 0 || per_frame_s > 0 || per_level_s > 0 || per_pass_s > 0 || per_change_s > 0;
-    lod->cost_update = SQ_MAX(per_update_s, 0.0);
-    lod->cost_fixed = SQ_MAX(per_frame_s, 0.0);
+    lod->guard.cost_given = per_update_s > 0 || per_frame_s > 0 || per_level_s > 0 || per_pass_s > 0 || per_change_s > 0;
+    lod->guard.cost_update = SQ_MAX(per_update_s, 0.0);
+    lod->guard.cost_fixed = SQ_MAX(per_frame_s, 0.0);
     for (int k = 0; k < SQ_MAX_LEVELS; k++)
-        lod->cost_level[k] = SQ_MAX(per_level_s, 0.0);
-    lod->cost_couple = SQ_MAX(per_pass_s, 0.0);
-    lod->cost_bound = 0;
+        lod->guard.cost_level[k] = SQ_MAX(per_level_s, 0.0);
+    lod->guard.cost_couple = SQ_MAX(per_pass_s, 0.0);
+    lod->guard.cost_bound = 0;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-        lod->cost_blocks[k] = 0;
-        lod->cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
+        lod->guard.cost_blocks[k] = 0;
+        lod->guard.cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
     }
-    lod->cost_calibrated = lod->cost_given;
-    lod->tr_update = lod->tr_fixed = lod->tr_outside = lod->tr_couple = lod->tr_bound = (sq_cost_track){0};
+    lod->guard.cost_calibrated = lod->guard.cost_given;
+    lod->guard.tr_update = lod->guard.tr_fixed = lod->guard.tr_outside = lod->guard.tr_couple = lod->guard.tr_bound = (sq_cost_track){0};
     for (int k = 0; k < SQ_MAX_LEVELS; k++)
-        lod->tr_level[k] = lod->tr_blocks[k] = lod->tr_block_change[k] = (sq_cost_track){0};
+        lod->guard.tr_level[k] = lod->guard.tr_blocks[k] = lod->guard.tr_block_change[k] = (sq_cost_track){0};
 }
 
 /* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
@@ -65,7 +65,7 @@ static double changes_per_region(const sq_lod *lod, int k)
  * node on level k, the children's on level k+1 */
 double sq_lodx_guard_region_cost(const sq_lod *lod, int k)
 {
-    return lod->cost_block_change[k] + (changes_per_region(lod, k) - 1) * lod->cost_block_change[k + 1];
+    return lod->guard.cost_block_change[k] + (changes_per_region(lod, k) - 1) * lod->guard.cost_block_change[k + 1];
 }
 
 /* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
@@ -75,10 +75,10 @@ double sq_lodx_guard_pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
     unsigned add = mask & ~done;
     if (!add)
         return 0;
-    double c = done ? 0 : lod->cost_couple + lod->cost_bound;
+    double c = done ? 0 : lod->guard.cost_couple + lod->guard.cost_bound;
     for (int k = 0; k < lod->L; k++)
         if (add & (1u << k))
-            c += lod->cost_level[k] + lod->cost_blocks[k];
+            c += lod->guard.cost_level[k] + lod->guard.cost_blocks[k];
     return c;
 }
 
@@ -118,13 +118,13 @@ double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double deca
 
 void sq_lodx_guard_learn(const sq_lod *lod, double *cost, sq_cost_track *t, double measured)
 {
-    if (!lod->cost_given)
+    if (!lod->guard.cost_given)
         *cost = sq_lodx_learn(t, *cost, measured, 0.9, SPIKE_FRAME);
 }
 
 void sq_lodx_guard_learn_pass(const sq_lod *lod, double *cost, sq_cost_track *t, double measured)
 {
-    if (!lod->cost_given)
+    if (!lod->guard.cost_given)
         *cost = sq_lodx_learn(t, *cost, measured, 0.97, SPIKE_PASS);
 }
 
@@ -142,7 +142,7 @@ unsigned sq_lodx_guard_all_levels(const sq_lod *lod)
 /* node updates that fit in `seconds` of a frame's budget after its fixed cost */
 long sq_lodx_guard_updates_fitting(const sq_lod *lod, double seconds)
 {
-    double fit = (seconds - lod->cost_fixed) / lod->cost_update;
+    double fit = (seconds - lod->guard.cost_fixed) / lod->guard.cost_update;
     return fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 0L);
 }
 
@@ -151,12 +151,12 @@ long sq_lodx_guard_updates_fitting(const sq_lod *lod, double seconds)
  * active); hide = 0 restores them and counts any that was split in its rest anyway */
 void sq_lodx_guard_rest_mask(sq_lod *lod, int k, int hide)
 {
-    int *h = lod->guard_hold[k];
-    if (!h || lod->guard_hold_until[k] <= lod->guard_clock)
+    int *h = lod->guard.guard_hold[k];
+    if (!h || lod->guard.guard_hold_until[k] <= lod->guard.guard_clock)
         return;
     unsigned char *st = lod->lev[k].state;
     for (int p = 0; p < lod->lv[k].model.n; p++) {
-        if (h[p] <= lod->guard_clock)
+        if (h[p] <= lod->guard.guard_clock)
             continue;
         if (hide && st[p] == ST_ACTIVE)
             st[p] = ST_RESTING;
@@ -232,10 +232,10 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
             long nch = ln->child_start[p + 1] - ln->child_start[p];
             sq_lodx_merge_node(lod, k, p);
             *projected -= nch * (1L << sub_log2(lod, k + 1)) - (1L << sub_log2(lod, k));
-            if (!lod->guard_hold[k])
-                lod->guard_hold[k] = sq_calloc((size_t)lod->lv[k].model.n, sizeof(int));
-            lod->guard_hold[k][p] = (int)SQ_MIN(lod->guard_clock + rest, (long)1 << 30);
-            lod->guard_hold_until[k] = SQ_MAX(lod->guard_hold_until[k], lod->guard_hold[k][p]);
+            if (!lod->guard.guard_hold[k])
+                lod->guard.guard_hold[k] = sq_calloc((size_t)lod->lv[k].model.n, sizeof(int));
+            lod->guard.guard_hold[k][p] = (int)SQ_MIN(lod->guard.guard_clock + rest, (long)1 << 30);
+            lod->guard.guard_hold_until[k] = SQ_MAX(lod->guard.guard_hold_until[k], lod->guard.guard_hold[k][p]);
             out->merges++;
             out->changed[k] = out->changed[k + 1] = 1;
             made++;
@@ -244,7 +244,7 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
         if (made == before)
             break; /* nothing mergeable is left (every level at 0) */
     }
-    lod->guard_merged_total += made;
+    lod->guard.guard_merged_total += made;
     return made;
 }
 

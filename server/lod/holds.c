@@ -39,19 +39,19 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
     int F = lod->L - 1, k;
     int a = active_of_finest(lod, hd->node, &k);
     if (a < 0) {
-        lod->hold_entry_of[h] = -1;
+        lod->holds.hold_entry_of[h] = -1;
         return;
     }
     sq_level *Lk = &lod->lv[k];
     const double *dj = lod->lv[F].d + 3 * hd->node;
     int e = lod->lev[k].hold_of[a];
     if (e < 0) {
-        if (lod->nhe == lod->cap_he) {
-            lod->cap_he = lod->cap_he ? 2 * lod->cap_he : 64;
-            lod->he = sq_realloc(lod->he, sizeof(hold_entry) * (size_t)lod->cap_he);
+        if (lod->holds.nhe == lod->holds.cap_he) {
+            lod->holds.cap_he = lod->holds.cap_he ? 2 * lod->holds.cap_he : 64;
+            lod->holds.he = sq_realloc(lod->holds.he, sizeof(hold_entry) * (size_t)lod->holds.cap_he);
         }
-        e = lod->nhe++;
-        hold_entry *E = &lod->he[e];
+        e = lod->holds.nhe++;
+        hold_entry *E = &lod->holds.he[e];
         memset(E, 0, sizeof(*E));
         E->level = k;
         E->node = a;
@@ -63,21 +63,21 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
             lod->lev[k].nintegrated--;
         }
     }
-    hold_entry *E = &lod->he[e];
+    hold_entry *E = &lod->holds.he[e];
     /* the hold node itself takes its target; an ancestor the same translation */
     for (int c = 0; c < 3; c++)
         E->gsum[c] += (k == F && a == hd->node) ? hd->target[c]
                                                 : Lk->d[3 * a + c] + (hd->target[c] - dj[c]);
     E->count++;
     E->pending = 1;
-    lod->hold_entry_of[h] = e;
+    lod->holds.hold_entry_of[h] = e;
 }
 
 /* prescribe the nodes whose targets changed: d = mean target, v = (d - from) / time left */
 static void start_holds(sq_lod *lod, double T)
 {
-    for (int e = 0; e < lod->nhe; e++) {
-        hold_entry *E = &lod->he[e];
+    for (int e = 0; e < lod->holds.nhe; e++) {
+        hold_entry *E = &lod->holds.he[e];
         if (!E->pending || E->count == 0)
             continue;
         E->pending = 0;
@@ -99,10 +99,10 @@ static void start_holds(sq_lod *lod, double T)
 
 static void clear_holds(sq_lod *lod)
 {
-    for (int e = 0; e < lod->nhe; e++)
-        if (lod->lev[lod->he[e].level].hold_of[lod->he[e].node] == e)
-            lod->lev[lod->he[e].level].hold_of[lod->he[e].node] = -1;
-    lod->nhe = 0;
+    for (int e = 0; e < lod->holds.nhe; e++)
+        if (lod->lev[lod->holds.he[e].level].hold_of[lod->holds.he[e].node] == e)
+            lod->lev[lod->holds.he[e].level].hold_of[lod->holds.he[e].node] = -1;
+    lod->holds.nhe = 0;
 }
 
 /* the frame's holds: every level's integration mask reset to its active nodes, each hold
@@ -112,16 +112,16 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
 {
     int L = lod->L, F = L - 1;
     clear_holds(lod);
-    if (nholds > lod->cap_holds) {
-        lod->cap_holds = nholds;
-        lod->hold_entry_of = sq_realloc(lod->hold_entry_of, sizeof(int) * (size_t)nholds);
+    if (nholds > lod->holds.cap_holds) {
+        lod->holds.cap_holds = nholds;
+        lod->holds.hold_entry_of = sq_realloc(lod->holds.hold_entry_of, sizeof(int) * (size_t)nholds);
     }
     for (int k = 0; k < L; k++) {
         lod->lev[k].nintegrated = lod->lev[k].nactive;
         memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].model.n);
     }
     for (int h = 0; h < nholds; h++) {
-        lod->hold_entry_of[h] = -1;
+        lod->holds.hold_entry_of[h] = -1;
         if (holds[h].node < 0 || holds[h].node >= lod->lv[F].model.n || holds[h].tool < 0 ||
             holds[h].tool >= ntools)
             continue; /* the body validates holds; ignore any that are out of range */
@@ -130,7 +130,7 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
     start_holds(lod, frame_dt);
     for (int k = 0; k < L; k++)
         sq_lodx_mask_list(lod, k);
-    if (lod->lists_dirty)
+    if (lod->push.lists_dirty)
         sq_lodx_refresh_lists(lod);
 }
 
@@ -138,8 +138,8 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
 void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3])
 {
     const sq_level *Lk = &lod->lv[k];
-    for (int e = 0; e < lod->nhe; e++) {
-        hold_entry *E = &lod->he[e];
+    for (int e = 0; e < lod->holds.nhe; e++) {
+        hold_entry *E = &lod->holds.he[e];
         if (E->level != k || E->count == 0)
             continue;
         int i = E->node;
@@ -155,10 +155,10 @@ void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3])
 void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*force)[3])
 {
     for (int h = 0; force && h < nholds; h++) {
-        int e = lod->hold_entry_of[h];
-        if (e < 0 || lod->he[e].count == 0 || lod->he[e].nf == 0)
+        int e = lod->holds.hold_entry_of[h];
+        if (e < 0 || lod->holds.he[e].count == 0 || lod->holds.he[e].nf == 0)
             continue;
-        const hold_entry *E = &lod->he[e];
+        const hold_entry *E = &lod->holds.he[e];
         for (int c = 0; c < 3; c++)
             force[holds[h].tool][c] += E->fsum[c] / E->nf / E->count;
     }

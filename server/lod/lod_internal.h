@@ -210,28 +210,9 @@ typedef struct {
     double peak;
 } sq_cost_track;
 
-struct sq_lod {
-    sq_level *lv;                        /* the body's levels (borrowed), L of them */
-    sq_lod_level lev[SQ_MAX_LEVELS];     /* this module's state of each level */
-    int L;                               /* levels */
-    int top;                             /* highest level that may be active */
-    sq_lod_def def;
-    sq_hierarchy h;
-    int shared;                          /* 1: h and the per-level mesh tables (crit_weight,
-                                          * node_tet_start, node_tet, inc_corner, inc_block,
-                                          * tet_geom) are another state's (sq_lod_create_like) */
-    const struct sq_lod *like;           /* during sq_lod_set_loads_like only: the state whose
-                                          * operator-derived sums (own_rowsum) are taken */
-    /* the coupling blocks were built for this material, operator and level-0 K */
-    int have_mat;
-    sq_material mat;
-    sq_operator_kind op;
-    const double *k_seen;
-    /* tool holds of the frame */
-    hold_entry *he;                      /* entries: nodes that carry holds */
-    int nhe, cap_he;
-    int *hold_entry_of;                  /* entry of each hold of the frame */
-    int cap_holds;
+/* the guaranteed frame rate's state (docs/lod.md "Guaranteed frame rate"): the cost model,
+ * learned by frame.c's stages through guard.c, and the rests of the regions the guard merged */
+typedef struct sq_lod_guard {
     /* cost model of the guaranteed frame rate (frame.c, docs/lod.md "Guaranteed frame rate"):
      * thread CPU s, each a maximum over the last measurements that decays by 10 % a frame (a
      * frame after a rebuild costs more per update than a quiet one) */
@@ -256,17 +237,11 @@ struct sq_lod {
     double untimed;                      /* thread CPU time since then that is not the product's
                                           * (sq_lod_untimed: a measuring harness), s */
     double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
-    double cost_fault;                   /* a first touch of a page, s (sq_lodx_reserve_blocks) */
-    long reserve_pending;                /* pages sq_lodx_reserve_blocks left for a later frame */
-    long reserve_bytes;                  /* bytes the coupling arrays hold (capacities) */
-    int reserve_live;                    /* 1: a budget was live (reserve on): the arrays are
-                                          * reserved from the first budgeted frame on */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (at load, sq_lod_prepare_budget,
                                           * or in the first budgeted frame) */
     long guard_clock;                    /* frames run with a budget (hysteresis clock) */
-    long frames;                         /* frames run (sq_lod_frame), for def.adapt_every */
     int *guard_hold[SQ_MAX_LEVELS];      /* per node of level k: no split before this guard
                                           * clock (a region the guard merged rests), NULL: none */
     long guard_merged_total;             /* regions the guard merged so far (tests) */
@@ -275,8 +250,27 @@ struct sq_lod {
                                           * (its node updates, fixed cost and passes), s */
     double guard_predicted;              /* the next frame's cost predicted at this frame's end
                                           * (without a pass), s */
-    sq_lod_test test;                    /* test-only switches and counters (lod_test.h) */
-    /* ghost values pushed on demand (activeset.c) */
+} sq_lod_guard;
+
+/* the coupling arrays mapped ahead of use (reserve.c) */
+typedef struct sq_lod_reserve {
+    double cost_fault;                   /* a first touch of a page, s (sq_lodx_reserve_blocks) */
+    long reserve_pending;                /* pages sq_lodx_reserve_blocks left for a later frame */
+    long reserve_bytes;                  /* bytes the coupling arrays hold (capacities) */
+    int reserve_live;                    /* 1: a budget was live (reserve on): the arrays are
+                                          * reserved from the first budgeted frame on */
+} sq_lod_reserve;
+
+/* tool holds of the frame (holds.c) */
+typedef struct sq_lod_holds {
+    hold_entry *he;                      /* entries: nodes that carry holds */
+    int nhe, cap_he;
+    int *hold_entry_of;                  /* entry of each hold of the frame */
+    int cap_holds;
+} sq_lod_holds;
+
+/* ghost values pushed on demand (activeset.c, state.c) */
+typedef struct sq_lod_push {
     int lists_dirty;                     /* read_list / needed out of date */
     int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring, needed_top */
     int needed_top;
@@ -284,20 +278,59 @@ struct sq_lod {
     unsigned cascade_no;                 /* cascades run (the end-of-frame push counts one) */
     unsigned full_no;                    /* the last one that pushed every coarse ghost */
     int stale;                           /* coarse ghosts outside `needed` not pushed since the last frame */
+} sq_lod_push;
+
+/* the static equilibria the criterion judges the displacement from (activeset.c) */
+typedef struct sq_lod_statics {
     /* the criterion judges the displacement from each level's static equilibrium under the
      * body's constant load (gravity), so a sag alone keeps nothing refined (lev[k].d_static) */
     double stat_g[3];                    /* gravity it was solved for, m/s^2 */
     const double *stat_k;                /* level 0's K it was solved with */
     int stat_done, stat_top;
-    sq_material stat_mat;                /* material it was solved with (lod->mat then) */
-    /* node levels (views.c) */
+    sq_material stat_mat;                /* material it was solved with (lod->cpl.mat then) */
+} sq_lod_statics;
+
+/* node levels given out (views.c) */
+typedef struct sq_lod_node_view {
     long gen;                            /* bumped whenever a level's states change */
     long nl_gen;                         /* gen the node levels were last given out at */
     const unsigned char *nl_out;         /* ... and the buffer they went to */
     unsigned char *nlv[2];               /* scratch of sq_lod_node_levels (largest level) */
+} sq_lod_node_view;
+
+/* what the coupling blocks were built for: material, operator, level-0 K; the coupled bound's
+ * scratch (coupling.c) */
+typedef struct sq_lod_coupling_of {
+    int have_mat;
+    sq_material mat;
+    sq_operator_kind op;
+    const double *k_seen;
     double *abs_sum;                     /* scratch of the coupled bound: sum of |weights| of
                                           * each ring ghost's sources (coupling.c) */
     int abs_cap;
+} sq_lod_coupling_of;
+
+struct sq_lod {
+    sq_level *lv;                        /* the body's levels (borrowed), L of them */
+    sq_lod_level lev[SQ_MAX_LEVELS];     /* this module's state of each level */
+    int L;                               /* levels */
+    int top;                             /* highest level that may be active */
+    sq_lod_def def;
+    sq_hierarchy h;
+    int shared;                          /* 1: h and the per-level mesh tables (crit_weight,
+                                          * node_tet_start, node_tet, inc_corner, inc_block,
+                                          * tet_geom) are another state's (sq_lod_create_like) */
+    const struct sq_lod *like;           /* during sq_lod_set_loads_like only: the state whose
+                                          * operator-derived sums (own_rowsum) are taken */
+    sq_lod_coupling_of cpl;              /* what the coupling blocks were built for (coupling.c) */
+    sq_lod_holds holds;                  /* the frame's tool holds (holds.c) */
+    sq_lod_guard guard;                  /* the guard's cost model and rests (guard.c, frame.c) */
+    sq_lod_reserve reserve;              /* the coupling arrays' reserve (reserve.c) */
+    long frames;                         /* frames run (sq_lod_frame), for def.adapt_every */
+    sq_lod_test test;                    /* test-only switches and counters (lod_test.h) */
+    sq_lod_push push;                    /* ghost values pushed on demand (activeset.c) */
+    sq_lod_statics statics;              /* the static loads the criterion judges from (activeset.c) */
+    sq_lod_node_view view;               /* node levels given out (views.c) */
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
 

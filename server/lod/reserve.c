@@ -157,12 +157,12 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
 {
     double c0 = sq_thread_cpu();
     long flt0 = sq_minor_faults();
-    lod->cost_fault = fmax(lod->cost_fault, 15e-6); /* measured 12-15 us here: at least that */
+    lod->reserve.cost_fault = fmax(lod->reserve.cost_fault, 15e-6); /* measured 12-15 us here: at least that */
     long pages = 0, pending = 0, bytes = 0;
     for (int k = 0; k < lod->L; k++) {
         sq_lod_level *lk = &lod->lev[k];
         const sq_level *L = &lod->lv[k];
-        int visc = lod->have_mat && lod->mat.use_viscosity && L->model.D;
+        int visc = lod->cpl.have_mat && lod->cpl.mat.use_viscosity && L->model.D;
         long limit = SQ_MAX((long)L->model.row_start[L->model.n], 1);
         long ring_used = lk->ring_off && lk->blocks_valid ? lk->ring_off[lk->nring] : 0;
         long front_used = lk->front_off && lk->blocks_valid ? lk->front_off[lk->nfrontier] : 0;
@@ -202,7 +202,7 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
             long used = a[i].used, want;
             long ref = (i & 1) ? a[i - 1].used : used;
             long np = reserve_pages(*a[i].cap, *a[i].p, ref, limit, a[i].size, &want);
-            if (np > 0 && (double)np * lod->cost_fault > seconds - (sq_thread_cpu() - c0)) {
+            if (np > 0 && (double)np * lod->reserve.cost_fault > seconds - (sq_thread_cpu() - c0)) {
                 pending += np;
             } else if (np > 0) {
                 *a[i].p = reserve_one(*a[i].p, a[i].cap, want, used, a[i].size, &pages);
@@ -236,9 +236,9 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
     double spent = sq_thread_cpu() - c0;
     long faults = sq_minor_faults() - flt0;
     if (faults >= 64) /* what a page costs here (a fault and the copies of grown arrays) */
-        lod->cost_fault = fmax(spent / (double)faults, 0.9 * lod->cost_fault);
-    lod->reserve_pending = pending;
-    lod->reserve_bytes = bytes;
+        lod->reserve.cost_fault = fmax(spent / (double)faults, 0.9 * lod->reserve.cost_fault);
+    lod->reserve.reserve_pending = pending;
+    lod->reserve.reserve_bytes = bytes;
     return pages;
 }
 

@@ -113,9 +113,9 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     lk->blocks_dirty = 1;
     /* held nodes are prescribed, not integrated */
     int nm = na;
-    for (int e = 0; e < lod->nhe; e++)
-        if (lod->he[e].level == k && lod->he[e].count > 0 && lk->integrated[lod->he[e].node]) {
-            lk->integrated[lod->he[e].node] = 0;
+    for (int e = 0; e < lod->holds.nhe; e++)
+        if (lod->holds.he[e].level == k && lod->holds.he[e].count > 0 && lk->integrated[lod->holds.he[e].node]) {
+            lk->integrated[lod->holds.he[e].node] = 0;
             nm--;
         }
     lk->nintegrated = nm;
@@ -171,8 +171,8 @@ static void cascade(sq_lod *lod)
         sq_lodx_pull_level(lod, k);
     for (int k = 1; k < lod->L; k++)
         push_level(lod, k);
-    lod->stale = 0;
-    lod->full_no = ++lod->cascade_no;
+    lod->push.stale = 0;
+    lod->push.full_no = ++lod->push.cascade_no;
     for (int k = 0; k < lod->L; k++)
         sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
 }
@@ -183,7 +183,7 @@ void sq_lodx_cascade_needed(sq_lod *lod)
 {
     for (int k = lod->L - 2; k >= 0; k--)
         sq_lodx_pull_level(lod, k);
-    if (lod->lists_dirty)
+    if (lod->push.lists_dirty)
         sq_lodx_refresh_lists(lod);
     sq_lodx_push_needed(lod);
     sq_lodx_save_cascade(lod);
@@ -288,7 +288,7 @@ static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, cons
     lod->L = nlevels;
     lod->def = *def;
     lod->top = top_of(def, nlevels);
-    lod->nl_gen = -1;
+    lod->view.nl_gen = -1;
     int share = like && like->L == nlevels;
     for (int k = 0; share && k < nlevels; k++)
         share = like->h.mesh[k] == meshes[k];
@@ -385,8 +385,8 @@ static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, cons
         for (size_t i = 0; i < n; i++)
             lod->lev[k].hold_of[i] = -1;
     }
-    lod->nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
-    lod->nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->view.nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->view.nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
     set_uniform_level(lod, start_level(lod));
     sq_lod_sync(lod);
     return lod;
@@ -477,11 +477,11 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].src_node);
         free(lod->lev[k].src_weight);
     }
-    free(lod->nlv[0]);
-    free(lod->nlv[1]);
-    free(lod->abs_sum);
-    free(lod->he);
-    free(lod->hold_entry_of);
+    free(lod->view.nlv[0]);
+    free(lod->view.nlv[1]);
+    free(lod->cpl.abs_sum);
+    free(lod->holds.he);
+    free(lod->holds.hold_entry_of);
     if (!lod->shared)
         sq_hierarchy_free(&lod->h);
     free(lod);
@@ -513,14 +513,14 @@ int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err)
             sq_lodx_rebuild_level(lod, k);
         sq_lod_sync(lod);
     }
-    lod->last_time = 0;
+    lod->guard.last_time = 0;
     return 0;
 }
 
 void sq_lod_reset(sq_lod *lod)
 {
     set_uniform_level(lod, start_level(lod));
-    lod->last_time = 0;
+    lod->guard.last_time = 0;
     sq_lod_sync(lod);
 }
 

@@ -55,10 +55,10 @@ long sq_lod_projected_updates(const sq_lod *lod)
 void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
 {
     /* the states change only at a rebuild: the same buffer needs no new walk before then */
-    if (lod->nl_gen == lod->gen && lod->nl_out == out)
+    if (lod->view.nl_gen == lod->view.gen && lod->view.nl_out == out)
         return;
-    lod->nl_gen = lod->gen;
-    lod->nl_out = out;
+    lod->view.nl_gen = lod->view.gen;
+    lod->view.nl_out = out;
     /* level by level, coarse to fine: a node's level is its own if active, else its parent's
      * (the walk up from each finest node to its active ancestor, without repeating it) */
     int F = lod->L - 1;
@@ -66,7 +66,7 @@ void sq_lod_node_levels(sq_lod *lod, unsigned char *out)
         memset(out, 0, (size_t)lod->lv[0].model.n);
         return;
     }
-    unsigned char *prev = lod->nlv[0], *cur = lod->nlv[1];
+    unsigned char *prev = lod->view.nlv[0], *cur = lod->view.nlv[1];
     memset(prev, 0, (size_t)lod->lv[0].model.n);
     for (int k = 1; k <= F; k++) {
         unsigned char *dst = k == F ? out : cur;
@@ -102,7 +102,7 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
             }
             ee += 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
         }
-        if (!lod->have_mat || lod->lev[k].blocks_dirty)
+        if (!lod->cpl.have_mat || lod->lev[k].blocks_dirty)
             continue;
         for (int r = 0; r < lod->lev[k].nfrontier; r++) {
             int i = lod->lev[k].frontier[r];

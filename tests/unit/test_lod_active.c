@@ -51,7 +51,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
         sq_frame_profile p[2];
         for (int i = 0; i < 2; i++)
             sq_body_frame(b[i], &tool, 1, NULL, &p[i], 0);
-        stale_frames += b[0]->lod->stale != 0;
+        stale_frames += b[0]->lod->push.stale != 0;
         for (int k = 1; k < 4; k++)
             for (int j = 0; j < m[k]->nnodes; j++)
                 sq_lod_flushed_d(b[0]->lod, k, j, pre[k] + 3 * (size_t)j);
@@ -118,7 +118,7 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
         fprintf(stderr, "coarse frame: pushed %d / %d / %d of %d / %d / %d nodes (finest surface %d)\n",
                 lod->lev[1].nneeded, lod->lev[2].nneeded, lod->lev[3].nneeded, m[1]->nnodes, m[2]->nnodes, nF,
                 nsurf);
-    CHECK(lod->stale);
+    CHECK(lod->push.stale);
     CHECK(lod->lev[F].nneeded == nsurf); /* exactly the rendered surface at the finest level */
     CHECK(lod->lev[F].nneeded < nF / 2);
     /* the eager cascade by hand, on copies */
@@ -156,7 +156,7 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
     }
     CHECK(surf_ok);
     sq_lod_flush(lod);
-    CHECK(!lod->stale);
+    CHECK(!lod->push.stale);
     int all_ok = 1;
     for (int k = 1; k < 4; k++) {
         size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
@@ -367,12 +367,12 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
             fprintf(stderr, "incremental rebuild (%s): %ld splits %ld merges, finest active up to %ld; rows "
                     "computed %ld of %ld (full: %ld of %ld); needed set by changes %ld times, from scratch %ld; %ld frames "
                     "differ\n", visc ? "viscosities" : "b K", splits, merges, max_fine, computed[0], built[0],
-                    computed[1], built[1], b[0]->lod->needed_counts[1], b[0]->lod->needed_counts[0], bad_frames);
+                    computed[1], built[1], b[0]->lod->push.needed_counts[1], b[0]->lod->push.needed_counts[0], bad_frames);
         CHECK(splits > 0 && merges > 0 && max_fine > 0); /* down to level 3 and back */
         CHECK(bad_frames == 0);
         CHECK(built[0] == built[1] && computed[1] == built[1]); /* the reference rebuilt every row */
         CHECK(computed[0] < built[0] / 2);                      /* the incremental one far fewer */
-        CHECK(b[0]->lod->needed_counts[1] > 10 * b[0]->lod->needed_counts[0]); /* needed set by changes */
+        CHECK(b[0]->lod->push.needed_counts[1] > 10 * b[0]->lod->push.needed_counts[0]); /* needed set by changes */
         sq_body_destroy(b[0]);
         sq_body_destroy(b[1]);
     }
