@@ -128,10 +128,10 @@ void sq_lodx_refresh_lists(sq_lod *lod)
             int m = lod->lev[k].src_level[q];
             add_once(lod, m, lod->lev[k].src_node[q], lod->lev[m].read_list, &lod->lev[m].nread_list);
         }
-        if (!lod->lev[k].blocks_dirty && lod->lev[k].ring_col) {
-            int ne = lod->lev[k].ring_off[lod->lev[k].nring];
+        if (!lod->lev[k].cpl.blocks_dirty && lod->lev[k].cpl.ring_col) {
+            int ne = lod->lev[k].cpl.ring_off[lod->lev[k].nring];
             for (int e = 0; e < ne; e++) {
-                int l = lod->lev[k].ring_col[e];
+                int l = lod->lev[k].cpl.ring_col[e];
                 if (lod->lev[k].active[l])
                     add_once(lod, k, l, lod->lev[k].read_list, &lod->lev[k].nread_list);
             }
@@ -506,11 +506,11 @@ void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, con
 void sq_lodx_free(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
-    free(lk->krow_at);
-    free(lk->w_tick);
-    for (int c = 0; c < lk->krow_nchunk; c++)
-        free(lk->krow_chunk[c]);
-    free(lk->krow_chunk);
+    free(lk->cpl.krow_at);
+    free(lk->tk.w_tick);
+    for (int c = 0; c < lk->cpl.krow_nchunk; c++)
+        free(lk->cpl.krow_chunk[c]);
+    free(lk->cpl.krow_chunk);
     free(lk->active_list);
     free(lk->inner_list);
     free(lk->integrated_list);

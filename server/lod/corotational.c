@@ -262,15 +262,15 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     sq_lod_corot *c = lk->corot;
     unsigned due_bits = 0;
     for (int m = 0; m < lod->L; m++)
-        due_bits |= lod->lev[m].due ? 1u << m : 0u;
+        due_bits |= lod->lev[m].tk.due ? 1u << m : 0u;
     int any = 0;
     for (int r = 0; r < lk->nring && !any; r++)
         any = (lk->src_levels[r] & due_bits) != 0;
     if (!any)
         return 0;
-    if (!lk->due) {
+    if (!lk->tk.due) {
         /* between two of the level's steps: its mixed tets at this tick */
-        double fr = (double)(t - lk->step_start) / (double)lk->step_len;
+        double fr = (double)(t - lk->tk.step_start) / (double)lk->tk.step_len;
         fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
         memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->nring);
         const int *tets = Lk->model.mesh->tets;

@@ -98,7 +98,7 @@ double sq_lodx_delta(const sq_lod *lod, int k, int i)
 {
     const sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
-    const double *w = lk->crit_weight;
+    const double *w = lk->tab.crit_weight;
     double s[3] = {0, 0, 0};
     const unsigned char *st = lk->state;
     const unsigned *ps = lk->push_stamp;
@@ -150,8 +150,8 @@ void sq_lodx_merge_node(sq_lod *lod, int k, int p)
     sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
         lod->lev[k + 1].state[ln->child[c]] = ST_COARSE;
-    memcpy(lk->d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
-    memcpy(lk->v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
+    memcpy(lk->tk.d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
+    memcpy(lk->tk.v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
     /* children become coarse ghosts and take their parent-tet value at once */
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
         int j = ln->child[c];
@@ -193,8 +193,8 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 int j = ln->child[c];
                 lod->lev[k + 1].state[j] = ST_ACTIVE;
                 sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-                memcpy(lod->lev[k + 1].d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
-                memcpy(lod->lev[k + 1].v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].tk.d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].tk.v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
             }
             *projected += extra;
             out->splits++;

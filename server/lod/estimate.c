@@ -114,7 +114,7 @@ static double row_sums(op_ctx *c)
     }
     for (int a = 0; a < c->nact; a++) {
         int i = lk->active_list[a];
-        const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
+        const double *R = c->fpos[a] >= 0 ? lk->cpl.front_merged + 9 * (size_t)c->fpos[a]
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
@@ -135,9 +135,9 @@ static double row_sums(op_ctx *c)
             if (!(lm->src_levels[r] & (1u << k)))
                 continue;
             double rin = 0, rout = 0;
-            for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
-                double bn = bnorm(lm->ring_K + 9 * (size_t)e), in, out;
-                col_split(c, m, lm->ring_col[e], &in, &out);
+            for (int e = lm->cpl.ring_off[r]; e < lm->cpl.ring_off[r + 1]; e++) {
+                double bn = bnorm(lm->cpl.ring_K + 9 * (size_t)e), in, out;
+                col_split(c, m, lm->cpl.ring_col[e], &in, &out);
                 rin += bn * in;
                 rout += bn * out;
             }
@@ -203,7 +203,7 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     /* own rows: K rows of inner nodes, merged rows of frontier nodes */
     for (int a = 0; a < c->nact; a++) {
         int i = lk->active_list[a];
-        const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
+        const double *R = c->fpos[a] >= 0 ? lk->cpl.front_merged + 9 * (size_t)c->fpos[a]
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         double f0 = 0, f1 = 0, f2 = 0;
         for (int e = Lk->model.row_start[i]; e < Lk->model.row_start[i + 1]; e++, R += 9) {
@@ -222,8 +222,8 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
         const sq_lod_level *lm = &lod->lev[m];
         const double *um = c->u[m];
         double g[3] = {0, 0, 0};
-        for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
-            const double *B = lm->ring_K + 9 * (size_t)e, *w = um + 3 * (size_t)lm->ring_col[e];
+        for (int e = lm->cpl.ring_off[r]; e < lm->cpl.ring_off[r + 1]; e++) {
+            const double *B = lm->cpl.ring_K + 9 * (size_t)e, *w = um + 3 * (size_t)lm->cpl.ring_col[e];
             for (int x = 0; x < 3; x++)
                 g[x] += B[3 * x] * w[0] + B[3 * x + 1] * w[1] + B[3 * x + 2] * w[2];
         }

@@ -135,7 +135,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         return;
     long nchg[SQ_MAX_LEVELS] = {0};
     for (int k = 0; k < L; k++)
-        nchg[k] = lod->lev[k].nchg;
+        nchg[k] = lod->lev[k].cpl.nchg;
     double model = sq_lodx_guard_pass_cost(lod, mask, 0);
     for (int k = 0; k < L; k++)
         model += lod->guard.cost_block_change[k] * (double)nchg[k];
@@ -148,7 +148,7 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         sq_lodx_refresh_lists(lod);
     double t = sq_thread_cpu(), blocks = 0;
     for (int k = 0; k < L; k++)
-        blocks += lod->lev[k].blocks_cpu;
+        blocks += lod->lev[k].cpl.blocks_cpu;
     double couple = fmax(0.0, t - c - blocks - lod->guard.bound_cpu); /* sources, lists */
     long late1 = 0, later1 = 0;
     sq_lodx_sharp_late(lod, &late1, &later1);
@@ -156,22 +156,22 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
                 "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld; sharp estimates late %ld, "
                 "bound ended %.2f ms before its deadline\n", mask,
-                nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
-                1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
+                nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].cpl.blocks_cpu,
+                1e3 * lod->lev[1].cpl.blocks_cpu, 1e3 * lod->lev[2].cpl.blocks_cpu, 1e3 * lod->lev[3].cpl.blocks_cpu,
                 1e3 * lod->guard.bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
     for (int k = 0; k < L && !fr->unmeasured; k++) {
-        if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
+        if (!(mask & (1u << k)) && lod->lev[k].cpl.blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
             sq_lodx_guard_learn_pass(lod, &lod->guard.cost_level[k], &lod->guard.tr_level[k], t_level[k]);
         if (nchg[k] == 0)
-            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_blocks[k], &lod->guard.tr_blocks[k], lod->lev[k].blocks_cpu);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_blocks[k], &lod->guard.tr_blocks[k], lod->lev[k].cpl.blocks_cpu);
         else
             sq_lodx_guard_learn_pass(lod, &lod->guard.cost_block_change[k], &lod->guard.tr_block_change[k],
-                  fmax(0.0, lod->lev[k].blocks_cpu - lod->guard.cost_blocks[k]) / (double)nchg[k]);
+                  fmax(0.0, lod->lev[k].cpl.blocks_cpu - lod->guard.cost_blocks[k]) / (double)nchg[k]);
     }
     if (!fr->unmeasured) {
         sq_lodx_guard_learn_pass(lod, &lod->guard.cost_bound, &lod->guard.tr_bound, lod->guard.bound_cpu);
@@ -315,8 +315,8 @@ static void stage_layout(lod_frame *fr)
     for (int k = 0; k < L; k++)
         fr->stride[k] = 1L << (nmax - sub_log2(lod, k));
     for (int k = 0; k < L; k++) {
-        lod->lev[k].step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
-        lod->lev[k].step_len = fr->stride[k];
+        lod->lev[k].tk.step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
+        lod->lev[k].tk.step_len = fr->stride[k];
     }
     if (sq_lodx_corot_on(lod))
         sq_lodx_corot_layout(lod, mat); /* corotational levels: tet lists of the layout */

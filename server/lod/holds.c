@@ -91,8 +91,8 @@ static void start_holds(sq_lod *lod, double T)
         for (int c = 0; c < 3; c++) {
             if (fx & (1u << c))
                 continue;
-            lod->lev[E->level].d_start[3 * E->node + c] = Lk->d[3 * E->node + c];
-            lod->lev[E->level].v_start[3 * E->node + c] = Lk->v[3 * E->node + c];
+            lod->lev[E->level].tk.d_start[3 * E->node + c] = Lk->d[3 * E->node + c];
+            lod->lev[E->level].tk.v_start[3 * E->node + c] = Lk->v[3 * E->node + c];
         }
     }
 }

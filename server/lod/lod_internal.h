@@ -53,40 +53,19 @@ typedef struct hold_entry {
 
 /* the adaptive state of one level. "n" is the level's node count; node values are in metres
  * (displacements), m/s (velocities), N (forces); stiffness blocks are 3x3, N/m, row-major */
-typedef struct sq_lod_level {
-    /* --- the layout: which node is active, which a ghost (rebuilt by sq_lodx_rebuild_level) */
-    unsigned char *state;       /* ST_ACTIVE, ST_SPLIT or ST_COARSE of each node (n) */
-    unsigned char *active;      /* 1 = active (exposed by sq_lod_active) (n) */
-    unsigned char *integrated;  /* 1 = integrated this frame: active and not held (n) */
-    int nactive, nintegrated;   /* counts of the two masks */
-    int *split_ghost, nsplit_ghost;   /* split ghosts (value from the finer level), increasing */
-    int *coarse_ghost, ncoarse_ghost; /* coarse ghosts (value from the coarser level), increasing */
-    unsigned char *fresh;       /* 1 = split in the current adapt pass: not merged back (n) */
-    int *limited, nlimited;     /* nodes the guard held out of this pass (sq_lodx_guard_limit) */
+/* a level's const mesh tables, made once at creation (state.c) and shared between the states of one body (sq_lod_create_like): read-only after it */
+typedef struct sq_lod_tables {
     double *crit_weight;        /* criterion Laplacian weights w_ij per adjacency CSR entry, m (nnz) */
-    double *d_static;           /* static displacement under the body's gravity, m (n x 3);
-                                 * NULL: judged from 0 */
-
-    /* --- the ring (ghosts with an active neighbour) and their active sources */
-    int *ring, nring;           /* ring ghosts, increasing node order */
-    int *ring_index;            /* ring position of a node, or -1 (n) */
-    int *src_start;             /* sources of ring ghost r: src_start[r]..src_start[r+1] (nring + 1) */
-    unsigned char *src_levels;  /* per ring ghost: bit m set if a source is on level m (nring) */
-    int *src_level, *src_node;  /* level and node of each source, sorted by level (src_cap) */
-    double *src_weight;         /* weight of each source, the weights of a ghost sum to 1 (src_cap) */
-    int *src_rend;              /* end of the run of sources on the same level as this one (src_cap) */
-    int src_cap;                /* capacity of the three source arrays */
-    int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
-                                 * level in hot_mask read: those evaluated between two steps of the
-                                 * level, where only those rows are used (n) */
-    unsigned hot_mask;
-    int hot_valid;              /* hot is up to date with the ring, sources and blocks */
-
     /* --- element blocks of the mixed tets (tets with active and ghost corners) */
     int *node_tet_start, *node_tet; /* tets around each node (CSR, n + 1 and 4 x ntets) */
     unsigned char *inc_corner;  /* per node-tet incidence: the node's corner in the tet */
     int *inc_block;             /* per incidence, for each corner q: the block's position in the
                                  * node's adjacency row (4 per incidence) */
+    double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
+} sq_lod_tables;
+
+/* a level's coupling cache: the element blocks of the mixed tets, the ring and frontier rows built from them (with their previous build, for an incremental one), their column forms and the column-form rows of K (coupling.c builds them; reserve.c maps them ahead; tick.c's krow fills rows on first use) */
+typedef struct sq_lod_coupling_cache {
     int *blocks_slot;           /* cache slot of a tet's element blocks, or -1 (ntets) */
     double **blocks_chunk;      /* 16 blocks of 9 per slot (x 2 with viscosity: the viscous ones
                                  * after), N/m (N s/m), in chunks of SQ_BLOCKS_CHUNK slots (a
@@ -96,7 +75,6 @@ typedef struct sq_lod_level {
     int blocks_used, blocks_cap;/* slots in use, slots allocated */
     int blocks_nchunk, blocks_per; /* chunks allocated; doubles per slot they were made for */
     size_t blocks_mapped;       /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
-    double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
     int blocks_dirty;           /* ring and frontier blocks out of date with the layout */
     double blocks_cpu;          /* thread CPU time of the last build of those blocks, s (0: not
                                  * built by the last sq_lodx_update_ring_blocks) */
@@ -109,17 +87,12 @@ typedef struct sq_lod_level {
     unsigned char *chg_mark;    /* 1 if in chg (n) */
     unsigned char *blk_active;  /* the active flags the blocks were built for (n) */
     long rows_computed, rows_built; /* ring + frontier rows computed / built, over all block builds */
-
     /* --- ring rows: -(K x) on a ring ghost over its half-weighted tets, aligned with the mesh
      * adjacency row of each ring ghost, zero blocks dropped */
     int *ring_off;              /* (nring + 1) offsets in blocks */
     int *ring_col;              /* column (node) of each block */
     double *ring_K, *ring_D;    /* stiffness (N/m) and viscous (N s/m) blocks */
     int ring_K_cap, ring_D_cap; /* capacities, in blocks */
-
-    /* --- the frontier: active nodes with a ghost neighbour; their mixed tets count half */
-    int *frontier, nfrontier;   /* frontier nodes */
-    unsigned char *inner;       /* 1 = active and not on the frontier (n) */
     int *front_off;             /* (nfrontier + 1) offsets in blocks of the corrections */
     int *front_col;             /* column (node) of each correction block */
     double *front_K, *front_D;  /* the half of the mixed tets given back: stiffness (N/m), viscous */
@@ -146,12 +119,6 @@ typedef struct sq_lod_level {
     int krow_nchunk;
     size_t krow_mapped;         /* bytes of the last chunk sq_lodx_reserve_blocks mapped so far */
     int krow_grown;             /* chunks krow opened itself, in a tick (not reserved ahead) */
-    /* d + b v of the level's active nodes and ring ghosts at the current tick (b the stiffness
-     * damping), formed once per step of the level (sq_lodx_form_w) for its row kernels, which
-     * read each node's value from about 14 blocks (3 n + 1 doubles, NULL until first used) */
-    double *w_tick;
-    int w_ok;                   /* 1: w_tick is current (set and cleared by the frame's tick; the
-                                 * kernels called with it 0 form it themselves) */
     /* the same arrays of the previous build: an incremental build copies its clean rows from
      * there and the two sets are swapped (capacities with them) */
     int *ring_off2, *ring_col2, ring_col2_cap, ring_col_cap;
@@ -162,7 +129,21 @@ typedef struct sq_lod_level {
     int front_K2_cap, front_D2_cap;
     double *front_merged2;
     int front_merged2_cap;
+} sq_lod_coupling_cache;
 
+/* a level's clock within the frame, its rates, and the tick's scratch: d + b v, the hot ring list (tick.c; the substep exponent and row sums by coupling.c's bound) */
+typedef struct sq_lod_tick_state {
+    int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
+                                 * level in hot_mask read: those evaluated between two steps of the
+                                 * level, where only those rows are used (n) */
+    unsigned hot_mask;
+    int hot_valid;              /* hot is up to date with the ring, sources and blocks */
+    /* d + b v of the level's active nodes and ring ghosts at the current tick (b the stiffness
+     * damping), formed once per step of the level (sq_lodx_form_w) for its row kernels, which
+     * read each node's value from about 14 blocks (3 n + 1 doubles, NULL until first used) */
+    double *w_tick;
+    int w_ok;                   /* 1: w_tick is current (set and cleared by the frame's tick; the
+                                 * kernels called with it 0 form it themselves) */
     /* --- time: this level's clock within the frame, in ticks of the finest substep */
     int due;                    /* 1 if the level steps at the current tick */
     double *d_start, *v_start;  /* d (m), v (m/s) at the start of the level's last step, read by
@@ -173,10 +154,37 @@ typedef struct sq_lod_level {
     double *own_rowsum;         /* Gershgorin row sums of the level's own K, N/m (n) */
     double own_rate;            /* largest own_rowsum / mass over the free nodes, 1/s^2 */
     double *coupled_rowsum;     /* row sums of the coupling handed to each node, N/m (n) */
+} sq_lod_tick_state;
 
+typedef struct sq_lod_level {
+    /* --- the layout: which node is active, which a ghost (rebuilt by sq_lodx_rebuild_level) */
+    unsigned char *state;       /* ST_ACTIVE, ST_SPLIT or ST_COARSE of each node (n) */
+    unsigned char *active;      /* 1 = active (exposed by sq_lod_active) (n) */
+    unsigned char *integrated;  /* 1 = integrated this frame: active and not held (n) */
+    int nactive, nintegrated;   /* counts of the two masks */
+    int *split_ghost, nsplit_ghost;   /* split ghosts (value from the finer level), increasing */
+    int *coarse_ghost, ncoarse_ghost; /* coarse ghosts (value from the coarser level), increasing */
+    unsigned char *fresh;       /* 1 = split in the current adapt pass: not merged back (n) */
+    int *limited, nlimited;     /* nodes the guard held out of this pass (sq_lodx_guard_limit) */
+    sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
+    double *d_static;           /* static displacement under the body's gravity, m (n x 3);
+                                 * NULL: judged from 0 */
+    /* --- the ring (ghosts with an active neighbour) and their active sources */
+    int *ring, nring;           /* ring ghosts, increasing node order */
+    int *ring_index;            /* ring position of a node, or -1 (n) */
+    int *src_start;             /* sources of ring ghost r: src_start[r]..src_start[r+1] (nring + 1) */
+    unsigned char *src_levels;  /* per ring ghost: bit m set if a source is on level m (nring) */
+    int *src_level, *src_node;  /* level and node of each source, sorted by level (src_cap) */
+    double *src_weight;         /* weight of each source, the weights of a ghost sum to 1 (src_cap) */
+    int *src_rend;              /* end of the run of sources on the same level as this one (src_cap) */
+    int src_cap;                /* capacity of the three source arrays */
+    sq_lod_tick_state tk;                /* the level's clock, rates and tick scratch (tick.c, coupling.c) */
+    sq_lod_coupling_cache cpl;           /* the coupling blocks and row caches (coupling.c) */
+    /* --- the frontier: active nodes with a ghost neighbour; their mixed tets count half */
+    int *frontier, nfrontier;   /* frontier nodes */
+    unsigned char *inner;       /* 1 = active and not on the frontier (n) */
     /* --- tool holds */
     int *hold_of;               /* hold entry of a node, or -1 (n) */
-
     /* --- index lists (activeset.c), so a frame's cost follows the active set, not the body */
     int *active_list;           /* active nodes, increasing (nactive) */
     int *inner_list, ninner_list;           /* inner active nodes */
@@ -196,7 +204,6 @@ typedef struct sq_lod_level {
                                  * before its ring value replaced it (nring x 6) */
     int cascade_value_cap;
     unsigned *push_stamp;       /* cascade a coarse ghost was last pushed at (n) */
-
     /* --- corotational elasticity (corotational.c), NULL for a linear level */
     sq_lod_corot *corot;
 } sq_lod_level;
@@ -337,7 +344,7 @@ struct sq_lod {
 /* substep exponent a level runs at in the adaptive frame */
 static inline int sub_log2(const sq_lod *lod, int k)
 {
-    return lod->lv[k].substeps_log2 + lod->lev[k].extra_log2;
+    return lod->lv[k].substeps_log2 + lod->lev[k].tk.extra_log2;
 }
 
 /* position of column j in CSR row i of the mesh adjacency (sorted), or -1 */
@@ -353,24 +360,24 @@ typedef struct adapt_out {
  * node index, made on first use with every node -1 (1 when made by this call) */
 static inline int sq_lodx_krow_index(sq_lod_level *lk, const sq_level_model *M)
 {
-    if (lk->krow_at)
+    if (lk->cpl.krow_at)
         return 0;
-    lk->krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
+    lk->cpl.krow_at = sq_malloc(sizeof(int) * (size_t)SQ_MAX(M->n, 1));
     for (int j = 0; j < M->n; j++)
-        lk->krow_at[j] = -1;
+        lk->cpl.krow_at[j] = -1;
     return 1;
 }
 /* its blocks per chunk, set on first use: SQ_KROW_CHUNK, or the longest row if longer (a chunk
  * holds a whole row) */
 static inline long sq_lodx_krow_chunk_len(sq_lod_level *lk, const sq_level_model *M)
 {
-    if (!lk->krow_chunk_len) {
+    if (!lk->cpl.krow_chunk_len) {
         long most = SQ_KROW_CHUNK;
         for (int j = 0; j < M->n; j++)
             most = SQ_MAX(most, (long)(M->row_start[j + 1] - M->row_start[j]));
-        lk->krow_chunk_len = most;
+        lk->cpl.krow_chunk_len = most;
     }
-    return lk->krow_chunk_len;
+    return lk->cpl.krow_chunk_len;
 }
 
 #endif

@@ -106,7 +106,7 @@ void sq_lodx_build_sources(sq_lod *lod)
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
         lod->lev[k].src_start[0] = 0;
-        lod->lev[k].hot_valid = 0;
+        lod->lev[k].tk.hot_valid = 0;
         for (int r = 0; r < lod->lev[k].nring; r++) {
             int n = 0;
             expand(lod, k, lod->lev[k].ring[r], 1.0, 0, &buf, &n, &cap);

@@ -38,23 +38,23 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     int n = lod->lv[k].model.n;
     int na = 0, nf = 0, nc = 0;
-    lk->hot_valid = 0; /* the ring changes: its hot list is made again (ring.c) */
+    lk->tk.hot_valid = 0; /* the ring changes: its hot list is made again (ring.c) */
     /* the first rebuild since the blocks were built keeps the lists they were built for, and
      * every rebuild records the nodes whose active flag changes: the next block build redoes
      * only the rows next to those (coupling.c) */
-    if (!lk->blocks_dirty && lk->blocks_valid && !lk->prev_saved) {
-        memcpy(lk->prev_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
-        lk->nprev_ring = lk->nring;
-        memcpy(lk->prev_frontier, lk->frontier, sizeof(int) * (size_t)lk->nfrontier);
-        lk->nprev_frontier = lk->nfrontier;
-        lk->prev_saved = 1;
+    if (!lk->cpl.blocks_dirty && lk->cpl.blocks_valid && !lk->cpl.prev_saved) {
+        memcpy(lk->cpl.prev_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
+        lk->cpl.nprev_ring = lk->nring;
+        memcpy(lk->cpl.prev_frontier, lk->frontier, sizeof(int) * (size_t)lk->nfrontier);
+        lk->cpl.nprev_frontier = lk->nfrontier;
+        lk->cpl.prev_saved = 1;
     }
     for (int i = 0; i < n; i++) {
         unsigned char s = lk->state[i];
         unsigned char a = (s == ST_ACTIVE);
-        if (a != lk->active[i] && !lk->chg_mark[i]) {
-            lk->chg_mark[i] = 1;
-            lk->chg[lk->nchg++] = i;
+        if (a != lk->active[i] && !lk->cpl.chg_mark[i]) {
+            lk->cpl.chg_mark[i] = 1;
+            lk->cpl.chg[lk->cpl.nchg++] = i;
         }
         lk->active[i] = a;
         if (s != lk->seed_state[i] && !lk->schg_mark[i]) {
@@ -110,7 +110,7 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     memcpy(lk->inner, lk->active, (size_t)SQ_MAX(n, 0));
     for (int r = 0; r < nfr; r++)
         lk->inner[lk->frontier[r]] = 0;
-    lk->blocks_dirty = 1;
+    lk->cpl.blocks_dirty = 1;
     /* held nodes are prescribed, not integrated */
     int nm = na;
     for (int e = 0; e < lod->holds.nhe; e++)
@@ -174,7 +174,7 @@ static void cascade(sq_lod *lod)
     lod->push.stale = 0;
     lod->push.full_no = ++lod->push.cascade_no;
     for (int k = 0; k < lod->L; k++)
-        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
+        sq_lodx_eval_ring(lod, k, lod->lev[k].tk.step_start + lod->lev[k].tk.step_len);
 }
 
 /* the end-of-frame cascade: as cascade(), but coarse ghosts are pushed only where something
@@ -188,17 +188,17 @@ void sq_lodx_cascade_needed(sq_lod *lod)
     sq_lodx_push_needed(lod);
     sq_lodx_save_cascade(lod);
     for (int k = 0; k < lod->L; k++)
-        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
+        sq_lodx_eval_ring(lod, k, lod->lev[k].tk.step_start + lod->lev[k].tk.step_len);
 }
 
 void sq_lod_sync(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        lod->lev[k].step_start = -1;
-        lod->lev[k].step_len = 1;
+        lod->lev[k].tk.step_start = -1;
+        lod->lev[k].tk.step_len = 1;
         size_t n3 = 3 * (size_t)lod->lv[k].model.n;
-        memcpy(lod->lev[k].d_start, lod->lv[k].d, n3 * sizeof(double));
-        memcpy(lod->lev[k].v_start, lod->lv[k].v, n3 * sizeof(double));
+        memcpy(lod->lev[k].tk.d_start, lod->lv[k].d, n3 * sizeof(double));
+        memcpy(lod->lev[k].tk.v_start, lod->lv[k].v, n3 * sizeof(double));
     }
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, NULL);
@@ -319,65 +319,65 @@ static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, cons
         lod->lev[k].coarse_ghost = sq_malloc(sizeof(int) * n);
         lod->lev[k].hold_of = sq_malloc(sizeof(int) * n);
         if (!share)
-            lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
+            lod->lev[k].tab.crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
         lod->lev[k].ring = sq_malloc(sizeof(int) * n);
         /* one spare double: the ring kernels load 4 lanes per node */
-        lod->lev[k].d_start = sq_calloc(3 * n + 1, sizeof(double));
-        lod->lev[k].v_start = sq_calloc(3 * n + 1, sizeof(double));
+        lod->lev[k].tk.d_start = sq_calloc(3 * n + 1, sizeof(double));
+        lod->lev[k].tk.v_start = sq_calloc(3 * n + 1, sizeof(double));
         lod->lev[k].src_start = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].src_levels = sq_calloc(n + 1, 1);
-        lod->lev[k].ring_off = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].cpl.ring_off = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].ring_index = sq_malloc(sizeof(int) * n);
         for (size_t i = 0; i < n; i++)
             lod->lev[k].ring_index[i] = -1;
         lod->lev[k].frontier = sq_malloc(sizeof(int) * n);
-        lod->lev[k].prev_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].blk_active = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].cpl.prev_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].cpl.blk_active = sq_calloc(SQ_MAX(n, 1), 1);
         lod->lev[k].ncnt = sq_calloc(SQ_MAX(n, 1), sizeof(int));
         lod->lev[k].seed_state = sq_calloc(SQ_MAX(n, 1), 1);
         lod->lev[k].schg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
         lod->lev[k].schg_mark = sq_calloc(SQ_MAX(n, 1), 1);
         lod->lev[k].seed_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].ring_off2 = sq_calloc(n + 1, sizeof(int));
-        lod->lev[k].front_off2 = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].cpl.ring_off2 = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].cpl.front_off2 = sq_calloc(n + 1, sizeof(int));
         lod->lev[k].inner = sq_calloc(n, 1);
-        lod->lev[k].front_off = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].cpl.front_off = sq_calloc(n + 1, sizeof(int));
         const sq_mesh *mm = levels[k].model.mesh;
         /* the element-block cache (written by the frames): always the state's own */
-        lod->lev[k].blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
+        lod->lev[k].cpl.blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
         for (int t = 0; t < mm->ntets; t++)
-            lod->lev[k].blocks_slot[t] = -1;
+            lod->lev[k].cpl.blocks_slot[t] = -1;
         if (share) {
             /* the tables below depend on the mesh alone and are read only once made */
             const sq_lod_level *lk = &like->lev[k];
-            lod->lev[k].crit_weight = lk->crit_weight;
-            lod->lev[k].node_tet_start = lk->node_tet_start;
-            lod->lev[k].node_tet = lk->node_tet;
-            lod->lev[k].inc_corner = lk->inc_corner;
-            lod->lev[k].inc_block = lk->inc_block;
-            lod->lev[k].tet_geom = lk->tet_geom;
+            lod->lev[k].tab.crit_weight = lk->tab.crit_weight;
+            lod->lev[k].tab.node_tet_start = lk->tab.node_tet_start;
+            lod->lev[k].tab.node_tet = lk->tab.node_tet;
+            lod->lev[k].tab.inc_corner = lk->tab.inc_corner;
+            lod->lev[k].tab.inc_block = lk->tab.inc_block;
+            lod->lev[k].tab.tet_geom = lk->tab.tet_geom;
         } else {
-            node_tets(mm, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
-            int ninc = lod->lev[k].node_tet_start[n];
-            lod->lev[k].inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
-            lod->lev[k].inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
+            node_tets(mm, &lod->lev[k].tab.node_tet_start, &lod->lev[k].tab.node_tet);
+            int ninc = lod->lev[k].tab.node_tet_start[n];
+            lod->lev[k].tab.inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
+            lod->lev[k].tab.inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
             for (int j = 0; j < (int)n; j++)
-                for (int c = lod->lev[k].node_tet_start[j]; c < lod->lev[k].node_tet_start[j + 1]; c++) {
-                    const int *tv = mm->tets + 4 * lod->lev[k].node_tet[c];
+                for (int c = lod->lev[k].tab.node_tet_start[j]; c < lod->lev[k].tab.node_tet_start[j + 1]; c++) {
+                    const int *tv = mm->tets + 4 * lod->lev[k].tab.node_tet[c];
                     int p = 0;
                     while (tv[p] != j)
                         p++;
-                    lod->lev[k].inc_corner[c] = (unsigned char)p;
+                    lod->lev[k].tab.inc_corner[c] = (unsigned char)p;
                     for (int q = 0; q < 4; q++)
-                        lod->lev[k].inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
+                        lod->lev[k].tab.inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
                 }
-            lod->lev[k].tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mm->ntets);
+            lod->lev[k].tab.tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mm->ntets);
             for (int t = 0; t < mm->ntets; t++) {
                 double a[4][3];
-                double *g = lod->lev[k].tet_geom + 13 * (size_t)t;
+                double *g = lod->lev[k].tab.tet_geom + 13 * (size_t)t;
                 g[0] = sq_tet_gradients(mm, t, a);
                 memcpy(g + 1, a, sizeof(a));
             }
@@ -418,62 +418,62 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].coarse_ghost);
         free(lod->lev[k].hold_of);
         free(lod->lev[k].ring);
-        free(lod->lev[k].d_start);
-        free(lod->lev[k].v_start);
+        free(lod->lev[k].tk.d_start);
+        free(lod->lev[k].tk.v_start);
         free(lod->lev[k].src_start);
         free(lod->lev[k].src_levels);
-        free(lod->lev[k].ring_off);
+        free(lod->lev[k].cpl.ring_off);
         free(lod->lev[k].ring_index);
-        free(lod->lev[k].own_rowsum);
-        free(lod->lev[k].coupled_rowsum);
-        free(lod->lev[k].ring_col);
-        free(lod->lev[k].front_col);
+        free(lod->lev[k].tk.own_rowsum);
+        free(lod->lev[k].tk.coupled_rowsum);
+        free(lod->lev[k].cpl.ring_col);
+        free(lod->lev[k].cpl.front_col);
         free(lod->lev[k].frontier);
-        free(lod->lev[k].prev_ring);
-        free(lod->lev[k].prev_frontier);
-        free(lod->lev[k].chg);
-        free(lod->lev[k].chg_mark);
-        free(lod->lev[k].blk_active);
+        free(lod->lev[k].cpl.prev_ring);
+        free(lod->lev[k].cpl.prev_frontier);
+        free(lod->lev[k].cpl.chg);
+        free(lod->lev[k].cpl.chg_mark);
+        free(lod->lev[k].cpl.blk_active);
         free(lod->lev[k].ncnt);
         free(lod->lev[k].seed_state);
         free(lod->lev[k].schg);
         free(lod->lev[k].schg_mark);
         free(lod->lev[k].seed_ring);
-        free(lod->lev[k].ring_off2);
-        free(lod->lev[k].ring_col2);
-        free(lod->lev[k].ring_K2);
-        free(lod->lev[k].ring_D2);
-        free(lod->lev[k].front_off2);
-        free(lod->lev[k].front_col2);
-        free(lod->lev[k].front_K2);
-        free(lod->lev[k].front_D2);
-        free(lod->lev[k].front_merged2);
+        free(lod->lev[k].cpl.ring_off2);
+        free(lod->lev[k].cpl.ring_col2);
+        free(lod->lev[k].cpl.ring_K2);
+        free(lod->lev[k].cpl.ring_D2);
+        free(lod->lev[k].cpl.front_off2);
+        free(lod->lev[k].cpl.front_col2);
+        free(lod->lev[k].cpl.front_K2);
+        free(lod->lev[k].cpl.front_D2);
+        free(lod->lev[k].cpl.front_merged2);
         free(lod->lev[k].inner);
-        free(lod->lev[k].front_merged);
-        free(lod->lev[k].ring_T);
-        free(lod->lev[k].ring_T2);
-        free(lod->lev[k].front_T2);
-        free(lod->lev[k].front_T);
-        free(lod->lev[k].front_off);
-        free(lod->lev[k].front_K);
-        free(lod->lev[k].front_D);
-        free(lod->lev[k].ring_K);
-        free(lod->lev[k].ring_D);
-        free(lod->lev[k].blocks_slot);
-        for (int c = 0; c < lod->lev[k].blocks_nchunk; c++)
-            free(lod->lev[k].blocks_chunk[c]);
-        free(lod->lev[k].blocks_chunk);
+        free(lod->lev[k].cpl.front_merged);
+        free(lod->lev[k].cpl.ring_T);
+        free(lod->lev[k].cpl.ring_T2);
+        free(lod->lev[k].cpl.front_T2);
+        free(lod->lev[k].cpl.front_T);
+        free(lod->lev[k].cpl.front_off);
+        free(lod->lev[k].cpl.front_K);
+        free(lod->lev[k].cpl.front_D);
+        free(lod->lev[k].cpl.ring_K);
+        free(lod->lev[k].cpl.ring_D);
+        free(lod->lev[k].cpl.blocks_slot);
+        for (int c = 0; c < lod->lev[k].cpl.blocks_nchunk; c++)
+            free(lod->lev[k].cpl.blocks_chunk[c]);
+        free(lod->lev[k].cpl.blocks_chunk);
         if (!lod->shared) {
-            free(lod->lev[k].crit_weight);
-            free(lod->lev[k].node_tet_start);
-            free(lod->lev[k].node_tet);
-            free(lod->lev[k].inc_corner);
-            free(lod->lev[k].inc_block);
-            free(lod->lev[k].tet_geom);
+            free(lod->lev[k].tab.crit_weight);
+            free(lod->lev[k].tab.node_tet_start);
+            free(lod->lev[k].tab.node_tet);
+            free(lod->lev[k].tab.inc_corner);
+            free(lod->lev[k].tab.inc_block);
+            free(lod->lev[k].tab.tet_geom);
         }
         free(lod->lev[k].src_level);
         free(lod->lev[k].src_rend);
-        free(lod->lev[k].hot);
+        free(lod->lev[k].tk.hot);
         free(lod->lev[k].src_node);
         free(lod->lev[k].src_weight);
     }

@@ -23,8 +23,8 @@
 void sq_lodx_tick_pull(sq_lod *lod, long t, const long *stride, sq_tick_count *c)
 {
     for (int k = 0; k < lod->L; k++) {
-        lod->lev[k].due = t % stride[k] == 0;
-        if (lod->lev[k].due && lod->lev[k].nactive > 0) {
+        lod->lev[k].tk.due = t % stride[k] == 0;
+        if (lod->lev[k].tk.due && lod->lev[k].nactive > 0) {
             sq_lodx_eval_ring(lod, k, t);
             c->ring_values += lod->lev[k].nring;
         }
@@ -40,13 +40,13 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
     double frame_dt = in->frame_dt;
     int L = lod->L;
     for (int k = 0; k < L; k++)
-        if (lod->lev[k].due && lod->lev[k].nactive > 0 && lod->lv[k].corot) {
+        if (lod->lev[k].tk.due && lod->lev[k].nactive > 0 && lod->lv[k].corot) {
             sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
-        } else if (lod->lev[k].due && lod->lev[k].nactive > 0) {
+        } else if (lod->lev[k].tk.due && lod->lev[k].nactive > 0) {
             c->frontier_rows += lod->lev[k].nfrontier;
             if (!mat->use_viscosity) { /* d + b v once per step for the row kernels */
                 sq_lodx_form_w(lod, mat, k);
-                lod->lev[k].w_ok = 1;
+                lod->lev[k].tk.w_ok = 1;
             }
             /* the all-nodes force pass is vectorised, faster per node than the masked
              * one, but computes ghost rows nobody reads and needs the frontier correction
@@ -67,11 +67,11 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
         }
     for (int k = 0; k < L; k++)
         if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
-            if (!lod->lev[k].due && lod->lv[k].corot) {
+            if (!lod->lev[k].tk.due && lod->lv[k].corot) {
                 /* the tet-by-tet reactions read every ring ghost */
                 sq_lodx_eval_ring(lod, k, t);
                 c->ring_values += lod->lev[k].nring;
-            } else if (!lod->lev[k].due) {
+            } else if (!lod->lev[k].tk.due) {
                 /* between two of its steps only the ring rows with a source on a level that
                  * steps more often are used (the reactions the finer levels need now): only
                  * the ghosts they read are evaluated (the others are not read before the
@@ -87,10 +87,10 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
                 c->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
         }
     for (int k = 0; k < L; k++) {
-        if (!lod->lev[k].due)
+        if (!lod->lev[k].tk.due)
             continue;
         sq_level *Lk = &lod->lv[k];
-        lod->lev[k].step_start = t;
+        lod->lev[k].tk.step_start = t;
         if (lod->lev[k].nactive == 0)
             continue;
         /* feedback of the held nodes */
@@ -98,7 +98,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
         /* finer levels read this level between its steps */
         sq_lodx_save_prev(lod, k);
         if (lod->lev[k].nintegrated > 0) {
-            double dtk = lod->lev[k].extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
+            double dtk = lod->lev[k].tk.extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
             if (lod->lev[k].nintegrated == Lk->model.n)
                 sq_level_integrate(Lk, dtk, NULL);
             else
@@ -114,7 +114,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
         c->updates += lod->lev[k].nintegrated;
     }
     for (int k = 0; k < L; k++)
-        lod->lev[k].w_ok = 0; /* d and v moved on */
+        lod->lev[k].tk.w_ok = 0; /* d and v moved on */
 }
 
 /* ---------------------------------------------------------------- row kernels, w, integration */
@@ -125,32 +125,32 @@ static const double *krow(sq_lod *lod, int k, int i)
     sq_lod_level *lk = &lod->lev[k];
     const sq_level_model *M = &lod->lv[k].model;
     sq_lodx_krow_index(lk, M);
-    if (lk->krow_at[i] < 0) {
+    if (lk->cpl.krow_at[i] < 0) {
         int len = M->row_start[i + 1] - M->row_start[i];
         long CH = sq_lodx_krow_chunk_len(lk, M);
-        if (lk->krow_used % CH + len > CH) /* no straddling: the next chunk */
-            lk->krow_used += CH - lk->krow_used % CH;
-        if (lk->krow_used + len > lk->krow_cap) {
+        if (lk->cpl.krow_used % CH + len > CH) /* no straddling: the next chunk */
+            lk->cpl.krow_used += CH - lk->cpl.krow_used % CH;
+        if (lk->cpl.krow_used + len > lk->cpl.krow_cap) {
             /* a new chunk; the ones made before are kept (after a material change they are
              * reused from the first) */
-            int c = (int)(lk->krow_used / CH);
-            if (c >= lk->krow_nchunk) {
-                lk->krow_chunk = sq_realloc(lk->krow_chunk, sizeof(double *) * (size_t)(c + 1));
-                for (int q = lk->krow_nchunk; q <= c; q++)
-                    lk->krow_chunk[q] = sq_malloc(sizeof(double) * 12 * (size_t)CH);
-                lk->krow_grown += c + 1 - lk->krow_nchunk;
-                lk->krow_nchunk = c + 1;
-                lk->krow_mapped = 0; /* (the reserve maps its pages past the use) */
+            int c = (int)(lk->cpl.krow_used / CH);
+            if (c >= lk->cpl.krow_nchunk) {
+                lk->cpl.krow_chunk = sq_realloc(lk->cpl.krow_chunk, sizeof(double *) * (size_t)(c + 1));
+                for (int q = lk->cpl.krow_nchunk; q <= c; q++)
+                    lk->cpl.krow_chunk[q] = sq_malloc(sizeof(double) * 12 * (size_t)CH);
+                lk->cpl.krow_grown += c + 1 - lk->cpl.krow_nchunk;
+                lk->cpl.krow_nchunk = c + 1;
+                lk->cpl.krow_mapped = 0; /* (the reserve maps its pages past the use) */
             }
-            lk->krow_cap = (long)lk->krow_nchunk * CH;
+            lk->cpl.krow_cap = (long)lk->cpl.krow_nchunk * CH;
         }
-        long at = lk->krow_used;
-        sq_lodx_to_columns(M->K + 9 * (size_t)M->row_start[i], len, lk->krow_chunk[at / CH] + 12 * (size_t)(at % CH));
-        lk->krow_at[i] = (int)at;
-        lk->krow_used += len;
+        long at = lk->cpl.krow_used;
+        sq_lodx_to_columns(M->K + 9 * (size_t)M->row_start[i], len, lk->cpl.krow_chunk[at / CH] + 12 * (size_t)(at % CH));
+        lk->cpl.krow_at[i] = (int)at;
+        lk->cpl.krow_used += len;
     }
-    long at = lk->krow_at[i];
-    return lk->krow_chunk[at / lk->krow_chunk_len] + 12 * (size_t)(at % lk->krow_chunk_len);
+    long at = lk->cpl.krow_at[i];
+    return lk->cpl.krow_chunk[at / lk->cpl.krow_chunk_len] + 12 * (size_t)(at % lk->cpl.krow_chunk_len);
 }
 
 /* forces of the inner active nodes of level k (no viscosity): sq_level_forces with the inner
@@ -165,9 +165,9 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     const int *il = lod->lev[k].inner_list, n = lod->lev[k].ninner_list;
     const int *row_start = L->model.row_start, *col = L->model.col;
     const double *mass = L->model.mass;
-    if (b != 0 && !lod->lev[k].w_ok) /* called outside the frame's tick */
+    if (b != 0 && !lod->lev[k].tk.w_ok) /* called outside the frame's tick */
         sq_lodx_form_w(lod, mat, k);
-    const double *restrict W = lod->lev[k].w_tick; /* d + b v (sq_lodx_form_w) */
+    const double *restrict W = lod->lev[k].tk.w_tick; /* d + b v (sq_lodx_form_w) */
     for (int r = 0; r < n; r++) {
         const int i = il[r], e0 = row_start[i], e1 = row_start[i + 1];
         const double *T = krow(lod, k, i);
@@ -197,11 +197,11 @@ void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
-    if (!lk->w_tick)
-        lk->w_tick = sq_calloc(3 * (size_t)L->model.n + 1, sizeof(double));
+    if (!lk->tk.w_tick)
+        lk->tk.w_tick = sq_calloc(3 * (size_t)L->model.n + 1, sizeof(double));
     const sq_v4 bb = v4_set1(mat->rayleigh_stiffness);
     const double *restrict d = L->d, *restrict v = L->v;
-    double *restrict W = lk->w_tick;
+    double *restrict W = lk->tk.w_tick;
     /* each component as the kernels formed it per block, d + b v; 4 lanes stored per node: the
      * fourth is the next node's first component, from its current d and v too, so whatever
      * order the nodes come in every stored value is that node's d + b v now (the arrays have
@@ -236,7 +236,7 @@ void sq_lodx_save_prev(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     const double *d = lod->lv[k].d, *v = lod->lv[k].v;
-    double *dp = lk->d_start, *vp = lk->v_start;
+    double *dp = lk->tk.d_start, *vp = lk->tk.v_start;
     const int n = lk->nread_list, *list = lk->read_list;
     for (int r = 0; r < n; r++) {
         size_t i = 3 * (size_t)list[r];
@@ -258,14 +258,14 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
     sq_lod_level *lk = &lod->lev[k];
     sq_level *L = &lod->lv[k];
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    int visc = mat->use_viscosity && lk->front_D;
+    int visc = mat->use_viscosity && lk->cpl.front_D;
     /* the lists in locals: the force stores would make the compiler reload them */
-    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
-    const int *front_col = lk->front_col;
+    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->cpl.front_off;
+    const int *front_col = lk->cpl.front_col;
     for (int r = 0; r < nfrontier; r++) {
         int i = frontier[r];
-        const double *B = lk->front_K;
-        const double *Bd = visc ? lk->front_D : NULL;
+        const double *B = lk->cpl.front_K;
+        const double *Bd = visc ? lk->cpl.front_D : NULL;
         double *fi = L->f + 3 * i;
         for (int e = front_off[r]; e < front_off[r + 1]; e++) {
             int l = front_col[e];
@@ -293,10 +293,10 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
     sq_level *L = &lod->lv[k];
     const double a = mat->rayleigh_mass;
     const double *restrict v = L->v;
-    if (!lk->w_ok) /* called outside the frame's tick */
+    if (!lk->tk.w_ok) /* called outside the frame's tick */
         sq_lodx_form_w(lod, mat, k);
-    const double *T = lk->front_T;
-    const double *restrict W = lk->w_tick; /* d + b v (sq_lodx_form_w) */
+    const double *T = lk->cpl.front_T;
+    const double *restrict W = lk->tk.w_tick; /* d + b v (sq_lodx_form_w) */
     /* the lists in locals: the force stores would make the compiler reload them */
     const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
     const int *row_start = L->model.row_start, *col = L->model.col;
@@ -335,7 +335,7 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
     double fr[SQ_MAX_LEVELS];
     const double *dcur[SQ_MAX_LEVELS], *vcur[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++) {
-        double f = (double)(t - lod->lev[m].step_start) / (double)lod->lev[m].step_len;
+        double f = (double)(t - lod->lev[m].tk.step_start) / (double)lod->lev[m].tk.step_len;
         fr[m] = f < 0 ? 0 : (f > 1 ? 1 : f);
         dcur[m] = lod->lv[m].d;
         vcur[m] = lod->lv[m].v;
@@ -370,7 +370,7 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
                 }
                 continue;
             }
-            const double *D0 = lod->lev[m].d_start, *V0 = lod->lev[m].v_start;
+            const double *D0 = lod->lev[m].tk.d_start, *V0 = lod->lev[m].tk.v_start;
             const sq_v4 fv = v4_set1(f);
             for (; q < qe; q++) {
                 const sq_v4 w = v4_set1(fw[q]);
@@ -390,38 +390,38 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
 }
 
 /* the ring ghosts of level k that the ring rows with a source on a level in `mask` read (the
- * ghost columns of those rows), increasing ring order: lk->hot, made once per layout */
+ * ghost columns of those rows), increasing ring order: lk->tk.hot, made once per layout */
 static void hot_list(sq_lod *lod, int k, unsigned mask)
 {
     sq_lod_level *lk = &lod->lev[k];
-    if (lk->hot_valid && lk->hot_mask == mask)
+    if (lk->tk.hot_valid && lk->tk.hot_mask == mask)
         return;
-    if (!lk->hot)
-        lk->hot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
+    if (!lk->tk.hot)
+        lk->tk.hot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
     unsigned char *mark = lk->mark; /* all zero between uses */
     for (int r = 0; r < lk->nring; r++)
         if (lk->src_levels[r] & mask)
-            for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
-                int l = lk->ring_index[lk->ring_col[e]];
+            for (int e = lk->cpl.ring_off[r]; e < lk->cpl.ring_off[r + 1]; e++) {
+                int l = lk->ring_index[lk->cpl.ring_col[e]];
                 if (l >= 0)
                     mark[l] = 1;
             }
     int nh = 0;
     for (int r = 0; r < lk->nring; r++)
         if (mark[r]) {
-            lk->hot[nh++] = r;
+            lk->tk.hot[nh++] = r;
             mark[r] = 0;
         }
-    lk->nhot = nh;
-    lk->hot_mask = mask;
-    lk->hot_valid = 1;
+    lk->tk.nhot = nh;
+    lk->tk.hot_mask = mask;
+    lk->tk.hot_valid = 1;
 }
 
 int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask)
 {
     hot_list(lod, k, mask);
-    eval_list(lod, k, t, lod->lev[k].hot, lod->lev[k].nhot);
-    return lod->lev[k].nhot;
+    eval_list(lod, k, t, lod->lev[k].tk.hot, lod->lev[k].tk.nhot);
+    return lod->lev[k].tk.nhot;
 }
 
 /* force on ring ghost r (node j) of level k from the tets touching active nodes, -(K w)_j -
@@ -432,18 +432,18 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
     const sq_level *L = &lod->lv[k];
     const unsigned char *act = lk->active;
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    const double *Bd = mat->use_viscosity ? lk->ring_D : NULL;
+    const double *Bd = mat->use_viscosity ? lk->cpl.ring_D : NULL;
     g[0] = g[1] = g[2] = 0;
     if (!Bd) {
         /* no viscosity: the three rows of a block in the lanes of one vector (the ring rows in
          * column form), each lane summed as the scalar rows were: g_r -= (K_r0 w0 + K_r1 w1)
          * + K_r2 w2 */
         const double *restrict d = L->d, *restrict v = L->v;
-        const double *T = lk->ring_T;
-        const int *col = lk->ring_col;
+        const double *T = lk->cpl.ring_T;
+        const int *col = lk->cpl.ring_col;
         const sq_v4 bb = v4_set1(b);
         sq_v4 acc = {0, 0, 0, 0};
-        const int e0 = lk->ring_off[r], e1 = lk->ring_off[r + 1];
+        const int e0 = lk->cpl.ring_off[r], e1 = lk->cpl.ring_off[r + 1];
         if (fr >= 1) {
             /* the level at the end of its step (without viscosity sq_lodx_couple_out does
              * this itself, from d + b v formed once for the step) */
@@ -453,7 +453,7 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
             }
         } else {
             /* active nodes of the level between two of its steps, at fraction fr */
-            const double *restrict d0s = lk->d_start, *restrict v0s = lk->v_start;
+            const double *restrict d0s = lk->tk.d_start, *restrict v0s = lk->tk.v_start;
             const sq_v4 fv = v4_set1(fr);
             for (int e = e0; e < e1; e++) {
                 const int l = col[e];
@@ -472,8 +472,8 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         g[2] = acc[2];
         return;
     }
-    for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
-        int l = lk->ring_col[e];
+    for (int e = lk->cpl.ring_off[r]; e < lk->cpl.ring_off[r + 1]; e++) {
+        int l = lk->cpl.ring_col[e];
         double dl[3], vl[3];
         for (int c = 0; c < 3; c++) {
             dl[c] = L->d[3 * l + c];
@@ -481,11 +481,11 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         }
         if (fr < 1 && act[l])
             for (int c = 0; c < 3; c++) {
-                double d0 = lk->d_start[3 * l + c], v0 = lk->v_start[3 * l + c];
+                double d0 = lk->tk.d_start[3 * l + c], v0 = lk->tk.v_start[3 * l + c];
                 dl[c] = d0 + fr * (dl[c] - d0);
                 vl[c] = v0 + fr * (vl[c] - v0);
             }
-        const double *K = lk->ring_K + 9 * (size_t)e;
+        const double *K = lk->cpl.ring_K + 9 * (size_t)e;
         double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
         for (int rr = 0; rr < 3; rr++)
             g[rr] -= K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
@@ -505,11 +505,11 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     int rows = 0;
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
-    double fr = (double)(t - lk->step_start) / (double)lk->step_len;
+    double fr = (double)(t - lk->tk.step_start) / (double)lk->tk.step_len;
     fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
     unsigned due_bits = 0;
     for (int m = 0; m < lod->L; m++)
-        due_bits |= lod->lev[m].due ? 1u << m : 0u;
+        due_bits |= lod->lev[m].tk.due ? 1u << m : 0u;
     /* the level's lists in locals: the force stores below could otherwise alias them for the
      * compiler, which would reload them at every ring ghost */
     const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
@@ -519,10 +519,10 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     /* the level at the end of its step without viscosity (the common case): the ring rows
      * here, from d + b v formed once for the step (sq_lodx_form_w); the others by ring_force */
     const int fast = fr >= 1 && !mat->use_viscosity;
-    if (fast && !lk->w_ok) /* called outside the frame's tick */
+    if (fast && !lk->tk.w_ok) /* called outside the frame's tick */
         sq_lodx_form_w(lod, mat, k);
-    const double *restrict W = lk->w_tick, *T = lk->ring_T;
-    const int *col = lk->ring_col, *roff = lk->ring_off;
+    const double *restrict W = lk->tk.w_tick, *T = lk->cpl.ring_T;
+    const int *col = lk->cpl.ring_col, *roff = lk->cpl.ring_off;
     const unsigned char *fixed = Lk->model.fixed;
     double *Fl[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++)

@@ -13,7 +13,7 @@ typedef struct sq_tick_count {
     long ring_values, ring_rows, frontier_rows; /* the interface's work (profile) */
 } sq_tick_count;
 /* ring ghost values of every level due at tick t (level k due every stride[k] ticks; sets
- * lev[k].due) */
+ * lev[k].tk.due) */
 void sq_lodx_tick_pull(sq_lod *lod, long t, const long *stride, sq_tick_count *c);
 /* forces of the due levels, the coupling reactions between levels, integration of the free
  * active nodes (and their contact) */

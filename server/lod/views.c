@@ -102,14 +102,14 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
             }
             ee += 0.5 * (d[0] * f[0] + d[1] * f[1] + d[2] * f[2]);
         }
-        if (!lod->cpl.have_mat || lod->lev[k].blocks_dirty)
+        if (!lod->cpl.have_mat || lod->lev[k].cpl.blocks_dirty)
             continue;
         for (int r = 0; r < lod->lev[k].nfrontier; r++) {
             int i = lod->lev[k].frontier[r];
             const double *d = Lk->d + 3 * i;
             double f[3] = {0, 0, 0};
-            for (int e = lod->lev[k].front_off[r]; e < lod->lev[k].front_off[r + 1]; e++) {
-                const double *K = lod->lev[k].front_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].front_col[e];
+            for (int e = lod->lev[k].cpl.front_off[r]; e < lod->lev[k].cpl.front_off[r + 1]; e++) {
+                const double *K = lod->lev[k].cpl.front_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].cpl.front_col[e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
@@ -119,8 +119,8 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
             int j = lod->lev[k].ring[r];
             const double *d = Lk->d + 3 * j;
             double f[3] = {0, 0, 0};
-            for (int e = lod->lev[k].ring_off[r]; e < lod->lev[k].ring_off[r + 1]; e++) {
-                const double *K = lod->lev[k].ring_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].ring_col[e];
+            for (int e = lod->lev[k].cpl.ring_off[r]; e < lod->lev[k].cpl.ring_off[r + 1]; e++) {
+                const double *K = lod->lev[k].cpl.ring_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].cpl.ring_col[e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }

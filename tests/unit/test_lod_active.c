@@ -283,28 +283,28 @@ static int same_level(const sq_lod *a, const sq_lod *b, int k)
 #define SAME(p, cnt) ((cnt) == 0 || !memcmp((x->p), (y->p), sizeof(*(x->p)) * (size_t)(cnt)))
     if (x->nring != y->nring || x->nfrontier != y->nfrontier || x->nactive != y->nactive ||
         x->ninner_list != y->ninner_list || x->nintegrated_list != y->nintegrated_list ||
-        x->nread_list != y->nread_list || x->nneeded != y->nneeded || x->extra_log2 != y->extra_log2 ||
-        x->blocks_dirty != y->blocks_dirty)
+        x->nread_list != y->nread_list || x->nneeded != y->nneeded || x->tk.extra_log2 != y->tk.extra_log2 ||
+        x->cpl.blocks_dirty != y->cpl.blocks_dirty)
         return 0;
     int ok = SAME(state, n) && SAME(ring, x->nring) && SAME(ring_index, n) && SAME(frontier, x->nfrontier) &&
              SAME(inner, n) && SAME(active_list, x->nactive) && SAME(inner_list, x->ninner_list) &&
              SAME(integrated_list, x->nintegrated_list) && SAME(read_list, x->nread_list) &&
-             SAME(needed, x->nneeded) && SAME(coupled_rowsum, n);
+             SAME(needed, x->nneeded) && SAME(tk.coupled_rowsum, n);
     ok = ok && SAME(src_start, x->nring + 1) && SAME(src_levels, x->nring);
     int ns = x->src_start[x->nring];
     ok = ok && SAME(src_level, ns) && SAME(src_node, ns) && SAME(src_weight, ns) && SAME(src_rend, ns);
-    if (!ok || x->blocks_dirty)
+    if (!ok || x->cpl.blocks_dirty)
         return ok;
-    ok = SAME(ring_off, x->nring + 1) && SAME(front_off, x->nfrontier + 1);
+    ok = SAME(cpl.ring_off, x->nring + 1) && SAME(cpl.front_off, x->nfrontier + 1);
     if (!ok)
         return 0;
-    int nr = x->ring_off[x->nring], nf = x->front_off[x->nfrontier], nm = 0;
+    int nr = x->cpl.ring_off[x->nring], nf = x->cpl.front_off[x->nfrontier], nm = 0;
     for (int r = 0; r < x->nfrontier; r++)
         nm += L->model.row_start[x->frontier[r] + 1] - L->model.row_start[x->frontier[r]];
-    ok = SAME(ring_col, nr) && SAME(front_col, nf) && SAME(ring_K, 9 * nr) && SAME(front_K, 9 * nf) &&
-         SAME(front_merged, 9 * nm) && SAME(ring_T, 12 * nr) && SAME(front_T, 12 * nm);
+    ok = SAME(cpl.ring_col, nr) && SAME(cpl.front_col, nf) && SAME(cpl.ring_K, 9 * nr) && SAME(cpl.front_K, 9 * nf) &&
+         SAME(cpl.front_merged, 9 * nm) && SAME(cpl.ring_T, 12 * nr) && SAME(cpl.front_T, 12 * nm);
     if (L->model.D)
-        ok = ok && SAME(ring_D, 9 * nr) && SAME(front_D, 9 * nf);
+        ok = ok && SAME(cpl.ring_D, 9 * nr) && SAME(cpl.front_D, 9 * nf);
 #undef SAME
     return ok;
 }
@@ -360,8 +360,8 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
         long computed[2] = {0, 0}, built[2] = {0, 0};
         for (int i = 0; i < 2; i++)
             for (int k = 0; k < 4; k++) {
-                computed[i] += b[i]->lod->lev[k].rows_computed;
-                built[i] += b[i]->lod->lev[k].rows_built;
+                computed[i] += b[i]->lod->lev[k].cpl.rows_computed;
+                built[i] += b[i]->lod->lev[k].cpl.rows_built;
             }
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "incremental rebuild (%s): %ld splits %ld merges, finest active up to %ld; rows "

@@ -425,7 +425,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     int levels_active = 0, ext0[3];
     for (int k = 0; k < 3; k++) {
         levels_active += lod->lev[k].nactive > 0;
-        ext0[k] = lod->lev[k].extra_log2;
+        ext0[k] = lod->lev[k].tk.extra_log2;
     }
     CHECK(levels_active >= 2);
     long calls0, calls1, calls2;
@@ -438,7 +438,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod_sharp_cost(lod, &calls1, &cpu);
     int same1 = 1;
     for (int k = 0; k < 3; k++)
-        same1 &= lod->lev[k].extra_log2 == ext0[k];
+        same1 &= lod->lev[k].tk.extra_log2 == ext0[k];
     sq_lodx_sharp_invalidate(lod);
     for (int k = 0; k < 3; k++)
         sq_lodx_rebuild_level(lod, k);
@@ -447,7 +447,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod_sharp_cost(lod, &calls2, &cpu);
     int same2 = 1;
     for (int k = 0; k < 3; k++)
-        same2 &= lod->lev[k].extra_log2 == ext0[k];
+        same2 &= lod->lev[k].tk.extra_log2 == ext0[k];
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "sharp skip: %d levels active; unchanged rebuild %ld estimates, invalidated %ld\n",
                 levels_active, calls1 - calls0, calls2 - calls1);
@@ -476,7 +476,7 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
     for (int c = 0; c < 2; c++) {
         CHECK(b[c]->lod->reserve.reserve_bytes == 0);
         for (int k = 0; k < 4; k++)
-            CHECK(b[c]->lod->lev[k].krow_at == NULL && b[c]->lod->lev[k].ring_K_cap == 0);
+            CHECK(b[c]->lod->lev[k].cpl.krow_at == NULL && b[c]->lod->lev[k].cpl.ring_K_cap == 0);
     }
     for (int f = 0; f < 60; f++) {
         sq_tool tool = guard_poke(f * def.frame_dt);
@@ -489,8 +489,8 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
     long used[2] = {0, 0}, grown[2] = {0, 0};
     for (int c = 0; c < 2; c++)
         for (int k = 0; k < 4; k++) {
-            used[c] += b[c]->lod->lev[k].krow_used;
-            grown[c] += b[c]->lod->lev[k].krow_grown;
+            used[c] += b[c]->lod->lev[k].cpl.krow_used;
+            grown[c] += b[c]->lod->lev[k].cpl.krow_grown;
         }
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "row cache: unbudgeted %ld blocks used, %ld chunks opened in ticks, reserve %ld bytes; "
@@ -691,8 +691,8 @@ SQ_TEST(lod_guard_load_check_copy_shares_what_it_only_reads)
             CHECK(Lc->model_shared == 1 && Lc->model.K == Lb->model.K && Lc->model.Kup == Lb->model.Kup);
             CHECK(Lc->d != Lb->d && Lc->v != Lb->v); /* the state is the copy's own */
             CHECK(Lf->model_shared == 0 && Lf->model.K != Lb->model.K);
-            CHECK(copy->lod->lev[k].tet_geom == b->lod->lev[k].tet_geom);
-            CHECK(copy->lod->lev[k].blocks_slot != b->lod->lev[k].blocks_slot);
+            CHECK(copy->lod->lev[k].tab.tet_geom == b->lod->lev[k].tab.tet_geom);
+            CHECK(copy->lod->lev[k].cpl.blocks_slot != b->lod->lev[k].cpl.blocks_slot);
             /* gravity: every level has its static equilibrium, copied, not shared */
             const double *ds = copy->lod->lev[k].d_static, *df = fresh->lod->lev[k].d_static;
             CHECK(ds && df && ds != b->lod->lev[k].d_static);
