@@ -56,13 +56,13 @@ void sq_lodx_level_lists(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     int ni = 0;
-    const unsigned char *inner = lk->inner;
-    for (int r = 0; r < lk->nactive; r++) {
-        int i = lk->active_list[r];
+    const unsigned char *inner = lk->lay.inner;
+    for (int r = 0; r < lk->lay.nactive; r++) {
+        int i = lk->lists.active_list[r];
         if (inner[i])
-            lk->inner_list[ni++] = i;
+            lk->lists.inner_list[ni++] = i;
     }
-    lk->ninner_list = ni;
+    lk->lists.ninner_list = ni;
     lod->push.lists_dirty = 1;
     lod->view.gen++;
     sq_lodx_mask_list(lod, k);
@@ -72,20 +72,20 @@ void sq_lodx_mask_list(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     int nm = 0;
-    const unsigned char *mask = lk->integrated;
-    for (int r = 0; r < lk->nactive; r++) {
-        int i = lk->active_list[r];
+    const unsigned char *mask = lk->lay.integrated;
+    for (int r = 0; r < lk->lay.nactive; r++) {
+        int i = lk->lists.active_list[r];
         if (mask[i])
-            lk->integrated_list[nm++] = i;
+            lk->lists.integrated_list[nm++] = i;
     }
-    lk->nintegrated_list = nm;
+    lk->lists.nintegrated_list = nm;
 }
 
-/* add node i of level k to a list once (marks in lod->lev[k].mark) */
+/* add node i of level k to a list once (marks in lod->lev[k].lists.mark) */
 static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 {
-    if (!lod->lev[k].mark[i]) {
-        lod->lev[k].mark[i] = 1;
+    if (!lod->lev[k].lists.mark[i]) {
+        lod->lev[k].lists.mark[i] = 1;
         list[(*n)++] = i;
     }
 }
@@ -94,9 +94,9 @@ static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 static void need_node(sq_lod *lod, int k, int j)
 {
     sq_lod_level *lk;
-    while (k >= 1 && (lk = &lod->lev[k])->state[j] == ST_COARSE && !lk->in_needed[j]) {
-        lk->in_needed[j] = 1;
-        lk->needed[lk->nneeded++] = j;
+    while (k >= 1 && (lk = &lod->lev[k])->lay.state[j] == ST_COARSE && !lk->lists.in_needed[j]) {
+        lk->lists.in_needed[j] = 1;
+        lk->lists.needed[lk->lists.nneeded++] = j;
         const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
         for (int q = 0; q < 3; q++)
             need_node(lod, k - 1, tn[q]);
@@ -121,26 +121,26 @@ void sq_lodx_refresh_lists(sq_lod *lod)
     int L = lod->L;
     /* read_list: sources of every ring ghost (any level), active columns of each level's ring rows */
     for (int m = 0; m < L; m++)
-        lod->lev[m].nread_list = 0;
+        lod->lev[m].lists.nread_list = 0;
     for (int k = 0; k < L; k++) {
-        int ns = lod->lev[k].src_start[lod->lev[k].nring];
+        int ns = lod->lev[k].lay.src_start[lod->lev[k].lay.nring];
         for (int q = 0; q < ns; q++) {
-            int m = lod->lev[k].src_level[q];
-            add_once(lod, m, lod->lev[k].src_node[q], lod->lev[m].read_list, &lod->lev[m].nread_list);
+            int m = lod->lev[k].lay.src_level[q];
+            add_once(lod, m, lod->lev[k].lay.src_node[q], lod->lev[m].lists.read_list, &lod->lev[m].lists.nread_list);
         }
         if (!lod->lev[k].cpl.blocks_dirty && lod->lev[k].cpl.ring_col) {
-            int ne = lod->lev[k].cpl.ring_off[lod->lev[k].nring];
+            int ne = lod->lev[k].cpl.ring_off[lod->lev[k].lay.nring];
             for (int e = 0; e < ne; e++) {
                 int l = lod->lev[k].cpl.ring_col[e];
-                if (lod->lev[k].active[l])
-                    add_once(lod, k, l, lod->lev[k].read_list, &lod->lev[k].nread_list);
+                if (lod->lev[k].lay.active[l])
+                    add_once(lod, k, l, lod->lev[k].lists.read_list, &lod->lev[k].lists.nread_list);
             }
         }
     }
     for (int m = 0; m < L; m++) {
-        sort_marked(lod->lev[m].read_list, lod->lev[m].nread_list, lod->lev[m].mark, lod->lv[m].model.n);
-        for (int r = 0; r < lod->lev[m].nread_list; r++)
-            lod->lev[m].mark[lod->lev[m].read_list[r]] = 0;
+        sort_marked(lod->lev[m].lists.read_list, lod->lev[m].lists.nread_list, lod->lev[m].lists.mark, lod->lv[m].model.n);
+        for (int r = 0; r < lod->lev[m].lists.nread_list; r++)
+            lod->lev[m].lists.mark[lod->lev[m].lists.read_list[r]] = 0;
     }
 
     if (lod->test.full_rebuild)
@@ -157,22 +157,22 @@ static void needed_full(sq_lod *lod)
     int L = lod->L, F = L - 1;
     /* clear the previous set, then mark what is read */
     for (int k = 0; k < L; k++) {
-        for (int r = 0; r < lod->lev[k].nneeded; r++)
-            lod->lev[k].in_needed[lod->lev[k].needed[r]] = 0;
-        lod->lev[k].nneeded = 0;
+        for (int r = 0; r < lod->lev[k].lists.nneeded; r++)
+            lod->lev[k].lists.in_needed[lod->lev[k].lists.needed[r]] = 0;
+        lod->lev[k].lists.nneeded = 0;
     }
     const sq_mesh *fm = lod->lv[F].model.mesh;
     for (int s = 0; s < fm->nsurf; s++)
         need_node(lod, F, fm->surf_nodes[s]); /* the rendered surface, tool holds */
     for (int k = 0; k < L; k++)
-        for (int r = 0; r < lod->lev[k].nring; r++)
-            need_node(lod, k, lod->lev[k].ring[r]); /* a ring ghost without sources keeps its push */
+        for (int r = 0; r < lod->lev[k].lay.nring; r++)
+            need_node(lod, k, lod->lev[k].lay.ring[r]); /* a ring ghost without sources keeps its push */
     for (int k = 0; k + 1 < L; k++) {
         const sq_lod_link *ln = &lod->h.link[k];
         /* split ghosts are pulled from their child tets; active nodes may split (their child
          * tets are read then, and their children start from their parent tets) */
-        for (int r = 0; r < lod->lev[k].nsplit_ghost; r++) {
-            int i = lod->lev[k].split_ghost[r];
+        for (int r = 0; r < lod->lev[k].lay.nsplit_ghost; r++) {
+            int i = lod->lev[k].lay.split_ghost[r];
             need_tet(lod, k + 1, ln->down_tet[i]);
             for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
                 need_tet(lod, k, ln->up_tet[ln->child[c]]);
@@ -184,21 +184,21 @@ static void needed_full(sq_lod *lod)
             }
         }
         if (k < lod->top)
-            for (int r = 0; r < lod->lev[k].nactive; r++) {
-                int i = lod->lev[k].active_list[r];
+            for (int r = 0; r < lod->lev[k].lay.nactive; r++) {
+                int i = lod->lev[k].lists.active_list[r];
                 need_tet(lod, k + 1, ln->down_tet[i]);
                 for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
                     need_tet(lod, k, ln->up_tet[ln->child[c]]);
             }
     }
     for (int k = 0; k < L; k++)
-        sort_marked(lod->lev[k].needed, lod->lev[k].nneeded, lod->lev[k].in_needed, lod->lv[k].model.n);
+        sort_marked(lod->lev[k].lists.needed, lod->lev[k].lists.nneeded, lod->lev[k].lists.in_needed, lod->lv[k].model.n);
     /* the counts no longer describe this set */
     lod->push.needed_valid = 0;
     for (int k = 0; k < L; k++) {
-        for (int c = 0; c < lod->lev[k].nschg; c++)
-            lod->lev[k].schg_mark[lod->lev[k].schg[c]] = 0;
-        lod->lev[k].nschg = 0;
+        for (int c = 0; c < lod->lev[k].lists.nschg; c++)
+            lod->lev[k].lists.schg_mark[lod->lev[k].lists.schg[c]] = 0;
+        lod->lev[k].lists.nschg = 0;
     }
 }
 
@@ -216,11 +216,11 @@ static void count_node(sq_lod *lod, int k, int j, int d);
 static void fix_node(sq_lod *lod, int k, int j)
 {
     sq_lod_level *lk = &lod->lev[k];
-    unsigned char want = lk->state[j] == ST_COARSE && lk->ncnt[j] > 0;
-    if (want == lk->in_needed[j])
+    unsigned char want = lk->lay.state[j] == ST_COARSE && lk->lists.ncnt[j] > 0;
+    if (want == lk->lists.in_needed[j])
         return;
-    lk->in_needed[j] = want;
-    lk->nneeded += want ? 1 : -1;
+    lk->lists.in_needed[j] = want;
+    lk->lists.nneeded += want ? 1 : -1;
     const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
     for (int q = 0; q < 4; q++)
         count_node(lod, k - 1, tn[q], want ? 1 : -1);
@@ -230,7 +230,7 @@ static void count_node(sq_lod *lod, int k, int j, int d)
 {
     if (k < 1)
         return; /* level 0 has no coarse ghosts */
-    lod->lev[k].ncnt[j] += d;
+    lod->lev[k].lists.ncnt[j] += d;
     fix_node(lod, k, j);
 }
 
@@ -262,7 +262,7 @@ static void needed_counted(sq_lod *lod)
     int L = lod->L, F = L - 1;
     long nchg = 0, ntot = 0;
     for (int k = 0; k < L; k++) {
-        nchg += lod->lev[k].nschg;
+        nchg += lod->lev[k].lists.nschg;
         ntot += lod->lv[k].model.n;
     }
     if (!lod->push.needed_valid || lod->push.needed_top != lod->top || nchg * 8 > ntot) {
@@ -271,19 +271,19 @@ static void needed_counted(sq_lod *lod)
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
             int n = lod->lv[k].model.n;
-            memset(lk->ncnt, 0, sizeof(int) * (size_t)n);
-            memset(lk->in_needed, 0, (size_t)n);
-            lk->nneeded = 0;
+            memset(lk->lists.ncnt, 0, sizeof(int) * (size_t)n);
+            memset(lk->lists.in_needed, 0, (size_t)n);
+            lk->lists.nneeded = 0;
         }
         const sq_mesh *fm = lod->lv[F].model.mesh;
         for (int s = 0; s < fm->nsurf; s++)
             count_node(lod, F, fm->surf_nodes[s], 1);
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
-            for (int r = 0; r < lk->nsplit_ghost; r++)
-                count_seeds(lod, k, lk->split_ghost[r], ST_SPLIT, 1);
-            for (int r = 0; r < lk->nactive; r++)
-                count_seeds(lod, k, lk->active_list[r], ST_ACTIVE, 1);
+            for (int r = 0; r < lk->lay.nsplit_ghost; r++)
+                count_seeds(lod, k, lk->lay.split_ghost[r], ST_SPLIT, 1);
+            for (int r = 0; r < lk->lay.nactive; r++)
+                count_seeds(lod, k, lk->lists.active_list[r], ST_ACTIVE, 1);
         }
     } else {
         /* the new seeds in first, then the old ones out (no count drops to zero on the way
@@ -291,47 +291,47 @@ static void needed_counted(sq_lod *lod)
         lod->push.needed_counts[1]++;
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
-            for (int c = 0; c < lk->nschg; c++)
-                count_seeds(lod, k, lk->schg[c], lk->state[lk->schg[c]], 1);
-            for (int r = 0; r < lk->nring; r++)
-                count_node(lod, k, lk->ring[r], 1);
+            for (int c = 0; c < lk->lists.nschg; c++)
+                count_seeds(lod, k, lk->lists.schg[c], lk->lay.state[lk->lists.schg[c]], 1);
+            for (int r = 0; r < lk->lay.nring; r++)
+                count_node(lod, k, lk->lay.ring[r], 1);
         }
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
-            for (int c = 0; c < lk->nschg; c++)
-                count_seeds(lod, k, lk->schg[c], lk->seed_state[lk->schg[c]], -1);
-            for (int r = 0; r < lk->nseed_ring; r++)
-                count_node(lod, k, lk->seed_ring[r], -1);
+            for (int c = 0; c < lk->lists.nschg; c++)
+                count_seeds(lod, k, lk->lists.schg[c], lk->lists.seed_state[lk->lists.schg[c]], -1);
+            for (int r = 0; r < lk->lists.nseed_ring; r++)
+                count_node(lod, k, lk->lists.seed_ring[r], -1);
             /* a change of state alone (coarse ghost or not) changes the status */
-            for (int c = 0; c < lk->nschg; c++)
+            for (int c = 0; c < lk->lists.nschg; c++)
                 if (k >= 1)
-                    fix_node(lod, k, lk->schg[c]);
+                    fix_node(lod, k, lk->lists.schg[c]);
         }
         /* the ring seeds were counted above; fall through to the common end */
         goto lists;
     }
     for (int k = 0; k < L; k++)
-        for (int r = 0; r < lod->lev[k].nring; r++)
-            count_node(lod, k, lod->lev[k].ring[r], 1); /* a ring ghost without sources keeps its push */
+        for (int r = 0; r < lod->lev[k].lay.nring; r++)
+            count_node(lod, k, lod->lev[k].lay.ring[r], 1); /* a ring ghost without sources keeps its push */
 lists:
     for (int k = 0; k < L; k++) {
         sq_lod_level *lk = &lod->lev[k];
         int n = lod->lv[k].model.n;
         if (lod->push.needed_valid && lod->push.needed_top == lod->top && nchg * 8 <= ntot)
-            for (int c = 0; c < lk->nschg; c++)
-                lk->seed_state[lk->schg[c]] = lk->state[lk->schg[c]];
+            for (int c = 0; c < lk->lists.nschg; c++)
+                lk->lists.seed_state[lk->lists.schg[c]] = lk->lay.state[lk->lists.schg[c]];
         else
-            memcpy(lk->seed_state, lk->state, (size_t)n);
-        for (int c = 0; c < lk->nschg; c++)
-            lk->schg_mark[lk->schg[c]] = 0;
-        lk->nschg = 0;
-        memcpy(lk->seed_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
-        lk->nseed_ring = lk->nring;
+            memcpy(lk->lists.seed_state, lk->lay.state, (size_t)n);
+        for (int c = 0; c < lk->lists.nschg; c++)
+            lk->lists.schg_mark[lk->lists.schg[c]] = 0;
+        lk->lists.nschg = 0;
+        memcpy(lk->lists.seed_ring, lk->lay.ring, sizeof(int) * (size_t)lk->lay.nring);
+        lk->lists.nseed_ring = lk->lay.nring;
         /* the list in increasing order, from the marks */
         int w = 0;
-        for (int i = 0; i < n && w < lk->nneeded; i++)
-            if (lk->in_needed[i])
-                lk->needed[w++] = i;
+        for (int i = 0; i < n && w < lk->lists.nneeded; i++)
+            if (lk->lists.in_needed[i])
+                lk->lists.needed[w++] = i;
     }
     lod->push.needed_valid = 1;
     lod->push.needed_top = lod->top;
@@ -346,12 +346,12 @@ void sq_lodx_push_needed(sq_lod *lod)
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
         const sq_level *src = &lod->lv[k - 1];
-        for (int r = 0; r < lod->lev[k].nneeded; r++) {
-            int j = lod->lev[k].needed[r];
+        for (int r = 0; r < lod->lev[k].lists.nneeded; r++) {
+            int j = lod->lev[k].lists.needed[r];
             interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
-            lod->lev[k].push_stamp[j] = no;
+            lod->lev[k].lists.push_stamp[j] = no;
         }
-        stale |= lod->lev[k].nneeded < lod->lev[k].ncoarse_ghost;
+        stale |= lod->lev[k].lists.nneeded < lod->lev[k].lay.ncoarse_ghost;
     }
     lod->push.stale = stale;
 }
@@ -359,16 +359,16 @@ void sq_lodx_push_needed(sq_lod *lod)
 void sq_lodx_save_cascade(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        int nr = lod->lev[k].nring;
-        if (nr > lod->lev[k].cascade_value_cap) {
-            lod->lev[k].cascade_value_cap = SQ_MAX(nr, 2 * lod->lev[k].cascade_value_cap);
-            lod->lev[k].cascade_value = sq_realloc(lod->lev[k].cascade_value,
-                                                   sizeof(double) * 6 * (size_t)lod->lev[k].cascade_value_cap);
+        int nr = lod->lev[k].lay.nring;
+        if (nr > lod->lev[k].lists.cascade_value_cap) {
+            lod->lev[k].lists.cascade_value_cap = SQ_MAX(nr, 2 * lod->lev[k].lists.cascade_value_cap);
+            lod->lev[k].lists.cascade_value = sq_realloc(lod->lev[k].lists.cascade_value,
+                                                   sizeof(double) * 6 * (size_t)lod->lev[k].lists.cascade_value_cap);
         }
         const double *d = lod->lv[k].d, *v = lod->lv[k].v;
         for (int r = 0; r < nr; r++) {
-            size_t j = 3 * (size_t)lod->lev[k].ring[r];
-            double *c = lod->lev[k].cascade_value + 6 * (size_t)r;
+            size_t j = 3 * (size_t)lod->lev[k].lay.ring[r];
+            double *c = lod->lev[k].lists.cascade_value + 6 * (size_t)r;
             c[0] = d[j];
             c[1] = d[j + 1];
             c[2] = d[j + 2];
@@ -390,10 +390,10 @@ void sq_lod_flush(sq_lod *lod)
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
         const sq_level *src = &lod->lv[k - 1];
-        const int *ri = lod->lev[k - 1].ring_index;
-        for (int r = 0; r < lod->lev[k].ncoarse_ghost; r++) {
-            int j = lod->lev[k].coarse_ghost[r];
-            if (lod->lev[k].push_stamp[j] == lod->push.cascade_no)
+        const int *ri = lod->lev[k - 1].lay.ring_index;
+        for (int r = 0; r < lod->lev[k].lay.ncoarse_ghost; r++) {
+            int j = lod->lev[k].lay.coarse_ghost[r];
+            if (lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no)
                 continue;
             const int *tn = src->model.mesh->tets + 4 * ln->up_tet[j];
             const double *b = ln->up_bary + 4 * j;
@@ -401,7 +401,7 @@ void sq_lod_flush(sq_lod *lod)
             for (int m = 0; m < 4; m++) {
                 const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
                 if (ri[tn[m]] >= 0) {
-                    sd = lod->lev[k - 1].cascade_value + 6 * (size_t)ri[tn[m]];
+                    sd = lod->lev[k - 1].lists.cascade_value + 6 * (size_t)ri[tn[m]];
                     sv = sd + 3;
                 }
                 for (int a = 0; a < 3; a++) {
@@ -425,7 +425,7 @@ void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
     const sq_level *Lk = &lod->lv[k];
     /* what sq_lod_flush leaves as it is: everything when nothing is stale, a node that is not a
      * coarse ghost, one the last cascade pushed */
-    if (!lod->push.stale || k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->lev[k].push_stamp[j] == lod->push.cascade_no) {
+    if (!lod->push.stale || k == 0 || lod->lev[k].lay.state[j] != ST_COARSE || lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         return;
     }
@@ -434,13 +434,13 @@ void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
     const sq_lod_link *ln = &lod->h.link[k - 1];
     const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * ln->up_tet[j];
     const double *b = ln->up_bary + 4 * j;
-    const int *ri = lod->lev[k - 1].ring_index;
+    const int *ri = lod->lev[k - 1].lay.ring_index;
     double s[3] = {0, 0, 0};
     for (int m = 0; m < 4; m++) {
         double c[3];
         const double *sd = c;
         if (ri[tn[m]] >= 0)
-            sd = lod->lev[k - 1].cascade_value + 6 * (size_t)ri[tn[m]];
+            sd = lod->lev[k - 1].lists.cascade_value + 6 * (size_t)ri[tn[m]];
         else
             sq_lod_flushed_d(lod, k - 1, tn[m], c);
         for (int a = 0; a < 3; a++)
@@ -456,8 +456,8 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
     const sq_level *Lk = &lod->lv[k];
     /* a coarse ghost the last cascade did not push is always interpolated afresh (whether or
      * not a flush brought its stored value up to date), so a flush never changes the trajectory */
-    if (k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->push.full_no == lod->push.cascade_no ||
-        lod->lev[k].push_stamp[j] == lod->push.cascade_no) {
+    if (k == 0 || lod->lev[k].lay.state[j] != ST_COARSE || lod->push.full_no == lod->push.cascade_no ||
+        lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         memcpy(v, Lk->v + 3 * (size_t)j, 3 * sizeof(double));
         return;
@@ -511,19 +511,19 @@ void sq_lodx_free(sq_lod *lod, int k)
     for (int c = 0; c < lk->cpl.krow_nchunk; c++)
         free(lk->cpl.krow_chunk[c]);
     free(lk->cpl.krow_chunk);
-    free(lk->active_list);
-    free(lk->inner_list);
-    free(lk->integrated_list);
-    free(lk->read_list);
-    free(lk->needed);
-    free(lk->in_needed);
-    free(lk->mark);
-    free(lk->cascade_value);
-    free(lk->push_stamp);
+    free(lk->lists.active_list);
+    free(lk->lists.inner_list);
+    free(lk->lists.integrated_list);
+    free(lk->lists.read_list);
+    free(lk->lists.needed);
+    free(lk->lists.in_needed);
+    free(lk->lists.mark);
+    free(lk->lists.cascade_value);
+    free(lk->lists.push_stamp);
     free(lk->d_static);
     free(lod->guard.guard_hold[k]);
     lod->guard.guard_hold[k] = NULL;
-    free(lk->limited);
+    free(lk->lay.limited);
 }
 
 /* The criterion measures curvature of the displacement; a body sagging under its own weight

@@ -99,7 +99,7 @@ static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight,
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_mesh *m = lod->lv[k].model.mesh;
-    const unsigned char *act = lk->active;
+    const unsigned char *act = lk->lay.active;
     int visc = Bd != NULL;
     for (int c = c0; c < c1; c++) {
         int t = lk->tab.node_tet[c];
@@ -341,19 +341,19 @@ static void build_ring_blocks(sq_lod *lod, int k)
     const sq_mesh *mesh = L->model.mesh;
     int n = L->model.n;
     int incr = lk->cpl.blocks_valid && lk->cpl.prev_saved && !lod->test.full_rebuild && (long)lk->cpl.nchg * 8 < n;
-    lk->cpl.rows_built += lk->nring + lk->nfrontier;
+    lk->cpl.rows_built += lk->lay.nring + lk->lay.nfrontier;
     if (!incr) {
-        build_blocks(lod, k, lk->ring, lk->nring, lk->cpl.ring_off, &lk->cpl.ring_col, &lk->cpl.ring_col_cap, &lk->cpl.ring_K,
+        build_blocks(lod, k, lk->lay.ring, lk->lay.nring, lk->cpl.ring_off, &lk->cpl.ring_col, &lk->cpl.ring_col_cap, &lk->cpl.ring_K,
                      &lk->cpl.ring_K_cap, &lk->cpl.ring_D, &lk->cpl.ring_D_cap, MIXED_WEIGHT);
-        build_blocks(lod, k, lk->frontier, lk->nfrontier, lk->cpl.front_off, &lk->cpl.front_col, &lk->cpl.front_col_cap,
+        build_blocks(lod, k, lk->lay.frontier, lk->lay.nfrontier, lk->cpl.front_off, &lk->cpl.front_col, &lk->cpl.front_col_cap,
                      &lk->cpl.front_K, &lk->cpl.front_K_cap, &lk->cpl.front_D, &lk->cpl.front_D_cap, 1.0 - MIXED_WEIGHT);
-        lk->cpl.rows_computed += lk->nring + lk->nfrontier;
+        lk->cpl.rows_computed += lk->lay.nring + lk->lay.nfrontier;
     } else {
         /* rows with a tet that became mixed or stopped being mixed (a row sums the blocks of
          * its mixed tets in incidence order, so with the same mixed tets it is the same row):
          * only tets around a changed node can */
-        unsigned char *dirty = lk->mark;
-        const unsigned char *act = lk->active, *was = lk->cpl.blk_active;
+        unsigned char *dirty = lk->lists.mark;
+        const unsigned char *act = lk->lay.active, *was = lk->cpl.blk_active;
         for (int c = 0; c < lk->cpl.nchg; c++) {
             int i = lk->cpl.chg[c];
             for (int e = lk->tab.node_tet_start[i]; e < lk->tab.node_tet_start[i + 1]; e++) {
@@ -364,8 +364,8 @@ static void build_ring_blocks(sq_lod *lod, int k)
                     dirty[tv[0]] = dirty[tv[1]] = dirty[tv[2]] = dirty[tv[3]] = 1;
             }
         }
-        int *from = sq_malloc(sizeof(int) * (size_t)SQ_MAX(SQ_MAX(lk->nring, lk->nfrontier), 1));
-        int redone = build_blocks_incr(lod, k, lk->ring, lk->nring, lk->cpl.prev_ring, lk->cpl.nprev_ring, dirty,
+        int *from = sq_malloc(sizeof(int) * (size_t)SQ_MAX(SQ_MAX(lk->lay.nring, lk->lay.nfrontier), 1));
+        int redone = build_blocks_incr(lod, k, lk->lay.ring, lk->lay.nring, lk->cpl.prev_ring, lk->cpl.nprev_ring, dirty,
                                        lk->cpl.ring_off, lk->cpl.ring_col, lk->cpl.ring_K, lk->cpl.ring_D, lk->cpl.ring_off2,
                                        &lk->cpl.ring_col2, &lk->cpl.ring_col2_cap, &lk->cpl.ring_K2, &lk->cpl.ring_K2_cap,
                                        &lk->cpl.ring_D2, &lk->cpl.ring_D2_cap, MIXED_WEIGHT, from);
@@ -378,8 +378,8 @@ static void build_ring_blocks(sq_lod *lod, int k)
         SWAP(int, lk->cpl.ring_D_cap, lk->cpl.ring_D2_cap);
         /* the column forms likewise: a copied row's from the previous ones (ring_off2 now) */
         {
-            double *T = col_room(&lk->cpl.ring_T2, &lk->cpl.ring_T2_cap, lk->cpl.ring_off[lk->nring]);
-            for (int r = 0; r < lk->nring; r++) {
+            double *T = col_room(&lk->cpl.ring_T2, &lk->cpl.ring_T2_cap, lk->cpl.ring_off[lk->lay.nring]);
+            for (int r = 0; r < lk->lay.nring; r++) {
                 int b0 = lk->cpl.ring_off[r], nb = lk->cpl.ring_off[r + 1] - b0;
                 if (from[r] >= 0)
                     memcpy(T + 12 * (size_t)b0, lk->cpl.ring_T + 12 * (size_t)lk->cpl.ring_off2[from[r]],
@@ -390,7 +390,7 @@ static void build_ring_blocks(sq_lod *lod, int k)
             SWAP(double *, lk->cpl.ring_T, lk->cpl.ring_T2);
             SWAP(int, lk->cpl.ring_T_cap, lk->cpl.ring_T2_cap);
         }
-        redone += build_blocks_incr(lod, k, lk->frontier, lk->nfrontier, lk->cpl.prev_frontier, lk->cpl.nprev_frontier,
+        redone += build_blocks_incr(lod, k, lk->lay.frontier, lk->lay.nfrontier, lk->cpl.prev_frontier, lk->cpl.nprev_frontier,
                                     dirty, lk->cpl.front_off, lk->cpl.front_col, lk->cpl.front_K, lk->cpl.front_D, lk->cpl.front_off2,
                                     &lk->cpl.front_col2, &lk->cpl.front_col2_cap, &lk->cpl.front_K2, &lk->cpl.front_K2_cap,
                                     &lk->cpl.front_D2, &lk->cpl.front_D2_cap, 1.0 - MIXED_WEIGHT, from);
@@ -409,8 +409,8 @@ static void build_ring_blocks(sq_lod *lod, int k)
         }
         /* merged rows: the copied frontier rows from the previous merged rows */
         int total = 0;
-        for (int r = 0; r < lk->nfrontier; r++) {
-            int i = lk->frontier[r];
+        for (int r = 0; r < lk->lay.nfrontier; r++) {
+            int i = lk->lay.frontier[r];
             total += L->model.row_start[i + 1] - L->model.row_start[i];
         }
         if (total > lk->cpl.front_merged2_cap) {
@@ -425,8 +425,8 @@ static void build_ring_blocks(sq_lod *lod, int k)
         }
         double *M = lk->cpl.front_merged2;
         double *T = col_room(&lk->cpl.front_T2, &lk->cpl.front_T2_cap, total);
-        for (int r = 0; r < lk->nfrontier; r++) {
-            int i = lk->frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
+        for (int r = 0; r < lk->lay.nfrontier; r++) {
+            int i = lk->lay.frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
             if (from[r] >= 0) {
                 memcpy(M, lk->cpl.front_merged + 9 * (size_t)poff[from[r]], sizeof(double) * 9 * (size_t)len);
                 memcpy(T, lk->cpl.front_T + 12 * (size_t)poff[from[r]], sizeof(double) * 12 * (size_t)len);
@@ -448,7 +448,7 @@ static void build_ring_blocks(sq_lod *lod, int k)
         lk->cpl.prev_saved = 0;
         for (int c = 0; c < lk->cpl.nchg; c++) {
             lk->cpl.chg_mark[lk->cpl.chg[c]] = 0;
-            lk->cpl.blk_active[lk->cpl.chg[c]] = lk->active[lk->cpl.chg[c]];
+            lk->cpl.blk_active[lk->cpl.chg[c]] = lk->lay.active[lk->cpl.chg[c]];
         }
         lk->cpl.nchg = 0;
         return;
@@ -456,8 +456,8 @@ static void build_ring_blocks(sq_lod *lod, int k)
     /* merged frontier rows: the level's row less the correction the frontier pass adds back
      * (sq_lodx_front_correct adds front_K w; the force pass subtracts K w) */
     int total = 0;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    for (int r = 0; r < lk->lay.nfrontier; r++) {
+        int i = lk->lay.frontier[r];
         total += L->model.row_start[i + 1] - L->model.row_start[i];
     }
     if (total > lk->cpl.front_merged_cap) {
@@ -465,13 +465,13 @@ static void build_ring_blocks(sq_lod *lod, int k)
         lk->cpl.front_merged = sq_realloc(lk->cpl.front_merged, sizeof(double) * 9 * (size_t)lk->cpl.front_merged_cap);
     }
     double *M = lk->cpl.front_merged;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    for (int r = 0; r < lk->lay.nfrontier; r++) {
+        int i = lk->lay.frontier[r];
         merged_row(lod, k, r, i, M);
         M += 9 * (size_t)(L->model.row_start[i + 1] - L->model.row_start[i]);
     }
     /* the column forms the tick's kernels read */
-    transpose_blocks(lk->cpl.ring_K, lk->cpl.ring_off[lk->nring], &lk->cpl.ring_T, &lk->cpl.ring_T_cap);
+    transpose_blocks(lk->cpl.ring_K, lk->cpl.ring_off[lk->lay.nring], &lk->cpl.ring_T, &lk->cpl.ring_T_cap);
     transpose_blocks(lk->cpl.front_merged, total, &lk->cpl.front_T, &lk->cpl.front_T_cap);
     lk->cpl.blocks_dirty = 0;
     lk->cpl.blocks_valid = 1;
@@ -479,7 +479,7 @@ static void build_ring_blocks(sq_lod *lod, int k)
     for (int c = 0; c < lk->cpl.nchg; c++)
         lk->cpl.chg_mark[lk->cpl.chg[c]] = 0;
     lk->cpl.nchg = 0;
-    memcpy(lk->cpl.blk_active, lk->active, (size_t)n);
+    memcpy(lk->cpl.blk_active, lk->lay.active, (size_t)n);
 }
 
 
@@ -540,11 +540,11 @@ static void coupling_bound(sq_lod *lod)
     for (int m = 0; m < L; m++) {
         /* level m's lists in locals (the row-sum stores would make the compiler reload them) */
         const sq_lod_level *lm = &lod->lev[m];
-        const int nring = lm->nring, *src_start = lm->src_start, *ring_off = lm->cpl.ring_off;
-        const int *ring_col = lm->cpl.ring_col, *ring_index = lm->ring_index;
-        const int *src_level = lm->src_level, *src_node = lm->src_node;
-        const unsigned char *active = lm->active;
-        const double *src_weight = lm->src_weight, *ring_K = lm->cpl.ring_K;
+        const int nring = lm->lay.nring, *src_start = lm->lay.src_start, *ring_off = lm->cpl.ring_off;
+        const int *ring_col = lm->cpl.ring_col, *ring_index = lm->lay.ring_index;
+        const int *src_level = lm->lay.src_level, *src_node = lm->lay.src_node;
+        const unsigned char *active = lm->lay.active;
+        const double *src_weight = lm->lay.src_weight, *ring_K = lm->cpl.ring_K;
         double *rowsum[SQ_MAX_LEVELS];
         for (int k = 0; k < L; k++)
             rowsum[k] = lod->lev[k].tk.coupled_rowsum;
@@ -582,8 +582,8 @@ static void coupling_bound(sq_lod *lod)
     for (int k = 0; k < L; k++) {
         const sq_level *Lk = &lod->lv[k];
         double own = lod->lev[k].tk.own_rate, coupled = 0;
-        for (int a = 0; a < lod->lev[k].nactive; a++) {
-            int i = lod->lev[k].active_list[a];
+        for (int a = 0; a < lod->lev[k].lay.nactive; a++) {
+            int i = lod->lev[k].lists.active_list[a];
             if (Lk->model.fixed[i] == 7)
                 continue;
             coupled = fmax(coupled, (lod->lev[k].tk.own_rowsum[i] + lod->lev[k].tk.coupled_rowsum[i]) / Lk->model.mass[i]);

@@ -534,7 +534,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         prof->ring_rows = fr->tc.ring_rows;
         prof->frontier_rows = fr->tc.frontier_rows;
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-            prof->active[k] = k < L ? lod->lev[k].nactive : 0;
+            prof->active[k] = k < L ? lod->lev[k].lay.nactive : 0;
             prof->substeps[k] = k < L ? 1 << sub_log2(lod, k) : 0;
         }
         prof->splits = ao.splits;

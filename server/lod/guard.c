@@ -133,7 +133,7 @@ unsigned sq_lodx_guard_all_levels(const sq_lod *lod)
 {
     int hi = 0;
     for (int k = 0; k < lod->L; k++)
-        if (lod->lev[k].nactive > 0)
+        if (lod->lev[k].lay.nactive > 0)
             hi = k;
     hi = SQ_MIN(hi + 1, lod->top);
     return (2u << hi) - 1;
@@ -154,7 +154,7 @@ void sq_lodx_guard_rest_mask(sq_lod *lod, int k, int hide)
     int *h = lod->guard.guard_hold[k];
     if (!h || lod->guard.guard_hold_until[k] <= lod->guard.guard_clock)
         return;
-    unsigned char *st = lod->lev[k].state;
+    unsigned char *st = lod->lev[k].lay.state;
     for (int p = 0; p < lod->lv[k].model.n; p++) {
         if (h[p] <= lod->guard.guard_clock)
             continue;
@@ -207,10 +207,10 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
         for (int k = 0; k < lod->top; k++) {
             const sq_lod_link *ln = &lod->h.link[k];
             const sq_lod_level *lk = &lod->lev[k];
-            for (int a = 0; a < lk->nsplit_ghost; a++) {
-                int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
+            for (int a = 0; a < lk->lay.nsplit_ghost; a++) {
+                int p = lk->lay.split_ghost[a], ok = lk->lay.state[p] == ST_SPLIT;
                 for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
-                    ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
+                    ok = lod->lev[k + 1].lay.state[ln->child[c]] == ST_ACTIVE;
                 if (!ok)
                     continue;
                 if (nc == capc) {
@@ -271,7 +271,7 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
     sq_lod_level *lk = &lod->lev[k];
     const sq_lod_link *ln = &lod->h.link[k];
     const sq_lod_def *def = &lod->def;
-    lk->nlimited = 0;
+    lk->lay.nlimited = 0;
     if (def->split <= 0 || k >= lod->top)
         return 0; /* forced finest: no criterion to rank by */
     long nc = 0;
@@ -281,16 +281,16 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
      * the active list yet) */
     if (allow_split && def->split < INFINITY)
         for (int i = 0; i < n; i++) {
-            if (lk->state[i] != ST_ACTIVE)
+            if (lk->lay.state[i] != ST_ACTIVE)
                 continue; /* ghost or resting */
             double d = sq_lodx_delta(lod, k, i);
             if (d > def->split)
                 c[nc++] = (lim_cand){d, i, 1};
         }
-    for (int a = 0; a < lk->nsplit_ghost; a++) {
-        int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
+    for (int a = 0; a < lk->lay.nsplit_ghost; a++) {
+        int p = lk->lay.split_ghost[a], ok = lk->lay.state[p] == ST_SPLIT;
         for (int q = ln->child_start[p]; q < ln->child_start[p + 1] && ok; q++)
-            ok = lod->lev[k + 1].state[ln->child[q]] == ST_ACTIVE;
+            ok = lod->lev[k + 1].lay.state[ln->child[q]] == ST_ACTIVE;
         if (!ok)
             continue;
         double need = sq_lodx_need(lod, k, p);
@@ -302,22 +302,22 @@ long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
         return 0;
     }
     qsort(c, (size_t)nc, sizeof(lim_cand), cmp_lim);
-    if (!lk->limited)
-        lk->limited = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
+    if (!lk->lay.limited)
+        lk->lay.limited = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
     for (long q = SQ_MAX(most, 0L); q < nc; q++) {
-        lk->limited[lk->nlimited++] = c[q].p;
-        lk->state[c[q].p] = c[q].split ? ST_LIMITED_ACTIVE : ST_LIMITED_SPLIT;
+        lk->lay.limited[lk->lay.nlimited++] = c[q].p;
+        lk->lay.state[c[q].p] = c[q].split ? ST_LIMITED_ACTIVE : ST_LIMITED_SPLIT;
     }
     free(c);
-    return lk->nlimited;
+    return lk->lay.nlimited;
 }
 
 void sq_lodx_guard_limit_undo(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
-    for (int q = 0; q < lk->nlimited; q++) {
-        int p = lk->limited[q];
-        lk->state[p] = lk->state[p] == ST_LIMITED_ACTIVE ? ST_ACTIVE : ST_SPLIT;
+    for (int q = 0; q < lk->lay.nlimited; q++) {
+        int p = lk->lay.limited[q];
+        lk->lay.state[p] = lk->lay.state[p] == ST_LIMITED_ACTIVE ? ST_ACTIVE : ST_SPLIT;
     }
-    lk->nlimited = 0;
+    lk->lay.nlimited = 0;
 }

@@ -23,7 +23,7 @@
 static int active_of_finest(const sq_lod *lod, int j, int *level)
 {
     int k = lod->L - 1, a = j;
-    while (lod->lev[k].state[a] != ST_ACTIVE) {
+    while (lod->lev[k].lay.state[a] != ST_ACTIVE) {
         if (k == 0)
             return -1;
         a = lod->h.link[k - 1].parent[a];
@@ -44,7 +44,7 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
     }
     sq_level *Lk = &lod->lv[k];
     const double *dj = lod->lv[F].d + 3 * hd->node;
-    int e = lod->lev[k].hold_of[a];
+    int e = lod->lev[k].lay.hold_of[a];
     if (e < 0) {
         if (lod->holds.nhe == lod->holds.cap_he) {
             lod->holds.cap_he = lod->holds.cap_he ? 2 * lod->holds.cap_he : 64;
@@ -57,10 +57,10 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
         E->node = a;
         E->t_from = t_now;
         memcpy(E->from, Lk->d + 3 * a, sizeof(E->from));
-        lod->lev[k].hold_of[a] = e;
-        if (lod->lev[k].integrated[a]) {
-            lod->lev[k].integrated[a] = 0;
-            lod->lev[k].nintegrated--;
+        lod->lev[k].lay.hold_of[a] = e;
+        if (lod->lev[k].lay.integrated[a]) {
+            lod->lev[k].lay.integrated[a] = 0;
+            lod->lev[k].lay.nintegrated--;
         }
     }
     hold_entry *E = &lod->holds.he[e];
@@ -100,8 +100,8 @@ static void start_holds(sq_lod *lod, double T)
 static void clear_holds(sq_lod *lod)
 {
     for (int e = 0; e < lod->holds.nhe; e++)
-        if (lod->lev[lod->holds.he[e].level].hold_of[lod->holds.he[e].node] == e)
-            lod->lev[lod->holds.he[e].level].hold_of[lod->holds.he[e].node] = -1;
+        if (lod->lev[lod->holds.he[e].level].lay.hold_of[lod->holds.he[e].node] == e)
+            lod->lev[lod->holds.he[e].level].lay.hold_of[lod->holds.he[e].node] = -1;
     lod->holds.nhe = 0;
 }
 
@@ -117,8 +117,8 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
         lod->holds.hold_entry_of = sq_realloc(lod->holds.hold_entry_of, sizeof(int) * (size_t)nholds);
     }
     for (int k = 0; k < L; k++) {
-        lod->lev[k].nintegrated = lod->lev[k].nactive;
-        memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].model.n);
+        lod->lev[k].lay.nintegrated = lod->lev[k].lay.nactive;
+        memcpy(lod->lev[k].lay.integrated, lod->lev[k].lay.active, (size_t)lod->lv[k].model.n);
     }
     for (int h = 0; h < nholds; h++) {
         lod->holds.hold_entry_of[h] = -1;
@@ -164,8 +164,8 @@ void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*fo
     }
     clear_holds(lod);
     for (int k = 0; k < lod->L; k++)
-        if (lod->lev[k].nintegrated != lod->lev[k].nactive) {
-            memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].model.n);
-            lod->lev[k].nintegrated = lod->lev[k].nactive;
+        if (lod->lev[k].lay.nintegrated != lod->lev[k].lay.nactive) {
+            memcpy(lod->lev[k].lay.integrated, lod->lev[k].lay.active, (size_t)lod->lv[k].model.n);
+            lod->lev[k].lay.nintegrated = lod->lev[k].lay.nactive;
         }
 }

@@ -156,7 +156,8 @@ typedef struct sq_lod_tick_state {
     double *coupled_rowsum;     /* row sums of the coupling handed to each node, N/m (n) */
 } sq_lod_tick_state;
 
-typedef struct sq_lod_level {
+/* a level's layout: which node is active, which a ghost, the ring and its active sources, the frontier (states set by criterion.c and guard.c, the lists rebuilt by state.c's sq_lodx_rebuild_level, the sources by ring.c, hold_of by holds.c) */
+typedef struct sq_lod_layout {
     /* --- the layout: which node is active, which a ghost (rebuilt by sq_lodx_rebuild_level) */
     unsigned char *state;       /* ST_ACTIVE, ST_SPLIT or ST_COARSE of each node (n) */
     unsigned char *active;      /* 1 = active (exposed by sq_lod_active) (n) */
@@ -166,9 +167,6 @@ typedef struct sq_lod_level {
     int *coarse_ghost, ncoarse_ghost; /* coarse ghosts (value from the coarser level), increasing */
     unsigned char *fresh;       /* 1 = split in the current adapt pass: not merged back (n) */
     int *limited, nlimited;     /* nodes the guard held out of this pass (sq_lodx_guard_limit) */
-    sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
-    double *d_static;           /* static displacement under the body's gravity, m (n x 3);
-                                 * NULL: judged from 0 */
     /* --- the ring (ghosts with an active neighbour) and their active sources */
     int *ring, nring;           /* ring ghosts, increasing node order */
     int *ring_index;            /* ring position of a node, or -1 (n) */
@@ -178,13 +176,15 @@ typedef struct sq_lod_level {
     double *src_weight;         /* weight of each source, the weights of a ghost sum to 1 (src_cap) */
     int *src_rend;              /* end of the run of sources on the same level as this one (src_cap) */
     int src_cap;                /* capacity of the three source arrays */
-    sq_lod_tick_state tk;                /* the level's clock, rates and tick scratch (tick.c, coupling.c) */
-    sq_lod_coupling_cache cpl;           /* the coupling blocks and row caches (coupling.c) */
     /* --- the frontier: active nodes with a ghost neighbour; their mixed tets count half */
     int *frontier, nfrontier;   /* frontier nodes */
     unsigned char *inner;       /* 1 = active and not on the frontier (n) */
     /* --- tool holds */
     int *hold_of;               /* hold entry of a node, or -1 (n) */
+} sq_lod_layout;
+
+/* a level's index lists, so a frame's cost follows the active set, and the needed set kept by counts (activeset.c) */
+typedef struct sq_lod_lists {
     /* --- index lists (activeset.c), so a frame's cost follows the active set, not the body */
     int *active_list;           /* active nodes, increasing (nactive) */
     int *inner_list, ninner_list;           /* inner active nodes */
@@ -204,6 +204,16 @@ typedef struct sq_lod_level {
                                  * before its ring value replaced it (nring x 6) */
     int cascade_value_cap;
     unsigned *push_stamp;       /* cascade a coarse ghost was last pushed at (n) */
+} sq_lod_lists;
+
+typedef struct sq_lod_level {
+    sq_lod_layout lay;                   /* the layout: states, ghosts, ring, frontier, sources (state.c, criterion.c, ring.c) */
+    sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
+    double *d_static;           /* static displacement under the body's gravity, m (n x 3);
+                                 * NULL: judged from 0 */
+    sq_lod_tick_state tk;                /* the level's clock, rates and tick scratch (tick.c, coupling.c) */
+    sq_lod_coupling_cache cpl;           /* the coupling blocks and row caches (coupling.c) */
+    sq_lod_lists lists;                  /* index lists and the needed set (activeset.c) */
     /* --- corotational elasticity (corotational.c), NULL for a linear level */
     sq_lod_corot *corot;
 } sq_lod_level;

@@ -62,9 +62,9 @@ long sq_lodx_map_state(sq_lod *lod)
         void *const a[] = {L->d, L->v, L->f, L->acc, lk->tk.d_start, lk->tk.v_start, lk->tk.w_tick};
         for (size_t i = 0; i < sizeof a / sizeof a[0]; i++)
             pages += keep_pages(a[i], n3);
-        pages += keep_pages(lk->push_stamp, n * sizeof(unsigned));
-        pages += keep_pages(lk->in_needed, n);
-        pages += keep_pages(lk->mark, n);
+        pages += keep_pages(lk->lists.push_stamp, n * sizeof(unsigned));
+        pages += keep_pages(lk->lists.in_needed, n);
+        pages += keep_pages(lk->lists.mark, n);
     }
     return pages;
 }
@@ -164,11 +164,11 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
         const sq_level *L = &lod->lv[k];
         int visc = lod->cpl.have_mat && lod->cpl.mat.use_viscosity && L->model.D;
         long limit = SQ_MAX((long)L->model.row_start[L->model.n], 1);
-        long ring_used = lk->cpl.ring_off && lk->cpl.blocks_valid ? lk->cpl.ring_off[lk->nring] : 0;
-        long front_used = lk->cpl.front_off && lk->cpl.blocks_valid ? lk->cpl.front_off[lk->nfrontier] : 0;
+        long ring_used = lk->cpl.ring_off && lk->cpl.blocks_valid ? lk->cpl.ring_off[lk->lay.nring] : 0;
+        long front_used = lk->cpl.front_off && lk->cpl.blocks_valid ? lk->cpl.front_off[lk->lay.nfrontier] : 0;
         long merged_used = 0;
-        for (int r = 0; r < lk->nfrontier && lk->cpl.blocks_valid; r++)
-            merged_used += L->model.row_start[lk->frontier[r] + 1] - L->model.row_start[lk->frontier[r]];
+        for (int r = 0; r < lk->lay.nfrontier && lk->cpl.blocks_valid; r++)
+            merged_used += L->model.row_start[lk->lay.frontier[r] + 1] - L->model.row_start[lk->lay.frontier[r]];
         /* each array: pointer, capacity, the elements in use (0 for the previous build's
          * arrays, free between builds), element size */
         struct {

@@ -53,7 +53,7 @@ static int cmp_src(const void *pa, const void *pb)
 static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_item **buf, int *n,
                    int *cap)
 {
-    unsigned char st = lod->lev[lev].state[j];
+    unsigned char st = lod->lev[lev].lay.state[j];
     if (st == ST_ACTIVE) {
         if (*n == *cap) {
             *cap = *cap ? 2 * *cap : 256;
@@ -90,13 +90,13 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_i
  * level as source q ends (the value and reaction loops take one run per level) */
 static void source_runs(sq_lod_level *lk)
 {
-    if (lk->nring == 0)
+    if (lk->lay.nring == 0)
         return;
-    lk->src_rend = sq_realloc(lk->src_rend, sizeof(int) * (size_t)SQ_MAX(lk->src_cap, 1));
-    for (int r = 0; r < lk->nring; r++)
-        for (int q = lk->src_start[r + 1] - 1; q >= lk->src_start[r]; q--)
-            lk->src_rend[q] = q + 1 < lk->src_start[r + 1] && lk->src_level[q + 1] == lk->src_level[q]
-                                  ? lk->src_rend[q + 1] : q + 1;
+    lk->lay.src_rend = sq_realloc(lk->lay.src_rend, sizeof(int) * (size_t)SQ_MAX(lk->lay.src_cap, 1));
+    for (int r = 0; r < lk->lay.nring; r++)
+        for (int q = lk->lay.src_start[r + 1] - 1; q >= lk->lay.src_start[r]; q--)
+            lk->lay.src_rend[q] = q + 1 < lk->lay.src_start[r + 1] && lk->lay.src_level[q + 1] == lk->lay.src_level[q]
+                                  ? lk->lay.src_rend[q + 1] : q + 1;
 }
 
 void sq_lodx_build_sources(sq_lod *lod)
@@ -105,11 +105,11 @@ void sq_lodx_build_sources(sq_lod *lod)
     int cap = 0;
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
-        lod->lev[k].src_start[0] = 0;
+        lod->lev[k].lay.src_start[0] = 0;
         lod->lev[k].tk.hot_valid = 0;
-        for (int r = 0; r < lod->lev[k].nring; r++) {
+        for (int r = 0; r < lod->lev[k].lay.nring; r++) {
             int n = 0;
-            expand(lod, k, lod->lev[k].ring[r], 1.0, 0, &buf, &n, &cap);
+            expand(lod, k, lod->lev[k].lay.ring[r], 1.0, 0, &buf, &n, &cap);
             for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
                 src_item x = buf[i];
                 int q = i - 1;
@@ -154,28 +154,28 @@ void sq_lodx_build_sources(sq_lod *lod)
             }
             if (!(fabs(sum) > 1e-3))
                 u = 0; /* no active source: the ghost keeps its value and takes no force */
-            if (total + u > lod->lev[k].src_cap) {
-                lod->lev[k].src_cap = SQ_MAX(2 * lod->lev[k].src_cap, total + u + 1024);
-                size_t scap = (size_t)lod->lev[k].src_cap;
-                lod->lev[k].src_level = sq_realloc(lod->lev[k].src_level, sizeof(int) * scap);
-                lod->lev[k].src_node = sq_realloc(lod->lev[k].src_node, sizeof(int) * scap);
-                lod->lev[k].src_weight = sq_realloc(lod->lev[k].src_weight, sizeof(double) * scap);
-                lod->lev[k].src_rend = sq_realloc(lod->lev[k].src_rend, sizeof(int) * scap);
+            if (total + u > lod->lev[k].lay.src_cap) {
+                lod->lev[k].lay.src_cap = SQ_MAX(2 * lod->lev[k].lay.src_cap, total + u + 1024);
+                size_t scap = (size_t)lod->lev[k].lay.src_cap;
+                lod->lev[k].lay.src_level = sq_realloc(lod->lev[k].lay.src_level, sizeof(int) * scap);
+                lod->lev[k].lay.src_node = sq_realloc(lod->lev[k].lay.src_node, sizeof(int) * scap);
+                lod->lev[k].lay.src_weight = sq_realloc(lod->lev[k].lay.src_weight, sizeof(double) * scap);
+                lod->lev[k].lay.src_rend = sq_realloc(lod->lev[k].lay.src_rend, sizeof(int) * scap);
             }
             for (int i = 0; i < u; i++) {
-                lod->lev[k].src_level[total + i] = buf[i].level;
-                lod->lev[k].src_node[total + i] = buf[i].node;
-                lod->lev[k].src_weight[total + i] = buf[i].w / sum;
+                lod->lev[k].lay.src_level[total + i] = buf[i].level;
+                lod->lev[k].lay.src_node[total + i] = buf[i].node;
+                lod->lev[k].lay.src_weight[total + i] = buf[i].w / sum;
             }
             for (int i = u - 1; i >= 0; i--) /* each source's run of its level ends at */
-                lod->lev[k].src_rend[total + i] =
-                    i + 1 < u && buf[i + 1].level == buf[i].level ? lod->lev[k].src_rend[total + i + 1] : total + i + 1;
+                lod->lev[k].lay.src_rend[total + i] =
+                    i + 1 < u && buf[i + 1].level == buf[i].level ? lod->lev[k].lay.src_rend[total + i + 1] : total + i + 1;
             unsigned char bits = 0;
             for (int i = 0; i < u; i++)
                 bits |= (unsigned char)(1u << buf[i].level);
-            lod->lev[k].src_levels[r] = bits;
+            lod->lev[k].lay.src_levels[r] = bits;
             total += u;
-            lod->lev[k].src_start[r + 1] = total;
+            lod->lev[k].lay.src_start[r + 1] = total;
         }
     }
     free(buf);

@@ -24,9 +24,9 @@ void sq_lodx_tick_pull(sq_lod *lod, long t, const long *stride, sq_tick_count *c
 {
     for (int k = 0; k < lod->L; k++) {
         lod->lev[k].tk.due = t % stride[k] == 0;
-        if (lod->lev[k].tk.due && lod->lev[k].nactive > 0) {
+        if (lod->lev[k].tk.due && lod->lev[k].lay.nactive > 0) {
             sq_lodx_eval_ring(lod, k, t);
-            c->ring_values += lod->lev[k].nring;
+            c->ring_values += lod->lev[k].lay.nring;
         }
     }
 }
@@ -40,10 +40,10 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
     double frame_dt = in->frame_dt;
     int L = lod->L;
     for (int k = 0; k < L; k++)
-        if (lod->lev[k].tk.due && lod->lev[k].nactive > 0 && lod->lv[k].corot) {
+        if (lod->lev[k].tk.due && lod->lev[k].lay.nactive > 0 && lod->lv[k].corot) {
             sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
-        } else if (lod->lev[k].tk.due && lod->lev[k].nactive > 0) {
-            c->frontier_rows += lod->lev[k].nfrontier;
+        } else if (lod->lev[k].tk.due && lod->lev[k].lay.nactive > 0) {
+            c->frontier_rows += lod->lev[k].lay.nfrontier;
             if (!mat->use_viscosity) { /* d + b v once per step for the row kernels */
                 sq_lodx_form_w(lod, mat, k);
                 lod->lev[k].tk.w_ok = 1;
@@ -52,11 +52,11 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
              * one, but computes ghost rows nobody reads and needs the frontier correction
              * pass: use it once 60% of the level is active (with the frontier rows folded,
              * 60% beat 40% by 5-8% CPU on the organ and 3.6% instructions on cube-poke) */
-            if (5 * lod->lev[k].nactive >= 3 * lod->lv[k].model.n) {
+            if (5 * lod->lev[k].lay.nactive >= 3 * lod->lv[k].model.n) {
                 sq_level_forces(&lod->lv[k], mat, gravity, NULL);
                 sq_lodx_front_correct(lod, mat, k);
             } else if (mat->use_viscosity) {
-                sq_level_forces(&lod->lv[k], mat, gravity, lod->lev[k].active);
+                sq_level_forces(&lod->lv[k], mat, gravity, lod->lev[k].lay.active);
                 sq_lodx_front_correct(lod, mat, k);
             } else {
                 /* interior rows by the level's pass, frontier rows with their
@@ -66,11 +66,11 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
             }
         }
     for (int k = 0; k < L; k++)
-        if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
+        if (lod->lev[k].lay.nactive > 0 && lod->lev[k].lay.nring > 0) {
             if (!lod->lev[k].tk.due && lod->lv[k].corot) {
                 /* the tet-by-tet reactions read every ring ghost */
                 sq_lodx_eval_ring(lod, k, t);
-                c->ring_values += lod->lev[k].nring;
+                c->ring_values += lod->lev[k].lay.nring;
             } else if (!lod->lev[k].tk.due) {
                 /* between two of its steps only the ring rows with a source on a level that
                  * steps more often are used (the reactions the finer levels need now): only
@@ -91,27 +91,27 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
             continue;
         sq_level *Lk = &lod->lv[k];
         lod->lev[k].tk.step_start = t;
-        if (lod->lev[k].nactive == 0)
+        if (lod->lev[k].lay.nactive == 0)
             continue;
         /* feedback of the held nodes */
         sq_lodx_hold_sample(lod, k, gravity);
         /* finer levels read this level between its steps */
         sq_lodx_save_prev(lod, k);
-        if (lod->lev[k].nintegrated > 0) {
+        if (lod->lev[k].lay.nintegrated > 0) {
             double dtk = lod->lev[k].tk.extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
-            if (lod->lev[k].nintegrated == Lk->model.n)
+            if (lod->lev[k].lay.nintegrated == Lk->model.n)
                 sq_level_integrate(Lk, dtk, NULL);
             else
                 sq_lodx_integrate(lod, k, dtk);
             if (in->nobstacles > 0) { /* contact of the level's integrated surface nodes */
                 const sq_mesh *mk = Lk->model.mesh;
                 sq_contact_nodes nd = {.n = mk->nsurf, .list = mk->surf_nodes, .X = mk->x, .mass = Lk->model.mass,
-                                       .fixed = Lk->model.fixed, .mask = lod->lev[k].integrated,
+                                       .fixed = Lk->model.fixed, .mask = lod->lev[k].lay.integrated,
                                        .touched = in->touched ? in->touched[k] : NULL};
                 sq_contact_step(in->obstacles, in->nobstacles, &nd, Lk->d, Lk->v, dtk, in->contact);
             }
         }
-        c->updates += lod->lev[k].nintegrated;
+        c->updates += lod->lev[k].lay.nintegrated;
     }
     for (int k = 0; k < L; k++)
         lod->lev[k].tk.w_ok = 0; /* d and v moved on */
@@ -162,7 +162,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
     const double *restrict d = L->d, *restrict v = L->v;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
-    const int *il = lod->lev[k].inner_list, n = lod->lev[k].ninner_list;
+    const int *il = lod->lev[k].lists.inner_list, n = lod->lev[k].lists.ninner_list;
     const int *row_start = L->model.row_start, *col = L->model.col;
     const double *mass = L->model.mass;
     if (b != 0 && !lod->lev[k].tk.w_ok) /* called outside the frame's tick */
@@ -206,13 +206,13 @@ void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k)
      * fourth is the next node's first component, from its current d and v too, so whatever
      * order the nodes come in every stored value is that node's d + b v now (the arrays have
      * one spare double after the last node) */
-    for (int r = 0; r < lk->nactive; r++) {
-        const size_t j = 3 * (size_t)lk->active_list[r];
+    for (int r = 0; r < lk->lay.nactive; r++) {
+        const size_t j = 3 * (size_t)lk->lists.active_list[r];
         const sq_v4 x = v4_load(d + j) + bb * v4_load(v + j);
         memcpy(W + j, &x, sizeof x);
     }
-    for (int r = 0; r < lk->nring; r++) {
-        const size_t j = 3 * (size_t)lk->ring[r];
+    for (int r = 0; r < lk->lay.nring; r++) {
+        const size_t j = 3 * (size_t)lk->lay.ring[r];
         const sq_v4 x = v4_load(d + j) + bb * v4_load(v + j);
         memcpy(W + j, &x, sizeof x);
     }
@@ -224,8 +224,8 @@ void sq_lodx_integrate(sq_lod *lod, int k, double dt)
     sq_level *L = &lod->lv[k];
     double *restrict d = L->d, *restrict v = L->v;
     const double *restrict f = L->f;
-    const int *ml = lod->lev[k].integrated_list;
-    for (int r = 0; r < lod->lev[k].nintegrated_list; r++) {
+    const int *ml = lod->lev[k].lists.integrated_list;
+    for (int r = 0; r < lod->lev[k].lists.nintegrated_list; r++) {
         int i = ml[r];
         sq_level_euler_node(v, d, i, dt / L->model.mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2],
                             L->model.fixed[i]);
@@ -237,7 +237,7 @@ void sq_lodx_save_prev(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     const double *d = lod->lv[k].d, *v = lod->lv[k].v;
     double *dp = lk->tk.d_start, *vp = lk->tk.v_start;
-    const int n = lk->nread_list, *list = lk->read_list;
+    const int n = lk->lists.nread_list, *list = lk->lists.read_list;
     for (int r = 0; r < n; r++) {
         size_t i = 3 * (size_t)list[r];
         dp[i] = d[i];
@@ -260,7 +260,7 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     int visc = mat->use_viscosity && lk->cpl.front_D;
     /* the lists in locals: the force stores would make the compiler reload them */
-    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->cpl.front_off;
+    const int nfrontier = lk->lay.nfrontier, *frontier = lk->lay.frontier, *front_off = lk->cpl.front_off;
     const int *front_col = lk->cpl.front_col;
     for (int r = 0; r < nfrontier; r++) {
         int i = frontier[r];
@@ -298,7 +298,7 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
     const double *T = lk->cpl.front_T;
     const double *restrict W = lk->tk.w_tick; /* d + b v (sq_lodx_form_w) */
     /* the lists in locals: the force stores would make the compiler reload them */
-    const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
+    const int nfrontier = lk->lay.nfrontier, *frontier = lk->lay.frontier;
     const int *row_start = L->model.row_start, *col = L->model.col;
     const double *mass = L->model.mass;
     double *f = L->f;
@@ -341,9 +341,9 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
         vcur[m] = lod->lv[m].v;
     }
     /* the level's lists in locals (the value stores below would make the compiler reload them) */
-    const int *ring = lk->ring, *src_start = lk->src_start;
-    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
-    const double *fw = lk->src_weight;
+    const int *ring = lk->lay.ring, *src_start = lk->lay.src_start;
+    const int *fl = lk->lay.src_level, *fn = lk->lay.src_node, *rend = lk->lay.src_rend;
+    const double *fw = lk->lay.src_weight;
     double *restrict Dk = Lk->d, *restrict Vk = Lk->v;
     const unsigned char *fixed = Lk->model.fixed;
     for (int x = 0; x < n; x++) {
@@ -386,7 +386,7 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
 
 void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
 {
-    eval_list(lod, k, t, NULL, lod->lev[k].nring);
+    eval_list(lod, k, t, NULL, lod->lev[k].lay.nring);
 }
 
 /* the ring ghosts of level k that the ring rows with a source on a level in `mask` read (the
@@ -398,16 +398,16 @@ static void hot_list(sq_lod *lod, int k, unsigned mask)
         return;
     if (!lk->tk.hot)
         lk->tk.hot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
-    unsigned char *mark = lk->mark; /* all zero between uses */
-    for (int r = 0; r < lk->nring; r++)
-        if (lk->src_levels[r] & mask)
+    unsigned char *mark = lk->lists.mark; /* all zero between uses */
+    for (int r = 0; r < lk->lay.nring; r++)
+        if (lk->lay.src_levels[r] & mask)
             for (int e = lk->cpl.ring_off[r]; e < lk->cpl.ring_off[r + 1]; e++) {
-                int l = lk->ring_index[lk->cpl.ring_col[e]];
+                int l = lk->lay.ring_index[lk->cpl.ring_col[e]];
                 if (l >= 0)
                     mark[l] = 1;
             }
     int nh = 0;
-    for (int r = 0; r < lk->nring; r++)
+    for (int r = 0; r < lk->lay.nring; r++)
         if (mark[r]) {
             lk->tk.hot[nh++] = r;
             mark[r] = 0;
@@ -430,7 +430,7 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
 {
     const sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
-    const unsigned char *act = lk->active;
+    const unsigned char *act = lk->lay.active;
     double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     const double *Bd = mat->use_viscosity ? lk->cpl.ring_D : NULL;
     g[0] = g[1] = g[2] = 0;
@@ -512,10 +512,10 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
         due_bits |= lod->lev[m].tk.due ? 1u << m : 0u;
     /* the level's lists in locals: the force stores below could otherwise alias them for the
      * compiler, which would reload them at every ring ghost */
-    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
-    const unsigned char *src_levels = lk->src_levels;
-    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
-    const double *fw = lk->src_weight;
+    const int nring = lk->lay.nring, *ring = lk->lay.ring, *src_start = lk->lay.src_start;
+    const unsigned char *src_levels = lk->lay.src_levels;
+    const int *fl = lk->lay.src_level, *fn = lk->lay.src_node, *rend = lk->lay.src_rend;
+    const double *fw = lk->lay.src_weight;
     /* the level at the end of its step without viscosity (the common case): the ring rows
      * here, from d + b v formed once for the step (sq_lodx_form_w); the others by ring_force */
     const int fast = fr >= 1 && !mat->use_viscosity;

@@ -107,12 +107,12 @@ static void coupled_forces(sq_lod *lod, const sq_material *mat)
     for (int m = 0; m < lod->L; m++)
         sq_lodx_eval_ring(lod, m, 1);
     for (int m = 0; m < lod->L; m++)
-        if (lod->lev[m].nactive > 0) {
+        if (lod->lev[m].lay.nactive > 0) {
             sq_level_forces(&lod->lv[m], mat, g, NULL);
             sq_lodx_front_correct(lod, mat, m);
         }
     for (int m = 0; m < lod->L; m++)
-        if (lod->lev[m].nactive > 0 && lod->lev[m].nring > 0)
+        if (lod->lev[m].lay.nactive > 0 && lod->lev[m].lay.nring > 0)
             sq_lodx_couple_out(lod, mat, m, 1);
 }
 
@@ -201,9 +201,9 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     /* an interface on every level */
     for (int k = 0; k < 3; k++) {
         if (getenv("SQ_LOD_VERBOSE"))
-            fprintf(stderr, "level %d: %d active of %d, %d ring, %d frontier\n", k, lod->lev[k].nactive,
-                    lv[k].model.n, lod->lev[k].nring, lod->lev[k].nfrontier);
-        CHECK(lod->lev[k].nactive > 0 && lod->lev[k].nfrontier > 0);
+            fprintf(stderr, "level %d: %d active of %d, %d ring, %d frontier\n", k, lod->lev[k].lay.nactive,
+                    lv[k].model.n, lod->lev[k].lay.nring, lod->lev[k].lay.nfrontier);
+        CHECK(lod->lev[k].lay.nactive > 0 && lod->lev[k].lay.nfrontier > 0);
     }
     /* the dofs of every level, the dense coupled operator */
     int nd = 0;
@@ -211,8 +211,8 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     int start[4];
     for (int k = 0; k < 3; k++) {
         start[k] = nd;
-        for (int a = 0; a < lod->lev[k].nactive; a++) {
-            int i = lod->lev[k].active_list[a];
+        for (int a = 0; a < lod->lev[k].lay.nactive; a++) {
+            int i = lod->lev[k].lists.active_list[a];
             for (int x = 0; x < 3; x++)
                 if (!(lv[k].model.fixed[i] & (1u << x)))
                     dofs[nd++] = (dof){k, i, x};
@@ -248,17 +248,17 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
         }
         /* bound.c's product is the assembled block plus its off-level diagonal */
         double *off = NULL, *P = sq_lodx_sharp_dense(lod, k, &off), perr = 0, pmax = 0, cmin = INFINITY;
-        int N = 3 * lod->lev[k].nactive;
+        int N = 3 * lod->lev[k].lay.nactive;
         for (int i = 0; i < nk; i++) {
             int a = 0;
-            while (lod->lev[k].active_list[a] != dofs[n0 + i].node)
+            while (lod->lev[k].lists.active_list[a] != dofs[n0 + i].node)
                 a++;
             int pi = 3 * a + dofs[n0 + i].axis;
             double rowoff = Bc[(size_t)i * nk + i] - B[(size_t)i * nk + i];
             cmin = fmin(cmin, off[pi] - rowoff); /* the code's C at or above the scalar row sums */
             for (int j = 0; j < nk; j++) {
                 int b = 0;
-                while (lod->lev[k].active_list[b] != dofs[n0 + j].node)
+                while (lod->lev[k].lists.active_list[b] != dofs[n0 + j].node)
                     b++;
                 int pj = 3 * b + dofs[n0 + j].axis;
                 double want = B[(size_t)i * nk + j] + (i == j ? off[pi] : 0);
@@ -424,7 +424,7 @@ SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
         int sp = 0, mg = 0;
         sq_lod_adapt(lod, 1, &sp, &mg);
     }
-    CHECK(lod->lev[2].nactive == lv[2].model.n && lod->lev[2].nfrontier == 0);
+    CHECK(lod->lev[2].lay.nactive == lv[2].model.n && lod->lev[2].lay.nfrontier == 0);
     double lest = 0, gersh = 0;
     int iters = 0;
     CHECK(sq_lod_sharp_info(lod, 2, &lest, &gersh, &iters) == 1);

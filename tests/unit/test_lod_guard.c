@@ -104,7 +104,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         unsigned char *before[4];
         for (int k = 0; k < 4; k++) {
             before[k] = malloc((size_t)m[k]->nnodes);
-            memcpy(before[k], b[0]->lod->lev[k].state, (size_t)m[k]->nnodes);
+            memcpy(before[k], b[0]->lod->lev[k].lay.state, (size_t)m[k]->nnodes);
         }
         sq_body_frame(b[0], &tool, 1, NULL, &p[0], 0);
         int lch = 0;
@@ -112,7 +112,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         for (int k = 0; k < 4; k++) {
             long d = 0;
             for (int i = 0; i < m[k]->nnodes; i++)
-                d += (before[k][i] == ST_ACTIVE) != (b[0]->lod->lev[k].state[i] == ST_ACTIVE);
+                d += (before[k][i] == ST_ACTIVE) != (b[0]->lod->lev[k].lay.state[i] == ST_ACTIVE);
             lch += d > 0;
             nch += d;
             free(before[k]);
@@ -347,11 +347,11 @@ SQ_TEST(lod_guard_merges_least_needed_first)
         need[k] = malloc(sizeof(double) * (size_t)n);
         for (int p = 0; p < n; p++) {
             need[k][p] = -1;
-            if (lod->lev[k].state[p] != ST_SPLIT)
+            if (lod->lev[k].lay.state[p] != ST_SPLIT)
                 continue;
             int ok = 1;
             for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
-                ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
+                ok = lod->lev[k + 1].lay.state[ln->child[c]] == ST_ACTIVE;
             if (!ok)
                 continue;
             need[k][p] = sq_lodx_need(lod, k, p);
@@ -372,7 +372,7 @@ SQ_TEST(lod_guard_merges_least_needed_first)
         for (int p = 0; p < m[k]->nnodes; p++) {
             if (need[k][p] < 0)
                 continue;
-            if (lod->lev[k].state[p] == ST_ACTIVE) {
+            if (lod->lev[k].lay.state[p] == ST_ACTIVE) {
                 merged_max = fmax(merged_max, need[k][p]);
                 merged++;
                 held += lod->guard.guard_hold[k] && lod->guard.guard_hold[k][p] == lod->guard.guard_clock + 7;
@@ -424,7 +424,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod *lod = b->lod;
     int levels_active = 0, ext0[3];
     for (int k = 0; k < 3; k++) {
-        levels_active += lod->lev[k].nactive > 0;
+        levels_active += lod->lev[k].lay.nactive > 0;
         ext0[k] = lod->lev[k].tk.extra_log2;
     }
     CHECK(levels_active >= 2);
