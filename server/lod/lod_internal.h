@@ -51,12 +51,10 @@ typedef struct hold_entry {
     int nf;
 } hold_entry;
 
-/* the adaptive state of one level. "n" is the level's node count; node values are in metres
- * (displacements), m/s (velocities), N (forces); stiffness blocks are 3x3, N/m, row-major */
-/* a level's const mesh tables, made once at creation (state.c) and shared between the states of one body (sq_lod_create_like): read-only after it */
+/* a level's const mesh tables, made once at creation (state.c) and shared between the states of
+ * one body (sq_lod_create_like): read-only after it */
 typedef struct sq_lod_tables {
     double *crit_weight;        /* criterion Laplacian weights w_ij per adjacency CSR entry, m (nnz) */
-    /* --- element blocks of the mixed tets (tets with active and ghost corners) */
     int *node_tet_start, *node_tet; /* tets around each node (CSR, n + 1 and 4 x ntets) */
     unsigned char *inc_corner;  /* per node-tet incidence: the node's corner in the tet */
     int *inc_block;             /* per incidence, for each corner q: the block's position in the
@@ -64,7 +62,10 @@ typedef struct sq_lod_tables {
     double *tet_geom;           /* per tet: volume (m^3) and the 4 basis gradients (1/m) (13) */
 } sq_lod_tables;
 
-/* a level's coupling cache: the element blocks of the mixed tets, the ring and frontier rows built from them (with their previous build, for an incremental one), their column forms and the column-form rows of K (coupling.c builds them; reserve.c maps them ahead; tick.c's krow fills rows on first use) */
+/* a level's coupling cache: the element blocks of the mixed tets, the ring and frontier rows built
+ * from them (with their previous build, for an incremental one), their column forms and the
+ * column-form rows of K (coupling.c builds them; reserve.c maps them ahead; tick.c's krow fills
+ * rows on first use) */
 typedef struct sq_lod_coupling_cache {
     int *blocks_slot;           /* cache slot of a tet's element blocks, or -1 (ntets) */
     double **blocks_chunk;      /* 16 blocks of 9 per slot (x 2 with viscosity: the viscous ones
@@ -131,7 +132,8 @@ typedef struct sq_lod_coupling_cache {
     int front_merged2_cap;
 } sq_lod_coupling_cache;
 
-/* a level's clock within the frame, its rates, and the tick's scratch: d + b v, the hot ring list (tick.c; the substep exponent and row sums by coupling.c's bound) */
+/* a level's clock within the frame, its rates, and the tick's scratch: d + b v, the hot ring list
+ * (tick.c; the substep exponent and row sums by coupling.c's bound) */
 typedef struct sq_lod_tick_state {
     int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
                                  * level in hot_mask read: those evaluated between two steps of the
@@ -156,7 +158,9 @@ typedef struct sq_lod_tick_state {
     double *coupled_rowsum;     /* row sums of the coupling handed to each node, N/m (n) */
 } sq_lod_tick_state;
 
-/* a level's layout: which node is active, which a ghost, the ring and its active sources, the frontier (states set by criterion.c and guard.c, the lists rebuilt by state.c's sq_lodx_rebuild_level, the sources by ring.c, hold_of by holds.c) */
+/* a level's layout: which node is active, which a ghost, the ring and its active sources, the
+ * frontier (states set by criterion.c and guard.c, the lists rebuilt by state.c's
+ * sq_lodx_rebuild_level, the sources by ring.c, hold_of by holds.c) */
 typedef struct sq_lod_layout {
     /* --- the layout: which node is active, which a ghost (rebuilt by sq_lodx_rebuild_level) */
     unsigned char *state;       /* ST_ACTIVE, ST_SPLIT or ST_COARSE of each node (n) */
@@ -183,7 +187,8 @@ typedef struct sq_lod_layout {
     int *hold_of;               /* hold entry of a node, or -1 (n) */
 } sq_lod_layout;
 
-/* a level's index lists, so a frame's cost follows the active set, and the needed set kept by counts (activeset.c) */
+/* a level's index lists, so a frame's cost follows the active set, and the needed set kept by
+ * counts (activeset.c) */
 typedef struct sq_lod_lists {
     /* --- index lists (activeset.c), so a frame's cost follows the active set, not the body */
     int *active_list;           /* active nodes, increasing (nactive) */
@@ -206,12 +211,16 @@ typedef struct sq_lod_lists {
     unsigned *push_stamp;       /* cascade a coarse ghost was last pushed at (n) */
 } sq_lod_lists;
 
+/* the adaptive state of one level. "n" is the level's node count; node values are in metres
+ * (displacements), m/s (velocities), N (forces); stiffness blocks are 3x3, N/m, row-major */
 typedef struct sq_lod_level {
-    sq_lod_layout lay;                   /* the layout: states, ghosts, ring, frontier, sources (state.c, criterion.c, ring.c) */
+    sq_lod_layout lay;                   /* the layout: states, ghosts, ring, frontier, sources
+                                          * (state.c, criterion.c, ring.c) */
     sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
     double *d_static;           /* static displacement under the body's gravity, m (n x 3);
                                  * NULL: judged from 0 */
-    sq_lod_tick_state tk;                /* the level's clock, rates and tick scratch (tick.c, coupling.c) */
+    sq_lod_tick_state tk;                /* the level's clock, rates and tick scratch (tick.c,
+                                          * coupling.c) */
     sq_lod_coupling_cache cpl;           /* the coupling blocks and row caches (coupling.c) */
     sq_lod_lists lists;                  /* index lists and the needed set (activeset.c) */
     /* --- corotational elasticity (corotational.c), NULL for a linear level */
@@ -289,12 +298,14 @@ typedef struct sq_lod_holds {
 /* ghost values pushed on demand (activeset.c, state.c) */
 typedef struct sq_lod_push {
     int lists_dirty;                     /* read_list / needed out of date */
-    int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring, needed_top */
+    int needed_valid;                    /* the counts (ncnt) hold for seed_state, seed_ring,
+                                          * needed_top */
     int needed_top;
     long needed_counts[2];               /* needed sets made from scratch / by changes only */
     unsigned cascade_no;                 /* cascades run (the end-of-frame push counts one) */
     unsigned full_no;                    /* the last one that pushed every coarse ghost */
-    int stale;                           /* coarse ghosts outside `needed` not pushed since the last frame */
+    int stale;                           /* coarse ghosts outside `needed` not pushed since the last
+                                          * frame */
 } sq_lod_push;
 
 /* the static equilibria the criterion judges the displacement from (activeset.c) */
