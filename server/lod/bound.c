@@ -147,7 +147,7 @@ static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
     if (n > 20 || n < 0)
         return; /* keep the Gershgorin substeps */
     S->nsub[k] = n;
-    lod->lev[k].tk.extra_log2 = n - lod->lv[k].substeps_log2;
+    lod->lev[k].rate.extra_log2 = n - lod->lv[k].substeps_log2;
     if (sq_debug()->sharp_trace)
         fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps%s, 2^%d", k,
                 lod->lev[k].lay.nactive, w2, S->gersh[k], S->iters[k],
@@ -208,8 +208,8 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         for (int i = 1; i < lod->L; i++)
             for (int j = i; j > 0; j--) {
                 int a = order[j - 1], b = order[j];
-                double ua = ldexp((double)lod->lev[a].lay.nactive, lod->lv[a].substeps_log2 + lod->lev[a].tk.extra_log2);
-                double ub = ldexp((double)lod->lev[b].lay.nactive, lod->lv[b].substeps_log2 + lod->lev[b].tk.extra_log2);
+                double ua = ldexp((double)lod->lev[a].lay.nactive, lod->lv[a].substeps_log2 + lod->lev[a].rate.extra_log2);
+                double ub = ldexp((double)lod->lev[b].lay.nactive, lod->lv[b].substeps_log2 + lod->lev[b].rate.extra_log2);
                 if (ub > ua) {
                     order[j - 1] = b;
                     order[j] = a;
@@ -229,7 +229,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         unsigned long long key = level_key(lod, S, k);
         if (S->have_key[k] && S->key[k] == key) {
             if (S->nsub[k] >= 0)
-                lod->lev[k].tk.extra_log2 = S->nsub[k] - lod->lv[k].substeps_log2;
+                lod->lev[k].rate.extra_log2 = S->nsub[k] - lod->lv[k].substeps_log2;
             S->skipped++;
             continue;
         }
@@ -242,7 +242,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
             S->late++;
             if (sq_debug()->sharp_trace)
                 fprintf(stderr, "sharp L%d: %d active, not made by its deadline (%d steps): Gershgorin 2^%d, owed\n",
-                        k, lod->lev[k].lay.nactive, S->iters[k], lod->lv[k].substeps_log2 + lod->lev[k].tk.extra_log2);
+                        k, lod->lev[k].lay.nactive, S->iters[k], lod->lv[k].substeps_log2 + lod->lev[k].rate.extra_log2);
         }
     }
     S->cpu_s += sq_thread_cpu() - t0;

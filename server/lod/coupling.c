@@ -501,26 +501,26 @@ static void own_rows(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
         const sq_level *L = &lod->lv[k];
-        if (!lod->lev[k].tk.own_rowsum)
-            lod->lev[k].tk.own_rowsum = sq_malloc(sizeof(double) * (size_t)L->model.n);
+        if (!lod->lev[k].rate.own_rowsum)
+            lod->lev[k].rate.own_rowsum = sq_malloc(sizeof(double) * (size_t)L->model.n);
         const sq_lod *like = lod->like;
         if (like && k < like->L && like->lv[k].model.K == L->model.K && like->lv[k].model.n == L->model.n &&
-            like->lv[k].model.mass == L->model.mass && like->lev[k].tk.own_rowsum) {
-            memcpy(lod->lev[k].tk.own_rowsum, like->lev[k].tk.own_rowsum, sizeof(double) * (size_t)L->model.n);
-            lod->lev[k].tk.own_rate = like->lev[k].tk.own_rate;
+            like->lv[k].model.mass == L->model.mass && like->lev[k].rate.own_rowsum) {
+            memcpy(lod->lev[k].rate.own_rowsum, like->lev[k].rate.own_rowsum, sizeof(double) * (size_t)L->model.n);
+            lod->lev[k].rate.own_rate = like->lev[k].rate.own_rate;
             continue;
         }
         for (int i = 0; i < L->model.n; i++) {
             double s = 0;
             for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++)
                 s += block_norm(L->model.K + 9 * (size_t)q);
-            lod->lev[k].tk.own_rowsum[i] = s;
+            lod->lev[k].rate.own_rowsum[i] = s;
         }
         double own = 0;
         for (int i = 0; i < L->model.n; i++)
             if (L->model.fixed[i] != 7)
-                own = fmax(own, lod->lev[k].tk.own_rowsum[i] / L->model.mass[i]);
-        lod->lev[k].tk.own_rate = own;
+                own = fmax(own, lod->lev[k].rate.own_rowsum[i] / L->model.mass[i]);
+        lod->lev[k].rate.own_rate = own;
     }
 }
 
@@ -533,9 +533,9 @@ static void coupling_bound(sq_lod *lod)
 {
     int L = lod->L;
     for (int k = 0; k < L; k++) {
-        if (!lod->lev[k].tk.coupled_rowsum)
-            lod->lev[k].tk.coupled_rowsum = sq_malloc(sizeof(double) * (size_t)lod->lv[k].model.n);
-        memset(lod->lev[k].tk.coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].model.n);
+        if (!lod->lev[k].rate.coupled_rowsum)
+            lod->lev[k].rate.coupled_rowsum = sq_malloc(sizeof(double) * (size_t)lod->lv[k].model.n);
+        memset(lod->lev[k].rate.coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].model.n);
     }
     for (int m = 0; m < L; m++) {
         /* level m's lists in locals (the row-sum stores would make the compiler reload them) */
@@ -547,7 +547,7 @@ static void coupling_bound(sq_lod *lod)
         const double *src_weight = lm->lay.src_weight, *ring_K = lm->cpl.ring_K;
         double *rowsum[SQ_MAX_LEVELS];
         for (int k = 0; k < L; k++)
-            rowsum[k] = lod->lev[k].tk.coupled_rowsum;
+            rowsum[k] = lod->lev[k].rate.coupled_rowsum;
         /* the sum of |weights| of each ring ghost's sources, once per ghost (a ghost is a column
          * of about ten ring rows) */
         if (nring > lod->cpl.abs_cap) {
@@ -581,17 +581,17 @@ static void coupling_bound(sq_lod *lod)
     }
     for (int k = 0; k < L; k++) {
         const sq_level *Lk = &lod->lv[k];
-        double own = lod->lev[k].tk.own_rate, coupled = 0;
+        double own = lod->lev[k].rate.own_rate, coupled = 0;
         for (int a = 0; a < lod->lev[k].lay.nactive; a++) {
             int i = lod->lev[k].lists.active_list[a];
             if (Lk->model.fixed[i] == 7)
                 continue;
-            coupled = fmax(coupled, (lod->lev[k].tk.own_rowsum[i] + lod->lev[k].tk.coupled_rowsum[i]) / Lk->model.mass[i]);
+            coupled = fmax(coupled, (lod->lev[k].rate.own_rowsum[i] + lod->lev[k].rate.coupled_rowsum[i]) / Lk->model.mass[i]);
         }
         int extra = 0;
         if (own > 0 && coupled > own)
             extra = (int)ceil(0.5 * log2(coupled / own) - 1e-12);
-        lod->lev[k].tk.extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
+        lod->lev[k].rate.extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
     }
     sq_lodx_sharp_bound(lod); /* with "step_bound": "sharp", the Lanczos substeps instead */
 }

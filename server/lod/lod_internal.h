@@ -132,8 +132,18 @@ typedef struct sq_lod_coupling_cache {
     int front_merged2_cap;
 } sq_lod_coupling_cache;
 
-/* a level's clock within the frame, its rates, and the tick's scratch: d + b v, the hot ring list
- * (tick.c; the substep exponent and row sums by coupling.c's bound) */
+/* a level's step bound: its substep exponent beyond its own bound and the row sums it is
+ * made from (coupling.c's coupled bound; bound.c's sharp rule sets the exponent) */
+typedef struct sq_lod_rates {
+    int extra_log2;             /* extra substep exponent: the coupling stiffens the nodes near
+                                 * an interface beyond the level's own bound (coupling_bound) */
+    double *own_rowsum;         /* Gershgorin row sums of the level's own K, N/m (n) */
+    double own_rate;            /* largest own_rowsum / mass over the free nodes, 1/s^2 */
+    double *coupled_rowsum;     /* row sums of the coupling handed to each node, N/m (n) */
+} sq_lod_rates;
+
+/* a level's clock within the frame and the tick's scratch: d + b v, the hot ring list (tick.c;
+ * the clock set up by frame.c's layout stage and state.c's reset) */
 typedef struct sq_lod_tick_state {
     int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
                                  * level in hot_mask read: those evaluated between two steps of the
@@ -151,11 +161,6 @@ typedef struct sq_lod_tick_state {
     double *d_start, *v_start;  /* d (m), v (m/s) at the start of the level's last step, read by
                                  * levels stepping between its steps (n x 3) */
     long step_start, step_len;  /* tick its last step started at, and its length in ticks */
-    int extra_log2;             /* extra substep exponent: the coupling stiffens the nodes near
-                                 * an interface beyond the level's own bound (coupling_bound) */
-    double *own_rowsum;         /* Gershgorin row sums of the level's own K, N/m (n) */
-    double own_rate;            /* largest own_rowsum / mass over the free nodes, 1/s^2 */
-    double *coupled_rowsum;     /* row sums of the coupling handed to each node, N/m (n) */
 } sq_lod_tick_state;
 
 /* a level's layout: which node is active, which a ghost, the ring and its active sources, the
@@ -219,8 +224,8 @@ typedef struct sq_lod_level {
     sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
     double *d_static;           /* static displacement under the body's gravity, m (n x 3);
                                  * NULL: judged from 0 */
-    sq_lod_tick_state tk;                /* the level's clock, rates and tick scratch (tick.c,
-                                          * coupling.c) */
+    sq_lod_tick_state tk;                /* the level's clock and tick scratch (tick.c) */
+    sq_lod_rates rate;                   /* the level's step bound (coupling.c, bound.c) */
     sq_lod_coupling_cache cpl;           /* the coupling blocks and row caches (coupling.c) */
     sq_lod_lists lists;                  /* index lists and the needed set (activeset.c) */
     /* --- corotational elasticity (corotational.c), NULL for a linear level */
@@ -365,7 +370,7 @@ struct sq_lod {
 /* substep exponent a level runs at in the adaptive frame */
 static inline int sub_log2(const sq_lod *lod, int k)
 {
-    return lod->lv[k].substeps_log2 + lod->lev[k].tk.extra_log2;
+    return lod->lv[k].substeps_log2 + lod->lev[k].rate.extra_log2;
 }
 
 /* position of column j in CSR row i of the mesh adjacency (sorted), or -1 */

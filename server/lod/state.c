@@ -424,8 +424,8 @@ void sq_lod_destroy(sq_lod *lod)
         free(lod->lev[k].lay.src_levels);
         free(lod->lev[k].cpl.ring_off);
         free(lod->lev[k].lay.ring_index);
-        free(lod->lev[k].tk.own_rowsum);
-        free(lod->lev[k].tk.coupled_rowsum);
+        free(lod->lev[k].rate.own_rowsum);
+        free(lod->lev[k].rate.coupled_rowsum);
         free(lod->lev[k].cpl.ring_col);
         free(lod->lev[k].cpl.front_col);
         free(lod->lev[k].lay.frontier);

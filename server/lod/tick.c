@@ -98,7 +98,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
         /* finer levels read this level between its steps */
         sq_lodx_save_prev(lod, k);
         if (lod->lev[k].lay.nintegrated > 0) {
-            double dtk = lod->lev[k].tk.extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
+            double dtk = lod->lev[k].rate.extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
             if (lod->lev[k].lay.nintegrated == Lk->model.n)
                 sq_level_integrate(Lk, dtk, NULL);
             else

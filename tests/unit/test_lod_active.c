@@ -283,13 +283,13 @@ static int same_level(const sq_lod *a, const sq_lod *b, int k)
 #define SAME(p, cnt) ((cnt) == 0 || !memcmp((x->p), (y->p), sizeof(*(x->p)) * (size_t)(cnt)))
     if (x->lay.nring != y->lay.nring || x->lay.nfrontier != y->lay.nfrontier || x->lay.nactive != y->lay.nactive ||
         x->lists.ninner_list != y->lists.ninner_list || x->lists.nintegrated_list != y->lists.nintegrated_list ||
-        x->lists.nread_list != y->lists.nread_list || x->lists.nneeded != y->lists.nneeded || x->tk.extra_log2 != y->tk.extra_log2 ||
+        x->lists.nread_list != y->lists.nread_list || x->lists.nneeded != y->lists.nneeded || x->rate.extra_log2 != y->rate.extra_log2 ||
         x->cpl.blocks_dirty != y->cpl.blocks_dirty)
         return 0;
     int ok = SAME(lay.state, n) && SAME(lay.ring, x->lay.nring) && SAME(lay.ring_index, n) && SAME(lay.frontier, x->lay.nfrontier) &&
              SAME(lay.inner, n) && SAME(lists.active_list, x->lay.nactive) && SAME(lists.inner_list, x->lists.ninner_list) &&
              SAME(lists.integrated_list, x->lists.nintegrated_list) && SAME(lists.read_list, x->lists.nread_list) &&
-             SAME(lists.needed, x->lists.nneeded) && SAME(tk.coupled_rowsum, n);
+             SAME(lists.needed, x->lists.nneeded) && SAME(rate.coupled_rowsum, n);
     ok = ok && SAME(lay.src_start, x->lay.nring + 1) && SAME(lay.src_levels, x->lay.nring);
     int ns = x->lay.src_start[x->lay.nring];
     ok = ok && SAME(lay.src_level, ns) && SAME(lay.src_node, ns) && SAME(lay.src_weight, ns) && SAME(lay.src_rend, ns);

@@ -289,7 +289,7 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
         lmaj_k[k] = lmaj;
         int iters = 0;
         CHECK(sq_lod_sharp_info(lod, k, &lest, &gersh, &iters) == 1);
-        int sub = lv[k].substeps_log2 + lod->lev[k].tk.extra_log2;
+        int sub = lv[k].substeps_log2 + lod->lev[k].rate.extra_log2;
         double dt = 0.02 / ldexp(1.0, sub), dt_true = 2 / sqrt(lkk);
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "level %d (%d dofs): lambda block %.6g, majorant %.6g, estimate %.6g (/block %.4f, "
@@ -330,14 +330,14 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     {
         int sub_full[3], nstop = 0;
         for (int k = 0; k < 3; k++)
-            sub_full[k] = lv[k].substeps_log2 + lod->lev[k].tk.extra_log2;
+            sub_full[k] = lv[k].substeps_log2 + lod->lev[k].rate.extra_log2;
         sq_lodx_sharp_invalidate(lod);
         sq_lodx_coupling_bound(lod);
         for (int k = 0; k < 3; k++) {
             double lest = 0, gersh = 0;
             int iters = 0;
             CHECK(sq_lod_sharp_info(lod, k, &lest, &gersh, &iters) == 1);
-            CHECK(lv[k].substeps_log2 + lod->lev[k].tk.extra_log2 == sub_full[k]);
+            CHECK(lv[k].substeps_log2 + lod->lev[k].rate.extra_log2 == sub_full[k]);
             CHECK(lest >= lmaj_k[k] * (1 - 1e-9));
             if (lest == gersh && iters < 16) {
                 nstop++;
@@ -345,7 +345,7 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
             }
             if (getenv("SQ_LOD_VERBOSE"))
                 fprintf(stderr, "early stop: level %d: %d steps, estimate %.6g (ceiling %.6g), 2^%d (full run 2^%d)\n",
-                        k, iters, lest, gersh, lv[k].substeps_log2 + lod->lev[k].tk.extra_log2, sub_full[k]);
+                        k, iters, lest, gersh, lv[k].substeps_log2 + lod->lev[k].rate.extra_log2, sub_full[k]);
         }
         CHECK(nstop >= 1);
     }
@@ -430,7 +430,7 @@ SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
     CHECK(sq_lod_sharp_info(lod, 2, &lest, &gersh, &iters) == 1);
     double l400 = sq_level_lanczos_max(&lv[2], 400);
     CHECK(sq_level_choose_step_sharp(&lv[2], &mat, 0.02, 0.9, 40, &e) == 0);
-    int sub = lv[2].substeps_log2 + lod->lev[2].tk.extra_log2;
+    int sub = lv[2].substeps_log2 + lod->lev[2].rate.extra_log2;
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "forced finest: estimate %.8g, fixed Lanczos (400 steps) %.8g (ratio %.8f), %d steps; "
                 "2^%d substeps, fixed sharp %d, Gershgorin 2^%d\n", lest, l400, lest / l400, iters, sub, lv[2].nsub,
@@ -479,9 +479,9 @@ SQ_TEST(lod_sharp_estimate_past_its_deadline_keeps_gershgorin_until_made)
     CHECK(late == 3 && later == 0);
     int more = 0;
     for (int k = 0; k < 3; k++) {
-        int s0 = lv[0][k].substeps_log2 + lod[0]->lev[k].tk.extra_log2;
-        int s1 = lv[1][k].substeps_log2 + lod[1]->lev[k].tk.extra_log2;
-        int s2 = lv[2][k].substeps_log2 + lod[2]->lev[k].tk.extra_log2;
+        int s0 = lv[0][k].substeps_log2 + lod[0]->lev[k].rate.extra_log2;
+        int s1 = lv[1][k].substeps_log2 + lod[1]->lev[k].rate.extra_log2;
+        int s2 = lv[2][k].substeps_log2 + lod[2]->lev[k].rate.extra_log2;
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "level %d: sharp 2^%d, past its deadline 2^%d, Gershgorin 2^%d\n", k, s0, s1, s2);
         CHECK(s1 == s2);
@@ -503,7 +503,7 @@ SQ_TEST(lod_sharp_estimate_past_its_deadline_keeps_gershgorin_until_made)
         CHECK(sq_lod_sharp_info(lod[0], k, &l0, &g0, &i0) == 1);
         CHECK(sq_lod_sharp_info(lod[1], k, &l1, &g1, &i1) == 1);
         CHECK(l0 == l1 && g0 == g1 && i0 == i1 && l0 > 0);
-        CHECK(lod[0]->lev[k].tk.extra_log2 == lod[1]->lev[k].tk.extra_log2);
+        CHECK(lod[0]->lev[k].rate.extra_log2 == lod[1]->lev[k].rate.extra_log2);
     }
     for (int c = 0; c < 3; c++) {
         sq_lod_destroy(lod[c]);

@@ -425,7 +425,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     int levels_active = 0, ext0[3];
     for (int k = 0; k < 3; k++) {
         levels_active += lod->lev[k].lay.nactive > 0;
-        ext0[k] = lod->lev[k].tk.extra_log2;
+        ext0[k] = lod->lev[k].rate.extra_log2;
     }
     CHECK(levels_active >= 2);
     long calls0, calls1, calls2;
@@ -438,7 +438,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod_sharp_cost(lod, &calls1, &cpu);
     int same1 = 1;
     for (int k = 0; k < 3; k++)
-        same1 &= lod->lev[k].tk.extra_log2 == ext0[k];
+        same1 &= lod->lev[k].rate.extra_log2 == ext0[k];
     sq_lodx_sharp_invalidate(lod);
     for (int k = 0; k < 3; k++)
         sq_lodx_rebuild_level(lod, k);
@@ -447,7 +447,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod_sharp_cost(lod, &calls2, &cpu);
     int same2 = 1;
     for (int k = 0; k < 3; k++)
-        same2 &= lod->lev[k].tk.extra_log2 == ext0[k];
+        same2 &= lod->lev[k].rate.extra_log2 == ext0[k];
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "sharp skip: %d levels active; unchanged rebuild %ld estimates, invalidated %ld\n",
                 levels_active, calls1 - calls0, calls2 - calls1);
