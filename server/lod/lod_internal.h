@@ -23,12 +23,12 @@ typedef struct sq_lod_test {
                              * activeset.c; the reference the incremental rebuild is checked
                              * against) */
     long guard_resplit;     /* regions the guard merged that were split again within their rest
-                             * (frame.c; tests: 0) */
+                             * (guard.c; tests: 0) */
 } sq_lod_test;
 
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
 /* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (frame.c,
- * activeset.c): neither read as active nor as split nor as a coarse ghost, so the node is
+ * guard.c): neither read as active nor as split nor as a coarse ghost, so the node is
  * neither split nor merged (its value is read as it is stored, as for an active or split node) */
 enum { ST_RESTING = 3, ST_LIMITED_ACTIVE = 4, ST_LIMITED_SPLIT = 5 };
 #define SQ_BLOCKS_CHUNK 1024  /* element-block cache slots per chunk (1.2 MB, 2.4 viscous) */
@@ -232,7 +232,7 @@ typedef struct sq_lod_level {
     sq_lod_corot *corot;
 } sq_lod_level;
 
-/* a learned cost's robust state (frame.c, sq_lodx_learn): `base` is the decaying maximum of
+/* a learned cost's robust state (guard.c, sq_lodx_learn): `base` is the decaying maximum of
  * the measurements that were not isolated outliers; `since` counts the measurements since the
  * last outlier (0: none within SPIKE_WINDOW), `peak` that outlier's measurement */
 typedef struct {
@@ -244,8 +244,8 @@ typedef struct {
 /* the guaranteed frame rate's state (docs/lod.md "Guaranteed frame rate"): the cost model,
  * learned by frame.c's stages through guard.c, and the rests of the regions the guard merged */
 typedef struct sq_lod_guard {
-    /* cost model of the guaranteed frame rate (frame.c, docs/lod.md "Guaranteed frame rate"):
-     * thread CPU s, each a maximum over the last measurements that decays by 10 % a frame (a
+    /* cost model of the guaranteed frame rate (frame.c measures, guard.c models; docs/lod.md
+     * "Guaranteed frame rate"): thread CPU s, each a maximum over the last measurements that decays by 10 % a frame (a
      * frame after a rebuild costs more per update than a quiet one) */
     double last_time;                    /* CPU time of the previous frame, s */
     double cost_update;                  /* per node update of the ticks (ghost values, forces,
@@ -260,7 +260,7 @@ typedef struct sq_lod_guard {
     double cost_bound;                   /* a pass's coupled bound (Gershgorin, sharp), s */
     double cost_outside;                 /* the thread's time between two frames (the body's
                                           * work around the lod frame), at most a quarter period, s */
-    /* each learned term's robust state (frame.c, sq_lodx_learn): a measurement above
+    /* each learned term's robust state (guard.c, sq_lodx_learn): a measurement above
      * SPIKE_FACTOR x the term is an outlier, held to that bound unless another comes soon */
     sq_cost_track tr_update, tr_fixed, tr_outside, tr_couple, tr_bound;
     sq_cost_track tr_level[SQ_MAX_LEVELS], tr_blocks[SQ_MAX_LEVELS], tr_block_change[SQ_MAX_LEVELS];
