@@ -17,7 +17,9 @@
  * The row and integration kernels repeat the arithmetic of level/level.c's masked passes
  * (same operations in the same order), so trajectories are unchanged.
  */
-#include "lod/lod_internal.h"
+#include "lod/activeset.h"
+#include "lod/corotational.h"
+#include "lod/lod_vec.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -54,15 +56,15 @@ void sq_lodx_level_lists(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     int ni = 0;
-    const unsigned char *inner = lk->inner;
-    for (int r = 0; r < lk->nactive; r++) {
-        int i = lk->active_list[r];
+    const unsigned char *inner = lk->lay.inner;
+    for (int r = 0; r < lk->lay.nactive; r++) {
+        int i = lk->lists.active_list[r];
         if (inner[i])
-            lk->inner_list[ni++] = i;
+            lk->lists.inner_list[ni++] = i;
     }
-    lk->ninner_list = ni;
-    lod->lists_dirty = 1;
-    lod->gen++;
+    lk->lists.ninner_list = ni;
+    lod->push.lists_dirty = 1;
+    lod->view.gen++;
     sq_lodx_mask_list(lod, k);
 }
 
@@ -70,20 +72,20 @@ void sq_lodx_mask_list(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     int nm = 0;
-    const unsigned char *mask = lk->integrated;
-    for (int r = 0; r < lk->nactive; r++) {
-        int i = lk->active_list[r];
+    const unsigned char *mask = lk->lay.integrated;
+    for (int r = 0; r < lk->lay.nactive; r++) {
+        int i = lk->lists.active_list[r];
         if (mask[i])
-            lk->integrated_list[nm++] = i;
+            lk->lists.integrated_list[nm++] = i;
     }
-    lk->nintegrated_list = nm;
+    lk->lists.nintegrated_list = nm;
 }
 
-/* add node i of level k to a list once (marks in lod->lev[k].mark) */
+/* add node i of level k to a list once (marks in lod->lev[k].lists.mark) */
 static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 {
-    if (!lod->lev[k].mark[i]) {
-        lod->lev[k].mark[i] = 1;
+    if (!lod->lev[k].lists.mark[i]) {
+        lod->lev[k].lists.mark[i] = 1;
         list[(*n)++] = i;
     }
 }
@@ -92,9 +94,9 @@ static inline void add_once(sq_lod *lod, int k, int i, int *list, int *n)
 static void need_node(sq_lod *lod, int k, int j)
 {
     sq_lod_level *lk;
-    while (k >= 1 && (lk = &lod->lev[k])->state[j] == ST_COARSE && !lk->in_needed[j]) {
-        lk->in_needed[j] = 1;
-        lk->needed[lk->nneeded++] = j;
+    while (k >= 1 && (lk = &lod->lev[k])->lay.state[j] == ST_COARSE && !lk->lists.in_needed[j]) {
+        lk->lists.in_needed[j] = 1;
+        lk->lists.needed[lk->lists.nneeded++] = j;
         const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
         for (int q = 0; q < 3; q++)
             need_node(lod, k - 1, tn[q]);
@@ -119,33 +121,33 @@ void sq_lodx_refresh_lists(sq_lod *lod)
     int L = lod->L;
     /* read_list: sources of every ring ghost (any level), active columns of each level's ring rows */
     for (int m = 0; m < L; m++)
-        lod->lev[m].nread_list = 0;
+        lod->lev[m].lists.nread_list = 0;
     for (int k = 0; k < L; k++) {
-        int ns = lod->lev[k].src_start[lod->lev[k].nring];
+        int ns = lod->lev[k].lay.src_start[lod->lev[k].lay.nring];
         for (int q = 0; q < ns; q++) {
-            int m = lod->lev[k].src_level[q];
-            add_once(lod, m, lod->lev[k].src_node[q], lod->lev[m].read_list, &lod->lev[m].nread_list);
+            int m = lod->lev[k].lay.src_level[q];
+            add_once(lod, m, lod->lev[k].lay.src_node[q], lod->lev[m].lists.read_list, &lod->lev[m].lists.nread_list);
         }
-        if (!lod->lev[k].blocks_dirty && lod->lev[k].ring_col) {
-            int ne = lod->lev[k].ring_off[lod->lev[k].nring];
+        if (!lod->lev[k].cpl.blocks_dirty && lod->lev[k].cpl.ring_col) {
+            int ne = lod->lev[k].cpl.ring_off[lod->lev[k].lay.nring];
             for (int e = 0; e < ne; e++) {
-                int l = lod->lev[k].ring_col[e];
-                if (lod->lev[k].active[l])
-                    add_once(lod, k, l, lod->lev[k].read_list, &lod->lev[k].nread_list);
+                int l = lod->lev[k].cpl.ring_col[e];
+                if (lod->lev[k].lay.active[l])
+                    add_once(lod, k, l, lod->lev[k].lists.read_list, &lod->lev[k].lists.nread_list);
             }
         }
     }
     for (int m = 0; m < L; m++) {
-        sort_marked(lod->lev[m].read_list, lod->lev[m].nread_list, lod->lev[m].mark, lod->lv[m].model.n);
-        for (int r = 0; r < lod->lev[m].nread_list; r++)
-            lod->lev[m].mark[lod->lev[m].read_list[r]] = 0;
+        sort_marked(lod->lev[m].lists.read_list, lod->lev[m].lists.nread_list, lod->lev[m].lists.mark, lod->lv[m].model.n);
+        for (int r = 0; r < lod->lev[m].lists.nread_list; r++)
+            lod->lev[m].lists.mark[lod->lev[m].lists.read_list[r]] = 0;
     }
 
     if (lod->test.full_rebuild)
         needed_full(lod);
     else
         needed_counted(lod);
-    lod->lists_dirty = 0;
+    lod->push.lists_dirty = 0;
 }
 
 /* the needed set from scratch, by a walk from everything that is read (the reference the
@@ -155,22 +157,22 @@ static void needed_full(sq_lod *lod)
     int L = lod->L, F = L - 1;
     /* clear the previous set, then mark what is read */
     for (int k = 0; k < L; k++) {
-        for (int r = 0; r < lod->lev[k].nneeded; r++)
-            lod->lev[k].in_needed[lod->lev[k].needed[r]] = 0;
-        lod->lev[k].nneeded = 0;
+        for (int r = 0; r < lod->lev[k].lists.nneeded; r++)
+            lod->lev[k].lists.in_needed[lod->lev[k].lists.needed[r]] = 0;
+        lod->lev[k].lists.nneeded = 0;
     }
     const sq_mesh *fm = lod->lv[F].model.mesh;
     for (int s = 0; s < fm->nsurf; s++)
         need_node(lod, F, fm->surf_nodes[s]); /* the rendered surface, tool holds */
     for (int k = 0; k < L; k++)
-        for (int r = 0; r < lod->lev[k].nring; r++)
-            need_node(lod, k, lod->lev[k].ring[r]); /* a ring ghost without sources keeps its push */
+        for (int r = 0; r < lod->lev[k].lay.nring; r++)
+            need_node(lod, k, lod->lev[k].lay.ring[r]); /* a ring ghost without sources keeps its push */
     for (int k = 0; k + 1 < L; k++) {
         const sq_lod_link *ln = &lod->h.link[k];
         /* split ghosts are pulled from their child tets; active nodes may split (their child
          * tets are read then, and their children start from their parent tets) */
-        for (int r = 0; r < lod->lev[k].nsplit_ghost; r++) {
-            int i = lod->lev[k].split_ghost[r];
+        for (int r = 0; r < lod->lev[k].lay.nsplit_ghost; r++) {
+            int i = lod->lev[k].lay.split_ghost[r];
             need_tet(lod, k + 1, ln->down_tet[i]);
             for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
                 need_tet(lod, k, ln->up_tet[ln->child[c]]);
@@ -182,21 +184,21 @@ static void needed_full(sq_lod *lod)
             }
         }
         if (k < lod->top)
-            for (int r = 0; r < lod->lev[k].nactive; r++) {
-                int i = lod->lev[k].active_list[r];
+            for (int r = 0; r < lod->lev[k].lay.nactive; r++) {
+                int i = lod->lev[k].lists.active_list[r];
                 need_tet(lod, k + 1, ln->down_tet[i]);
                 for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++)
                     need_tet(lod, k, ln->up_tet[ln->child[c]]);
             }
     }
     for (int k = 0; k < L; k++)
-        sort_marked(lod->lev[k].needed, lod->lev[k].nneeded, lod->lev[k].in_needed, lod->lv[k].model.n);
+        sort_marked(lod->lev[k].lists.needed, lod->lev[k].lists.nneeded, lod->lev[k].lists.in_needed, lod->lv[k].model.n);
     /* the counts no longer describe this set */
-    lod->needed_valid = 0;
+    lod->push.needed_valid = 0;
     for (int k = 0; k < L; k++) {
-        for (int c = 0; c < lod->lev[k].nschg; c++)
-            lod->lev[k].schg_mark[lod->lev[k].schg[c]] = 0;
-        lod->lev[k].nschg = 0;
+        for (int c = 0; c < lod->lev[k].lists.nschg; c++)
+            lod->lev[k].lists.schg_mark[lod->lev[k].lists.schg[c]] = 0;
+        lod->lev[k].lists.nschg = 0;
     }
 }
 
@@ -214,11 +216,11 @@ static void count_node(sq_lod *lod, int k, int j, int d);
 static void fix_node(sq_lod *lod, int k, int j)
 {
     sq_lod_level *lk = &lod->lev[k];
-    unsigned char want = lk->state[j] == ST_COARSE && lk->ncnt[j] > 0;
-    if (want == lk->in_needed[j])
+    unsigned char want = lk->lay.state[j] == ST_COARSE && lk->lists.ncnt[j] > 0;
+    if (want == lk->lists.in_needed[j])
         return;
-    lk->in_needed[j] = want;
-    lk->nneeded += want ? 1 : -1;
+    lk->lists.in_needed[j] = want;
+    lk->lists.nneeded += want ? 1 : -1;
     const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * lod->h.link[k - 1].up_tet[j];
     for (int q = 0; q < 4; q++)
         count_node(lod, k - 1, tn[q], want ? 1 : -1);
@@ -228,7 +230,7 @@ static void count_node(sq_lod *lod, int k, int j, int d)
 {
     if (k < 1)
         return; /* level 0 has no coarse ghosts */
-    lod->lev[k].ncnt[j] += d;
+    lod->lev[k].lists.ncnt[j] += d;
     fix_node(lod, k, j);
 }
 
@@ -260,242 +262,113 @@ static void needed_counted(sq_lod *lod)
     int L = lod->L, F = L - 1;
     long nchg = 0, ntot = 0;
     for (int k = 0; k < L; k++) {
-        nchg += lod->lev[k].nschg;
+        nchg += lod->lev[k].lists.nschg;
         ntot += lod->lv[k].model.n;
     }
-    if (!lod->needed_valid || lod->needed_top != lod->top || nchg * 8 > ntot) {
+    if (!lod->push.needed_valid || lod->push.needed_top != lod->top || nchg * 8 > ntot) {
         /* from scratch: every seed counted once */
-        lod->needed_counts[0]++;
+        lod->push.needed_counts[0]++;
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
             int n = lod->lv[k].model.n;
-            memset(lk->ncnt, 0, sizeof(int) * (size_t)n);
-            memset(lk->in_needed, 0, (size_t)n);
-            lk->nneeded = 0;
+            memset(lk->lists.ncnt, 0, sizeof(int) * (size_t)n);
+            memset(lk->lists.in_needed, 0, (size_t)n);
+            lk->lists.nneeded = 0;
         }
         const sq_mesh *fm = lod->lv[F].model.mesh;
         for (int s = 0; s < fm->nsurf; s++)
             count_node(lod, F, fm->surf_nodes[s], 1);
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
-            for (int r = 0; r < lk->nsplit_ghost; r++)
-                count_seeds(lod, k, lk->split_ghost[r], ST_SPLIT, 1);
-            for (int r = 0; r < lk->nactive; r++)
-                count_seeds(lod, k, lk->active_list[r], ST_ACTIVE, 1);
+            for (int r = 0; r < lk->lay.nsplit_ghost; r++)
+                count_seeds(lod, k, lk->lay.split_ghost[r], ST_SPLIT, 1);
+            for (int r = 0; r < lk->lay.nactive; r++)
+                count_seeds(lod, k, lk->lists.active_list[r], ST_ACTIVE, 1);
         }
     } else {
         /* the new seeds in first, then the old ones out (no count drops to zero on the way
          * when a seed stays) */
-        lod->needed_counts[1]++;
+        lod->push.needed_counts[1]++;
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
-            for (int c = 0; c < lk->nschg; c++)
-                count_seeds(lod, k, lk->schg[c], lk->state[lk->schg[c]], 1);
-            for (int r = 0; r < lk->nring; r++)
-                count_node(lod, k, lk->ring[r], 1);
+            for (int c = 0; c < lk->lists.nschg; c++)
+                count_seeds(lod, k, lk->lists.schg[c], lk->lay.state[lk->lists.schg[c]], 1);
+            for (int r = 0; r < lk->lay.nring; r++)
+                count_node(lod, k, lk->lay.ring[r], 1);
         }
         for (int k = 0; k < L; k++) {
             sq_lod_level *lk = &lod->lev[k];
-            for (int c = 0; c < lk->nschg; c++)
-                count_seeds(lod, k, lk->schg[c], lk->seed_state[lk->schg[c]], -1);
-            for (int r = 0; r < lk->nseed_ring; r++)
-                count_node(lod, k, lk->seed_ring[r], -1);
+            for (int c = 0; c < lk->lists.nschg; c++)
+                count_seeds(lod, k, lk->lists.schg[c], lk->lists.seed_state[lk->lists.schg[c]], -1);
+            for (int r = 0; r < lk->lists.nseed_ring; r++)
+                count_node(lod, k, lk->lists.seed_ring[r], -1);
             /* a change of state alone (coarse ghost or not) changes the status */
-            for (int c = 0; c < lk->nschg; c++)
+            for (int c = 0; c < lk->lists.nschg; c++)
                 if (k >= 1)
-                    fix_node(lod, k, lk->schg[c]);
+                    fix_node(lod, k, lk->lists.schg[c]);
         }
         /* the ring seeds were counted above; fall through to the common end */
         goto lists;
     }
     for (int k = 0; k < L; k++)
-        for (int r = 0; r < lod->lev[k].nring; r++)
-            count_node(lod, k, lod->lev[k].ring[r], 1); /* a ring ghost without sources keeps its push */
+        for (int r = 0; r < lod->lev[k].lay.nring; r++)
+            count_node(lod, k, lod->lev[k].lay.ring[r], 1); /* a ring ghost without sources keeps its push */
 lists:
     for (int k = 0; k < L; k++) {
         sq_lod_level *lk = &lod->lev[k];
         int n = lod->lv[k].model.n;
-        if (lod->needed_valid && lod->needed_top == lod->top && nchg * 8 <= ntot)
-            for (int c = 0; c < lk->nschg; c++)
-                lk->seed_state[lk->schg[c]] = lk->state[lk->schg[c]];
+        if (lod->push.needed_valid && lod->push.needed_top == lod->top && nchg * 8 <= ntot)
+            for (int c = 0; c < lk->lists.nschg; c++)
+                lk->lists.seed_state[lk->lists.schg[c]] = lk->lay.state[lk->lists.schg[c]];
         else
-            memcpy(lk->seed_state, lk->state, (size_t)n);
-        for (int c = 0; c < lk->nschg; c++)
-            lk->schg_mark[lk->schg[c]] = 0;
-        lk->nschg = 0;
-        memcpy(lk->seed_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
-        lk->nseed_ring = lk->nring;
+            memcpy(lk->lists.seed_state, lk->lay.state, (size_t)n);
+        for (int c = 0; c < lk->lists.nschg; c++)
+            lk->lists.schg_mark[lk->lists.schg[c]] = 0;
+        lk->lists.nschg = 0;
+        memcpy(lk->lists.seed_ring, lk->lay.ring, sizeof(int) * (size_t)lk->lay.nring);
+        lk->lists.nseed_ring = lk->lay.nring;
         /* the list in increasing order, from the marks */
         int w = 0;
-        for (int i = 0; i < n && w < lk->nneeded; i++)
-            if (lk->in_needed[i])
-                lk->needed[w++] = i;
+        for (int i = 0; i < n && w < lk->lists.nneeded; i++)
+            if (lk->lists.in_needed[i])
+                lk->lists.needed[w++] = i;
     }
-    lod->needed_valid = 1;
-    lod->needed_top = lod->top;
+    lod->push.needed_valid = 1;
+    lod->push.needed_top = lod->top;
 }
 
-/* node i's row of K in column form (made on first use for the current material) */
-static const double *krow(sq_lod *lod, int k, int i)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_level_model *M = &lod->lv[k].model;
-    sq_lodx_krow_index(lk, M);
-    if (lk->krow_at[i] < 0) {
-        int len = M->row_start[i + 1] - M->row_start[i];
-        long CH = sq_lodx_krow_chunk_len(lk, M);
-        if (lk->krow_used % CH + len > CH) /* no straddling: the next chunk */
-            lk->krow_used += CH - lk->krow_used % CH;
-        if (lk->krow_used + len > lk->krow_cap) {
-            /* a new chunk; the ones made before are kept (after a material change they are
-             * reused from the first) */
-            int c = (int)(lk->krow_used / CH);
-            if (c >= lk->krow_nchunk) {
-                lk->krow_chunk = sq_realloc(lk->krow_chunk, sizeof(double *) * (size_t)(c + 1));
-                for (int q = lk->krow_nchunk; q <= c; q++)
-                    lk->krow_chunk[q] = sq_malloc(sizeof(double) * 12 * (size_t)CH);
-                lk->krow_grown += c + 1 - lk->krow_nchunk;
-                lk->krow_nchunk = c + 1;
-                lk->krow_mapped = 0; /* (the reserve maps its pages past the use) */
-            }
-            lk->krow_cap = (long)lk->krow_nchunk * CH;
-        }
-        long at = lk->krow_used;
-        sq_lodx_to_columns(M->K + 9 * (size_t)M->row_start[i], len, lk->krow_chunk[at / CH] + 12 * (size_t)(at % CH));
-        lk->krow_at[i] = (int)at;
-        lk->krow_used += len;
-    }
-    long at = lk->krow_at[i];
-    return lk->krow_chunk[at / lk->krow_chunk_len] + 12 * (size_t)(at % lk->krow_chunk_len);
-}
-
-/* forces of the inner active nodes of level k (no viscosity): sq_level_forces with the inner
- * mask, over the list; the rows in column form, the three rows of a block in the lanes of one
- * vector, each lane summed as sq_level_node_force's rows (same products and sums) */
-void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
-{
-    sq_level *L = &lod->lv[k];
-    const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
-    const double *restrict d = L->d, *restrict v = L->v;
-    const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
-    const int *il = lod->lev[k].inner_list, n = lod->lev[k].ninner_list;
-    const int *row_start = L->model.row_start, *col = L->model.col;
-    const double *mass = L->model.mass;
-    if (b != 0 && !lod->lev[k].w_ok) /* called outside the frame's tick */
-        sq_lodx_form_w(lod, mat, k);
-    const double *restrict W = lod->lev[k].w_tick; /* d + b v (sq_lodx_form_w) */
-    for (int r = 0; r < n; r++) {
-        const int i = il[r], e0 = row_start[i], e1 = row_start[i + 1];
-        const double *T = krow(lod, k, i);
-        sq_v4 acc = {0, 0, 0, 0};
-        if (b != 0) {
-            int e = e0;
-            for (; e + 1 < e1; e += 2, T += 24) { /* two blocks a turn, added in row order */
-                const sq_v4 x0 = v4_block_s(T, W + 3 * (size_t)col[e]);
-                const sq_v4 x1 = v4_block_s(T + 12, W + 3 * (size_t)col[e + 1]);
-                acc += x0;
-                acc += x1;
-            }
-            if (e < e1)
-                acc += v4_block_s(T, W + 3 * (size_t)col[e]);
-        } else /* sq_level_row reads d itself */
-            for (int e = e0; e < e1; e++, T += 12)
-                acc += v4_block(T, v4_load(d + 3 * (size_t)col[e]));
-        const double m = mass[i];
-        double *fi = L->f + 3 * (size_t)i;
-        fi[0] = m * (g0 - a * v[3 * i]) - acc[0];
-        fi[1] = m * (g1 - a * v[3 * i + 1]) - acc[1];
-        fi[2] = m * (g2 - a * v[3 * i + 2]) - acc[2];
-    }
-}
-
-void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_level *L = &lod->lv[k];
-    if (!lk->w_tick)
-        lk->w_tick = sq_calloc(3 * (size_t)L->model.n + 1, sizeof(double));
-    const sq_v4 bb = v4_set1(mat->rayleigh_stiffness);
-    const double *restrict d = L->d, *restrict v = L->v;
-    double *restrict W = lk->w_tick;
-    /* each component as the kernels formed it per block, d + b v; 4 lanes stored per node: the
-     * fourth is the next node's first component, from its current d and v too, so whatever
-     * order the nodes come in every stored value is that node's d + b v now (the arrays have
-     * one spare double after the last node) */
-    for (int r = 0; r < lk->nactive; r++) {
-        const size_t j = 3 * (size_t)lk->active_list[r];
-        const sq_v4 x = v4_load(d + j) + bb * v4_load(v + j);
-        memcpy(W + j, &x, sizeof x);
-    }
-    for (int r = 0; r < lk->nring; r++) {
-        const size_t j = 3 * (size_t)lk->ring[r];
-        const sq_v4 x = v4_load(d + j) + bb * v4_load(v + j);
-        memcpy(W + j, &x, sizeof x);
-    }
-}
-
-/* symplectic Euler of the listed nodes (sq_level_euler_node, as the level step) */
-void sq_lodx_integrate(sq_lod *lod, int k, double dt)
-{
-    sq_level *L = &lod->lv[k];
-    double *restrict d = L->d, *restrict v = L->v;
-    const double *restrict f = L->f;
-    const int *ml = lod->lev[k].integrated_list;
-    for (int r = 0; r < lod->lev[k].nintegrated_list; r++) {
-        int i = ml[r];
-        sq_level_euler_node(v, d, i, dt / L->model.mass[i], dt, f[3 * i], f[3 * i + 1], f[3 * i + 2],
-                            L->model.fixed[i]);
-    }
-}
-
-void sq_lodx_save_prev(sq_lod *lod, int k)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const double *d = lod->lv[k].d, *v = lod->lv[k].v;
-    double *dp = lk->d_start, *vp = lk->v_start;
-    const int n = lk->nread_list, *list = lk->read_list;
-    for (int r = 0; r < n; r++) {
-        size_t i = 3 * (size_t)list[r];
-        dp[i] = d[i];
-        dp[i + 1] = d[i + 1];
-        dp[i + 2] = d[i + 2];
-        vp[i] = v[i];
-        vp[i + 1] = v[i + 1];
-        vp[i + 2] = v[i + 2];
-    }
-}
 
 void sq_lodx_push_needed(sq_lod *lod)
 {
     int stale = 0;
-    unsigned no = ++lod->cascade_no;
+    unsigned no = ++lod->push.cascade_no;
     for (int k = 1; k < lod->L; k++) {
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
         const sq_level *src = &lod->lv[k - 1];
-        for (int r = 0; r < lod->lev[k].nneeded; r++) {
-            int j = lod->lev[k].needed[r];
+        for (int r = 0; r < lod->lev[k].lists.nneeded; r++) {
+            int j = lod->lev[k].lists.needed[r];
             interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
-            lod->lev[k].push_stamp[j] = no;
+            lod->lev[k].lists.push_stamp[j] = no;
         }
-        stale |= lod->lev[k].nneeded < lod->lev[k].ncoarse_ghost;
+        stale |= lod->lev[k].lists.nneeded < lod->lev[k].lay.ncoarse_ghost;
     }
-    lod->stale = stale;
+    lod->push.stale = stale;
 }
 
 void sq_lodx_save_cascade(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        int nr = lod->lev[k].nring;
-        if (nr > lod->lev[k].cascade_value_cap) {
-            lod->lev[k].cascade_value_cap = SQ_MAX(nr, 2 * lod->lev[k].cascade_value_cap);
-            lod->lev[k].cascade_value = sq_realloc(lod->lev[k].cascade_value,
-                                                   sizeof(double) * 6 * (size_t)lod->lev[k].cascade_value_cap);
+        int nr = lod->lev[k].lay.nring;
+        if (nr > lod->lev[k].lists.cascade_value_cap) {
+            lod->lev[k].lists.cascade_value_cap = SQ_MAX(nr, 2 * lod->lev[k].lists.cascade_value_cap);
+            lod->lev[k].lists.cascade_value = sq_realloc(lod->lev[k].lists.cascade_value,
+                                                   sizeof(double) * 6 * (size_t)lod->lev[k].lists.cascade_value_cap);
         }
         const double *d = lod->lv[k].d, *v = lod->lv[k].v;
         for (int r = 0; r < nr; r++) {
-            size_t j = 3 * (size_t)lod->lev[k].ring[r];
-            double *c = lod->lev[k].cascade_value + 6 * (size_t)r;
+            size_t j = 3 * (size_t)lod->lev[k].lay.ring[r];
+            double *c = lod->lev[k].lists.cascade_value + 6 * (size_t)r;
             c[0] = d[j];
             c[1] = d[j + 1];
             c[2] = d[j + 2];
@@ -511,16 +384,16 @@ void sq_lodx_save_cascade(sq_lod *lod)
  * values), the other corners are current (nothing changed them since the cascade) */
 void sq_lod_flush(sq_lod *lod)
 {
-    if (!lod || !lod->stale)
+    if (!lod || !lod->push.stale)
         return;
     for (int k = 1; k < lod->L; k++) {
         const sq_lod_link *ln = &lod->h.link[k - 1];
         sq_level *dst = &lod->lv[k];
         const sq_level *src = &lod->lv[k - 1];
-        const int *ri = lod->lev[k - 1].ring_index;
-        for (int r = 0; r < lod->lev[k].ncoarse_ghost; r++) {
-            int j = lod->lev[k].coarse_ghost[r];
-            if (lod->lev[k].push_stamp[j] == lod->cascade_no)
+        const int *ri = lod->lev[k - 1].lay.ring_index;
+        for (int r = 0; r < lod->lev[k].lay.ncoarse_ghost; r++) {
+            int j = lod->lev[k].lay.coarse_ghost[r];
+            if (lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no)
                 continue;
             const int *tn = src->model.mesh->tets + 4 * ln->up_tet[j];
             const double *b = ln->up_bary + 4 * j;
@@ -528,7 +401,7 @@ void sq_lod_flush(sq_lod *lod)
             for (int m = 0; m < 4; m++) {
                 const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
                 if (ri[tn[m]] >= 0) {
-                    sd = lod->lev[k - 1].cascade_value + 6 * (size_t)ri[tn[m]];
+                    sd = lod->lev[k - 1].lists.cascade_value + 6 * (size_t)ri[tn[m]];
                     sv = sd + 3;
                 }
                 for (int a = 0; a < 3; a++) {
@@ -544,7 +417,7 @@ void sq_lod_flush(sq_lod *lod)
             }
         }
     }
-    lod->stale = 0;
+    lod->push.stale = 0;
 }
 
 void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
@@ -552,7 +425,7 @@ void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
     const sq_level *Lk = &lod->lv[k];
     /* what sq_lod_flush leaves as it is: everything when nothing is stale, a node that is not a
      * coarse ghost, one the last cascade pushed */
-    if (!lod->stale || k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->lev[k].push_stamp[j] == lod->cascade_no) {
+    if (!lod->push.stale || k == 0 || lod->lev[k].lay.state[j] != ST_COARSE || lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         return;
     }
@@ -561,13 +434,13 @@ void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
     const sq_lod_link *ln = &lod->h.link[k - 1];
     const int *tn = lod->lv[k - 1].model.mesh->tets + 4 * ln->up_tet[j];
     const double *b = ln->up_bary + 4 * j;
-    const int *ri = lod->lev[k - 1].ring_index;
+    const int *ri = lod->lev[k - 1].lay.ring_index;
     double s[3] = {0, 0, 0};
     for (int m = 0; m < 4; m++) {
         double c[3];
         const double *sd = c;
         if (ri[tn[m]] >= 0)
-            sd = lod->lev[k - 1].cascade_value + 6 * (size_t)ri[tn[m]];
+            sd = lod->lev[k - 1].lists.cascade_value + 6 * (size_t)ri[tn[m]];
         else
             sq_lod_flushed_d(lod, k - 1, tn[m], c);
         for (int a = 0; a < 3; a++)
@@ -583,8 +456,8 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
     const sq_level *Lk = &lod->lv[k];
     /* a coarse ghost the last cascade did not push is always interpolated afresh (whether or
      * not a flush brought its stored value up to date), so a flush never changes the trajectory */
-    if (k == 0 || lod->lev[k].state[j] != ST_COARSE || lod->full_no == lod->cascade_no ||
-        lod->lev[k].push_stamp[j] == lod->cascade_no) {
+    if (k == 0 || lod->lev[k].lay.state[j] != ST_COARSE || lod->push.full_no == lod->push.cascade_no ||
+        lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no) {
         memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
         memcpy(v, Lk->v + 3 * (size_t)j, 3 * sizeof(double));
         return;
@@ -633,24 +506,24 @@ void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, con
 void sq_lodx_free(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
-    free(lk->krow_at);
-    free(lk->w_tick);
-    for (int c = 0; c < lk->krow_nchunk; c++)
-        free(lk->krow_chunk[c]);
-    free(lk->krow_chunk);
-    free(lk->active_list);
-    free(lk->inner_list);
-    free(lk->integrated_list);
-    free(lk->read_list);
-    free(lk->needed);
-    free(lk->in_needed);
-    free(lk->mark);
-    free(lk->cascade_value);
-    free(lk->push_stamp);
+    free(lk->cpl.krow_at);
+    free(lk->tk.w_tick);
+    for (int c = 0; c < lk->cpl.krow_nchunk; c++)
+        free(lk->cpl.krow_chunk[c]);
+    free(lk->cpl.krow_chunk);
+    free(lk->lists.active_list);
+    free(lk->lists.inner_list);
+    free(lk->lists.integrated_list);
+    free(lk->lists.read_list);
+    free(lk->lists.needed);
+    free(lk->lists.in_needed);
+    free(lk->lists.mark);
+    free(lk->lists.cascade_value);
+    free(lk->lists.push_stamp);
     free(lk->d_static);
-    free(lod->guard_hold[k]);
-    lod->guard_hold[k] = NULL;
-    free(lk->limited);
+    free(lod->guard.guard_hold[k]);
+    lod->guard.guard_hold[k] = NULL;
+    free(lk->lay.limited);
 }
 
 /* The criterion measures curvature of the displacement; a body sagging under its own weight
@@ -661,14 +534,14 @@ void sq_lodx_free(sq_lod *lod, int k)
  * body with no support has no equilibrium) is judged from zero displacement, as before. */
 void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
 {
-    if (lod->stat_done && lod->stat_k == lod->lv[0].model.K && !memcmp(lod->stat_g, gravity, sizeof lod->stat_g) &&
-        lod->stat_top == lod->top && (!lod->have_mat || !memcmp(&lod->stat_mat, &lod->mat, sizeof lod->mat)))
+    if (lod->statics.stat_done && lod->statics.stat_k == lod->lv[0].model.K && !memcmp(lod->statics.stat_g, gravity, sizeof lod->statics.stat_g) &&
+        lod->statics.stat_top == lod->top && (!lod->cpl.have_mat || !memcmp(&lod->statics.stat_mat, &lod->cpl.mat, sizeof lod->cpl.mat)))
         return;
-    lod->stat_done = 1;
-    lod->stat_top = lod->top;
-    lod->stat_mat = lod->mat;
-    lod->stat_k = lod->lv[0].model.K;
-    memcpy(lod->stat_g, gravity, sizeof lod->stat_g);
+    lod->statics.stat_done = 1;
+    lod->statics.stat_top = lod->top;
+    lod->statics.stat_mat = lod->cpl.mat;
+    lod->statics.stat_k = lod->lv[0].model.K;
+    memcpy(lod->statics.stat_g, gravity, sizeof lod->statics.stat_g);
     int loaded = gravity[0] != 0 || gravity[1] != 0 || gravity[2] != 0;
     for (int k = 0; k < lod->L; k++) {
         free(lod->lev[k].d_static);
@@ -700,20 +573,20 @@ void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gra
     lod->like = like; /* the own-operator row sums of levels over like's operator blocks: like's */
     sq_lod_set_material(lod, mat);
     lod->like = NULL;
-    int same = like && like->stat_done && like->L == lod->L && like->stat_top == lod->top &&
-               like->stat_k == lod->lv[0].model.K && !memcmp(like->stat_g, gravity, sizeof like->stat_g) &&
-               lod->have_mat && !memcmp(&like->stat_mat, &lod->mat, sizeof lod->mat);
+    int same = like && like->statics.stat_done && like->L == lod->L && like->statics.stat_top == lod->top &&
+               like->statics.stat_k == lod->lv[0].model.K && !memcmp(like->statics.stat_g, gravity, sizeof like->statics.stat_g) &&
+               lod->cpl.have_mat && !memcmp(&like->statics.stat_mat, &lod->cpl.mat, sizeof lod->cpl.mat);
     for (int k = 0; same && k < lod->L; k++)
         same = like->lv[k].model.K == lod->lv[k].model.K && !like->lv[k].corot == !lod->lv[k].corot;
     if (!same) {
         sq_lodx_static_loads(lod, gravity);
         return;
     }
-    lod->stat_done = 1;
-    lod->stat_top = like->stat_top;
-    lod->stat_mat = like->stat_mat;
-    lod->stat_k = like->stat_k;
-    memcpy(lod->stat_g, like->stat_g, sizeof lod->stat_g);
+    lod->statics.stat_done = 1;
+    lod->statics.stat_top = like->statics.stat_top;
+    lod->statics.stat_mat = like->statics.stat_mat;
+    lod->statics.stat_k = like->statics.stat_k;
+    memcpy(lod->statics.stat_g, like->statics.stat_g, sizeof lod->statics.stat_g);
     for (int k = 0; k < lod->L; k++) {
         free(lod->lev[k].d_static);
         lod->lev[k].d_static = NULL;
@@ -723,159 +596,4 @@ void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gra
             memcpy(lod->lev[k].d_static, like->lev[k].d_static, bytes);
         }
     }
-}
-
-/* ---------------------------------------------------------------- the guard's merges */
-
-double sq_lodx_need(const sq_lod *lod, int k, int p)
-{
-    const sq_lod_link *ln = &lod->h.link[k];
-    int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
-    if (c0 == c1)
-        return sq_lodx_delta(lod, k, p);
-    double m = 0;
-    for (int c = c0; c < c1; c++)
-        m = fmax(m, sq_lodx_delta(lod, k + 1, ln->child[c]));
-    return m;
-}
-
-typedef struct merge_cand {
-    double need;
-    int k, p;
-} merge_cand;
-
-/* least needed first; ties: finer level first, then node order (deterministic) */
-static int cmp_cand(const void *pa, const void *pb)
-{
-    const merge_cand *a = pa, *b = pb;
-    if (a->need != b->need)
-        return a->need < b->need ? -1 : 1;
-    if (a->k != b->k)
-        return a->k > b->k ? -1 : 1;
-    return (a->p > b->p) - (a->p < b->p);
-}
-
-long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out, int rest, long most)
-{
-    long made = 0;
-    while (*projected > cap && made < most) {
-        /* the regions mergeable now: split nodes whose children are all active */
-        long nc = 0, capc = 0;
-        merge_cand *cand = NULL;
-        for (int k = 0; k < lod->top; k++) {
-            const sq_lod_link *ln = &lod->h.link[k];
-            const sq_lod_level *lk = &lod->lev[k];
-            for (int a = 0; a < lk->nsplit_ghost; a++) {
-                int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
-                for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
-                    ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
-                if (!ok)
-                    continue;
-                if (nc == capc) {
-                    capc = SQ_MAX(2 * capc, 64L);
-                    cand = sq_realloc(cand, sizeof(merge_cand) * (size_t)capc);
-                }
-                cand[nc].need = sq_lodx_need(lod, k, p);
-                cand[nc].k = k;
-                cand[nc].p = p;
-                nc++;
-            }
-        }
-        if (nc > 0)
-            qsort(cand, (size_t)nc, sizeof(merge_cand), cmp_cand);
-        long before = made;
-        for (long c = 0; c < nc && *projected > cap && made < most; c++) {
-            int k = cand[c].k, p = cand[c].p;
-            const sq_lod_link *ln = &lod->h.link[k];
-            long nch = ln->child_start[p + 1] - ln->child_start[p];
-            sq_lodx_merge_node(lod, k, p);
-            *projected -= nch * (1L << sub_log2(lod, k + 1)) - (1L << sub_log2(lod, k));
-            if (!lod->guard_hold[k])
-                lod->guard_hold[k] = sq_calloc((size_t)lod->lv[k].model.n, sizeof(int));
-            lod->guard_hold[k][p] = (int)SQ_MIN(lod->guard_clock + rest, (long)1 << 30);
-            lod->guard_hold_until[k] = SQ_MAX(lod->guard_hold_until[k], lod->guard_hold[k][p]);
-            out->merges++;
-            out->changed[k] = out->changed[k + 1] = 1;
-            made++;
-        }
-        free(cand);
-        if (made == before)
-            break; /* nothing mergeable is left (every level at 0) */
-    }
-    lod->guard_merged_total += made;
-    return made;
-}
-
-/* ---------------------------------------------------------------- the guard's pass limit */
-
-typedef struct lim_cand {
-    double need;
-    int p, split; /* 1: an active node over the split threshold, 0: a mergeable split node */
-} lim_cand;
-
-/* merges first, least needed first; then splits, most needed first; ties in node order */
-static int cmp_lim(const void *pa, const void *pb)
-{
-    const lim_cand *a = pa, *b = pb;
-    if (a->split != b->split)
-        return a->split - b->split;
-    if (a->need != b->need)
-        return (a->split ? a->need > b->need : a->need < b->need) ? -1 : 1;
-    return (a->p > b->p) - (a->p < b->p);
-}
-
-long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_lod_link *ln = &lod->h.link[k];
-    const sq_lod_def *def = &lod->def;
-    lk->nlimited = 0;
-    if (def->split <= 0 || k >= lod->top)
-        return 0; /* forced finest: no criterion to rank by */
-    long nc = 0;
-    int n = lod->lv[k].model.n;
-    lim_cand *c = sq_malloc(sizeof(lim_cand) * (size_t)SQ_MAX(n, 1));
-    /* every active node, also those the pass of levels k-1, k made active just now (not in
-     * the active list yet) */
-    if (allow_split && def->split < INFINITY)
-        for (int i = 0; i < n; i++) {
-            if (lk->state[i] != ST_ACTIVE)
-                continue; /* ghost or resting */
-            double d = sq_lodx_delta(lod, k, i);
-            if (d > def->split)
-                c[nc++] = (lim_cand){d, i, 1};
-        }
-    for (int a = 0; a < lk->nsplit_ghost; a++) {
-        int p = lk->split_ghost[a], ok = lk->state[p] == ST_SPLIT;
-        for (int q = ln->child_start[p]; q < ln->child_start[p + 1] && ok; q++)
-            ok = lod->lev[k + 1].state[ln->child[q]] == ST_ACTIVE;
-        if (!ok)
-            continue;
-        double need = sq_lodx_need(lod, k, p);
-        if (need < def->merge)
-            c[nc++] = (lim_cand){need, p, 0};
-    }
-    if (nc <= most) {
-        free(c);
-        return 0;
-    }
-    qsort(c, (size_t)nc, sizeof(lim_cand), cmp_lim);
-    if (!lk->limited)
-        lk->limited = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
-    for (long q = SQ_MAX(most, 0L); q < nc; q++) {
-        lk->limited[lk->nlimited++] = c[q].p;
-        lk->state[c[q].p] = c[q].split ? ST_LIMITED_ACTIVE : ST_LIMITED_SPLIT;
-    }
-    free(c);
-    return lk->nlimited;
-}
-
-void sq_lodx_guard_limit_undo(sq_lod *lod, int k)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    for (int q = 0; q < lk->nlimited; q++) {
-        int p = lk->limited[q];
-        lk->state[p] = lk->state[p] == ST_LIMITED_ACTIVE ? ST_ACTIVE : ST_SPLIT;
-    }
-    lk->nlimited = 0;
 }

@@ -19,6 +19,9 @@
  * rows, and every level's ring rows with their sources, as the frame's step stage applies them.
  */
 #include "lod/lod.h"
+#include "lod/bound_internal.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -26,8 +29,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
-#include "lod/bound_internal.h"
 
 
 /* ---------------------------------------------------------------- skipping unchanged levels */
@@ -66,7 +67,7 @@ static unsigned long long mix_doubles(unsigned long long h, const double *a, lon
 static unsigned long long level_key(const sq_lod *lod, const struct lod_sharp *S, int k)
 {
     unsigned long long h = 0x243F6A8885A308D3ULL;
-    const sq_material *mt = &lod->mat;
+    const sq_material *mt = &lod->cpl.mat;
     const double mv[7] = {mt->mu, mt->lambda, mt->density, mt->rayleigh_mass, mt->rayleigh_stiffness,
                           mt->phi, mt->psi};
     h = mix_doubles(h, mv, 7);
@@ -76,23 +77,23 @@ static unsigned long long level_key(const sq_lod *lod, const struct lod_sharp *S
     h = mix(h, (unsigned long long)lod->lv[k].substeps_log2);
     h = mix(h, (unsigned long long)(uintptr_t)lod->lv[k].model.K);
     const sq_lod_level *lk = &lod->lev[k];
-    h = mix_ints(h, lk->active_list, lk->nactive);
-    h = mix_ints(h, lk->frontier, lk->nfrontier);
+    h = mix_ints(h, lk->lists.active_list, lk->lay.nactive);
+    h = mix_ints(h, lk->lay.frontier, lk->lay.nfrontier);
     for (int m = 0; m < lod->L; m++) {
         const sq_lod_level *lm = &lod->lev[m];
         int uses = 0;
-        for (int r = 0; r < lm->nring && !uses; r++)
-            uses = (lm->src_levels[r] & (1u << k)) != 0;
+        for (int r = 0; r < lm->lay.nring && !uses; r++)
+            uses = (lm->lay.src_levels[r] & (1u << k)) != 0;
         if (!uses)
             continue;
-        int ns = lm->src_start[lm->nring];
+        int ns = lm->lay.src_start[lm->lay.nring];
         h = mix(h, (unsigned long long)m);
-        h = mix_ints(h, lm->active_list, lm->nactive);
-        h = mix_ints(h, lm->ring, lm->nring);
-        h = mix_ints(h, lm->src_start, lm->nring + 1);
-        h = mix_ints(h, lm->src_level, ns);
-        h = mix_ints(h, lm->src_node, ns);
-        h = mix_doubles(h, lm->src_weight, ns);
+        h = mix_ints(h, lm->lists.active_list, lm->lay.nactive);
+        h = mix_ints(h, lm->lay.ring, lm->lay.nring);
+        h = mix_ints(h, lm->lay.src_start, lm->lay.nring + 1);
+        h = mix_ints(h, lm->lay.src_level, ns);
+        h = mix_ints(h, lm->lay.src_node, ns);
+        h = mix_doubles(h, lm->lay.src_weight, ns);
     }
     return h;
 }
@@ -107,11 +108,11 @@ void sq_lodx_sharp_invalidate(sq_lod *lod)
  * level with a source on it (their rows are read) */
 static double level_units(const sq_lod *lod, int k)
 {
-    long u = lod->lev[k].nactive;
+    long u = lod->lev[k].lay.nactive;
     for (int m = 0; m < lod->L; m++) {
         const sq_lod_level *lm = &lod->lev[m];
-        for (int r = 0; r < lm->nring; r++)
-            u += (lm->src_levels[r] >> k) & 1u;
+        for (int r = 0; r < lm->lay.nring; r++)
+            u += (lm->lay.src_levels[r] >> k) & 1u;
     }
     return (double)u;
 }
@@ -129,7 +130,7 @@ double sq_lodx_step_bound_of(const sq_material *mat, double w2)
 int sq_lodx_sharp_exponent(const sq_lod *lod, const struct lod_sharp *S, int k, double w2)
 {
     const sq_level *Lk = &lod->lv[k];
-    double bound = sq_lodx_step_bound_of(&lod->mat, w2);
+    double bound = sq_lodx_step_bound_of(&lod->cpl.mat, w2);
     double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
     int n = 0;
     while (n <= 20 && frame_dt / ldexp(1.0, n) > S->step_fraction * bound)
@@ -146,10 +147,10 @@ static void take_estimate(sq_lod *lod, struct lod_sharp *S, int k, double w2)
     if (n > 20 || n < 0)
         return; /* keep the Gershgorin substeps */
     S->nsub[k] = n;
-    lod->lev[k].extra_log2 = n - lod->lv[k].substeps_log2;
+    lod->lev[k].rate.extra_log2 = n - lod->lv[k].substeps_log2;
     if (sq_debug()->sharp_trace)
         fprintf(stderr, "sharp L%d: %d active, lambda %.6g, ceiling %.6g, %d steps%s, 2^%d", k,
-                lod->lev[k].nactive, w2, S->gersh[k], S->iters[k],
+                lod->lev[k].lay.nactive, w2, S->gersh[k], S->iters[k],
                 S->stopped[k] ? " (stopped: in the ceiling's bin)" : "", n);
 }
 
@@ -160,8 +161,8 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
     double units = SQ_MAX(level_units(lod, k), 1.0);
     /* warm (sq_lodx_sharp_estimate) when the last Ritz vector is nonzero on a node still active */
     int iters = ITERS_COLD;
-    for (int a = 0; S->ritz[k] && a < lod->lev[k].nactive && iters == ITERS_COLD; a++) {
-        const double *r = S->ritz[k] + 3 * (size_t)lod->lev[k].active_list[a];
+    for (int a = 0; S->ritz[k] && a < lod->lev[k].lay.nactive && iters == ITERS_COLD; a++) {
+        const double *r = S->ritz[k] + 3 * (size_t)lod->lev[k].lists.active_list[a];
         if (r[0] != 0 || r[1] != 0 || r[2] != 0)
             iters = ITERS_WARM;
     }
@@ -197,7 +198,7 @@ static int estimate_by(sq_lod *lod, struct lod_sharp *S, int k, double deadline)
 void sq_lodx_sharp_bound(sq_lod *lod)
 {
     struct lod_sharp *S = lod->sharp;
-    if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
+    if (!S || !S->on || !lod->cpl.have_mat || lod->cpl.mat.use_viscosity)
         return;
     double t0 = sq_thread_cpu();
     int order[SQ_MAX_LEVELS];
@@ -207,8 +208,8 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         for (int i = 1; i < lod->L; i++)
             for (int j = i; j > 0; j--) {
                 int a = order[j - 1], b = order[j];
-                double ua = ldexp((double)lod->lev[a].nactive, lod->lv[a].substeps_log2 + lod->lev[a].extra_log2);
-                double ub = ldexp((double)lod->lev[b].nactive, lod->lv[b].substeps_log2 + lod->lev[b].extra_log2);
+                double ua = ldexp((double)lod->lev[a].lay.nactive, lod->lv[a].substeps_log2 + lod->lev[a].rate.extra_log2);
+                double ub = ldexp((double)lod->lev[b].lay.nactive, lod->lv[b].substeps_log2 + lod->lev[b].rate.extra_log2);
                 if (ub > ua) {
                     order[j - 1] = b;
                     order[j] = a;
@@ -216,7 +217,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
             }
     for (int o = 0; o < lod->L; o++) {
         int k = order[o];
-        if (lod->lev[k].nactive == 0) {
+        if (lod->lev[k].lay.nactive == 0) {
             S->lambda[k] = S->gersh[k] = 0;
             S->have_key[k] = 0;
             S->owed[k] = 0;
@@ -228,7 +229,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
         unsigned long long key = level_key(lod, S, k);
         if (S->have_key[k] && S->key[k] == key) {
             if (S->nsub[k] >= 0)
-                lod->lev[k].extra_log2 = S->nsub[k] - lod->lv[k].substeps_log2;
+                lod->lev[k].rate.extra_log2 = S->nsub[k] - lod->lv[k].substeps_log2;
             S->skipped++;
             continue;
         }
@@ -241,7 +242,7 @@ void sq_lodx_sharp_bound(sq_lod *lod)
             S->late++;
             if (sq_debug()->sharp_trace)
                 fprintf(stderr, "sharp L%d: %d active, not made by its deadline (%d steps): Gershgorin 2^%d, owed\n",
-                        k, lod->lev[k].nactive, S->iters[k], lod->lv[k].substeps_log2 + lod->lev[k].extra_log2);
+                        k, lod->lev[k].lay.nactive, S->iters[k], lod->lv[k].substeps_log2 + lod->lev[k].rate.extra_log2);
         }
     }
     S->cpu_s += sq_thread_cpu() - t0;
@@ -256,12 +257,12 @@ void sq_lodx_sharp_deadline(sq_lod *lod, double cpu_deadline)
 int sq_lodx_sharp_owed(sq_lod *lod, double seconds)
 {
     struct lod_sharp *S = lod->sharp;
-    if (!S || !S->on || !lod->have_mat || lod->mat.use_viscosity)
+    if (!S || !S->on || !lod->cpl.have_mat || lod->cpl.mat.use_viscosity)
         return 0;
     double t0 = sq_thread_cpu(), deadline = isfinite(seconds) ? t0 + fmax(seconds, 1e-12) : 0;
     int made = 0;
     for (int k = 0; k < lod->L; k++) {
-        if (!S->owed[k] || !S->have_key[k] || lod->lev[k].nactive == 0)
+        if (!S->owed[k] || !S->have_key[k] || lod->lev[k].lay.nactive == 0)
             continue;
         /* the operator is the one the owed estimate was keyed on: a pass since would have
          * made the estimate again */
@@ -324,7 +325,7 @@ void sq_lod_set_step_rule(sq_lod *lod, int sharp, double step_fraction)
                 S->idx[k][i] = -1;
         }
     }
-    if (changed && lod->have_mat)
+    if (changed && lod->cpl.have_mat)
         sq_lodx_coupling_bound(lod); /* Gershgorin substeps, then the sharp ones if on */
 }
 

@@ -20,13 +20,15 @@
  * (sq_level_corot_step_forces), so those runs are the fixed runs bit for bit.
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/corotational.h"
+#include "lod/lod_vec.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 struct sq_lod_corot {
     int *tet, ntet;             /* tets touching an active node, increasing */
@@ -36,7 +38,7 @@ struct sq_lod_corot {
     int gf_cap;                 /* capacity of gf, ring ghosts */
     double *d0, *v0;            /* d (m), v (m/s) of the active corners of mixed tets at the start
                                  * of the level's last step (n x 3; only those nodes written) */
-    long gen;                   /* lod->gen the lists were built at */
+    long gen;                   /* lod->view.gen the lists were built at */
     double **dst;               /* per listed tet and corner: where its force goes (the node's f
                                  * if active, its ring ghost's gf, or NULL), made with the lists */
     int dst_cap;                /* capacity of dst, tets */
@@ -98,7 +100,7 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
         c->v0 = sq_calloc(3 * (size_t)L->model.n, sizeof(double));
         lk->corot = c;
     }
-    const unsigned char *act = lk->active;
+    const unsigned char *act = lk->lay.active;
     c->ntet = c->nmixed = 0;
     for (int t = 0; t < m->ntets; t++) {
         const int *tv = m->tets + 4 * (size_t)t;
@@ -112,8 +114,8 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
         }
         c->listed[t] = na > 0;
     }
-    if (lk->nring > c->gf_cap) {
-        c->gf_cap = SQ_MAX(lk->nring, 2 * c->gf_cap);
+    if (lk->lay.nring > c->gf_cap) {
+        c->gf_cap = SQ_MAX(lk->lay.nring, 2 * c->gf_cap);
         c->gf = sq_realloc(c->gf, sizeof(double) * 3 * (size_t)c->gf_cap);
     }
     /* the scatter's destinations, and the nodes whose start values the ticks between the
@@ -128,11 +130,11 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
     for (int e = 0; e < c->ntet; e++) {
         const int *tv = m->tets + 4 * (size_t)c->tet[e];
         for (int q = 0; q < 4; q++) {
-            int j = tv[q], r = lk->ring_index[j];
+            int j = tv[q], r = lk->lay.ring_index[j];
             c->dst[4 * (size_t)e + q] = act[j] ? f + 3 * (size_t)j : (r >= 0 ? c->gf + 3 * (size_t)r : NULL);
         }
     }
-    unsigned char *mark = lk->mark; /* all zero between uses */
+    unsigned char *mark = lk->lists.mark; /* all zero between uses */
     c->nmact = 0;
     for (int e = 0; e < c->nmixed; e++) {
         const int *tv = m->tets + 4 * (size_t)c->mixed[e];
@@ -144,13 +146,13 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
     }
     for (int x = 0; x < c->nmact; x++)
         mark[c->mact[x]] = 0;
-    c->gen = lod->gen;
+    c->gen = lod->view.gen;
 }
 
 void sq_lodx_corot_layout(sq_lod *lod, const sq_material *mat)
 {
     for (int k = 0; k < lod->L; k++)
-        if (lod->lv[k].corot && (!lod->lev[k].corot || lod->lev[k].corot->gen != lod->gen))
+        if (lod->lv[k].corot && (!lod->lev[k].corot || lod->lev[k].corot->gen != lod->view.gen))
             build_lists(lod, mat, k);
 }
 
@@ -160,7 +162,7 @@ static void gather(const sq_lod *lod, int k, int t, double fr, double d4[12], do
 {
     const sq_level *L = &lod->lv[k];
     const sq_lod_corot *c = lod->lev[k].corot;
-    const unsigned char *act = lod->lev[k].active;
+    const unsigned char *act = lod->lev[k].lay.active;
     const int *tv = L->model.mesh->tets + 4 * (size_t)t;
     for (int q = 0; q < 4; q++) {
         size_t j = 3 * (size_t)tv[q];
@@ -183,20 +185,20 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     sq_lod_level *lk = &lod->lev[k];
     sq_lod_corot *c = lk->corot;
     const sq_mesh *m = L->model.mesh;
-    if (lk->nactive == L->model.n && !lod->test.corot_tets_always) {
+    if (lk->lay.nactive == L->model.n && !lod->test.corot_tets_always) {
         /* no ghosts: the fixed step's pass */
         sq_level_corot_step_forces(L, mat, gravity);
         return;
     }
     const double a = mat->rayleigh_mass;
-    for (int r = 0; r < lk->nactive; r++) {
-        int i = lk->active_list[r];
+    for (int r = 0; r < lk->lay.nactive; r++) {
+        int i = lk->lists.active_list[r];
         const double mi = L->model.mass[i];
         for (int q = 0; q < 3; q++)
             L->f[3 * i + q] = mi * (gravity[q] - a * L->v[3 * i + q]);
     }
-    if (lk->nring > 0)
-        memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->nring);
+    if (lk->lay.nring > 0)
+        memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->lay.nring);
     /* start values of the active corners of mixed tets, read between this step's ticks */
     for (int x = 0; x < c->nmact; x++) {
         size_t j = 3 * (size_t)c->mact[x];
@@ -260,17 +262,17 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     sq_lod_corot *c = lk->corot;
     unsigned due_bits = 0;
     for (int m = 0; m < lod->L; m++)
-        due_bits |= lod->lev[m].due ? 1u << m : 0u;
+        due_bits |= lod->lev[m].tk.due ? 1u << m : 0u;
     int any = 0;
-    for (int r = 0; r < lk->nring && !any; r++)
-        any = (lk->src_levels[r] & due_bits) != 0;
+    for (int r = 0; r < lk->lay.nring && !any; r++)
+        any = (lk->lay.src_levels[r] & due_bits) != 0;
     if (!any)
         return 0;
-    if (!lk->due) {
+    if (!lk->tk.due) {
         /* between two of the level's steps: its mixed tets at this tick */
-        double fr = (double)(t - lk->step_start) / (double)lk->step_len;
+        double fr = (double)(t - lk->tk.step_start) / (double)lk->tk.step_len;
         fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
-        memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->nring);
+        memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->lay.nring);
         const int *tets = Lk->model.mesh->tets;
         for (int e = 0; e < c->nmixed; e += 4) {
             int t4[4];
@@ -287,7 +289,7 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
                 const int *tv = tets + 4 * (size_t)t4[l];
                 const double *f4 = F + 12 * l;
                 for (int q = 0; q < 4; q++) {
-                    int r = lk->active[tv[q]] ? -1 : lk->ring_index[tv[q]];
+                    int r = lk->lay.active[tv[q]] ? -1 : lk->lay.ring_index[tv[q]];
                     if (r < 0)
                         continue;
                     double *g = c->gf + 3 * (size_t)r;
@@ -301,10 +303,10 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     /* the ring ghosts' forces to their sources on the levels stepping now (as couple_out) */
     /* the lists in locals (the force stores would make the compiler reload them); the sources
      * one run per level (sorted by level), levels not stepping now skipped */
-    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
-    const unsigned char *src_levels = lk->src_levels, *fixed = Lk->model.fixed;
-    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
-    const double *fw = lk->src_weight, *gf = c->gf;
+    const int nring = lk->lay.nring, *ring = lk->lay.ring, *src_start = lk->lay.src_start;
+    const unsigned char *src_levels = lk->lay.src_levels, *fixed = Lk->model.fixed;
+    const int *fl = lk->lay.src_level, *fn = lk->lay.src_node, *rend = lk->lay.src_rend;
+    const double *fw = lk->lay.src_weight, *gf = c->gf;
     double *Fl[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++)
         Fl[m] = lod->lv[m].f;
@@ -344,7 +346,7 @@ double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)
         const sq_lod_level *lk = &lod->lev[k];
         const sq_mesh *m = L->model.mesh;
         for (int i = 0; i < L->model.n; i++)
-            if (lk->state[i] == ST_ACTIVE) {
+            if (lk->lay.state[i] == ST_ACTIVE) {
                 const double *v = L->v + 3 * (size_t)i;
                 ek += 0.5 * L->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             }
@@ -352,7 +354,7 @@ double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)
             continue;
         for (int t = 0; t < m->ntets; t++) {
             const int *tv = m->tets + 4 * (size_t)t;
-            int na = lk->active[tv[0]] + lk->active[tv[1]] + lk->active[tv[2]] + lk->active[tv[3]];
+            int na = lk->lay.active[tv[0]] + lk->lay.active[tv[1]] + lk->lay.active[tv[2]] + lk->lay.active[tv[3]];
             if (na == 0)
                 continue;
             double d4[12];
@@ -460,16 +462,16 @@ static int affine_ghost(const sq_lod *lod, int k, int r, int wide, aff_item **it
 {
     const sq_lod_level *lk = &lod->lev[k];
     const sq_mesh *mk = lod->lv[k].model.mesh;
-    int j = lk->ring[r], a = lk->src_start[r], b = lk->src_start[r + 1];
+    int j = lk->lay.ring[r], a = lk->lay.src_start[r], b = lk->lay.src_start[r + 1];
     if (a == b)
         return 0; /* no source: the ghost keeps its value and takes no force */
     const double *X = mk->x + 3 * (size_t)j;
     /* the residual of the current weights */
     double res[3] = {0, 0, 0}, h = 0;
     for (int q = a; q < b; q++) {
-        const double *P = lod->lv[lk->src_level[q]].model.mesh->x + 3 * (size_t)lk->src_node[q];
+        const double *P = lod->lv[lk->lay.src_level[q]].model.mesh->x + 3 * (size_t)lk->lay.src_node[q];
         for (int c = 0; c < 3; c++) {
-            res[c] += lk->src_weight[q] * (P[c] - X[c]);
+            res[c] += lk->lay.src_weight[q] * (P[c] - X[c]);
             h = fmax(h, fabs(P[c] - X[c]));
         }
     }
@@ -479,24 +481,24 @@ static int affine_ghost(const sq_lod *lod, int k, int r, int wide, aff_item **it
      * the sources' active neighbours on theirs) */
     int m = 0;
     for (int q = a; q < b; q++)
-        add_candidate(it, &m, cap, lk->src_level[q], lk->src_node[q]);
+        add_candidate(it, &m, cap, lk->lay.src_level[q], lk->lay.src_node[q]);
     for (int q = a; q < b; q++)
-        (*it)[q - a].w = lk->src_weight[q];
+        (*it)[q - a].w = lk->lay.src_weight[q];
     for (int e = mk->adj_start[j]; e < mk->adj_start[j + 1]; e++)
-        if (lk->active[mk->adj[e]])
+        if (lk->lay.active[mk->adj[e]])
             add_candidate(it, &m, cap, k, mk->adj[e]);
     for (int q = a; wide && q < b; q++) {
-        int ls = lk->src_level[q], s = lk->src_node[q];
+        int ls = lk->lay.src_level[q], s = lk->lay.src_node[q];
         const sq_mesh *ms = lod->lv[ls].model.mesh;
         for (int e = ms->adj_start[s]; e < ms->adj_start[s + 1]; e++)
-            if (lod->lev[ls].active[ms->adj[e]])
+            if (lod->lev[ls].lay.active[ms->adj[e]])
                 add_candidate(it, &m, cap, ls, ms->adj[e]);
     }
     for (int q = 0, m1 = m; wide > 1 && q < m1; q++) { /* a second ring: the candidates' active neighbours */
         int ls = (*it)[q].level, s = (*it)[q].node;
         const sq_mesh *ms = lod->lv[ls].model.mesh;
         for (int e = ms->adj_start[s]; e < ms->adj_start[s + 1]; e++)
-            if (lod->lev[ls].active[ms->adj[e]])
+            if (lod->lev[ls].lay.active[ms->adj[e]])
                 add_candidate(it, &m, cap, ls, ms->adj[e]);
     }
     /* smallest change d of the weights with [1; y_s] (w + d) = (1; 0), y_s = (P_s - X) / h */
@@ -545,22 +547,22 @@ void sq_lodx_corot_affine_sources(sq_lod *lod)
     int cap = 0;
     for (int k = 0; k < lod->L; k++) {
         sq_lod_level *lk = &lod->lev[k];
-        if (!lod->lv[k].corot || lk->nring == 0)
+        if (!lod->lv[k].corot || lk->lay.nring == 0)
             continue;
-        int ncap = SQ_MAX(2 * lk->src_start[lk->nring], 64);
+        int ncap = SQ_MAX(2 * lk->lay.src_start[lk->lay.nring], 64);
         int *nl = sq_malloc(sizeof(int) * (size_t)ncap), *nn = sq_malloc(sizeof(int) * (size_t)ncap);
         double *nw = sq_malloc(sizeof(double) * (size_t)ncap);
         int total = 0, prev = 0;
-        for (int r = 0; r < lk->nring; r++) {
-            int a = prev, b = lk->src_start[r + 1], n = 0;
+        for (int r = 0; r < lk->lay.nring; r++) {
+            int a = prev, b = lk->lay.src_start[r + 1], n = 0;
             prev = b;
             /* src_start[r] is rewritten below: the ghost's old range is [a, b) */
-            int save = lk->src_start[r];
-            lk->src_start[r] = a;
+            int save = lk->lay.src_start[r];
+            lk->lay.src_start[r] = a;
             int ok = 0;
             for (int wide = 0; wide < 3 && !ok; wide++)
                 ok = affine_ghost(lod, k, r, wide, &it, &n, &cap);
-            lk->src_start[r] = save;
+            lk->lay.src_start[r] = save;
             unsigned char bits = 0;
             if (total + SQ_MAX(n, b - a) > ncap) {
                 ncap = 2 * ncap + SQ_MAX(n, b - a);
@@ -578,24 +580,24 @@ void sq_lodx_corot_affine_sources(sq_lod *lod)
                 total += n;
             } else {
                 for (int q = a; q < b; q++) {
-                    nl[total] = lk->src_level[q];
-                    nn[total] = lk->src_node[q];
-                    nw[total] = lk->src_weight[q];
-                    bits |= (unsigned char)(1u << lk->src_level[q]);
+                    nl[total] = lk->lay.src_level[q];
+                    nn[total] = lk->lay.src_node[q];
+                    nw[total] = lk->lay.src_weight[q];
+                    bits |= (unsigned char)(1u << lk->lay.src_level[q]);
                     total++;
                 }
             }
-            lk->src_levels[r] = bits;
-            lk->src_start[r] = total - (ok ? n : b - a);
+            lk->lay.src_levels[r] = bits;
+            lk->lay.src_start[r] = total - (ok ? n : b - a);
         }
-        lk->src_start[lk->nring] = total;
-        free(lk->src_level);
-        free(lk->src_node);
-        free(lk->src_weight);
-        lk->src_level = nl;
-        lk->src_node = nn;
-        lk->src_weight = nw;
-        lk->src_cap = ncap;
+        lk->lay.src_start[lk->lay.nring] = total;
+        free(lk->lay.src_level);
+        free(lk->lay.src_node);
+        free(lk->lay.src_weight);
+        lk->lay.src_level = nl;
+        lk->lay.src_node = nn;
+        lk->lay.src_weight = nw;
+        lk->lay.src_cap = ncap;
     }
     free(it);
 }
@@ -741,7 +743,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
     const sq_level_model *M = &L->model;
     const sq_mesh *m = M->mesh;
     size_t n3 = 3 * (size_t)M->n;
-    if (!L->corot || !lod->have_mat)
+    if (!L->corot || !lod->cpl.have_mat)
         return -1;
     double *x = sq_malloc(sizeof(double) * n3), *r = sq_malloc(sizeof(double) * n3);
     double *dx = sq_malloc(sizeof(double) * n3);
@@ -786,7 +788,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
             double tr = G[0] + G[4] + G[8];
             for (int rr = 0; rr < 3; rr++)
                 for (int c = 0; c < 3; c++)
-                    S[3 * rr + c] = lod->mat.mu * (G[3 * rr + c] + G[3 * c + rr]) + (rr == c ? lod->mat.lambda * tr : 0);
+                    S[3 * rr + c] = lod->cpl.mat.mu * (G[3 * rr + c] + G[3 * c + rr]) + (rr == c ? lod->cpl.mat.lambda * tr : 0);
             for (int rr = 0; rr < 3; rr++)
                 for (int c = 0; c < 3; c++)
                     P[3 * rr + c] = a[12] * (R[3 * rr] * S[c] + R[3 * rr + 1] * S[3 + c] + R[3 * rr + 2] * S[6 + c]);
@@ -806,7 +808,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
             rc = 0;
             break;
         }
-        if (kr_solve(M, &lod->mat, tg, rot, r, 1e-2, dx) < 0)
+        if (kr_solve(M, &lod->cpl.mat, tg, rot, r, 1e-2, dx) < 0)
             break;
         for (size_t q = 0; q < n3; q++)
             x[q] += dx[q];

@@ -8,13 +8,16 @@
  * material change.
  */
 #include "lod/lod.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
+#include "lod/lod_vec.h"
+#include "lod/reserve.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- ring blocks */
 
@@ -43,33 +46,33 @@ static inline void axpy9(double *restrict dst, double w, const double *restrict 
 static const double *tet_blocks(sq_lod *lod, int k, int t, int visc)
 {
     sq_lod_level *lk = &lod->lev[k];
-    int sl = lk->blocks_slot[t];
+    int sl = lk->cpl.blocks_slot[t];
     size_t per = visc ? 288 : 144;
     if (sl >= 0)
-        return lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
-    if (lk->blocks_per != (int)per) { /* chunks made for the other slot size: made again */
-        for (int c = 0; c < lk->blocks_nchunk; c++)
-            free(lk->blocks_chunk[c]);
-        lk->blocks_nchunk = lk->blocks_cap = 0;
-        lk->blocks_per = (int)per;
+        return lk->cpl.blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
+    if (lk->cpl.blocks_per != (int)per) { /* chunks made for the other slot size: made again */
+        for (int c = 0; c < lk->cpl.blocks_nchunk; c++)
+            free(lk->cpl.blocks_chunk[c]);
+        lk->cpl.blocks_nchunk = lk->cpl.blocks_cap = 0;
+        lk->cpl.blocks_per = (int)per;
     }
-    if (lk->blocks_used == lk->blocks_cap) {
-        lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
-        lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
-        lk->blocks_cap += SQ_BLOCKS_CHUNK;
-        lk->blocks_mapped = 0; /* its pages mapped by the slots' first use or sq_lodx_reserve_blocks */
+    if (lk->cpl.blocks_used == lk->cpl.blocks_cap) {
+        lk->cpl.blocks_chunk = sq_realloc(lk->cpl.blocks_chunk, sizeof(double *) * (size_t)(lk->cpl.blocks_nchunk + 1));
+        lk->cpl.blocks_chunk[lk->cpl.blocks_nchunk++] = sq_malloc(sizeof(double) * per * SQ_BLOCKS_CHUNK);
+        lk->cpl.blocks_cap += SQ_BLOCKS_CHUNK;
+        lk->cpl.blocks_mapped = 0; /* its pages mapped by the slots' first use or sq_lodx_reserve_blocks */
     }
-    sl = lk->blocks_used++;
-    lk->blocks_slot[t] = sl;
-    double *E = lk->blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
+    sl = lk->cpl.blocks_used++;
+    lk->cpl.blocks_slot[t] = sl;
+    double *E = lk->cpl.blocks_chunk[sl / SQ_BLOCKS_CHUNK] + per * (size_t)(sl % SQ_BLOCKS_CHUNK);
     memset(E, 0, sizeof(double) * per);
-    const double *g = lk->tet_geom + 13 * (size_t)t;
-    const sq_material *mat = &lod->mat;
+    const double *g = lk->tab.tet_geom + 13 * (size_t)t;
+    const sq_material *mat = &lod->cpl.mat;
     for (int p = 0; p < 4; p++)
         for (int q = 0; q < 4; q++) {
-            sq_level_tet_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
+            sq_level_tet_block(lod->cpl.op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->mu, mat->lambda, E + 9 * (4 * p + q));
             if (visc)
-                sq_level_tet_block(lod->op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
+                sq_level_tet_block(lod->cpl.op, g[0], g + 1 + 3 * p, g + 1 + 3 * q, mat->phi, mat->psi,
                           E + 144 + 9 * (4 * p + q));
         }
     return E;
@@ -80,12 +83,12 @@ static void drop_tet_blocks(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
         /* and the column-form rows of the inner nodes (activeset.c) */
-        for (int i = 0; i < lod->lv[k].model.n && lod->lev[k].krow_used > 0 && lod->lev[k].krow_at; i++)
-            lod->lev[k].krow_at[i] = -1;
-        lod->lev[k].krow_used = 0;
-        for (int t = 0; t < lod->lv[k].model.mesh->ntets && lod->lev[k].blocks_used > 0; t++)
-            lod->lev[k].blocks_slot[t] = -1;
-        lod->lev[k].blocks_used = 0;
+        for (int i = 0; i < lod->lv[k].model.n && lod->lev[k].cpl.krow_used > 0 && lod->lev[k].cpl.krow_at; i++)
+            lod->lev[k].cpl.krow_at[i] = -1;
+        lod->lev[k].cpl.krow_used = 0;
+        for (int t = 0; t < lod->lv[k].model.mesh->ntets && lod->lev[k].cpl.blocks_used > 0; t++)
+            lod->lev[k].cpl.blocks_slot[t] = -1;
+        lod->lev[k].cpl.blocks_used = 0;
     }
 }
 
@@ -96,16 +99,16 @@ static inline void row_blocks(sq_lod *lod, int k, int c0, int c1, double weight,
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_mesh *m = lod->lv[k].model.mesh;
-    const unsigned char *act = lk->active;
+    const unsigned char *act = lk->lay.active;
     int visc = Bd != NULL;
     for (int c = c0; c < c1; c++) {
-        int t = lk->node_tet[c];
+        int t = lk->tab.node_tet[c];
         const int *tv = m->tets + 4 * t;
         int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
         if (na == 0 || na == 4)
             continue;
-        const double *E = tet_blocks(lod, k, t, visc) + 36 * lk->inc_corner[c];
-        const int *ev = lk->inc_block + 4 * (size_t)c;
+        const double *E = tet_blocks(lod, k, t, visc) + 36 * lk->tab.inc_corner[c];
+        const int *ev = lk->tab.inc_block + 4 * (size_t)c;
         for (int q = 0; q < 4; q++) {
             axpy9(B + 9 * ev[q], weight, E + 9 * q);
             if (visc)
@@ -130,8 +133,8 @@ static sq_operator_kind infer_op(const sq_lod *lod, const sq_material *mat)
     double err[2] = {0, 0};
     for (int o = 0; o < 2; o++) {
         row[o] = sq_calloc(9 * (size_t)n, sizeof(double));
-        for (int c = lod->lev[0].node_tet_start[i]; c < lod->lev[0].node_tet_start[i + 1]; c++) {
-            int t = lod->lev[0].node_tet[c];
+        for (int c = lod->lev[0].tab.node_tet_start[i]; c < lod->lev[0].tab.node_tet_start[i + 1]; c++) {
+            int t = lod->lev[0].tab.node_tet[c];
             double a[4][3];
             double V = sq_tet_gradients(m, t, a);
             int p = 0;
@@ -155,7 +158,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
                          double **bk, int *bk_cap, double **bd, int *bd_cap, double weight)
 {
     const sq_level *L = &lod->lv[k];
-    const sq_material *mat = &lod->mat;
+    const sq_material *mat = &lod->cpl.mat;
     int visc = mat->use_viscosity && L->model.D;
     int total = 0;
     for (int r = 0; r < nn; r++) {
@@ -181,7 +184,7 @@ static void build_blocks(sq_lod *lod, int k, const int *nodes, int nn, int *off,
         int j = nodes[r];
         double *B = *bk + 9 * (size_t)off[r];
         double *Bd = visc ? *bd + 9 * (size_t)off[r] : NULL;
-        row_blocks(lod, k, lod->lev[k].node_tet_start[j], lod->lev[k].node_tet_start[j + 1], weight, B, Bd);
+        row_blocks(lod, k, lod->lev[k].tab.node_tet_start[j], lod->lev[k].tab.node_tet_start[j + 1], weight, B, Bd);
     }
     /* keep the non-zero blocks only, with their column (the array only grows: a shrunk one
      * would be mapped again, page by page, by a later pass) */
@@ -225,7 +228,7 @@ static int build_blocks_incr(sq_lod *lod, int k, const int *nodes, int nn, const
                              double **bd, int *bd_cap, double weight, int *from)
 {
     const sq_level *L = &lod->lv[k];
-    const sq_material *mat = &lod->mat;
+    const sq_material *mat = &lod->cpl.mat;
     int visc = mat->use_viscosity && L->model.D;
     int total = 0, maxlen = 0;
     for (int r = 0; r < nn; r++) {
@@ -270,7 +273,7 @@ static int build_blocks_incr(sq_lod *lod, int k, const int *nodes, int nn, const
         memset(tk, 0, sizeof(double) * 9 * (size_t)len);
         if (visc)
             memset(td, 0, sizeof(double) * 9 * (size_t)len);
-        row_blocks(lod, k, lod->lev[k].node_tet_start[j], lod->lev[k].node_tet_start[j + 1], weight, tk, td);
+        row_blocks(lod, k, lod->lev[k].tab.node_tet_start[j], lod->lev[k].tab.node_tet_start[j + 1], weight, tk, td);
         for (int e = 0; e < len; e++) {
             const double *B = tk + 9 * (size_t)e;
             int nz = 0;
@@ -296,10 +299,10 @@ static void merged_row(const sq_lod *lod, int k, int r, int i, double *M)
     const sq_level *L = &lod->lv[k];
     int q0 = L->model.row_start[i], len = L->model.row_start[i + 1] - q0;
     memcpy(M, L->model.K + 9 * (size_t)q0, sizeof(double) * 9 * (size_t)len);
-    for (int e = lk->front_off[r]; e < lk->front_off[r + 1]; e++) {
-        int pos = adj_find(L->model.mesh, i, lk->front_col[e]) - q0;
+    for (int e = lk->cpl.front_off[r]; e < lk->cpl.front_off[r + 1]; e++) {
+        int pos = adj_find(L->model.mesh, i, lk->cpl.front_col[e]) - q0;
         for (int x = 0; x < 9; x++)
-            M[9 * pos + x] -= lk->front_K[9 * (size_t)e + x];
+            M[9 * pos + x] -= lk->cpl.front_K[9 * (size_t)e + x];
     }
 }
 
@@ -337,96 +340,96 @@ static void build_ring_blocks(sq_lod *lod, int k)
     const sq_level *L = &lod->lv[k];
     const sq_mesh *mesh = L->model.mesh;
     int n = L->model.n;
-    int incr = lk->blocks_valid && lk->prev_saved && !lod->test.full_rebuild && (long)lk->nchg * 8 < n;
-    lk->rows_built += lk->nring + lk->nfrontier;
+    int incr = lk->cpl.blocks_valid && lk->cpl.prev_saved && !lod->test.full_rebuild && (long)lk->cpl.nchg * 8 < n;
+    lk->cpl.rows_built += lk->lay.nring + lk->lay.nfrontier;
     if (!incr) {
-        build_blocks(lod, k, lk->ring, lk->nring, lk->ring_off, &lk->ring_col, &lk->ring_col_cap, &lk->ring_K,
-                     &lk->ring_K_cap, &lk->ring_D, &lk->ring_D_cap, MIXED_WEIGHT);
-        build_blocks(lod, k, lk->frontier, lk->nfrontier, lk->front_off, &lk->front_col, &lk->front_col_cap,
-                     &lk->front_K, &lk->front_K_cap, &lk->front_D, &lk->front_D_cap, 1.0 - MIXED_WEIGHT);
-        lk->rows_computed += lk->nring + lk->nfrontier;
+        build_blocks(lod, k, lk->lay.ring, lk->lay.nring, lk->cpl.ring_off, &lk->cpl.ring_col, &lk->cpl.ring_col_cap, &lk->cpl.ring_K,
+                     &lk->cpl.ring_K_cap, &lk->cpl.ring_D, &lk->cpl.ring_D_cap, MIXED_WEIGHT);
+        build_blocks(lod, k, lk->lay.frontier, lk->lay.nfrontier, lk->cpl.front_off, &lk->cpl.front_col, &lk->cpl.front_col_cap,
+                     &lk->cpl.front_K, &lk->cpl.front_K_cap, &lk->cpl.front_D, &lk->cpl.front_D_cap, 1.0 - MIXED_WEIGHT);
+        lk->cpl.rows_computed += lk->lay.nring + lk->lay.nfrontier;
     } else {
         /* rows with a tet that became mixed or stopped being mixed (a row sums the blocks of
          * its mixed tets in incidence order, so with the same mixed tets it is the same row):
          * only tets around a changed node can */
-        unsigned char *dirty = lk->mark;
-        const unsigned char *act = lk->active, *was = lk->blk_active;
-        for (int c = 0; c < lk->nchg; c++) {
-            int i = lk->chg[c];
-            for (int e = lk->node_tet_start[i]; e < lk->node_tet_start[i + 1]; e++) {
-                const int *tv = mesh->tets + 4 * lk->node_tet[e];
+        unsigned char *dirty = lk->lists.mark;
+        const unsigned char *act = lk->lay.active, *was = lk->cpl.blk_active;
+        for (int c = 0; c < lk->cpl.nchg; c++) {
+            int i = lk->cpl.chg[c];
+            for (int e = lk->tab.node_tet_start[i]; e < lk->tab.node_tet_start[i + 1]; e++) {
+                const int *tv = mesh->tets + 4 * lk->tab.node_tet[e];
                 int na = act[tv[0]] + act[tv[1]] + act[tv[2]] + act[tv[3]];
                 int nw = was[tv[0]] + was[tv[1]] + was[tv[2]] + was[tv[3]];
                 if ((na > 0 && na < 4) != (nw > 0 && nw < 4))
                     dirty[tv[0]] = dirty[tv[1]] = dirty[tv[2]] = dirty[tv[3]] = 1;
             }
         }
-        int *from = sq_malloc(sizeof(int) * (size_t)SQ_MAX(SQ_MAX(lk->nring, lk->nfrontier), 1));
-        int redone = build_blocks_incr(lod, k, lk->ring, lk->nring, lk->prev_ring, lk->nprev_ring, dirty,
-                                       lk->ring_off, lk->ring_col, lk->ring_K, lk->ring_D, lk->ring_off2,
-                                       &lk->ring_col2, &lk->ring_col2_cap, &lk->ring_K2, &lk->ring_K2_cap,
-                                       &lk->ring_D2, &lk->ring_D2_cap, MIXED_WEIGHT, from);
-        SWAP(int *, lk->ring_off, lk->ring_off2);
-        SWAP(int *, lk->ring_col, lk->ring_col2);
-        SWAP(int, lk->ring_col_cap, lk->ring_col2_cap);
-        SWAP(double *, lk->ring_K, lk->ring_K2);
-        SWAP(int, lk->ring_K_cap, lk->ring_K2_cap);
-        SWAP(double *, lk->ring_D, lk->ring_D2);
-        SWAP(int, lk->ring_D_cap, lk->ring_D2_cap);
+        int *from = sq_malloc(sizeof(int) * (size_t)SQ_MAX(SQ_MAX(lk->lay.nring, lk->lay.nfrontier), 1));
+        int redone = build_blocks_incr(lod, k, lk->lay.ring, lk->lay.nring, lk->cpl.prev_ring, lk->cpl.nprev_ring, dirty,
+                                       lk->cpl.ring_off, lk->cpl.ring_col, lk->cpl.ring_K, lk->cpl.ring_D, lk->cpl.ring_off2,
+                                       &lk->cpl.ring_col2, &lk->cpl.ring_col2_cap, &lk->cpl.ring_K2, &lk->cpl.ring_K2_cap,
+                                       &lk->cpl.ring_D2, &lk->cpl.ring_D2_cap, MIXED_WEIGHT, from);
+        SWAP(int *, lk->cpl.ring_off, lk->cpl.ring_off2);
+        SWAP(int *, lk->cpl.ring_col, lk->cpl.ring_col2);
+        SWAP(int, lk->cpl.ring_col_cap, lk->cpl.ring_col2_cap);
+        SWAP(double *, lk->cpl.ring_K, lk->cpl.ring_K2);
+        SWAP(int, lk->cpl.ring_K_cap, lk->cpl.ring_K2_cap);
+        SWAP(double *, lk->cpl.ring_D, lk->cpl.ring_D2);
+        SWAP(int, lk->cpl.ring_D_cap, lk->cpl.ring_D2_cap);
         /* the column forms likewise: a copied row's from the previous ones (ring_off2 now) */
         {
-            double *T = col_room(&lk->ring_T2, &lk->ring_T2_cap, lk->ring_off[lk->nring]);
-            for (int r = 0; r < lk->nring; r++) {
-                int b0 = lk->ring_off[r], nb = lk->ring_off[r + 1] - b0;
+            double *T = col_room(&lk->cpl.ring_T2, &lk->cpl.ring_T2_cap, lk->cpl.ring_off[lk->lay.nring]);
+            for (int r = 0; r < lk->lay.nring; r++) {
+                int b0 = lk->cpl.ring_off[r], nb = lk->cpl.ring_off[r + 1] - b0;
                 if (from[r] >= 0)
-                    memcpy(T + 12 * (size_t)b0, lk->ring_T + 12 * (size_t)lk->ring_off2[from[r]],
+                    memcpy(T + 12 * (size_t)b0, lk->cpl.ring_T + 12 * (size_t)lk->cpl.ring_off2[from[r]],
                            sizeof(double) * 12 * (size_t)nb);
                 else
-                    to_columns(lk->ring_K + 9 * (size_t)b0, nb, T + 12 * (size_t)b0);
+                    to_columns(lk->cpl.ring_K + 9 * (size_t)b0, nb, T + 12 * (size_t)b0);
             }
-            SWAP(double *, lk->ring_T, lk->ring_T2);
-            SWAP(int, lk->ring_T_cap, lk->ring_T2_cap);
+            SWAP(double *, lk->cpl.ring_T, lk->cpl.ring_T2);
+            SWAP(int, lk->cpl.ring_T_cap, lk->cpl.ring_T2_cap);
         }
-        redone += build_blocks_incr(lod, k, lk->frontier, lk->nfrontier, lk->prev_frontier, lk->nprev_frontier,
-                                    dirty, lk->front_off, lk->front_col, lk->front_K, lk->front_D, lk->front_off2,
-                                    &lk->front_col2, &lk->front_col2_cap, &lk->front_K2, &lk->front_K2_cap,
-                                    &lk->front_D2, &lk->front_D2_cap, 1.0 - MIXED_WEIGHT, from);
-        SWAP(int *, lk->front_off, lk->front_off2);
-        SWAP(int *, lk->front_col, lk->front_col2);
-        SWAP(int, lk->front_col_cap, lk->front_col2_cap);
-        SWAP(double *, lk->front_K, lk->front_K2);
-        SWAP(int, lk->front_K_cap, lk->front_K2_cap);
-        SWAP(double *, lk->front_D, lk->front_D2);
-        SWAP(int, lk->front_D_cap, lk->front_D2_cap);
-        lk->rows_computed += redone;
-        for (int c = 0; c < lk->nchg; c++) {
-            int i = lk->chg[c];
+        redone += build_blocks_incr(lod, k, lk->lay.frontier, lk->lay.nfrontier, lk->cpl.prev_frontier, lk->cpl.nprev_frontier,
+                                    dirty, lk->cpl.front_off, lk->cpl.front_col, lk->cpl.front_K, lk->cpl.front_D, lk->cpl.front_off2,
+                                    &lk->cpl.front_col2, &lk->cpl.front_col2_cap, &lk->cpl.front_K2, &lk->cpl.front_K2_cap,
+                                    &lk->cpl.front_D2, &lk->cpl.front_D2_cap, 1.0 - MIXED_WEIGHT, from);
+        SWAP(int *, lk->cpl.front_off, lk->cpl.front_off2);
+        SWAP(int *, lk->cpl.front_col, lk->cpl.front_col2);
+        SWAP(int, lk->cpl.front_col_cap, lk->cpl.front_col2_cap);
+        SWAP(double *, lk->cpl.front_K, lk->cpl.front_K2);
+        SWAP(int, lk->cpl.front_K_cap, lk->cpl.front_K2_cap);
+        SWAP(double *, lk->cpl.front_D, lk->cpl.front_D2);
+        SWAP(int, lk->cpl.front_D_cap, lk->cpl.front_D2_cap);
+        lk->cpl.rows_computed += redone;
+        for (int c = 0; c < lk->cpl.nchg; c++) {
+            int i = lk->cpl.chg[c];
             for (int q = mesh->adj_start[i]; q < mesh->adj_start[i + 1]; q++)
                 dirty[mesh->adj[q]] = 0; /* every corner of the tets around i */
         }
         /* merged rows: the copied frontier rows from the previous merged rows */
         int total = 0;
-        for (int r = 0; r < lk->nfrontier; r++) {
-            int i = lk->frontier[r];
+        for (int r = 0; r < lk->lay.nfrontier; r++) {
+            int i = lk->lay.frontier[r];
             total += L->model.row_start[i + 1] - L->model.row_start[i];
         }
-        if (total > lk->front_merged2_cap) {
-            lk->front_merged2_cap = SQ_MAX(total, 2 * lk->front_merged2_cap);
-            lk->front_merged2 = sq_realloc(lk->front_merged2, sizeof(double) * 9 * (size_t)lk->front_merged2_cap);
+        if (total > lk->cpl.front_merged2_cap) {
+            lk->cpl.front_merged2_cap = SQ_MAX(total, 2 * lk->cpl.front_merged2_cap);
+            lk->cpl.front_merged2 = sq_realloc(lk->cpl.front_merged2, sizeof(double) * 9 * (size_t)lk->cpl.front_merged2_cap);
         }
-        int *poff = sq_malloc(sizeof(int) * (size_t)(lk->nprev_frontier + 1));
+        int *poff = sq_malloc(sizeof(int) * (size_t)(lk->cpl.nprev_frontier + 1));
         poff[0] = 0;
-        for (int p = 0; p < lk->nprev_frontier; p++) {
-            int i = lk->prev_frontier[p];
+        for (int p = 0; p < lk->cpl.nprev_frontier; p++) {
+            int i = lk->cpl.prev_frontier[p];
             poff[p + 1] = poff[p] + L->model.row_start[i + 1] - L->model.row_start[i];
         }
-        double *M = lk->front_merged2;
-        double *T = col_room(&lk->front_T2, &lk->front_T2_cap, total);
-        for (int r = 0; r < lk->nfrontier; r++) {
-            int i = lk->frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
+        double *M = lk->cpl.front_merged2;
+        double *T = col_room(&lk->cpl.front_T2, &lk->cpl.front_T2_cap, total);
+        for (int r = 0; r < lk->lay.nfrontier; r++) {
+            int i = lk->lay.frontier[r], len = L->model.row_start[i + 1] - L->model.row_start[i];
             if (from[r] >= 0) {
-                memcpy(M, lk->front_merged + 9 * (size_t)poff[from[r]], sizeof(double) * 9 * (size_t)len);
-                memcpy(T, lk->front_T + 12 * (size_t)poff[from[r]], sizeof(double) * 12 * (size_t)len);
+                memcpy(M, lk->cpl.front_merged + 9 * (size_t)poff[from[r]], sizeof(double) * 9 * (size_t)len);
+                memcpy(T, lk->cpl.front_T + 12 * (size_t)poff[from[r]], sizeof(double) * 12 * (size_t)len);
             } else {
                 merged_row(lod, k, r, i, M);
                 to_columns(M, len, T);
@@ -434,123 +437,51 @@ static void build_ring_blocks(sq_lod *lod, int k)
             M += 9 * (size_t)len;
             T += 12 * (size_t)len;
         }
-        SWAP(double *, lk->front_merged, lk->front_merged2);
-        SWAP(int, lk->front_merged_cap, lk->front_merged2_cap);
-        SWAP(double *, lk->front_T, lk->front_T2);
-        SWAP(int, lk->front_T_cap, lk->front_T2_cap);
+        SWAP(double *, lk->cpl.front_merged, lk->cpl.front_merged2);
+        SWAP(int, lk->cpl.front_merged_cap, lk->cpl.front_merged2_cap);
+        SWAP(double *, lk->cpl.front_T, lk->cpl.front_T2);
+        SWAP(int, lk->cpl.front_T_cap, lk->cpl.front_T2_cap);
         free(poff);
         free(from);
-        lk->blocks_dirty = 0;
-        lk->blocks_valid = 1;
-        lk->prev_saved = 0;
-        for (int c = 0; c < lk->nchg; c++) {
-            lk->chg_mark[lk->chg[c]] = 0;
-            lk->blk_active[lk->chg[c]] = lk->active[lk->chg[c]];
+        lk->cpl.blocks_dirty = 0;
+        lk->cpl.blocks_valid = 1;
+        lk->cpl.prev_saved = 0;
+        for (int c = 0; c < lk->cpl.nchg; c++) {
+            lk->cpl.chg_mark[lk->cpl.chg[c]] = 0;
+            lk->cpl.blk_active[lk->cpl.chg[c]] = lk->lay.active[lk->cpl.chg[c]];
         }
-        lk->nchg = 0;
+        lk->cpl.nchg = 0;
         return;
     }
     /* merged frontier rows: the level's row less the correction the frontier pass adds back
      * (sq_lodx_front_correct adds front_K w; the force pass subtracts K w) */
     int total = 0;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    for (int r = 0; r < lk->lay.nfrontier; r++) {
+        int i = lk->lay.frontier[r];
         total += L->model.row_start[i + 1] - L->model.row_start[i];
     }
-    if (total > lk->front_merged_cap) {
-        lk->front_merged_cap = SQ_MAX(total, 2 * lk->front_merged_cap);
-        lk->front_merged = sq_realloc(lk->front_merged, sizeof(double) * 9 * (size_t)lk->front_merged_cap);
+    if (total > lk->cpl.front_merged_cap) {
+        lk->cpl.front_merged_cap = SQ_MAX(total, 2 * lk->cpl.front_merged_cap);
+        lk->cpl.front_merged = sq_realloc(lk->cpl.front_merged, sizeof(double) * 9 * (size_t)lk->cpl.front_merged_cap);
     }
-    double *M = lk->front_merged;
-    for (int r = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    double *M = lk->cpl.front_merged;
+    for (int r = 0; r < lk->lay.nfrontier; r++) {
+        int i = lk->lay.frontier[r];
         merged_row(lod, k, r, i, M);
         M += 9 * (size_t)(L->model.row_start[i + 1] - L->model.row_start[i]);
     }
     /* the column forms the tick's kernels read */
-    transpose_blocks(lk->ring_K, lk->ring_off[lk->nring], &lk->ring_T, &lk->ring_T_cap);
-    transpose_blocks(lk->front_merged, total, &lk->front_T, &lk->front_T_cap);
-    lk->blocks_dirty = 0;
-    lk->blocks_valid = 1;
-    lk->prev_saved = 0;
-    for (int c = 0; c < lk->nchg; c++)
-        lk->chg_mark[lk->chg[c]] = 0;
-    lk->nchg = 0;
-    memcpy(lk->blk_active, lk->active, (size_t)n);
+    transpose_blocks(lk->cpl.ring_K, lk->cpl.ring_off[lk->lay.nring], &lk->cpl.ring_T, &lk->cpl.ring_T_cap);
+    transpose_blocks(lk->cpl.front_merged, total, &lk->cpl.front_T, &lk->cpl.front_T_cap);
+    lk->cpl.blocks_dirty = 0;
+    lk->cpl.blocks_valid = 1;
+    lk->cpl.prev_saved = 0;
+    for (int c = 0; c < lk->cpl.nchg; c++)
+        lk->cpl.chg_mark[lk->cpl.chg[c]] = 0;
+    lk->cpl.nchg = 0;
+    memcpy(lk->cpl.blk_active, lk->lay.active, (size_t)n);
 }
 
-/* frontier correction of level k after its full-row forces: f_i += (1 - w) sum over mixed
- * tets of K^T (d + b v) (+ D^T v) */
-void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    sq_level *L = &lod->lv[k];
-    double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    int visc = mat->use_viscosity && lk->front_D;
-    /* the lists in locals: the force stores would make the compiler reload them */
-    const int nfrontier = lk->nfrontier, *frontier = lk->frontier, *front_off = lk->front_off;
-    const int *front_col = lk->front_col;
-    for (int r = 0; r < nfrontier; r++) {
-        int i = frontier[r];
-        const double *B = lk->front_K;
-        const double *Bd = visc ? lk->front_D : NULL;
-        double *fi = L->f + 3 * i;
-        for (int e = front_off[r]; e < front_off[r + 1]; e++) {
-            int l = front_col[e];
-            const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
-            double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
-            for (int rr = 0; rr < 3; rr++)
-                fi[rr] += K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
-            if (Bd) {
-                const double *D = Bd + 9 * e;
-                for (int rr = 0; rr < 3; rr++)
-                    fi[rr] += D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
-            }
-        }
-    }
-}
-
-
-/* forces of the frontier nodes of level k from their merged rows (the masked force pass
- * having skipped them): f_i = m_i (g - a v_i) - sum_j M_ij (d_j + b v_j); no viscosity.
- * The three rows of a block in the lanes of one vector (the merged rows in column form),
- * each lane summed as the scalar rows were: f_r += (M_r0 w0 + M_r1 w1) + M_r2 w2 */
-void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], int k)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    sq_level *L = &lod->lv[k];
-    const double a = mat->rayleigh_mass;
-    const double *restrict v = L->v;
-    if (!lk->w_ok) /* called outside the frame's tick */
-        sq_lodx_form_w(lod, mat, k);
-    const double *T = lk->front_T;
-    const double *restrict W = lk->w_tick; /* d + b v (sq_lodx_form_w) */
-    /* the lists in locals: the force stores would make the compiler reload them */
-    const int nfrontier = lk->nfrontier, *frontier = lk->frontier;
-    const int *row_start = L->model.row_start, *col = L->model.col;
-    const double *mass = L->model.mass;
-    double *f = L->f;
-    for (int r = 0; r < nfrontier; r++) {
-        int i = frontier[r];
-        sq_v4 acc = {0, 0, 0, 0};
-        int q = row_start[i];
-        const int q1 = row_start[i + 1];
-        for (; q + 1 < q1; q += 2, T += 24) { /* two blocks a turn, added in row order */
-            const sq_v4 x0 = v4_block_s(T, W + 3 * (size_t)col[q]);
-            const sq_v4 x1 = v4_block_s(T + 12, W + 3 * (size_t)col[q + 1]);
-            acc += x0;
-            acc += x1;
-        }
-        if (q < q1) {
-            acc += v4_block_s(T, W + 3 * (size_t)col[q]);
-            T += 12;
-        }
-        double m = mass[i], *fi = f + 3 * (size_t)i;
-        fi[0] = m * (gravity[0] - a * v[3 * i]) - acc[0];
-        fi[1] = m * (gravity[1] - a * v[3 * i + 1]) - acc[1];
-        fi[2] = m * (gravity[2] - a * v[3 * i + 2]) - acc[2];
-    }
-}
 
 /* ring blocks up to date for material mat (NULL: the last one seen) */
 /* largest absolute row sum of a 3x3 block */
@@ -570,26 +501,26 @@ static void own_rows(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
         const sq_level *L = &lod->lv[k];
-        if (!lod->lev[k].own_rowsum)
-            lod->lev[k].own_rowsum = sq_malloc(sizeof(double) * (size_t)L->model.n);
+        if (!lod->lev[k].rate.own_rowsum)
+            lod->lev[k].rate.own_rowsum = sq_malloc(sizeof(double) * (size_t)L->model.n);
         const sq_lod *like = lod->like;
         if (like && k < like->L && like->lv[k].model.K == L->model.K && like->lv[k].model.n == L->model.n &&
-            like->lv[k].model.mass == L->model.mass && like->lev[k].own_rowsum) {
-            memcpy(lod->lev[k].own_rowsum, like->lev[k].own_rowsum, sizeof(double) * (size_t)L->model.n);
-            lod->lev[k].own_rate = like->lev[k].own_rate;
+            like->lv[k].model.mass == L->model.mass && like->lev[k].rate.own_rowsum) {
+            memcpy(lod->lev[k].rate.own_rowsum, like->lev[k].rate.own_rowsum, sizeof(double) * (size_t)L->model.n);
+            lod->lev[k].rate.own_rate = like->lev[k].rate.own_rate;
             continue;
         }
         for (int i = 0; i < L->model.n; i++) {
             double s = 0;
             for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++)
                 s += block_norm(L->model.K + 9 * (size_t)q);
-            lod->lev[k].own_rowsum[i] = s;
+            lod->lev[k].rate.own_rowsum[i] = s;
         }
         double own = 0;
         for (int i = 0; i < L->model.n; i++)
             if (L->model.fixed[i] != 7)
-                own = fmax(own, lod->lev[k].own_rowsum[i] / L->model.mass[i]);
-        lod->lev[k].own_rate = own;
+                own = fmax(own, lod->lev[k].rate.own_rowsum[i] / L->model.mass[i]);
+        lod->lev[k].rate.own_rate = own;
     }
 }
 
@@ -602,28 +533,28 @@ static void coupling_bound(sq_lod *lod)
 {
     int L = lod->L;
     for (int k = 0; k < L; k++) {
-        if (!lod->lev[k].coupled_rowsum)
-            lod->lev[k].coupled_rowsum = sq_malloc(sizeof(double) * (size_t)lod->lv[k].model.n);
-        memset(lod->lev[k].coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].model.n);
+        if (!lod->lev[k].rate.coupled_rowsum)
+            lod->lev[k].rate.coupled_rowsum = sq_malloc(sizeof(double) * (size_t)lod->lv[k].model.n);
+        memset(lod->lev[k].rate.coupled_rowsum, 0, sizeof(double) * (size_t)lod->lv[k].model.n);
     }
     for (int m = 0; m < L; m++) {
         /* level m's lists in locals (the row-sum stores would make the compiler reload them) */
         const sq_lod_level *lm = &lod->lev[m];
-        const int nring = lm->nring, *src_start = lm->src_start, *ring_off = lm->ring_off;
-        const int *ring_col = lm->ring_col, *ring_index = lm->ring_index;
-        const int *src_level = lm->src_level, *src_node = lm->src_node;
-        const unsigned char *active = lm->active;
-        const double *src_weight = lm->src_weight, *ring_K = lm->ring_K;
+        const int nring = lm->lay.nring, *src_start = lm->lay.src_start, *ring_off = lm->cpl.ring_off;
+        const int *ring_col = lm->cpl.ring_col, *ring_index = lm->lay.ring_index;
+        const int *src_level = lm->lay.src_level, *src_node = lm->lay.src_node;
+        const unsigned char *active = lm->lay.active;
+        const double *src_weight = lm->lay.src_weight, *ring_K = lm->cpl.ring_K;
         double *rowsum[SQ_MAX_LEVELS];
         for (int k = 0; k < L; k++)
-            rowsum[k] = lod->lev[k].coupled_rowsum;
+            rowsum[k] = lod->lev[k].rate.coupled_rowsum;
         /* the sum of |weights| of each ring ghost's sources, once per ghost (a ghost is a column
          * of about ten ring rows) */
-        if (nring > lod->abs_cap) {
-            lod->abs_cap = SQ_MAX(nring, 2 * lod->abs_cap);
-            lod->abs_sum = sq_realloc(lod->abs_sum, sizeof(double) * (size_t)lod->abs_cap);
+        if (nring > lod->cpl.abs_cap) {
+            lod->cpl.abs_cap = SQ_MAX(nring, 2 * lod->cpl.abs_cap);
+            lod->cpl.abs_sum = sq_realloc(lod->cpl.abs_sum, sizeof(double) * (size_t)lod->cpl.abs_cap);
         }
-        double *abs_sum = lod->abs_sum;
+        double *abs_sum = lod->cpl.abs_sum;
         for (int r = 0; r < nring; r++) {
             double sc = 0;
             for (int q = src_start[r]; q < src_start[r + 1]; q++)
@@ -650,17 +581,17 @@ static void coupling_bound(sq_lod *lod)
     }
     for (int k = 0; k < L; k++) {
         const sq_level *Lk = &lod->lv[k];
-        double own = lod->lev[k].own_rate, coupled = 0;
-        for (int a = 0; a < lod->lev[k].nactive; a++) {
-            int i = lod->lev[k].active_list[a];
+        double own = lod->lev[k].rate.own_rate, coupled = 0;
+        for (int a = 0; a < lod->lev[k].lay.nactive; a++) {
+            int i = lod->lev[k].lists.active_list[a];
             if (Lk->model.fixed[i] == 7)
                 continue;
-            coupled = fmax(coupled, (lod->lev[k].own_rowsum[i] + lod->lev[k].coupled_rowsum[i]) / Lk->model.mass[i]);
+            coupled = fmax(coupled, (lod->lev[k].rate.own_rowsum[i] + lod->lev[k].rate.coupled_rowsum[i]) / Lk->model.mass[i]);
         }
         int extra = 0;
         if (own > 0 && coupled > own)
             extra = (int)ceil(0.5 * log2(coupled / own) - 1e-12);
-        lod->lev[k].extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
+        lod->lev[k].rate.extra_log2 = SQ_MIN(SQ_MAX(extra, 0), 6);
     }
     sq_lodx_sharp_bound(lod); /* with "step_bound": "sharp", the Lanczos substeps instead */
 }
@@ -674,39 +605,39 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
 {
     int first = 0;
     int changed = 0;
-    if (mat && (!lod->have_mat || memcmp(mat, &lod->mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->k_seen)) {
-        lod->mat = *mat;
-        lod->have_mat = 1;
-        lod->k_seen = lod->lv[0].model.K;
-        lod->op = infer_op(lod, mat);
+    if (mat && (!lod->cpl.have_mat || memcmp(mat, &lod->cpl.mat, sizeof(*mat)) != 0 || lod->lv[0].model.K != lod->cpl.k_seen)) {
+        lod->cpl.mat = *mat;
+        lod->cpl.have_mat = 1;
+        lod->cpl.k_seen = lod->lv[0].model.K;
+        lod->cpl.op = infer_op(lod, mat);
         drop_tet_blocks(lod);
         own_rows(lod);
         first = 1;
         for (int k = 0; k < lod->L; k++) {
-            lod->lev[k].blocks_dirty = 1;
-            lod->lev[k].blocks_valid = 0; /* every row again for the new material */
+            lod->lev[k].cpl.blocks_dirty = 1;
+            lod->lev[k].cpl.blocks_valid = 0; /* every row again for the new material */
         }
     }
-    if (!lod->have_mat)
+    if (!lod->cpl.have_mat)
         return;
     double c = sq_thread_cpu();
     for (int k = 0; k < lod->L; k++) {
-        lod->lev[k].blocks_cpu = 0;
-        if (lod->lev[k].blocks_dirty) {
+        lod->lev[k].cpl.blocks_cpu = 0;
+        if (lod->lev[k].cpl.blocks_dirty) {
             build_ring_blocks(lod, k);
-            lod->lev[k].hot_valid = 0;
+            lod->lev[k].tk.hot_valid = 0;
             changed = 1;
             double t = sq_thread_cpu();
-            lod->lev[k].blocks_cpu = t - c; /* the guard's cost model (frame.c) */
+            lod->lev[k].cpl.blocks_cpu = t - c; /* the guard's cost model (frame.c) */
             c = t;
         }
     }
-    lod->bound_cpu = 0;
+    lod->guard.bound_cpu = 0;
     if (changed) {
         coupling_bound(lod);
-        lod->bound_cpu = sq_thread_cpu() - c;
+        lod->guard.bound_cpu = sq_thread_cpu() - c;
     }
-    if (first && lod->reserve_live) /* a new material under a budget: every array reserved and
+    if (first && lod->reserve.reserve_live) /* a new material under a budget: every array reserved and
                                      * mapped, whatever it costs (first budgeted frame: frame.c) */
         sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
 }

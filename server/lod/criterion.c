@@ -7,13 +7,15 @@
  * every level is at the same time (frame.c, tick_adapt).
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/criterion.h"
+#include "lod/state.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- criterion operator */
 
@@ -96,17 +98,17 @@ double sq_lodx_delta(const sq_lod *lod, int k, int i)
 {
     const sq_lod_level *lk = &lod->lev[k];
     const sq_level *L = &lod->lv[k];
-    const double *w = lk->crit_weight;
+    const double *w = lk->tab.crit_weight;
     double s[3] = {0, 0, 0};
-    const unsigned char *st = lk->state;
-    const unsigned *ps = lk->push_stamp;
-    int all_valid = lod->full_no == lod->cascade_no;
+    const unsigned char *st = lk->lay.state;
+    const unsigned *ps = lk->lists.push_stamp;
+    int all_valid = lod->push.full_no == lod->push.cascade_no;
     const double *ds = lk->d_static;
     for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
         int j = L->model.col[q];
         const double *dj = L->d + 3 * j;
         double fresh[3], fv[3];
-        if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->cascade_no) {
+        if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->push.cascade_no) {
             /* a neighbour the last cascade did not push (a node that just became active in
              * this split pass sees beyond the old ring): its value now, on demand */
             sq_lodx_value(lod, k, j, fresh, fv);
@@ -143,13 +145,13 @@ void sq_lodx_merge_node(sq_lod *lod, int k, int p)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_lod_link *ln = &lod->h.link[k];
-    lk->state[p] = ST_ACTIVE;
+    lk->lay.state[p] = ST_ACTIVE;
     /* the merged node starts from its interpolated value (pulled from its child tet) */
     sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
-        lod->lev[k + 1].state[ln->child[c]] = ST_COARSE;
-    memcpy(lk->d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
-    memcpy(lk->v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
+        lod->lev[k + 1].lay.state[ln->child[c]] = ST_COARSE;
+    memcpy(lk->tk.d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
+    memcpy(lk->tk.v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
     /* children become coarse ghosts and take their parent-tet value at once */
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
         int j = ln->child[c];
@@ -174,7 +176,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
     /* splits: active nodes of level k above the threshold */
     if (def->split < INFINITY) {
         for (int i = 0; i < Lk->model.n; i++) {
-            if (lk->state[i] != ST_ACTIVE)
+            if (lk->lay.state[i] != ST_ACTIVE)
                 continue;
             if (!forced && !(sq_lodx_delta(lod, k, i) > def->split))
                 continue;
@@ -185,14 +187,14 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 continue;
             }
             /* children start from their interpolated d and v (parent tet, values now) */
-            lk->state[i] = ST_SPLIT;
-            lk->fresh[i] = 1;
+            lk->lay.state[i] = ST_SPLIT;
+            lk->lay.fresh[i] = 1;
             for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
                 int j = ln->child[c];
-                lod->lev[k + 1].state[j] = ST_ACTIVE;
+                lod->lev[k + 1].lay.state[j] = ST_ACTIVE;
                 sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-                memcpy(lod->lev[k + 1].d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
-                memcpy(lod->lev[k + 1].v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].tk.d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
+                memcpy(lod->lev[k + 1].tk.v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
             }
             *projected += extra;
             out->splits++;
@@ -206,12 +208,12 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         if (parent_test)
             sq_lodx_pull_level(lod, k);
         for (int p = 0; p < Lk->model.n; p++) {
-            if (lk->state[p] != ST_SPLIT || lk->fresh[p])
+            if (lk->lay.state[p] != ST_SPLIT || lk->lay.fresh[p])
                 continue;
             int ok = 1;
             int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];
             for (int c = c0; c < c1 && ok; c++)
-                if (lod->lev[k + 1].state[ln->child[c]] != ST_ACTIVE)
+                if (lod->lev[k + 1].lay.state[ln->child[c]] != ST_ACTIVE)
                     ok = 0;
             if (!ok)
                 continue;
@@ -235,7 +237,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         }
     }
     for (int i = 0; i < Lk->model.n; i++)
-        lk->fresh[i] = 0;
+        lk->lay.fresh[i] = 0;
     if (changed) {
         out->changed[k] = out->changed[k + 1] = 1;
     }
@@ -251,11 +253,11 @@ void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out)
         const sq_lod_link *ln = &lod->h.link[k];
         long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
         for (int p = 0; p < lod->lv[k].model.n && *projected > cap; p++) {
-            if (lod->lev[k].state[p] != ST_SPLIT)
+            if (lod->lev[k].lay.state[p] != ST_SPLIT)
                 continue;
             int ok = 1;
             for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
-                if (lod->lev[k + 1].state[ln->child[c]] != ST_ACTIVE)
+                if (lod->lev[k + 1].lay.state[ln->child[c]] != ST_ACTIVE)
                     ok = 0;
             if (!ok)
                 continue;

@@ -6,6 +6,8 @@
  * dense forms the tests compare with, and the debug check (sq_debug()->sharp_check).
  */
 #include "lod/lod.h"
+#include "lod/bound_internal.h"
+#include "lod/lod_test.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -13,8 +15,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
-#include "lod/bound_internal.h"
 
 /* largest absolute row sum of a 3x3 block */
 static double bnorm(const double *B)
@@ -69,14 +69,14 @@ static void col_split(const op_ctx *c, int m, int l, double *in, double *out)
     int k = c->k;
     const sq_lod_level *lm = &lod->lev[m];
     *in = *out = 0;
-    if (lm->active[l]) {
+    if (lm->lay.active[l]) {
         /* on level k: the operator's own 1 / sqrt(mass), the same value */
         int a = m == k && c->idx ? c->idx[l] : -1;
         double s = a >= 0 ? c->isq[a] : 1 / sqrt(lod->lv[m].model.mass[l]);
         *(m == k ? in : out) = s;
         return;
     }
-    int rl = lm->ring_index[l];
+    int rl = lm->lay.ring_index[l];
     if (rl < 0)
         return;
     /* a ghost is a column of many rows: its sums once per operator (the same sums in the same
@@ -87,9 +87,9 @@ static void col_split(const op_ctx *c, int m, int l, double *in, double *out)
         *out = memo[1];
         return;
     }
-    for (int q = lm->src_start[rl]; q < lm->src_start[rl + 1]; q++) {
-        double s = fabs(lm->src_weight[q]) / sqrt(lod->lv[lm->src_level[q]].model.mass[lm->src_node[q]]);
-        *(lm->src_level[q] == k ? in : out) += s;
+    for (int q = lm->lay.src_start[rl]; q < lm->lay.src_start[rl + 1]; q++) {
+        double s = fabs(lm->lay.src_weight[q]) / sqrt(lod->lv[lm->lay.src_level[q]].model.mass[lm->lay.src_node[q]]);
+        *(lm->lay.src_level[q] == k ? in : out) += s;
     }
     if (memo) {
         memo[0] = *in;
@@ -107,14 +107,14 @@ static double row_sums(op_ctx *c)
     const sq_level *Lk = &lod->lv[k];
     double *tot = sq_calloc((size_t)c->nact, sizeof(double));
     for (int m = 0; m < lod->L; m++) {
-        int nr = lod->lev[m].nring;
+        int nr = lod->lev[m].lay.nring;
         c->gsplit[m] = nr > 0 ? sq_malloc(sizeof(double) * 2 * (size_t)nr) : NULL;
         for (int r = 0; r < 2 * nr; r++)
             c->gsplit[m][r] = NAN;
     }
     for (int a = 0; a < c->nact; a++) {
-        int i = lk->active_list[a];
-        const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
+        int i = lk->lists.active_list[a];
+        const double *R = c->fpos[a] >= 0 ? lk->cpl.front_merged + 9 * (size_t)c->fpos[a]
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         for (int e = Lk->model.row_start[i], x = 0; e < Lk->model.row_start[i + 1]; e++, x++) {
             double bn = bnorm(R + 9 * (size_t)x), in, out;
@@ -131,20 +131,20 @@ static double row_sums(op_ctx *c)
     }
     for (int m = 0; m < lod->L; m++) {
         const sq_lod_level *lm = &lod->lev[m];
-        for (int r = 0; r < lm->nring; r++) {
-            if (!(lm->src_levels[r] & (1u << k)))
+        for (int r = 0; r < lm->lay.nring; r++) {
+            if (!(lm->lay.src_levels[r] & (1u << k)))
                 continue;
             double rin = 0, rout = 0;
-            for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
-                double bn = bnorm(lm->ring_K + 9 * (size_t)e), in, out;
-                col_split(c, m, lm->ring_col[e], &in, &out);
+            for (int e = lm->cpl.ring_off[r]; e < lm->cpl.ring_off[r + 1]; e++) {
+                double bn = bnorm(lm->cpl.ring_K + 9 * (size_t)e), in, out;
+                col_split(c, m, lm->cpl.ring_col[e], &in, &out);
                 rin += bn * in;
                 rout += bn * out;
             }
-            for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
-                if (lm->src_level[q] == k) {
-                    int a = c->idx[lm->src_node[q]];
-                    double w = fabs(lm->src_weight[q]) * c->isq[a];
+            for (int q = lm->lay.src_start[r]; q < lm->lay.src_start[r + 1]; q++)
+                if (lm->lay.src_level[q] == k) {
+                    int a = c->idx[lm->lay.src_node[q]];
+                    double w = fabs(lm->lay.src_weight[q]) * c->isq[a];
                     tot[a] += w * (rin + rout);
                     c->off[a] += w * rout;
                 }
@@ -152,7 +152,7 @@ static double row_sums(op_ctx *c)
     }
     double g = 0;
     for (int a = 0; a < c->nact; a++) {
-        int i = lk->active_list[a];
+        int i = lk->lists.active_list[a];
         if (Lk->model.fixed[i] != 7)
             g = fmax(g, tot[a]);
     }
@@ -183,7 +183,7 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     const sq_level *Lk = &lod->lv[k];
     double *uk = c->u[k];
     for (int a = 0; a < c->nact; a++) {
-        int i = lk->active_list[a];
+        int i = lk->lists.active_list[a];
         for (int x = 0; x < 3; x++)
             uk[3 * i + x] = xc[3 * a + x] * c->isq[a];
     }
@@ -191,7 +191,7 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
      * the ghosts and sources of the list ctx_init made (the same sums in the same order as a
      * scan of every ring) */
     for (int t = 0; t < c->nrel; t++) {
-        int m = c->rel_m[t], g = c->lod->lev[m].ring[c->rel_r[t]];
+        int m = c->rel_m[t], g = c->lod->lev[m].lay.ring[c->rel_r[t]];
         double v[3] = {0, 0, 0};
         for (int q = c->rel_start[t]; q < c->rel_start[t + 1]; q++)
             for (int x = 0; x < 3; x++)
@@ -202,8 +202,8 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
     }
     /* own rows: K rows of inner nodes, merged rows of frontier nodes */
     for (int a = 0; a < c->nact; a++) {
-        int i = lk->active_list[a];
-        const double *R = c->fpos[a] >= 0 ? lk->front_merged + 9 * (size_t)c->fpos[a]
+        int i = lk->lists.active_list[a];
+        const double *R = c->fpos[a] >= 0 ? lk->cpl.front_merged + 9 * (size_t)c->fpos[a]
                                           : Lk->model.K + 9 * (size_t)Lk->model.row_start[i];
         double f0 = 0, f1 = 0, f2 = 0;
         for (int e = Lk->model.row_start[i]; e < Lk->model.row_start[i + 1]; e++, R += 9) {
@@ -222,12 +222,12 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
         const sq_lod_level *lm = &lod->lev[m];
         const double *um = c->u[m];
         double g[3] = {0, 0, 0};
-        for (int e = lm->ring_off[r]; e < lm->ring_off[r + 1]; e++) {
-            const double *B = lm->ring_K + 9 * (size_t)e, *w = um + 3 * (size_t)lm->ring_col[e];
+        for (int e = lm->cpl.ring_off[r]; e < lm->cpl.ring_off[r + 1]; e++) {
+            const double *B = lm->cpl.ring_K + 9 * (size_t)e, *w = um + 3 * (size_t)lm->cpl.ring_col[e];
             for (int x = 0; x < 3; x++)
                 g[x] += B[3 * x] * w[0] + B[3 * x + 1] * w[1] + B[3 * x + 2] * w[2];
         }
-        unsigned char fx = lod->lv[m].model.fixed[lm->ring[r]];
+        unsigned char fx = lod->lv[m].model.fixed[lm->lay.ring[r]];
         for (int x = 0; x < 3; x++)
             if (fx & (1u << x))
                 g[x] = 0;
@@ -238,7 +238,7 @@ static void op_apply(op_ctx *c, const double *xc, double *yc)
         }
     }
     for (int a = 0; a < c->nact; a++) {
-        unsigned char fx = Lk->model.fixed[lk->active_list[a]];
+        unsigned char fx = Lk->model.fixed[lk->lists.active_list[a]];
         for (int x = 0; x < 3; x++)
             yc[3 * a + x] = fx & (1u << x) ? 0.0 : c->y[3 * a + x] * c->isq[a] + c->off[a] * xc[3 * a + x];
     }
@@ -361,8 +361,8 @@ static void stop_edges(op_ctx *c)
         const sq_level *Lk = &c->lod->lv[c->k];
         of[0] = ldexp(Lk->dt, Lk->substeps_log2);
         of[1] = S->step_fraction;
-        of[2] = c->lod->mat.rayleigh_mass;
-        of[3] = c->lod->mat.rayleigh_stiffness;
+        of[2] = c->lod->cpl.mat.rayleigh_mass;
+        of[3] = c->lod->cpl.mat.rayleigh_stiffness;
         if (S->have_edges[c->k] && S->edge_n[c->k] == n && !memcmp(S->edge_of[c->k], of, sizeof of)) {
             c->below = S->edge_below[c->k];
             c->top = S->edge_top[c->k];
@@ -577,7 +577,7 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
-    int n = Lk->model.n, nact = lk->nactive;
+    int n = Lk->model.n, nact = lk->lay.nactive;
     op_ctx c;
     memset(&c, 0, sizeof c);
     c.lod = lod;
@@ -601,13 +601,13 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
     c.off = sq_calloc((size_t)nact, sizeof(double));
     c.y = sq_malloc(sizeof(double) * 3 * (size_t)nact);
     for (int a = 0; a < nact; a++) {
-        int i = lk->active_list[a];
+        int i = lk->lists.active_list[a];
         c.idx[i] = a;
         c.fpos[a] = -1;
         c.isq[a] = 1.0 / sqrt(Lk->model.mass[i]);
     }
-    for (int r = 0, pos = 0; r < lk->nfrontier; r++) {
-        int i = lk->frontier[r];
+    for (int r = 0, pos = 0; r < lk->lay.nfrontier; r++) {
+        int i = lk->lay.frontier[r];
         c.fpos[c.idx[i]] = pos;
         pos += Lk->model.row_start[i + 1] - Lk->model.row_start[i];
     }
@@ -620,11 +620,11 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
     int nrel = 0, nsrc = 0;
     for (int m = 0; m < lod->L; m++) {
         const sq_lod_level *lm = &lod->lev[m];
-        for (int r = 0; r < lm->nring; r++)
-            if (lm->src_levels[r] & (1u << k)) {
+        for (int r = 0; r < lm->lay.nring; r++)
+            if (lm->lay.src_levels[r] & (1u << k)) {
                 nrel++;
-                for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
-                    nsrc += lm->src_level[q] == k;
+                for (int q = lm->lay.src_start[r]; q < lm->lay.src_start[r + 1]; q++)
+                    nsrc += lm->lay.src_level[q] == k;
             }
     }
     c.rel_m = sq_malloc(sizeof(int) * (size_t)SQ_MAX(nrel, 1));
@@ -636,14 +636,14 @@ static double ctx_init(op_ctx *cc, sq_lod *lod, int k)
     c.rel_start[0] = 0;
     for (int m = 0, t = 0, p = 0; m < lod->L; m++) {
         const sq_lod_level *lm = &lod->lev[m];
-        for (int r = 0; r < lm->nring; r++) {
-            if (!(lm->src_levels[r] & (1u << k)))
+        for (int r = 0; r < lm->lay.nring; r++) {
+            if (!(lm->lay.src_levels[r] & (1u << k)))
                 continue;
-            for (int q = lm->src_start[r]; q < lm->src_start[r + 1]; q++)
-                if (lm->src_level[q] == k) {
-                    c.rel_node[p] = lm->src_node[q];
-                    c.rel_a[p] = c.idx[lm->src_node[q]];
-                    c.rel_w[p++] = lm->src_weight[q];
+            for (int q = lm->lay.src_start[r]; q < lm->lay.src_start[r + 1]; q++)
+                if (lm->lay.src_level[q] == k) {
+                    c.rel_node[p] = lm->lay.src_node[q];
+                    c.rel_a[p] = c.idx[lm->lay.src_node[q]];
+                    c.rel_w[p++] = lm->lay.src_weight[q];
                 }
             c.rel_m[t] = m;
             c.rel_r[t] = r;
@@ -664,12 +664,12 @@ static void ctx_free(op_ctx *c)
          * ring ghosts with a source on level k) and the active indices */
         const sq_lod_level *lk = &lod->lev[c->k];
         for (int a = 0; a < c->nact; a++) {
-            int i = lk->active_list[a];
+            int i = lk->lists.active_list[a];
             c->idx[i] = -1;
             c->u[c->k][3 * i] = c->u[c->k][3 * i + 1] = c->u[c->k][3 * i + 2] = 0;
         }
         for (int t = 0; t < c->nrel; t++) {
-            int m = c->rel_m[t], g = lod->lev[m].ring[c->rel_r[t]];
+            int m = c->rel_m[t], g = lod->lev[m].lay.ring[c->rel_r[t]];
             c->u[m][3 * g] = c->u[m][3 * g + 1] = c->u[m][3 * g + 2] = 0;
         }
     } else {
@@ -695,7 +695,7 @@ double sq_lodx_sharp_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *g
 {
     sq_lod_level *lk = &lod->lev[k];
     const sq_level *Lk = &lod->lv[k];
-    int n = Lk->model.n, nact = lk->nactive;
+    int n = Lk->model.n, nact = lk->lay.nactive;
     op_ctx c;
     *gersh = ctx_init(&c, lod, k);
     /* start: the previous Ritz vector on the nodes still active, plus a fixed pseudo-random
@@ -706,7 +706,7 @@ double sq_lodx_sharp_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *g
     double nr = 0;
     int warm = S->ritz[k] != NULL;
     for (int a = 0; a < nact; a++) {
-        int i = lk->active_list[a];
+        int i = lk->lists.active_list[a];
         for (int x = 0; x < 3; x++) {
             st ^= st << 13, st ^= st >> 7, st ^= st << 17;
             double rnd = 0.5 + (double)(st >> 11) / 9007199254740992.0;
@@ -720,7 +720,7 @@ double sq_lodx_sharp_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *g
     if (warm) {
         double scale = 0.01 * sqrt(nr) / nrand;
         for (int a = 0; a < nact; a++) {
-            int i = lk->active_list[a];
+            int i = lk->lists.active_list[a];
             for (int x = 0; x < 3; x++)
                 if (!(Lk->model.fixed[i] & (1u << x)))
                     q[3 * a + x] = S->ritz[k][3 * i + x] + scale * q[3 * a + x];
@@ -749,11 +749,11 @@ double sq_lodx_sharp_estimate(sq_lod *lod, struct lod_sharp *S, int k, double *g
             S->ritz[k][3 * i] = S->ritz[k][3 * i + 1] = S->ritz[k][3 * i + 2] = 0;
         }
         S->ritz_nodes[k] = sq_realloc(S->ritz_nodes[k], sizeof(int) * (size_t)SQ_MAX(nact, 1));
-        memcpy(S->ritz_nodes[k], lk->active_list, sizeof(int) * (size_t)nact);
+        memcpy(S->ritz_nodes[k], lk->lists.active_list, sizeof(int) * (size_t)nact);
         S->nritz[k] = nact;
         for (int a = 0; a < nact; a++)
             for (int x = 0; x < 3; x++)
-                S->ritz[k][3 * lk->active_list[a] + x] = isfinite(q[3 * a + x]) ? q[3 * a + x] : 0;
+                S->ritz[k][3 * lk->lists.active_list[a] + x] = isfinite(q[3 * a + x]) ? q[3 * a + x] : 0;
     }
     S->iters[k] = done;
     free(q);
@@ -773,7 +773,7 @@ double *sq_lodx_sharp_dense(sq_lod *lod, int k, double **off)
          * (the Lanczos vectors are zero on those axes), so the column a free row reads from a
          * constrained axis was here before, and the matrix looked asymmetric (up to 0.23 of its
          * largest entry on the organ, glued at its base: docs/stability.md) */
-        if (lod->lv[k].model.fixed[lod->lev[k].active_list[j / 3]] & (1u << (j % 3)))
+        if (lod->lv[k].model.fixed[lod->lev[k].lists.active_list[j / 3]] & (1u << (j % 3)))
             continue;
         x[j] = 1;
         op_apply(&c, x, y);
@@ -805,7 +805,7 @@ void sq_lodx_sharp_check(sq_lod *lod, struct lod_sharp *S, int k, double est)
     int nfree = 0;
     for (int a = 0; a < c.nact; a++)
         for (int x = 0; x < 3; x++)
-            nfree += !(Lk->model.fixed[lk->active_list[a]] & (1u << x));
+            nfree += !(Lk->model.fixed[lk->lists.active_list[a]] & (1u << x));
     int iters = SQ_MIN(ITERS_REF, nfree);
     double *Q = sq_calloc(N * (size_t)(iters + 1), sizeof(double)), *w = sq_malloc(sizeof(double) * SQ_MAX(N, 1));
     unsigned long long st = 88172645463325252ULL;
@@ -813,7 +813,7 @@ void sq_lodx_sharp_check(sq_lod *lod, struct lod_sharp *S, int k, double est)
         for (int x = 0; x < 3; x++) {
             st ^= st << 13, st ^= st >> 7, st ^= st << 17;
             double rnd = 0.5 + (double)(st >> 11) / 9007199254740992.0;
-            Q[3 * a + x] = (Lk->model.fixed[lk->active_list[a]] & (1u << x)) ? 0 : rnd;
+            Q[3 * a + x] = (Lk->model.fixed[lk->lists.active_list[a]] & (1u << x)) ? 0 : rnd;
         }
     double nq = sqrt(dot(Q, Q, N));
     for (size_t i = 0; i < N; i++)
@@ -843,7 +843,7 @@ void sq_lodx_sharp_check(sq_lod *lod, struct lod_sharp *S, int k, double est)
     int ne = sq_lodx_sharp_exponent(lod, S, k, est), nr = sq_lodx_sharp_exponent(lod, S, k, theta), nh = sq_lodx_sharp_exponent(lod, S, k, theta + resid);
     /* the substep this estimate gives against the stable step at theta_ref (> 1: beyond it) */
     double frame_dt = ldexp(Lk->dt, Lk->substeps_log2);
-    double over = frame_dt / ldexp(1.0, ne) / sq_lodx_step_bound_of(&lod->mat, theta);
+    double over = frame_dt / ldexp(1.0, ne) / sq_lodx_step_bound_of(&lod->cpl.mat, theta);
     fprintf(stderr, "sharp-check L%d: %d active, %d free axes, est %.9g, ref %.9g (resid %.3g, %d steps), est/ref %.6f, "
             "2^%d vs ref 2^%d..2^%d, step/ref bound %.4f, Lanczos steps %d, stop %d, ceiling %.6g\n",
             k, c.nact, nfree, est, theta, resid, m, est / theta, ne, nr, nh, over, S->iters[k], S->stopped[k], S->gersh[k]);
@@ -865,8 +865,8 @@ void sq_lodx_sharp_check(sq_lod *lod, struct lod_sharp *S, int k, double est)
          * operator Lanczos sees) */
         for (size_t i = 0; i < N; i++)
             for (size_t j = i + 1; j < N; j++) {
-                if ((Lk->model.fixed[lk->active_list[i / 3]] & (1u << (i % 3))) ||
-                    (Lk->model.fixed[lk->active_list[j / 3]] & (1u << (j % 3))))
+                if ((Lk->model.fixed[lk->lists.active_list[i / 3]] & (1u << (i % 3))) ||
+                    (Lk->model.fixed[lk->lists.active_list[j / 3]] & (1u << (j % 3))))
                     continue;
                 double d = fabs(A[i * N + j] - A[j * N + i]);
                 if (d > dmax) {
@@ -879,16 +879,16 @@ void sq_lodx_sharp_check(sq_lod *lod, struct lod_sharp *S, int k, double est)
         int srci = 0, srcj = 0;
         for (int mm = 0; mm < lod->L; mm++) {
             const sq_lod_level *lm = &lod->lev[mm];
-            for (int q = 0; lm->nring && q < lm->src_start[lm->nring]; q++)
-                if (lm->src_level[q] == k) {
-                    srci += lm->src_node[q] == lk->active_list[ai];
-                    srcj += lm->src_node[q] == lk->active_list[aj];
+            for (int q = 0; lm->lay.nring && q < lm->lay.src_start[lm->lay.nring]; q++)
+                if (lm->lay.src_level[q] == k) {
+                    srci += lm->lay.src_node[q] == lk->lists.active_list[ai];
+                    srcj += lm->lay.src_node[q] == lk->lists.active_list[aj];
                 }
         }
         fprintf(stderr, "sharp-check L%d: asymmetry max |A_ij - A_ji| %.3g of max |A| %.3g (%.3g) at axes %zu, %zu: "
                 "%.6g vs %.6g; nodes %d (%s, source %d times), %d (%s, source %d times)\n",
-                k, dmax, amax, dmax / amax, wi, wj, A[wi * N + wj], A[wj * N + wi], lk->active_list[ai],
-                c.fpos[ai] >= 0 ? "frontier" : "inner", srci, lk->active_list[aj], c.fpos[aj] >= 0 ? "frontier" : "inner", srcj);
+                k, dmax, amax, dmax / amax, wi, wj, A[wi * N + wj], A[wj * N + wi], lk->lists.active_list[ai],
+                c.fpos[ai] >= 0 ? "frontier" : "inner", srci, lk->lists.active_list[aj], c.fpos[aj] >= 0 ? "frontier" : "inner", srcj);
         free(A);
         free(x);
     }

@@ -17,13 +17,23 @@
  * the pull, step, push and criterion + adapt stages.
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/bound.h"
+#include "lod/corotational.h"
+#include "lod/coupling.h"
+#include "lod/criterion.h"
+#include "lod/guard.h"
+#include "lod/holds.h"
+#include "lod/reserve.h"
+#include "lod/ring.h"
+#include "lod/state.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 
 
@@ -55,8 +65,7 @@ typedef struct lod_frame {
     adapt_out ao;                    /* splits, merges, refusals, levels whose layout changed */
     long nticks, tick;               /* finest substeps of the frame; the current one */
     long stride[SQ_MAX_LEVELS];      /* level k steps every stride[k] ticks */
-    long updates;                    /* node integrations so far */
-    long ring_values, ring_rows, frontier_rows; /* the interface's work so far (profile) */
+    sq_tick_count tc;                /* node integrations and the interface's work so far (tick.c) */
     double fr_budget;                /* def.budget x in->budget_s, s */
     int guard_on;                    /* a budget and a measured (or given) cost per update */
     double modeled_pass;             /* the model's cost of this frame's passes, s */
@@ -72,7 +81,7 @@ typedef struct lod_frame {
 void sq_lod_untimed(sq_lod *lod, double cpu_s)
 {
     if (cpu_s > 0)
-        lod->untimed += cpu_s;
+        lod->guard.untimed += cpu_s;
 }
 
 /* run one stage and add its wall time to its entry */
@@ -92,151 +101,6 @@ static inline void run_once(lod_frame *fr, void (*stage)(lod_frame *), int which
     fr->c_mark = sq_thread_cpu();
 }
 
-/* ---------------------------------------------------------------- the guard's cost model
- *
- * A frame costs (thread CPU time, docs/lod.md "Guaranteed frame rate")
- *     cost_fixed + cost_update x node updates
- *     + for a split/merge pass: cost_couple + cost_bound + sum over the levels it rebuilds of
- *       (cost_level[k] + cost_blocks[k] + cost_block_change[k] x the level's changed nodes)
- * each term a maximum over its measurements that decays by 10 % a frame (the frame terms) or
- * 3 % a pass (the pass terms, measured only when a pass runs), an isolated outlier bounded
- * (sq_lodx_learn), or given (sq_lodx_set_costs, tests). The floors of a pass are timed once by a pass that changes nothing (calibrate) at
- * load when the caller says a budget follows (sq_lod_prepare_budget), else at the first
- * budgeted frame. The budget is def.budget x the period less the thread's time
- * around the lod frame (cost_outside). The guard:
- *   - at the end of a frame, the split/merge pass of levels k, k+1 runs only if its rebuild
- *     fits in what is left of this frame (PASS_MARGIN x the model), and changes at most the
- *     regions that fit with it: the merges the criterion wants, least needed first, then its
- *     splits, most needed first; the others wait (sq_lodx_guard_limit);
- *   - splits stop where the next frame and a pass of every level would pass SPLIT_HEADROOM
- *     of the budget (the node-update cap of sq_lodx_adapt_pair);
- *   - when the next frame would not fit even without a pass, the least needed regions merge
- *     (this frame, as many as its rebuild allows, the rest at the start of the next);
- *   - a region the guard merged rests REST_FRAMES frames before it may split again. */
-#define SPLIT_HEADROOM 0.8
-#define REST_FRAMES 25
-/* the start of the cost per changed node (calibrate): box-big, with the caches' pages mapped at
- * load, measured 17.5 / 9.3 / 7.6 us per changed node of levels 0 / 1 / 2 (medians of 71
- * passes, the level's floor included; 90th percentiles 30 / 30 / 15 us). The start was 100 us
- * (measured once with first-touch page faults in the passes): falling 3 % a pass, it kept the
- * model 3-10x over the passes for 50 frames, and the guard held back the splits a moving tool
- * needs (box-big split every second frame: 1.45-1.57 mm against 1.07-1.14 mm from 30 us) */
-#define BLOCK_CHANGE_START 30e-6
-#define PASS_MARGIN 1.25 /* a pass is planned at 1.25 x its model: 88 of 90 box-big passes were
-                          * within 1.1 x, the worst 1.57 x */
-
-void sq_lodx_set_costs(sq_lod *lod, double per_update_s, double per_frame_s, double per_level_s, double per_pass_s,
-                       double per_change_s)
-{
-    lod->cost_given = per_update_s > 0 || per_frame_s > 0 || per_level_s > 0 || per_pass_s > 0 || per_change_s > 0;
-    lod->cost_update = SQ_MAX(per_update_s, 0.0);
-    lod->cost_fixed = SQ_MAX(per_frame_s, 0.0);
-    for (int k = 0; k < SQ_MAX_LEVELS; k++)
-        lod->cost_level[k] = SQ_MAX(per_level_s, 0.0);
-    lod->cost_couple = SQ_MAX(per_pass_s, 0.0);
-    lod->cost_bound = 0;
-    for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-        lod->cost_blocks[k] = 0;
-        lod->cost_block_change[k] = SQ_MAX(per_change_s, 0.0);
-    }
-    lod->cost_calibrated = lod->cost_given;
-    lod->tr_update = lod->tr_fixed = lod->tr_outside = lod->tr_couple = lod->tr_bound = (sq_cost_track){0};
-    for (int k = 0; k < SQ_MAX_LEVELS; k++)
-        lod->tr_level[k] = lod->tr_blocks[k] = lod->tr_block_change[k] = (sq_cost_track){0};
-}
-
-/* nodes a split or merge between levels k and k+1 changes, on average: the parent and its
- * children */
-static double changes_per_region(const sq_lod *lod, int k)
-{
-    return 1.0 + (double)lod->lv[k + 1].model.n / (double)SQ_MAX(lod->lv[k].model.n, 1);
-}
-
-/* the block rebuild a split or merge between levels k and k+1 costs: the parent's changed
- * node on level k, the children's on level k+1 */
-static double region_cost(const sq_lod *lod, int k)
-{
-    return lod->cost_block_change[k] + (changes_per_region(lod, k) - 1) * lod->cost_block_change[k + 1];
-}
-
-/* the cost of adding the levels in `mask` (bits) to a pass that rebuilds the levels in `done`
- * already, before its changed nodes (the coupling and the bound are redone once per pass) */
-static double pass_cost(const sq_lod *lod, unsigned mask, unsigned done)
-{
-    unsigned add = mask & ~done;
-    if (!add)
-        return 0;
-    double c = done ? 0 : lod->cost_couple + lod->cost_bound;
-    for (int k = 0; k < lod->L; k++)
-        if (add & (1u << k))
-            c += lod->cost_level[k] + lod->cost_blocks[k];
-    return c;
-}
-
-/* A measured cost into its decaying maximum (given costs stay): 10 % a frame for the terms
- * measured every frame, 3 % a pass for a pass's terms (measured only when one runs; a pass's
- * block build varies up to 4x per changed node from one pass to the next on box-big). An
- * isolated spike of the machine is not learned as the cost (docs/lod.md "An isolated spike"):
- * a measurement above SPIKE_FRAME (SPIKE_PASS) x the term raises it only to that bound, and
- * the next ordinary measurement puts the term back where it would be without the spike; a
- * second such measurement within SPIKE_WINDOW measurements, of the first one's size (at most
- * the bound x it), is learned whole (a sustained rise is followed at its second frame or pass);
- * one far above the first (a small term's jitter, then a real spike) is a new isolated one. Without outliers the term is the decaying maximum
- * exactly as before. */
-#define SPIKE_FRAME 2.0 /* box-big: node updates 110-125 ns each a frame; one spike frame 381 ns */
-#define SPIKE_PASS 3.0  /* box-big: a level-0 build 3,855 us per changed node once, ~100 us around */
-#define SPIKE_WINDOW 8
-
-double sq_lodx_learn(sq_cost_track *t, double cost, double measured, double decay, double spike)
-{
-    double ref = t->since ? t->base : cost; /* the term without a pending outlier */
-    if (ref <= 0 || measured <= spike * ref) {
-        t->base = fmax(measured, decay * ref);
-        if (t->since && ++t->since > SPIKE_WINDOW)
-            t->since = 0;
-        return t->base;
-    }
-    if (t->since && measured <= spike * t->peak) { /* a second outlier of its size: a real rise */
-        t->since = 0;
-        t->base = fmax(measured, decay * cost);
-        return t->base;
-    }
-    t->since = 1; /* an isolated one so far: bounded */
-    t->peak = measured;
-    t->base = decay * ref;
-    return spike * ref;
-}
-
-static void learn(const sq_lod *lod, double *cost, sq_cost_track *t, double measured)
-{
-    if (!lod->cost_given)
-        *cost = sq_lodx_learn(t, *cost, measured, 0.9, SPIKE_FRAME);
-}
-
-static void learn_pass(const sq_lod *lod, double *cost, sq_cost_track *t, double measured)
-{
-    if (!lod->cost_given)
-        *cost = sq_lodx_learn(t, *cost, measured, 0.97, SPIKE_PASS);
-}
-
-/* every level that may take part in a pass: up to the highest simulated level + 1 */
-static unsigned all_levels(const sq_lod *lod)
-{
-    int hi = 0;
-    for (int k = 0; k < lod->L; k++)
-        if (lod->lev[k].nactive > 0)
-            hi = k;
-    hi = SQ_MIN(hi + 1, lod->top);
-    return (2u << hi) - 1;
-}
-
-/* node updates that fit in `seconds` of a frame's budget after its fixed cost */
-static long updates_fitting(const sq_lod *lod, double seconds)
-{
-    double fit = (seconds - lod->cost_fixed) / lod->cost_update;
-    return fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 0L);
-}
-
 /* levels whose layout changed (ao.changed) rebuilt, then the coupling over the new layout:
  * one split/merge pass, its parts timed for the cost model. With the guard on (measured
  * costs), the pass's sharp estimates end where the frame must go on to fit its budget: the
@@ -252,8 +116,8 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
     long late0 = 0, later0 = 0;
     sq_lodx_sharp_late(lod, &late0, &later0);
     double deadline = 0;
-    if (fr->guard_on && !lod->cost_given && after >= 0)
-        deadline = fmax(fr->c_start + fr->fr_budget - lod->cost_fixed - lod->cost_couple - after, 1e-9);
+    if (fr->guard_on && !lod->guard.cost_given && after >= 0)
+        deadline = fmax(fr->c_start + fr->fr_budget - lod->guard.cost_fixed - lod->guard.cost_couple - after, 1e-9);
     sq_lodx_sharp_deadline(lod, deadline);
     double c0 = sq_thread_cpu(), c = c0;
     unsigned mask = 0;
@@ -271,10 +135,10 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         return;
     long nchg[SQ_MAX_LEVELS] = {0};
     for (int k = 0; k < L; k++)
-        nchg[k] = lod->lev[k].nchg;
-    double model = pass_cost(lod, mask, 0);
+        nchg[k] = lod->lev[k].cpl.nchg;
+    double model = sq_lodx_guard_pass_cost(lod, mask, 0);
     for (int k = 0; k < L; k++)
-        model += lod->cost_block_change[k] * (double)nchg[k];
+        model += lod->guard.cost_block_change[k] * (double)nchg[k];
     /* (holds are mapped again onto the new active nodes at the next frame) */
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, fr->in->mat);
@@ -284,60 +148,39 @@ static void rebuild_pass(lod_frame *fr, int lists, double after)
         sq_lodx_refresh_lists(lod);
     double t = sq_thread_cpu(), blocks = 0;
     for (int k = 0; k < L; k++)
-        blocks += lod->lev[k].blocks_cpu;
-    double couple = fmax(0.0, t - c - blocks - lod->bound_cpu); /* sources, lists */
+        blocks += lod->lev[k].cpl.blocks_cpu;
+    double couple = fmax(0.0, t - c - blocks - lod->guard.bound_cpu); /* sources, lists */
     long late1 = 0, later1 = 0;
     sq_lodx_sharp_late(lod, &late1, &later1);
     if (trace)
         fprintf(stderr, "  pass %#x, changed %ld/%ld/%ld/%ld: %.2f ms (levels %.2f, blocks %.2f/%.2f/%.2f/%.2f, "
                 "bound %.2f, sources+lists %.2f); model %.2f ms; page faults %ld; sharp estimates late %ld, "
                 "bound ended %.2f ms before its deadline\n", mask,
-                nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].blocks_cpu,
-                1e3 * lod->lev[1].blocks_cpu, 1e3 * lod->lev[2].blocks_cpu, 1e3 * lod->lev[3].blocks_cpu,
-                1e3 * lod->bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
+                nchg[0], nchg[1], nchg[2], nchg[3], 1e3 * (t - c0), 1e3 * (c - c0), 1e3 * lod->lev[0].cpl.blocks_cpu,
+                1e3 * lod->lev[1].cpl.blocks_cpu, 1e3 * lod->lev[2].cpl.blocks_cpu, 1e3 * lod->lev[3].cpl.blocks_cpu,
+                1e3 * lod->guard.bound_cpu, 1e3 * couple, 1e3 * model, sq_minor_faults() - flt0, late1 - late0, 1e3 * slack);
     /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
      * changed (the calibration pass), else per changed node above the floor; the bound; the
      * rest (sources, needed set) */
     for (int k = 0; k < L && !fr->unmeasured; k++) {
-        if (!(mask & (1u << k)) && lod->lev[k].blocks_cpu == 0)
+        if (!(mask & (1u << k)) && lod->lev[k].cpl.blocks_cpu == 0)
             continue;
         if (mask & (1u << k))
-            learn_pass(lod, &lod->cost_level[k], &lod->tr_level[k], t_level[k]);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_level[k], &lod->guard.tr_level[k], t_level[k]);
         if (nchg[k] == 0)
-            learn_pass(lod, &lod->cost_blocks[k], &lod->tr_blocks[k], lod->lev[k].blocks_cpu);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_blocks[k], &lod->guard.tr_blocks[k], lod->lev[k].cpl.blocks_cpu);
         else
-            learn_pass(lod, &lod->cost_block_change[k], &lod->tr_block_change[k],
-                  fmax(0.0, lod->lev[k].blocks_cpu - lod->cost_blocks[k]) / (double)nchg[k]);
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_block_change[k], &lod->guard.tr_block_change[k],
+                  fmax(0.0, lod->lev[k].cpl.blocks_cpu - lod->guard.cost_blocks[k]) / (double)nchg[k]);
     }
     if (!fr->unmeasured) {
-        learn_pass(lod, &lod->cost_bound, &lod->tr_bound, lod->bound_cpu);
-        learn_pass(lod, &lod->cost_couple, &lod->tr_couple, couple);
+        sq_lodx_guard_learn_pass(lod, &lod->guard.cost_bound, &lod->guard.tr_bound, lod->guard.bound_cpu);
+        sq_lodx_guard_learn_pass(lod, &lod->guard.cost_couple, &lod->guard.tr_couple, couple);
     }
     fr->c_pass += t - c0;
     fr->modeled_pass += model;
     fr->rebuilt |= mask;
     fr->passes++;
-}
-
-/* nodes of level k the guard merged and that still rest: out of the split pass (their state
- * is masked as ST_RESTING while sq_lodx_adapt_pair runs: neither split nor merge reads it as
- * active); hide = 0 restores them and counts any that was split in its rest anyway */
-static void rest_mask(sq_lod *lod, int k, int hide)
-{
-    int *h = lod->guard_hold[k];
-    if (!h || lod->guard_hold_until[k] <= lod->guard_clock)
-        return;
-    unsigned char *st = lod->lev[k].state;
-    for (int p = 0; p < lod->lv[k].model.n; p++) {
-        if (h[p] <= lod->guard_clock)
-            continue;
-        if (hide && st[p] == ST_ACTIVE)
-            st[p] = ST_RESTING;
-        else if (!hide && st[p] == ST_RESTING)
-            st[p] = ST_ACTIVE;
-        else if (!hide && st[p] == ST_SPLIT)
-            lod->test.guard_resplit++;
-    }
 }
 
 /* time a pass that rebuilds every level without a change of state (the floor of a real pass:
@@ -353,7 +196,7 @@ static void calibrate(lod_frame *fr)
      * against 2-3 ms passes, and the pass terms decay only when a pass runs: no split in 100
      * frames). So the first pass runs unmeasured (nothing learned from it), then the
      * calibration pass is measured warm */
-    for (int warm = lod->cost_given ? 1 : 0; warm < 2; warm++) {
+    for (int warm = lod->guard.cost_given ? 1 : 0; warm < 2; warm++) {
         for (int k = 0; k <= lod->top && k < lod->L; k++)
             fr->ao.changed[k] = 1;
         sq_lodx_sharp_invalidate(lod);
@@ -363,25 +206,25 @@ static void calibrate(lod_frame *fr)
     }
     fr->passes = 0;
     fr->modeled_pass = 0;
-    lod->cost_calibrated = 1;
+    lod->guard.cost_calibrated = 1;
     /* a start for the cost per changed node until passes measure it (the decaying maximum then
      * rises at once to a higher measurement, and falls 3 % a pass) */
-    for (int k = 0; k < lod->L && !lod->cost_given; k++)
-        lod->cost_block_change[k] = fmax(lod->cost_block_change[k], BLOCK_CHANGE_START);
+    for (int k = 0; k < lod->L && !lod->guard.cost_given; k++)
+        lod->guard.cost_block_change[k] = fmax(lod->guard.cost_block_change[k], SQ_GUARD_BLOCK_CHANGE_START);
 }
 
 /* a live budget follows: every array a pass writes reserved and mapped, and the guard's pass
  * terms calibrated, now (at load) instead of in the first budgeted frame */
 long sq_lod_prepare_budget(sq_lod *lod)
 {
-    if (lod->reserve_live || !lod->have_mat)
+    if (lod->reserve.reserve_live || !lod->cpl.have_mat)
         return 0;
-    lod->reserve_live = 1;
+    lod->reserve.reserve_live = 1;
     long pages = sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS) + sq_lodx_map_state(lod);
-    if (!lod->cost_calibrated) {
+    if (!lod->guard.cost_calibrated) {
         sq_lod_frame_in in;
         memset(&in, 0, sizeof in);
-        in.mat = &lod->mat;
+        in.mat = &lod->cpl.mat;
         lod_frame fr;
         memset(&fr, 0, sizeof fr);
         fr.lod = lod;
@@ -400,18 +243,18 @@ static void stage_guard(lod_frame *fr)
     sq_lod *lod = fr->lod;
     double budget_s = fr->in->budget_s;
     sq_lodx_static_loads(lod, fr->in->gravity); /* no-op unless gravity or material changed */
-    fr->prev_time = lod->last_time;
+    fr->prev_time = lod->guard.last_time;
     fr->fr_budget = lod->def.budget * budget_s;
     /* the thread's time between two frames of this body (the body's own work around the lod
      * frame: tool holds, node levels, health; the caller's between its steps, less what it
      * declared not the product's, sq_lod_untimed), up to a quarter of the period, is not the
      * lod's */
-    fr->outside_raw = lod->last_c_end > 0 ? fr->c_start - lod->last_c_end - lod->untimed : 0;
-    lod->untimed = 0;
-    if (budget_s > 0 && lod->last_c_end > 0) {
+    fr->outside_raw = lod->guard.last_c_end > 0 ? fr->c_start - lod->guard.last_c_end - lod->guard.untimed : 0;
+    lod->guard.untimed = 0;
+    if (budget_s > 0 && lod->guard.last_c_end > 0) {
         double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
-        learn(lod, &lod->cost_outside, &lod->tr_outside, outside);
-        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->cost_outside);
+        sq_lodx_guard_learn(lod, &lod->guard.cost_outside, &lod->guard.tr_outside, outside);
+        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->guard.cost_outside);
     }
     fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
     fr->cap_user = lod->def.max_node_updates;
@@ -419,8 +262,8 @@ static void stage_guard(lod_frame *fr)
     fr->coarse_ms = 0;
     if (budget_s <= 0)
         return;
-    lod->guard_clock++;
-    if (!lod->reserve_live && lod->have_mat) {
+    lod->guard.guard_clock++;
+    if (!lod->reserve.reserve_live && lod->cpl.have_mat) {
         /* the first budgeted frame, unless done at load (sq_lod_prepare_budget): every array a
          * pass writes reserved and mapped, whatever it costs (a run without a budget does not
          * hold them), then kept ahead of need at the end of frames with room (reserve_ahead) */
@@ -428,13 +271,13 @@ static void stage_guard(lod_frame *fr)
         fr->reserved_pages += sq_lod_prepare_budget(lod);
         fr->c_reserve += sq_thread_cpu() - c; /* (not the frame's fixed cost) */
     }
-    if (!lod->cost_calibrated)
+    if (!lod->guard.cost_calibrated)
         calibrate(fr);
-    fr->guard_on = lod->cost_update > 0;
+    fr->guard_on = lod->guard.cost_update > 0;
     if (fr->guard_on) {
         /* the layout must fit without a pass; level 0 alone, the cheapest layout */
-        fr->cap_guard = updates_fitting(lod, fr->fr_budget);
-        fr->coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+        fr->cap_guard = sq_lodx_guard_updates_fitting(lod, fr->fr_budget);
+        fr->coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
                                                      (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     }
 }
@@ -457,12 +300,12 @@ static void stage_layout(lod_frame *fr)
     if (fr->guard_on && fr->projected > fr->cap_guard) {
         /* the cost model rose since the last frame's end (or the budget fell): this frame
          * would not fit; merging now costs a pass, but less than the frame over */
-        fr->guard_merges += sq_lodx_guard_merge(lod, fr->cap_guard, &fr->projected, &fr->ao, REST_FRAMES,
+        fr->guard_merges += sq_lodx_guard_merge(lod, fr->cap_guard, &fr->projected, &fr->ao, SQ_GUARD_REST_FRAMES,
                                                  1000000000L);
         merged = 1;
     }
     if (merged) {
-        rebuild_pass(fr, 0, lod->cost_update * (double)fr->projected);
+        rebuild_pass(fr, 0, lod->guard.cost_update * (double)fr->projected);
         fr->projected = sq_lod_projected_updates(lod);
     }
     int nmax = 0;
@@ -472,8 +315,8 @@ static void stage_layout(lod_frame *fr)
     for (int k = 0; k < L; k++)
         fr->stride[k] = 1L << (nmax - sub_log2(lod, k));
     for (int k = 0; k < L; k++) {
-        lod->lev[k].step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
-        lod->lev[k].step_len = fr->stride[k];
+        lod->lev[k].tk.step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
+        lod->lev[k].tk.step_len = fr->stride[k];
     }
     if (sq_lodx_corot_on(lod))
         sq_lodx_corot_layout(lod, mat); /* corotational levels: tet lists of the layout */
@@ -485,114 +328,23 @@ static void stage_holds(lod_frame *fr)
     sq_lodx_hold_start(fr->lod, fr->in->holds, fr->in->nholds, fr->in->ntools, fr->in->frame_dt);
 }
 
-/* (1) ghost values of every due level at this tick (ring ghosts from the active nodes, finest
- * simulated level included) */
+/* (1) ghost values of every due level at this tick (tick.c) */
 static void tick_pull(lod_frame *fr)
 {
-    sq_lod *lod = fr->lod;
-    long t = fr->tick;
-    for (int k = 0; k < lod->L; k++) {
-        lod->lev[k].due = t % fr->stride[k] == 0;
-        if (lod->lev[k].due && lod->lev[k].nactive > 0) {
-            sq_lodx_eval_ring(lod, k, t);
-            fr->ring_values += lod->lev[k].nring;
-        }
-    }
+    sq_lodx_tick_pull(fr->lod, fr->tick, fr->stride, &fr->tc);
 }
 
-/* (2) forces of every due level from the state at this tick, the coupling reactions between
- * levels, then integration of the free active nodes */
+/* (2) forces, coupling reactions and integration of the due levels at this tick (tick.c) */
 static void tick_step(lod_frame *fr)
 {
-    sq_lod *lod = fr->lod;
-    const sq_material *mat = fr->in->mat;
-    const double *gravity = fr->in->gravity;
-    double frame_dt = fr->in->frame_dt;
-    int L = lod->L;
-    long t = fr->tick;
-    for (int k = 0; k < L; k++)
-        if (lod->lev[k].due && lod->lev[k].nactive > 0 && lod->lv[k].corot) {
-            sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
-        } else if (lod->lev[k].due && lod->lev[k].nactive > 0) {
-            fr->frontier_rows += lod->lev[k].nfrontier;
-            if (!mat->use_viscosity) { /* d + b v once per step for the row kernels */
-                sq_lodx_form_w(lod, mat, k);
-                lod->lev[k].w_ok = 1;
-            }
-            /* the all-nodes force pass is vectorised, faster per node than the masked
-             * one, but computes ghost rows nobody reads and needs the frontier correction
-             * pass: use it once 60% of the level is active (with the frontier rows folded,
-             * 60% beat 40% by 5-8% CPU on the organ and 3.6% instructions on cube-poke) */
-            if (5 * lod->lev[k].nactive >= 3 * lod->lv[k].model.n) {
-                sq_level_forces(&lod->lv[k], mat, gravity, NULL);
-                sq_lodx_front_correct(lod, mat, k);
-            } else if (mat->use_viscosity) {
-                sq_level_forces(&lod->lv[k], mat, gravity, lod->lev[k].active);
-                sq_lodx_front_correct(lod, mat, k);
-            } else {
-                /* interior rows by the level's pass, frontier rows with their
-                 * correction folded in */
-                sq_lodx_rows(lod, mat, gravity, k);
-                sq_lodx_front_rows(lod, mat, gravity, k);
-            }
-        }
-    for (int k = 0; k < L; k++)
-        if (lod->lev[k].nactive > 0 && lod->lev[k].nring > 0) {
-            if (!lod->lev[k].due && lod->lv[k].corot) {
-                /* the tet-by-tet reactions read every ring ghost */
-                sq_lodx_eval_ring(lod, k, t);
-                fr->ring_values += lod->lev[k].nring;
-            } else if (!lod->lev[k].due) {
-                /* between two of its steps only the ring rows with a source on a level that
-                 * steps more often are used (the reactions the finer levels need now): only
-                 * the ghosts they read are evaluated (the others are not read before the
-                 * level's next step or the frame's end, which evaluate every ghost) */
-                unsigned faster = 0;
-                for (int m = 0; m < L; m++)
-                    faster |= fr->stride[m] < fr->stride[k] ? 1u << m : 0u;
-                fr->ring_values += sq_lodx_eval_ring_hot(lod, k, t, faster);
-            }
-            if (lod->lv[k].corot)
-                fr->ring_rows += sq_lodx_corot_couple_out(lod, mat, k, t);
-            else
-                fr->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
-        }
-    for (int k = 0; k < L; k++) {
-        if (!lod->lev[k].due)
-            continue;
-        sq_level *Lk = &lod->lv[k];
-        lod->lev[k].step_start = t;
-        if (lod->lev[k].nactive == 0)
-            continue;
-        /* feedback of the held nodes */
-        sq_lodx_hold_sample(lod, k, gravity);
-        /* finer levels read this level between its steps */
-        sq_lodx_save_prev(lod, k);
-        if (lod->lev[k].nintegrated > 0) {
-            double dtk = lod->lev[k].extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
-            if (lod->lev[k].nintegrated == Lk->model.n)
-                sq_level_integrate(Lk, dtk, NULL);
-            else
-                sq_lodx_integrate(lod, k, dtk);
-            if (fr->in->nobstacles > 0) { /* contact of the level's integrated surface nodes */
-                const sq_mesh *mk = Lk->model.mesh;
-                sq_contact_nodes nd = {.n = mk->nsurf, .list = mk->surf_nodes, .X = mk->x, .mass = Lk->model.mass,
-                                       .fixed = Lk->model.fixed, .mask = lod->lev[k].integrated,
-                                       .touched = fr->in->touched ? fr->in->touched[k] : NULL};
-                sq_contact_step(fr->in->obstacles, fr->in->nobstacles, &nd, Lk->d, Lk->v, dtk, fr->in->contact);
-            }
-        }
-        fr->updates += lod->lev[k].nintegrated;
-    }
-    for (int k = 0; k < L; k++)
-        lod->lev[k].w_ok = 0; /* d and v moved on */
+    sq_lodx_tick_step(fr->lod, fr->in, fr->tick, fr->stride, &fr->tc);
 }
 
 /* (4) split/merge at the end of the frame, when every level is at the same time (see
  * docs/lod.md: a region changes level at most once per frame, and the coupling is rebuilt
  * once), on fresh ring values. With a budget (the guard), a pair of levels is adapted only
  * when its rebuild fits in what is left of the frame; splits stop where the next frame and a
- * pass would pass SPLIT_HEADROOM of the budget; regions the guard merged rest; and when the
+ * pass would pass SQ_GUARD_SPLIT_HEADROOM of the budget; regions the guard merged rest; and when the
  * next frame would not fit even without a pass, the least needed regions merge. */
 static void stage_criterion(lod_frame *fr)
 {
@@ -607,9 +359,9 @@ static void stage_criterion(lod_frame *fr)
     double now = sq_thread_cpu();
     fr->c_ticks = now - fr->c_mark;
     fr->c_mark = now;
-    if (fr->updates > 0)
-        learn(lod, &lod->cost_update, &lod->tr_update, fr->c_ticks / (double)fr->updates);
-    if (fr->in->budget_s > 0 && lod->cost_update > 0 && lod->cost_calibrated)
+    if (fr->tc.updates > 0)
+        sq_lodx_guard_learn(lod, &lod->guard.cost_update, &lod->guard.tr_update, fr->c_ticks / (double)fr->tc.updates);
+    if (fr->in->budget_s > 0 && lod->guard.cost_update > 0 && lod->guard.cost_calibrated)
         fr->guard_on = 1;
     if (!fr->guard_on) {
         for (int k = 0; k + 1 < L && k < lod->top && pairs; k++)
@@ -620,17 +372,17 @@ static void stage_criterion(lod_frame *fr)
     double B = fr->fr_budget;
     /* what is left of this frame once the rest of it (push, feedback: within the fixed cost)
      * is paid */
-    double used = lod->cost_given ? lod->cost_update * (double)fr->updates + fr->modeled_pass : now - fr->c_start;
-    double left = B - used - lod->cost_fixed;
-    long keep = updates_fitting(lod, B);
-    long split_cap = updates_fitting(lod, SPLIT_HEADROOM * B - PASS_MARGIN * pass_cost(lod, all_levels(lod), 0));
+    double used = lod->guard.cost_given ? lod->guard.cost_update * (double)fr->tc.updates + fr->modeled_pass : now - fr->c_start;
+    double left = B - used - lod->guard.cost_fixed;
+    long keep = sq_lodx_guard_updates_fitting(lod, B);
+    long split_cap = sq_lodx_guard_updates_fitting(lod, SQ_GUARD_SPLIT_HEADROOM * B - SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, sq_lodx_guard_all_levels(lod), 0));
     if (fr->cap_user > 0) {
         keep = SQ_MIN(keep, fr->cap_user);
         split_cap = SQ_MIN(split_cap, fr->cap_user);
     }
     unsigned sched = 0;
     for (int k = 0; k + 1 < L && k < lod->top && pairs; k++) {
-        double pc = PASS_MARGIN * pass_cost(lod, 3u << k, sched);
+        double pc = SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, 3u << k, sched);
         if (pc > left) {
             fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
             continue;
@@ -638,35 +390,35 @@ static void stage_criterion(lod_frame *fr)
         /* the regions this pass can change; when the criterion wants more, the merges it
          * wants (least needed first), then the splits (most needed first) up to that count,
          * the others held out of this pass */
-        double rc = PASS_MARGIN * region_cost(lod, k);
+        double rc = SQ_GUARD_PASS_MARGIN * sq_lodx_guard_region_cost(lod, k);
         long afford = rc > 0 ? (long)fmin(1e9, fmax(0.0, (left - pc) / rc)) : 1000000000L;
         int allow = !fr->over_budget && split_cap > 0 && fr->projected < split_cap;
         int s0 = fr->ao.splits, m0 = fr->ao.merges;
         lod->def.max_node_updates = split_cap;
-        rest_mask(lod, k, 1);
+        sq_lodx_guard_rest_mask(lod, k, 1);
         long held = sq_lodx_guard_limit(lod, k, allow, afford);
         sq_lodx_adapt_pair(lod, k, allow, &fr->projected, &fr->ao);
         if (held > 0) {
             sq_lodx_guard_limit_undo(lod, k);
             fr->ao.refused = 1;
         }
-        rest_mask(lod, k, 0);
+        sq_lodx_guard_rest_mask(lod, k, 0);
         unsigned now_sched = 0;
         for (int m = 0; m < L; m++)
             now_sched |= fr->ao.changed[m] ? 1u << m : 0u;
-        left -= PASS_MARGIN * pass_cost(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
+        left -= SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
         sched = now_sched;
     }
     lod->def.max_node_updates = fr->cap_user;
     if (fr->projected > keep) {
         /* the next frame would not fit even without a pass: merge the least needed regions,
          * as many as this frame can rebuild (the next frame's layout stage merges the rest) */
-        double pc = PASS_MARGIN * pass_cost(lod, all_levels(lod), sched), rc = 0;
+        double pc = SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, sq_lodx_guard_all_levels(lod), sched), rc = 0;
         for (int k = 0; k + 1 < L; k++)
-            rc = fmax(rc, PASS_MARGIN * region_cost(lod, k));
+            rc = fmax(rc, SQ_GUARD_PASS_MARGIN * sq_lodx_guard_region_cost(lod, k));
         long most = rc > 0 ? (long)fmin(1e9, (left - pc) / rc) : 1000000000L;
         if (most > 0)
-            fr->guard_merges += sq_lodx_guard_merge(lod, keep, &fr->projected, &fr->ao, REST_FRAMES, most);
+            fr->guard_merges += sq_lodx_guard_merge(lod, keep, &fr->projected, &fr->ao, SQ_GUARD_REST_FRAMES, most);
     }
 }
 
@@ -710,7 +462,7 @@ static void sharp_owed(lod_frame *fr)
  * frame used, at most a quarter of the budget), so that no pass pays first-touch page faults; the rest waits for a later frame */
 static void reserve_ahead(lod_frame *fr)
 {
-    if (fr->in->budget_s <= 0 || !fr->lod->have_mat || !fr->lod->reserve_live)
+    if (fr->in->budget_s <= 0 || !fr->lod->cpl.have_mat || !fr->lod->reserve.reserve_live)
         return;
     double c = sq_thread_cpu();
     double room = fmin(0.9 * fr->fr_budget - (c - fr->c_start), 0.25 * fr->fr_budget);
@@ -726,24 +478,24 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     int L = lod->L;
     double budget_s = fr->in->budget_s;
     double t_pull = fr->t[SQ_LOD_STAGE_PULL], t_int = fr->t[SQ_LOD_STAGE_STEP];
-    long updates = fr->updates, cap_user = fr->cap_user, cap_guard = fr->cap_guard;
+    long updates = fr->tc.updates, cap_user = fr->cap_user, cap_guard = fr->cap_guard;
     const adapt_out ao = fr->ao;
     double t_end = sq_now(), c_end = sq_thread_cpu();
     double cpu = c_end - fr->c_start;
-    lod->last_c_end = c_end;
+    lod->guard.last_c_end = c_end;
     if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
         fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
-        learn(lod, &lod->cost_update, &lod->tr_update, fr->c_ticks / (double)updates);
+        sq_lodx_guard_learn(lod, &lod->guard.cost_update, &lod->guard.tr_update, fr->c_ticks / (double)updates);
     }
     /* what is neither ticks nor passes (nor the reserve and owed estimates, done only with room left):
      * criterion, push, feedback, guard, layout, holds */
-    learn(lod, &lod->cost_fixed, &lod->tr_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
+    sq_lodx_guard_learn(lod, &lod->guard.cost_fixed, &lod->guard.tr_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
 
-    lod->guard_modeled = lod->cost_fixed + lod->cost_update * (double)updates + fr->modeled_pass;
-    lod->last_time = lod->cost_given ? lod->guard_modeled : cpu; /* given costs: deterministic */
+    lod->guard.guard_modeled = lod->guard.cost_fixed + lod->guard.cost_update * (double)updates + fr->modeled_pass;
+    lod->guard.last_time = lod->guard.cost_given ? lod->guard.guard_modeled : cpu; /* given costs: deterministic */
     long next = sq_lod_projected_updates(lod);
-    lod->guard_predicted = lod->cost_fixed + lod->cost_update * (double)next;
-    double coarse_ms = 1e3 * (lod->cost_fixed + lod->cost_update *
+    lod->guard.guard_predicted = lod->guard.cost_fixed + lod->guard.cost_update * (double)next;
+    double coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
     if (sq_debug()->guard_trace && budget_s > 0)
         fprintf(stderr,
@@ -752,13 +504,13 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
                 "splits %d merges %d (guard %ld), next %ld updates predicted %.2f ms; model %.1f ns/update, "
                 "fixed %.2f ms, couple %.2f, bound %.2f, per change %.0f/%.0f/%.0f/%.0f us; "
                 "reserve %.2f ms %ld pages (%ld pending, %.1f MB held); owed estimates %.2f ms, %d made, %d owed\n",
-                lod->guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
-                1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard_modeled, fr->rebuilt, ao.splits, ao.merges,
-                fr->guard_merges, next, 1e3 * lod->guard_predicted, 1e9 * lod->cost_update,
-                1e3 * lod->cost_fixed, 1e3 * lod->cost_couple, 1e3 * lod->cost_bound,
-                1e6 * lod->cost_block_change[0], 1e6 * lod->cost_block_change[1], 1e6 * lod->cost_block_change[2],
-                1e6 * lod->cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve_pending,
-                1e-6 * (double)lod->reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
+                lod->guard.guard_clock, 1e3 * cpu, 1e3 * fr->c_ticks, fr->passes, 1e3 * fr->c_pass,
+                1e3 * (cpu - fr->c_ticks - fr->c_pass), 1e3 * lod->guard.cost_outside, 1e3 * fr->outside_raw, updates, 1e3 * lod->guard.guard_modeled, fr->rebuilt, ao.splits, ao.merges,
+                fr->guard_merges, next, 1e3 * lod->guard.guard_predicted, 1e9 * lod->guard.cost_update,
+                1e3 * lod->guard.cost_fixed, 1e3 * lod->guard.cost_couple, 1e3 * lod->guard.cost_bound,
+                1e6 * lod->guard.cost_block_change[0], 1e6 * lod->guard.cost_block_change[1], 1e6 * lod->guard.cost_block_change[2],
+                1e6 * lod->guard.cost_block_change[3], 1e3 * fr->c_reserve, fr->reserved_pages, lod->reserve.reserve_pending,
+                1e-6 * (double)lod->reserve.reserve_bytes, 1e3 * fr->c_owed, fr->sharp_made, sq_lodx_sharp_owes(lod, -1));
     if (sq_debug()->guard_trace && budget_s > 0) {
         /* where a frame's thread CPU time went (a frame far over its model: user or system
          * time, page faults, the thread preempted) */
@@ -766,7 +518,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         long flt, cs;
         sq_thread_usage(&u, &sy, &flt, &cs);
         fprintf(stderr, "usage %ld: user %.2f ms, system %.2f ms, minor faults %ld, involuntary switches %ld\n",
-                lod->guard_clock, 1e3 * (u - fr->u0_user), 1e3 * (sy - fr->u0_sys), flt - fr->u0_flt, cs - fr->u0_ivcsw);
+                lod->guard.guard_clock, 1e3 * (u - fr->u0_user), 1e3 * (sy - fr->u0_sys), flt - fr->u0_flt, cs - fr->u0_ivcsw);
     }
     long cap_used = cap_guard;
     lod->def.max_node_updates = cap_user;
@@ -778,17 +530,17 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
         prof->t_total = t_end - fr->t_start;
         memcpy(prof->t_stage, fr->t, sizeof prof->t_stage);
         prof->node_updates = updates;
-        prof->ring_values = fr->ring_values;
-        prof->ring_rows = fr->ring_rows;
-        prof->frontier_rows = fr->frontier_rows;
+        prof->ring_values = fr->tc.ring_values;
+        prof->ring_rows = fr->tc.ring_rows;
+        prof->frontier_rows = fr->tc.frontier_rows;
         for (int k = 0; k < SQ_MAX_LEVELS; k++) {
-            prof->active[k] = k < L ? lod->lev[k].nactive : 0;
+            prof->active[k] = k < L ? lod->lev[k].lay.nactive : 0;
             prof->substeps[k] = k < L ? 1 << sub_log2(lod, k) : 0;
         }
         prof->splits = ao.splits;
         prof->merges = ao.merges;
         prof->splits_refused = fr->over_budget || ao.refused;
-        if (budget_s > 0 && lod->cost_update > 0 && coarse_ms > fr->fr_budget * 1e3) {
+        if (budget_s > 0 && lod->guard.cost_update > 0 && coarse_ms > fr->fr_budget * 1e3) {
             prof->splits_refused = 1;
             sq_frame_event(prof, SQ_HEALTH_BUDGET_COARSE, coarse_ms, lod->lv[0].model.nfree,
                            1 << sub_log2(lod, 0), fr->fr_budget * 1e3, NULL);

@@ -8,13 +8,14 @@
  * a level) and sq_lodx_hold_end (its feedback stage).
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/holds.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- tool holds */
 
@@ -22,7 +23,7 @@
 static int active_of_finest(const sq_lod *lod, int j, int *level)
 {
     int k = lod->L - 1, a = j;
-    while (lod->lev[k].state[a] != ST_ACTIVE) {
+    while (lod->lev[k].lay.state[a] != ST_ACTIVE) {
         if (k == 0)
             return -1;
         a = lod->h.link[k - 1].parent[a];
@@ -38,45 +39,45 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
     int F = lod->L - 1, k;
     int a = active_of_finest(lod, hd->node, &k);
     if (a < 0) {
-        lod->hold_entry_of[h] = -1;
+        lod->holds.hold_entry_of[h] = -1;
         return;
     }
     sq_level *Lk = &lod->lv[k];
     const double *dj = lod->lv[F].d + 3 * hd->node;
-    int e = lod->lev[k].hold_of[a];
+    int e = lod->lev[k].lay.hold_of[a];
     if (e < 0) {
-        if (lod->nhe == lod->cap_he) {
-            lod->cap_he = lod->cap_he ? 2 * lod->cap_he : 64;
-            lod->he = sq_realloc(lod->he, sizeof(hold_entry) * (size_t)lod->cap_he);
+        if (lod->holds.nhe == lod->holds.cap_he) {
+            lod->holds.cap_he = lod->holds.cap_he ? 2 * lod->holds.cap_he : 64;
+            lod->holds.he = sq_realloc(lod->holds.he, sizeof(hold_entry) * (size_t)lod->holds.cap_he);
         }
-        e = lod->nhe++;
-        hold_entry *E = &lod->he[e];
+        e = lod->holds.nhe++;
+        hold_entry *E = &lod->holds.he[e];
         memset(E, 0, sizeof(*E));
         E->level = k;
         E->node = a;
         E->t_from = t_now;
         memcpy(E->from, Lk->d + 3 * a, sizeof(E->from));
-        lod->lev[k].hold_of[a] = e;
-        if (lod->lev[k].integrated[a]) {
-            lod->lev[k].integrated[a] = 0;
-            lod->lev[k].nintegrated--;
+        lod->lev[k].lay.hold_of[a] = e;
+        if (lod->lev[k].lay.integrated[a]) {
+            lod->lev[k].lay.integrated[a] = 0;
+            lod->lev[k].lay.nintegrated--;
         }
     }
-    hold_entry *E = &lod->he[e];
+    hold_entry *E = &lod->holds.he[e];
     /* the hold node itself takes its target; an ancestor the same translation */
     for (int c = 0; c < 3; c++)
         E->gsum[c] += (k == F && a == hd->node) ? hd->target[c]
                                                 : Lk->d[3 * a + c] + (hd->target[c] - dj[c]);
     E->count++;
     E->pending = 1;
-    lod->hold_entry_of[h] = e;
+    lod->holds.hold_entry_of[h] = e;
 }
 
 /* prescribe the nodes whose targets changed: d = mean target, v = (d - from) / time left */
 static void start_holds(sq_lod *lod, double T)
 {
-    for (int e = 0; e < lod->nhe; e++) {
-        hold_entry *E = &lod->he[e];
+    for (int e = 0; e < lod->holds.nhe; e++) {
+        hold_entry *E = &lod->holds.he[e];
         if (!E->pending || E->count == 0)
             continue;
         E->pending = 0;
@@ -90,18 +91,18 @@ static void start_holds(sq_lod *lod, double T)
         for (int c = 0; c < 3; c++) {
             if (fx & (1u << c))
                 continue;
-            lod->lev[E->level].d_start[3 * E->node + c] = Lk->d[3 * E->node + c];
-            lod->lev[E->level].v_start[3 * E->node + c] = Lk->v[3 * E->node + c];
+            lod->lev[E->level].tk.d_start[3 * E->node + c] = Lk->d[3 * E->node + c];
+            lod->lev[E->level].tk.v_start[3 * E->node + c] = Lk->v[3 * E->node + c];
         }
     }
 }
 
 static void clear_holds(sq_lod *lod)
 {
-    for (int e = 0; e < lod->nhe; e++)
-        if (lod->lev[lod->he[e].level].hold_of[lod->he[e].node] == e)
-            lod->lev[lod->he[e].level].hold_of[lod->he[e].node] = -1;
-    lod->nhe = 0;
+    for (int e = 0; e < lod->holds.nhe; e++)
+        if (lod->lev[lod->holds.he[e].level].lay.hold_of[lod->holds.he[e].node] == e)
+            lod->lev[lod->holds.he[e].level].lay.hold_of[lod->holds.he[e].node] = -1;
+    lod->holds.nhe = 0;
 }
 
 /* the frame's holds: every level's integration mask reset to its active nodes, each hold
@@ -111,16 +112,16 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
 {
     int L = lod->L, F = L - 1;
     clear_holds(lod);
-    if (nholds > lod->cap_holds) {
-        lod->cap_holds = nholds;
-        lod->hold_entry_of = sq_realloc(lod->hold_entry_of, sizeof(int) * (size_t)nholds);
+    if (nholds > lod->holds.cap_holds) {
+        lod->holds.cap_holds = nholds;
+        lod->holds.hold_entry_of = sq_realloc(lod->holds.hold_entry_of, sizeof(int) * (size_t)nholds);
     }
     for (int k = 0; k < L; k++) {
-        lod->lev[k].nintegrated = lod->lev[k].nactive;
-        memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].model.n);
+        lod->lev[k].lay.nintegrated = lod->lev[k].lay.nactive;
+        memcpy(lod->lev[k].lay.integrated, lod->lev[k].lay.active, (size_t)lod->lv[k].model.n);
     }
     for (int h = 0; h < nholds; h++) {
-        lod->hold_entry_of[h] = -1;
+        lod->holds.hold_entry_of[h] = -1;
         if (holds[h].node < 0 || holds[h].node >= lod->lv[F].model.n || holds[h].tool < 0 ||
             holds[h].tool >= ntools)
             continue; /* the body validates holds; ignore any that are out of range */
@@ -129,7 +130,7 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
     start_holds(lod, frame_dt);
     for (int k = 0; k < L; k++)
         sq_lodx_mask_list(lod, k);
-    if (lod->lists_dirty)
+    if (lod->push.lists_dirty)
         sq_lodx_refresh_lists(lod);
 }
 
@@ -137,8 +138,8 @@ void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntool
 void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3])
 {
     const sq_level *Lk = &lod->lv[k];
-    for (int e = 0; e < lod->nhe; e++) {
-        hold_entry *E = &lod->he[e];
+    for (int e = 0; e < lod->holds.nhe; e++) {
+        hold_entry *E = &lod->holds.he[e];
         if (E->level != k || E->count == 0)
             continue;
         int i = E->node;
@@ -154,17 +155,17 @@ void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3])
 void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*force)[3])
 {
     for (int h = 0; force && h < nholds; h++) {
-        int e = lod->hold_entry_of[h];
-        if (e < 0 || lod->he[e].count == 0 || lod->he[e].nf == 0)
+        int e = lod->holds.hold_entry_of[h];
+        if (e < 0 || lod->holds.he[e].count == 0 || lod->holds.he[e].nf == 0)
             continue;
-        const hold_entry *E = &lod->he[e];
+        const hold_entry *E = &lod->holds.he[e];
         for (int c = 0; c < 3; c++)
             force[holds[h].tool][c] += E->fsum[c] / E->nf / E->count;
     }
     clear_holds(lod);
     for (int k = 0; k < lod->L; k++)
-        if (lod->lev[k].nintegrated != lod->lev[k].nactive) {
-            memcpy(lod->lev[k].integrated, lod->lev[k].active, (size_t)lod->lv[k].model.n);
-            lod->lev[k].nintegrated = lod->lev[k].nactive;
+        if (lod->lev[k].lay.nintegrated != lod->lev[k].lay.nactive) {
+            memcpy(lod->lev[k].lay.integrated, lod->lev[k].lay.active, (size_t)lod->lv[k].model.n);
+            lod->lev[k].lay.nintegrated = lod->lev[k].lay.nactive;
         }
 }

@@ -3,12 +3,12 @@
  * writes is grown ahead of need and its pages touched, so that no pass pays first-touch page
  * faults (coupling.c builds into them; frame.c calls the reserve). */
 #include "lod/lod.h"
+#include "lod/reserve.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* A first touch of a page costs 12-15 us on this kind of machine (a page fault): a pass whose
  * rows outgrow an array, or whose element blocks open a new cache chunk, paid 400-570 faults
@@ -57,14 +57,14 @@ long sq_lodx_map_state(sq_lod *lod)
         sq_level *L = &lod->lv[k];
         sq_lod_level *lk = &lod->lev[k];
         size_t n = (size_t)L->model.n, n3 = 3 * n * sizeof(double);
-        if (!lk->w_tick) /* (made on first use otherwise, sq_lodx_form_w) */
-            lk->w_tick = sq_calloc(3 * n + 1, sizeof(double));
-        void *const a[] = {L->d, L->v, L->f, L->acc, lk->d_start, lk->v_start, lk->w_tick};
+        if (!lk->tk.w_tick) /* (made on first use otherwise, sq_lodx_form_w) */
+            lk->tk.w_tick = sq_calloc(3 * n + 1, sizeof(double));
+        void *const a[] = {L->d, L->v, L->f, L->acc, lk->tk.d_start, lk->tk.v_start, lk->tk.w_tick};
         for (size_t i = 0; i < sizeof a / sizeof a[0]; i++)
             pages += keep_pages(a[i], n3);
-        pages += keep_pages(lk->push_stamp, n * sizeof(unsigned));
-        pages += keep_pages(lk->in_needed, n);
-        pages += keep_pages(lk->mark, n);
+        pages += keep_pages(lk->lists.push_stamp, n * sizeof(unsigned));
+        pages += keep_pages(lk->lists.in_needed, n);
+        pages += keep_pages(lk->lists.mark, n);
     }
     return pages;
 }
@@ -100,17 +100,17 @@ static void *reserve_one(void *p, int *cap, long want, long used, size_t size, l
  * returns the pages left */
 static long map_chunk(sq_lod_level *lk, size_t chunk, size_t per, double c0, double seconds, long *pages)
 {
-    if (lk->blocks_nchunk == 0 || lk->blocks_mapped >= chunk)
+    if (lk->cpl.blocks_nchunk == 0 || lk->cpl.blocks_mapped >= chunk)
         return 0;
-    unsigned char *ch = (unsigned char *)lk->blocks_chunk[lk->blocks_nchunk - 1];
-    size_t live = (size_t)SQ_MAX(lk->blocks_used - (lk->blocks_nchunk - 1) * SQ_BLOCKS_CHUNK, 0) * sizeof(double) * per;
-    size_t from = lk->blocks_mapped > live ? lk->blocks_mapped : live;
+    unsigned char *ch = (unsigned char *)lk->cpl.blocks_chunk[lk->cpl.blocks_nchunk - 1];
+    size_t live = (size_t)SQ_MAX(lk->cpl.blocks_used - (lk->cpl.blocks_nchunk - 1) * SQ_BLOCKS_CHUNK, 0) * sizeof(double) * per;
+    size_t from = lk->cpl.blocks_mapped > live ? lk->cpl.blocks_mapped : live;
     while (from < chunk && sq_thread_cpu() - c0 < seconds) {
         size_t to = from + 16 * PAGE_BYTES < chunk ? from + 16 * PAGE_BYTES : chunk;
         *pages += touch_pages(ch, from, to);
         from = to;
     }
-    lk->blocks_mapped = from;
+    lk->cpl.blocks_mapped = from;
     return (long)((chunk - from) / PAGE_BYTES);
 }
 
@@ -128,27 +128,27 @@ static long reserve_krow(sq_lod_level *lk, const sq_level_model *M, double c0, d
     long left = 0;
     for (int round = 0; round <= ahead; round++) {
         /* the last chunk's pages past its use, from where the last call stopped */
-        if (lk->krow_nchunk > 0 && lk->krow_mapped < chunk) {
-            unsigned char *ch = (unsigned char *)lk->krow_chunk[lk->krow_nchunk - 1];
-            long base = (long)(lk->krow_nchunk - 1) * CH;
-            size_t live = lk->krow_used > base ? sizeof(double) * 12 * (size_t)(lk->krow_used - base) : 0;
-            size_t from = lk->krow_mapped > live ? lk->krow_mapped : live;
+        if (lk->cpl.krow_nchunk > 0 && lk->cpl.krow_mapped < chunk) {
+            unsigned char *ch = (unsigned char *)lk->cpl.krow_chunk[lk->cpl.krow_nchunk - 1];
+            long base = (long)(lk->cpl.krow_nchunk - 1) * CH;
+            size_t live = lk->cpl.krow_used > base ? sizeof(double) * 12 * (size_t)(lk->cpl.krow_used - base) : 0;
+            size_t from = lk->cpl.krow_mapped > live ? lk->cpl.krow_mapped : live;
             while (from < chunk && sq_thread_cpu() - c0 < seconds) {
                 size_t to = from + 16 * PAGE_BYTES < chunk ? from + 16 * PAGE_BYTES : chunk;
                 *pages += touch_pages(ch, from, to);
                 from = to;
             }
-            lk->krow_mapped = from;
+            lk->cpl.krow_mapped = from;
             left = (long)((chunk - from) / PAGE_BYTES);
         }
         /* a new chunk once less than `ahead` whole ones are left (not past the level's rows) */
-        if (round == ahead || lk->krow_cap - lk->krow_used >= ahead * CH || lk->krow_cap >= (long)M->row_start[M->n] ||
-            (lk->krow_nchunk > 0 && lk->krow_mapped < chunk) || sq_thread_cpu() - c0 >= seconds)
+        if (round == ahead || lk->cpl.krow_cap - lk->cpl.krow_used >= ahead * CH || lk->cpl.krow_cap >= (long)M->row_start[M->n] ||
+            (lk->cpl.krow_nchunk > 0 && lk->cpl.krow_mapped < chunk) || sq_thread_cpu() - c0 >= seconds)
             break;
-        lk->krow_chunk = sq_realloc(lk->krow_chunk, sizeof(double *) * (size_t)(lk->krow_nchunk + 1));
-        lk->krow_chunk[lk->krow_nchunk++] = sq_malloc(chunk);
-        lk->krow_cap = (long)lk->krow_nchunk * CH;
-        lk->krow_mapped = 0;
+        lk->cpl.krow_chunk = sq_realloc(lk->cpl.krow_chunk, sizeof(double *) * (size_t)(lk->cpl.krow_nchunk + 1));
+        lk->cpl.krow_chunk[lk->cpl.krow_nchunk++] = sq_malloc(chunk);
+        lk->cpl.krow_cap = (long)lk->cpl.krow_nchunk * CH;
+        lk->cpl.krow_mapped = 0;
     }
     return left;
 }
@@ -157,18 +157,18 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
 {
     double c0 = sq_thread_cpu();
     long flt0 = sq_minor_faults();
-    lod->cost_fault = fmax(lod->cost_fault, 15e-6); /* measured 12-15 us here: at least that */
+    lod->reserve.cost_fault = fmax(lod->reserve.cost_fault, 15e-6); /* measured 12-15 us here: at least that */
     long pages = 0, pending = 0, bytes = 0;
     for (int k = 0; k < lod->L; k++) {
         sq_lod_level *lk = &lod->lev[k];
         const sq_level *L = &lod->lv[k];
-        int visc = lod->have_mat && lod->mat.use_viscosity && L->model.D;
+        int visc = lod->cpl.have_mat && lod->cpl.mat.use_viscosity && L->model.D;
         long limit = SQ_MAX((long)L->model.row_start[L->model.n], 1);
-        long ring_used = lk->ring_off && lk->blocks_valid ? lk->ring_off[lk->nring] : 0;
-        long front_used = lk->front_off && lk->blocks_valid ? lk->front_off[lk->nfrontier] : 0;
+        long ring_used = lk->cpl.ring_off && lk->cpl.blocks_valid ? lk->cpl.ring_off[lk->lay.nring] : 0;
+        long front_used = lk->cpl.front_off && lk->cpl.blocks_valid ? lk->cpl.front_off[lk->lay.nfrontier] : 0;
         long merged_used = 0;
-        for (int r = 0; r < lk->nfrontier && lk->blocks_valid; r++)
-            merged_used += L->model.row_start[lk->frontier[r] + 1] - L->model.row_start[lk->frontier[r]];
+        for (int r = 0; r < lk->lay.nfrontier && lk->cpl.blocks_valid; r++)
+            merged_used += L->model.row_start[lk->lay.frontier[r] + 1] - L->model.row_start[lk->lay.frontier[r]];
         /* each array: pointer, capacity, the elements in use (0 for the previous build's
          * arrays, free between builds), element size */
         struct {
@@ -177,24 +177,24 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
             long used;
             size_t size;
         } a[] = {
-            {(void **)&lk->ring_col, &lk->ring_col_cap, ring_used, sizeof(int)},
-            {(void **)&lk->ring_col2, &lk->ring_col2_cap, 0, sizeof(int)},
-            {(void **)&lk->ring_K, &lk->ring_K_cap, ring_used, 9 * sizeof(double)},
-            {(void **)&lk->ring_K2, &lk->ring_K2_cap, 0, 9 * sizeof(double)},
-            {(void **)&lk->ring_T, &lk->ring_T_cap, ring_used, 12 * sizeof(double)},
-            {(void **)&lk->ring_T2, &lk->ring_T2_cap, 0, 12 * sizeof(double)},
-            {(void **)&lk->front_col, &lk->front_col_cap, front_used, sizeof(int)},
-            {(void **)&lk->front_col2, &lk->front_col2_cap, 0, sizeof(int)},
-            {(void **)&lk->front_K, &lk->front_K_cap, front_used, 9 * sizeof(double)},
-            {(void **)&lk->front_K2, &lk->front_K2_cap, 0, 9 * sizeof(double)},
-            {(void **)&lk->front_merged, &lk->front_merged_cap, merged_used, 9 * sizeof(double)},
-            {(void **)&lk->front_merged2, &lk->front_merged2_cap, 0, 9 * sizeof(double)},
-            {(void **)&lk->front_T, &lk->front_T_cap, merged_used, 12 * sizeof(double)},
-            {(void **)&lk->front_T2, &lk->front_T2_cap, 0, 12 * sizeof(double)},
-            {(void **)&lk->ring_D, &lk->ring_D_cap, ring_used, 9 * sizeof(double)},
-            {(void **)&lk->ring_D2, &lk->ring_D2_cap, 0, 9 * sizeof(double)},
-            {(void **)&lk->front_D, &lk->front_D_cap, front_used, 9 * sizeof(double)},
-            {(void **)&lk->front_D2, &lk->front_D2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->cpl.ring_col, &lk->cpl.ring_col_cap, ring_used, sizeof(int)},
+            {(void **)&lk->cpl.ring_col2, &lk->cpl.ring_col2_cap, 0, sizeof(int)},
+            {(void **)&lk->cpl.ring_K, &lk->cpl.ring_K_cap, ring_used, 9 * sizeof(double)},
+            {(void **)&lk->cpl.ring_K2, &lk->cpl.ring_K2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->cpl.ring_T, &lk->cpl.ring_T_cap, ring_used, 12 * sizeof(double)},
+            {(void **)&lk->cpl.ring_T2, &lk->cpl.ring_T2_cap, 0, 12 * sizeof(double)},
+            {(void **)&lk->cpl.front_col, &lk->cpl.front_col_cap, front_used, sizeof(int)},
+            {(void **)&lk->cpl.front_col2, &lk->cpl.front_col2_cap, 0, sizeof(int)},
+            {(void **)&lk->cpl.front_K, &lk->cpl.front_K_cap, front_used, 9 * sizeof(double)},
+            {(void **)&lk->cpl.front_K2, &lk->cpl.front_K2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->cpl.front_merged, &lk->cpl.front_merged_cap, merged_used, 9 * sizeof(double)},
+            {(void **)&lk->cpl.front_merged2, &lk->cpl.front_merged2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->cpl.front_T, &lk->cpl.front_T_cap, merged_used, 12 * sizeof(double)},
+            {(void **)&lk->cpl.front_T2, &lk->cpl.front_T2_cap, 0, 12 * sizeof(double)},
+            {(void **)&lk->cpl.ring_D, &lk->cpl.ring_D_cap, ring_used, 9 * sizeof(double)},
+            {(void **)&lk->cpl.ring_D2, &lk->cpl.ring_D2_cap, 0, 9 * sizeof(double)},
+            {(void **)&lk->cpl.front_D, &lk->cpl.front_D_cap, front_used, 9 * sizeof(double)},
+            {(void **)&lk->cpl.front_D2, &lk->cpl.front_D2_cap, 0, 9 * sizeof(double)},
         };
         int na = visc ? 18 : 14; /* the viscous blocks only with viscosity */
         for (int i = 0; i < na; i++) {
@@ -202,7 +202,7 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
             long used = a[i].used, want;
             long ref = (i & 1) ? a[i - 1].used : used;
             long np = reserve_pages(*a[i].cap, *a[i].p, ref, limit, a[i].size, &want);
-            if (np > 0 && (double)np * lod->cost_fault > seconds - (sq_thread_cpu() - c0)) {
+            if (np > 0 && (double)np * lod->reserve.cost_fault > seconds - (sq_thread_cpu() - c0)) {
                 pending += np;
             } else if (np > 0) {
                 *a[i].p = reserve_one(*a[i].p, a[i].cap, want, used, a[i].size, &pages);
@@ -213,32 +213,32 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
          * time given, the rest at a later frame (a page costs 8-35 us here, with the load;
          * slots are cleared when handed out, so the writes are free) */
         size_t per = visc ? 288 : 144, chunk = sizeof(double) * per * SQ_BLOCKS_CHUNK;
-        if (lk->blocks_nchunk == 0)
-            lk->blocks_per = (int)per; /* (tet_blocks makes the chunks again for another size) */
-        if (lk->blocks_per == (int)per)
+        if (lk->cpl.blocks_nchunk == 0)
+            lk->cpl.blocks_per = (int)per; /* (tet_blocks makes the chunks again for another size) */
+        if (lk->cpl.blocks_per == (int)per)
             pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
         long slack = ahead > 1 ? (long)ahead * SQ_BLOCKS_CHUNK : SQ_BLOCKS_CHUNK / 2;
-        while (lk->blocks_per == (int)per && lk->blocks_cap - lk->blocks_used < slack &&
-               lk->blocks_cap < L->model.mesh->ntets && (lk->blocks_nchunk == 0 || lk->blocks_mapped >= chunk) &&
+        while (lk->cpl.blocks_per == (int)per && lk->cpl.blocks_cap - lk->cpl.blocks_used < slack &&
+               lk->cpl.blocks_cap < L->model.mesh->ntets && (lk->cpl.blocks_nchunk == 0 || lk->cpl.blocks_mapped >= chunk) &&
                sq_thread_cpu() - c0 < seconds) {
-            lk->blocks_chunk = sq_realloc(lk->blocks_chunk, sizeof(double *) * (size_t)(lk->blocks_nchunk + 1));
-            lk->blocks_chunk[lk->blocks_nchunk++] = sq_malloc(chunk);
-            lk->blocks_cap += SQ_BLOCKS_CHUNK;
-            lk->blocks_mapped = 0;
+            lk->cpl.blocks_chunk = sq_realloc(lk->cpl.blocks_chunk, sizeof(double *) * (size_t)(lk->cpl.blocks_nchunk + 1));
+            lk->cpl.blocks_chunk[lk->cpl.blocks_nchunk++] = sq_malloc(chunk);
+            lk->cpl.blocks_cap += SQ_BLOCKS_CHUNK;
+            lk->cpl.blocks_mapped = 0;
             pending += map_chunk(lk, chunk, per, c0, seconds, &pages);
         }
-        bytes += (long)(sizeof(double) * (size_t)SQ_MAX(lk->blocks_per, 0)) * lk->blocks_cap;
+        bytes += (long)(sizeof(double) * (size_t)SQ_MAX(lk->cpl.blocks_per, 0)) * lk->cpl.blocks_cap;
         /* the inner rows' column-form cache (no viscosity: the viscous pass does not read it) */
         if (!visc && !L->corot)
             pending += reserve_krow(lk, &L->model, c0, seconds, ahead, &pages);
-        bytes += (long)(sizeof(double) * 12) * lk->krow_cap + (lk->krow_at ? (long)sizeof(int) * L->model.n : 0);
+        bytes += (long)(sizeof(double) * 12) * lk->cpl.krow_cap + (lk->cpl.krow_at ? (long)sizeof(int) * L->model.n : 0);
     }
     double spent = sq_thread_cpu() - c0;
     long faults = sq_minor_faults() - flt0;
     if (faults >= 64) /* what a page costs here (a fault and the copies of grown arrays) */
-        lod->cost_fault = fmax(spent / (double)faults, 0.9 * lod->cost_fault);
-    lod->reserve_pending = pending;
-    lod->reserve_bytes = bytes;
+        lod->reserve.cost_fault = fmax(spent / (double)faults, 0.9 * lod->reserve.cost_fault);
+    lod->reserve.reserve_pending = pending;
+    lod->reserve.reserve_bytes = bytes;
     return pages;
 }
 

@@ -6,13 +6,14 @@
  * to the same sources with the same weights (sq_lodx_couple_out: part of the frame's step stage).
  */
 #include "lod/lod.h"
+#include "lod/corotational.h"
+#include "lod/ring.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- coupling
  *
@@ -52,7 +53,7 @@ static int cmp_src(const void *pa, const void *pb)
 static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_item **buf, int *n,
                    int *cap)
 {
-    unsigned char st = lod->lev[lev].state[j];
+    unsigned char st = lod->lev[lev].lay.state[j];
     if (st == ST_ACTIVE) {
         if (*n == *cap) {
             *cap = *cap ? 2 * *cap : 256;
@@ -89,13 +90,13 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_i
  * level as source q ends (the value and reaction loops take one run per level) */
 static void source_runs(sq_lod_level *lk)
 {
-    if (lk->nring == 0)
+    if (lk->lay.nring == 0)
         return;
-    lk->src_rend = sq_realloc(lk->src_rend, sizeof(int) * (size_t)SQ_MAX(lk->src_cap, 1));
-    for (int r = 0; r < lk->nring; r++)
-        for (int q = lk->src_start[r + 1] - 1; q >= lk->src_start[r]; q--)
-            lk->src_rend[q] = q + 1 < lk->src_start[r + 1] && lk->src_level[q + 1] == lk->src_level[q]
-                                  ? lk->src_rend[q + 1] : q + 1;
+    lk->lay.src_rend = sq_realloc(lk->lay.src_rend, sizeof(int) * (size_t)SQ_MAX(lk->lay.src_cap, 1));
+    for (int r = 0; r < lk->lay.nring; r++)
+        for (int q = lk->lay.src_start[r + 1] - 1; q >= lk->lay.src_start[r]; q--)
+            lk->lay.src_rend[q] = q + 1 < lk->lay.src_start[r + 1] && lk->lay.src_level[q + 1] == lk->lay.src_level[q]
+                                  ? lk->lay.src_rend[q + 1] : q + 1;
 }
 
 void sq_lodx_build_sources(sq_lod *lod)
@@ -104,11 +105,11 @@ void sq_lodx_build_sources(sq_lod *lod)
     int cap = 0;
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
-        lod->lev[k].src_start[0] = 0;
-        lod->lev[k].hot_valid = 0;
-        for (int r = 0; r < lod->lev[k].nring; r++) {
+        lod->lev[k].lay.src_start[0] = 0;
+        lod->lev[k].tk.hot_valid = 0;
+        for (int r = 0; r < lod->lev[k].lay.nring; r++) {
             int n = 0;
-            expand(lod, k, lod->lev[k].ring[r], 1.0, 0, &buf, &n, &cap);
+            expand(lod, k, lod->lev[k].lay.ring[r], 1.0, 0, &buf, &n, &cap);
             for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
                 src_item x = buf[i];
                 int q = i - 1;
@@ -153,28 +154,28 @@ void sq_lodx_build_sources(sq_lod *lod)
             }
             if (!(fabs(sum) > 1e-3))
                 u = 0; /* no active source: the ghost keeps its value and takes no force */
-            if (total + u > lod->lev[k].src_cap) {
-                lod->lev[k].src_cap = SQ_MAX(2 * lod->lev[k].src_cap, total + u + 1024);
-                size_t scap = (size_t)lod->lev[k].src_cap;
-                lod->lev[k].src_level = sq_realloc(lod->lev[k].src_level, sizeof(int) * scap);
-                lod->lev[k].src_node = sq_realloc(lod->lev[k].src_node, sizeof(int) * scap);
-                lod->lev[k].src_weight = sq_realloc(lod->lev[k].src_weight, sizeof(double) * scap);
-                lod->lev[k].src_rend = sq_realloc(lod->lev[k].src_rend, sizeof(int) * scap);
+            if (total + u > lod->lev[k].lay.src_cap) {
+                lod->lev[k].lay.src_cap = SQ_MAX(2 * lod->lev[k].lay.src_cap, total + u + 1024);
+                size_t scap = (size_t)lod->lev[k].lay.src_cap;
+                lod->lev[k].lay.src_level = sq_realloc(lod->lev[k].lay.src_level, sizeof(int) * scap);
+                lod->lev[k].lay.src_node = sq_realloc(lod->lev[k].lay.src_node, sizeof(int) * scap);
+                lod->lev[k].lay.src_weight = sq_realloc(lod->lev[k].lay.src_weight, sizeof(double) * scap);
+                lod->lev[k].lay.src_rend = sq_realloc(lod->lev[k].lay.src_rend, sizeof(int) * scap);
             }
             for (int i = 0; i < u; i++) {
-                lod->lev[k].src_level[total + i] = buf[i].level;
-                lod->lev[k].src_node[total + i] = buf[i].node;
-                lod->lev[k].src_weight[total + i] = buf[i].w / sum;
+                lod->lev[k].lay.src_level[total + i] = buf[i].level;
+                lod->lev[k].lay.src_node[total + i] = buf[i].node;
+                lod->lev[k].lay.src_weight[total + i] = buf[i].w / sum;
             }
             for (int i = u - 1; i >= 0; i--) /* each source's run of its level ends at */
-                lod->lev[k].src_rend[total + i] =
-                    i + 1 < u && buf[i + 1].level == buf[i].level ? lod->lev[k].src_rend[total + i + 1] : total + i + 1;
+                lod->lev[k].lay.src_rend[total + i] =
+                    i + 1 < u && buf[i + 1].level == buf[i].level ? lod->lev[k].lay.src_rend[total + i + 1] : total + i + 1;
             unsigned char bits = 0;
             for (int i = 0; i < u; i++)
                 bits |= (unsigned char)(1u << buf[i].level);
-            lod->lev[k].src_levels[r] = bits;
+            lod->lev[k].lay.src_levels[r] = bits;
             total += u;
-            lod->lev[k].src_start[r + 1] = total;
+            lod->lev[k].lay.src_start[r + 1] = total;
         }
     }
     free(buf);
@@ -184,260 +185,4 @@ void sq_lodx_build_sources(sq_lod *lod)
         for (int k = 0; k < lod->L; k++)
             source_runs(&lod->lev[k]);
     }
-}
-
-/* the ring ghosts of level k at tick t: sources of a level between two of its steps are
- * taken linearly in time over that step */
-static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, long t, const int *list, int n)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    sq_level *Lk = &lod->lv[k];
-    double fr[SQ_MAX_LEVELS];
-    const double *dcur[SQ_MAX_LEVELS], *vcur[SQ_MAX_LEVELS];
-    for (int m = 0; m < lod->L; m++) {
-        double f = (double)(t - lod->lev[m].step_start) / (double)lod->lev[m].step_len;
-        fr[m] = f < 0 ? 0 : (f > 1 ? 1 : f);
-        dcur[m] = lod->lv[m].d;
-        vcur[m] = lod->lv[m].v;
-    }
-    /* the level's lists in locals (the value stores below would make the compiler reload them) */
-    const int *ring = lk->ring, *src_start = lk->src_start;
-    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
-    const double *fw = lk->src_weight;
-    double *restrict Dk = Lk->d, *restrict Vk = Lk->v;
-    const unsigned char *fixed = Lk->model.fixed;
-    for (int x = 0; x < n; x++) {
-        const int r = list ? list[x] : x;
-        int j = ring[r];
-        int a = src_start[r], b = src_start[r + 1];
-        if (a == b)
-            continue;
-        /* a node's d and v as 4 lanes (lane 3 unused), each lane summed as the scalar sums
-         * were: d += w * d1, or d += w * (d0 + f (d1 - d0)) */
-        sq_v4 d = {0, 0, 0, 0}, v = {0, 0, 0, 0};
-        /* the sources are sorted by level: one run per level, its time fraction hoisted */
-        for (int q = a; q < b;) {
-            const int m = fl[q], qe = rend[q];
-            double f = fr[m];
-            const double *D1 = dcur[m], *V1 = vcur[m];
-            if (f == 1) {
-                /* a source level at the end of its step (the common case): its values */
-                for (; q < qe; q++) {
-                    const sq_v4 w = v4_set1(fw[q]);
-                    const size_t n3 = 3 * (size_t)fn[q];
-                    d += w * v4_load(D1 + n3);
-                    v += w * v4_load(V1 + n3);
-                }
-                continue;
-            }
-            const double *D0 = lod->lev[m].d_start, *V0 = lod->lev[m].v_start;
-            const sq_v4 fv = v4_set1(f);
-            for (; q < qe; q++) {
-                const sq_v4 w = v4_set1(fw[q]);
-                const size_t n3 = 3 * (size_t)fn[q];
-                const sq_v4 d0 = v4_load(D0 + n3), v0 = v4_load(V0 + n3);
-                d += w * (d0 + fv * (v4_load(D1 + n3) - d0));
-                v += w * (v0 + fv * (v4_load(V1 + n3) - v0));
-            }
-        }
-        sq_lodx_store_free(fixed[j], &d, &v, Dk + 3 * (size_t)j, Vk + 3 * (size_t)j);
-    }
-}
-
-void sq_lodx_eval_ring(sq_lod *lod, int k, long t)
-{
-    eval_list(lod, k, t, NULL, lod->lev[k].nring);
-}
-
-/* the ring ghosts of level k that the ring rows with a source on a level in `mask` read (the
- * ghost columns of those rows), increasing ring order: lk->hot, made once per layout */
-static void hot_list(sq_lod *lod, int k, unsigned mask)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    if (lk->hot_valid && lk->hot_mask == mask)
-        return;
-    if (!lk->hot)
-        lk->hot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(lod->lv[k].model.n, 1));
-    unsigned char *mark = lk->mark; /* all zero between uses */
-    for (int r = 0; r < lk->nring; r++)
-        if (lk->src_levels[r] & mask)
-            for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
-                int l = lk->ring_index[lk->ring_col[e]];
-                if (l >= 0)
-                    mark[l] = 1;
-            }
-    int nh = 0;
-    for (int r = 0; r < lk->nring; r++)
-        if (mark[r]) {
-            lk->hot[nh++] = r;
-            mark[r] = 0;
-        }
-    lk->nhot = nh;
-    lk->hot_mask = mask;
-    lk->hot_valid = 1;
-}
-
-int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask)
-{
-    hot_list(lod, k, mask);
-    eval_list(lod, k, t, lod->lev[k].hot, lod->lev[k].nhot);
-    return lod->lev[k].nhot;
-}
-
-/* force on ring ghost r (node j) of level k from the tets touching active nodes, -(K w)_j -
- * (D v)_j, with the active nodes of level k taken at fraction fr of its current step */
-static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, double fr, double g[3])
-{
-    const sq_lod_level *lk = &lod->lev[k];
-    const sq_level *L = &lod->lv[k];
-    const unsigned char *act = lk->active;
-    double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
-    const double *Bd = mat->use_viscosity ? lk->ring_D : NULL;
-    g[0] = g[1] = g[2] = 0;
-    if (!Bd) {
-        /* no viscosity: the three rows of a block in the lanes of one vector (the ring rows in
-         * column form), each lane summed as the scalar rows were: g_r -= (K_r0 w0 + K_r1 w1)
-         * + K_r2 w2 */
-        const double *restrict d = L->d, *restrict v = L->v;
-        const double *T = lk->ring_T;
-        const int *col = lk->ring_col;
-        const sq_v4 bb = v4_set1(b);
-        sq_v4 acc = {0, 0, 0, 0};
-        const int e0 = lk->ring_off[r], e1 = lk->ring_off[r + 1];
-        if (fr >= 1) {
-            /* the level at the end of its step (without viscosity sq_lodx_couple_out does
-             * this itself, from d + b v formed once for the step) */
-            for (int e = e0; e < e1; e++) {
-                const size_t j = 3 * (size_t)col[e];
-                acc -= v4_block(T + 12 * (size_t)e, v4_load(d + j) + bb * v4_load(v + j));
-            }
-        } else {
-            /* active nodes of the level between two of its steps, at fraction fr */
-            const double *restrict d0s = lk->d_start, *restrict v0s = lk->v_start;
-            const sq_v4 fv = v4_set1(fr);
-            for (int e = e0; e < e1; e++) {
-                const int l = col[e];
-                const size_t j = 3 * (size_t)l;
-                sq_v4 dl = v4_load(d + j), vl = v4_load(v + j);
-                if (act[l]) {
-                    const sq_v4 d0 = v4_load(d0s + j), v0 = v4_load(v0s + j);
-                    dl = d0 + fv * (dl - d0);
-                    vl = v0 + fv * (vl - v0);
-                }
-                acc -= v4_block(T + 12 * (size_t)e, dl + bb * vl);
-            }
-        }
-        g[0] = acc[0];
-        g[1] = acc[1];
-        g[2] = acc[2];
-        return;
-    }
-    for (int e = lk->ring_off[r]; e < lk->ring_off[r + 1]; e++) {
-        int l = lk->ring_col[e];
-        double dl[3], vl[3];
-        for (int c = 0; c < 3; c++) {
-            dl[c] = L->d[3 * l + c];
-            vl[c] = L->v[3 * l + c];
-        }
-        if (fr < 1 && act[l])
-            for (int c = 0; c < 3; c++) {
-                double d0 = lk->d_start[3 * l + c], v0 = lk->v_start[3 * l + c];
-                dl[c] = d0 + fr * (dl[c] - d0);
-                vl[c] = v0 + fr * (vl[c] - v0);
-            }
-        const double *K = lk->ring_K + 9 * (size_t)e;
-        double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
-        for (int rr = 0; rr < 3; rr++)
-            g[rr] -= K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
-        const double *D = Bd + 9 * (size_t)e;
-        for (int rr = 0; rr < 3; rr++)
-            g[rr] -= D[3 * rr] * vl[0] + D[3 * rr + 1] * vl[1] + D[3 * rr + 2] * vl[2];
-    }
-}
-
-/* the ring reactions of level k at tick t go back to their active sources, into the force of
- * the levels that step at this tick. A level between two of its steps (a coarser one) still
- * hands its reactions to the finer levels stepping now, from its values at this tick: those
- * reactions depend on the finer nodes themselves, so they must follow them step by step.
- * Reactions for a coarser level are sampled at its own steps. */
-int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
-{
-    int rows = 0;
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_level *Lk = &lod->lv[k];
-    double fr = (double)(t - lk->step_start) / (double)lk->step_len;
-    fr = fr < 0 ? 0 : (fr > 1 ? 1 : fr);
-    unsigned due_bits = 0;
-    for (int m = 0; m < lod->L; m++)
-        due_bits |= lod->lev[m].due ? 1u << m : 0u;
-    /* the level's lists in locals: the force stores below could otherwise alias them for the
-     * compiler, which would reload them at every ring ghost */
-    const int nring = lk->nring, *ring = lk->ring, *src_start = lk->src_start;
-    const unsigned char *src_levels = lk->src_levels;
-    const int *fl = lk->src_level, *fn = lk->src_node, *rend = lk->src_rend;
-    const double *fw = lk->src_weight;
-    /* the level at the end of its step without viscosity (the common case): the ring rows
-     * here, from d + b v formed once for the step (sq_lodx_form_w); the others by ring_force */
-    const int fast = fr >= 1 && !mat->use_viscosity;
-    if (fast && !lk->w_ok) /* called outside the frame's tick */
-        sq_lodx_form_w(lod, mat, k);
-    const double *restrict W = lk->w_tick, *T = lk->ring_T;
-    const int *col = lk->ring_col, *roff = lk->ring_off;
-    const unsigned char *fixed = Lk->model.fixed;
-    double *Fl[SQ_MAX_LEVELS];
-    for (int m = 0; m < lod->L; m++)
-        Fl[m] = lod->lv[m].f;
-    for (int r = 0; r < nring; r++) {
-        int j = ring[r];
-        int a = src_start[r], b = src_start[r + 1];
-        if (!(src_levels[r] & due_bits))
-            continue;
-        double g[3];
-        if (fast) {
-            /* -(K w) over the row in column form, each lane summed as the scalar rows were:
-             * g_r -= (K_r0 w0 + K_r1 w1) + K_r2 w2, two blocks a turn in row order */
-            sq_v4 acc = {0, 0, 0, 0};
-            int e = roff[r];
-            const int e1 = roff[r + 1];
-            for (; e + 1 < e1; e += 2) {
-                const sq_v4 x0 = v4_block_s(T + 12 * (size_t)e, W + 3 * (size_t)col[e]);
-                const sq_v4 x1 = v4_block_s(T + 12 * (size_t)e + 12, W + 3 * (size_t)col[e + 1]);
-                acc -= x0;
-                acc -= x1;
-            }
-            if (e < e1)
-                acc -= v4_block_s(T + 12 * (size_t)e, W + 3 * (size_t)col[e]);
-            g[0] = acc[0];
-            g[1] = acc[1];
-            g[2] = acc[2];
-        } else {
-            ring_force(lod, mat, k, r, fr, g);
-        }
-        rows++;
-        unsigned char fx = fixed[j];
-        if (fx)
-            for (int c = 0; c < 3; c++)
-                if (fx & (1u << c))
-                    g[c] = 0; /* a constrained axis of a ghost does not follow its sources */
-        const sq_v2 g01 = {g[0], g[1]};
-        /* one run of sources per level (sorted by level); levels not stepping now skipped */
-        for (int q = a; q < b;) {
-            const int m = fl[q], qe = rend[q];
-            if (!(due_bits & (1u << m))) {
-                q = qe;
-                continue;
-            }
-            double *F = Fl[m];
-            for (; q < qe; q++) {
-                /* dst[c] += w g[c]: x and y as one 2-lane vector */
-                double w = fw[q], *dst = F + 3 * (size_t)fn[q];
-                sq_v2 xy;
-                memcpy(&xy, dst, sizeof xy);
-                xy += (sq_v2){w, w} * g01;
-                memcpy(dst, &xy, sizeof xy);
-                dst[2] += w * g[2];
-            }
-        }
-    }
-    return rows;
 }

@@ -14,13 +14,21 @@
  * the active nodes (pull, push, cascade, sync), and the consistency check of the tree.
  */
 #include "lod/lod.h"
+#include "lod/activeset.h"
+#include "lod/bound.h"
+#include "lod/corotational.h"
+#include "lod/coupling.h"
+#include "lod/criterion.h"
+#include "lod/lod_vec.h"
+#include "lod/ring.h"
+#include "lod/state.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "lod/lod_internal.h"
 
 /* ---------------------------------------------------------------- state bookkeeping */
 
@@ -30,87 +38,87 @@ void sq_lodx_rebuild_level(sq_lod *lod, int k)
     sq_lod_level *lk = &lod->lev[k];
     int n = lod->lv[k].model.n;
     int na = 0, nf = 0, nc = 0;
-    lk->hot_valid = 0; /* the ring changes: its hot list is made again (ring.c) */
+    lk->tk.hot_valid = 0; /* the ring changes: its hot list is made again (ring.c) */
     /* the first rebuild since the blocks were built keeps the lists they were built for, and
      * every rebuild records the nodes whose active flag changes: the next block build redoes
      * only the rows next to those (coupling.c) */
-    if (!lk->blocks_dirty && lk->blocks_valid && !lk->prev_saved) {
-        memcpy(lk->prev_ring, lk->ring, sizeof(int) * (size_t)lk->nring);
-        lk->nprev_ring = lk->nring;
-        memcpy(lk->prev_frontier, lk->frontier, sizeof(int) * (size_t)lk->nfrontier);
-        lk->nprev_frontier = lk->nfrontier;
-        lk->prev_saved = 1;
+    if (!lk->cpl.blocks_dirty && lk->cpl.blocks_valid && !lk->cpl.prev_saved) {
+        memcpy(lk->cpl.prev_ring, lk->lay.ring, sizeof(int) * (size_t)lk->lay.nring);
+        lk->cpl.nprev_ring = lk->lay.nring;
+        memcpy(lk->cpl.prev_frontier, lk->lay.frontier, sizeof(int) * (size_t)lk->lay.nfrontier);
+        lk->cpl.nprev_frontier = lk->lay.nfrontier;
+        lk->cpl.prev_saved = 1;
     }
     for (int i = 0; i < n; i++) {
-        unsigned char s = lk->state[i];
+        unsigned char s = lk->lay.state[i];
         unsigned char a = (s == ST_ACTIVE);
-        if (a != lk->active[i] && !lk->chg_mark[i]) {
-            lk->chg_mark[i] = 1;
-            lk->chg[lk->nchg++] = i;
+        if (a != lk->lay.active[i] && !lk->cpl.chg_mark[i]) {
+            lk->cpl.chg_mark[i] = 1;
+            lk->cpl.chg[lk->cpl.nchg++] = i;
         }
-        lk->active[i] = a;
-        if (s != lk->seed_state[i] && !lk->schg_mark[i]) {
-            lk->schg_mark[i] = 1;
-            lk->schg[lk->nschg++] = i;
+        lk->lay.active[i] = a;
+        if (s != lk->lists.seed_state[i] && !lk->lists.schg_mark[i]) {
+            lk->lists.schg_mark[i] = 1;
+            lk->lists.schg[lk->lists.nschg++] = i;
         }
-        lk->integrated[i] = (s == ST_ACTIVE);
+        lk->lay.integrated[i] = (s == ST_ACTIVE);
         if (s == ST_ACTIVE)
-            lk->active_list[na++] = i;
+            lk->lists.active_list[na++] = i;
         else if (s == ST_SPLIT)
-            lk->split_ghost[nf++] = i;
+            lk->lay.split_ghost[nf++] = i;
         else
-            lk->coarse_ghost[nc++] = i;
+            lk->lay.coarse_ghost[nc++] = i;
     }
-    lk->nactive = na;
-    lk->nsplit_ghost = nf;
-    lk->ncoarse_ghost = nc;
+    lk->lay.nactive = na;
+    lk->lay.nsplit_ghost = nf;
+    lk->lay.ncoarse_ghost = nc;
     /* the ring (ghosts with an active neighbour) and the frontier (active nodes with a ghost
      * neighbour), found from the active nodes' rows, so the cost follows the active set; the
      * ring is kept in increasing node order */
     const sq_level *Lk = &lod->lv[k];
-    const unsigned char *act = lk->active;
-    for (int r = 0; r < lk->nring; r++)
-        lk->ring_index[lk->ring[r]] = -1;
+    const unsigned char *act = lk->lay.active;
+    for (int r = 0; r < lk->lay.nring; r++)
+        lk->lay.ring_index[lk->lay.ring[r]] = -1;
     int nr = 0, nfr = 0;
     for (int a = 0; a < na; a++) {
-        int i = lk->active_list[a], front = 0;
+        int i = lk->lists.active_list[a], front = 0;
         for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++) {
             int j = Lk->model.col[q];
             if (act[j])
                 continue;
             front = 1;
-            if (lk->ring_index[j] < 0) {
-                lk->ring_index[j] = 0;
-                lk->ring[nr++] = j;
+            if (lk->lay.ring_index[j] < 0) {
+                lk->lay.ring_index[j] = 0;
+                lk->lay.ring[nr++] = j;
             }
         }
         if (front)
-            lk->frontier[nfr++] = i;
+            lk->lay.frontier[nfr++] = i;
     }
     if ((long)nr * 32 > n) { /* a sizeable ring: a scan of the marks beats a sort */
         nr = 0;
         for (int i = 0; i < n; i++)
-            if (lk->ring_index[i] >= 0)
-                lk->ring[nr++] = i;
+            if (lk->lay.ring_index[i] >= 0)
+                lk->lay.ring[nr++] = i;
     } else {
-        sq_lodx_sort_ints(lk->ring, nr);
+        sq_lodx_sort_ints(lk->lay.ring, nr);
     }
     for (int r = 0; r < nr; r++)
-        lk->ring_index[lk->ring[r]] = r;
-    lk->nring = nr;
-    lk->nfrontier = nfr;
-    memcpy(lk->inner, lk->active, (size_t)SQ_MAX(n, 0));
+        lk->lay.ring_index[lk->lay.ring[r]] = r;
+    lk->lay.nring = nr;
+    lk->lay.nfrontier = nfr;
+    memcpy(lk->lay.inner, lk->lay.active, (size_t)SQ_MAX(n, 0));
     for (int r = 0; r < nfr; r++)
-        lk->inner[lk->frontier[r]] = 0;
-    lk->blocks_dirty = 1;
+        lk->lay.inner[lk->lay.frontier[r]] = 0;
+    lk->cpl.blocks_dirty = 1;
     /* held nodes are prescribed, not integrated */
     int nm = na;
-    for (int e = 0; e < lod->nhe; e++)
-        if (lod->he[e].level == k && lod->he[e].count > 0 && lk->integrated[lod->he[e].node]) {
-            lk->integrated[lod->he[e].node] = 0;
+    for (int e = 0; e < lod->holds.nhe; e++)
+        if (lod->holds.he[e].level == k && lod->holds.he[e].count > 0 && lk->lay.integrated[lod->holds.he[e].node]) {
+            lk->lay.integrated[lod->holds.he[e].node] = 0;
             nm--;
         }
-    lk->nintegrated = nm;
+    lk->lay.nintegrated = nm;
     sq_lodx_level_lists(lod, k);
 }
 
@@ -119,7 +127,7 @@ static void set_uniform_level(sq_lod *lod, int s)
 {
     for (int k = 0; k < lod->L; k++) {
         unsigned char st = k < s ? ST_SPLIT : (k == s ? ST_ACTIVE : ST_COARSE);
-        memset(lod->lev[k].state, st, (size_t)lod->lv[k].model.n);
+        memset(lod->lev[k].lay.state, st, (size_t)lod->lv[k].model.n);
     }
     for (int k = 0; k < lod->L; k++)
         sq_lodx_rebuild_level(lod, k);
@@ -134,8 +142,8 @@ void sq_lodx_pull_level(sq_lod *lod, int k)
         return;
     const sq_lod_link *ln = &lod->h.link[k];
     sq_level *dst = &lod->lv[k];
-    for (int g = 0; g < lod->lev[k].nsplit_ghost; g++) {
-        int i = lod->lev[k].split_ghost[g];
+    for (int g = 0; g < lod->lev[k].lay.nsplit_ghost; g++) {
+        int i = lod->lev[k].lay.split_ghost[g];
         sq_lodx_interp(lod, dst, i, k + 1, ln->down_tet[i], ln->down_bary + 4 * i);
     }
 }
@@ -148,8 +156,8 @@ static void push_level(sq_lod *lod, int k)
     const sq_lod_link *ln = &lod->h.link[k - 1];
     sq_level *dst = &lod->lv[k];
     const sq_level *src = &lod->lv[k - 1];
-    for (int g = 0; g < lod->lev[k].ncoarse_ghost; g++) {
-        int j = lod->lev[k].coarse_ghost[g];
+    for (int g = 0; g < lod->lev[k].lay.ncoarse_ghost; g++) {
+        int j = lod->lev[k].lay.coarse_ghost[g];
         interp_node(dst, j, src, ln->up_tet[j], ln->up_bary + 4 * j);
     }
 }
@@ -163,10 +171,10 @@ static void cascade(sq_lod *lod)
         sq_lodx_pull_level(lod, k);
     for (int k = 1; k < lod->L; k++)
         push_level(lod, k);
-    lod->stale = 0;
-    lod->full_no = ++lod->cascade_no;
+    lod->push.stale = 0;
+    lod->push.full_no = ++lod->push.cascade_no;
     for (int k = 0; k < lod->L; k++)
-        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
+        sq_lodx_eval_ring(lod, k, lod->lev[k].tk.step_start + lod->lev[k].tk.step_len);
 }
 
 /* the end-of-frame cascade: as cascade(), but coarse ghosts are pushed only where something
@@ -175,22 +183,22 @@ void sq_lodx_cascade_needed(sq_lod *lod)
 {
     for (int k = lod->L - 2; k >= 0; k--)
         sq_lodx_pull_level(lod, k);
-    if (lod->lists_dirty)
+    if (lod->push.lists_dirty)
         sq_lodx_refresh_lists(lod);
     sq_lodx_push_needed(lod);
     sq_lodx_save_cascade(lod);
     for (int k = 0; k < lod->L; k++)
-        sq_lodx_eval_ring(lod, k, lod->lev[k].step_start + lod->lev[k].step_len);
+        sq_lodx_eval_ring(lod, k, lod->lev[k].tk.step_start + lod->lev[k].tk.step_len);
 }
 
 void sq_lod_sync(sq_lod *lod)
 {
     for (int k = 0; k < lod->L; k++) {
-        lod->lev[k].step_start = -1;
-        lod->lev[k].step_len = 1;
+        lod->lev[k].tk.step_start = -1;
+        lod->lev[k].tk.step_len = 1;
         size_t n3 = 3 * (size_t)lod->lv[k].model.n;
-        memcpy(lod->lev[k].d_start, lod->lv[k].d, n3 * sizeof(double));
-        memcpy(lod->lev[k].v_start, lod->lv[k].v, n3 * sizeof(double));
+        memcpy(lod->lev[k].tk.d_start, lod->lv[k].d, n3 * sizeof(double));
+        memcpy(lod->lev[k].tk.v_start, lod->lv[k].v, n3 * sizeof(double));
     }
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, NULL);
@@ -280,7 +288,7 @@ static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, cons
     lod->L = nlevels;
     lod->def = *def;
     lod->top = top_of(def, nlevels);
-    lod->nl_gen = -1;
+    lod->view.nl_gen = -1;
     int share = like && like->L == nlevels;
     for (int k = 0; share && k < nlevels; k++)
         share = like->h.mesh[k] == meshes[k];
@@ -294,91 +302,91 @@ static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, cons
     size_t nmax_nodes = 1;
     for (int k = 0; k < nlevels; k++) {
         size_t n = (size_t)levels[k].model.n;
-        lod->lev[k].state = sq_calloc(n, 1);
-        lod->lev[k].active = sq_calloc(n, 1);
-        lod->lev[k].integrated = sq_calloc(n, 1);
-        lod->lev[k].fresh = sq_calloc(n, 1);
-        lod->lev[k].active_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].inner_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].integrated_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].read_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].needed = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].in_needed = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].mark = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].push_stamp = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
+        lod->lev[k].lay.state = sq_calloc(n, 1);
+        lod->lev[k].lay.active = sq_calloc(n, 1);
+        lod->lev[k].lay.integrated = sq_calloc(n, 1);
+        lod->lev[k].lay.fresh = sq_calloc(n, 1);
+        lod->lev[k].lists.active_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].lists.inner_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].lists.integrated_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].lists.read_list = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].lists.needed = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].lists.in_needed = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].lists.mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].lists.push_stamp = sq_calloc(SQ_MAX(n, 1), sizeof(unsigned));
         nmax_nodes = SQ_MAX(nmax_nodes, n);
-        lod->lev[k].split_ghost = sq_malloc(sizeof(int) * n);
-        lod->lev[k].coarse_ghost = sq_malloc(sizeof(int) * n);
-        lod->lev[k].hold_of = sq_malloc(sizeof(int) * n);
+        lod->lev[k].lay.split_ghost = sq_malloc(sizeof(int) * n);
+        lod->lev[k].lay.coarse_ghost = sq_malloc(sizeof(int) * n);
+        lod->lev[k].lay.hold_of = sq_malloc(sizeof(int) * n);
         if (!share)
-            lod->lev[k].crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
-        lod->lev[k].ring = sq_malloc(sizeof(int) * n);
+            lod->lev[k].tab.crit_weight = sq_lodx_criterion_weights(levels[k].model.mesh);
+        lod->lev[k].lay.ring = sq_malloc(sizeof(int) * n);
         /* one spare double: the ring kernels load 4 lanes per node */
-        lod->lev[k].d_start = sq_calloc(3 * n + 1, sizeof(double));
-        lod->lev[k].v_start = sq_calloc(3 * n + 1, sizeof(double));
-        lod->lev[k].src_start = sq_calloc(n + 1, sizeof(int));
-        lod->lev[k].src_levels = sq_calloc(n + 1, 1);
-        lod->lev[k].ring_off = sq_calloc(n + 1, sizeof(int));
-        lod->lev[k].ring_index = sq_malloc(sizeof(int) * n);
+        lod->lev[k].tk.d_start = sq_calloc(3 * n + 1, sizeof(double));
+        lod->lev[k].tk.v_start = sq_calloc(3 * n + 1, sizeof(double));
+        lod->lev[k].lay.src_start = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].lay.src_levels = sq_calloc(n + 1, 1);
+        lod->lev[k].cpl.ring_off = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].lay.ring_index = sq_malloc(sizeof(int) * n);
         for (size_t i = 0; i < n; i++)
-            lod->lev[k].ring_index[i] = -1;
-        lod->lev[k].frontier = sq_malloc(sizeof(int) * n);
-        lod->lev[k].prev_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].blk_active = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].ncnt = sq_calloc(SQ_MAX(n, 1), sizeof(int));
-        lod->lev[k].seed_state = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].schg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].schg_mark = sq_calloc(SQ_MAX(n, 1), 1);
-        lod->lev[k].seed_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
-        lod->lev[k].ring_off2 = sq_calloc(n + 1, sizeof(int));
-        lod->lev[k].front_off2 = sq_calloc(n + 1, sizeof(int));
-        lod->lev[k].inner = sq_calloc(n, 1);
-        lod->lev[k].front_off = sq_calloc(n + 1, sizeof(int));
+            lod->lev[k].lay.ring_index[i] = -1;
+        lod->lev[k].lay.frontier = sq_malloc(sizeof(int) * n);
+        lod->lev[k].cpl.prev_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.prev_frontier = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.chg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.chg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].cpl.blk_active = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].lists.ncnt = sq_calloc(SQ_MAX(n, 1), sizeof(int));
+        lod->lev[k].lists.seed_state = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].lists.schg = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].lists.schg_mark = sq_calloc(SQ_MAX(n, 1), 1);
+        lod->lev[k].lists.seed_ring = sq_malloc(sizeof(int) * SQ_MAX(n, 1));
+        lod->lev[k].cpl.ring_off2 = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].cpl.front_off2 = sq_calloc(n + 1, sizeof(int));
+        lod->lev[k].lay.inner = sq_calloc(n, 1);
+        lod->lev[k].cpl.front_off = sq_calloc(n + 1, sizeof(int));
         const sq_mesh *mm = levels[k].model.mesh;
         /* the element-block cache (written by the frames): always the state's own */
-        lod->lev[k].blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
+        lod->lev[k].cpl.blocks_slot = sq_malloc(sizeof(int) * (size_t)SQ_MAX(mm->ntets, 1));
         for (int t = 0; t < mm->ntets; t++)
-            lod->lev[k].blocks_slot[t] = -1;
+            lod->lev[k].cpl.blocks_slot[t] = -1;
         if (share) {
             /* the tables below depend on the mesh alone and are read only once made */
             const sq_lod_level *lk = &like->lev[k];
-            lod->lev[k].crit_weight = lk->crit_weight;
-            lod->lev[k].node_tet_start = lk->node_tet_start;
-            lod->lev[k].node_tet = lk->node_tet;
-            lod->lev[k].inc_corner = lk->inc_corner;
-            lod->lev[k].inc_block = lk->inc_block;
-            lod->lev[k].tet_geom = lk->tet_geom;
+            lod->lev[k].tab.crit_weight = lk->tab.crit_weight;
+            lod->lev[k].tab.node_tet_start = lk->tab.node_tet_start;
+            lod->lev[k].tab.node_tet = lk->tab.node_tet;
+            lod->lev[k].tab.inc_corner = lk->tab.inc_corner;
+            lod->lev[k].tab.inc_block = lk->tab.inc_block;
+            lod->lev[k].tab.tet_geom = lk->tab.tet_geom;
         } else {
-            node_tets(mm, &lod->lev[k].node_tet_start, &lod->lev[k].node_tet);
-            int ninc = lod->lev[k].node_tet_start[n];
-            lod->lev[k].inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
-            lod->lev[k].inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
+            node_tets(mm, &lod->lev[k].tab.node_tet_start, &lod->lev[k].tab.node_tet);
+            int ninc = lod->lev[k].tab.node_tet_start[n];
+            lod->lev[k].tab.inc_corner = sq_malloc((size_t)SQ_MAX(ninc, 1));
+            lod->lev[k].tab.inc_block = sq_malloc(sizeof(int) * 4 * (size_t)SQ_MAX(ninc, 1));
             for (int j = 0; j < (int)n; j++)
-                for (int c = lod->lev[k].node_tet_start[j]; c < lod->lev[k].node_tet_start[j + 1]; c++) {
-                    const int *tv = mm->tets + 4 * lod->lev[k].node_tet[c];
+                for (int c = lod->lev[k].tab.node_tet_start[j]; c < lod->lev[k].tab.node_tet_start[j + 1]; c++) {
+                    const int *tv = mm->tets + 4 * lod->lev[k].tab.node_tet[c];
                     int p = 0;
                     while (tv[p] != j)
                         p++;
-                    lod->lev[k].inc_corner[c] = (unsigned char)p;
+                    lod->lev[k].tab.inc_corner[c] = (unsigned char)p;
                     for (int q = 0; q < 4; q++)
-                        lod->lev[k].inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
+                        lod->lev[k].tab.inc_block[4 * (size_t)c + q] = adj_find(mm, j, tv[q]) - mm->adj_start[j];
                 }
-            lod->lev[k].tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mm->ntets);
+            lod->lev[k].tab.tet_geom = sq_malloc(sizeof(double) * 13 * (size_t)mm->ntets);
             for (int t = 0; t < mm->ntets; t++) {
                 double a[4][3];
-                double *g = lod->lev[k].tet_geom + 13 * (size_t)t;
+                double *g = lod->lev[k].tab.tet_geom + 13 * (size_t)t;
                 g[0] = sq_tet_gradients(mm, t, a);
                 memcpy(g + 1, a, sizeof(a));
             }
         }
         for (size_t i = 0; i < n; i++)
-            lod->lev[k].hold_of[i] = -1;
+            lod->lev[k].lay.hold_of[i] = -1;
     }
-    lod->nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
-    lod->nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->view.nlv[0] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
+    lod->view.nlv[1] = sq_malloc(SQ_MAX(nmax_nodes, (size_t)1));
     set_uniform_level(lod, start_level(lod));
     sq_lod_sync(lod);
     return lod;
@@ -400,80 +408,80 @@ void sq_lod_destroy(sq_lod *lod)
         return;
     sq_lodx_sharp_free(lod);
     for (int k = 0; k < lod->L; k++) {
-        free(lod->lev[k].state);
-        free(lod->lev[k].active);
-        free(lod->lev[k].integrated);
-        free(lod->lev[k].fresh);
+        free(lod->lev[k].lay.state);
+        free(lod->lev[k].lay.active);
+        free(lod->lev[k].lay.integrated);
+        free(lod->lev[k].lay.fresh);
         sq_lodx_free(lod, k);
         sq_lodx_corot_free(lod, k);
-        free(lod->lev[k].split_ghost);
-        free(lod->lev[k].coarse_ghost);
-        free(lod->lev[k].hold_of);
-        free(lod->lev[k].ring);
-        free(lod->lev[k].d_start);
-        free(lod->lev[k].v_start);
-        free(lod->lev[k].src_start);
-        free(lod->lev[k].src_levels);
-        free(lod->lev[k].ring_off);
-        free(lod->lev[k].ring_index);
-        free(lod->lev[k].own_rowsum);
-        free(lod->lev[k].coupled_rowsum);
-        free(lod->lev[k].ring_col);
-        free(lod->lev[k].front_col);
-        free(lod->lev[k].frontier);
-        free(lod->lev[k].prev_ring);
-        free(lod->lev[k].prev_frontier);
-        free(lod->lev[k].chg);
-        free(lod->lev[k].chg_mark);
-        free(lod->lev[k].blk_active);
-        free(lod->lev[k].ncnt);
-        free(lod->lev[k].seed_state);
-        free(lod->lev[k].schg);
-        free(lod->lev[k].schg_mark);
-        free(lod->lev[k].seed_ring);
-        free(lod->lev[k].ring_off2);
-        free(lod->lev[k].ring_col2);
-        free(lod->lev[k].ring_K2);
-        free(lod->lev[k].ring_D2);
-        free(lod->lev[k].front_off2);
-        free(lod->lev[k].front_col2);
-        free(lod->lev[k].front_K2);
-        free(lod->lev[k].front_D2);
-        free(lod->lev[k].front_merged2);
-        free(lod->lev[k].inner);
-        free(lod->lev[k].front_merged);
-        free(lod->lev[k].ring_T);
-        free(lod->lev[k].ring_T2);
-        free(lod->lev[k].front_T2);
-        free(lod->lev[k].front_T);
-        free(lod->lev[k].front_off);
-        free(lod->lev[k].front_K);
-        free(lod->lev[k].front_D);
-        free(lod->lev[k].ring_K);
-        free(lod->lev[k].ring_D);
-        free(lod->lev[k].blocks_slot);
-        for (int c = 0; c < lod->lev[k].blocks_nchunk; c++)
-            free(lod->lev[k].blocks_chunk[c]);
-        free(lod->lev[k].blocks_chunk);
+        free(lod->lev[k].lay.split_ghost);
+        free(lod->lev[k].lay.coarse_ghost);
+        free(lod->lev[k].lay.hold_of);
+        free(lod->lev[k].lay.ring);
+        free(lod->lev[k].tk.d_start);
+        free(lod->lev[k].tk.v_start);
+        free(lod->lev[k].lay.src_start);
+        free(lod->lev[k].lay.src_levels);
+        free(lod->lev[k].cpl.ring_off);
+        free(lod->lev[k].lay.ring_index);
+        free(lod->lev[k].rate.own_rowsum);
+        free(lod->lev[k].rate.coupled_rowsum);
+        free(lod->lev[k].cpl.ring_col);
+        free(lod->lev[k].cpl.front_col);
+        free(lod->lev[k].lay.frontier);
+        free(lod->lev[k].cpl.prev_ring);
+        free(lod->lev[k].cpl.prev_frontier);
+        free(lod->lev[k].cpl.chg);
+        free(lod->lev[k].cpl.chg_mark);
+        free(lod->lev[k].cpl.blk_active);
+        free(lod->lev[k].lists.ncnt);
+        free(lod->lev[k].lists.seed_state);
+        free(lod->lev[k].lists.schg);
+        free(lod->lev[k].lists.schg_mark);
+        free(lod->lev[k].lists.seed_ring);
+        free(lod->lev[k].cpl.ring_off2);
+        free(lod->lev[k].cpl.ring_col2);
+        free(lod->lev[k].cpl.ring_K2);
+        free(lod->lev[k].cpl.ring_D2);
+        free(lod->lev[k].cpl.front_off2);
+        free(lod->lev[k].cpl.front_col2);
+        free(lod->lev[k].cpl.front_K2);
+        free(lod->lev[k].cpl.front_D2);
+        free(lod->lev[k].cpl.front_merged2);
+        free(lod->lev[k].lay.inner);
+        free(lod->lev[k].cpl.front_merged);
+        free(lod->lev[k].cpl.ring_T);
+        free(lod->lev[k].cpl.ring_T2);
+        free(lod->lev[k].cpl.front_T2);
+        free(lod->lev[k].cpl.front_T);
+        free(lod->lev[k].cpl.front_off);
+        free(lod->lev[k].cpl.front_K);
+        free(lod->lev[k].cpl.front_D);
+        free(lod->lev[k].cpl.ring_K);
+        free(lod->lev[k].cpl.ring_D);
+        free(lod->lev[k].cpl.blocks_slot);
+        for (int c = 0; c < lod->lev[k].cpl.blocks_nchunk; c++)
+            free(lod->lev[k].cpl.blocks_chunk[c]);
+        free(lod->lev[k].cpl.blocks_chunk);
         if (!lod->shared) {
-            free(lod->lev[k].crit_weight);
-            free(lod->lev[k].node_tet_start);
-            free(lod->lev[k].node_tet);
-            free(lod->lev[k].inc_corner);
-            free(lod->lev[k].inc_block);
-            free(lod->lev[k].tet_geom);
+            free(lod->lev[k].tab.crit_weight);
+            free(lod->lev[k].tab.node_tet_start);
+            free(lod->lev[k].tab.node_tet);
+            free(lod->lev[k].tab.inc_corner);
+            free(lod->lev[k].tab.inc_block);
+            free(lod->lev[k].tab.tet_geom);
         }
-        free(lod->lev[k].src_level);
-        free(lod->lev[k].src_rend);
-        free(lod->lev[k].hot);
-        free(lod->lev[k].src_node);
-        free(lod->lev[k].src_weight);
+        free(lod->lev[k].lay.src_level);
+        free(lod->lev[k].lay.src_rend);
+        free(lod->lev[k].tk.hot);
+        free(lod->lev[k].lay.src_node);
+        free(lod->lev[k].lay.src_weight);
     }
-    free(lod->nlv[0]);
-    free(lod->nlv[1]);
-    free(lod->abs_sum);
-    free(lod->he);
-    free(lod->hold_entry_of);
+    free(lod->view.nlv[0]);
+    free(lod->view.nlv[1]);
+    free(lod->cpl.abs_sum);
+    free(lod->holds.he);
+    free(lod->holds.hold_entry_of);
     if (!lod->shared)
         sq_hierarchy_free(&lod->h);
     free(lod);
@@ -497,22 +505,22 @@ int sq_lod_set_def(sq_lod *lod, const sq_lod_def *def, sq_err *err)
         /* levels above the new top: merge their regions back down to it */
         for (int k = lod->top; k < lod->L; k++)
             for (int i = 0; i < lod->lv[k].model.n; i++)
-                if (k == lod->top && lod->lev[k].state[i] == ST_SPLIT)
-                    lod->lev[k].state[i] = ST_ACTIVE;
+                if (k == lod->top && lod->lev[k].lay.state[i] == ST_SPLIT)
+                    lod->lev[k].lay.state[i] = ST_ACTIVE;
                 else if (k > lod->top)
-                    lod->lev[k].state[i] = ST_COARSE;
+                    lod->lev[k].lay.state[i] = ST_COARSE;
         for (int k = lod->top; k < lod->L; k++)
             sq_lodx_rebuild_level(lod, k);
         sq_lod_sync(lod);
     }
-    lod->last_time = 0;
+    lod->guard.last_time = 0;
     return 0;
 }
 
 void sq_lod_reset(sq_lod *lod)
 {
     set_uniform_level(lod, start_level(lod));
-    lod->last_time = 0;
+    lod->guard.last_time = 0;
     sq_lod_sync(lod);
 }
 
@@ -521,7 +529,7 @@ int sq_lod_check(const sq_lod *lod, sq_err *err)
     for (int k = 0; k < lod->L; k++) {
         int na = 0;
         for (int i = 0; i < lod->lv[k].model.n; i++) {
-            unsigned char s = lod->lev[k].state[i];
+            unsigned char s = lod->lev[k].lay.state[i];
             if (s > ST_SPLIT)
                 return sq_err_set(err, "lod: level %d node %d has state %d", k, i, s);
             if (k == 0 && s == ST_COARSE)
@@ -530,17 +538,17 @@ int sq_lod_check(const sq_lod *lod, sq_err *err)
                 return sq_err_set(err, "lod: node %d of level %d (top %d) is split", i, k, lod->top);
             if (k > 0) {
                 int p = lod->h.link[k - 1].parent[i];
-                int parent_split = lod->lev[k - 1].state[p] == ST_SPLIT;
+                int parent_split = lod->lev[k - 1].lay.state[p] == ST_SPLIT;
                 if (parent_split != (s != ST_COARSE))
                     return sq_err_set(err, "lod: level %d node %d has state %d but its parent %d has "
-                                      "state %d", k, i, s, p, lod->lev[k - 1].state[p]);
+                                      "state %d", k, i, s, p, lod->lev[k - 1].lay.state[p]);
             }
-            if (lod->lev[k].active[i] != (s == ST_ACTIVE))
+            if (lod->lev[k].lay.active[i] != (s == ST_ACTIVE))
                 return sq_err_set(err, "lod: level %d node %d: active mask out of date", k, i);
             na += s == ST_ACTIVE;
         }
-        if (na != lod->lev[k].nactive)
-            return sq_err_set(err, "lod: level %d counts %d active nodes, has %d", k, lod->lev[k].nactive, na);
+        if (na != lod->lev[k].lay.nactive)
+            return sq_err_set(err, "lod: level %d counts %d active nodes, has %d", k, lod->lev[k].lay.nactive, na);
     }
     return 0;
 }

@@ -68,7 +68,7 @@ plant_doc() { # name line-to-append expected-words [file-to-remove-from-the-copy
     fi
 }
 plant_doc "a misspelt sq_ symbol on the page" '- `sq_lod_frmae` runs the stages.' "the symbol 'sq_lod_frmae'"
-plant_doc "a server/ path that does not exist" '- server/lod/guard.c holds the guard.' "the file 'server/lod/guard.c'"
+plant_doc "a server/ path that does not exist" '- server/lod/governor.c holds the guard.' "the file 'server/lod/governor.c'"
 plant_doc "a module path that does not exist" '- `lod/budget.c`: the guard.' "the file 'server/lod/budget.c'"
 plant_doc "a prefix nothing in server/ starts with" '- `sq_nolod_*`: none.' "the prefix 'sq_nolod_"
 plant_doc "a named file removed from the tree" "" "the file 'server/util/json.c'" server/util/json.c

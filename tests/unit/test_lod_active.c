@@ -2,7 +2,6 @@
  * nobody reads are pushed on demand only, and that changes nothing a caller can see. */
 #include <stdint.h>
 
-#include "lod/lod_internal.h"
 #include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
@@ -52,7 +51,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
         sq_frame_profile p[2];
         for (int i = 0; i < 2; i++)
             sq_body_frame(b[i], &tool, 1, NULL, &p[i], 0);
-        stale_frames += b[0]->lod->stale != 0;
+        stale_frames += b[0]->lod->push.stale != 0;
         for (int k = 1; k < 4; k++)
             for (int j = 0; j < m[k]->nnodes; j++)
                 sq_lod_flushed_d(b[0]->lod, k, j, pre[k] + 3 * (size_t)j);
@@ -65,7 +64,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
         /* the node levels (computed level by level) against the walk up to the active ancestor */
         for (int j = 0; j < m[3]->nnodes; j++) {
             int k = 3, x = j;
-            while (k > 0 && b[1]->lod->lev[k].state[x] != 1) {
+            while (k > 0 && b[1]->lod->lev[k].lay.state[x] != 1) {
                 x = b[1]->lod->h.link[k - 1].parent[x];
                 k--;
             }
@@ -117,11 +116,11 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
     int F = 3, nF = m[F]->nnodes, nsurf = m[F]->nsurf;
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "coarse frame: pushed %d / %d / %d of %d / %d / %d nodes (finest surface %d)\n",
-                lod->lev[1].nneeded, lod->lev[2].nneeded, lod->lev[3].nneeded, m[1]->nnodes, m[2]->nnodes, nF,
+                lod->lev[1].lists.nneeded, lod->lev[2].lists.nneeded, lod->lev[3].lists.nneeded, m[1]->nnodes, m[2]->nnodes, nF,
                 nsurf);
-    CHECK(lod->stale);
-    CHECK(lod->lev[F].nneeded == nsurf); /* exactly the rendered surface at the finest level */
-    CHECK(lod->lev[F].nneeded < nF / 2);
+    CHECK(lod->push.stale);
+    CHECK(lod->lev[F].lists.nneeded == nsurf); /* exactly the rendered surface at the finest level */
+    CHECK(lod->lev[F].lists.nneeded < nF / 2);
     /* the eager cascade by hand, on copies */
     double *d[4], *v[4];
     for (int k = 0; k < 4; k++) {
@@ -157,7 +156,7 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
     }
     CHECK(surf_ok);
     sq_lod_flush(lod);
-    CHECK(!lod->stale);
+    CHECK(!lod->push.stale);
     int all_ok = 1;
     for (int k = 1; k < 4; k++) {
         size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
@@ -282,30 +281,30 @@ static int same_level(const sq_lod *a, const sq_lod *b, int k)
     const sq_level *L = &a->lv[k];
     int n = L->model.n;
 #define SAME(p, cnt) ((cnt) == 0 || !memcmp((x->p), (y->p), sizeof(*(x->p)) * (size_t)(cnt)))
-    if (x->nring != y->nring || x->nfrontier != y->nfrontier || x->nactive != y->nactive ||
-        x->ninner_list != y->ninner_list || x->nintegrated_list != y->nintegrated_list ||
-        x->nread_list != y->nread_list || x->nneeded != y->nneeded || x->extra_log2 != y->extra_log2 ||
-        x->blocks_dirty != y->blocks_dirty)
+    if (x->lay.nring != y->lay.nring || x->lay.nfrontier != y->lay.nfrontier || x->lay.nactive != y->lay.nactive ||
+        x->lists.ninner_list != y->lists.ninner_list || x->lists.nintegrated_list != y->lists.nintegrated_list ||
+        x->lists.nread_list != y->lists.nread_list || x->lists.nneeded != y->lists.nneeded || x->rate.extra_log2 != y->rate.extra_log2 ||
+        x->cpl.blocks_dirty != y->cpl.blocks_dirty)
         return 0;
-    int ok = SAME(state, n) && SAME(ring, x->nring) && SAME(ring_index, n) && SAME(frontier, x->nfrontier) &&
-             SAME(inner, n) && SAME(active_list, x->nactive) && SAME(inner_list, x->ninner_list) &&
-             SAME(integrated_list, x->nintegrated_list) && SAME(read_list, x->nread_list) &&
-             SAME(needed, x->nneeded) && SAME(coupled_rowsum, n);
-    ok = ok && SAME(src_start, x->nring + 1) && SAME(src_levels, x->nring);
-    int ns = x->src_start[x->nring];
-    ok = ok && SAME(src_level, ns) && SAME(src_node, ns) && SAME(src_weight, ns) && SAME(src_rend, ns);
-    if (!ok || x->blocks_dirty)
+    int ok = SAME(lay.state, n) && SAME(lay.ring, x->lay.nring) && SAME(lay.ring_index, n) && SAME(lay.frontier, x->lay.nfrontier) &&
+             SAME(lay.inner, n) && SAME(lists.active_list, x->lay.nactive) && SAME(lists.inner_list, x->lists.ninner_list) &&
+             SAME(lists.integrated_list, x->lists.nintegrated_list) && SAME(lists.read_list, x->lists.nread_list) &&
+             SAME(lists.needed, x->lists.nneeded) && SAME(rate.coupled_rowsum, n);
+    ok = ok && SAME(lay.src_start, x->lay.nring + 1) && SAME(lay.src_levels, x->lay.nring);
+    int ns = x->lay.src_start[x->lay.nring];
+    ok = ok && SAME(lay.src_level, ns) && SAME(lay.src_node, ns) && SAME(lay.src_weight, ns) && SAME(lay.src_rend, ns);
+    if (!ok || x->cpl.blocks_dirty)
         return ok;
-    ok = SAME(ring_off, x->nring + 1) && SAME(front_off, x->nfrontier + 1);
+    ok = SAME(cpl.ring_off, x->lay.nring + 1) && SAME(cpl.front_off, x->lay.nfrontier + 1);
     if (!ok)
         return 0;
-    int nr = x->ring_off[x->nring], nf = x->front_off[x->nfrontier], nm = 0;
-    for (int r = 0; r < x->nfrontier; r++)
-        nm += L->model.row_start[x->frontier[r] + 1] - L->model.row_start[x->frontier[r]];
-    ok = SAME(ring_col, nr) && SAME(front_col, nf) && SAME(ring_K, 9 * nr) && SAME(front_K, 9 * nf) &&
-         SAME(front_merged, 9 * nm) && SAME(ring_T, 12 * nr) && SAME(front_T, 12 * nm);
+    int nr = x->cpl.ring_off[x->lay.nring], nf = x->cpl.front_off[x->lay.nfrontier], nm = 0;
+    for (int r = 0; r < x->lay.nfrontier; r++)
+        nm += L->model.row_start[x->lay.frontier[r] + 1] - L->model.row_start[x->lay.frontier[r]];
+    ok = SAME(cpl.ring_col, nr) && SAME(cpl.front_col, nf) && SAME(cpl.ring_K, 9 * nr) && SAME(cpl.front_K, 9 * nf) &&
+         SAME(cpl.front_merged, 9 * nm) && SAME(cpl.ring_T, 12 * nr) && SAME(cpl.front_T, 12 * nm);
     if (L->model.D)
-        ok = ok && SAME(ring_D, 9 * nr) && SAME(front_D, 9 * nf);
+        ok = ok && SAME(cpl.ring_D, 9 * nr) && SAME(cpl.front_D, 9 * nf);
 #undef SAME
     return ok;
 }
@@ -361,19 +360,19 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
         long computed[2] = {0, 0}, built[2] = {0, 0};
         for (int i = 0; i < 2; i++)
             for (int k = 0; k < 4; k++) {
-                computed[i] += b[i]->lod->lev[k].rows_computed;
-                built[i] += b[i]->lod->lev[k].rows_built;
+                computed[i] += b[i]->lod->lev[k].cpl.rows_computed;
+                built[i] += b[i]->lod->lev[k].cpl.rows_built;
             }
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "incremental rebuild (%s): %ld splits %ld merges, finest active up to %ld; rows "
                     "computed %ld of %ld (full: %ld of %ld); needed set by changes %ld times, from scratch %ld; %ld frames "
                     "differ\n", visc ? "viscosities" : "b K", splits, merges, max_fine, computed[0], built[0],
-                    computed[1], built[1], b[0]->lod->needed_counts[1], b[0]->lod->needed_counts[0], bad_frames);
+                    computed[1], built[1], b[0]->lod->push.needed_counts[1], b[0]->lod->push.needed_counts[0], bad_frames);
         CHECK(splits > 0 && merges > 0 && max_fine > 0); /* down to level 3 and back */
         CHECK(bad_frames == 0);
         CHECK(built[0] == built[1] && computed[1] == built[1]); /* the reference rebuilt every row */
         CHECK(computed[0] < built[0] / 2);                      /* the incremental one far fewer */
-        CHECK(b[0]->lod->needed_counts[1] > 10 * b[0]->lod->needed_counts[0]); /* needed set by changes */
+        CHECK(b[0]->lod->push.needed_counts[1] > 10 * b[0]->lod->push.needed_counts[0]); /* needed set by changes */
         sq_body_destroy(b[0]);
         sq_body_destroy(b[1]);
     }

@@ -6,7 +6,10 @@
 #include <stdint.h>
 
 #include "lod/lod.h"
-#include "lod/lod_internal.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
+#include "lod/lod_test.h"
+#include "lod/tick.h"
 #include "body/body_internal.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"
@@ -97,19 +100,19 @@ static void coupled_forces(sq_lod *lod, const sq_material *mat)
 {
     double g[3] = {0, 0, 0};
     for (int m = 0; m < lod->L; m++) {
-        lod->lev[m].due = 1;
-        lod->lev[m].step_start = 0;
-        lod->lev[m].step_len = 1;
+        lod->lev[m].tk.due = 1;
+        lod->lev[m].tk.step_start = 0;
+        lod->lev[m].tk.step_len = 1;
     }
     for (int m = 0; m < lod->L; m++)
         sq_lodx_eval_ring(lod, m, 1);
     for (int m = 0; m < lod->L; m++)
-        if (lod->lev[m].nactive > 0) {
+        if (lod->lev[m].lay.nactive > 0) {
             sq_level_forces(&lod->lv[m], mat, g, NULL);
             sq_lodx_front_correct(lod, mat, m);
         }
     for (int m = 0; m < lod->L; m++)
-        if (lod->lev[m].nactive > 0 && lod->lev[m].nring > 0)
+        if (lod->lev[m].lay.nactive > 0 && lod->lev[m].lay.nring > 0)
             sq_lodx_couple_out(lod, mat, m, 1);
 }
 
@@ -198,9 +201,9 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     /* an interface on every level */
     for (int k = 0; k < 3; k++) {
         if (getenv("SQ_LOD_VERBOSE"))
-            fprintf(stderr, "level %d: %d active of %d, %d ring, %d frontier\n", k, lod->lev[k].nactive,
-                    lv[k].model.n, lod->lev[k].nring, lod->lev[k].nfrontier);
-        CHECK(lod->lev[k].nactive > 0 && lod->lev[k].nfrontier > 0);
+            fprintf(stderr, "level %d: %d active of %d, %d ring, %d frontier\n", k, lod->lev[k].lay.nactive,
+                    lv[k].model.n, lod->lev[k].lay.nring, lod->lev[k].lay.nfrontier);
+        CHECK(lod->lev[k].lay.nactive > 0 && lod->lev[k].lay.nfrontier > 0);
     }
     /* the dofs of every level, the dense coupled operator */
     int nd = 0;
@@ -208,8 +211,8 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     int start[4];
     for (int k = 0; k < 3; k++) {
         start[k] = nd;
-        for (int a = 0; a < lod->lev[k].nactive; a++) {
-            int i = lod->lev[k].active_list[a];
+        for (int a = 0; a < lod->lev[k].lay.nactive; a++) {
+            int i = lod->lev[k].lists.active_list[a];
             for (int x = 0; x < 3; x++)
                 if (!(lv[k].model.fixed[i] & (1u << x)))
                     dofs[nd++] = (dof){k, i, x};
@@ -245,17 +248,17 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
         }
         /* bound.c's product is the assembled block plus its off-level diagonal */
         double *off = NULL, *P = sq_lodx_sharp_dense(lod, k, &off), perr = 0, pmax = 0, cmin = INFINITY;
-        int N = 3 * lod->lev[k].nactive;
+        int N = 3 * lod->lev[k].lay.nactive;
         for (int i = 0; i < nk; i++) {
             int a = 0;
-            while (lod->lev[k].active_list[a] != dofs[n0 + i].node)
+            while (lod->lev[k].lists.active_list[a] != dofs[n0 + i].node)
                 a++;
             int pi = 3 * a + dofs[n0 + i].axis;
             double rowoff = Bc[(size_t)i * nk + i] - B[(size_t)i * nk + i];
             cmin = fmin(cmin, off[pi] - rowoff); /* the code's C at or above the scalar row sums */
             for (int j = 0; j < nk; j++) {
                 int b = 0;
-                while (lod->lev[k].active_list[b] != dofs[n0 + j].node)
+                while (lod->lev[k].lists.active_list[b] != dofs[n0 + j].node)
                     b++;
                 int pj = 3 * b + dofs[n0 + j].axis;
                 double want = B[(size_t)i * nk + j] + (i == j ? off[pi] : 0);
@@ -286,7 +289,7 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
         lmaj_k[k] = lmaj;
         int iters = 0;
         CHECK(sq_lod_sharp_info(lod, k, &lest, &gersh, &iters) == 1);
-        int sub = lv[k].substeps_log2 + lod->lev[k].extra_log2;
+        int sub = lv[k].substeps_log2 + lod->lev[k].rate.extra_log2;
         double dt = 0.02 / ldexp(1.0, sub), dt_true = 2 / sqrt(lkk);
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "level %d (%d dofs): lambda block %.6g, majorant %.6g, estimate %.6g (/block %.4f, "
@@ -327,14 +330,14 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     {
         int sub_full[3], nstop = 0;
         for (int k = 0; k < 3; k++)
-            sub_full[k] = lv[k].substeps_log2 + lod->lev[k].extra_log2;
+            sub_full[k] = lv[k].substeps_log2 + lod->lev[k].rate.extra_log2;
         sq_lodx_sharp_invalidate(lod);
         sq_lodx_coupling_bound(lod);
         for (int k = 0; k < 3; k++) {
             double lest = 0, gersh = 0;
             int iters = 0;
             CHECK(sq_lod_sharp_info(lod, k, &lest, &gersh, &iters) == 1);
-            CHECK(lv[k].substeps_log2 + lod->lev[k].extra_log2 == sub_full[k]);
+            CHECK(lv[k].substeps_log2 + lod->lev[k].rate.extra_log2 == sub_full[k]);
             CHECK(lest >= lmaj_k[k] * (1 - 1e-9));
             if (lest == gersh && iters < 16) {
                 nstop++;
@@ -342,7 +345,7 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
             }
             if (getenv("SQ_LOD_VERBOSE"))
                 fprintf(stderr, "early stop: level %d: %d steps, estimate %.6g (ceiling %.6g), 2^%d (full run 2^%d)\n",
-                        k, iters, lest, gersh, lv[k].substeps_log2 + lod->lev[k].extra_log2, sub_full[k]);
+                        k, iters, lest, gersh, lv[k].substeps_log2 + lod->lev[k].rate.extra_log2, sub_full[k]);
         }
         CHECK(nstop >= 1);
     }
@@ -421,13 +424,13 @@ SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
         int sp = 0, mg = 0;
         sq_lod_adapt(lod, 1, &sp, &mg);
     }
-    CHECK(lod->lev[2].nactive == lv[2].model.n && lod->lev[2].nfrontier == 0);
+    CHECK(lod->lev[2].lay.nactive == lv[2].model.n && lod->lev[2].lay.nfrontier == 0);
     double lest = 0, gersh = 0;
     int iters = 0;
     CHECK(sq_lod_sharp_info(lod, 2, &lest, &gersh, &iters) == 1);
     double l400 = sq_level_lanczos_max(&lv[2], 400);
     CHECK(sq_level_choose_step_sharp(&lv[2], &mat, 0.02, 0.9, 40, &e) == 0);
-    int sub = lv[2].substeps_log2 + lod->lev[2].extra_log2;
+    int sub = lv[2].substeps_log2 + lod->lev[2].rate.extra_log2;
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "forced finest: estimate %.8g, fixed Lanczos (400 steps) %.8g (ratio %.8f), %d steps; "
                 "2^%d substeps, fixed sharp %d, Gershgorin 2^%d\n", lest, l400, lest / l400, iters, sub, lv[2].nsub,
@@ -476,9 +479,9 @@ SQ_TEST(lod_sharp_estimate_past_its_deadline_keeps_gershgorin_until_made)
     CHECK(late == 3 && later == 0);
     int more = 0;
     for (int k = 0; k < 3; k++) {
-        int s0 = lv[0][k].substeps_log2 + lod[0]->lev[k].extra_log2;
-        int s1 = lv[1][k].substeps_log2 + lod[1]->lev[k].extra_log2;
-        int s2 = lv[2][k].substeps_log2 + lod[2]->lev[k].extra_log2;
+        int s0 = lv[0][k].substeps_log2 + lod[0]->lev[k].rate.extra_log2;
+        int s1 = lv[1][k].substeps_log2 + lod[1]->lev[k].rate.extra_log2;
+        int s2 = lv[2][k].substeps_log2 + lod[2]->lev[k].rate.extra_log2;
         if (getenv("SQ_LOD_VERBOSE"))
             fprintf(stderr, "level %d: sharp 2^%d, past its deadline 2^%d, Gershgorin 2^%d\n", k, s0, s1, s2);
         CHECK(s1 == s2);
@@ -500,7 +503,7 @@ SQ_TEST(lod_sharp_estimate_past_its_deadline_keeps_gershgorin_until_made)
         CHECK(sq_lod_sharp_info(lod[0], k, &l0, &g0, &i0) == 1);
         CHECK(sq_lod_sharp_info(lod[1], k, &l1, &g1, &i1) == 1);
         CHECK(l0 == l1 && g0 == g1 && i0 == i1 && l0 > 0);
-        CHECK(lod[0]->lev[k].extra_log2 == lod[1]->lev[k].extra_log2);
+        CHECK(lod[0]->lev[k].rate.extra_log2 == lod[1]->lev[k].rate.extra_log2);
     }
     for (int c = 0; c < 3; c++) {
         sq_lod_destroy(lod[c]);

@@ -6,7 +6,6 @@
 #include <float.h>
 #include <stdint.h>
 
-#include "lod/lod_internal.h"
 #include "lod/lod_test.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
@@ -374,7 +373,7 @@ SQ_TEST(lod_corot_energy_across_split_merge_and_undamped_run)
             worst_event = fmax(worst_event, fabs(after - before) / before);
         nsplit += sp;
         nmerge += mg;
-        mixed_frames += lod->lev[0].nactive > 0 && lod->lev[1].nactive > 0;
+        mixed_frames += lod->lev[0].lay.nactive > 0 && lod->lev[1].lay.nactive > 0;
         CHECK(sq_lod_check(lod, &e) == 0);
         sq_lod_frame_in in = {.mat = &mat, .gravity = {g[0], g[1], g[2]}, .frame_dt = 0.02};
         sq_lod_frame(lod, &in, NULL, NULL);

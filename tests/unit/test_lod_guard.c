@@ -4,8 +4,12 @@
  * frame did (its node updates, its passes' levels and changed nodes). */
 #include <stdint.h>
 
-#include "lod/lod_internal.h"
+#include "lod/bound.h"
+#include "lod/coupling.h"
+#include "lod/guard.h"
 #include "lod/lod_test.h"
+#include "lod/ring.h"
+#include "lod/state.h"
 #include "body/body_internal.h"
 #include "scene/scene.h"
 #include "sq_test.h"
@@ -100,7 +104,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         unsigned char *before[4];
         for (int k = 0; k < 4; k++) {
             before[k] = malloc((size_t)m[k]->nnodes);
-            memcpy(before[k], b[0]->lod->lev[k].state, (size_t)m[k]->nnodes);
+            memcpy(before[k], b[0]->lod->lev[k].lay.state, (size_t)m[k]->nnodes);
         }
         sq_body_frame(b[0], &tool, 1, NULL, &p[0], 0);
         int lch = 0;
@@ -108,7 +112,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         for (int k = 0; k < 4; k++) {
             long d = 0;
             for (int i = 0; i < m[k]->nnodes; i++)
-                d += (before[k][i] == ST_ACTIVE) != (b[0]->lod->lev[k].state[i] == ST_ACTIVE);
+                d += (before[k][i] == ST_ACTIVE) != (b[0]->lod->lev[k].lay.state[i] == ST_ACTIVE);
             lch += d > 0;
             nch += d;
             free(before[k]);
@@ -119,7 +123,7 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
          * two frames (like the first) may be over */
         double period = f < 60 ? PERIOD : 12e-3, Bf = def.lod.budget * period;
         sq_body_frame(b[1], &tool, 1, NULL, &p[1], period);
-        double cu = unguarded_cost(&p[0], lch, nch), cg = b[1]->lod->guard_modeled;
+        double cu = unguarded_cost(&p[0], lch, nch), cg = b[1]->lod->guard.guard_modeled;
         if (f >= 1 && f != 60 && f != 61) {
             over_unguarded += cu > B;
             over += cg > Bf;
@@ -137,13 +141,13 @@ SQ_TEST(lod_guard_holds_the_budget_on_given_costs)
         fprintf(stderr, "guard on given costs, budget %.2f ms: unguarded %d frames over (worst %.2f ms); guarded "
                 "%d over (worst %.2f ms), finest active up to %d, %ld splits, %ld merges (%ld by the guard, "
                 "%ld split again in their rest), %d frames with splits refused\n", 1e3 * B, over_unguarded,
-                1e3 * worst_unguarded, over, 1e3 * worst, finest_max, splits, merges, b[1]->lod->guard_merged_total,
+                1e3 * worst_unguarded, over, 1e3 * worst, finest_max, splits, merges, b[1]->lod->guard.guard_merged_total,
                 sq_lod_test_of(b[1]->lod)->guard_resplit, refused);
     CHECK(over_unguarded > 0);  /* the budget binds */
     CHECK(over == 0);           /* exact model: no frame over after the first */
     CHECK(finest_max > 0);      /* the guard does not simply keep everything coarse */
     CHECK(refused > 0);
-    CHECK(b[1]->lod->guard_merged_total > 0); /* the drop made the guard merge */
+    CHECK(b[1]->lod->guard.guard_merged_total > 0); /* the drop made the guard merge */
     CHECK(sq_lod_test_of(b[1]->lod)->guard_resplit == 0);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
@@ -195,9 +199,9 @@ SQ_TEST(lod_guard_untimed_time_is_not_charged)
     }
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "time around the frame: undeclared %.3f ms, declared %.3f ms\n",
-                1e3 * b[0]->lod->cost_outside, 1e3 * c->lod->cost_outside);
-    CHECK(b[0]->lod->cost_outside >= 2.5e-3);
-    CHECK(c->lod->cost_outside <= 1e-3);
+                1e3 * b[0]->lod->guard.cost_outside, 1e3 * c->lod->guard.cost_outside);
+    CHECK(b[0]->lod->guard.cost_outside >= 2.5e-3);
+    CHECK(c->lod->guard.cost_outside <= 1e-3);
     sq_body_destroy(c);
     sq_body_destroy(b[0]);
     sq_body_destroy(b[1]);
@@ -284,18 +288,18 @@ SQ_TEST(lod_guard_isolated_spike_around_the_frame)
     int f = 0;
     for (; f < 10; f++)
         poke_frame(c, &def, f, PERIOD);
-    double before = c->lod->cost_outside;
+    double before = c->lod->guard.cost_outside;
     burn_cpu(4e-3);
     double after[3];
     for (int i = 0; i < 3; i++, f++) {
         poke_frame(c, &def, f, PERIOD);
-        after[i] = c->lod->cost_outside;
+        after[i] = c->lod->guard.cost_outside;
     }
     for (int i = 0; i < 2; i++, f++) {
         burn_cpu(4e-3);
         poke_frame(c, &def, f, PERIOD);
     }
-    double sustained = c->lod->cost_outside;
+    double sustained = c->lod->guard.cost_outside;
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "time around the frame: %.3f ms; after one spike %.3f %.3f %.3f ms; sustained %.3f ms\n",
                 1e3 * before, 1e3 * after[0], 1e3 * after[1], 1e3 * after[2], 1e3 * sustained);
@@ -343,11 +347,11 @@ SQ_TEST(lod_guard_merges_least_needed_first)
         need[k] = malloc(sizeof(double) * (size_t)n);
         for (int p = 0; p < n; p++) {
             need[k][p] = -1;
-            if (lod->lev[k].state[p] != ST_SPLIT)
+            if (lod->lev[k].lay.state[p] != ST_SPLIT)
                 continue;
             int ok = 1;
             for (int c = ln->child_start[p]; c < ln->child_start[p + 1] && ok; c++)
-                ok = lod->lev[k + 1].state[ln->child[c]] == ST_ACTIVE;
+                ok = lod->lev[k + 1].lay.state[ln->child[c]] == ST_ACTIVE;
             if (!ok)
                 continue;
             need[k][p] = sq_lodx_need(lod, k, p);
@@ -368,10 +372,10 @@ SQ_TEST(lod_guard_merges_least_needed_first)
         for (int p = 0; p < m[k]->nnodes; p++) {
             if (need[k][p] < 0)
                 continue;
-            if (lod->lev[k].state[p] == ST_ACTIVE) {
+            if (lod->lev[k].lay.state[p] == ST_ACTIVE) {
                 merged_max = fmax(merged_max, need[k][p]);
                 merged++;
-                held += lod->guard_hold[k] && lod->guard_hold[k][p] == lod->guard_clock + 7;
+                held += lod->guard.guard_hold[k] && lod->guard.guard_hold[k][p] == lod->guard.guard_clock + 7;
             } else {
                 kept_min = fmin(kept_min, need[k][p]);
             }
@@ -420,8 +424,8 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod *lod = b->lod;
     int levels_active = 0, ext0[3];
     for (int k = 0; k < 3; k++) {
-        levels_active += lod->lev[k].nactive > 0;
-        ext0[k] = lod->lev[k].extra_log2;
+        levels_active += lod->lev[k].lay.nactive > 0;
+        ext0[k] = lod->lev[k].rate.extra_log2;
     }
     CHECK(levels_active >= 2);
     long calls0, calls1, calls2;
@@ -434,7 +438,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod_sharp_cost(lod, &calls1, &cpu);
     int same1 = 1;
     for (int k = 0; k < 3; k++)
-        same1 &= lod->lev[k].extra_log2 == ext0[k];
+        same1 &= lod->lev[k].rate.extra_log2 == ext0[k];
     sq_lodx_sharp_invalidate(lod);
     for (int k = 0; k < 3; k++)
         sq_lodx_rebuild_level(lod, k);
@@ -443,7 +447,7 @@ SQ_TEST(lod_sharp_estimate_skipped_for_unchanged_levels)
     sq_lod_sharp_cost(lod, &calls2, &cpu);
     int same2 = 1;
     for (int k = 0; k < 3; k++)
-        same2 &= lod->lev[k].extra_log2 == ext0[k];
+        same2 &= lod->lev[k].rate.extra_log2 == ext0[k];
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "sharp skip: %d levels active; unchanged rebuild %ld estimates, invalidated %ld\n",
                 levels_active, calls1 - calls0, calls2 - calls1);
@@ -470,9 +474,9 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
     if (!made)
         return;
     for (int c = 0; c < 2; c++) {
-        CHECK(b[c]->lod->reserve_bytes == 0);
+        CHECK(b[c]->lod->reserve.reserve_bytes == 0);
         for (int k = 0; k < 4; k++)
-            CHECK(b[c]->lod->lev[k].krow_at == NULL && b[c]->lod->lev[k].ring_K_cap == 0);
+            CHECK(b[c]->lod->lev[k].cpl.krow_at == NULL && b[c]->lod->lev[k].cpl.ring_K_cap == 0);
     }
     for (int f = 0; f < 60; f++) {
         sq_tool tool = guard_poke(f * def.frame_dt);
@@ -480,19 +484,19 @@ SQ_TEST(lod_guard_reserve_only_with_a_budget_row_cache_ahead)
         sq_body_frame(b[0], &tool, 1, NULL, &p, 0);
         sq_body_frame(b[1], &tool, 1, NULL, &p, PERIOD);
         if (f == 0)
-            CHECK(b[1]->lod->reserve_live == 1 && b[1]->lod->reserve_bytes > 0);
+            CHECK(b[1]->lod->reserve.reserve_live == 1 && b[1]->lod->reserve.reserve_bytes > 0);
     }
     long used[2] = {0, 0}, grown[2] = {0, 0};
     for (int c = 0; c < 2; c++)
         for (int k = 0; k < 4; k++) {
-            used[c] += b[c]->lod->lev[k].krow_used;
-            grown[c] += b[c]->lod->lev[k].krow_grown;
+            used[c] += b[c]->lod->lev[k].cpl.krow_used;
+            grown[c] += b[c]->lod->lev[k].cpl.krow_grown;
         }
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "row cache: unbudgeted %ld blocks used, %ld chunks opened in ticks, reserve %ld bytes; "
                 "budgeted %ld used, %ld opened in ticks, reserve %.1f MB\n", used[0], grown[0],
-                b[0]->lod->reserve_bytes, used[1], grown[1], 1e-6 * (double)b[1]->lod->reserve_bytes);
-    CHECK(b[0]->lod->reserve_live == 0 && b[0]->lod->reserve_bytes == 0);
+                b[0]->lod->reserve.reserve_bytes, used[1], grown[1], 1e-6 * (double)b[1]->lod->reserve.reserve_bytes);
+    CHECK(b[0]->lod->reserve.reserve_live == 0 && b[0]->lod->reserve.reserve_bytes == 0);
     CHECK(used[0] > 0 && grown[0] > 0); /* without a budget the ticks open the chunks */
     CHECK(used[1] > 0 && grown[1] == 0); /* with one, none */
     sq_body_destroy(b[0]);
@@ -687,8 +691,8 @@ SQ_TEST(lod_guard_load_check_copy_shares_what_it_only_reads)
             CHECK(Lc->model_shared == 1 && Lc->model.K == Lb->model.K && Lc->model.Kup == Lb->model.Kup);
             CHECK(Lc->d != Lb->d && Lc->v != Lb->v); /* the state is the copy's own */
             CHECK(Lf->model_shared == 0 && Lf->model.K != Lb->model.K);
-            CHECK(copy->lod->lev[k].tet_geom == b->lod->lev[k].tet_geom);
-            CHECK(copy->lod->lev[k].blocks_slot != b->lod->lev[k].blocks_slot);
+            CHECK(copy->lod->lev[k].tab.tet_geom == b->lod->lev[k].tab.tet_geom);
+            CHECK(copy->lod->lev[k].cpl.blocks_slot != b->lod->lev[k].cpl.blocks_slot);
             /* gravity: every level has its static equilibrium, copied, not shared */
             const double *ds = copy->lod->lev[k].d_static, *df = fresh->lod->lev[k].d_static;
             CHECK(ds && df && ds != b->lod->lev[k].d_static);
