@@ -45,6 +45,8 @@ typedef struct hold_entry {
     double t_from;    /* time within the frame the hold (re)started, s */
     double fsum[3];   /* internal force summed over the substeps it was held, N */
     int nf;
+    double shift[3];  /* live holds: the summed change of its holds' targets (sq_lodx_hold_live) */
+    int live;
 } hold_entry;
 
 /* the adaptive state of one level. "n" is the level's node count; node values are in metres
@@ -536,6 +538,8 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* r
  * the tool feedback into force[tool] (may be NULL) and the holds released */
 void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntools, double frame_dt);
 void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3]);
+/* at a tick of a frame with live holds (in->live): their nodes moved to the newest targets */
+void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in);
 void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*force)[3]);
 
 /* activeset.c: per-level index lists (active, inner, integrated), the nodes whose values at

@@ -251,6 +251,48 @@ void sq_haptic_hub_init(sq_haptic_hub *h)
     memset(h, 0, sizeof *h);
     pthread_mutex_init(&h->mu, NULL);
     h->next_id = 1;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        h->live[i].tool = -1;
+}
+
+void sq_haptic_live_publish(sq_haptic_hub *h, int i, int tool, const double *pos)
+{
+    sq_haptic_live *L = &h->live[i];
+    unsigned s = __atomic_load_n(&L->seq, __ATOMIC_RELAXED);
+    __atomic_store_n(&L->seq, s + 1, __ATOMIC_RELAXED);
+    __atomic_thread_fence(__ATOMIC_RELEASE);
+    int id = pos ? tool : -1;
+    __atomic_store_n(&L->tool, id, __ATOMIC_RELAXED);
+    for (int c = 0; pos && c < 3; c++)
+        __atomic_store(&L->pos[c], (double *)&pos[c], __ATOMIC_RELAXED);
+    __atomic_store_n(&L->seq, s + 2, __ATOMIC_RELEASE);
+}
+
+int sq_haptic_live_pose(void *hub, int id, double pos[3])
+{
+    sq_haptic_hub *h = hub;
+    if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
+        return 0;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++) {
+        sq_haptic_live *L = &h->live[i];
+        for (;;) {
+            unsigned s0 = __atomic_load_n(&L->seq, __ATOMIC_ACQUIRE);
+            if (s0 & 1)
+                continue; /* being written: a few stores, retried */
+            int tool = __atomic_load_n(&L->tool, __ATOMIC_RELAXED);
+            double p[3];
+            for (int c = 0; c < 3; c++)
+                __atomic_load(&L->pos[c], &p[c], __ATOMIC_RELAXED);
+            __atomic_thread_fence(__ATOMIC_ACQUIRE);
+            if (__atomic_load_n(&L->seq, __ATOMIC_RELAXED) != s0)
+                continue;
+            if (tool != id)
+                break;
+            memcpy(pos, p, sizeof p);
+            return 1;
+        }
+    }
+    return 0;
 }
 
 void sq_haptic_hub_free(sq_haptic_hub *h)

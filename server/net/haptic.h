@@ -96,6 +96,15 @@ typedef struct sq_haptic_channel {
     long poses, answered, dropped_rate, dropped_bad;
 } sq_haptic_channel;
 
+/* the newest coupled tool position of a channel slot for the step's substeps: a seqlock
+ * (written by the service thread under the hub's mutex, read by the session thread without
+ * it: sq_haptic_live_pose) */
+typedef struct sq_haptic_live {
+    unsigned seq;                    /* odd while written */
+    int tool;                        /* tool id; -1: none (closed, or no pose yet) */
+    double pos[3];
+} sq_haptic_live;
+
 typedef struct sq_haptic_hub {
     pthread_mutex_t mu;
     int nopen;                       /* atomic: open channels (0: the step is untouched) */
@@ -103,9 +112,16 @@ typedef struct sq_haptic_hub {
     long bad_channel;                /* poses on a channel the sender does not own */
     long bad_pose;                   /* pose messages that could not be decoded */
     sq_haptic_channel ch[SQ_MAX_TOOLS];
+    sq_haptic_live live[SQ_MAX_TOOLS]; /* per slot of ch, never cleared by an opening */
 } sq_haptic_hub;
 
 struct sq_world;
+/* publish slot i's newest tool position (pos NULL: the slot has none), under h->mu */
+void sq_haptic_live_publish(sq_haptic_hub *h, int i, int tool, const double *pos);
+/* the step's pose source (sq_pose_source_fn, body/body.h; arg the hub): the newest position
+ * of tool `id` from an open channel, 1; 0 when none. Lock free: a real-time session's frame
+ * reads it at every substep (sq_world_set_pose_source); lockstep sessions do not use it */
+int sq_haptic_live_pose(void *hub, int id, double pos[3]);
 void sq_haptic_hub_init(sq_haptic_hub *h);
 void sq_haptic_hub_free(sq_haptic_hub *h);
 /* session thread, before a frame: the newest coupled tool positions into the world's tools */

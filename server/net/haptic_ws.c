@@ -86,6 +86,7 @@ void net_haptic_close_owner(sq_session *s, uint64_t owner)
     for (int i = 0; i < SQ_MAX_TOOLS; i++)
         if (h->ch[i].id && h->ch[i].owner == owner) {
             h->ch[i].id = 0;
+            sq_haptic_live_publish(h, i, -1, NULL);
             __atomic_sub_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
         }
     pthread_mutex_unlock(&h->mu);
@@ -182,6 +183,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
     if (!want_open) {
         if (ch) {
             ch->id = 0;
+            sq_haptic_live_publish(h, (int)(ch - h->ch), -1, NULL);
             __atomic_sub_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
         }
         cJSON_AddNumberToObject(rep, "tool", id);
@@ -314,6 +316,7 @@ void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
         memset(out.torque, 0, sizeof out.torque);
     memcpy(ch->pose, out.tool, sizeof ch->pose);
     ch->has_pose = 1;
+    sq_haptic_live_publish(h, (int)(ch - h->ch), ch->tool, out.tool); /* the step's next substep */
     ch->answered++;
     uint32_t frame = (uint32_t)ch->model_frame;
     pthread_mutex_unlock(&h->mu);
