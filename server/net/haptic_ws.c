@@ -248,6 +248,28 @@ static void pose_error(client *c, double *last, sq_net_code code, const char *ms
     net_send_error(c, &none, code, msg);
 }
 
+/* a force out: written now, from the pose's receive callback, when nothing waits in the
+ * client's queue and its socket takes it without blocking (lws_send_pipe_choked); else
+ * queued like any reply. Through the queue it would wait for the next pass of the service
+ * loop's writeable callbacks, behind the frames that pass writes to every viewer (20 of them
+ * in tests/net/bench-haptic.mjs), which is the tail of the channel's round trip */
+static void send_force(client *c, sq_blob *b)
+{
+    if (c->closing || c->fcount > 0 || lws_send_pipe_choked(c->wsi)) {
+        net_fifo_push(c, b);
+        return;
+    }
+    int n = lws_write(c->wsi, b->msg, b->len, LWS_WRITE_BINARY);
+    if (c->sess)
+        c->sess->bytes_sent += b->len;
+    c->srv->bytes_out += b->len;
+    if (n < (int)b->len) { /* a failed connection: closed from its next writeable callback */
+        c->closing = 1;
+        lws_callback_on_writable(c->wsi);
+    }
+    sq_blob_unref(b);
+}
+
 void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
 {
     sq_haptic_pose p;
@@ -322,5 +344,5 @@ void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
     pthread_mutex_unlock(&h->mu);
     sq_blob *b = sq_blob_new(SQ_HAPTIC_FORCE_BYTES, 1);
     sq_haptic_force_encode(p.channel, p.seq, frame, p.t, &out, b->msg);
-    net_fifo_push(c, b);
+    send_force(c, b);
 }
