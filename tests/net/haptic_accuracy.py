@@ -106,7 +106,12 @@ def main():
     srv = subprocess.Popen([SQUISH, "serve", "--host", "127.0.0.1", "--port", str(port), "--scenes", tmp,
                             "--no-web", "--lockstep", "--rate", "100000"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        time.sleep(1.5)
+        for _ in range(100):  # up to 10 s on a loaded machine
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                break
+            except OSError:
+                time.sleep(0.1)
         url = f"ws://127.0.0.1:{port}/ws"
         for name in CASES:
             em, eh, ef = run(url, name)
