@@ -118,9 +118,9 @@ struct sq_body {
 void sq_body_hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *tool, double P[9], double n[3]);
 /* the frame's live tools (after the holds are made): b->live, per hold its projection */
 void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools);
-/* at a substep: the newest poses read; 1 when a live hold's target changed since the last
+/* at a substep ending at fraction frac of the frame: the poses read; 1 when a live hold's target changed since the last
  * call (b->live_target, b->live_on then hold them) */
-int sq_body_live_refresh(sq_body *b);
+int sq_body_live_refresh(sq_body *b, double frac);
 
 /* ---- contact.c ---- */
 /* one step's contact of level L's surface nodes with the obstacles and the other bodies'

@@ -104,9 +104,9 @@ static void save_frame_start(sq_body *b, const sq_level *L)
 
 /* a substep of a frame with live tools: the nodes they hold moved to the newest poses (the
  * khold's target plus the mean change of its holds' targets; constrained axes stay) */
-static void live_holds_fixed(sq_body *b, sq_level *L)
+static void live_holds_fixed(sq_body *b, sq_level *L, double frac)
 {
-    if (!sq_body_live_refresh(b))
+    if (!sq_body_live_refresh(b, frac))
         return;
     for (int h = 0; h < b->nholds; h++)
         if (b->live_on[h])
@@ -150,7 +150,7 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
             if ((s & 15) == 15 && sq_cancelled())
                 break; /* the server is stopping: the frame is abandoned */
             if (b->live)
-                live_holds_fixed(b, L); /* the newest haptic poses (sq_body_set_pose_source) */
+                live_holds_fixed(b, L, (s + 1.0) / nsub); /* the newest haptic poses (sq_body_set_pose_source) */
             sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
             sq_body_contact_step(b, L, nk ? mask : NULL, sdt);
             add_feedback(b, L, nk, ntools, force, inv);
@@ -275,10 +275,10 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
 }
 
 /* the adaptive frame's live holds: the newest targets when they changed (sq_lod_frame_in) */
-static int live_lod(void *arg, const unsigned char **on, const double **target)
+static int live_lod(void *arg, double frac, const unsigned char **on, const double **target)
 {
     sq_body *b = arg;
-    if (!sq_body_live_refresh(b))
+    if (!sq_body_live_refresh(b, frac))
         return 0;
     *on = b->live_on;
     *target = b->live_target;

@@ -173,7 +173,7 @@ void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools)
         return;
     for (int t = 0; t < ntools && t < SQ_MAX_TOOLS; t++) {
         double p[3];
-        if (!tools[t].active || !b->pose_fn(b->pose_arg, tools[t].id, p))
+        if (!tools[t].active || !b->pose_fn(b->pose_arg, tools[t].id, 0.0, p))
             continue;
         b->live_tool[t] = 1;
         b->live_id[t] = tools[t].id;
@@ -203,14 +203,14 @@ void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools)
     }
 }
 
-int sq_body_live_refresh(sq_body *b)
+int sq_body_live_refresh(sq_body *b, double frac)
 {
     if (!b->live)
         return 0;
     int changed[SQ_MAX_TOOLS] = {0}, any = 0;
     for (int t = 0; t < SQ_MAX_TOOLS; t++) {
         double p[3];
-        if (!b->live_tool[t] || !b->pose_fn(b->pose_arg, b->live_id[t], p))
+        if (!b->live_tool[t] || !b->pose_fn(b->pose_arg, b->live_id[t], frac, p))
             continue; /* closed within the frame: the last pose read stays */
         if (memcmp(p, b->live_pos[t], sizeof p) == 0)
             continue;

@@ -171,11 +171,11 @@ void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*fo
 
 /* at a tick of a frame with live holds: each entry with a live hold takes its goal plus the
  * mean change of its holds' targets (constrained axes stay) */
-void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in)
+void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in, double frac)
 {
     const unsigned char *on;
     const double *target;
-    if (!in->live(in->live_arg, &on, &target))
+    if (!in->live(in->live_arg, frac, &on, &target))
         return;
     for (int h = 0; h < in->nholds; h++) {
         int e = lod->hold_entry_of[h];

@@ -539,7 +539,7 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t); /* r
 void sq_lodx_hold_start(sq_lod *lod, const sq_hold *holds, int nholds, int ntools, double frame_dt);
 void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3]);
 /* at a tick of a frame with live holds (in->live): their nodes moved to the newest targets */
-void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in);
+void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in, double frac);
 void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*force)[3]);
 
 /* activeset.c: per-level index lists (active, inner, integrated), the nodes whose values at

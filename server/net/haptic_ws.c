@@ -108,13 +108,13 @@ int net_haptic_request(client *c, const char *text, size_t len)
     char m[320];
     const cJSON *it;
     cJSON_ArrayForEach(it, o) {
-        static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping"};
+        static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping", "ramp"};
         int ok = 0;
         for (size_t k = 0; k < sizeof known / sizeof *known; k++)
             ok |= !strcmp(it->string, known[k]);
         if (!ok) {
             snprintf(m, sizeof m, "haptic.%.60s: unknown field; haptic takes tool, open, stiffness, "
-                     "damping, ref", it->string);
+                     "damping, ramp, ref", it->string);
             net_send_error(c, &req, SQ_CODE_BAD_FIELD, m);
             cJSON_Delete(o);
             return 1;
@@ -152,6 +152,11 @@ int net_haptic_request(client *c, const char *text, size_t len)
         goto done;
     }
     int want_open = !open || cJSON_IsTrue(open);
+    const cJSON *ramp = cJSON_GetObjectItemCaseSensitive(o, "ramp");
+    if (ramp && !cJSON_IsBool(ramp)) {
+        net_send_error(c, &req, SQ_CODE_BAD_FIELD, "haptic.ramp: must be true or false");
+        goto done;
+    }
     int has_k, has_b;
     double k = SQ_HAPTIC_STIFFNESS, b = SQ_HAPTIC_DAMPING;
     if (read_number(c, &req, o, "stiffness", "haptic.stiffness", 0, SQ_HAPTIC_STIFFNESS_MAX, &has_k, &k) ||
@@ -212,6 +217,8 @@ int net_haptic_request(client *c, const char *text, size_t len)
     }
     ch->owner = c->serial;
     ch->shape = shape;
+    if (ramp)
+        ch->ramp = cJSON_IsTrue(ramp);
     if (has_k || !ch->coupling.stiffness)
         ch->coupling.stiffness = k;
     if (has_b || !ch->coupling.damping)
@@ -229,6 +236,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
     cJSON_AddNumberToObject(rep, "pos_max", SQ_NET_POS_MAX);
     cJSON_AddNumberToObject(rep, "stiffness", ch->coupling.stiffness);
     cJSON_AddNumberToObject(rep, "damping", ch->coupling.damping);
+    cJSON_AddBoolToObject(rep, "ramp", ch->ramp);
     cJSON_AddNumberToObject(rep, "model_frame", (double)ch->model_frame);
     pthread_mutex_unlock(&h->mu);
     net_send_json(c, rep);

@@ -192,9 +192,10 @@ typedef struct live_probe {
     double z[4096];
 } live_probe;
 
-static int live_source(void *arg, int id, double pos[3])
+static int live_source(void *arg, int id, double frac, double pos[3])
 {
     live_probe *p = arg;
+    (void)frac;
     if (id != 1)
         return 0;
     if (p->d && p->calls < 4096)
@@ -291,4 +292,34 @@ SQ_TEST(net_haptic_live_pose_lod_tick)
     sq_body_set_pose_source(b, NULL, NULL);
     sq_body_destroy(b);
     lh_free_meshes(m, 2);
+}
+
+SQ_TEST(net_haptic_pose_sources)
+{
+    sq_haptic_hub h;
+    sq_haptic_hub_init(&h);
+    double p[3];
+    /* real time: the newest pose, lock free; none before a pose or with no channel open */
+    CHECK(sq_haptic_pose_source(&h, 0) == sq_haptic_live_pose);
+    CHECK(sq_haptic_live_pose(&h, 2, 0.5, p) == 0);
+    h.nopen = 1;
+    const double q[3] = {0.1, 0.2, 0.3};
+    sq_haptic_live_publish(&h, 3, 2, q);
+    CHECK(sq_haptic_live_pose(&h, 2, 0.5, p) == 1 && p[0] == 0.1 && p[2] == 0.3);
+    CHECK(sq_haptic_live_pose(&h, 1, 0.5, p) == 0);
+    sq_haptic_live_publish(&h, 3, 2, NULL); /* closed */
+    CHECK(sq_haptic_live_pose(&h, 2, 0.5, p) == 0);
+    /* lockstep: nothing within frames, unless a channel ramps */
+    CHECK(sq_haptic_pose_source(&h, 1) == NULL);
+    h.nramp = 1;
+    h.ramp_tool[0] = 2;
+    for (int c = 0; c < 3; c++) {
+        h.ramp_from[0][c] = 0;
+        h.ramp_to[0][c] = 1e-3 * (c + 1);
+    }
+    CHECK(sq_haptic_pose_source(&h, 1) == sq_haptic_ramp_pose);
+    CHECK(sq_haptic_ramp_pose(&h, 2, 0.25, p) == 1);
+    CHECK_NEAR(p[2], 0.75e-3, 1e-15);
+    CHECK(sq_haptic_ramp_pose(&h, 3, 0.25, p) == 0);
+    sq_haptic_hub_free(&h);
 }
