@@ -9,8 +9,12 @@ substep of the 50 Hz run). At each 50 Hz frame the model (stiffness 0: the tool 
 is asked for the force at the mid-frame pose, 10 ms ahead; the reference's feedback at that
 time is the truth. Also reported: the zero-order hold (the last frame's force, what a client
 without the model gets), and the floor: the 50 Hz run's own frame force against the reference
-at the frame's end (how far the two runs differ before any model is used). Prints the median and 90th percentile relative error of the force
-along the press, over the frames in contact with more than 1 N.
+at the frame's end (how far the two runs differ before any model is used). Then the reference
+the issue names: the same 50 Hz scene stepped with the pose applied at every substep (the
+channel's lockstep "ramp"), whose frame force (the mean over the frame's substeps) stands for
+the force at mid-frame, against the model made after the frame before (run_ramp). Prints the
+median and 90th percentile relative error of the force along the press, over the frames in
+contact with more than 1 N.
 """
 import json
 import os
