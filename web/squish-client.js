@@ -432,10 +432,11 @@ export class SquishClient extends Emitter {
 
   // ---- haptic channel (docs/protocol.md, "Haptic channel")
   /** Open the haptic channel of tool `tool`: resolves with { channel, max_rate, stiffness, damping, ... }. */
-  hapticOpen(tool, { stiffness, damping } = {}) {
+  hapticOpen(tool, { stiffness, damping, ramp } = {}) {
     const m = { type: 'haptic', tool };
     if (stiffness !== undefined) m.stiffness = stiffness;
     if (damping !== undefined) m.damping = damping;
+    if (ramp !== undefined) m.ramp = !!ramp; // lockstep: poses ramped over each frame's substeps
     return this.request(m);
   }
   hapticClose(tool) { return this.request({ type: 'haptic', tool, open: false }); }

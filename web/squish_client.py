@@ -484,10 +484,13 @@ class SquishClient:
             self.off("nodes", on)
 
     # ------------------------------------------------------------------ haptic channel
-    def haptic_open(self, tool, stiffness=None, damping=None):
+    def haptic_open(self, tool, stiffness=None, damping=None, ramp=None):
         """Open the haptic channel of tool `tool` (controller only); returns the reply
-        (channel, max_rate, stiffness, damping, ...)."""
+        (channel, max_rate, stiffness, damping, ramp, ...). ramp: on a lockstep server, each
+        frame's substeps take the pose interpolated from the last frame's to the newest."""
         m = {"type": "haptic", "tool": tool}
+        if ramp is not None:
+            m["ramp"] = bool(ramp)
         if stiffness is not None:
             m["stiffness"] = stiffness
         if damping is not None:

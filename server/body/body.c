@@ -443,6 +443,11 @@ void sq_body_destroy(sq_body *b)
     free(b->holds);
     free(b->khold);
     free(b->kcount);
+    free(b->khold_of);
+    free(b->live_P);
+    free(b->live_target);
+    free(b->live_on);
+    free(b->live_shift);
     free(b->save_d);
     free(b->save_v);
     free(b->save_q);

@@ -124,6 +124,16 @@ void sq_body_reset(sq_body *b);
 int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback *feedback,
                   sq_frame_profile *prof, double frame_budget_s);
 
+/* a live pose source (a haptic device between frames, docs/protocol.md "Haptic channel"):
+ * fn(arg, id, frac, pos) gives the position of tool `id` for the substep ending at fraction
+ * frac of the frame (0 at its start; a real-time source gives the newest, a lockstep ramp the
+ * pose interpolated at frac) and returns 1, or returns 0 when that tool has none. With one set, each substep of an explicit frame (fixed or adaptive lod)
+ * reads it and moves the nodes that tool holds by the pose's change since the frame's start
+ * (a grab: with it; a push: along each node's contact normal); the set of held nodes stays
+ * the frame's. NULL (the default): poses change at frame starts only, the step is unchanged */
+typedef int (*sq_pose_source_fn)(void *arg, int id, double frac, double pos[3]);
+void sq_body_set_pose_source(sq_body *b, sq_pose_source_fn fn, void *arg);
+
 /* thread CPU time (s) spent on this thread since the last frame on work that is not the
  * product's (a measuring harness): kept out of the budget guard's time around the frame
  * (adaptive bodies; sq_lod_untimed) */

@@ -46,6 +46,20 @@ struct sq_body {
     sq_hold *khold;                        /* holds mapped to the fixed level */
     int *kcount;                           /* holds averaged into each khold */
     int cap_khold;
+    int *khold_of;                         /* fixed level: the khold of each hold (nholds) */
+    /* live poses between frame starts (haptic.c, sq_body_set_pose_source) */
+    sq_pose_source_fn pose_fn;
+    void *pose_arg;
+    int live;                              /* this frame has live tools */
+    int live_tool[SQ_MAX_TOOLS];           /* 1: tool index t reads its pose at each substep */
+    int live_id[SQ_MAX_TOOLS];
+    double live_from[SQ_MAX_TOOLS][3];     /* its pose at the frame's start */
+    double live_pos[SQ_MAX_TOOLS][3];      /* the newest pose read */
+    double *live_P;                        /* per hold: how its target follows the tool (9) */
+    double *live_target;                   /* per hold: its target now (3) */
+    unsigned char *live_on;                /* per hold: its tool is live */
+    double *live_shift;                    /* fixed level: per khold, the summed shift (3) */
+    int cap_live;
 
     /* nodes held by a tool in the last frame, per level (n_k, 1 = held), for the rest check */
     unsigned char *held[SQ_MAX_LEVELS];
@@ -109,6 +123,16 @@ struct sq_body {
 
 /* Lanczos steps of the sharp step bound (fixed mode; docs/stability.md) */
 #define SQ_LANCZOS_ITERS 40
+
+/* ---- haptic.c: live poses within the frame ---- */
+/* how hold h's target follows tool `tool` (3x3, row-major): a grab the identity, a push
+ * n n^T along the node's contact normal n (also returned; 0 for a grab) */
+void sq_body_hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *tool, double P[9], double n[3]);
+/* the frame's live tools (after the holds are made): b->live, per hold its projection */
+void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools);
+/* at a substep ending at fraction frac of the frame: the poses read; 1 when a live hold's target changed since the last
+ * call (b->live_target, b->live_on then hold them) */
+int sq_body_live_refresh(sq_body *b, double frac);
 
 /* ---- contact.c ---- */
 /* one step's contact of level L's surface nodes with the obstacles and the other bodies'

@@ -105,6 +105,29 @@ static void save_frame_start(sq_body *b, const sq_level *L)
     sq_level_corot_save(L, b->save_q);
 }
 
+/* a substep of a frame with live tools: the nodes they hold moved to the newest poses (the
+ * khold's target plus the mean change of its holds' targets; constrained axes stay) */
+static void live_holds_fixed(sq_body *b, sq_level *L, double frac)
+{
+    if (!sq_body_live_refresh(b, frac))
+        return;
+    for (int h = 0; h < b->nholds; h++)
+        if (b->live_on[h])
+            memset(b->live_shift + 3 * (size_t)b->khold_of[h], 0, 3 * sizeof(double));
+    for (int h = 0; h < b->nholds; h++)
+        if (b->live_on[h])
+            for (int c = 0; c < 3; c++)
+                b->live_shift[3 * (size_t)b->khold_of[h] + c] += b->live_target[3 * (size_t)h + c] - b->holds[h].target[c];
+    for (int h = 0; h < b->nholds; h++) {
+        if (!b->live_on[h])
+            continue;
+        int k = b->khold_of[h], i = b->khold[k].node;
+        for (int c = 0; c < 3; c++)
+            if (!(L->model.fixed[i] & (1u << c)))
+                L->d[3 * (size_t)i + c] = b->khold[k].target[c] + b->live_shift[3 * (size_t)k + c] / b->kcount[k];
+    }
+}
+
 static void load_frame_start(sq_body *b, sq_level *L)
 {
     memcpy(L->d, b->save_d, sizeof(double) * b->save_n3);
@@ -129,6 +152,8 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
         for (s = 0; s < nsub; s++) {
             if ((s & 15) == 15 && sq_cancelled())
                 break; /* the server is stopping: the frame is abandoned */
+            if (b->live)
+                live_holds_fixed(b, L, (s + 1.0) / nsub); /* the newest haptic poses (sq_body_set_pose_source) */
             sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
             sq_body_contact_step(b, L, nk ? mask : NULL, sdt);
             add_feedback(b, L, nk, ntools, force, inv);
@@ -176,6 +201,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         b->cap_khold = nholds;
         b->khold = sq_realloc(b->khold, sizeof(sq_hold) * (size_t)nholds);
         b->kcount = sq_realloc(b->kcount, sizeof(int) * (size_t)nholds);
+        b->khold_of = sq_realloc(b->khold_of, sizeof(int) * (size_t)nholds);
     }
     int nk = 0;
     const sq_mesh *fm = b->def.levels[b->fine];
@@ -206,6 +232,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         for (int c = 0; c < 3; c++)
             b->khold[idx].target[c] += t[c];
         count[idx]++;
+        b->khold_of[h] = idx;
     }
     /* held nodes: displacement set to the target, velocity to (target - old) / frame_dt, on the
      * free axes (the one hold rule of both modes: sq_level_apply_hold); implicit: the velocity
@@ -248,6 +275,17 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         prof->substeps[b->cur] = nsub;
         prof->awake_nodes = L->model.n;
     }
+}
+
+/* the adaptive frame's live holds: the newest targets when they changed (sq_lod_frame_in) */
+static int live_lod(void *arg, double frac, const unsigned char **on, const double **target)
+{
+    sq_body *b = arg;
+    if (!sq_body_live_refresh(b, frac))
+        return 0;
+    *on = b->live_on;
+    *target = b->live_target;
+    return 1;
 }
 
 void sq_body_untimed(sq_body *b, double cpu_s)
@@ -293,6 +331,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     int tool_nodes[SQ_MAX_TOOLS];
     int nholds = sq_body_tool_holds(b, tools, ntools, tool_nodes);
     b->nholds = nholds; /* kept for the haptic model (haptic.c) */
+    sq_body_live_begin(b, tools, ntools); /* tools whose poses change within the frame */
     double t1 = sq_now();
     b->frames++;
     if (b->sleeping && nholds > 0)
@@ -312,7 +351,7 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
             sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
                                   .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s,
                                   .obstacles = b->obstacles, .nobstacles = b->nobstacles, .contact = &b->contact,
-                                  .touched = b->touched};
+                                  .touched = b->touched, .live = b->live ? live_lod : NULL, .live_arg = b};
             memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
             sq_lod_frame(b->lod, &in, force, prof);
             sq_body_count_health(b, prof->event_kind, prof->event_value[0]); /* budget warnings */

@@ -20,8 +20,7 @@
 #include "body/body_internal.h"
 
 /* how hold h's target moves with the tool: P (3x3) and, for a push, the unit normal n */
-static void hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *tool, double P[9],
-                            double n[3])
+void sq_body_hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *tool, double P[9], double n[3])
 {
     memset(P, 0, 9 * sizeof *P);
     memset(n, 0, 3 * sizeof *n);
@@ -86,7 +85,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
         if (b->holds[h].tool != t)
             continue;
         double nrm[3];
-        hold_projection(m, &b->holds[h], tool, P + 9 * j, nrm);
+        sq_body_hold_projection(m, &b->holds[h], tool, P + 9 * j, nrm);
         for (int c = 0; c < 3; c++)
             nsum[c] += nrm[c];
         memcpy(d0 + 3 * j, L->d + 3 * (size_t)b->holds[h].node, 3 * sizeof(double));
@@ -156,4 +155,81 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
     free(node);
     free(d0);
     return 0;
+}
+
+/* ---------------------------------------------------------------- live poses */
+
+void sq_body_set_pose_source(sq_body *b, sq_pose_source_fn fn, void *arg)
+{
+    b->pose_fn = fn;
+    b->pose_arg = arg;
+}
+
+void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools)
+{
+    b->live = 0;
+    memset(b->live_tool, 0, sizeof b->live_tool);
+    if (!b->pose_fn || b->nholds == 0 || b->def.integrator == SQ_INTEGRATOR_IMPLICIT)
+        return;
+    for (int t = 0; t < ntools && t < SQ_MAX_TOOLS; t++) {
+        double p[3];
+        if (!tools[t].active || !b->pose_fn(b->pose_arg, tools[t].id, 0.0, p))
+            continue;
+        b->live_tool[t] = 1;
+        b->live_id[t] = tools[t].id;
+        memcpy(b->live_from[t], tools[t].pos, sizeof b->live_from[t]);
+        memcpy(b->live_pos[t], tools[t].pos, sizeof b->live_pos[t]); /* the holds' own pose */
+        b->live = 1;
+    }
+    if (!b->live)
+        return;
+    if (b->cap_live < b->nholds) {
+        b->cap_live = b->nholds;
+        b->live_P = sq_realloc(b->live_P, sizeof(double) * 9 * (size_t)b->nholds);
+        b->live_target = sq_realloc(b->live_target, sizeof(double) * 3 * (size_t)b->nholds);
+        b->live_on = sq_realloc(b->live_on, (size_t)b->nholds);
+        b->live_shift = sq_realloc(b->live_shift, sizeof(double) * 3 * (size_t)b->nholds);
+    }
+    const sq_mesh *fm = b->def.levels[b->fine];
+    for (int h = 0; h < b->nholds; h++) {
+        const sq_hold *hd = &b->holds[h];
+        int t = hd->tool;
+        b->live_on[h] = t >= 0 && t < ntools && t < SQ_MAX_TOOLS && b->live_tool[t];
+        memcpy(b->live_target + 3 * (size_t)h, hd->target, 3 * sizeof(double));
+        if (b->live_on[h]) {
+            double n[3];
+            sq_body_hold_projection(fm, hd, &tools[t], b->live_P + 9 * (size_t)h, n);
+        }
+    }
+}
+
+int sq_body_live_refresh(sq_body *b, double frac)
+{
+    if (!b->live)
+        return 0;
+    int changed[SQ_MAX_TOOLS] = {0}, any = 0;
+    for (int t = 0; t < SQ_MAX_TOOLS; t++) {
+        double p[3];
+        if (!b->live_tool[t] || !b->pose_fn(b->pose_arg, b->live_id[t], frac, p))
+            continue; /* closed within the frame: the last pose read stays */
+        if (memcmp(p, b->live_pos[t], sizeof p) == 0)
+            continue;
+        memcpy(b->live_pos[t], p, sizeof p);
+        changed[t] = any = 1;
+    }
+    if (!any)
+        return 0;
+    for (int h = 0; h < b->nholds; h++) {
+        int t = b->holds[h].tool;
+        if (!b->live_on[h] || !changed[t])
+            continue;
+        const double *P = b->live_P + 9 * (size_t)h;
+        double dp[3];
+        for (int c = 0; c < 3; c++)
+            dp[c] = b->live_pos[t][c] - b->live_from[t][c];
+        for (int r = 0; r < 3; r++)
+            b->live_target[3 * (size_t)h + r] =
+                b->holds[h].target[r] + P[3 * r] * dp[0] + P[3 * r + 1] * dp[1] + P[3 * r + 2] * dp[2];
+    }
+    return 1;
 }

@@ -586,6 +586,8 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     for (fr.tick = 0; fr.tick < fr.nticks; fr.tick++) {
         if ((fr.tick & 15) == 15 && sq_cancelled())
             break; /* the server is stopping: the frame is abandoned */
+        if (in->live)
+            sq_lodx_hold_live(lod, in, (fr.tick + 1.0) / fr.nticks); /* the newest haptic poses, at every tick (holds.c) */
         run(&fr, tick_pull, SQ_LOD_STAGE_PULL);    /* ring ghosts of the due levels */
         run(&fr, tick_step, SQ_LOD_STAGE_STEP);    /* forces, coupling, integration */
     }

@@ -169,3 +169,37 @@ void sq_lodx_hold_end(sq_lod *lod, const sq_hold *holds, int nholds, double (*fo
             lod->lev[k].lay.nintegrated = lod->lev[k].lay.nactive;
         }
 }
+
+/* at a tick of a frame with live holds: each entry with a live hold takes its goal plus the
+ * mean change of its holds' targets (constrained axes stay) */
+void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in, double frac)
+{
+    const unsigned char *on;
+    const double *target;
+    if (!in->live(in->live_arg, frac, &on, &target))
+        return;
+    for (int h = 0; h < in->nholds; h++) {
+        int e = lod->holds.hold_entry_of[h];
+        if (on[h] && e >= 0) {
+            memset(lod->holds.he[e].shift, 0, sizeof lod->holds.he[e].shift);
+            lod->holds.he[e].live = 1;
+        }
+    }
+    for (int h = 0; h < in->nholds; h++) {
+        int e = lod->holds.hold_entry_of[h];
+        if (on[h] && e >= 0)
+            for (int c = 0; c < 3; c++)
+                lod->holds.he[e].shift[c] += target[3 * (size_t)h + c] - in->holds[h].target[c];
+    }
+    for (int e = 0; e < lod->holds.nhe; e++) {
+        hold_entry *E = &lod->holds.he[e];
+        if (!E->live || E->count == 0)
+            continue;
+        E->live = 0;
+        sq_level *Lk = &lod->lv[E->level];
+        unsigned char fx = Lk->model.fixed[E->node];
+        for (int c = 0; c < 3; c++)
+            if (!(fx & (1u << c)))
+                Lk->d[3 * E->node + c] = (E->gsum[c] + E->shift[c]) / E->count;
+    }
+}

@@ -147,6 +147,12 @@ typedef struct sq_lod_frame_in {
     int nobstacles;
     sq_contact_sum *contact; /* the contact impulses are added here (may be NULL) */
     unsigned char **touched; /* NULL, or per level an array (nodes) set to 1 where contact acted */
+    /* NULL, or live holds (a haptic device between frames): called at each tick with the
+     * fraction of the frame at that tick's end, returns 1
+     * when targets changed, with on[h] 1 for the holds that follow a live tool and target[h]
+     * (3 each) their targets now; their nodes are moved by the change (sq_lodx_hold_live) */
+    int (*live)(void *arg, double frac, const unsigned char **on, const double **target);
+    void *live_arg;
 } sq_lod_frame_in;
 
 /* one adaptive frame of in->frame_dt: each level steps at its own dt (level->dt), in the

@@ -49,6 +49,8 @@ typedef struct hold_entry {
     double t_from;    /* time within the frame the hold (re)started, s */
     double fsum[3];   /* internal force summed over the substeps it was held, N */
     int nf;
+    double shift[3];  /* live holds: the summed change of its holds' targets (sq_lodx_hold_live) */
+    int live;
 } hold_entry;
 
 /* a level's const mesh tables, made once at creation (state.c) and shared between the states of

@@ -251,6 +251,49 @@ void sq_haptic_hub_init(sq_haptic_hub *h)
     memset(h, 0, sizeof *h);
     pthread_mutex_init(&h->mu, NULL);
     h->next_id = 1;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        h->live[i].tool = -1;
+}
+
+void sq_haptic_live_publish(sq_haptic_hub *h, int i, int tool, const double *pos)
+{
+    sq_haptic_live *L = &h->live[i];
+    unsigned s = __atomic_load_n(&L->seq, __ATOMIC_RELAXED);
+    __atomic_store_n(&L->seq, s + 1, __ATOMIC_RELAXED);
+    __atomic_thread_fence(__ATOMIC_RELEASE);
+    int id = pos ? tool : -1;
+    __atomic_store_n(&L->tool, id, __ATOMIC_RELAXED);
+    for (int c = 0; pos && c < 3; c++)
+        __atomic_store(&L->pos[c], (double *)&pos[c], __ATOMIC_RELAXED);
+    __atomic_store_n(&L->seq, s + 2, __ATOMIC_RELEASE);
+}
+
+int sq_haptic_live_pose(void *hub, int id, double frac, double pos[3])
+{
+    sq_haptic_hub *h = hub;
+    (void)frac; /* the newest, whatever the time within the frame */
+    if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
+        return 0;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++) {
+        sq_haptic_live *L = &h->live[i];
+        for (;;) {
+            unsigned s0 = __atomic_load_n(&L->seq, __ATOMIC_ACQUIRE);
+            if (s0 & 1)
+                continue; /* being written: a few stores, retried */
+            int tool = __atomic_load_n(&L->tool, __ATOMIC_RELAXED);
+            double p[3];
+            for (int c = 0; c < 3; c++)
+                __atomic_load(&L->pos[c], &p[c], __ATOMIC_RELAXED);
+            __atomic_thread_fence(__ATOMIC_ACQUIRE);
+            if (__atomic_load_n(&L->seq, __ATOMIC_RELAXED) != s0)
+                continue;
+            if (tool != id)
+                break;
+            memcpy(pos, p, sizeof p);
+            return 1;
+        }
+    }
+    return 0;
 }
 
 void sq_haptic_hub_free(sq_haptic_hub *h)
@@ -258,19 +301,52 @@ void sq_haptic_hub_free(sq_haptic_hub *h)
     pthread_mutex_destroy(&h->mu);
 }
 
+int sq_haptic_ramp_pose(void *hub, int id, double frac, double pos[3])
+{
+    const sq_haptic_hub *h = hub;
+    for (int k = 0; k < h->nramp; k++)
+        if (h->ramp_tool[k] == id) {
+            for (int c = 0; c < 3; c++)
+                pos[c] = h->ramp_from[k][c] + frac * (h->ramp_to[k][c] - h->ramp_from[k][c]);
+            return 1;
+        }
+    return 0;
+}
+
+sq_pose_source_fn sq_haptic_pose_source(sq_haptic_hub *h, int lockstep)
+{
+    if (!lockstep)
+        return sq_haptic_live_pose;
+    return h->nramp > 0 ? sq_haptic_ramp_pose : NULL;
+}
+
 void sq_haptic_before_frame(sq_haptic_hub *h, sq_world *w)
 {
+    h->nramp = 0;
     if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
         return;
     int n = 0, ids[SQ_MAX_TOOLS];
     double pos[SQ_MAX_TOOLS][3];
     pthread_mutex_lock(&h->mu);
-    for (int i = 0; i < SQ_MAX_TOOLS; i++)
-        if (h->ch[i].id && h->ch[i].has_pose) {
-            ids[n] = h->ch[i].tool;
-            memcpy(pos[n++], h->ch[i].pose, sizeof pos[0]);
-            h->ch[i].has_pose = 0;
+    for (int i = 0; i < SQ_MAX_TOOLS; i++) {
+        sq_haptic_channel *ch = &h->ch[i];
+        if (!ch->id)
+            continue;
+        if (ch->ramp && (ch->has_pose || ch->ramp_has)) {
+            const double *to = ch->has_pose ? ch->pose : ch->ramp_last;
+            int k = h->nramp++;
+            h->ramp_tool[k] = ch->tool;
+            memcpy(h->ramp_from[k], ch->ramp_has ? ch->ramp_last : to, sizeof h->ramp_from[k]);
+            memcpy(h->ramp_to[k], to, sizeof h->ramp_to[k]);
+            memcpy(ch->ramp_last, to, sizeof ch->ramp_last);
+            ch->ramp_has = 1;
         }
+        if (ch->has_pose) {
+            ids[n] = ch->tool;
+            memcpy(pos[n++], ch->pose, sizeof pos[0]);
+            ch->has_pose = 0;
+        }
+    }
     pthread_mutex_unlock(&h->mu);
     for (int k = 0; k < n; k++)
         for (int i = 0; i < w->ntools; i++)
@@ -333,6 +409,10 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
     for (int k = 0; k < n; k++)
         for (int i = 0; i < SQ_MAX_TOOLS; i++)
             if (h->ch[i].id && h->ch[i].tool == ids[k]) {
+                for (int r = 0; r < h->nramp; r++) /* a ramped frame's feedback belongs to its mean pose */
+                    if (h->ramp_tool[r] == ids[k] && valid[k])
+                        for (int c = 0; c < 3; c++)
+                            models[k].p0[c] = 0.5 * (h->ramp_from[r][c] + h->ramp_to[r][c]);
                 h->ch[i].model = models[k];
                 h->ch[i].model_valid = valid[k];
                 h->ch[i].model_frame = w->frame;

@@ -91,10 +91,23 @@ typedef struct sq_haptic_channel {
     long model_frame;
     int has_pose;                    /* pose: the newest tool position for the next frame */
     double pose[3];
+    int ramp;                        /* lockstep: the frame's substeps ramp from the last
+                                        frame's pose to this one (the request's "ramp") */
+    int ramp_has;                    /* ramp_last: the pose the last frame ended at */
+    double ramp_last[3];
     double tokens, last_refill;      /* rate limit */
     double last_error;               /* time of the last error message sent (1 per s) */
     long poses, answered, dropped_rate, dropped_bad;
 } sq_haptic_channel;
+
+/* the newest coupled tool position of a channel slot for the step's substeps: a seqlock
+ * (written by the service thread under the hub's mutex, read by the session thread without
+ * it: sq_haptic_live_pose) */
+typedef struct sq_haptic_live {
+    unsigned seq;                    /* odd while written */
+    int tool;                        /* tool id; -1: none (closed, or no pose yet) */
+    double pos[3];
+} sq_haptic_live;
 
 typedef struct sq_haptic_hub {
     pthread_mutex_t mu;
@@ -103,9 +116,27 @@ typedef struct sq_haptic_hub {
     long bad_channel;                /* poses on a channel the sender does not own */
     long bad_pose;                   /* pose messages that could not be decoded */
     sq_haptic_channel ch[SQ_MAX_TOOLS];
+    sq_haptic_live live[SQ_MAX_TOOLS]; /* per slot of ch, never cleared by an opening */
+    /* the frame's ramps (session thread only: set by sq_haptic_before_frame) */
+    int nramp;
+    int ramp_tool[SQ_MAX_TOOLS];
+    double ramp_from[SQ_MAX_TOOLS][3], ramp_to[SQ_MAX_TOOLS][3];
 } sq_haptic_hub;
 
 struct sq_world;
+/* publish slot i's newest tool position (pos NULL: the slot has none), under h->mu */
+void sq_haptic_live_publish(sq_haptic_hub *h, int i, int tool, const double *pos);
+/* the step's pose source (sq_pose_source_fn, body/body.h; arg the hub): the newest position
+ * of tool `id` from an open channel, 1; 0 when none. Lock free: a real-time session's frame
+ * reads it at every substep (sq_world_set_pose_source); lockstep sessions do not use it */
+int sq_haptic_live_pose(void *hub, int id, double frac, double pos[3]);
+/* the lockstep ramp's source: tool `id`'s pose at fraction frac of the frame, interpolated
+ * between the pose the last frame ended at and the newest one sent before this step */
+int sq_haptic_ramp_pose(void *hub, int id, double frac, double pos[3]);
+/* the pose source of a session's next frame (after sq_haptic_before_frame): real time, the
+ * newest pose (sq_haptic_live_pose); lockstep, the ramp when a channel asked for it, else
+ * NULL (poses at frame starts only) */
+sq_pose_source_fn sq_haptic_pose_source(sq_haptic_hub *h, int lockstep);
 void sq_haptic_hub_init(sq_haptic_hub *h);
 void sq_haptic_hub_free(sq_haptic_hub *h);
 /* session thread, before a frame: the newest coupled tool positions into the world's tools */

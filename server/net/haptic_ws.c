@@ -86,6 +86,7 @@ void net_haptic_close_owner(sq_session *s, uint64_t owner)
     for (int i = 0; i < SQ_MAX_TOOLS; i++)
         if (h->ch[i].id && h->ch[i].owner == owner) {
             h->ch[i].id = 0;
+            sq_haptic_live_publish(h, i, -1, NULL);
             __atomic_sub_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
         }
     pthread_mutex_unlock(&h->mu);
@@ -107,13 +108,13 @@ int net_haptic_request(client *c, const char *text, size_t len)
     char m[320];
     const cJSON *it;
     cJSON_ArrayForEach(it, o) {
-        static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping"};
+        static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping", "ramp"};
         int ok = 0;
         for (size_t k = 0; k < sizeof known / sizeof *known; k++)
             ok |= !strcmp(it->string, known[k]);
         if (!ok) {
             snprintf(m, sizeof m, "haptic.%.60s: unknown field; haptic takes tool, open, stiffness, "
-                     "damping, ref", it->string);
+                     "damping, ramp, ref", it->string);
             net_send_error(c, &req, SQ_CODE_BAD_FIELD, m);
             cJSON_Delete(o);
             return 1;
@@ -151,6 +152,11 @@ int net_haptic_request(client *c, const char *text, size_t len)
         goto done;
     }
     int want_open = !open || cJSON_IsTrue(open);
+    const cJSON *ramp = cJSON_GetObjectItemCaseSensitive(o, "ramp");
+    if (ramp && !cJSON_IsBool(ramp)) {
+        net_send_error(c, &req, SQ_CODE_BAD_FIELD, "haptic.ramp: must be true or false");
+        goto done;
+    }
     int has_k, has_b;
     double k = SQ_HAPTIC_STIFFNESS, b = SQ_HAPTIC_DAMPING;
     if (read_number(c, &req, o, "stiffness", "haptic.stiffness", 0, SQ_HAPTIC_STIFFNESS_MAX, &has_k, &k) ||
@@ -182,6 +188,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
     if (!want_open) {
         if (ch) {
             ch->id = 0;
+            sq_haptic_live_publish(h, (int)(ch - h->ch), -1, NULL);
             __atomic_sub_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
         }
         cJSON_AddNumberToObject(rep, "tool", id);
@@ -210,6 +217,8 @@ int net_haptic_request(client *c, const char *text, size_t len)
     }
     ch->owner = c->serial;
     ch->shape = shape;
+    if (ramp)
+        ch->ramp = cJSON_IsTrue(ramp);
     if (has_k || !ch->coupling.stiffness)
         ch->coupling.stiffness = k;
     if (has_b || !ch->coupling.damping)
@@ -227,6 +236,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
     cJSON_AddNumberToObject(rep, "pos_max", SQ_NET_POS_MAX);
     cJSON_AddNumberToObject(rep, "stiffness", ch->coupling.stiffness);
     cJSON_AddNumberToObject(rep, "damping", ch->coupling.damping);
+    cJSON_AddBoolToObject(rep, "ramp", ch->ramp);
     cJSON_AddNumberToObject(rep, "model_frame", (double)ch->model_frame);
     pthread_mutex_unlock(&h->mu);
     net_send_json(c, rep);
@@ -244,6 +254,28 @@ static void pose_error(client *c, double *last, sq_net_code code, const char *ms
         return;
     *last = now;
     net_send_error(c, &none, code, msg);
+}
+
+/* a force out: written now, from the pose's receive callback, when nothing waits in the
+ * client's queue and its socket takes it without blocking (lws_send_pipe_choked); else
+ * queued like any reply. Through the queue it would wait for the next pass of the service
+ * loop's writeable callbacks, behind the frames that pass writes to every viewer (20 of them
+ * in tests/net/bench-haptic.mjs), which is the tail of the channel's round trip */
+static void send_force(client *c, sq_blob *b)
+{
+    if (c->closing || c->fcount > 0 || lws_send_pipe_choked(c->wsi)) {
+        net_fifo_push(c, b);
+        return;
+    }
+    int n = lws_write(c->wsi, b->msg, b->len, LWS_WRITE_BINARY);
+    if (c->sess)
+        c->sess->bytes_sent += b->len;
+    c->srv->bytes_out += b->len;
+    if (n < (int)b->len) { /* a failed connection: closed from its next writeable callback */
+        c->closing = 1;
+        lws_callback_on_writable(c->wsi);
+    }
+    sq_blob_unref(b);
 }
 
 void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
@@ -314,10 +346,11 @@ void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
         memset(out.torque, 0, sizeof out.torque);
     memcpy(ch->pose, out.tool, sizeof ch->pose);
     ch->has_pose = 1;
+    sq_haptic_live_publish(h, (int)(ch - h->ch), ch->tool, out.tool); /* the step's next substep */
     ch->answered++;
     uint32_t frame = (uint32_t)ch->model_frame;
     pthread_mutex_unlock(&h->mu);
     sq_blob *b = sq_blob_new(SQ_HAPTIC_FORCE_BYTES, 1);
     sq_haptic_force_encode(p.channel, p.seq, frame, p.t, &out, b->msg);
-    net_fifo_push(c, b);
+    send_force(c, b);
 }

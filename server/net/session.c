@@ -276,6 +276,9 @@ void sq_session_step_frame(sq_session *s, sq_out_kind kind)
 {
     double t0 = sq_now(), c0 = sq_thread_cpu();
     sq_haptic_before_frame(&s->haptic, s->world); /* the newest haptic poses (none: nothing) */
+    /* real time: the haptic tools' newest poses at every substep too; lockstep: at frame
+     * starts, or a channel's ramp between its frames' poses */
+    sq_world_set_pose_source(s->world, sq_haptic_pose_source(&s->haptic, s->lockstep), &s->haptic);
     sq_world_step(s->world, s->lockstep ? 0 : s->period);
     budget_account(s, sq_thread_cpu() - c0);
     sq_haptic_after_frame(&s->haptic, s->world); /* the channels' models, outside the budget */

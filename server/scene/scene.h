@@ -140,6 +140,9 @@ typedef struct sq_world {
     int grab_known[SQ_MAX_TOOLS];
     int grab_fallback[SQ_MAX_TOOLS];
     double grab_at[SQ_MAX_TOOLS][3];
+    /* the live pose source the bodies read at each substep (NULL: none; sq_world_set_pose_source) */
+    sq_pose_source_fn pose_fn;
+    void *pose_arg;
 } sq_world;
 
 sq_world *sq_world_create(const sq_scene *scene, sq_err *err);
@@ -173,6 +176,9 @@ void sq_world_prepare_budget(sq_world *w);
  * change (or a new active tool) takes origin = pos, so a grab captures where it was
  * activated even if pos moves before the next frame; an active tool keeps its origin. */
 int sq_world_set_tool(sq_world *w, const sq_tool *t, sq_err *err);
+/* tools whose poses change within a frame (a haptic channel of a real-time session): every
+ * body's substeps read fn (sq_body_set_pose_source); NULL: poses at frame starts only */
+void sq_world_set_pose_source(sq_world *w, sq_pose_source_fn fn, void *arg);
 /* probe displacement u[3]; -1 if the probe point is outside the body */
 int sq_world_probe(const sq_world *w, int probe, double u[3]);
 int sq_world_find_body(const sq_world *w, const char *name);

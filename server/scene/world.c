@@ -325,6 +325,12 @@ void sq_world_prepare_budget(sq_world *w)
         sq_body_prepare_budget(w->bodies[b]);
 }
 
+void sq_world_set_pose_source(sq_world *w, sq_pose_source_fn fn, void *arg)
+{
+    w->pose_fn = fn;
+    w->pose_arg = arg;
+}
+
 void sq_world_step(sq_world *w, double budget_s)
 {
     double t0 = sq_now();
@@ -351,6 +357,7 @@ void sq_world_step(sq_world *w, double budget_s)
                 if (j != b && sq_body_contact_target(w->bodies[j], w->scene->body_friction, &tg[ntg]) == 0)
                     ntg++;
         sq_body_set_targets(w->bodies[b], tg, ntg);
+        sq_body_set_pose_source(w->bodies[b], w->pose_fn, w->pose_arg);
         sq_body_frame(w->bodies[b], tools, w->ntools, w->feedback[b], prof, share);
         sq_body_set_targets(w->bodies[b], NULL, 0);
         for (int j = 0; pairs && j < w->nbodies; j++) /* the reactions: now on the bodies done, */

@@ -5,8 +5,11 @@
 #include <math.h>
 #include <string.h>
 
+#include "body/body_internal.h"
+#include "lod/lod_internal.h"
 #include "net/haptic.h"
 #include "sq_test.h"
+#include "test_lod_helpers.h"
 
 SQ_TEST(net_haptic_pose_codec)
 {
@@ -174,4 +177,149 @@ SQ_TEST(net_haptic_body_model_grab)
     CHECK(mod.K[8] <= kf && mod.K[8] > 20 * kf);
     sq_body_destroy(b);
     sq_mesh_free(m);
+}
+
+/* ------------------------------------------------------------ live poses within a frame */
+
+/* a pose source that moves its tool by `dz` from its `switch_at`-th call on, and records at
+ * each call the z displacement of one held node (the step reads it once at the frame's start
+ * and then before every substep or tick) */
+typedef struct live_probe {
+    double base[3], dz;
+    int calls, switch_at;
+    const double *d;      /* the displacement array of the watched node's level */
+    int node;
+    double z[4096];
+} live_probe;
+
+static int live_source(void *arg, int id, double frac, double pos[3])
+{
+    live_probe *p = arg;
+    (void)frac;
+    if (id != 1)
+        return 0;
+    if (p->d && p->calls < 4096)
+        p->z[p->calls] = p->d[3 * (size_t)p->node + 2];
+    memcpy(pos, p->base, sizeof p->base);
+    if (p->calls >= p->switch_at)
+        pos[2] += p->dz;
+    p->calls++;
+    return 1;
+}
+
+SQ_TEST(net_haptic_live_pose_fixed_substep)
+{
+    sq_err err = {{0}};
+    const double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
+    sq_mesh *m = sq_mesh_box(4, 4, 4, size, origin, &err);
+    CHECK(m != NULL);
+    sq_body_def d = sq_body_def_default();
+    d.nlevels = 1;
+    d.levels[0] = m;
+    CHECK(sq_material_from_E_nu(&d.material, 1e5, 0.3, &err) == 0);
+    d.nconstraints = 1;
+    d.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
+    sq_body *b = sq_body_create(&d, &err);
+    CHECK(b != NULL);
+    sq_tool t;
+    memset(&t, 0, sizeof t);
+    t.id = 1;
+    t.shape = SQ_TOOL_GRAB;
+    t.active = 1;
+    t.radius = 0.2;
+    t.pos[0] = t.pos[1] = 0.5;
+    t.pos[2] = 1.0;
+    sq_tool_feedback fb0, fb1;
+    for (int k = 0; k < 3; k++)
+        sq_body_frame(b, &t, 1, &fb0, NULL, 0);
+    CHECK(b->nholds > 0 && b->level[0].model.nfree > 0);
+    /* a frame with the source: the pose moves 1 mm up from the second substep's call */
+    live_probe p = {.dz = 1e-3, .switch_at = 2, .d = b->level[0].d, .node = b->holds[0].node};
+    memcpy(p.base, t.pos, sizeof p.base);
+    sq_body_set_pose_source(b, live_source, &p);
+    sq_body_frame(b, &t, 1, &fb1, NULL, 0);
+    int nsub = p.calls - 1;
+    CHECK(nsub >= 3); /* this soft coarse cube: 4 */
+    /* call s (s >= 1) comes before substep s - 1: the change read at call 2 is on the node
+     * at call 3, one substep later, by the pose's change exactly (a grab follows the tool) */
+    CHECK_NEAR(p.z[3] - p.z[2], 1e-3, 1e-12);
+    CHECK(p.z[2] == p.z[1]);
+    CHECK(p.z[nsub] == p.z[3]);
+    sq_body_set_pose_source(b, NULL, NULL);
+    sq_body_destroy(b);
+    sq_mesh_free(m);
+}
+
+SQ_TEST(net_haptic_live_pose_lod_tick)
+{
+    sq_mesh *m[2];
+    CHECK(lh_cube_levels(m, 2, (const int[]){3, 6}));
+    sq_body_def def = lh_cube_def(m, 2);
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(&def, &e);
+    CHECK(b != NULL);
+    if (!b) {
+        lh_free_meshes(m, 2);
+        return;
+    }
+    sq_tool t = lh_sphere(0.5, 0.5, 1.15, 0.2, 1);
+    for (int f = 0; f < 5; f++)
+        sq_body_frame(b, &t, 1, NULL, NULL, 0);
+    live_probe p = {.dz = -2e-3, .switch_at = 4};
+    memcpy(p.base, t.pos, sizeof p.base);
+    sq_body_set_pose_source(b, live_source, &p);
+    /* the node standing for the first hold: itself when active, else its active ancestor
+     * (as the frame's holds stage maps it) */
+    sq_lod *lod = b->lod;
+    CHECK(b->nholds > 0);
+    int k = lod->L - 1, node = b->holds[0].node;
+    while (k > 0 && lod->lev[k].lay.state[node] != ST_ACTIVE) {
+        node = lod->h.link[k - 1].parent[node];
+        k--;
+    }
+    p.calls = 0;
+    p.switch_at = 4;
+    p.d = lod->lv[k].d;
+    p.node = node;
+    sq_body_frame(b, &t, 1, NULL, NULL, 0);
+    CHECK(p.calls > 6);
+    /* the change read at call 4 is on the held node at call 5, one tick later: down, by at
+     * most the pose's change (a push moves it along its normal) */
+    double dz = p.z[5] - p.z[4];
+    CHECK(dz < -0.2e-3 && dz >= -2e-3 - 1e-12);
+    CHECK(p.z[4] == p.z[2]);
+    sq_body_set_pose_source(b, NULL, NULL);
+    sq_body_destroy(b);
+    lh_free_meshes(m, 2);
+}
+
+SQ_TEST(net_haptic_pose_sources)
+{
+    sq_haptic_hub h;
+    sq_haptic_hub_init(&h);
+    double p[3];
+    /* real time: the newest pose, lock free; none before a pose or with no channel open */
+    CHECK(sq_haptic_pose_source(&h, 0) == sq_haptic_live_pose);
+    CHECK(sq_haptic_live_pose(&h, 2, 0.5, p) == 0);
+    h.nopen = 1;
+    const double q[3] = {0.1, 0.2, 0.3};
+    sq_haptic_live_publish(&h, 3, 2, q);
+    CHECK(sq_haptic_live_pose(&h, 2, 0.5, p) == 1 && p[0] == 0.1 && p[2] == 0.3);
+    CHECK(sq_haptic_live_pose(&h, 1, 0.5, p) == 0);
+    sq_haptic_live_publish(&h, 3, 2, NULL); /* closed */
+    CHECK(sq_haptic_live_pose(&h, 2, 0.5, p) == 0);
+    /* lockstep: nothing within frames, unless a channel ramps */
+    CHECK(sq_haptic_pose_source(&h, 1) == NULL);
+    h.nramp = 1;
+    h.ramp_tool[0] = 2;
+    for (int c = 0; c < 3; c++) {
+        h.ramp_from[0][c] = 0;
+        h.ramp_to[0][c] = 1e-3 * (c + 1);
+    }
+    CHECK(sq_haptic_pose_source(&h, 1) == sq_haptic_ramp_pose);
+    CHECK(sq_haptic_ramp_pose(&h, 2, 0.25, p) == 1);
+    CHECK_NEAR(p[2], 0.75e-3, 1e-15);
+    CHECK(sq_haptic_ramp_pose(&h, 3, 0.25, p) == 0);
+    sq_haptic_hub_free(&h);
 }
