@@ -501,9 +501,14 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
         return sq_err_set(err, "needs %.0f substeps per frame at %.4g Hz (bound %.3g s); the limit is 2^20 "
                                "(1048576): lower the stiffness or damping, raise the density, or use a coarser mesh",
                           need, 1.0 / frame_dt, bound);
+    /* rounded up to a power of two, the rule of the Gershgorin step and of the adaptive levels
+     * (lod/bound.c), so a fixed level and a level forced finest take the same substeps */
+    int nsub = 1;
+    while (nsub < need)
+        nsub *= 2;
     L->omega_est = w;
     L->bound_sharp = bound;
-    L->nsub = (int)need;
+    L->nsub = nsub;
     L->dt_fixed = frame_dt / L->nsub;
     return 0;
 }
