@@ -123,7 +123,7 @@ typedef struct sq_level {
     sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
     sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
-     * as the ceiling), its bound, and any integer number of substeps per frame */
+     * as the ceiling), its bound, and its substeps per frame (a power of two) */
     double omega_est;      /* rad/s */
     double bound_sharp;    /* s */
     int nsub;              /* substeps per frame */
@@ -209,8 +209,8 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
 /* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes, K the operator
  * the step applies (the element-wise blocks, or with L->anp the nodal-pressure or smoothed
  * operator, which must be enabled first), estimated by `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
- * from it, and the smallest integer substep count n with frame_dt / n <= step_fraction * bound
- * (sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
+ * from it, and the smallest power of two n with frame_dt / n <= step_fraction * bound (the rule
+ * of the Gershgorin step and of lod's levels; sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
 int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
                                int iters, sq_err *err);
 /* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2, K the element-wise
