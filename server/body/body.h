@@ -32,8 +32,10 @@ typedef struct sq_body_def {
     double step_fraction; /* fraction of the stability bound to run at (default 0.9) */
     sq_elasticity_kind elasticity; /* linear (default) or corotational */
     int sharp_step;       /* 1 = step from a Lanczos estimate of the bound (Gershgorin as ceiling):
-                             fixed mode any integer substep count, adaptive mode 2^n per level from
-                             the coupled operator (lod/bound.c); 0 (default) = Gershgorin, 2^n */
+                             2^n substeps, the next power of two at or above the count the bound
+                             needs (fixed mode), per level from the coupled operator (adaptive,
+                             lod/bound.c); 0 = Gershgorin, 2^n. Scenes default to 1; the C default
+                             (sq_body_def_default) is still 0 */
     sq_integrator_kind integrator; /* explicit (default) or implicit (backward Euler, fixed lod) */
     sq_implicit_def implicit;      /* the implicit step's settings (sq_implicit_def_default) */
     int nodal_pressure;   /* SQ_PRESSURE_*: 1 average nodal pressure tets, 2 smoothed (fem, linear, fixed lod; less locking) */

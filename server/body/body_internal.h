@@ -170,7 +170,7 @@ int sq_body_check_elasticity(sq_elasticity_kind e, sq_operator_kind op, sq_lod_m
 int sq_body_check_lod(const sq_body *b, const sq_lod_def *lod, sq_err *err);
 
 /* substeps per frame of a fixed level: 2^n at the Gershgorin bound, or with sharp_step the
- * sharp bound's any integer count (adaptive mode keeps 2^n per level) */
+ * sharp bound's 2^n (the rule of adaptive mode's levels too) */
 static inline int sq_body_fixed_nsub(const sq_body *b, const sq_level *L)
 {
     if (b->def.integrator == SQ_INTEGRATOR_IMPLICIT)

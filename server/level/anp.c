@@ -417,6 +417,8 @@ int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op
         sq_level_anp_free(L);
     if (!L->anp)
         L->anp = sq_anp_create(L->model.mesh, L->model.n, mode);
+    if (!L->corot) /* corotational elasticity keeps its row */
+        L->op_kind = mode == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
     sq_anp_set_moduli(L->anp, mat->mu, mat->lambda);
     return 0;
 }
@@ -425,6 +427,8 @@ void sq_level_anp_free(sq_level *L)
 {
     sq_anp_destroy(L->anp);
     L->anp = NULL;
+    if (!L->corot)
+        L->op_kind = SQ_LEVEL_OP_LINEAR;
 }
 
 void sq_level_anp_apply(const sq_level *L, const double *x, double *y)

@@ -56,6 +56,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C->u = calloc_aligned(4 * (size_t)L->model.n + 4);
         C->acc = calloc_aligned(4 * (size_t)L->model.n + 4);
         L->corot = C;
+        L->op_kind = SQ_LEVEL_OP_COROT;
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
             double V = sq_tet_gradients(m, t, a);
@@ -90,6 +91,8 @@ void sq_level_corot_free(sq_level *L)
     free(L->corot->acc);
     free(L->corot);
     L->corot = NULL;
+    L->op_kind = !L->anp ? SQ_LEVEL_OP_LINEAR
+                         : sq_anp_mode(L->anp) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
 }
 
 void sq_level_corot_reset(sq_level *L)
@@ -342,7 +345,11 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
     }
 #endif
     corot_forces(L, mat, g, L->f, 1, 1);
-    sq_level_integrate(L, dt, mask);
+    /* symplectic Euler node by node, the update of level.c's sq_level_integrate */
+    for (int i = 0; i < L->model.n; i++)
+        if (!mask || mask[i])
+            sq_level_euler_node(L->v, L->d, i, dt / L->model.mass[i], dt, L->f[3 * i], L->f[3 * i + 1],
+                                L->f[3 * i + 2], L->model.fixed[i]);
 }
 
 void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)

@@ -122,7 +122,6 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     L->d = sq_calloc(n3 + 1, sizeof(double));
     L->v = sq_calloc(n3 + 1, sizeof(double));
     L->f = sq_calloc(n3, sizeof(double));
-    L->w = sq_calloc(n3, sizeof(double));
     L->acc = sq_calloc(n3 + 1, sizeof(double));
 
     /* fixed axes: a tolerance of 1e-9 of the bounding-box diagonal absorbs rounding */
@@ -172,7 +171,6 @@ void sq_level_init_shared(sq_level *L, const sq_level *src)
     L->d = sq_calloc(n3 + 1, sizeof(double));
     L->v = sq_calloc(n3 + 1, sizeof(double));
     L->f = sq_calloc(n3, sizeof(double));
-    L->w = sq_calloc(n3, sizeof(double));
     L->acc = sq_calloc(n3 + 1, sizeof(double));
     L->omega_max = src->omega_max; /* sq_level_set_material's figure for this model */
 }
@@ -196,7 +194,6 @@ void sq_level_free(sq_level *L)
     free(L->d);
     free(L->v);
     free(L->f);
-    free(L->w);
     free(L->acc);
     sq_level_corot_free(L);
     sq_level_anp_free(L);
@@ -504,9 +501,14 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
         return sq_err_set(err, "needs %.0f substeps per frame at %.4g Hz (bound %.3g s); the limit is 2^20 "
                                "(1048576): lower the stiffness or damping, raise the density, or use a coarser mesh",
                           need, 1.0 / frame_dt, bound);
+    /* rounded up to a power of two, the rule of the Gershgorin step and of the adaptive levels
+     * (lod/bound.c), so a fixed level and a level forced finest take the same substeps */
+    int nsub = 1;
+    while (nsub < need)
+        nsub *= 2;
     L->omega_est = w;
     L->bound_sharp = bound;
-    L->nsub = (int)need;
+    L->nsub = nsub;
     L->dt_fixed = frame_dt / L->nsub;
     return 0;
 }
@@ -637,18 +639,11 @@ void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double 
     forces_all(M, (double *)x, (double *)x, y, acc, 0, 0, zero, 0, NULL);
 }
 
-void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
-                   const unsigned char *mask)
+/* ---- the linear row of the operator table ---- */
+
+static void linear_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+                        const unsigned char *mask)
 {
-    if (L->corot) {
-        sq_level_corot_step(L, mat, gravity, dt, mask);
-        return;
-    }
-    if (L->anp) {
-        sq_level_anp_forces(L, mat, gravity, L->f);
-        sq_level_integrate(L, dt, mask);
-        return;
-    }
     if (mat->use_viscosity && L->model.D) {
         /* the viscosity blocks are applied row by row: two passes */
         sq_level_forces(L, mat, gravity, NULL);
@@ -659,14 +654,8 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
                mask);
 }
 
-void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
-                     const unsigned char *active)
-{
-    sq_level_forces_to(L, mat, gravity, active, L->f, L->acc);
-}
-
-void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
-                        const unsigned char *active, double *f_out, double *acc)
+static void linear_forces(const sq_level *L, const sq_material *mat, const double gravity[3],
+                          const unsigned char *active, double *f_out, double *acc)
 {
     const int n = L->model.n;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
@@ -676,14 +665,6 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
     double *restrict f = f_out;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
-    if (L->corot) { /* all nodes (a superset of the active ones) */
-        sq_level_corot_forces(L, mat, gravity, f);
-        return;
-    }
-    if (L->anp) {
-        sq_level_anp_forces(L, mat, gravity, f);
-        return;
-    }
     if (!active) {
         /* dt = 0: the pass writes f and acc only (d and v are read) */
         forces_all(&L->model, (double *)d, (double *)v, f, acc, b, a, gravity, 0, NULL);
@@ -702,6 +683,75 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
         if (L->model.D && mat->use_viscosity)
             sq_level_row(&L->model, L->model.D, v, i, fi);
     }
+}
+
+/* 0.5 d.K d */
+static double linear_energy(const sq_level *L)
+{
+    double e = 0;
+    for (int i = 0; i < L->model.n; i++) {
+        const double *di = L->d + 3 * (size_t)i;
+        for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
+            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
+            for (int r = 0; r < 3; r++)
+                e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
+        }
+    }
+    return 0.5 * e;
+}
+
+/* ---- the element models' rows: their force passes are level/corot.c's and level/anp.c's ---- */
+
+static void corot_forces_row(const sq_level *L, const sq_material *mat, const double g[3],
+                             const unsigned char *active, double *f, double *acc)
+{
+    (void)active; /* all nodes (a superset of the active ones) */
+    (void)acc;
+    sq_level_corot_forces(L, mat, g, f);
+}
+
+static void anp_step(sq_level *L, const sq_material *mat, const double g[3], double dt, const unsigned char *mask)
+{
+    sq_level_anp_forces(L, mat, g, L->f);
+    sq_level_integrate(L, dt, mask);
+}
+
+static void anp_forces_row(const sq_level *L, const sq_material *mat, const double g[3],
+                           const unsigned char *active, double *f, double *acc)
+{
+    (void)active; /* all nodes */
+    (void)acc;
+    sq_level_anp_forces(L, mat, g, f);
+}
+
+static const sq_level_ops level_ops[SQ_LEVEL_OP_NKINDS] = {
+    [SQ_LEVEL_OP_LINEAR] = {"linear", linear_step, linear_forces, linear_energy},
+    [SQ_LEVEL_OP_COROT] = {"corotational", sq_level_corot_step, corot_forces_row, sq_level_corot_energy},
+    [SQ_LEVEL_OP_NODAL] = {"nodal", anp_step, anp_forces_row, sq_level_anp_energy},
+    [SQ_LEVEL_OP_SMOOTHED] = {"smoothed", anp_step, anp_forces_row, sq_level_anp_energy},
+};
+
+const sq_level_ops *sq_level_ops_of(sq_level_op_kind k)
+{
+    return (unsigned)k < SQ_LEVEL_OP_NKINDS ? &level_ops[k] : NULL;
+}
+
+void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+                   const unsigned char *mask)
+{
+    level_ops[L->op_kind].step(L, mat, gravity, dt, mask);
+}
+
+void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
+                     const unsigned char *active)
+{
+    sq_level_forces_to(L, mat, gravity, active, L->f, L->acc);
+}
+
+void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
+                        const unsigned char *active, double *f_out, double *acc)
+{
+    level_ops[L->op_kind].forces(L, mat, gravity, active, f_out, acc);
 }
 
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
@@ -770,18 +820,5 @@ void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double 
 /* 0.5 d.K d of level k (the corotational energy with corotational elasticity) */
 double sq_level_elastic_energy(const sq_level *L)
 {
-    if (L->corot)
-        return sq_level_corot_energy(L);
-    if (L->anp)
-        return sq_level_anp_energy(L);
-    double e = 0;
-    for (int i = 0; i < L->model.n; i++) {
-        const double *di = L->d + 3 * (size_t)i;
-        for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
-            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
-            for (int r = 0; r < 3; r++)
-                e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
-        }
-    }
-    return 0.5 * e;
+    return level_ops[L->op_kind].energy(L);
 }

@@ -62,6 +62,19 @@ typedef struct sq_corot sq_corot;
 typedef struct sq_anp sq_anp;
 typedef struct sq_implicit sq_implicit;
 
+/* the element model a level's explicit step, force pass and energy apply, chosen once when the
+ * model is set (sq_level_init: linear; sq_level_corot_enable: corotational; sq_level_anp_enable:
+ * nodal or smoothed) and dispatched through level.c's table of sq_level_ops, one row per kind
+ * (corotational wins over a pressure mode when both are enabled, as it always has). The
+ * implicit step (sq_level_implicit_step) is the body's integrator choice, not a row here. */
+typedef enum sq_level_op_kind {
+    SQ_LEVEL_OP_LINEAR = 0,   /* element-wise linear blocks K (and D) */
+    SQ_LEVEL_OP_COROT = 1,    /* corotational tets (level/corot.c) */
+    SQ_LEVEL_OP_NODAL = 2,    /* average nodal pressure tets (level/anp.c) */
+    SQ_LEVEL_OP_SMOOTHED = 3, /* face-smoothed tets with nodal pressure (level/anp.c) */
+    SQ_LEVEL_OP_NKINDS
+} sq_level_op_kind;
+
 /* the volumetric (and deviatoric) treatment of a body's tets ("pressure" in scenes and set):
  * element-wise (the standard tets), average nodal pressure, or nodal pressure with the
  * deviatoric strain smoothed over face domains (docs/physics.md section 10) */
@@ -100,7 +113,6 @@ typedef struct sq_level {
     double *d;             /* state: displacement (n x 3), m */
     double *v;             /* state: velocity (n x 3), m/s */
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
-    double *w;             /* scratch (n x 3); unused by the passes, which form d + b v on the fly */
     double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
 
     double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
@@ -111,13 +123,29 @@ typedef struct sq_level {
     sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
     sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
-     * as the ceiling), its bound, and any integer number of substeps per frame */
+     * as the ceiling), its bound, and its substeps per frame (a power of two) */
     double omega_est;      /* rad/s */
     double bound_sharp;    /* s */
     int nsub;              /* substeps per frame */
     double dt_fixed;       /* frame_dt / nsub, s */
     sq_implicit *implicit; /* backward Euler scratch (level/implicit.c), allocated by the first step */
+    sq_level_op_kind op_kind; /* the row of the operator table the step uses (set with the element model) */
 } sq_level;
+
+/* one row of the operator table: the explicit step (forces of all nodes, then symplectic Euler
+ * on the nodes with mask[i] != 0; dt = 0 computes the forces into L->f only), the force pass
+ * into f (acc: the linear pass's all-zero scratch of 3 n + 1, left zero; active may be NULL)
+ * and the elastic energy */
+typedef struct sq_level_ops {
+    const char *name;
+    void (*step)(sq_level *L, const sq_material *mat, const double g[3], double dt, const unsigned char *mask);
+    void (*forces)(const sq_level *L, const sq_material *mat, const double g[3], const unsigned char *active,
+                   double *f, double *acc);
+    double (*energy)(const sq_level *L);
+} sq_level_ops;
+/* the table's row of kind k (NULL out of range), and the row a level steps with */
+const sq_level_ops *sq_level_ops_of(sq_level_op_kind k);
+static inline const sq_level_ops *sq_level_ops_get(const sq_level *L) { return sq_level_ops_of(L->op_kind); }
 
 /* health warnings (body/body.h counts them per kind; docs/physics.md "Health"): a kind and up
  * to four values, the first of which is the one counted as "last value" */
@@ -181,8 +209,8 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
 /* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes, K the operator
  * the step applies (the element-wise blocks, or with L->anp the nodal-pressure or smoothed
  * operator, which must be enabled first), estimated by `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
- * from it, and the smallest integer substep count n with frame_dt / n <= step_fraction * bound
- * (sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
+ * from it, and the smallest power of two n with frame_dt / n <= step_fraction * bound (the rule
+ * of the Gershgorin step and of lod's levels; sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
 int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame_dt, double step_fraction,
                                int iters, sq_err *err);
 /* the Lanczos estimate alone: an upper estimate of lambda_max(M^-1 K), 1/s^2, K the element-wise

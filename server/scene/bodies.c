@@ -447,14 +447,15 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
         return scene_fail(c, p, "\"%.40s\" is not an elasticity; use \"linear\" (small strain, the paper's) or "
                           "\"corotational\" (large rotations; fem operator)", el->valuestring);
 
-    /* step bound: gershgorin (default, 2^n substeps) or sharp (Lanczos: fixed lod any count, adaptive 2^n) */
+    /* step bound: sharp (default: Lanczos estimate, Gershgorin its ceiling and fallback; 2^n substeps
+     * in fixed and adaptive lod alike) or gershgorin (row-sum bound, 2^n) */
     const cJSON *sb = scene_get(obj, "step_bound");
     scene_join(p, sizeof p, path, "step_bound");
     if (sb && !(cJSON_IsString(sb) && (!strcmp(sb->valuestring, "gershgorin") || !strcmp(sb->valuestring, "sharp"))))
-        return scene_fail(c, p, "expected \"gershgorin\" (default: row-sum bound, 2^n substeps per frame) or \"sharp\" "
-                          "(Lanczos estimate: any substep count in fixed lod, 2^n per level of the coupled operator in adaptive lod); "
-                          "see docs/stability.md");
-    def->sharp_step = sb && !strcmp(sb->valuestring, "sharp");
+        return scene_fail(c, p, "expected \"sharp\" (default: Lanczos estimate with Gershgorin as its ceiling, 2^n "
+                          "substeps per frame, per level of the coupled operator in adaptive lod) or \"gershgorin\" "
+                          "(row-sum bound, 2^n substeps per frame); see docs/stability.md");
+    def->sharp_step = !(sb && !strcmp(sb->valuestring, "gershgorin"));
 
     /* pressure: element (default), nodal (average nodal pressure tets: less volumetric locking) or
      * smoothed (nodal pressure and face-smoothed deviatoric strain: less bending locking too) */

@@ -439,7 +439,7 @@ SQ_TEST(contact_implicit_undamped_drop_gains_no_energy)
  * and pushed 2 cm by a box tool: the contact forces on the two are equal and opposite within
  * 1 % (by construction: every impulse has its opposite), the right block pushes back, nothing
  * resets. Penetration: the issue's bar, no node of one inside the other deeper than 1 % of the
- * 0.2 m edge (2 mm), over the last 20 frames (the tool at rest); measured 0.57 mm (0.28 %)
+ * 0.2 m edge (2 mm), over the last 20 frames (the tool at rest); measured 0.59 mm (0.29 %)
  * since a node found inside leaves by a position move (docs/physics.md section 13); with the
  * earlier exit at half the depth per step it was 2.13 mm (1.07 %) */
 SQ_TEST(contact_two_bodies_squeezed_equal_and_opposite)

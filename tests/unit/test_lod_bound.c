@@ -13,6 +13,8 @@
 #include "body/body_internal.h"
 #include "sq_test.h"
 #include "test_lod_helpers.h"
+#include "scene/scene.h"
+#include "test_scene_helpers.h"
 
 /* largest eigenvalue of the dense symmetric n x n matrix A (destroyed): Householder to
  * tridiagonal, then bisection on the Sturm count */
@@ -404,9 +406,9 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
 
 /* forced finest (split 0): no interface, so the operator is the finest level's own and the
  * sharp adaptive estimate is fixed mode's sharp one (Lanczos on the same operator, within 2%); the
- * exponent is the smallest 2^n at or above fixed mode's integer count (fixed sharp runs any
- * count, so the runs differ: lod_forced_finest_and_coarsest_match_fixed_runs compares the
- * Gershgorin rule both ways) */
+ * exponent is the smallest 2^n at or above the count the fixed bound needs, which is the count
+ * fixed mode takes (it rounds up to 2^n as well: lod_sharp_forced_finest_equals_fixed_finest
+ * runs both on cube-poke) */
 SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
 {
     sq_material mat = bent_material(1);
@@ -437,13 +439,73 @@ SQ_TEST(lod_sharp_forced_finest_is_the_fixed_sharp_bound)
                 lv[2].substeps_log2);
     CHECK(lest >= l400 * (1 - 1e-9));
     CHECK(lest <= l400 * 1.02); /* warm-started: the residual keeps it on the safe side, 0.7% here */
-    CHECK((1 << sub) >= lv[2].nsub && (1 << (sub - 1)) < lv[2].nsub);
+    CHECK((1 << sub) == lv[2].nsub); /* the same 2^n both ways */
     CHECK(sub <= lv[2].substeps_log2);
     sq_lod_destroy(lod);
     for (int k = 0; k < 3; k++) {
         sq_level_free(&lv[k]);
         sq_mesh_free(m[k]);
     }
+}
+
+/* cube-poke as shipped (corotational, the sharp bound), 50 frames: the finest level fixed, and
+ * adaptive with split 0 (forced finest: every node of the finest level active, no interface)
+ * take the same 2^n substeps from the same bound and the same holds, so the displacements and
+ * the probes agree to 1e-12 of the largest displacement (round-off of a different summation
+ * order; they came out bitwise equal when written). Before fixed mode rounded to 2^n (it took
+ * any integer count), the probes differed by 1.2e-4 relative */
+SQ_TEST(lod_sharp_forced_finest_equals_fixed_finest)
+{
+    sq_scene *sc[2] = {th_shipped_scene("cube-poke"), th_shipped_scene("cube-poke")};
+    CHECK(sc[0] && sc[1]);
+    if (!sc[0] || !sc[1]) {
+        sq_scene_free(sc[0]);
+        sq_scene_free(sc[1]);
+        return;
+    }
+    const int top = sc[0]->bodies[0].nlevels - 1;
+    CHECK(sc[0]->bodies[0].sharp_step && sc[0]->bodies[0].lod.mode == SQ_LOD_ADAPTIVE);
+    sc[0]->bodies[0].lod.mode = SQ_LOD_FIXED;
+    sc[0]->bodies[0].lod.level = top;
+    sc[1]->bodies[0].lod.split = 0;
+    sc[1]->bodies[0].lod.merge = 0;
+    sq_err e = {{0}};
+    sq_world *w[2] = {sq_world_create(sc[0], &e), sq_world_create(sc[1], &e)};
+    CHECK(w[0] && w[1]);
+    if (w[0] && w[1]) {
+        for (int f = 0; f < 50; f++) {
+            sq_world_step(w[0], 0);
+            sq_world_step(w[1], 0);
+        }
+        const sq_body *bf = w[0]->bodies[0], *ba = w[1]->bodies[0];
+        const int n = sq_body_mesh(bf, top)->nnodes;
+        const double *df = sq_body_displacement(bf, top), *da = sq_body_displacement(ba, top);
+        double dmax = 0, diff = 0, pdiff = 0, pmax = 0;
+        for (int i = 0; i < 3 * n; i++) {
+            dmax = fmax(dmax, fabs(df[i]));
+            diff = fmax(diff, fabs(df[i] - da[i]));
+        }
+        for (int p = 0; p < sc[0]->nprobes; p++) {
+            double uf[3], ua[3];
+            CHECK(sq_body_probe(bf, sc[0]->probes[p].point, uf) == 0 && sq_body_probe(ba, sc[0]->probes[p].point, ua) == 0);
+            for (int c = 0; c < 3; c++) {
+                pmax = fmax(pmax, fabs(uf[c]));
+                pdiff = fmax(pdiff, fabs(uf[c] - ua[c]));
+            }
+        }
+        if (getenv("SQ_LOD_VERBOSE"))
+            fprintf(stderr, "cube-poke forced finest vs fixed finest, 50 frames: %d substeps (%d); max |d| %.6g, "
+                    "max diff %.3g; probes max %.6g, diff %.3g\n", bf->level[top].nsub,
+                    1 << (ba->lod->lv[top].substeps_log2 + ba->lod->lev[top].rate.extra_log2), dmax, diff, pmax, pdiff);
+        CHECK(dmax > 1e-3); /* the finger has pressed it */
+        CHECK(bf->level[top].nsub == 1 << (ba->lod->lv[top].substeps_log2 + ba->lod->lev[top].rate.extra_log2));
+        CHECK(diff <= 1e-12 * dmax);
+        CHECK(pdiff <= 1e-12 * pmax);
+    }
+    sq_world_destroy(w[0]);
+    sq_world_destroy(w[1]);
+    sq_scene_free(sc[0]);
+    sq_scene_free(sc[1]);
 }
 
 /* a sharp estimate that cannot end by its deadline (the guard's, frame.c) is not made: its
