@@ -2,7 +2,7 @@
 # layers.sh - the include rule of server/ (docs/architecture.md), checked on every build.
 #
 # The modules form one order, lowest first:
-#     util  mesh  level  lod  body  scene  render  net  app
+#     util  mesh  level  contact  lod  body  scene  render  net  engines  app
 # A source file in module M may include
 #   - any header of its own folder (server/M/...), written "M/x.h";
 #   - the public header "X/X.h" of a module X below M (each module has exactly one);
@@ -12,7 +12,7 @@
 # as file:line and what to do, exits 1 if there is one.
 set -u
 SRC=${1:-$(dirname "$0")/../server}
-ORDER="util mesh level contact lod body scene render net app"
+ORDER="util mesh level contact lod body scene render net engines app"
 rank() { local i=0 m; for m in $ORDER; do [ "$m" = "$1" ] && { echo $i; return; }; i=$((i + 1)); done; echo -1; }
 
 bad=0

@@ -168,15 +168,19 @@ static int bench(const sq_world *w, const sq_render_opts *o, int width, int heig
     return rc;
 }
 
-int sq_cmd_render(int argc, char **argv)
-{
-    const char *scene_path = NULL, *out = NULL, *size = "800x600";
-    int use_default = 0, do_bench = 0;
-    long frames = -1, every = 1;
-    sq_render_opts o = sq_render_opts_default();
-    sq_err err = {{0}};
+/* the command line */
+typedef struct render_args {
+    const char *scene_path, *out, *size;
+    int use_default, do_bench;
+    long frames, every;
+    sq_render_opts o;
+} render_args;
 
-    /* arguments */
+/* -1: go on; else the exit code (--help, a usage error, a palette that cannot be read) */
+static int parse_args(int argc, char **argv, render_args *ra)
+{
+    sq_err err = {{0}};
+    *ra = (render_args){NULL, NULL, "800x600", 0, 0, -1, 1, sq_render_opts_default()};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         const char *val = i + 1 < argc ? argv[i + 1] : NULL;
@@ -185,39 +189,39 @@ int sq_cmd_render(int argc, char **argv)
             usage(stdout);
             return 0;
         } else if (!strcmp(a, "--default")) {
-            use_default = 1;
+            ra->use_default = 1;
         } else if (!strcmp(a, "--bench")) {
-            do_bench = 1;
+            ra->do_bench = 1;
         } else if (!strcmp(a, "--no-floor")) {
-            o.floor = 0;
+            ra->o.floor = 0;
         } else if (!strcmp(a, "--no-tools")) {
-            o.tools = 0;
+            ra->o.tools = 0;
         } else if (!strcmp(a, "--no-probes")) {
-            o.probes = 0;
+            ra->o.probes = 0;
         } else if (!strcmp(a, "--no-obstacles")) {
-            o.obstacles = 0;
+            ra->o.obstacles = 0;
         } else if (!strcmp(a, "--frames")) {
             if (!val || parse_long(val, 0, 1000000000L, &v))
                 return usage_error("--frames needs a whole number of frames (0 to 1e9), got '%s'",
                                    val ? val : "");
-            frames = v;
+            ra->frames = v;
             i++;
         } else if (!strcmp(a, "--every")) {
             if (!val || parse_long(val, 1, 1000000000L, &v))
                 return usage_error("--every needs a whole number >= 1, got '%s'", val ? val : "");
-            every = v;
+            ra->every = v;
             i++;
         } else if (!strcmp(a, "--supersample")) {
             if (!val || parse_long(val, 1, 4, &v))
                 return usage_error("--supersample needs 1, 2, 3 or 4, got '%s'", val ? val : "");
-            o.supersample = (int)v;
+            ra->o.supersample = (int)v;
             i++;
         } else if (!strcmp(a, "--size")) {
             if (!val)
                 return usage_error("%s--size needs WxH, e.g. 800x600", "");
-            size = argv[++i];
+            ra->size = argv[++i];
         } else if (!strcmp(a, "--color") || !strcmp(a, "--colour")) {
-            if (sq_color_mode_parse(val, &o.color, &err))
+            if (sq_color_mode_parse(val, &ra->o.color, &err))
                 return usage_error("%s", err.msg);
             i++;
         } else if (!strcmp(a, "--stress-max")) {
@@ -226,16 +230,16 @@ int sq_cmd_render(int argc, char **argv)
             if (!val || end == val || *end || !(m > 0) || !isfinite(m))
                 return usage_error("--stress-max needs a displacement > 0 in metres, got '%s'",
                                    val ? val : "");
-            o.stress_max = m;
+            ra->o.stress_max = m;
             i++;
         } else if (!strcmp(a, "--camera")) {
-            if (sq_camera_parse(val, &o.camera, &err))
+            if (sq_camera_parse(val, &ra->o.camera, &err))
                 return usage_error("%s", err.msg);
             i++;
         } else if (!strcmp(a, "--palette")) {
             if (!val)
                 return usage_error("%s--palette needs a file", "");
-            if (sq_palette_load(&o.palette, val, &err)) {
+            if (sq_palette_load(&ra->o.palette, val, &err)) {
                 fprintf(stderr, "squish render: %s\n", err.msg);
                 return 1;
             }
@@ -243,81 +247,57 @@ int sq_cmd_render(int argc, char **argv)
         } else if (!strcmp(a, "--out")) {
             if (!val || !val[0])
                 return usage_error("%s--out needs a directory", "");
-            out = argv[++i];
+            ra->out = argv[++i];
         } else if (a[0] == '-') {
             return usage_error("unknown option '%s'", a);
-        } else if (scene_path) {
+        } else if (ra->scene_path) {
             return usage_error("more than one scene given ('%s'); render one scene at a time", a);
         } else {
-            scene_path = a;
+            ra->scene_path = a;
         }
     }
-    int width, height;
-    if (sq_render_parse_size(size, SQ_RENDER_MAX_SIZE, &width, &height, &err))
-        return usage_error("%s", err.msg);
-    if (!scene_path && !use_default)
-        return usage_error("%sno scene given; pass SCENE.json or --default", "");
-    if (scene_path && use_default)
-        return usage_error("%sgive either SCENE.json or --default, not both", "");
-    if (!out && !do_bench)
-        out = "squish-render";
+    return -1;
+}
 
-    /* scene and world */
-    sq_scene *scene = use_default ? sq_scene_default(&err) : sq_scene_load(scene_path, &err);
-    if (!scene) {
-        fprintf(stderr, "squish render: %s\n", err.msg);
-        return 1;
+/* --bench: the world stepped nframes, then the renderer's cost (bench) and DIR/bench.png */
+static int render_bench(sq_world *w, const sq_scene *scene, long nframes, const sq_render_opts *o, int width,
+                        int height, const char *out)
+{
+    sq_err err = {{0}};
+    for (long f = 0; f < nframes; f++)
+        sq_world_step(w, 0);
+    printf("scene %s (%s) at frame %ld (t = %.3f s)\n", scene->name, scene->path, w->frame,
+           w->time);
+    int rc = bench(w, o, width, height);
+    if (rc == 0 && out) {
+        unsigned char *png = NULL;
+        size_t len = 0;
+        char path[1100];
+        snprintf(path, sizeof path, "%s/bench.png", out);
+        if (sq_render_world_png(w, SQ_MIN(width, SQ_SNAPSHOT_MAX_SIZE),
+                                SQ_MIN(height, SQ_SNAPSHOT_MAX_SIZE), o, &png, &len, &err) ||
+            sq_png_write_file(path, png, len, &err)) {
+            fprintf(stderr, "squish render: %s\n", err.msg);
+            rc = 1;
+        } else {
+            printf("wrote %s\n", path);
+        }
+        free(png);
     }
-    sq_world *w = sq_world_create(scene, &err);
-    if (!w) {
-        fprintf(stderr, "squish render: %s\n", err.msg);
-        sq_scene_free(scene);
-        return 1;
-    }
-    long nframes = frames >= 0 ? frames
-                   : do_bench  ? 25
-                               : (long)ceil(scene->duration * scene->frame_rate - 1e-9);
-    if (nframes < 0)
-        nframes = 0;
+    return rc;
+}
 
+/* the sequence: DIR/frame_NNNNN.png every `every` frames from frame 0 to nframes */
+static int render_sequence(sq_world *w, const sq_scene *scene, long nframes, long every, const sq_render_opts *o,
+                           int width, int height, const char *out)
+{
+    sq_err err = {{0}};
     int rc = 0;
-    if (out && sq_mkdir_p(out)) {
-        fprintf(stderr, "squish render: cannot create output directory %s: %s; choose another --out\n",
-                out, strerror(errno));
-        rc = 1;
-        goto done;
-    }
-
-    if (do_bench) {
-        for (long f = 0; f < nframes; f++)
-            sq_world_step(w, 0);
-        printf("scene %s (%s) at frame %ld (t = %.3f s)\n", scene->name, scene->path, w->frame,
-               w->time);
-        rc = bench(w, &o, width, height);
-        if (rc == 0 && out) {
-            unsigned char *png = NULL;
-            size_t len = 0;
-            char path[1100];
-            snprintf(path, sizeof path, "%s/bench.png", out);
-            if (sq_render_world_png(w, SQ_MIN(width, SQ_SNAPSHOT_MAX_SIZE),
-                                    SQ_MIN(height, SQ_SNAPSHOT_MAX_SIZE), &o, &png, &len, &err) ||
-                sq_png_write_file(path, png, len, &err)) {
-                fprintf(stderr, "squish render: %s\n", err.msg);
-                rc = 1;
-            } else {
-                printf("wrote %s\n", path);
-            }
-            free(png);
-        }
-        goto done;
-    }
-
     /* the sequence: one renderer, state and draw list reused for every image */
-    sq_renderer *r = sq_renderer_create(width, height, o.supersample, &err);
+    sq_renderer *r = sq_renderer_create(width, height, o->supersample, &err);
     if (!r) {
         fprintf(stderr, "squish render: %s\n", err.msg);
-        rc = 1;
-        goto done;
+        return 1;
     }
     sq_render_state st;
     sq_render_state_init(&st);
@@ -325,7 +305,7 @@ int sq_cmd_render(int argc, char **argv)
     unsigned char *rgb = sq_malloc((size_t)width * height * 3);
     long nimages = nframes / every + 1, written = 0;
     printf("scene %s (%s): %ld frames, %ld images %dx%d, %s colours -> %s/\n", scene->name,
-           scene->path, nframes, nimages, width, height, sq_color_mode_name(o.color), out);
+           scene->path, nframes, nimages, width, height, sq_color_mode_name(o->color), out);
     fflush(stdout);
     sq_progress prog;
     sq_progress_begin(&prog, "squish render", (double)nframes);
@@ -334,7 +314,7 @@ int sq_cmd_render(int argc, char **argv)
         if (w->frame % every == 0) {
             char path[1100];
             snprintf(path, sizeof path, "%s/frame_%05ld.png", out, written);
-            if (render_one(&st, &dl, r, rgb, w, &o, width, height, path, t, &err)) {
+            if (render_one(&st, &dl, r, rgb, w, o, width, height, path, t, &err)) {
                 if (prog.enabled)
                     fputc('\n', stderr);
                 fprintf(stderr, "squish render: %s\n", err.msg);
@@ -362,8 +342,54 @@ int sq_cmd_render(int argc, char **argv)
     sq_drawlist_free(&dl);
     sq_render_state_free(&st);
     sq_renderer_destroy(r);
+    return rc;
+}
 
-done:
+int sq_cmd_render(int argc, char **argv)
+{
+    render_args ra;
+    sq_err err = {{0}};
+    int rc = parse_args(argc, argv, &ra);
+    if (rc >= 0)
+        return rc;
+    const char *out = ra.out;
+    int width, height;
+    if (sq_render_parse_size(ra.size, SQ_RENDER_MAX_SIZE, &width, &height, &err))
+        return usage_error("%s", err.msg);
+    if (!ra.scene_path && !ra.use_default)
+        return usage_error("%sno scene given; pass SCENE.json or --default", "");
+    if (ra.scene_path && ra.use_default)
+        return usage_error("%sgive either SCENE.json or --default, not both", "");
+    if (!out && !ra.do_bench)
+        out = "squish-render";
+
+    /* scene and world */
+    sq_scene *scene = ra.use_default ? sq_scene_default(&err) : sq_scene_load(ra.scene_path, &err);
+    if (!scene) {
+        fprintf(stderr, "squish render: %s\n", err.msg);
+        return 1;
+    }
+    sq_world *w = sq_world_create(scene, &err);
+    if (!w) {
+        fprintf(stderr, "squish render: %s\n", err.msg);
+        sq_scene_free(scene);
+        return 1;
+    }
+    long nframes = ra.frames >= 0 ? ra.frames
+                   : ra.do_bench  ? 25
+                                  : (long)ceil(scene->duration * scene->frame_rate - 1e-9);
+    if (nframes < 0)
+        nframes = 0;
+
+    if (out && sq_mkdir_p(out)) {
+        fprintf(stderr, "squish render: cannot create output directory %s: %s; choose another --out\n",
+                out, strerror(errno));
+        rc = 1;
+    } else if (ra.do_bench) {
+        rc = render_bench(w, scene, nframes, &ra.o, width, height, out);
+    } else {
+        rc = render_sequence(w, scene, nframes, ra.every, &ra.o, width, height, out);
+    }
     sq_world_destroy(w);
     sq_scene_free(scene);
     return rc;

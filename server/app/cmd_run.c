@@ -159,14 +159,18 @@ static void write_tool_rows(FILE *f, const sq_world *w)
         }
 }
 
-int sq_cmd_run(int argc, char **argv)
-{
-    const char *scene_path = NULL, *out = "squish-out";
-    int use_default = 0, until_rest = 0, nmodes = 0, realtime = 0;
-    long frames = -1, max_frames = REST_MAX_FRAMES;
-    double seconds = -1, rest_ke = REST_KE_PER_KG, rest_res = REST_RESIDUAL;
+/* the command line */
+typedef struct run_opts {
+    const char *scene_path, *out;
+    int use_default, until_rest, nmodes, realtime;
+    long frames, max_frames;
+    double seconds, rest_ke, rest_res;
+} run_opts;
 
-    /* arguments */
+/* -1: go on; else the exit code (--help, a usage error) */
+static int parse_args(int argc, char **argv, run_opts *o)
+{
+    *o = (run_opts){NULL, "squish-out", 0, 0, 0, 0, -1, REST_MAX_FRAMES, -1, REST_KE_PER_KG, REST_RESIDUAL};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
         int has_val = i + 1 < argc;
@@ -175,58 +179,242 @@ int sq_cmd_run(int argc, char **argv)
             usage(stdout);
             return 0;
         } else if (!strcmp(a, "--default")) {
-            use_default = 1;
+            o->use_default = 1;
         } else if (!strcmp(a, "--realtime")) {
-            realtime = 1;
+            o->realtime = 1;
         } else if (!strcmp(a, "--until-rest")) {
-            until_rest = 1;
-            nmodes++;
+            o->until_rest = 1;
+            o->nmodes++;
         } else if (!strcmp(a, "--frames") || !strcmp(a, "--max-frames")) {
             if (!has_val || parse_double(argv[i + 1], &v) || v < 0 || v != floor(v) || v > 1e9)
                 return usage_error("%s needs a whole number of frames (0 to 1e9)", a);
             if (!strcmp(a, "--frames")) {
-                frames = (long)v;
-                nmodes++;
+                o->frames = (long)v;
+                o->nmodes++;
             } else {
-                max_frames = (long)v;
+                o->max_frames = (long)v;
             }
             i++;
         } else if (!strcmp(a, "--seconds")) {
             if (!has_val || parse_double(argv[i + 1], &v) || v < 0 || v > 1e7)
                 return usage_error("%s needs a simulated time in seconds (0 to 1e7)", a);
-            seconds = v;
-            nmodes++;
+            o->seconds = v;
+            o->nmodes++;
             i++;
         } else if (!strcmp(a, "--rest-ke") || !strcmp(a, "--rest-residual")) {
             if (!has_val || parse_double(argv[i + 1], &v) || !(v > 0))
                 return usage_error("%s needs a tolerance > 0", a);
             if (!strcmp(a, "--rest-ke"))
-                rest_ke = v;
+                o->rest_ke = v;
             else
-                rest_res = v;
+                o->rest_res = v;
             i++;
         } else if (!strcmp(a, "--out")) {
             if (!has_val || !argv[i + 1][0])
                 return usage_error("%s needs a directory", a);
-            out = argv[++i];
+            o->out = argv[++i];
         } else if (a[0] == '-') {
             return usage_error("unknown option '%s'", a);
-        } else if (scene_path) {
+        } else if (o->scene_path) {
             return usage_error("more than one scene given ('%s'); run one scene at a time", a);
         } else {
-            scene_path = a;
+            o->scene_path = a;
         }
     }
-    if (!scene_path && !use_default)
+    if (!o->scene_path && !o->use_default)
         return usage_error("no scene given; pass SCENE.json or --default");
-    if (scene_path && use_default)
+    if (o->scene_path && o->use_default)
         return usage_error("give either SCENE.json or --default, not both");
-    if (nmodes > 1)
+    if (o->nmodes > 1)
         return usage_error("--frames, --seconds and --until-rest exclude each other; give one");
+
+    return -1;
+}
+
+/* what the run adds up over its frames */
+typedef struct run_totals {
+    long updates;
+    long iface[3];                 /* ring values, ring rows, frontier rows (adaptive bodies) */
+    double sub_sum[SQ_MAX_LEVELS]; /* substeps of the frames a listed level has active nodes */
+    long sub_frames[SQ_MAX_LEVELS];
+    double mass[SQ_MAX_BODIES];
+    int at_rest;
+    double rest_ke_seen, rest_res_seen;
+} run_totals;
+
+/* the headers of the three CSV files; returns the number of listed levels (active_l columns) */
+static int write_headers(FILE *fp, FILE *fs, FILE *ft, const sq_world *w)
+{
+    /* active counts per level as listed in the scene file, summed over bodies */
+    int maxl = 0;
+    for (int b = 0; b < w->nbodies; b++)
+        for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
+            maxl = SQ_MAX(maxl, sq_world_listed_level(w, b, k) + 1);
+    fprintf(fp, "frame,time,probe,ux,uy,uz\n");
+    fprintf(ft, "frame,time,tool,body,active,x,y,z,fx,fy,fz,nodes\n");
+    fprintf(fs, "frame,time,node_updates,wall_ms");
+    for (int k = 0; k < maxl; k++)
+        fprintf(fs, ",active_l%d", k);
+    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,health,missed,cg_iterations,cg_residual\n");
+    return maxl;
+}
+
+/* the frame just stepped: its stats.csv row (missed0: the deadline misses before it), its
+ * events on stdout, its counts into t */
+static void stats_row(FILE *fs, const sq_world *w, int maxl, long missed0, run_totals *t, const sq_progress *prog)
+{
+    long nu = 0;
+    int active[SQ_MAX_LEVELS] = {0}, splits = 0, merges = 0, resets = 0, refused = 0;
+    long cg_it = 0;
+    double ke = 0, cg_res = 0;
+    char health[96] = ""; /* the frame's health warning kinds, '+' between bodies */
+    for (int b = 0; b < w->nbodies; b++) {
+        const sq_frame_profile *pr = &w->profile[b];
+        if (pr->event_kind != SQ_HEALTH_NONE && strlen(health) + 24 < sizeof health)
+            snprintf(health + strlen(health), sizeof health - strlen(health), "%s%s", health[0] ? "+" : "",
+                     sq_health_kind_name(pr->event_kind));
+        nu += pr->node_updates;
+        cg_it += pr->cg_iterations;
+        cg_res = SQ_MAX(cg_res, pr->cg_residual);
+        t->iface[0] += pr->ring_values;
+        t->iface[1] += pr->ring_rows;
+        t->iface[2] += pr->frontier_rows;
+        for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++) {
+            active[sq_world_listed_level(w, b, k)] += pr->active[k];
+            if (pr->active[k] > 0) {
+                t->sub_sum[sq_world_listed_level(w, b, k)] += pr->substeps[k];
+                t->sub_frames[sq_world_listed_level(w, b, k)]++;
+            }
+        }
+        splits += pr->splits;
+        refused += pr->splits_refused;
+        merges += pr->merges;
+        resets += pr->reset;
+        ke += sq_body_kinetic_energy(w->bodies[b]);
+        if (pr->event[0] || pr->reset) {
+            if (prog->enabled)
+                fputc('\n', stderr);
+            printf("frame %ld (t = %.4f s): body %s: %s\n", w->frame, w->time, w->scene->body_names[b],
+                   pr->event[0] ? pr->event : "blow-up: body reset to rest");
+            fflush(stdout);
+        }
+    }
+    t->updates += nu;
+    fprintf(fs, "%ld,%.9e,%ld,%.3f", w->frame, w->time, nu, 1000.0 * w->last_frame_s);
+    for (int k = 0; k < maxl; k++)
+        fprintf(fs, ",%d", active[k]);
+    fprintf(fs, ",%d,%d,%d,%.9e,%d,%s,%ld,%ld,%.3e\n", splits, merges, resets, ke, refused, health,
+            w->deadline_misses - missed0, cg_it, cg_res);
+}
+
+/* rest: every body calm (or asleep); the largest kinetic energy per kg and residual seen go to t */
+static int at_rest(const sq_world *w, const run_opts *o, run_totals *t)
+{
+    int calm = 1;
+    t->rest_ke_seen = 0;
+    t->rest_res_seen = 0;
+    for (int b = 0; b < w->nbodies && calm; b++) {
+        if (sq_body_is_sleeping(w->bodies[b]))
+            continue;
+        double kpm = t->mass[b] > 0 ? sq_body_kinetic_energy(w->bodies[b]) / t->mass[b] : 0;
+        t->rest_ke_seen = fmax(t->rest_ke_seen, kpm);
+        if (kpm >= o->rest_ke) {
+            calm = 0;
+            break;
+        }
+        double r = sq_body_residual(w->bodies[b]);
+        t->rest_res_seen = fmax(t->rest_res_seen, r);
+        if (!(r < o->rest_res))
+            calm = 0;
+    }
+    return calm;
+}
+
+/* final.vtk (body 0) and final_NAME.vtk per body when there are several; 0 or 1 */
+static int write_final(sq_world *w, const char *out)
+{
+    int rc = 0;
+    sq_err err = {{0}};
+    char vpath[1100];
+    for (int b = 0; b < w->nbodies; b++) {
+        char name[128];
+        if (b == 0) {
+            snprintf(vpath, sizeof vpath, "%s/final.vtk", out);
+            if (sq_world_write_vtk(w, b, vpath, &err)) {
+                fprintf(stderr, "squish run: %s\n", err.msg);
+                rc = 1;
+            }
+        }
+        if (w->nbodies > 1) {
+            snprintf(name, sizeof name, "final_%s.vtk", w->scene->body_names[b]);
+            snprintf(vpath, sizeof vpath, "%s/%s", out, name);
+            if (sq_world_write_vtk(w, b, vpath, &err)) {
+                fprintf(stderr, "squish run: %s\n", err.msg);
+                rc = 1;
+            }
+        }
+    }
+    return rc;
+}
+
+/* the closing lines on stdout */
+static void print_summary(const sq_world *w, const run_opts *o, const run_totals *t, long nframes, double wall,
+                          double budget)
+{
+    printf("done: %ld frames, %.4g s simulated in %.3g s wall (%.3g x real time), %ld node updates "
+           "(%.3g node-steps/s), %ld resets\n",
+           w->frame, w->time, wall, wall > 0 ? w->time / wall : 0, t->updates, wall > 0 ? t->updates / wall : 0,
+           w->resets);
+    if (t->iface[0] + t->iface[1] + t->iface[2] > 0)
+        printf("interface (adaptive bodies): %ld ring values, %ld ring rows, %ld frontier rows (per node update "
+               "%.3g, %.3g, %.3g)\n",
+               t->iface[0], t->iface[1], t->iface[2], t->updates > 0 ? (double)t->iface[0] / (double)t->updates : 0,
+               t->updates > 0 ? (double)t->iface[1] / (double)t->updates : 0,
+               t->updates > 0 ? (double)t->iface[2] / (double)t->updates : 0);
+    if (t->sub_frames[0] + t->sub_frames[1] > 0) {
+        printf("substeps per frame by level (mean over the frames the level has active nodes):");
+        for (int k = 0; k < SQ_MAX_LEVELS; k++)
+            if (t->sub_frames[k] > 0)
+                printf(" L%d %.2f (%ld frames)", k, t->sub_sum[k] / (double)t->sub_frames[k], t->sub_frames[k]);
+        printf("\n");
+    }
+    for (int b = 0; b < w->nbodies; b++) {
+        long nest;
+        double cpu;
+        sq_body_step_bound_cost(w->bodies[b], &nest, &cpu);
+        if (nest > 0)
+            printf("body %s: sharp step bound: %ld estimates, %.4g s thread CPU (%.3g ms each)\n",
+                   w->scene->body_names[b], nest, cpu, 1e3 * cpu / (double)nest);
+    }
+    if (o->realtime)
+        printf("realtime: %ld of %ld frames over the %.4g s period (%.2f%%)\n", w->deadline_misses, w->frame, budget,
+               w->frame > 0 ? 100.0 * (double)w->deadline_misses / (double)w->frame : 0.0);
+    if (o->until_rest) {
+        if (t->at_rest)
+            printf("at rest at frame %ld (t = %.4g s)\n", w->frame, w->time);
+        else
+            printf("warning: not at rest after the cap of %ld frames (last kinetic energy %.3g J/kg, residual "
+                   "%.3g); raise --max-frames or add damping\n",
+                   nframes, t->rest_ke_seen, t->rest_res_seen);
+    }
+    for (int p = 0; p < w->scene->nprobes; p++) {
+        double u[3];
+        if (sq_world_probe(w, p, u) == 0)
+            printf("probe %s: u = (%.6g, %.6g, %.6g) m\n", w->scene->probes[p].name, u[0], u[1], u[2]);
+    }
+    printf("wrote %s/probes.csv, %s/stats.csv, %s/tools.csv, %s/final.vtk\n", o->out, o->out, o->out, o->out);
+}
+
+int sq_cmd_run(int argc, char **argv)
+{
+    run_opts o;
+    int rc = parse_args(argc, argv, &o);
+    if (rc >= 0)
+        return rc;
 
     /* scene and world */
     sq_err err = {{0}};
-    sq_scene *scene = use_default ? sq_scene_default(&err) : sq_scene_load(scene_path, &err);
+    sq_scene *scene = o.use_default ? sq_scene_default(&err) : sq_scene_load(o.scene_path, &err);
     if (!scene) {
         fprintf(stderr, "squish run: %s\n", err.msg);
         return 1;
@@ -238,19 +426,19 @@ int sq_cmd_run(int argc, char **argv)
         return 1;
     }
     long nframes;
-    if (until_rest)
-        nframes = max_frames;
-    else if (frames >= 0)
-        nframes = frames;
+    if (o.until_rest)
+        nframes = o.max_frames;
+    else if (o.frames >= 0)
+        nframes = o.frames;
     else
-        nframes = (long)ceil((seconds >= 0 ? seconds : scene->duration) * scene->frame_rate - 1e-9);
+        nframes = (long)ceil((o.seconds >= 0 ? o.seconds : scene->duration) * scene->frame_rate - 1e-9);
     if (nframes < 0)
         nframes = 0;
 
     /* batch runs have no compute budget (deterministic); --realtime gives the frame period */
-    double budget = realtime ? 1.0 / scene->frame_rate : 0;
+    double budget = o.realtime ? 1.0 / scene->frame_rate : 0;
     print_setup(scene, w);
-    if (realtime) {
+    if (o.realtime) {
         printf("realtime: compute budget %.4g s per frame (splits refused above it; output not deterministic)\n",
                budget);
         char msg[1024];
@@ -259,14 +447,14 @@ int sq_cmd_run(int argc, char **argv)
         printf("%s\n", msg);
         sq_world_prepare_budget(w); /* the first budgeted frame's set-up, at load */
     }
-    if (until_rest)
-        printf("run: until rest (kinetic energy < %g J/kg, residual < %g), at most %ld frames (%g s)\n", rest_ke,
-               rest_res, nframes, nframes / scene->frame_rate);
+    if (o.until_rest)
+        printf("run: until rest (kinetic energy < %g J/kg, residual < %g), at most %ld frames (%g s)\n", o.rest_ke,
+               o.rest_res, nframes, nframes / scene->frame_rate);
     else
         printf("run: %ld frames (%g s)\n", nframes, nframes / scene->frame_rate);
     fflush(stdout);
 
-    int rc = 0;
+    const char *out = o.out;
     char ppath[1100], spath[1100], tpath[1100];
     FILE *fp = NULL, *fs = NULL, *ft = NULL;
     if (sq_mkdir_p(out)) {
@@ -275,6 +463,7 @@ int sq_cmd_run(int argc, char **argv)
         rc = 1;
         goto done;
     }
+    rc = 0;
     fp = open_out(out, "probes.csv", ppath, sizeof ppath);
     fs = open_out(out, "stats.csv", spath, sizeof spath);
     ft = open_out(out, "tools.csv", tpath, sizeof tpath);
@@ -282,178 +471,38 @@ int sq_cmd_run(int argc, char **argv)
         rc = 1;
         goto done;
     }
-
-    /* headers; active counts per level as listed in the scene file, summed over bodies */
-    int maxl = 0;
-    for (int b = 0; b < w->nbodies; b++)
-        for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++)
-            maxl = SQ_MAX(maxl, sq_world_listed_level(w, b, k) + 1);
-    fprintf(fp, "frame,time,probe,ux,uy,uz\n");
-    fprintf(ft, "frame,time,tool,body,active,x,y,z,fx,fy,fz,nodes\n");
-    fprintf(fs, "frame,time,node_updates,wall_ms");
-    for (int k = 0; k < maxl; k++)
-        fprintf(fs, ",active_l%d", k);
-    fprintf(fs, ",splits,merges,resets,kinetic_energy,refused,health,missed,cg_iterations,cg_residual\n");
+    int maxl = write_headers(fp, fs, ft, w);
     write_probe_rows(fp, w);
 
-    double mass[SQ_MAX_BODIES];
+    run_totals t;
+    memset(&t, 0, sizeof t);
     for (int b = 0; b < w->nbodies; b++)
-        mass[b] = body_mass(w->bodies[b]);
+        t.mass[b] = body_mass(w->bodies[b]);
     double t_last_key = last_keyframe(scene);
 
     /* the loop */
     sq_progress prog;
     sq_progress_begin(&prog, "squish run", (double)nframes);
     double wall0 = sq_now();
-    long updates = 0;
-    long iface[3] = {0, 0, 0}; /* ring values, ring rows, frontier rows (adaptive bodies) */
-    int at_rest = 0;
-    double rest_ke_seen = 0, rest_res_seen = 0;
-    double sub_sum[SQ_MAX_LEVELS] = {0};
-    long sub_frames[SQ_MAX_LEVELS] = {0};
     while (w->frame < nframes) {
         long missed0 = w->deadline_misses;
         sq_world_step(w, budget);
-        long nu = 0;
-        int active[SQ_MAX_LEVELS] = {0}, splits = 0, merges = 0, resets = 0, refused = 0;
-        long cg_it = 0;
-        double ke = 0, cg_res = 0;
-        char health[96] = ""; /* the frame's health warning kinds, '+' between bodies */
-        for (int b = 0; b < w->nbodies; b++) {
-            const sq_frame_profile *pr = &w->profile[b];
-            if (pr->event_kind != SQ_HEALTH_NONE && strlen(health) + 24 < sizeof health)
-                snprintf(health + strlen(health), sizeof health - strlen(health), "%s%s", health[0] ? "+" : "",
-                         sq_health_kind_name(pr->event_kind));
-            nu += pr->node_updates;
-            cg_it += pr->cg_iterations;
-            cg_res = SQ_MAX(cg_res, pr->cg_residual);
-            iface[0] += pr->ring_values;
-            iface[1] += pr->ring_rows;
-            iface[2] += pr->frontier_rows;
-            for (int k = 0; k < sq_body_nlevels(w->bodies[b]); k++) {
-                active[sq_world_listed_level(w, b, k)] += pr->active[k];
-                if (pr->active[k] > 0) {
-                    sub_sum[sq_world_listed_level(w, b, k)] += pr->substeps[k];
-                    sub_frames[sq_world_listed_level(w, b, k)]++;
-                }
-            }
-            splits += pr->splits;
-            refused += pr->splits_refused;
-            merges += pr->merges;
-            resets += pr->reset;
-            ke += sq_body_kinetic_energy(w->bodies[b]);
-            if (pr->event[0] || pr->reset) {
-                if (prog.enabled)
-                    fputc('\n', stderr);
-                printf("frame %ld (t = %.4f s): body %s: %s\n", w->frame, w->time, scene->body_names[b],
-                       pr->event[0] ? pr->event : "blow-up: body reset to rest");
-                fflush(stdout);
-            }
-        }
-        updates += nu;
-        fprintf(fs, "%ld,%.9e,%ld,%.3f", w->frame, w->time, nu, 1000.0 * w->last_frame_s);
-        for (int k = 0; k < maxl; k++)
-            fprintf(fs, ",%d", active[k]);
-        fprintf(fs, ",%d,%d,%d,%.9e,%d,%s,%ld,%ld,%.3e\n", splits, merges, resets, ke, refused, health,
-                w->deadline_misses - missed0, cg_it, cg_res);
+        stats_row(fs, w, maxl, missed0, &t, &prog);
         write_probe_rows(fp, w);
         write_tool_rows(ft, w);
         sq_progress_update(&prog, (double)w->frame);
-
         /* rest: every body calm (or asleep), after the last scripted keyframe */
-        if (until_rest && w->time >= t_last_key) {
-            int calm = 1;
-            rest_ke_seen = 0;
-            rest_res_seen = 0;
-            for (int b = 0; b < w->nbodies && calm; b++) {
-                if (sq_body_is_sleeping(w->bodies[b]))
-                    continue;
-                double kpm = mass[b] > 0 ? sq_body_kinetic_energy(w->bodies[b]) / mass[b] : 0;
-                rest_ke_seen = fmax(rest_ke_seen, kpm);
-                if (kpm >= rest_ke) {
-                    calm = 0;
-                    break;
-                }
-                double r = sq_body_residual(w->bodies[b]);
-                rest_res_seen = fmax(rest_res_seen, r);
-                if (!(r < rest_res))
-                    calm = 0;
-            }
-            if (calm) {
-                at_rest = 1;
-                break;
-            }
+        if (o.until_rest && w->time >= t_last_key && at_rest(w, &o, &t)) {
+            t.at_rest = 1;
+            break;
         }
     }
     sq_progress_end(&prog);
     double wall = sq_now() - wall0;
 
-    /* final state */
-    {
-        char vpath[1100];
-        for (int b = 0; b < w->nbodies; b++) {
-            char name[128];
-            if (b == 0) {
-                snprintf(vpath, sizeof vpath, "%s/final.vtk", out);
-                if (sq_world_write_vtk(w, b, vpath, &err)) {
-                    fprintf(stderr, "squish run: %s\n", err.msg);
-                    rc = 1;
-                }
-            }
-            if (w->nbodies > 1) {
-                snprintf(name, sizeof name, "final_%s.vtk", scene->body_names[b]);
-                snprintf(vpath, sizeof vpath, "%s/%s", out, name);
-                if (sq_world_write_vtk(w, b, vpath, &err)) {
-                    fprintf(stderr, "squish run: %s\n", err.msg);
-                    rc = 1;
-                }
-            }
-        }
-    }
-
-    /* summary */
-    printf("done: %ld frames, %.4g s simulated in %.3g s wall (%.3g x real time), %ld node updates "
-           "(%.3g node-steps/s), %ld resets\n",
-           w->frame, w->time, wall, wall > 0 ? w->time / wall : 0, updates, wall > 0 ? updates / wall : 0,
-           w->resets);
-    if (iface[0] + iface[1] + iface[2] > 0)
-        printf("interface (adaptive bodies): %ld ring values, %ld ring rows, %ld frontier rows (per node update "
-               "%.3g, %.3g, %.3g)\n",
-               iface[0], iface[1], iface[2], updates > 0 ? (double)iface[0] / (double)updates : 0,
-               updates > 0 ? (double)iface[1] / (double)updates : 0,
-               updates > 0 ? (double)iface[2] / (double)updates : 0);
-    if (sub_frames[0] + sub_frames[1] > 0) {
-        printf("substeps per frame by level (mean over the frames the level has active nodes):");
-        for (int k = 0; k < SQ_MAX_LEVELS; k++)
-            if (sub_frames[k] > 0)
-                printf(" L%d %.2f (%ld frames)", k, sub_sum[k] / (double)sub_frames[k], sub_frames[k]);
-        printf("\n");
-    }
-    for (int b = 0; b < w->nbodies; b++) {
-        long nest;
-        double cpu;
-        sq_body_step_bound_cost(w->bodies[b], &nest, &cpu);
-        if (nest > 0)
-            printf("body %s: sharp step bound: %ld estimates, %.4g s thread CPU (%.3g ms each)\n",
-                   scene->body_names[b], nest, cpu, 1e3 * cpu / (double)nest);
-    }
-    if (realtime)
-        printf("realtime: %ld of %ld frames over the %.4g s period (%.2f%%)\n", w->deadline_misses, w->frame, budget,
-               w->frame > 0 ? 100.0 * (double)w->deadline_misses / (double)w->frame : 0.0);
-    if (until_rest) {
-        if (at_rest)
-            printf("at rest at frame %ld (t = %.4g s)\n", w->frame, w->time);
-        else
-            printf("warning: not at rest after the cap of %ld frames (last kinetic energy %.3g J/kg, residual "
-                   "%.3g); raise --max-frames or add damping\n",
-                   nframes, rest_ke_seen, rest_res_seen);
-    }
-    for (int p = 0; p < scene->nprobes; p++) {
-        double u[3];
-        if (sq_world_probe(w, p, u) == 0)
-            printf("probe %s: u = (%.6g, %.6g, %.6g) m\n", scene->probes[p].name, u[0], u[1], u[2]);
-    }
-    printf("wrote %s/probes.csv, %s/stats.csv, %s/tools.csv, %s/final.vtk\n", out, out, out, out);
+    if (write_final(w, out))
+        rc = 1;
+    print_summary(w, &o, &t, nframes, wall, budget);
 
 done:
     if (fp && fclose(fp)) {

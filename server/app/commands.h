@@ -8,7 +8,7 @@ int sq_cmd_serve(int argc, char **argv);    /* cmd_serve.c:    the WebSocket ser
 int sq_cmd_render(int argc, char **argv);   /* cmd_render.c:   headless PNG rendering */
 int sq_cmd_bench(int argc, char **argv);    /* cmd_bench.c:    benchmarks */
 int sq_cmd_tradeoff(int argc, char **argv); /* cmd_tradeoff.c: speed/accuracy grid */
-int sq_cmd_sweep(int argc, char **argv);    /* tradeoff_sweep.c: stability sweep */
+int sq_cmd_sweep(int argc, char **argv);    /* cmd_sweep.c: stability sweep (engines/sweep.c) */
 int sq_bench_implicit(int quick);           /* cmd_bench_implicit.c: squish bench implicit */
 int sq_bench_contact(int quick);            /* cmd_bench_contact.c: squish bench contact */
 

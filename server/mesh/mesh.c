@@ -264,12 +264,10 @@ static void clear_derived(sq_mesh *m)
     m->locator = NULL;
 }
 
-int sq_mesh_finalize(sq_mesh *m, sq_err *err)
+/* the bounding box of the nodes (zero for an empty mesh) */
+static void finalize_bbox(sq_mesh *m)
 {
-    const int n = m->nnodes, nt = m->ntets;
-    clear_derived(m);
-
-    /* bounding box */
+    const int n = m->nnodes;
     for (int c = 0; c < 3; c++) {
         m->bbox_min[c] = n ? m->x[c] : 0;
         m->bbox_max[c] = n ? m->x[c] : 0;
@@ -282,6 +280,50 @@ int sq_mesh_finalize(sq_mesh *m, sq_err *err)
             if (v > m->bbox_max[c])
                 m->bbox_max[c] = v;
         }
+}
+
+/* the boundary triangles (the faces mask marks per tet: nb in all), boundary nodes and the
+ * surface numbering */
+static void finalize_surface(sq_mesh *m, const unsigned char *mask, int nb)
+{
+    const int n = m->nnodes, nt = m->ntets;
+    /* boundary triangles in a deterministic order: by tet, then local face */
+    m->ntris = nb;
+    m->tris = sq_malloc((size_t)(nb ? nb : 1) * 3 * sizeof *m->tris);
+    m->tri_tet = sq_malloc((size_t)(nb ? nb : 1) * sizeof *m->tri_tet);
+    m->on_boundary = sq_calloc((size_t)(n ? n : 1), 1);
+    int p = 0;
+    for (int t = 0; t < nt; t++)
+        for (int k = 0; k < 4; k++)
+            if (mask[t] & (1u << k)) {
+                const int *v = m->tets + 4 * (size_t)t;
+                const int *f = sq_tet_face[k];
+                for (int q = 0; q < 3; q++) {
+                    m->tris[3 * p + q] = v[f[q]];
+                    m->on_boundary[v[f[q]]] = 1;
+                }
+                m->tri_tet[p++] = t;
+            }
+    m->surf_of_node = sq_malloc((size_t)(n ? n : 1) * sizeof *m->surf_of_node);
+    m->nsurf = 0;
+    for (int i = 0; i < n; i++)
+        m->surf_of_node[i] = m->on_boundary[i] ? m->nsurf++ : -1;
+    m->surf_nodes = sq_malloc((size_t)(m->nsurf ? m->nsurf : 1) * sizeof *m->surf_nodes);
+    for (int i = 0; i < n; i++)
+        if (m->surf_of_node[i] >= 0)
+            m->surf_nodes[m->surf_of_node[i]] = i;
+    m->surf_tris = sq_malloc((size_t)(nb ? nb : 1) * 3 * sizeof *m->surf_tris);
+    for (int i = 0; i < 3 * nb; i++)
+        m->surf_tris[i] = m->surf_of_node[m->tris[i]];
+}
+
+int sq_mesh_finalize(sq_mesh *m, sq_err *err)
+{
+    const int n = m->nnodes, nt = m->ntets;
+    clear_derived(m);
+
+    finalize_bbox(m);
+
 
     /* node -> tets incidence (CSR) */
     int *start = sq_calloc((size_t)n + 1, sizeof *start);
@@ -390,35 +432,8 @@ int sq_mesh_finalize(sq_mesh *m, sq_err *err)
     free(inc);
     free(start);
 
-    /* boundary triangles in a deterministic order: by tet, then local face */
-    m->ntris = nb;
-    m->tris = sq_malloc((size_t)(nb ? nb : 1) * 3 * sizeof *m->tris);
-    m->tri_tet = sq_malloc((size_t)(nb ? nb : 1) * sizeof *m->tri_tet);
-    m->on_boundary = sq_calloc((size_t)(n ? n : 1), 1);
-    int p = 0;
-    for (int t = 0; t < nt; t++)
-        for (int k = 0; k < 4; k++)
-            if (mask[t] & (1u << k)) {
-                const int *v = m->tets + 4 * (size_t)t;
-                const int *f = sq_tet_face[k];
-                for (int q = 0; q < 3; q++) {
-                    m->tris[3 * p + q] = v[f[q]];
-                    m->on_boundary[v[f[q]]] = 1;
-                }
-                m->tri_tet[p++] = t;
-            }
+    finalize_surface(m, mask, nb);
     free(mask);
-    m->surf_of_node = sq_malloc((size_t)(n ? n : 1) * sizeof *m->surf_of_node);
-    m->nsurf = 0;
-    for (int i = 0; i < n; i++)
-        m->surf_of_node[i] = m->on_boundary[i] ? m->nsurf++ : -1;
-    m->surf_nodes = sq_malloc((size_t)(m->nsurf ? m->nsurf : 1) * sizeof *m->surf_nodes);
-    for (int i = 0; i < n; i++)
-        if (m->surf_of_node[i] >= 0)
-            m->surf_nodes[m->surf_of_node[i]] = i;
-    m->surf_tris = sq_malloc((size_t)(nb ? nb : 1) * 3 * sizeof *m->surf_tris);
-    for (int i = 0; i < 3 * nb; i++)
-        m->surf_tris[i] = m->surf_of_node[m->tris[i]];
     return 0;
 }
 

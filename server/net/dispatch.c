@@ -130,6 +130,143 @@ static void do_open_or_join(client *c, const sq_request *req)
     /* STARTING: answered when the session posts READY; FAILED: by its FAILED item */
 }
 
+/* hello: the role, and the token when the server has one (guessing throttled per address) */
+static void do_hello(client *c, const sq_request *req, double now)
+{
+    server *srv = c->srv;
+    const sq_serve_options *opt = srv->opt;
+    if (opt->token && req->hello.has_token) {
+        /* token guessing is throttled per address */
+        double wait = sq_guard_wait(srv->guard, c->addr, now);
+        if (wait > 0) {
+            char m[200];
+            snprintf(m, sizeof m, "hello.token: %d wrong tokens from %s; wait %.0f s before "
+                     "trying again", SQ_GUARD_FAILS, c->addr, ceil(wait));
+            net_send_error(c, req, SQ_CODE_THROTTLED, m);
+            return;
+        }
+        if (!token_matches(srv, req->hello.token))
+            sq_guard_fail(srv->guard, c->addr, now);
+    }
+    if (req->hello.role == SQ_ROLE_CONTROL && opt->token &&
+        (!req->hello.has_token || !token_matches(srv, req->hello.token))) {
+        net_send_error(c, req, SQ_CODE_BAD_TOKEN, req->hello.has_token
+                   ? "hello.token: wrong token for role control; ask the server's operator"
+                   : "hello.token: the server needs a token for role control; send it or use "
+                     "role \"view\"");
+        return;
+    }
+    c->greeted = 1;
+    c->role = req->hello.role;
+    c->token_ok = !opt->token || (req->hello.has_token && token_matches(srv, req->hello.token));
+    snprintf(c->name, sizeof c->name, "%s", req->hello.client);
+    net_send_json(c, net_welcome_json(srv, c, req));
+}
+
+/* subscribe: stats pushes and frames on or off, the stats rate */
+static void do_subscribe(client *c, const sq_request *req)
+{
+    srec *r = c->sess;
+    /* the first push comes at once when stats are turned on; a subscribe that only
+     * changes the rate (or repeats stats: true) keeps the schedule: next push one new
+     * period after the last one, never an extra push */
+    int was_on = c->sub_stats;
+    if (req->subscribe.stats >= 0)
+        c->sub_stats = req->subscribe.stats;
+    if (req->subscribe.frames >= 0) {
+        c->sub_frames = req->subscribe.frames;
+        if (!c->sub_frames)
+            net_clear_slots(c);
+    }
+    if (req->subscribe.has_hz)
+        c->stats_hz = req->subscribe.stats_hz;
+    if (!was_on)
+        c->next_stats = 0;
+    else if (c->last_stats > 0)
+        c->next_stats = c->last_stats + 1.0 / c->stats_hz;
+    cJSON *o = sq_reply_new("ack", req);
+    cJSON_AddStringToObject(o, "request", "subscribe");
+    long frame = 0;
+    if (r) {
+        pthread_mutex_lock(&r->s->mu);
+        frame = r->s->snap.frame;
+        pthread_mutex_unlock(&r->s->mu);
+    }
+    cJSON_AddNumberToObject(o, "frame", (double)frame);
+    net_send_json(c, o);
+}
+
+/* take_control: this client becomes the session's controller (the token when needed) */
+static void do_take_control(client *c, const sq_request *req)
+{
+    server *srv = c->srv;
+    const sq_serve_options *opt = srv->opt;
+    srec *r = c->sess;
+    if (r->controller && r->controller != c->serial) {
+        net_send_error(c, req, SQ_CODE_CONTROLLER_PRESENT, "take_control: another client controls "
+                   "this session; wait for an event of kind \"control\" saying nobody does");
+        return;
+    }
+    if (opt->token && !c->token_ok &&
+        !(req->take_control.has_token && token_matches(srv, req->take_control.token))) {
+        net_send_error(c, req, SQ_CODE_BAD_TOKEN, req->take_control.has_token
+                   ? "take_control.token: wrong token; ask the server's operator"
+                   : "take_control.token: the server needs a token for control; send it "
+                     "here or in hello.token");
+        return;
+    }
+    c->token_ok = 1;
+    int changed = r->controller != c->serial;
+    r->controller = c->serial;
+    c->demoted = 0;
+    cJSON *o = sq_reply_new("ack", req);
+    cJSON_AddStringToObject(o, "request", "take_control");
+    cJSON_AddStringToObject(o, "role", "control");
+    pthread_mutex_lock(&r->s->mu);
+    long frame = r->s->snap.frame;
+    pthread_mutex_unlock(&r->s->mu);
+    cJSON_AddNumberToObject(o, "frame", (double)frame);
+    net_send_json(c, o);
+    if (changed)
+        net_control_event(r, "taken");
+}
+
+/* a request the session thread applies: queued (a client's nodes requests one at a time, at
+ * most CLIENT_MAX_JOBS waiting per client) */
+static void queue_job(client *c, const sq_request *req)
+{
+    srec *r = c->sess;
+    if (req->type == SQ_REQ_TOOL) {
+        /* remembered, to be released when this controller leaves */
+        int known = 0;
+        for (int i = 0; i < c->ntool_ids; i++)
+            known |= c->tool_ids[i] == req->tool.id;
+        if (!known && c->ntool_ids < SQ_MAX_TOOLS)
+            c->tool_ids[c->ntool_ids++] = req->tool.id;
+    }
+    if (req->type == SQ_REQ_NODES && c->nodes_busy) {
+        /* one nodes request runs at a time per client; the newest waits, older waiting
+         * ones are answered as replaced */
+        if (c->nodes_deferred)
+            net_send_error(c, &c->nodes_req, SQ_CODE_SUPERSEDED, "nodes: replaced by a newer nodes "
+                       "request of this client (one runs at a time; wait for the reply)");
+        c->nodes_req = *req;
+        c->nodes_deferred = 1;
+        return;
+    }
+    if (sq_session_pending_jobs(r->s, c->serial) >= CLIENT_MAX_JOBS) {
+        char m[200];
+        snprintf(m, sizeof m, "%d requests of this client wait for session %llu; wait for "
+                 "their replies before sending more", CLIENT_MAX_JOBS,
+                 (unsigned long long)r->s->id);
+        net_send_error(c, req, SQ_CODE_BUSY, m);
+        return;
+    }
+    sq_session_push_job(r->s, c->serial, req);
+    if (req->type == SQ_REQ_NODES)
+        c->nodes_busy = 1;
+}
+
 void net_handle_request(client *c, const char *text, size_t len)
 {
     server *srv = c->srv;
@@ -181,32 +318,7 @@ void net_handle_request(client *c, const char *text, size_t len)
 
     switch (req.type) {
     case SQ_REQ_HELLO:
-        if (opt->token && req.hello.has_token) {
-            /* token guessing is throttled per address */
-            double wait = sq_guard_wait(srv->guard, c->addr, now);
-            if (wait > 0) {
-                char m[200];
-                snprintf(m, sizeof m, "hello.token: %d wrong tokens from %s; wait %.0f s before "
-                         "trying again", SQ_GUARD_FAILS, c->addr, ceil(wait));
-                net_send_error(c, &req, SQ_CODE_THROTTLED, m);
-                return;
-            }
-            if (!token_matches(srv, req.hello.token))
-                sq_guard_fail(srv->guard, c->addr, now);
-        }
-        if (req.hello.role == SQ_ROLE_CONTROL && opt->token &&
-            (!req.hello.has_token || !token_matches(srv, req.hello.token))) {
-            net_send_error(c, &req, SQ_CODE_BAD_TOKEN, req.hello.has_token
-                       ? "hello.token: wrong token for role control; ask the server's operator"
-                       : "hello.token: the server needs a token for role control; send it or use "
-                         "role \"view\"");
-            return;
-        }
-        c->greeted = 1;
-        c->role = req.hello.role;
-        c->token_ok = !opt->token || (req.hello.has_token && token_matches(srv, req.hello.token));
-        snprintf(c->name, sizeof c->name, "%s", req.hello.client);
-        net_send_json(c, net_welcome_json(srv, c, &req));
+        do_hello(c, &req, now);
         break;
     case SQ_REQ_LIST_SCENES:
         net_send_json(c, net_scenes_json(srv, &req));
@@ -225,66 +337,12 @@ void net_handle_request(client *c, const char *text, size_t len)
     case SQ_REQ_STATS:
         net_send_json(c, net_stats_json(srv, r, c, &req));
         break;
-    case SQ_REQ_SUBSCRIBE: {
-        /* the first push comes at once when stats are turned on; a subscribe that only
-         * changes the rate (or repeats stats: true) keeps the schedule: next push one new
-         * period after the last one, never an extra push */
-        int was_on = c->sub_stats;
-        if (req.subscribe.stats >= 0)
-            c->sub_stats = req.subscribe.stats;
-        if (req.subscribe.frames >= 0) {
-            c->sub_frames = req.subscribe.frames;
-            if (!c->sub_frames)
-                net_clear_slots(c);
-        }
-        if (req.subscribe.has_hz)
-            c->stats_hz = req.subscribe.stats_hz;
-        if (!was_on)
-            c->next_stats = 0;
-        else if (c->last_stats > 0)
-            c->next_stats = c->last_stats + 1.0 / c->stats_hz;
-        cJSON *o = sq_reply_new("ack", &req);
-        cJSON_AddStringToObject(o, "request", "subscribe");
-        long frame = 0;
-        if (r) {
-            pthread_mutex_lock(&r->s->mu);
-            frame = r->s->snap.frame;
-            pthread_mutex_unlock(&r->s->mu);
-        }
-        cJSON_AddNumberToObject(o, "frame", (double)frame);
-        net_send_json(c, o);
+    case SQ_REQ_SUBSCRIBE:
+        do_subscribe(c, &req);
         break;
-    }
-    case SQ_REQ_TAKE_CONTROL: {
-        if (r->controller && r->controller != c->serial) {
-            net_send_error(c, &req, SQ_CODE_CONTROLLER_PRESENT, "take_control: another client controls "
-                       "this session; wait for an event of kind \"control\" saying nobody does");
-            return;
-        }
-        if (opt->token && !c->token_ok &&
-            !(req.take_control.has_token && token_matches(srv, req.take_control.token))) {
-            net_send_error(c, &req, SQ_CODE_BAD_TOKEN, req.take_control.has_token
-                       ? "take_control.token: wrong token; ask the server's operator"
-                       : "take_control.token: the server needs a token for control; send it "
-                         "here or in hello.token");
-            return;
-        }
-        c->token_ok = 1;
-        int changed = r->controller != c->serial;
-        r->controller = c->serial;
-        c->demoted = 0;
-        cJSON *o = sq_reply_new("ack", &req);
-        cJSON_AddStringToObject(o, "request", "take_control");
-        cJSON_AddStringToObject(o, "role", "control");
-        pthread_mutex_lock(&r->s->mu);
-        long frame = r->s->snap.frame;
-        pthread_mutex_unlock(&r->s->mu);
-        cJSON_AddNumberToObject(o, "frame", (double)frame);
-        net_send_json(c, o);
-        if (changed)
-            net_control_event(r, "taken");
+    case SQ_REQ_TAKE_CONTROL:
+        do_take_control(c, &req);
         break;
-    }
     case SQ_REQ_PING: {
         cJSON *o = sq_reply_new("pong", &req);
         cJSON_AddNumberToObject(o, "t", req.ping.t);
@@ -294,35 +352,7 @@ void net_handle_request(client *c, const char *text, size_t len)
     }
     default:
         /* tool, set, pause, resume, reset, step, nodes: applied by the session thread */
-        if (req.type == SQ_REQ_TOOL) {
-            /* remembered, to be released when this controller leaves */
-            int known = 0;
-            for (int i = 0; i < c->ntool_ids; i++)
-                known |= c->tool_ids[i] == req.tool.id;
-            if (!known && c->ntool_ids < SQ_MAX_TOOLS)
-                c->tool_ids[c->ntool_ids++] = req.tool.id;
-        }
-        if (req.type == SQ_REQ_NODES && c->nodes_busy) {
-            /* one nodes request runs at a time per client; the newest waits, older waiting
-             * ones are answered as replaced */
-            if (c->nodes_deferred)
-                net_send_error(c, &c->nodes_req, SQ_CODE_SUPERSEDED, "nodes: replaced by a newer nodes "
-                           "request of this client (one runs at a time; wait for the reply)");
-            c->nodes_req = req;
-            c->nodes_deferred = 1;
-            break;
-        }
-        if (sq_session_pending_jobs(r->s, c->serial) >= CLIENT_MAX_JOBS) {
-            char m[200];
-            snprintf(m, sizeof m, "%d requests of this client wait for session %llu; wait for "
-                     "their replies before sending more", CLIENT_MAX_JOBS,
-                     (unsigned long long)r->s->id);
-            net_send_error(c, &req, SQ_CODE_BUSY, m);
-            break;
-        }
-        sq_session_push_job(r->s, c->serial, &req);
-        if (req.type == SQ_REQ_NODES)
-            c->nodes_busy = 1;
+        queue_job(c, &req);
         break;
     }
 }

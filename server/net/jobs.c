@@ -77,6 +77,52 @@ static int loaded_level(const sq_world *w, int b, int listed, const char *key, c
     return -1;
 }
 
+/* set: body's material and operator with the request's changes merged into d's; 0 or -1 (err) */
+static int set_material(sq_body *body, const sq_body_def *d, const sq_request *r, sq_err *err)
+{
+    int rc = 0;
+    sq_material m = d->material;
+    if (r->set.has_E || r->set.has_nu) {
+        double E, nu;
+        sq_material_E_nu(&m, &E, &nu);
+        if (r->set.has_E) E = r->set.E;
+        if (r->set.has_nu) nu = r->set.nu;
+        sq_material tmp = m;
+        rc = sq_material_from_E_nu(&tmp, E, nu, err);
+        m.mu = tmp.mu;
+        m.lambda = tmp.lambda;
+    }
+    if (r->set.has_density) m.density = r->set.density;
+    if (r->set.has_mass) m.rayleigh_mass = r->set.mass;
+    if (r->set.has_stiffness) m.rayleigh_stiffness = r->set.stiffness;
+    if (!rc)
+        rc = sq_body_set_material(body, &m, r->set.has_operator ? r->set.op : d->op, err);
+    return rc;
+}
+
+/* set: body b's lod with the request's changes merged into d's (levels as listed in the scene
+ * file); 0 or -1 (err) */
+static int set_lod(sq_world *w, int b, const sq_body_def *d, const sq_request *r, sq_err *err)
+{
+    int rc = 0;
+    sq_body *body = w->bodies[b];
+    sq_lod_def l = d->lod;
+    if (r->set.has_mode) l.mode = r->set.mode;
+    if (r->set.has_level && (l.level = loaded_level(w, b, r->set.level, "level", err->msg,
+                                                    sizeof err->msg)) < 0)
+        rc = -1;
+    if (r->set.has_split) l.split = r->set.split;
+    if (r->set.has_merge) l.merge = r->set.merge;
+    if (!rc && r->set.has_max_level &&
+        (l.max_level = loaded_level(w, b, r->set.max_level, "max_level", err->msg, sizeof err->msg)) < 0)
+        rc = -1;
+    if (r->set.has_budget) l.budget = r->set.budget;
+    if (r->set.has_adapt_every) l.adapt_every = r->set.adapt_every;
+    if (!rc)
+        rc = sq_body_set_lod(body, &l, err);
+    return rc;
+}
+
 static void do_set(sq_session *s, const sq_job *j)
 {
     const sq_request *r = &j->req;
@@ -125,40 +171,10 @@ static void do_set(sq_session *s, const sq_job *j)
          * fixed lod, which this same request may set) */
         if (!rc && r->set.has_elasticity && r->set.elasticity == SQ_ELASTICITY_LINEAR)
             rc = sq_body_set_elasticity(body, SQ_ELASTICITY_LINEAR, &err);
-        if (!rc && changed_mat) {
-            sq_material m = d->material;
-            if (r->set.has_E || r->set.has_nu) {
-                double E, nu;
-                sq_material_E_nu(&m, &E, &nu);
-                if (r->set.has_E) E = r->set.E;
-                if (r->set.has_nu) nu = r->set.nu;
-                sq_material tmp = m;
-                rc = sq_material_from_E_nu(&tmp, E, nu, &err);
-                m.mu = tmp.mu;
-                m.lambda = tmp.lambda;
-            }
-            if (r->set.has_density) m.density = r->set.density;
-            if (r->set.has_mass) m.rayleigh_mass = r->set.mass;
-            if (r->set.has_stiffness) m.rayleigh_stiffness = r->set.stiffness;
-            if (!rc)
-                rc = sq_body_set_material(body, &m, r->set.has_operator ? r->set.op : d->op, &err);
-        }
+        if (!rc && changed_mat)
+            rc = set_material(body, d, r, &err);
         if (!rc && changed_lod) {
-            sq_lod_def l = d->lod;
-            if (r->set.has_mode) l.mode = r->set.mode;
-            /* levels are given as listed in the scene file */
-            if (r->set.has_level && (l.level = loaded_level(w, b, r->set.level, "level", err.msg,
-                                                            sizeof err.msg)) < 0)
-                rc = -1;
-            if (r->set.has_split) l.split = r->set.split;
-            if (r->set.has_merge) l.merge = r->set.merge;
-            if (!rc && r->set.has_max_level &&
-                (l.max_level = loaded_level(w, b, r->set.max_level, "max_level", err.msg, sizeof err.msg)) < 0)
-                rc = -1;
-            if (r->set.has_budget) l.budget = r->set.budget;
-            if (r->set.has_adapt_every) l.adapt_every = r->set.adapt_every;
-            if (!rc)
-                rc = sq_body_set_lod(body, &l, &err);
+            rc = set_lod(w, b, d, r, &err);
             if (rc && changed_mat) /* all or nothing for this body */
                 sq_body_set_material(body, &old_m[b], old_op[b], NULL);
         }

@@ -339,16 +339,100 @@ static int decode_body(const cJSON *o, const char *path, int *body, sq_net_error
     return 0;
 }
 
+/* set.implicit: the implicit integrator's settings (*given = 1 when one is there) */
+static int decode_set_implicit(const cJSON *m, sq_request *r, int *given, sq_net_error *err)
+{
+    static const char *const fi[] = {"substeps", "cg_tolerance", "cg_max_iterations", "preconditioner",
+                                     "newton_iterations", NULL};
+    const cJSON *v;
+    if (expect_object(m, "set.implicit", err) || check_fields(m, "set.implicit", fi, err))
+        return -1;
+    sq_implicit_def *im = &r->set.implicit;
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "substeps"))) {
+        if (get_int(v, "set.implicit.substeps", 1, SQ_IMPLICIT_MAX_SUBSTEPS, &im->substeps, err))
+            return -1;
+        r->set.has_substeps = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "cg_tolerance"))) {
+        if (get_number(v, "set.implicit.cg_tolerance", 0, 1, 1, &im->tol, err))
+            return -1;
+        if (!(im->tol < 1))
+            return fail(err, SQ_CODE_OUT_OF_RANGE, "set.implicit.cg_tolerance: %g is outside (0, 1); send a "
+                        "relative residual such as 1e-6", im->tol);
+        r->set.has_tol = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "cg_max_iterations"))) {
+        if (get_int(v, "set.implicit.cg_max_iterations", 1, SQ_IMPLICIT_MAX_ITER, &im->max_iter, err))
+            return -1;
+        r->set.has_max_iter = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "preconditioner"))) {
+        if (get_enum(v, "set.implicit.preconditioner", preconditioners, &im->precond, err))
+            return -1;
+        r->set.has_precond = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "newton_iterations"))) {
+        if (get_int(v, "set.implicit.newton_iterations", 1, SQ_IMPLICIT_MAX_NEWTON, &im->newton, err))
+            return -1;
+        r->set.has_newton = *given = 1;
+    }
+    return 0;
+}
+
+/* set.lod: the level-of-detail settings (*given = 1 when one is there) */
+static int decode_set_lod(const cJSON *m, sq_request *r, int *given, sq_net_error *err)
+{
+    static const char *const fl[] = {"mode", "level", "split", "merge", "max_level", "budget",
+                                     "adapt_every", NULL};
+    const cJSON *v;
+    int e;
+    if (expect_object(m, "set.lod", err) || check_fields(m, "set.lod", fl, err))
+        return -1;
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "mode"))) {
+        if (get_enum(v, "set.lod.mode", lod_modes, &e, err))
+            return -1;
+        r->set.has_mode = *given = 1;
+        r->set.mode = e ? SQ_LOD_ADAPTIVE : SQ_LOD_FIXED;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "level"))) {
+        if (get_int(v, "set.lod.level", 0, SQ_MAX_LEVELS - 1, &r->set.level, err))
+            return -1;
+        r->set.has_level = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "split"))) {
+        if (get_number(v, "set.lod.split", 0, 1e3, 0, &r->set.split, err))
+            return -1;
+        r->set.has_split = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "merge"))) {
+        if (get_number(v, "set.lod.merge", 0, 1e3, 0, &r->set.merge, err))
+            return -1;
+        r->set.has_merge = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "max_level"))) {
+        if (get_int(v, "set.lod.max_level", 0, SQ_MAX_LEVELS - 1, &r->set.max_level, err))
+            return -1;
+        r->set.has_max_level = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "budget"))) {
+        if (get_number(v, "set.lod.budget", 0, 1, 1, &r->set.budget, err))
+            return -1;
+        r->set.has_budget = *given = 1;
+    }
+    if ((v = cJSON_GetObjectItemCaseSensitive(m, "adapt_every"))) {
+        if (get_int(v, "set.lod.adapt_every", 1, SQ_LOD_ADAPT_EVERY_MAX, &r->set.adapt_every, err))
+            return -1;
+        r->set.has_adapt_every = *given = 1;
+    }
+    return 0;
+}
+
 static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
 {
     static const char *const f[] = {"type", "ref", "body", "material", "operator", "damping",
                                     "lod", "elasticity", "pressure", "integrator", "implicit", NULL};
     static const char *const fm[] = {"E", "nu", "density", NULL};
-    static const char *const fi[] = {"substeps", "cg_tolerance", "cg_max_iterations", "preconditioner",
-                                     "newton_iterations", NULL};
     static const char *const fd[] = {"mass", "stiffness", NULL};
-    static const char *const fl[] = {"mode", "level", "split", "merge", "max_level", "budget",
-                                     "adapt_every", NULL};
     if (check_fields(o, "set", f, err) || decode_body(o, "set.body", &r->set.body, err))
         return -1;
     int given = 0, e;
@@ -402,39 +486,8 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
         r->set.has_integrator = given = 1;
         r->set.integrator = e ? SQ_INTEGRATOR_IMPLICIT : SQ_INTEGRATOR_EXPLICIT;
     }
-    if ((m = cJSON_GetObjectItemCaseSensitive(o, "implicit"))) {
-        if (expect_object(m, "set.implicit", err) || check_fields(m, "set.implicit", fi, err))
-            return -1;
-        sq_implicit_def *im = &r->set.implicit;
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "substeps"))) {
-            if (get_int(v, "set.implicit.substeps", 1, SQ_IMPLICIT_MAX_SUBSTEPS, &im->substeps, err))
-                return -1;
-            r->set.has_substeps = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "cg_tolerance"))) {
-            if (get_number(v, "set.implicit.cg_tolerance", 0, 1, 1, &im->tol, err))
-                return -1;
-            if (!(im->tol < 1))
-                return fail(err, SQ_CODE_OUT_OF_RANGE, "set.implicit.cg_tolerance: %g is outside (0, 1); send a "
-                            "relative residual such as 1e-6", im->tol);
-            r->set.has_tol = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "cg_max_iterations"))) {
-            if (get_int(v, "set.implicit.cg_max_iterations", 1, SQ_IMPLICIT_MAX_ITER, &im->max_iter, err))
-                return -1;
-            r->set.has_max_iter = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "preconditioner"))) {
-            if (get_enum(v, "set.implicit.preconditioner", preconditioners, &im->precond, err))
-                return -1;
-            r->set.has_precond = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "newton_iterations"))) {
-            if (get_int(v, "set.implicit.newton_iterations", 1, SQ_IMPLICIT_MAX_NEWTON, &im->newton, err))
-                return -1;
-            r->set.has_newton = given = 1;
-        }
-    }
+    if ((m = cJSON_GetObjectItemCaseSensitive(o, "implicit")) && decode_set_implicit(m, r, &given, err))
+        return -1;
     if ((m = cJSON_GetObjectItemCaseSensitive(o, "damping"))) {
         if (expect_object(m, "set.damping", err) || check_fields(m, "set.damping", fd, err))
             return -1;
@@ -449,46 +502,8 @@ static int decode_set(const cJSON *o, sq_request *r, sq_net_error *err)
             r->set.has_stiffness = given = 1;
         }
     }
-    if ((m = cJSON_GetObjectItemCaseSensitive(o, "lod"))) {
-        if (expect_object(m, "set.lod", err) || check_fields(m, "set.lod", fl, err))
-            return -1;
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "mode"))) {
-            if (get_enum(v, "set.lod.mode", lod_modes, &e, err))
-                return -1;
-            r->set.has_mode = given = 1;
-            r->set.mode = e ? SQ_LOD_ADAPTIVE : SQ_LOD_FIXED;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "level"))) {
-            if (get_int(v, "set.lod.level", 0, SQ_MAX_LEVELS - 1, &r->set.level, err))
-                return -1;
-            r->set.has_level = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "split"))) {
-            if (get_number(v, "set.lod.split", 0, 1e3, 0, &r->set.split, err))
-                return -1;
-            r->set.has_split = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "merge"))) {
-            if (get_number(v, "set.lod.merge", 0, 1e3, 0, &r->set.merge, err))
-                return -1;
-            r->set.has_merge = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "max_level"))) {
-            if (get_int(v, "set.lod.max_level", 0, SQ_MAX_LEVELS - 1, &r->set.max_level, err))
-                return -1;
-            r->set.has_max_level = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "budget"))) {
-            if (get_number(v, "set.lod.budget", 0, 1, 1, &r->set.budget, err))
-                return -1;
-            r->set.has_budget = given = 1;
-        }
-        if ((v = cJSON_GetObjectItemCaseSensitive(m, "adapt_every"))) {
-            if (get_int(v, "set.lod.adapt_every", 1, SQ_LOD_ADAPT_EVERY_MAX, &r->set.adapt_every, err))
-                return -1;
-            r->set.has_adapt_every = given = 1;
-        }
-    }
+    if ((m = cJSON_GetObjectItemCaseSensitive(o, "lod")) && decode_set_lod(m, r, &given, err))
+        return -1;
     if (!given)
         return fail(err, SQ_CODE_BAD_FIELD,
                     "set: nothing to change; give material, operator, elasticity, pressure, damping, lod, "

@@ -243,6 +243,84 @@ static const struct lws_protocol_vhost_options mime_json = {NULL, NULL, ".map", 
 static const struct lws_protocol_vhost_options mime_wasm = {&mime_json, NULL, ".wasm", "application/wasm"};
 static const struct lws_protocol_vhost_options mime_mjs = {&mime_wasm, NULL, ".mjs", "text/javascript"};
 
+/* the fd limit: raised to its hard maximum; the connection cap stays below it (two fds per
+ * connection serving a file, plus a margin), so that accept never fails with EMFILE (lws
+ * would retry it in a busy loop); returns the cap to use */
+static int fit_fd_limit(int max_conns)
+{
+    struct rlimit rl;
+    if (!getrlimit(RLIMIT_NOFILE, &rl)) {
+        if (rl.rlim_cur < rl.rlim_max) {
+            rl.rlim_cur = rl.rlim_max;
+            setrlimit(RLIMIT_NOFILE, &rl);
+            getrlimit(RLIMIT_NOFILE, &rl);
+        }
+        long fit = ((long)rl.rlim_cur - 64) / 2;
+        if (fit < max_conns) {
+            fprintf(stderr, "squish serve: --max-conns %d lowered to %ld (file descriptor limit %ld)\n",
+                    max_conns, SQ_MAX(fit, 1L), (long)rl.rlim_cur);
+            max_conns = (int)SQ_MAX(fit, 1L);
+        }
+    }
+    return max_conns;
+}
+
+/* the listening line on stdout: address, viewer, scenes */
+static void print_listening(const server *srv, int port, int builtin)
+{
+    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; ", srv->opt->host, port);
+    if (srv->opt->web_dir)
+        printf("viewer from %s; ", srv->opt->web_dir);
+    else
+        printf("no viewer: / says to pass --web DIR; ");
+    if (builtin) {
+        printf("only the built-in cube is offered, as scene \"default\": %s)",
+               srv->opt->scenes_dir ? "no scene loaded from --scenes" : "pass --scenes DIR for more");
+    } else {
+        printf("%d scene%s from %s:", srv->scenes.n, srv->scenes.n == 1 ? "" : "s", srv->opt->scenes_dir);
+        for (int i = 0; i < srv->scenes.n; i++)
+            printf(" %s", srv->scenes.names[i]);
+        printf(")");
+    }
+    printf("%s\n", srv->opt->lockstep ? " lockstep" : "");
+    fflush(stdout);
+
+}
+
+/* clean shutdown: tell the clients, flush for a moment, then end every session; every session
+ * thread is told to stop first, so that frames in progress end together */
+static void shutdown_sessions(server *srv)
+{
+    srv->stopping = 1;
+    for (int i = 0; i < srv->nslots; i++)
+        if (srv->slots[i].s)
+            sq_session_cancel(srv->slots[i].s);
+    for (int i = 0; i < srv->nslots; i++) {
+        srec *r = &srv->slots[i];
+        for (int k = 0; r->s && k < r->nmembers; k++) {
+            cJSON *e = sq_reply_new("event", NULL);
+            cJSON_AddStringToObject(e, "kind", "shutdown");
+            cJSON_AddNumberToObject(e, "session", r->s->id);
+            cJSON_AddStringToObject(e, "message", "the server is stopping");
+            net_send_json(r->members[k], e);
+        }
+    }
+    double until = sq_now() + 0.3;
+    while (sq_now() < until) {
+        lws_service(srv->ctx, 0);
+        int busy = 0;
+        for (int i = 0; i < srv->nslots; i++)
+            for (int k = 0; srv->slots[i].s && k < srv->slots[i].nmembers; k++)
+                busy |= srv->slots[i].members[k]->fcount > 0;
+        if (!busy)
+            break;
+    }
+    /* the simulation and render threads stop first, so that nothing wakes the context
+     * while it is destroyed; then the connections close */
+    for (int i = 0; i < srv->nslots; i++)
+        net_end_session(srv, &srv->slots[i]);
+}
+
 int sq_serve(const sq_serve_options *opt, sq_err *err)
 {
     server srv;
@@ -328,24 +406,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     idle.secs_since_valid_hangup = (uint16_t)SQ_MAX(idle.secs_since_valid_ping + 1.0, opt->idle_timeout);
     info.retry_and_idle_policy = &idle;
     info.max_http_header_data = HEADER_BYTES;
-    /* the fd limit: raised to its hard maximum; the connection cap stays below it (two fds
-     * per connection serving a file, plus a margin), so that accept never fails with EMFILE
-     * (lws would retry it in a busy loop) */
-    int max_conns = opt->max_conns;
-    struct rlimit rl;
-    if (!getrlimit(RLIMIT_NOFILE, &rl)) {
-        if (rl.rlim_cur < rl.rlim_max) {
-            rl.rlim_cur = rl.rlim_max;
-            setrlimit(RLIMIT_NOFILE, &rl);
-            getrlimit(RLIMIT_NOFILE, &rl);
-        }
-        long fit = ((long)rl.rlim_cur - 64) / 2;
-        if (fit < max_conns) {
-            fprintf(stderr, "squish serve: --max-conns %d lowered to %ld (file descriptor limit %ld)\n",
-                    max_conns, SQ_MAX(fit, 1L), (long)rl.rlim_cur);
-            max_conns = (int)SQ_MAX(fit, 1L);
-        }
-    }
+    int max_conns = fit_fd_limit(opt->max_conns);
     srv.conns = sq_conns_new(max_conns, opt->max_conns_per_addr);
     srv.guard = sq_guard_new();
 
@@ -358,22 +419,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     }
     srv.vhost = lws_get_vhost_by_name(srv.ctx, "default");
     int port = srv.vhost ? lws_get_vhost_listen_port(srv.vhost) : opt->port;
-    printf("squish serve: listening on http://%s:%d/ (WebSocket /ws; ", opt->host, port);
-    if (opt->web_dir)
-        printf("viewer from %s; ", opt->web_dir);
-    else
-        printf("no viewer: / says to pass --web DIR; ");
-    if (builtin) {
-        printf("only the built-in cube is offered, as scene \"default\": %s)",
-               opt->scenes_dir ? "no scene loaded from --scenes" : "pass --scenes DIR for more");
-    } else {
-        printf("%d scene%s from %s:", srv.scenes.n, srv.scenes.n == 1 ? "" : "s", opt->scenes_dir);
-        for (int i = 0; i < srv.scenes.n; i++)
-            printf(" %s", srv.scenes.names[i]);
-        printf(")");
-    }
-    printf("%s\n", opt->lockstep ? " lockstep" : "");
-    fflush(stdout);
+    print_listening(&srv, port, builtin);
 
     struct sigaction sa;
     memset(&sa, 0, sizeof sa);
@@ -389,34 +435,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
 
     /* clean shutdown: tell the clients, flush for a moment, then close everything; every
      * session thread is told to stop first, so that frames in progress end together */
-    srv.stopping = 1;
-    for (int i = 0; i < srv.nslots; i++)
-        if (srv.slots[i].s)
-            sq_session_cancel(srv.slots[i].s);
-    for (int i = 0; i < srv.nslots; i++) {
-        srec *r = &srv.slots[i];
-        for (int k = 0; r->s && k < r->nmembers; k++) {
-            cJSON *e = sq_reply_new("event", NULL);
-            cJSON_AddStringToObject(e, "kind", "shutdown");
-            cJSON_AddNumberToObject(e, "session", r->s->id);
-            cJSON_AddStringToObject(e, "message", "the server is stopping");
-            net_send_json(r->members[k], e);
-        }
-    }
-    double until = sq_now() + 0.3;
-    while (sq_now() < until) {
-        lws_service(srv.ctx, 0);
-        int busy = 0;
-        for (int i = 0; i < srv.nslots; i++)
-            for (int k = 0; srv.slots[i].s && k < srv.slots[i].nmembers; k++)
-                busy |= srv.slots[i].members[k]->fcount > 0;
-        if (!busy)
-            break;
-    }
-    /* the simulation and render threads stop first, so that nothing wakes the context
-     * while it is destroyed; then the connections close */
-    for (int i = 0; i < srv.nslots; i++)
-        net_end_session(&srv, &srv.slots[i]);
+    shutdown_sessions(&srv);
     sq_snapshotter_stop(srv.snapshotter);
     srv.snapshotter = NULL;
     lws_context_destroy(srv.ctx);

@@ -350,72 +350,10 @@ static int parse_integrator(pctx *c, sq_body_def *def, const cJSON *obj, const c
     return 0;
 }
 
-int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
+/* the model's kinds: operator, elasticity, step bound, pressure */
+static int parse_model_kinds(pctx *c, sq_body_def *def, const cJSON *obj, const char *path)
 {
-    static const char *const keys[] = {"name", "levels", "scale", "offset", "material", "operator", "fixed",
-                                       "lod", "step_fraction", "elasticity", "step_bound", "pressure",
-                                       "integrator", "implicit", NULL};
-    if (!cJSON_IsObject(obj))
-        return scene_fail(c, path, "expected an object, got %s; see docs/scenes.md", scene_type_name(obj));
-    if (scene_check_keys(c, obj, path, keys))
-        return -1;
-    sq_body_def *def = &s->bodies[bi];
-    *def = sq_body_def_default();
     char p[256];
-
-    /* name */
-    int found;
-    snprintf(s->body_names[bi], sizeof s->body_names[bi], "body%d", bi);
-    if (scene_get_string(c, obj, path, "name", s->body_names[bi], sizeof s->body_names[bi], &found))
-        return -1;
-    scene_join(p, sizeof p, path, "name");
-    if (scene_check_name(c, p, s->body_names[bi]))
-        return -1;
-    for (int j = 0; j < bi; j++)
-        if (!strcmp(s->body_names[j], s->body_names[bi]))
-            return scene_fail(c, p, "\"%s\" is already the name of bodies[%d]; give each body its own name",
-                        s->body_names[bi], j);
-    def->name = s->body_names[bi];
-
-    /* levels: strings, coarse to fine */
-    int bad;
-    const cJSON *lv = scene_get_typed(c, obj, path, "levels", 1, 1, &bad);
-    if (bad)
-        return -1;
-    char lp[256];
-    scene_join(lp, sizeof lp, path, "levels");
-    int nl = cJSON_GetArraySize(lv);
-    if (nl < 1 || nl > SQ_MAX_LEVELS)
-        return scene_fail(c, lp, "%d levels; list 1 to %d mesh files, coarse to fine", nl, SQ_MAX_LEVELS);
-    const char *files[SQ_MAX_LEVELS];
-    int i = 0;
-    for (const cJSON *e = lv->child; e; e = e->next, i++) {
-        scene_join_index(p, sizeof p, lp, i);
-        if (!cJSON_IsString(e) || !e->valuestring[0])
-            return scene_fail(c, p, "expected a mesh file path (relative to the scene file), got %s; see docs/scenes.md",
-                        cJSON_IsString(e) ? "an empty string" : scene_type_name(e));
-        files[i] = e->valuestring;
-        char full[1024];
-        scene_resolve(full, sizeof full, c->base_dir, files[i]);
-        struct stat st;
-        if (stat(full, &st) != 0 && errno == ENOENT && c->made_by[0])
-            return scene_fail(c, p, "mesh file \"%s\" (resolved to %s): " SQ_SCENE_MESHES_NOT_MADE
-                              ": this scene's meshes are generated, not shipped; run `%s` first (meshes/README.md)",
-                              files[i], full, c->made_by);
-        if (stat(full, &st) != 0)
-            return scene_fail(c, p, "mesh file \"%s\" (resolved to %s) cannot be read: %s; paths are relative "
-                              "to the scene file's directory", files[i], full, strerror(errno));
-    }
-    s->nlisted[bi] = nl;
-
-    /* material */
-    const cJSON *mat = scene_get_typed(c, obj, path, "material", 0, 1, &bad);
-    if (bad)
-        return -1;
-    scene_join(p, sizeof p, path, "material");
-    if (parse_material(c, mat, p, &def->material))
-        return -1;
-
     /* operator */
     char op[16] = "fem";
     const cJSON *opi = scene_get(obj, "operator");
@@ -472,73 +410,19 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
                           : !strcmp(pr->valuestring, "smoothed") ? SQ_PRESSURE_SMOOTHED
                                                                  : SQ_PRESSURE_ELEMENT;
 
-    if (parse_integrator(c, def, obj, path))
-        return -1;
+    return 0;
+}
 
-    /* constraints */
-    const cJSON *fx = scene_get_typed(c, obj, path, "fixed", 1, 0, &bad);
-    if (bad)
-        return -1;
-    def->nconstraints = 0;
-    if (fx) {
-        char fp[256];
-        scene_join(fp, sizeof fp, path, "fixed");
-        int nf = cJSON_GetArraySize(fx);
-        if (nf > SQ_MAX_CONSTRAINTS)
-            return scene_fail(c, fp, "%d regions; at most %d are supported, merge some boxes", nf, SQ_MAX_CONSTRAINTS);
-        i = 0;
-        for (const cJSON *e = fx->child; e; e = e->next, i++) {
-            scene_join_index(p, sizeof p, fp, i);
-            if (parse_constraint(c, e, p, &def->constraints[i]))
-                return -1;
-        }
-        def->nconstraints = nf;
-    }
-
-    /* level of detail */
-    const cJSON *lod = scene_get_typed(c, obj, path, "lod", 0, 0, &bad);
-    if (bad)
-        return -1;
-    scene_join(p, sizeof p, path, "lod");
-    if (parse_lod(c, lod, p, nl, &def->lod))
-        return -1;
-
-    def->step_fraction = DEF_STEP_FRACTION;
-    if (scene_get_number(c, obj, path, "step_fraction", &def->step_fraction, NULL))
-        return -1;
-    if (!(def->step_fraction > 0 && def->step_fraction <= 1)) {
-        scene_join(p, sizeof p, path, "step_fraction");
-        return scene_fail(c, p, "%g is out of range; use a fraction of the stability bound in (0, 1], e.g. 0.9",
-                    def->step_fraction);
-    }
-    def->frame_dt = 1.0 / s->frame_rate;
-    memcpy(def->gravity, s->gravity, sizeof def->gravity);
-
-    /* offset: translate the meshes at load (regions, probes and tools are in world space) */
-    double offset[3] = {0, 0, 0};
-    if (scene_get_vec3(c, obj, path, "offset", offset, NULL))
-        return -1;
-    if (fabs(offset[0]) > 1e6 || fabs(offset[1]) > 1e6 || fabs(offset[2]) > 1e6) {
-        scene_join(p, sizeof p, path, "offset");
-        return scene_fail(c, p, "[%g, %g, %g] is out of range; use components below 1e6 m", offset[0], offset[1],
-                    offset[2]);
-    }
-
-    /* scale: multiply every level's coordinates at load, before the offset (meshes made in
-     * millimetres: 0.001) */
-    double scale = 1;
-    int has_scale = 0;
-    if (scene_get_number(c, obj, path, "scale", &scale, &has_scale))
-        return -1;
-    if (!(scale >= 1e-6 && scale <= 1e6)) {
-        scene_join(p, sizeof p, path, "scale");
-        return scene_fail(c, p, "%g is out of range; use a factor in [1e-6, 1e6] (0.001 for a mesh in millimetres)",
-                    scale);
-    }
+/* load only the levels body bi needs (files as listed, lp their path in the scene): scaled,
+ * offset, located; a unit warning when a mesh's size suggests other units */
+static int load_levels(pctx *c, sq_scene *s, int bi, const char *const *files, const char *lp, double scale,
+                       const double offset[3], const char *path)
+{
+    sq_body_def *def = &s->bodies[bi];
+    char p[256];
     int warned = 0;
 
-    /* load only the levels the body needs: fixed -> the simulated level alone,
-     * adaptive -> levels 0..max_level */
+    /* fixed -> the simulated level alone, adaptive -> levels 0..max_level */
     int first = def->lod.mode == SQ_LOD_FIXED ? def->lod.level : 0;
     int last = def->lod.mode == SQ_LOD_FIXED ? def->lod.level : def->lod.max_level;
     def->nlevels = 0;
@@ -608,7 +492,14 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
         def->lod.max_level -= first;
     }
 
-    /* every constraint region must select nodes on every loaded level */
+    return 0;
+}
+
+/* every constraint region must select nodes on every loaded level of body bi */
+static int check_regions(pctx *c, sq_scene *s, int bi, const char *const *files, const char *path)
+{
+    const sq_body_def *def = &s->bodies[bi];
+    char p[256];
     for (int r = 0; r < def->nconstraints; r++)
         for (int k = 0; k < def->nlevels; k++) {
             const sq_mesh *m = def->levels[k];
@@ -625,6 +516,154 @@ int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char 
                             m->bbox_min[1], m->bbox_min[2], m->bbox_max[0], m->bbox_max[1], m->bbox_max[2]);
             }
         }
+    return 0;
+}
+
+/* body bi's name: given or "bodyN", valid, unique among the bodies before it */
+static int parse_body_name(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
+{
+    char p[256];
+    int found;
+    snprintf(s->body_names[bi], sizeof s->body_names[bi], "body%d", bi);
+    if (scene_get_string(c, obj, path, "name", s->body_names[bi], sizeof s->body_names[bi], &found))
+        return -1;
+    scene_join(p, sizeof p, path, "name");
+    if (scene_check_name(c, p, s->body_names[bi]))
+        return -1;
+    for (int j = 0; j < bi; j++)
+        if (!strcmp(s->body_names[j], s->body_names[bi]))
+            return scene_fail(c, p, "\"%s\" is already the name of bodies[%d]; give each body its own name",
+                        s->body_names[bi], j);
+    return 0;
+}
+
+int scene_parse_body(pctx *c, sq_scene *s, const cJSON *obj, int bi, const char *path)
+{
+    static const char *const keys[] = {"name", "levels", "scale", "offset", "material", "operator", "fixed",
+                                       "lod", "step_fraction", "elasticity", "step_bound", "pressure",
+                                       "integrator", "implicit", NULL};
+    if (!cJSON_IsObject(obj))
+        return scene_fail(c, path, "expected an object, got %s; see docs/scenes.md", scene_type_name(obj));
+    if (scene_check_keys(c, obj, path, keys))
+        return -1;
+    sq_body_def *def = &s->bodies[bi];
+    *def = sq_body_def_default();
+    char p[256];
+
+    if (parse_body_name(c, s, obj, bi, path))
+        return -1;
+    def->name = s->body_names[bi];
+
+    /* levels: strings, coarse to fine */
+    int bad;
+    const cJSON *lv = scene_get_typed(c, obj, path, "levels", 1, 1, &bad);
+    if (bad)
+        return -1;
+    char lp[256];
+    scene_join(lp, sizeof lp, path, "levels");
+    int nl = cJSON_GetArraySize(lv);
+    if (nl < 1 || nl > SQ_MAX_LEVELS)
+        return scene_fail(c, lp, "%d levels; list 1 to %d mesh files, coarse to fine", nl, SQ_MAX_LEVELS);
+    const char *files[SQ_MAX_LEVELS];
+    int i = 0;
+    for (const cJSON *e = lv->child; e; e = e->next, i++) {
+        scene_join_index(p, sizeof p, lp, i);
+        if (!cJSON_IsString(e) || !e->valuestring[0])
+            return scene_fail(c, p, "expected a mesh file path (relative to the scene file), got %s; see docs/scenes.md",
+                        cJSON_IsString(e) ? "an empty string" : scene_type_name(e));
+        files[i] = e->valuestring;
+        char full[1024];
+        scene_resolve(full, sizeof full, c->base_dir, files[i]);
+        struct stat st;
+        if (stat(full, &st) != 0 && errno == ENOENT && c->made_by[0])
+            return scene_fail(c, p, "mesh file \"%s\" (resolved to %s): " SQ_SCENE_MESHES_NOT_MADE
+                              ": this scene's meshes are generated, not shipped; run `%s` first (meshes/README.md)",
+                              files[i], full, c->made_by);
+        if (stat(full, &st) != 0)
+            return scene_fail(c, p, "mesh file \"%s\" (resolved to %s) cannot be read: %s; paths are relative "
+                              "to the scene file's directory", files[i], full, strerror(errno));
+    }
+    s->nlisted[bi] = nl;
+
+    /* material */
+    const cJSON *mat = scene_get_typed(c, obj, path, "material", 0, 1, &bad);
+    if (bad)
+        return -1;
+    scene_join(p, sizeof p, path, "material");
+    if (parse_material(c, mat, p, &def->material))
+        return -1;
+
+    if (parse_model_kinds(c, def, obj, path))
+        return -1;
+
+    if (parse_integrator(c, def, obj, path))
+        return -1;
+
+    /* constraints */
+    const cJSON *fx = scene_get_typed(c, obj, path, "fixed", 1, 0, &bad);
+    if (bad)
+        return -1;
+    def->nconstraints = 0;
+    if (fx) {
+        char fp[256];
+        scene_join(fp, sizeof fp, path, "fixed");
+        int nf = cJSON_GetArraySize(fx);
+        if (nf > SQ_MAX_CONSTRAINTS)
+            return scene_fail(c, fp, "%d regions; at most %d are supported, merge some boxes", nf, SQ_MAX_CONSTRAINTS);
+        i = 0;
+        for (const cJSON *e = fx->child; e; e = e->next, i++) {
+            scene_join_index(p, sizeof p, fp, i);
+            if (parse_constraint(c, e, p, &def->constraints[i]))
+                return -1;
+        }
+        def->nconstraints = nf;
+    }
+
+    /* level of detail */
+    const cJSON *lod = scene_get_typed(c, obj, path, "lod", 0, 0, &bad);
+    if (bad)
+        return -1;
+    scene_join(p, sizeof p, path, "lod");
+    if (parse_lod(c, lod, p, nl, &def->lod))
+        return -1;
+
+    def->step_fraction = DEF_STEP_FRACTION;
+    if (scene_get_number(c, obj, path, "step_fraction", &def->step_fraction, NULL))
+        return -1;
+    if (!(def->step_fraction > 0 && def->step_fraction <= 1)) {
+        scene_join(p, sizeof p, path, "step_fraction");
+        return scene_fail(c, p, "%g is out of range; use a fraction of the stability bound in (0, 1], e.g. 0.9",
+                    def->step_fraction);
+    }
+    def->frame_dt = 1.0 / s->frame_rate;
+    memcpy(def->gravity, s->gravity, sizeof def->gravity);
+
+    /* offset: translate the meshes at load (regions, probes and tools are in world space) */
+    double offset[3] = {0, 0, 0};
+    if (scene_get_vec3(c, obj, path, "offset", offset, NULL))
+        return -1;
+    if (fabs(offset[0]) > 1e6 || fabs(offset[1]) > 1e6 || fabs(offset[2]) > 1e6) {
+        scene_join(p, sizeof p, path, "offset");
+        return scene_fail(c, p, "[%g, %g, %g] is out of range; use components below 1e6 m", offset[0], offset[1],
+                    offset[2]);
+    }
+
+    /* scale: multiply every level's coordinates at load, before the offset (meshes made in
+     * millimetres: 0.001) */
+    double scale = 1;
+    int has_scale = 0;
+    if (scene_get_number(c, obj, path, "scale", &scale, &has_scale))
+        return -1;
+    if (!(scale >= 1e-6 && scale <= 1e6)) {
+        scene_join(p, sizeof p, path, "scale");
+        return scene_fail(c, p, "%g is out of range; use a factor in [1e-6, 1e6] (0.001 for a mesh in millimetres)",
+                    scale);
+    }
+    if (load_levels(c, s, bi, files, lp, scale, offset, path))
+        return -1;
+
+    if (check_regions(c, s, bi, files, path))
+        return -1;
     /* corotational elasticity: fem operator (fixed or adaptive lod; docs/physics.md section 9) */
     scene_join(p, sizeof p, path, "elasticity");
     if (def->elasticity == SQ_ELASTICITY_COROTATIONAL && def->op != SQ_OPERATOR_FEM)

@@ -33,6 +33,28 @@ plant "a folder outside the order" util/util.c '#include "extra/extra.h"' "no mo
 mkdir -p "$tmp/x"; rm -rf "$tmp/server"; cp -r server "$tmp/server"; mkdir "$tmp/server/extra"; touch "$tmp/server/extra/extra.c"
 if bash tests/layers.sh "$tmp/server" 2>&1 | grep -q "not in the module order"; then ok "a new folder must be placed in the order"; else bad "a new folder outside the order passes"; fi
 
+# the size rule (tests/lengths.sh): no server/*.c file over 900 lines, no function over 150;
+# the check catches a long function and a long file planted in a copy of the tree
+if out=$(bash tests/lengths.sh server 2>&1); then ok "server/ keeps files to 900 lines and functions to 150"
+else bad "server/ has files or functions over the size limit:"; echo "$out"; fi
+plant_len() { # name file text-to-append expected-words
+    rm -rf "$tmp/server"; cp -r server "$tmp/server"
+    printf '%s\n' "$3" >> "$tmp/server/$2"
+    if out=$(bash tests/lengths.sh "$tmp/server" 2>&1 | grep -F "server/$2"); then
+        if echo "$out" | grep -q "$4"; then ok "$1: caught ($(echo "$out" | head -n 1 | cut -c1-110))"
+        else bad "$1: caught with the wrong message: $out"; fi
+    else
+        bad "$1: not caught"
+    fi
+}
+long_fn=$(printf 'static int planted_long(int x)\n{\n'; for i in $(seq 149); do printf '    x += %d;\n' "$i"; done; printf '    return x;\n}')
+plant_len "a function of 153 lines" util/json.c "$long_fn" 'planted_long is 153 lines'
+plant_len "a file over 900 lines" util/json.c "$(for i in $(seq 900); do echo "/* filler $i */"; done)" 'lines (at most 900)'
+short_fn=$(printf 'static int planted_short(int x)\n{\n'; for i in $(seq 146); do printf '    x += %d;\n' "$i"; done; printf '    return x;\n}')
+rm -rf "$tmp/server"; cp -r server "$tmp/server"; printf '%s\n' "$short_fn" >> "$tmp/server/util/json.c"
+if bash tests/lengths.sh "$tmp/server" 2>&1 | grep -q planted_short; then bad "a function of exactly 150 lines is refused"
+else ok "a function of exactly 150 lines passes"; fi
+
 # docs/architecture.md matches the tree: every .c file of server/ is named in its module's
 # section of "## Files", and every file named there exists
 arch=docs/architecture.md

@@ -1,6 +1,5 @@
-/* tradeoff_sweep.c - squish sweep: numerical stability at the extremes (issue 7).
- *
- *   squish sweep [--out DIR] [--quick]
+/* sweep.c - the engine of squish sweep (server/app/cmd_sweep.c): numerical stability at the
+ * extremes (issue 7).
  *
  * Every case builds a body through the public engine API (body/body.h) exactly as a scene
  * would, and is either refused (sq_body_create names the reason), accepted and adjusted
@@ -11,70 +10,19 @@
  * energy seen while the tool acted. Test-only rows step a level directly above its bound
  * (bypassing the body, which never does so) to show what the bound protects against.
  *
- * Near-incompressible material: steps per frame against nu, and the locking of linear tets
- * (static tip deflection of a clamped beam against Timoshenko beam theory).
- *
- * Writes DIR/sweep.csv, DIR/sweep.md, DIR/locking.csv; exit 0 when no accepted case failed,
- * 1 when one did (or output failed), 2 on usage errors.
+ * Near-incompressible material: the locking of linear tets (static tip deflection of a
+ * clamped beam against Timoshenko beam theory, sq_sweep_beam_ratio).
  */
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 
-#include "app/commands.h"
-#include "app/tradeoff.h"
-#include "body/body.h"
+#include "engines/engines.h"
 
 /* the sweep body: a 10 cm gel-like cube, 4 cells per side, bottom face fixed, gravity */
 #define SW_SIZE 0.1
 #define SW_CELLS 4
-
-typedef enum sw_load {
-    SW_POKE = 0,   /* sphere presses 30% deep into the top, holds, releases at 1 s */
-    SW_FAST,       /* sphere sweeps across the top at 5 m/s, 40% deep */
-    SW_DEEP,       /* sphere centre driven to the body centre (fully inside), then out */
-    SW_GRAB,       /* grab the top corner and pull it 10 body sizes away, then release */
-    SW_PERIODIC,   /* a poke every 2 s for the whole run (the very long run) */
-    SW_ARC,        /* beam mesh: grab the tip and drag it through 90 degrees about the clamp in 0.5 s */
-    SW_NONE        /* gravity only */
-} sw_load;
-
-typedef enum sw_mesh_kind { SW_MESH_BOX = 0, SW_MESH_SLIVER, SW_MESH_FLAT, SW_MESH_BEAM } sw_mesh_kind;
-
-typedef struct sw_case {
-    const char *group;
-    char name[96];
-    sq_material mat;
-    sq_operator_kind op;
-    double frame_rate;      /* Hz; 0 = 50 */
-    double frame_vs_bound;  /* > 0: frame period set to this multiple of the level's bound */
-    double step_fraction;   /* requested fraction of the bound */
-    double seconds;         /* simulated time */
-    sw_load load;
-    sw_mesh_kind mesh;
-    double mesh_param;      /* sliver flatness / flat box thickness ratio */
-    double above_bound;     /* > 0: test-only: step the level at this multiple of the bound */
-    double split;           /* > 0: adaptive over three box levels (2, 3, 5 cells) at this split */
-    sq_elasticity_kind elasticity;
-    sq_integrator_kind integrator; /* implicit rows: one step per frame unless substeps > 1 */
-    int substeps;
-} sw_case;
-
-typedef struct sw_result {
-    char status[32];        /* stable, adjusted, refused, UNSTABLE, blows up (test-only), ... */
-    int failed;             /* 1: an accepted case did not stay stable */
-    int substeps;
-    double bound, dt;       /* s */
-    double steps_per_s;     /* substeps per simulated second */
-    long frames, resets;
-    double max_disp;        /* m */
-    double e_load, e_late;  /* max total energy while loaded / in the last quarter, J */
-    double wall;            /* s */
-    char note[240];
-} sw_result;
 
 /* default material of the sweep: paper cube values, scene default damping */
 static sq_material base_material(void)
@@ -116,17 +64,17 @@ static sq_mesh *sliver_mesh(double eps, sq_err *err)
     return sq_mesh_from_arrays(6, &x[0][0], 5, &t[0][0], "sliver double pyramid", err);
 }
 
-static sq_mesh *case_mesh(const sw_case *c, sq_err *err)
+static sq_mesh *case_mesh(const sq_sweep_case *c, sq_err *err)
 {
     double size[3] = {SW_SIZE, SW_SIZE, SW_SIZE}, origin[3] = {0, 0, 0};
-    if (c->mesh == SW_MESH_SLIVER)
+    if (c->mesh == SQ_SWEEP_MESH_SLIVER)
         return sliver_mesh(c->mesh_param, err);
-    if (c->mesh == SW_MESH_BEAM) {
+    if (c->mesh == SQ_SWEEP_MESH_BEAM) {
         /* the arc-drag beam: 20 x 2 x 2 cm, 1 cm cells, clamped at x = 0 */
         double bs[3] = {0.2, 0.02, 0.02};
         return sq_mesh_box(20, 2, 2, bs, origin, err);
     }
-    if (c->mesh == SW_MESH_FLAT) {
+    if (c->mesh == SQ_SWEEP_MESH_FLAT) {
         /* a plate: thickness mesh_param x the side, one cell thick (needle-like tets) */
         size[2] = SW_SIZE * c->mesh_param;
         return sq_mesh_box(SW_CELLS, SW_CELLS, 1, size, origin, err);
@@ -135,7 +83,7 @@ static sq_mesh *case_mesh(const sw_case *c, sq_err *err)
 }
 
 /* the scripted tool at time t (sphere or grab); returns the number of tools (0 or 1) */
-static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool)
+static int case_tool(const sq_sweep_case *c, const sq_mesh *m, double t, sq_tool *tool)
 {
     memset(tool, 0, sizeof *tool);
     tool->id = 1;
@@ -147,18 +95,18 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
     tool->pos[0] = cx;
     tool->pos[1] = cy;
     switch (c->load) {
-    case SW_NONE:
+    case SQ_SWEEP_NONE:
         return 0;
-    case SW_POKE:
-    case SW_PERIODIC: {
-        double tt = c->load == SW_PERIODIC ? fmod(t, 2.0) : t;
+    case SQ_SWEEP_POKE:
+    case SQ_SWEEP_PERIODIC: {
+        double tt = c->load == SQ_SWEEP_PERIODIC ? fmod(t, 2.0) : t;
         /* down over 0.5 s to 30% of the side deep, hold to 1 s, release */
         double depth = 0.3 * side * SQ_MIN(1.0, tt / 0.5);
         tool->active = tt < 1.0;
         tool->pos[2] = top + r - depth;
         return 1;
     }
-    case SW_FAST: {
+    case SQ_SWEEP_FAST: {
         /* across the top at 5 m/s, 40% of the side deep, during the first second */
         double x = m->bbox_min[0] - r + fmod(5.0 * t, side + 2 * r);
         tool->active = t < 1.0;
@@ -166,7 +114,7 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
         tool->pos[2] = top + r - 0.4 * side;
         return 1;
     }
-    case SW_DEEP: {
+    case SQ_SWEEP_DEEP: {
         /* centre from above the top to the body centre over 0.5 s, held, out at 1 s */
         double zc = 0.5 * (m->bbox_min[2] + top);
         double f = SQ_MIN(1.0, t / 0.5);
@@ -174,7 +122,7 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
         tool->pos[2] = (top + r) * (1 - f) + zc * f;
         return 1;
     }
-    case SW_ARC: {
+    case SQ_SWEEP_ARC: {
         /* grab the tip (radius 15.2 mm about its centre) and drag it through 90 degrees about the
          * clamp over 0.5 s, then hold */
         tool->shape = SQ_TOOL_GRAB;
@@ -188,7 +136,7 @@ static int case_tool(const sw_case *c, const sq_mesh *m, double t, sq_tool *tool
         tool->pos[2] = tool->origin[2] + 0.2 * sin(th);
         return 1;
     }
-    case SW_GRAB: {
+    case SQ_SWEEP_GRAB: {
         /* grab the top corner and pull it 10 sides up and out over 0.5 s, release at 1 s */
         tool->shape = SQ_TOOL_GRAB;
         tool->radius = 0.2 * side;
@@ -228,7 +176,7 @@ static double total_energy(sq_body *b)
 
 /* the test-only path: step the level directly at above_bound x its bound, from a small
  * alternating displacement (which excites the highest modes), no health check */
-static void run_above_bound(sq_body *b, const sw_case *c, sw_result *r)
+static void run_above_bound(sq_body *b, const sq_sweep_case *c, sq_sweep_result *r)
 {
     sq_level *L = sq_body_level(b, sq_body_fixed_level(b));
     const sq_body_def *def = sq_body_get_def(b);
@@ -262,79 +210,183 @@ static void run_above_bound(sq_body *b, const sw_case *c, sw_result *r)
     sq_body_reset(b);
 }
 
+/* the case's meshes (m, the finest, returned; extra: the coarser levels of an adaptive case) and
+ * body definition, as a scene would give them; NULL when the mesh is refused (err) */
+static sq_mesh *case_def(const sq_sweep_case *c, sq_body_def *def, sq_mesh *extra[2], sq_err *err)
+{
+    sq_mesh *m = case_mesh(c, err);
+    if (!m)
+        return NULL;
+    *def = sq_body_def_default();
+    def->name = "sweep";
+    def->nlevels = 1;
+    def->levels[0] = m;
+    if (c->split > 0) {
+        /* adaptive: levels of 2, 3 and 5 cells per side (non-nested grids), m the finest */
+        double size[3] = {SW_SIZE, SW_SIZE, SW_SIZE}, origin[3] = {0, 0, 0};
+        extra[0] = sq_mesh_box(2, 2, 2, size, origin, err);
+        extra[1] = sq_mesh_box(3, 3, 3, size, origin, err);
+        sq_mesh_free(m);
+        m = sq_mesh_box(5, 5, 5, size, origin, err);
+        def->nlevels = 3;
+        def->levels[0] = extra[0];
+        def->levels[1] = extra[1];
+        def->levels[2] = m;
+        def->lod.mode = SQ_LOD_ADAPTIVE;
+        def->lod.level = 0;
+        def->lod.max_level = 2;
+        def->lod.split = c->split;
+        def->lod.merge = 0.4 * c->split;
+    }
+    def->material = c->mat;
+    def->op = c->op;
+    def->gravity[2] = -9.81;
+    def->frame_dt = 1.0 / (c->frame_rate > 0 ? c->frame_rate : 50);
+    def->step_fraction = c->step_fraction > 0 ? c->step_fraction : 0.9;
+    def->nconstraints = 1;
+    def->constraints[0].kind = SQ_REGION_HALFSPACE; /* the bottom (z <= min z + 1e-9) fixed */
+    def->constraints[0].a[2] = m->bbox_min[2] + 1e-9 * SW_SIZE;
+    def->constraints[0].b[2] = 1;
+    def->constraints[0].axes = 7;
+    if (c->mesh == SQ_SWEEP_MESH_BEAM) { /* clamped at x = 0 instead */
+        memset(&def->constraints[0], 0, sizeof def->constraints[0]);
+        def->constraints[0].kind = SQ_REGION_HALFSPACE;
+        def->constraints[0].a[0] = 1e-9;
+        def->constraints[0].b[0] = 1;
+        def->constraints[0].axes = 7;
+    }
+    def->elasticity = c->elasticity;
+    def->integrator = c->integrator;
+    if (c->integrator == SQ_INTEGRATOR_IMPLICIT) {
+        def->implicit.substeps = c->substeps > 0 ? c->substeps : 1;
+        def->implicit.max_iter = SQ_IMPLICIT_MAX_ITER;
+    }
+    if (c->frame_vs_bound > 0) {
+        /* a frame period of frame_vs_bound x the level's bound: find the bound first */
+        sq_body *probe = sq_body_create(def, err);
+        if (probe) {
+            def->frame_dt = c->frame_vs_bound * sq_body_level_bound(probe, 0);
+            sq_body_destroy(probe);
+        }
+    }
+    return m;
+}
+
+static void case_free(sq_mesh *m, sq_mesh *extra[2])
+{
+    sq_mesh_free(m);
+    sq_mesh_free(extra[0]);
+    sq_mesh_free(extra[1]);
+}
+
+/* what the frames of a case showed */
+typedef struct sw_stats {
+    double e_load, e_late, e_abs, dmax, cg_res;
+    int nonfinite, max_fine, cg_max, unconverged;
+    long cg_sum;
+} sw_stats;
+
+/* the case's frames under its load: energy, displacement, resets, CG counts */
+static void case_frames(const sq_sweep_case *c, const sq_body_def *def, sq_body *b, const sq_mesh *m, long nframes,
+                        sw_stats *st, sq_sweep_result *r)
+{
+    *st = (sw_stats){-INFINITY, -INFINITY, 0, 0, 0, 0, 0, 0, 0, 0};
+    double release = c->load == SQ_SWEEP_NONE ? 0 : 1.0; /* last tool action ends at 1 s (periodic: never) */
+    for (long f = 1; f <= nframes; f++) {
+        double t = f * def->frame_dt;
+        sq_tool tool;
+        int nt = case_tool(c, m, t, &tool);
+        sq_frame_profile prof;
+        sq_body_frame(b, &tool, nt, NULL, &prof, 0);
+        if (c->split > 0)
+            st->max_fine = SQ_MAX(st->max_fine, prof.active[2]);
+        st->cg_sum += prof.cg_iterations;
+        st->cg_max = SQ_MAX(st->cg_max, prof.cg_iterations);
+        st->cg_res = fmax(st->cg_res, prof.cg_residual);
+        st->unconverged += prof.event_kind == SQ_HEALTH_SOLVE_UNCONVERGED;
+        if (prof.reset) {
+            r->resets++;
+            if (!r->note[0])
+                snprintf(r->note, sizeof r->note, "frame %ld: %.200s", f, prof.event);
+        }
+        double e = total_energy(b);
+        const double *d = sq_body_displacement(b, values_level(b));
+        for (int i = 0; i < 3 * m->nnodes; i++) {
+            if (!isfinite(d[i]))
+                st->nonfinite = 1;
+            else
+                st->dmax = fmax(st->dmax, fabs(d[i]));
+        }
+        if (!isfinite(e)) {
+            st->nonfinite = 1;
+        } else {
+            st->e_abs = fmax(st->e_abs, fabs(e));
+            if (t <= release + 0.2 || c->load == SQ_SWEEP_PERIODIC)
+                st->e_load = fmax(st->e_load, e);
+        }
+        if (f > nframes - nframes / 4 && isfinite(e))
+            st->e_late = fmax(st->e_late, e);
+    }
+}
+
+/* the case's status and note from its frames */
+static void case_verdict(const sq_sweep_case *c, const sq_body_def *def, sq_body *b, const sq_mesh *m,
+                         long nframes, const sw_stats *st, sq_sweep_result *r)
+{
+    r->frames = nframes;
+    r->max_disp = st->dmax;
+    if (c->split > 0 && !r->note[0])
+        snprintf(r->note, sizeof r->note, "finest level active on up to %d of %d nodes", st->max_fine, m->nnodes);
+    if (c->integrator == SQ_INTEGRATOR_IMPLICIT && !r->note[0])
+        snprintf(r->note, sizeof r->note,
+                 "implicit, %d step(s) of %.3g s per frame (explicit: %d substeps): CG %.0f iterations per frame "
+                 "(max %d), residual <= %.2g, %d unconverged frames",
+                 def->implicit.substeps, r->dt, sq_body_get_def(b)->sharp_step ? sq_body_level(b, 0)->nsub
+                                                                            : 1 << sq_body_level(b, 0)->substeps_log2,
+                 nframes ? (double)st->cg_sum / nframes : 0.0, st->cg_max, st->cg_res, st->unconverged);
+    r->e_load = st->e_load;
+    r->e_late = st->e_late;
+    /* bounded: the late energy does not exceed what the loading phase reached; slack 10% of the
+     * largest |energy| seen (+1e-12 J): the energy symplectic Euler conserves differs from the
+     * measured one by O(w dt), a few % when the top modes hold energy; a blow-up grows
+     * exponentially and overshoots this by orders of magnitude (and trips the detector) */
+    int bounded = st->e_late <= st->e_load + 0.1 * fmax(fabs(st->e_load), st->e_abs) + 1e-12;
+    if (st->nonfinite || r->resets || !bounded) {
+        r->failed = 1;
+        snprintf(r->status, sizeof r->status, "UNSTABLE");
+        if (!r->resets)
+            snprintf(r->note, sizeof r->note, "%s", st->nonfinite ? "non-finite values" :
+                     "energy in the last quarter above the loaded phase");
+    } else if (c->frame_vs_bound > 1) {
+        snprintf(r->status, sizeof r->status, "adjusted, stable");
+        if (!r->note[0])
+            snprintf(r->note, sizeof r->note, "frame %.3g s cut into %d substeps of %.3g s (<= %.3g x bound %.3g s)",
+                     def->frame_dt, r->substeps, r->dt, def->step_fraction, r->bound);
+    } else {
+        snprintf(r->status, sizeof r->status, "stable");
+    }
+}
+
 /* run one case; fills r */
-static void run_case(const sw_case *c, double work_cap, sw_result *r)
+void sq_sweep_run_case(const sq_sweep_case *c, double work_cap, sq_sweep_result *r)
 {
     memset(r, 0, sizeof *r);
     double w0 = sq_now();
     sq_err err = {{0}};
-    sq_mesh *m = case_mesh(c, &err);
+    sq_body_def def;
+    sq_mesh *extra[2] = {NULL, NULL};
+    sq_mesh *m = case_def(c, &def, extra, &err);
     if (!m) {
         snprintf(r->status, sizeof r->status, "refused");
         snprintf(r->note, sizeof r->note, "mesh refused: %.200s", err.msg);
         r->wall = sq_now() - w0;
         return;
     }
-    sq_body_def def = sq_body_def_default();
-    def.name = "sweep";
-    def.nlevels = 1;
-    def.levels[0] = m;
-    sq_mesh *extra[2] = {NULL, NULL};
-    if (c->split > 0) {
-        /* adaptive: levels of 2, 3 and 5 cells per side (non-nested grids), m the finest */
-        double size[3] = {SW_SIZE, SW_SIZE, SW_SIZE}, origin[3] = {0, 0, 0};
-        extra[0] = sq_mesh_box(2, 2, 2, size, origin, &err);
-        extra[1] = sq_mesh_box(3, 3, 3, size, origin, &err);
-        sq_mesh_free(m);
-        m = sq_mesh_box(5, 5, 5, size, origin, &err);
-        def.nlevels = 3;
-        def.levels[0] = extra[0];
-        def.levels[1] = extra[1];
-        def.levels[2] = m;
-        def.lod.mode = SQ_LOD_ADAPTIVE;
-        def.lod.level = 0;
-        def.lod.max_level = 2;
-        def.lod.split = c->split;
-        def.lod.merge = 0.4 * c->split;
-    }
-    def.material = c->mat;
-    def.op = c->op;
-    def.gravity[2] = -9.81;
-    def.frame_dt = 1.0 / (c->frame_rate > 0 ? c->frame_rate : 50);
-    def.step_fraction = c->step_fraction > 0 ? c->step_fraction : 0.9;
-    def.nconstraints = 1;
-    def.constraints[0].kind = SQ_REGION_HALFSPACE; /* the bottom (z <= min z + 1e-9) fixed */
-    def.constraints[0].a[2] = m->bbox_min[2] + 1e-9 * SW_SIZE;
-    def.constraints[0].b[2] = 1;
-    def.constraints[0].axes = 7;
-    if (c->mesh == SW_MESH_BEAM) { /* clamped at x = 0 instead */
-        memset(&def.constraints[0], 0, sizeof def.constraints[0]);
-        def.constraints[0].kind = SQ_REGION_HALFSPACE;
-        def.constraints[0].a[0] = 1e-9;
-        def.constraints[0].b[0] = 1;
-        def.constraints[0].axes = 7;
-    }
-    def.elasticity = c->elasticity;
-    def.integrator = c->integrator;
-    if (c->integrator == SQ_INTEGRATOR_IMPLICIT) {
-        def.implicit.substeps = c->substeps > 0 ? c->substeps : 1;
-        def.implicit.max_iter = SQ_IMPLICIT_MAX_ITER;
-    }
-    if (c->frame_vs_bound > 0) {
-        /* a frame period of frame_vs_bound x the level's bound: find the bound first */
-        sq_body *probe = sq_body_create(&def, &err);
-        if (probe) {
-            def.frame_dt = c->frame_vs_bound * sq_body_level_bound(probe, 0);
-            sq_body_destroy(probe);
-        }
-    }
     sq_body *b = sq_body_create(&def, &err);
     if (!b) {
         snprintf(r->status, sizeof r->status, "refused");
         snprintf(r->note, sizeof r->note, "%.230s", err.msg);
-        sq_mesh_free(m);
-    sq_mesh_free(extra[0]);
-    sq_mesh_free(extra[1]);
+        case_free(m, extra);
         r->wall = sq_now() - w0;
         return;
     }
@@ -346,9 +398,7 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
         run_above_bound(b, c, r);
         r->failed = 0; /* not an accepted case: the body would never run it */
         sq_body_destroy(b);
-        sq_mesh_free(m);
-    sq_mesh_free(extra[0]);
-    sq_mesh_free(extra[1]);
+        case_free(m, extra);
         r->wall = sq_now() - w0;
         return;
     }
@@ -364,96 +414,26 @@ static void run_case(const sw_case *c, double work_cap, sw_result *r)
             nframes = capped;
         }
     }
-    double release = c->load == SW_NONE ? 0 : 1.0; /* last tool action ends at 1 s (periodic: never) */
-    double e_load = -INFINITY, e_late = -INFINITY, e_abs = 0, dmax = 0, cg_res = 0;
-    int nonfinite = 0, max_fine = 0, cg_max = 0, unconverged = 0;
-    long cg_sum = 0;
-    for (long f = 1; f <= nframes; f++) {
-        double t = f * def.frame_dt;
-        sq_tool tool;
-        int nt = case_tool(c, m, t, &tool);
-        sq_frame_profile prof;
-        sq_body_frame(b, &tool, nt, NULL, &prof, 0);
-        if (c->split > 0)
-            max_fine = SQ_MAX(max_fine, prof.active[2]);
-        cg_sum += prof.cg_iterations;
-        cg_max = SQ_MAX(cg_max, prof.cg_iterations);
-        cg_res = fmax(cg_res, prof.cg_residual);
-        unconverged += prof.event_kind == SQ_HEALTH_SOLVE_UNCONVERGED;
-        if (prof.reset) {
-            r->resets++;
-            if (!r->note[0])
-                snprintf(r->note, sizeof r->note, "frame %ld: %.200s", f, prof.event);
-        }
-        double e = total_energy(b);
-        const double *d = sq_body_displacement(b, values_level(b));
-        for (int i = 0; i < 3 * m->nnodes; i++) {
-            if (!isfinite(d[i]))
-                nonfinite = 1;
-            else
-                dmax = fmax(dmax, fabs(d[i]));
-        }
-        if (!isfinite(e)) {
-            nonfinite = 1;
-        } else {
-            e_abs = fmax(e_abs, fabs(e));
-            if (t <= release + 0.2 || c->load == SW_PERIODIC)
-                e_load = fmax(e_load, e);
-        }
-        if (f > nframes - nframes / 4 && isfinite(e))
-            e_late = fmax(e_late, e);
-    }
-    r->frames = nframes;
-    r->max_disp = dmax;
-    if (c->split > 0 && !r->note[0])
-        snprintf(r->note, sizeof r->note, "finest level active on up to %d of %d nodes", max_fine, m->nnodes);
-    if (c->integrator == SQ_INTEGRATOR_IMPLICIT && !r->note[0])
-        snprintf(r->note, sizeof r->note,
-                 "implicit, %d step(s) of %.3g s per frame (explicit: %d substeps): CG %.0f iterations per frame "
-                 "(max %d), residual <= %.2g, %d unconverged frames",
-                 def.implicit.substeps, r->dt, sq_body_get_def(b)->sharp_step ? sq_body_level(b, 0)->nsub
-                                                                            : 1 << sq_body_level(b, 0)->substeps_log2,
-                 nframes ? (double)cg_sum / nframes : 0.0, cg_max, cg_res, unconverged);
-    r->e_load = e_load;
-    r->e_late = e_late;
-    /* bounded: the late energy does not exceed what the loading phase reached; slack 10% of the
-     * largest |energy| seen (+1e-12 J): the energy symplectic Euler conserves differs from the
-     * measured one by O(w dt), a few % when the top modes hold energy; a blow-up grows
-     * exponentially and overshoots this by orders of magnitude (and trips the detector) */
-    int bounded = e_late <= e_load + 0.1 * fmax(fabs(e_load), e_abs) + 1e-12;
-    if (nonfinite || r->resets || !bounded) {
-        r->failed = 1;
-        snprintf(r->status, sizeof r->status, "UNSTABLE");
-        if (!r->resets)
-            snprintf(r->note, sizeof r->note, "%s", nonfinite ? "non-finite values" :
-                     "energy in the last quarter above the loaded phase");
-    } else if (c->frame_vs_bound > 1) {
-        snprintf(r->status, sizeof r->status, "adjusted, stable");
-        if (!r->note[0])
-            snprintf(r->note, sizeof r->note, "frame %.3g s cut into %d substeps of %.3g s (<= %.3g x bound %.3g s)",
-                     def.frame_dt, r->substeps, r->dt, def.step_fraction, r->bound);
-    } else {
-        snprintf(r->status, sizeof r->status, "stable");
-    }
+    sw_stats st;
+    case_frames(c, &def, b, m, nframes, &st, r);
+    case_verdict(c, &def, b, m, nframes, &st, r);
     sq_body_destroy(b);
-    sq_mesh_free(m);
-    sq_mesh_free(extra[0]);
-    sq_mesh_free(extra[1]);
+    case_free(m, extra);
     r->wall = sq_now() - w0;
 }
 
 /* ---- the case list ---------------------------------------------------------------------- */
 
-static int add(sw_case *cs, int n, const char *group, const char *fmt, double v)
+static int add(sq_sweep_case *cs, int n, const char *group, const char *fmt, double v)
 {
-    sw_case *c = &cs[n];
+    sq_sweep_case *c = &cs[n];
     memset(c, 0, sizeof *c);
     c->group = group;
     snprintf(c->name, sizeof c->name, fmt, v);
     c->mat = base_material();
     c->op = SQ_OPERATOR_FEM;
     c->seconds = 5;
-    c->load = SW_POKE;
+    c->load = SQ_SWEEP_POKE;
     return n + 1;
 }
 
@@ -463,10 +443,9 @@ static int set_E_nu(sq_material *m, double E, double nu)
     return sq_material_from_E_nu(m, E, nu, &e);
 }
 
-/* build the list; returns the count (cs has room for 128) */
-static int build_cases(sw_case *cs, int quick)
+/* the material's extremes: Young's modulus, Poisson ratio, density, damping; returns the new count */
+static int cases_material(sq_sweep_case *cs, int n, int quick)
 {
-    int n = 0;
     double secs = quick ? 3 : 10;
     static const double Es[] = {1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9};
     for (size_t k = 0; k < SQ_COUNTOF(Es); k++) {
@@ -520,6 +499,13 @@ static int build_cases(sw_case *cs, int quick)
         cs[n - 1].mat.phi = cs[n - 1].mat.psi = phis[k];
         cs[n - 1].seconds = quick ? 1.5 : 3;
     }
+    return n;
+}
+
+/* the step against the bound, fast and deep tools, degenerate meshes; returns the new count */
+static int cases_step_tool_mesh(sq_sweep_case *cs, int n, int quick)
+{
+    double secs = quick ? 3 : 10;
     /* the step: fraction requests, frame periods above the bound, and the test-only path */
     static const double fr[] = {0.1, 0.25, 0.5, 0.9, 1.0, 1.5, 2.0};
     for (size_t k = 0; k < SQ_COUNTOF(fr); k++) {
@@ -544,42 +530,48 @@ static int build_cases(sw_case *cs, int quick)
     cs[n - 1].above_bound = 2.0;
     /* tools */
     n = add(cs, n, "tool", "fast sphere, %g m/s, 40%% deep", 5);
-    cs[n - 1].load = SW_FAST;
+    cs[n - 1].load = SQ_SWEEP_FAST;
     cs[n - 1].seconds = secs;
     n = add(cs, n, "tool", "deep sphere, centre to the body centre%.0s", 0);
-    cs[n - 1].load = SW_DEEP;
+    cs[n - 1].load = SQ_SWEEP_DEEP;
     cs[n - 1].seconds = secs;
     n = add(cs, n, "tool", "grab, pulled %g body sizes away", 10);
-    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].load = SQ_SWEEP_GRAB;
     cs[n - 1].seconds = secs;
     n = add(cs, n, "tool", "grab, %g body sizes, no damping", 10);
-    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].load = SQ_SWEEP_GRAB;
     cs[n - 1].mat.rayleigh_mass = cs[n - 1].mat.rayleigh_stiffness = 0;
     cs[n - 1].seconds = secs;
     /* meshes: slivers of decreasing flatness, a thin plate */
     static const double eps[] = {1e-1, 1e-2, 1e-3, 1e-4, 1e-8, 1e-10};
     for (size_t k = 0; k < SQ_COUNTOF(eps); k++) {
         n = add(cs, n, "mesh", "sliver, flatness %g", eps[k]);
-        cs[n - 1].mesh = SW_MESH_SLIVER;
+        cs[n - 1].mesh = SQ_SWEEP_MESH_SLIVER;
         cs[n - 1].mesh_param = eps[k];
         cs[n - 1].mat.rayleigh_stiffness = 0; /* b K would cap the bound at ~4/(b w^2) */
         cs[n - 1].seconds = eps[k] < 1e-2 ? 0.5 : (quick ? 1 : 3);
-        cs[n - 1].load = SW_NONE;
+        cs[n - 1].load = SQ_SWEEP_NONE;
     }
     n = add(cs, n, "mesh", "sliver, flatness %g, b = 1e-3 s", 1e-2);
-    cs[n - 1].mesh = SW_MESH_SLIVER;
+    cs[n - 1].mesh = SQ_SWEEP_MESH_SLIVER;
     cs[n - 1].mesh_param = 1e-2;
-    cs[n - 1].load = SW_NONE;
+    cs[n - 1].load = SQ_SWEEP_NONE;
     cs[n - 1].seconds = 0.5;
     static const double th[] = {1e-2, 1e-3};
     for (size_t k = 0; k < SQ_COUNTOF(th); k++) {
         n = add(cs, n, "mesh", "plate, thickness %g x side", th[k]);
-        cs[n - 1].mesh = SW_MESH_FLAT;
+        cs[n - 1].mesh = SQ_SWEEP_MESH_FLAT;
         cs[n - 1].mesh_param = th[k];
         cs[n - 1].mat.rayleigh_stiffness = 0;
-        cs[n - 1].load = SW_NONE;
+        cs[n - 1].load = SQ_SWEEP_NONE;
         cs[n - 1].seconds = quick ? 0.5 : 2;
     }
+    return n;
+}
+
+/* the adaptive engine, the corotational arc, the implicit integrator, the very long run; returns the new count */
+static int cases_adaptive_implicit(sq_sweep_case *cs, int n, int quick)
+{
     /* the adaptive engine: three levels, thresholds from "refine everywhere" to "hardly ever" */
     static const double splits[] = {1e-6, 1e-3, 3e-3, 1e-2};
     for (size_t k = 0; k < SQ_COUNTOF(splits); k++) {
@@ -589,7 +581,7 @@ static int build_cases(sw_case *cs, int quick)
     }
     n = add(cs, n, "adaptive", "3 levels, split %g m, deep sphere", 3e-3);
     cs[n - 1].split = 3e-3;
-    cs[n - 1].load = SW_DEEP;
+    cs[n - 1].load = SQ_SWEEP_DEEP;
     cs[n - 1].seconds = quick ? 2 : 5;
     n = add(cs, n, "adaptive", "3 levels, split %g m, E 1e7 Pa", 3e-3);
     cs[n - 1].split = 3e-3;
@@ -602,7 +594,7 @@ static int build_cases(sw_case *cs, int quick)
     cs[n - 1].seconds = quick ? 1 : 3;
     n = add(cs, n, "adaptive", "3 levels, split %g m, grab 10 sizes, undamped", 3e-3);
     cs[n - 1].split = 3e-3;
-    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].load = SQ_SWEEP_GRAB;
     cs[n - 1].mat.rayleigh_mass = cs[n - 1].mat.rayleigh_stiffness = 0;
     cs[n - 1].seconds = quick ? 2 : 5;
     /* issue 23: the corotational beam dragged through 90 degrees in 0.5 s, explicit at its
@@ -610,9 +602,9 @@ static int build_cases(sw_case *cs, int quick)
     for (int in = 0; in < 2; in++) {
         n = add(cs, n, "arc", in ? "corotational beam, 90 deg in 0.5 s, implicit%.0s" :
                                    "corotational beam, 90 deg in 0.5 s, explicit%.0s", 0);
-        sw_case *c = &cs[n - 1];
-        c->mesh = SW_MESH_BEAM;
-        c->load = SW_ARC;
+        sq_sweep_case *c = &cs[n - 1];
+        c->mesh = SQ_SWEEP_MESH_BEAM;
+        c->load = SQ_SWEEP_ARC;
         c->elasticity = SQ_ELASTICITY_COROTATIONAL;
         c->integrator = in ? SQ_INTEGRATOR_IMPLICIT : SQ_INTEGRATOR_EXPLICIT;
         set_E_nu(&c->mat, 2e6, 0.45);
@@ -628,7 +620,7 @@ static int build_cases(sw_case *cs, int quick)
             char name[96];
             snprintf(name, sizeof name, "implicit, E = %g Pa, h = %g s%%.0s", iEs[k], 1 / ihz[j]);
             n = add(cs, n, "implicit", name, 0);
-            sw_case *c = &cs[n - 1];
+            sq_sweep_case *c = &cs[n - 1];
             set_E_nu(&c->mat, iEs[k], 0.3);
             c->integrator = SQ_INTEGRATOR_IMPLICIT;
             c->frame_rate = ihz[j];
@@ -640,20 +632,20 @@ static int build_cases(sw_case *cs, int quick)
             char name[96];
             snprintf(name, sizeof name, "implicit, nu = %g, E = %g Pa, h = 0.1 s%%.0s", inus[k], stiff ? 1e10 : 1e5);
             n = add(cs, n, "implicit", name, 0);
-            sw_case *c = &cs[n - 1];
+            sq_sweep_case *c = &cs[n - 1];
             set_E_nu(&c->mat, stiff ? 1e10 : 1e5, inus[k]);
             c->integrator = SQ_INTEGRATOR_IMPLICIT;
             c->frame_rate = 10;
             c->seconds = quick ? 2 : 5;
         }
     n = add(cs, n, "implicit", "implicit, grab %g body sizes, undamped, h = 0.1 s", 10);
-    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].load = SQ_SWEEP_GRAB;
     cs[n - 1].integrator = SQ_INTEGRATOR_IMPLICIT;
     cs[n - 1].frame_rate = 10;
     cs[n - 1].mat.rayleigh_mass = cs[n - 1].mat.rayleigh_stiffness = 0;
     cs[n - 1].seconds = quick ? 2 : 5;
     n = add(cs, n, "implicit", "implicit corotational, grab %g body sizes, E 1e10 Pa, h = 0.1 s", 10);
-    cs[n - 1].load = SW_GRAB;
+    cs[n - 1].load = SQ_SWEEP_GRAB;
     cs[n - 1].integrator = SQ_INTEGRATOR_IMPLICIT;
     cs[n - 1].elasticity = SQ_ELASTICITY_COROTATIONAL;
     set_E_nu(&cs[n - 1].mat, 1e10, 0.45);
@@ -661,16 +653,24 @@ static int build_cases(sw_case *cs, int quick)
     cs[n - 1].seconds = quick ? 2 : 5;
     /* the very long run: a poke every 2 s */
     n = add(cs, n, "long", "%g s simulated, a poke every 2 s", quick ? 120 : 3600);
-    cs[n - 1].load = SW_PERIODIC;
+    cs[n - 1].load = SQ_SWEEP_PERIODIC;
     cs[n - 1].mat.rayleigh_stiffness = 0;
     cs[n - 1].seconds = quick ? 120 : 3600;
     return n;
 }
 
+/* build the list; returns the count (cs has room for 128) */
+int sq_sweep_build_cases(sq_sweep_case *cs, int quick)
+{
+    int n = cases_material(cs, 0, quick);
+    n = cases_step_tool_mesh(cs, n, quick);
+    return cases_adaptive_implicit(cs, n, quick);
+}
+
 /* ---- locking and cost against nu ---------------------------------------------------------- */
 
 /* clamped beam L x h x h (x = 0 face fixed), gravity -z: static tip deflection / Timoshenko */
-static double beam_ratio(double nu, int nx, int nh, sq_operator_kind op, double *tip_fem, double *tip_th,
+double sq_sweep_beam_ratio(double nu, int nx, int nh, sq_operator_kind op, double *tip_fem, double *tip_th,
                          int *substeps, sq_err *err)
 {
     const double Lb = 1, h = 0.1, E = 1e6, rho = 1000, g = 9.81;
@@ -716,173 +716,3 @@ static double beam_ratio(double nu, int nx, int nh, sq_operator_kind op, double 
     return ratio;
 }
 
-static int write_locking(const char *dir, int quick)
-{
-    char path[1100];
-    snprintf(path, sizeof path, "%s/locking.csv", dir);
-    FILE *f = fopen(path, "w");
-    if (!f) {
-        fprintf(stderr, "squish sweep: cannot write %s: %s; choose another --out\n", path, strerror(errno));
-        return -1;
-    }
-    static const double nus[] = {0, 0.3, 0.4, 0.45, 0.49, 0.499, 0.4999};
-    static const int res[][2] = {{10, 1}, {20, 2}, {40, 4}};
-    /* the finest beam has 41 x 5 x 5 nodes: CG is a few seconds */
-    int nres = quick ? 2 : 3;
-    fprintf(f, "nu,nx,ny,operator,tip_fem_m,tip_theory_m,ratio,substeps_per_frame_50Hz\n");
-    printf("\nlocking: clamped beam 1 x 0.1 x 0.1 m, E 1 MPa, gravity; static tip deflection / Timoshenko\n");
-    printf("%-7s", "nu");
-    for (int r = 0; r < nres; r++)
-        printf("  %4dx%dx%d fem (steps/frame)", res[r][0], res[r][1], res[r][1]);
-    printf("\n");
-    for (size_t k = 0; k < SQ_COUNTOF(nus); k++) {
-        printf("%-7g", nus[k]);
-        for (int r = 0; r < nres; r++) {
-            double tf = NAN, tt = NAN;
-            int sub = 0;
-            sq_err e = {{0}};
-            double ratio = beam_ratio(nus[k], res[r][0], res[r][1], SQ_OPERATOR_FEM, &tf, &tt, &sub, &e);
-            fprintf(f, "%g,%d,%d,fem,%.6e,%.6e,%.6f,%d\n", nus[k], res[r][0], res[r][1], tf, tt, ratio, sub);
-            printf("  %20.3f (%7d)", ratio, sub);
-        }
-        printf("\n");
-    }
-    if (fclose(f)) {
-        fprintf(stderr, "squish sweep: writing %s failed: %s\n", path, strerror(errno));
-        return -1;
-    }
-    return 0;
-}
-
-/* ---- the command -------------------------------------------------------------------------- */
-
-static void usage(FILE *f)
-{
-    fprintf(f, "usage: squish sweep [--out DIR] [--quick]\n"
-               "  stability at the extremes: Young's modulus, Poisson ratio, density, damping, step\n"
-               "  against the bound, fast and deep tools, sliver meshes, a very long run. Each case is\n"
-               "  refused with a reason, or accepted (possibly adjusted) and run; accepted cases must\n"
-               "  stay finite, never trip the blow-up detector, and keep their energy bounded.\n"
-               "  --out DIR   output directory (default squish-sweep): sweep.csv, sweep.md, locking.csv\n"
-               "  --quick     shorter runs (the long run is 120 s instead of 3600 s)\n"
-               "  --verbose   one line per case on stderr as it finishes\n"
-               "  exit 0: every accepted case stable; 1: one was not (or output failed); 2: usage\n");
-}
-
-static void csv_text(FILE *f, const char *s)
-{
-    fputc('"', f);
-    for (; *s; s++) {
-        if (*s == '"')
-            fputc('"', f);
-        fputc(*s, f);
-    }
-    fputc('"', f);
-}
-
-int sq_cmd_sweep(int argc, char **argv)
-{
-    const char *out = "squish-sweep";
-    int quick = 0, verbose = 0;
-    for (int i = 1; i < argc; i++) {
-        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
-            usage(stdout);
-            return 0;
-        } else if (!strcmp(argv[i], "--quick")) {
-            quick = 1;
-        } else if (!strcmp(argv[i], "--verbose") || !strcmp(argv[i], "-v")) {
-            verbose = 1;
-        } else if (!strcmp(argv[i], "--out") && i + 1 < argc && argv[i + 1][0]) {
-            out = argv[++i];
-        } else {
-            fprintf(stderr, "squish sweep: %s '%s'\n", !strcmp(argv[i], "--out") ? "--out needs a directory after"
-                                                                               : "unknown argument", argv[i]);
-            usage(stderr);
-            return 2;
-        }
-    }
-    if (sq_mkdir_p(out)) {
-        fprintf(stderr, "squish sweep: cannot create output directory %s: %s; choose another --out\n", out,
-                strerror(errno));
-        return 1;
-    }
-    static sw_case cs[128];
-    static sw_result rs[96];
-    int n = build_cases(cs, quick);
-    double total = 0;
-    for (int i = 0; i < n; i++)
-        total += cs[i].seconds;
-    sq_progress prog;
-    sq_progress_begin(&prog, "squish sweep", total);
-    double done = 0, w0 = sq_now();
-    int failed = 0;
-    for (int i = 0; i < n; i++) {
-        run_case(&cs[i], (quick ? 2e7 : 2e8) * (!strcmp(cs[i].group, "long") ? 10 : 1), &rs[i]);
-        failed += rs[i].failed;
-        if (verbose)
-            fprintf(stderr, "%-9s %-42s %-26s %8d substeps %7.2f s\n", cs[i].group, cs[i].name, rs[i].status,
-                    rs[i].substeps, rs[i].wall);
-        done += cs[i].seconds;
-        sq_progress_update(&prog, done);
-    }
-    sq_progress_end(&prog);
-
-    char path[1100], mpath[1100];
-    snprintf(path, sizeof path, "%s/sweep.csv", out);
-    snprintf(mpath, sizeof mpath, "%s/sweep.md", out);
-    FILE *f = fopen(path, "w"), *md = fopen(mpath, "w");
-    if (!f || !md) {
-        fprintf(stderr, "squish sweep: cannot write %s: %s; choose another --out\n", !f ? path : mpath,
-                strerror(errno));
-        if (f)
-            fclose(f);
-        if (md)
-            fclose(md);
-        return 1;
-    }
-    fprintf(f, "group,case,status,failed,substeps,bound_s,dt_s,steps_per_s,frames,resets,max_disp_m,"
-               "energy_loaded_J,energy_late_J,wall_s,note\n");
-    fprintf(md, "| group | case | result | substeps/frame | bound (s) | max \\|d\\| (m) | energy, loaded (J) | energy, last quarter (J) | wall (s) | note |\n"
-                "|---|---|---|---:|---:|---:|---:|---:|---:|---|\n");
-    for (int i = 0; i < n; i++) {
-        const sw_result *r = &rs[i];
-        fprintf(f, "%s,", cs[i].group);
-        csv_text(f, cs[i].name);
-        fprintf(f, ",%s,%d,%d,%.6e,%.6e,%.6e,%ld,%ld,%.6e,%.6e,%.6e,%.3f,", r->status, r->failed, r->substeps,
-                r->bound, r->dt, r->steps_per_s, r->frames, r->resets, r->max_disp, r->e_load, r->e_late, r->wall);
-        csv_text(f, r->note);
-        fputc('\n', f);
-        char el[32] = "", ea[32] = "";
-        if (r->frames > 0 && isfinite(r->e_load))
-            snprintf(el, sizeof el, "%.3g", r->e_load);
-        if (r->frames > 0 && isfinite(r->e_late))
-            snprintf(ea, sizeof ea, "%.3g", r->e_late);
-        fprintf(md, "| %s | %s | %s%s%s | %d | %.3g | %.3g | %s | %s | %.2f | %s |\n", cs[i].group, cs[i].name,
-                r->failed ? "**" : "", r->status, r->failed ? "**" : "", r->substeps, r->bound, r->max_disp, el, ea,
-                r->wall, r->note);
-    }
-    int rc = 0;
-    if (fclose(f) | fclose(md)) {
-        fprintf(stderr, "squish sweep: writing %s failed: %s\n", path, strerror(errno));
-        rc = 1;
-    }
-    /* stdout: the table */
-    printf("%-9s %-42s %-26s %8s %10s %10s\n", "group", "case", "result", "substeps", "bound s", "max|d| m");
-    for (int i = 0; i < n; i++)
-        printf("%-9s %-42s %-26s %8d %10.3g %10.3g%s%s\n", cs[i].group, cs[i].name, rs[i].status, rs[i].substeps,
-               rs[i].bound, rs[i].max_disp, rs[i].note[0] ? "  " : "", rs[i].note);
-    if (write_locking(out, quick))
-        rc = 1;
-    int accepted = 0, refused = 0;
-    for (int i = 0; i < n; i++) {
-        if (!strcmp(rs[i].status, "refused"))
-            refused++;
-        else if (cs[i].above_bound <= 0)
-            accepted++;
-    }
-    printf("\nsweep: %d cases (%d accepted and run, %d refused with a reason, %d test-only) in %.1f s; "
-           "%d accepted case%s failed\n",
-           n, accepted, refused, n - accepted - refused, sq_now() - w0, failed, failed == 1 ? "" : "s");
-    printf("wrote %s, %s, %s/locking.csv\n", path, mpath, out);
-    return failed ? 1 : rc;
-}

@@ -15,7 +15,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "app/tradeoff.h"
+#include "engines/engines.h"
 #include "scene/scene.h"
 #include "body/body.h"
 
