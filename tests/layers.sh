@@ -59,4 +59,6 @@ if [ "$checked" = 0 ]; then
     echo "layers: no sources under $SRC"
     exit 1
 fi
+# the size rule: no file over 900 lines, no function over 150 (tests/lengths.sh)
+bash "$(dirname "$0")/lengths.sh" "$SRC" || bad=1
 [ "$bad" = 0 ] || exit 1

@@ -18,80 +18,10 @@
 #include <string.h>
 
 #include "level/corot_impl.h"
+#include "level/implicit_impl.h"
 #include "level/level.h"
 
-/* one coarser level of the multigrid preconditioner: the level (its linear operator, masses
- * and constrained axes), its V-cycle vectors, the inverse diagonal blocks of its matrix, the
- * smoother's damping, and for every node of the next finer level the tet of this level's rest
- * mesh containing it with its barycentrics (the prolongation; its transpose restricts) */
-typedef struct mg_level {
-    const sq_level *L;
-    int n;
-    double *x, *b, *r, *t;     /* 3 n */
-    double *dinv;              /* 9 n */
-    double *acc;               /* zero scratch of the fused K pass (3 n + 1) */
-    double omega;
-    double *chol;              /* coarsest level, 3 n <= SQ_MG_DENSE: dense Cholesky factor of its
-                                  matrix (lower, row-major), for chol_cm/ck/cd; else NULL */
-    double chol_cm, chol_ck, chol_cd;
-    int nfine;                 /* nodes of the finer level */
-    int *tet;                  /* nfine */
-    double *bary;              /* 4 nfine */
-} mg_level;
-
-struct sq_implicit {
-    int n, ntets;
-    double *zo;                   /* the previous preconditioned residual (flexible CG) */
-    double *dvprev;               /* the last step's dv: the next solve's start (3 n) */
-    int have_prev;
-    double *acc;                  /* zero scratch of the fused K pass (3 n + 1) */
-    /* multigrid: the coarser levels (coarse[0] next to this one), the finest level's V-cycle
-     * vectors and smoother damping, and the coefficients the dampings were estimated for */
-    int nmg;
-    mg_level mg[SQ_MAX_LEVELS];
-    double *vx, *vb, *vr, *vt;
-    double omega0, omega_cm, omega_ck;
-    int omega_age;
-    double *x, *r, *z, *p, *q;    /* CG vectors (3 n) */
-    double *rhs, *kv, *dv;        /* right-hand side, K P v0, the solved dv (3 n) */
-    double *d0, *v0;              /* the step's start state (3 n), for Newton iterations */
-    double *pre;                  /* Jacobi: inverse diagonal (3 n); block: inverse 3x3 (9 n) */
-    double *rot;                  /* corotational: R per tet (9 ntets), the linearisation's */
-    /* corotational: the warped stiffness assembled in the level's upper-half layout (Kup
-     * blocks, up_start[n] x 9) at each linearisation, and for each tet the index of each of its
-     * 6 edges in that layout (6 ntets, corner pairs 01 02 03 12 13 23) */
-    double *kup_r;
-    int *tet_edge;
-    /* the energy guard: the total energy of the last step's end state and a hash of that state
-     * (d and v bits, gravity), so the next step's start energy is not computed again when
-     * nothing changed the state in between */
-    double e_cache;
-    unsigned long long e_hash;
-    int e_valid;
-    unsigned char *freeax;        /* free axes per node this step, bits x=1 y=2 z=4 (n) */
-    /* contacts as constraints: the caller's list, and which of its entries this step uses (a
-     * free node: 1), their prescribed part of dv (3 n, zero elsewhere) */
-    const sq_implicit_contacts *cc;
-    unsigned char *cuse;
-    int ncuse, cuse_cap;
-    double *zc;
-};
-
-static void *imp_calloc(size_t count, size_t size) { return sq_calloc(count ? count : 1, size); }
-
-static void mg_free(sq_implicit *I)
-{
-    for (int j = 0; j < I->nmg; j++) {
-        mg_level *g = &I->mg[j];
-        double *vecs[] = {g->x, g->b, g->r, g->t, g->dinv, g->bary, g->chol, g->acc};
-        for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
-            free(vecs[k]);
-        free(g->tet);
-    }
-    I->nmg = 0;
-}
-
-static sq_implicit *imp_get(sq_level *L)
+sq_implicit *sq_imp_get(sq_level *L)
 {
     if (L->implicit)
         return L->implicit;
@@ -120,7 +50,7 @@ void sq_level_implicit_free(sq_level *L)
                       I->vx, I->vb, I->vr, I->vt, I->dvprev, I->acc};
     for (size_t k = 0; k < sizeof vecs / sizeof vecs[0]; k++)
         free(vecs[k]);
-    mg_free(I);
+    sq_imp_mg_free(I);
     free(I->freeax);
     free(I->cuse);
     free(I->zc);
@@ -130,15 +60,9 @@ void sq_level_implicit_free(sq_level *L)
     L->implicit = NULL;
 }
 
-/* the operator of one solve: y = P (c_m M + c_k K + c_d D) P x */
-typedef struct imp_op {
-    const sq_level *L;
-    const sq_implicit *I;
-    double cm, ck, cd;
-} imp_op;
 
 /* y = K x for the operator the step applies (x already projected) */
-static void apply_k(const imp_op *o, const double *x, double *y)
+void sq_imp_apply_k(const imp_op *o, const double *x, double *y)
 {
     const sq_level *L = o->L;
     const sq_level_model *M = &L->model;
@@ -161,7 +85,7 @@ static void apply_k(const imp_op *o, const double *x, double *y)
 }
 
 /* zero the axes that are not free, and the normal component at the contacts this step uses */
-static void project(const sq_implicit *I, double *x)
+void sq_imp_project(const sq_implicit *I, double *x)
 {
     for (int i = 0; i < I->n; i++) {
         unsigned fa = I->freeax[i];
@@ -184,7 +108,7 @@ static void project(const sq_implicit *I, double *x)
 
 void sq_level_implicit_set_contacts(sq_level *L, const sq_implicit_contacts *cc)
 {
-    sq_implicit *I = imp_get(L);
+    sq_implicit *I = sq_imp_get(L);
     I->cc = cc && cc->n > 0 ? cc : NULL;
 }
 
@@ -208,10 +132,10 @@ static void contacts_begin(sq_implicit *I)
     }
 }
 
-static void apply_a(const imp_op *o, const double *x, double *y)
+void sq_imp_apply_a(const imp_op *o, const double *x, double *y)
 {
     const sq_level_model *M = &o->L->model;
-    apply_k(o, x, y);
+    sq_imp_apply_k(o, x, y);
     for (int i = 0; i < M->n; i++) {
         const double mi = o->cm * M->mass[i];
         for (int c = 0; c < 3; c++)
@@ -224,7 +148,7 @@ static void apply_a(const imp_op *o, const double *x, double *y)
             for (int c = 0; c < 3; c++)
                 y[3 * i + c] -= o->cd * out[c];
         }
-    project(o->I, y);
+    sq_imp_project(o->I, y);
 }
 
 /* corotational: the rotations of the current state (converged from the stored ones and stored),
@@ -294,7 +218,7 @@ static void corot_linearise(sq_level *L)
 
 /* 3x3 symmetric inverse of B (row-major) into out; rows/columns of axes not in fa are taken
  * as identity and come out zero; 0 if singular (then out = 0) */
-static int inv3_free(const double *Bin, unsigned fa, double *out)
+int sq_imp_inv3_free(const double *Bin, unsigned fa, double *out)
 {
     double B[9];
     memcpy(B, Bin, sizeof B);
@@ -328,7 +252,7 @@ static int inv3_free(const double *Bin, unsigned fa, double *out)
 /* the diagonal blocks of c_m M + c_k K + c_d D of model M into blk (9 per node). K's from its
  * CSR diagonal, or with kup (the corotational warped stiffness in the upper-half layout) from
  * translation invariance, K_ii = -sum_{j != i} K_ij, as the fused pass uses it */
-static void diag_blocks(const imp_op *o, const sq_level_model *M, const double *kup, double *blk)
+void sq_imp_diag_blocks(const imp_op *o, const sq_level_model *M, const double *kup, double *blk)
 {
     memset(blk, 0, sizeof(double) * 9 * (size_t)M->n);
     for (int i = 0; i < M->n; i++) {
@@ -357,10 +281,9 @@ static void diag_blocks(const imp_op *o, const sq_level_model *M, const double *
             }
 }
 
-static double dot(const double *a, const double *b, size_t n);
 
 /* y = D^-1 r with the 3x3 inverse blocks dinv (9 per node) */
-static void block_apply(const double *dinv, int n, const double *r, double *z)
+void sq_imp_block_apply(const double *dinv, int n, const double *r, double *z)
 {
     for (int i = 0; i < n; i++) {
         const double *B = dinv + 9 * (size_t)i, *ri = r + 3 * (size_t)i;
@@ -371,278 +294,19 @@ static void block_apply(const double *dinv, int n, const double *r, double *z)
     }
 }
 
-/* inverse diagonal blocks of c_m M + c_k K + c_d D of a coarse level (linear K), constrained
- * axes zeroed */
-static void coarse_dinv(const imp_op *o, mg_level *g)
-{
-    const sq_level_model *M = &g->L->model;
-    diag_blocks(o, M, NULL, g->dinv);
-    for (int i = 0; i < M->n; i++) {
-        double B[9];
-        memcpy(B, g->dinv + 9 * (size_t)i, sizeof B);
-        if (!inv3_free(B, ~M->fixed[i] & 7u, g->dinv + 9 * (size_t)i))
-            memset(g->dinv + 9 * (size_t)i, 0, 9 * sizeof(double));
-    }
-}
-
-/* y = (c_m M + c_k K + c_d D) x on coarse level g, constrained axes zeroed */
-static void coarse_apply(const imp_op *o, const mg_level *g, const double *x, double *y)
-{
-    const sq_level_model *M = &g->L->model;
-    sq_level_neg_k(M, x, y, g->acc); /* y = -K x, the fused pass */
-    for (int i = 0; i < M->n; i++) {
-        const double s0 = -y[3 * i], s1 = -y[3 * i + 1], s2 = -y[3 * i + 2];
-        double out[3] = {0, 0, 0};
-        if (o->cd != 0 && M->D)
-            sq_level_row(M, M->D, x, i, out);
-        const double m = o->cm * M->mass[i];
-        const double yi[3] = {m * x[3 * i] + o->ck * s0 - o->cd * out[0], m * x[3 * i + 1] + o->ck * s1 - o->cd * out[1],
-                              m * x[3 * i + 2] + o->ck * s2 - o->cd * out[2]};
-        for (int c = 0; c < 3; c++)
-            y[3 * i + c] = (M->fixed[i] & (1u << c)) ? 0 : yi[c];
-    }
-}
-
-/* level j of the cycle: 0 the solved level, j >= 1 coarse level mg[j - 1] */
-static int cyc_n(const sq_implicit *I, int j) { return j ? I->mg[j - 1].n : I->n; }
-
-static void cyc_apply(const imp_op *o, int j, const double *x, double *y)
-{
-    if (j == 0)
-        apply_a(o, x, y);
-    else
-        coarse_apply(o, &o->I->mg[j - 1], x, y);
-}
-
-static const double *cyc_dinv(const sq_implicit *I, int j) { return j ? I->mg[j - 1].dinv : I->pre; }
-
-/* largest eigenvalue of D^-1 A at cycle level j, by 12 power iterations from a fixed rough
- * start (deterministic), times 1.25 for the power method's underestimate */
-static double cyc_lambda(const imp_op *o, int j, double *x, double *y, double *z)
-{
-    const sq_implicit *I = o->I;
-    const int n = cyc_n(I, j);
-    const size_t n3 = 3 * (size_t)n;
-    /* a rough start (signs from a hash of the index): the top of D^-1 A is the roughest mode */
-    for (size_t k = 0; k < n3; k++)
-        x[k] = (((k * 2654435761u) >> 7) & 1) ? 1.0 : -1.0;
-    double lam = 1;
-    for (int it = 0; it < 12; it++) {
-        block_apply(cyc_dinv(I, j), n, x, z);
-        double zn = sqrt(dot(z, z, n3));
-        if (!(zn > 0))
-            return 1;
-        for (size_t k = 0; k < n3; k++)
-            z[k] /= zn;
-        cyc_apply(o, j, z, y);
-        block_apply(cyc_dinv(I, j), n, y, x); /* x = D^-1 A z */
-        lam = dot(z, x, n3);
-    }
-    return 1.25 * (lam > 0 ? lam : 1);
-}
-
-/* one damped block-Jacobi sweep x += omega D^-1 (b - A x) at cycle level j (t: scratch) */
-static void cyc_smooth(const imp_op *o, int j, double omega, const double *b, double *x, double *r, double *t)
-{
-    const sq_implicit *I = o->I;
-    const int n = cyc_n(I, j);
-    const size_t n3 = 3 * (size_t)n;
-    cyc_apply(o, j, x, t);
-    for (size_t k = 0; k < n3; k++)
-        r[k] = b[k] - t[k];
-    block_apply(cyc_dinv(I, j), n, r, t);
-    for (size_t k = 0; k < n3; k++)
-        x[k] += omega * t[k];
-}
-
-/* the coarsest level's dense factor: its matrix with constrained rows and columns as identity,
- * Cholesky-factored in place (lower triangle); 0, or -1 if not positive definite */
-#define SQ_MG_DENSE 2400
-static int coarse_factor(const imp_op *o, mg_level *g)
-{
-    const sq_level_model *M = &g->L->model;
-    const int N = 3 * g->n;
-    if (!g->chol)
-        g->chol = sq_malloc(sizeof(double) * (size_t)N * (size_t)N);
-    double *A = g->chol;
-    memset(A, 0, sizeof(double) * (size_t)N * (size_t)N);
-    for (int i = 0; i < M->n; i++)
-        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
-            const int j = M->col[e];
-            for (int r = 0; r < 3; r++)
-                for (int c = 0; c < 3; c++) {
-                    double v = o->ck * M->K[9 * (size_t)e + 3 * r + c];
-                    if (o->cd != 0 && M->D)
-                        v += o->cd * M->D[9 * (size_t)e + 3 * r + c];
-                    if (i == j && r == c)
-                        v += o->cm * M->mass[i];
-                    A[(size_t)(3 * i + r) * N + 3 * j + c] = v;
-                }
-        }
-    for (int i = 0; i < M->n; i++)
-        for (int r = 0; r < 3; r++)
-            if (M->fixed[i] & (1u << r)) {
-                const int q = 3 * i + r;
-                for (int k = 0; k < N; k++)
-                    A[(size_t)q * N + k] = A[(size_t)k * N + q] = 0;
-                A[(size_t)q * N + q] = 1;
-            }
-    for (int j = 0; j < N; j++) {
-        double *Aj = A + (size_t)j * N;
-        double d = Aj[j];
-        for (int k = 0; k < j; k++)
-            d -= Aj[k] * Aj[k];
-        if (!(d > 0))
-            return -1;
-        d = sqrt(d);
-        Aj[j] = d;
-        for (int i = j + 1; i < N; i++) {
-            double *Ai = A + (size_t)i * N, s = Ai[j];
-            for (int k = 0; k < j; k++)
-                s -= Ai[k] * Aj[k];
-            Ai[j] = s / d;
-        }
-    }
-    g->chol_cm = o->cm, g->chol_ck = o->ck, g->chol_cd = o->cd;
-    return 0;
-}
-
-/* the coarsest level: by its dense factor when it is small (SQ_MG_DENSE unknowns), else 40
- * block-Jacobi CG iterations (or to 1e-3 relative) */
-static void coarsest_solve(const imp_op *o, mg_level *g, const double *b, double *x)
-{
-    const int N = 3 * g->n;
-    if (N <= SQ_MG_DENSE) {
-        if ((!g->chol || g->chol_cm != o->cm || g->chol_ck != o->ck || g->chol_cd != o->cd) &&
-            coarse_factor(o, g) < 0) {
-            free(g->chol);
-            g->chol = NULL;
-        }
-        if (g->chol) {
-            const double *A = g->chol;
-            for (int i = 0; i < N; i++) { /* L y = b */
-                double s = b[i];
-                for (int k = 0; k < i; k++)
-                    s -= A[(size_t)i * N + k] * x[k];
-                x[i] = s / A[(size_t)i * N + i];
-            }
-            for (int i = N - 1; i >= 0; i--) { /* L^T x = y */
-                double s = x[i];
-                for (int k = i + 1; k < N; k++)
-                    s -= A[(size_t)k * N + i] * x[k];
-                x[i] = s / A[(size_t)i * N + i];
-            }
-            for (int i = 0; i < g->n; i++)
-                for (int r = 0; r < 3; r++)
-                    if (g->L->model.fixed[i] & (1u << r))
-                        x[3 * i + r] = 0;
-            return;
-        }
-    }
-    const size_t n3 = 3 * (size_t)g->n;
-    double *r = g->r, *z = g->t;
-    double *p = sq_malloc(sizeof(double) * n3), *q = sq_malloc(sizeof(double) * n3);
-    memset(x, 0, sizeof(double) * n3);
-    memcpy(r, b, sizeof(double) * n3);
-    double bn = sqrt(dot(b, b, n3));
-    block_apply(g->dinv, g->n, r, z);
-    memcpy(p, z, sizeof(double) * n3);
-    double rz = dot(r, z, n3);
-    for (int it = 0; it < 40 && bn > 0 && sqrt(dot(r, r, n3)) > 1e-3 * bn; it++) {
-        coarse_apply(o, g, p, q);
-        double pq = dot(p, q, n3);
-        if (!(pq > 0))
-            break;
-        double al = rz / pq;
-        for (size_t k = 0; k < n3; k++) {
-            x[k] += al * p[k];
-            r[k] -= al * q[k];
-        }
-        block_apply(g->dinv, g->n, r, z);
-        double rz2 = dot(r, z, n3);
-        for (size_t k = 0; k < n3; k++)
-            p[k] = z[k] + (rz2 / rz) * p[k];
-        rz = rz2;
-    }
-    free(p);
-    free(q);
-}
-
-/* V-cycle at level j: x ~ A_j^-1 b (SQ_MG_SWEEPS pre- and post-smoothing sweeps) */
-#define SQ_MG_SWEEPS 2
-static __attribute__((noinline)) void vcycle(const imp_op *o, int j, const double *b, double *x)
-{
-    sq_implicit *I = (sq_implicit *)o->I;
-    if (j >= I->nmg || j >= SQ_MAX_LEVELS - 1) {
-        coarsest_solve(o, &I->mg[SQ_MAX(I->nmg, 1) - 1], b, x); /* nmg >= 1 here */
-        return;
-    }
-    const int n = cyc_n(I, j);
-    const size_t n3 = 3 * (size_t)n;
-    double *r = j ? I->mg[j - 1].r : I->vr, *t = j ? I->mg[j - 1].t : I->vt;
-    const double omega = j ? I->mg[j - 1].omega : I->omega0;
-    /* pre-smoothing from x = 0: the first sweep is x = omega D^-1 b (no product) */
-    block_apply(cyc_dinv(I, j), n, b, x);
-    for (size_t k = 0; k < n3; k++)
-        x[k] *= omega;
-    for (int s = 1; s < SQ_MG_SWEEPS; s++)
-        cyc_smooth(o, j, omega, b, x, r, t);
-    cyc_apply(o, j, x, t);
-    for (size_t k = 0; k < n3; k++)
-        r[k] = b[k] - t[k];
-    /* restrict to level j + 1 (coarse level mg[j]): b_c = P^T r, constrained axes zeroed */
-    mg_level *c = &I->mg[j];
-    memset(c->b, 0, sizeof(double) * 3 * (size_t)c->n);
-    const int *tets = c->L->model.mesh->tets;
-    for (int i = 0; i < n; i++) {
-        const int *tv = tets + 4 * (size_t)c->tet[i];
-        const double *w = c->bary + 4 * (size_t)i;
-        for (int k = 0; k < 4; k++)
-            for (int q = 0; q < 3; q++)
-                c->b[3 * (size_t)tv[k] + q] += w[k] * r[3 * (size_t)i + q];
-    }
-    for (int i = 0; i < c->n; i++)
-        for (int q = 0; q < 3; q++)
-            if (c->L->model.fixed[i] & (1u << q))
-                c->b[3 * (size_t)i + q] = 0;
-    vcycle(o, j + 1, c->b, c->x);
-    /* prolongate and correct: x += P x_c, then this level's projection */
-    for (int i = 0; i < n; i++) {
-        const int *tv = tets + 4 * (size_t)c->tet[i];
-        const double *w = c->bary + 4 * (size_t)i;
-        for (int q = 0; q < 3; q++) {
-            double e = 0;
-            for (int k = 0; k < 4; k++)
-                e += w[k] * c->x[3 * (size_t)tv[k] + q];
-            t[3 * (size_t)i + q] = e;
-        }
-    }
-    if (j == 0)
-        project(I, t);
-    else
-        for (int i = 0; i < n; i++)
-            for (int q = 0; q < 3; q++)
-                if (I->mg[j - 1].L->model.fixed[i] & (1u << q))
-                    t[3 * (size_t)i + q] = 0;
-    for (size_t k = 0; k < n3; k++)
-        x[k] += t[k];
-    for (int s = 0; s < SQ_MG_SWEEPS; s++)
-        cyc_smooth(o, j, omega, b, x, r, t);
-}
-
 /* the preconditioner's data for this solve */
 static void precond_setup(const imp_op *o, int kind)
 {
     const sq_level_model *M = &o->L->model;
     sq_implicit *I = (sq_implicit *)o->I;
     double *blk = sq_malloc(sizeof(double) * 9 * (size_t)M->n);
-    diag_blocks(o, M, o->L->corot ? I->kup_r : NULL, blk);
+    sq_imp_diag_blocks(o, M, o->L->corot ? I->kup_r : NULL, blk);
     for (int i = 0; i < M->n; i++) {
         const double *B = blk + 9 * (size_t)i;
         double *out = I->pre + 9 * (size_t)i;
         unsigned fa = I->freeax[i];
         if (kind != SQ_PRECOND_JACOBI) {
-            if (!inv3_free(B, fa, out)) { /* singular block: fall back to its diagonal */
+            if (!sq_imp_inv3_free(B, fa, out)) { /* singular block: fall back to its diagonal */
                 memset(out, 0, 9 * sizeof(double));
                 for (int c = 0; c < 3; c++)
                     out[4 * c] = (fa & (1u << c)) && B[4 * c] > 0 ? 1.0 / B[4 * c] : 0;
@@ -655,13 +319,13 @@ static void precond_setup(const imp_op *o, int kind)
     free(blk);
     if (kind == SQ_PRECOND_MULTIGRID && I->nmg > 0) {
         for (int j = 0; j < I->nmg; j++)
-            coarse_dinv(o, &I->mg[j]);
+            sq_imp_coarse_dinv(o, &I->mg[j]);
         /* the smoothers' dampings: estimated again when the coefficients change, or every 64
          * solves (the corotational operator turns with the body) */
         if (o->cm != I->omega_cm || o->ck != I->omega_ck || I->omega_age++ >= 64) {
-            I->omega0 = 1.0 / cyc_lambda(o, 0, I->vx, I->vr, I->vt);
+            I->omega0 = 1.0 / sq_imp_cyc_lambda(o, 0, I->vx, I->vr, I->vt);
             for (int j = 0; j < I->nmg; j++)
-                I->mg[j].omega = 1.0 / cyc_lambda(o, j + 1, I->mg[j].x, I->mg[j].r, I->mg[j].t);
+                I->mg[j].omega = 1.0 / sq_imp_cyc_lambda(o, j + 1, I->mg[j].x, I->mg[j].r, I->mg[j].t);
             I->omega_cm = o->cm;
             I->omega_ck = o->ck;
             I->omega_age = 0;
@@ -673,57 +337,21 @@ static void precond_apply(const imp_op *o, int kind, const double *r, double *z)
 {
     const sq_implicit *I = o->I;
     if (kind == SQ_PRECOND_MULTIGRID && I->nmg > 0) {
-        vcycle(o, 0, r, z);
-        project(I, z);
+        sq_imp_vcycle(o, 0, r, z);
+        sq_imp_project(I, z);
     } else if (kind != SQ_PRECOND_JACOBI) {
-        block_apply(I->pre, I->n, r, z);
+        sq_imp_block_apply(I->pre, I->n, r, z);
     } else {
         for (int i = 0; i < I->n; i++)
             for (int c = 0; c < 3; c++)
                 z[3 * i + c] = I->pre[9 * (size_t)i + c] * r[3 * i + c];
     }
     if (I->ncuse) /* S B^-1 S: symmetric, positive on the contacts' free subspace */
-        project(I, z);
+        sq_imp_project(I, z);
 }
 
-int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse)
-{
-    sq_implicit *I = imp_get(L);
-    if (ncoarse > SQ_MAX_LEVELS - 1)
-        ncoarse = SQ_MAX_LEVELS - 1;
-    /* the same hierarchy as already built: nothing to do */
-    int same = I->nmg == ncoarse;
-    for (int j = 0; same && j < ncoarse; j++)
-        same = I->mg[j].L == coarse[j] && I->mg[j].n == coarse[j]->model.n;
-    if (same)
-        return ncoarse;
-    mg_free(I);
-    const sq_mesh *fine = L->model.mesh;
-    for (int j = 0; j < ncoarse; j++) {
-        mg_level *g = &I->mg[j];
-        memset(g, 0, sizeof *g);
-        g->L = coarse[j];
-        g->n = coarse[j]->model.n;
-        size_t n3 = 3 * (size_t)g->n;
-        g->x = imp_calloc(n3 + 1, sizeof(double));
-        g->b = imp_calloc(n3 + 1, sizeof(double));
-        g->r = imp_calloc(n3 + 1, sizeof(double));
-        g->t = imp_calloc(n3 + 1, sizeof(double));
-        g->acc = imp_calloc(n3 + 1, sizeof(double));
-        g->dinv = imp_calloc(3 * n3, sizeof(double));
-        g->nfine = fine->nnodes;
-        g->tet = imp_calloc((size_t)g->nfine, sizeof(int));
-        g->bary = imp_calloc(4 * (size_t)g->nfine, sizeof(double));
-        for (int i = 0; i < g->nfine; i++)
-            g->tet[i] = sq_mesh_locate(coarse[j]->model.mesh, fine->x + 3 * (size_t)i, g->bary + 4 * (size_t)i);
-        fine = coarse[j]->model.mesh;
-        I->nmg = j + 1;
-    }
-    I->omega_cm = I->omega_ck = -1;
-    return I->nmg;
-}
 
-static double dot(const double *a, const double *b, size_t n)
+double sq_imp_dot(const double *a, const double *b, size_t n)
 {
     double s = 0;
     for (size_t k = 0; k < n; k++)
@@ -739,7 +367,7 @@ static int pcg_run(const imp_op *o, const sq_implicit_def *def, int precond, int
     sq_implicit *I = (sq_implicit *)o->I;
     const size_t n3 = 3 * (size_t)I->n;
     double *r = I->r, *z = I->z, *p = I->p, *q = I->q;
-    const double bnorm = sqrt(dot(b, b, n3));
+    const double bnorm = sqrt(sq_imp_dot(b, b, n3));
     *relres = 0;
     *capped = 0;
     if (!(bnorm > 0)) {
@@ -747,7 +375,7 @@ static int pcg_run(const imp_op *o, const sq_implicit_def *def, int precond, int
         return 0;
     }
     if (warm) { /* from the given x: r = b - A x */
-        apply_a(o, x, q);
+        sq_imp_apply_a(o, x, q);
         for (size_t k = 0; k < n3; k++)
             r[k] = b[k] - q[k];
     } else {
@@ -757,15 +385,15 @@ static int pcg_run(const imp_op *o, const sq_implicit_def *def, int precond, int
     precond_apply(o, precond, r, z);
     memcpy(p, z, sizeof(double) * n3);
     memcpy(I->zo, z, sizeof(double) * n3);
-    double rz = dot(r, z, n3), rr = dot(r, r, n3);
+    double rz = sq_imp_dot(r, z, n3), rr = sq_imp_dot(r, r, n3);
     int it = 0;
     while (sqrt(rr) > def->tol * bnorm) {
         if (it >= max_iter || (deadline > 0 && (it & 3) == 3 && sq_thread_cpu() > deadline)) {
             *capped = 1;
             break;
         }
-        apply_a(o, p, q);
-        const double pq = dot(p, q, n3);
+        sq_imp_apply_a(o, p, q);
+        const double pq = sq_imp_dot(p, q, n3);
         if (!(pq > 0)) {
             *capped = 1; /* breakdown (round-off at convergence, or a non-positive operator) */
             break;
@@ -776,14 +404,14 @@ static int pcg_run(const imp_op *o, const sq_implicit_def *def, int precond, int
             r[k] -= alpha * q[k];
         }
         precond_apply(o, precond, r, z);
-        const double rz2 = dot(r, z, n3);
-        rr = dot(r, r, n3);
+        const double rz2 = sq_imp_dot(r, z, n3);
+        rr = sq_imp_dot(r, r, n3);
         /* flexible (Polak-Ribiere) beta: the multigrid cycle is not a fixed linear map (its
          * coarsest solve stops early); for the fixed preconditioners it equals the usual one up
          * to round-off (r.z_old = 0 in exact arithmetic) */
         double beta = rz2 / rz;
         if (precond == SQ_PRECOND_MULTIGRID)
-            beta = (rz2 - dot(r, I->zo, n3)) / rz;
+            beta = (rz2 - sq_imp_dot(r, I->zo, n3)) / rz;
         memcpy(I->zo, z, sizeof(double) * n3);
         rz = rz2;
         for (size_t k = 0; k < n3; k++)
@@ -873,11 +501,47 @@ sq_implicit_def sq_implicit_def_default(void)
     return d;
 }
 
+/* the contacts' prescribed part z of dv (the whole velocity relative to the obstacle at a
+ * sticking contact, its normal part at a sliding one): rhs -= P A z, the solve adds z */
+static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level *L)
+{
+    const size_t n3 = 3 * (size_t)I->n;
+    if (!I->zc)
+        I->zc = imp_calloc(n3 + 1, sizeof(double));
+    memset(I->zc, 0, sizeof(double) * n3);
+    for (int k = 0; k < I->cc->n; k++)
+        if (I->cuse[k]) {
+            const double *nk = I->cc->normal + 3 * (size_t)k, *uk = I->cc->u + 3 * (size_t)k;
+            const size_t i3 = 3 * (size_t)I->cc->node[k];
+            double rel[3] = {uk[0] - L->v[i3], uk[1] - L->v[i3 + 1], uk[2] - L->v[i3 + 2]};
+            const double s = rel[0] * nk[0] + rel[1] * nk[1] + rel[2] * nk[2];
+            for (int c = 0; c < 3; c++)
+                I->zc[i3 + c] = I->cc->stick[k] ? rel[c] : s * nk[c];
+        }
+    sq_imp_apply_a(o, I->zc, I->kv);
+    for (size_t k = 0; k < n3; k++)
+        I->rhs[k] -= I->kv[k];
+}
+
+/* the constraints' impulses after the step: M (v1 - v0) - h f(end state) */
+static void contacts_impulses(sq_implicit *I, sq_level *L, const sq_material *mat, const double g[3], double h)
+{
+    forces_now(L, mat, g);
+    for (int k = 0; k < I->cc->n; k++)
+        if (I->cuse[k]) {
+            const int i = I->cc->node[k];
+            for (int c = 0; c < 3; c++) {
+                const size_t j = 3 * (size_t)i + c;
+                I->cc->impulse[3 * (size_t)k + c] = L->model.mass[i] * (L->v[j] - I->v0[j]) - h * L->f[j];
+            }
+        }
+}
+
 void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[3], double h,
                             const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st)
 {
-    sq_implicit *I = imp_get(L);
+    sq_implicit *I = sq_imp_get(L);
     const sq_level_model *M = &L->model;
     const int n = M->n;
     const size_t n3 = 3 * (size_t)n;
@@ -908,7 +572,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
         for (int c = 0; c < 3; c++)
             I->x[3 * i + c] = (fx & (1u << c)) ? 0 : L->v[3 * i + c];
     }
-    apply_k(&o, I->x, I->kv);
+    sq_imp_apply_k(&o, I->x, I->kv);
     for (size_t k = 0; k < n3; k++)
         I->rhs[k] = h * (L->f[k] - h * I->kv[k]);
     if (I->ncuse) /* the contacts' forces (kinetic friction) */
@@ -916,25 +580,10 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             if (I->cuse[k])
                 for (int c = 0; c < 3; c++)
                     I->rhs[3 * (size_t)I->cc->node[k] + c] += h * I->cc->force[3 * (size_t)k + c];
-    project(I, I->rhs);
-    if (I->ncuse) { /* the contacts' prescribed part z of dv: rhs -= P A z (the solve adds z) */
-        if (!I->zc)
-            I->zc = imp_calloc(n3 + 1, sizeof(double));
-        memset(I->zc, 0, sizeof(double) * n3);
-        for (int k = 0; k < I->cc->n; k++)
-            if (I->cuse[k]) {
-                const double *nk = I->cc->normal + 3 * (size_t)k, *uk = I->cc->u + 3 * (size_t)k;
-                const size_t i3 = 3 * (size_t)I->cc->node[k];
-                double rel[3] = {uk[0] - L->v[i3], uk[1] - L->v[i3 + 1], uk[2] - L->v[i3 + 2]};
-                const double s = rel[0] * nk[0] + rel[1] * nk[1] + rel[2] * nk[2];
-                for (int c = 0; c < 3; c++)
-                    I->zc[i3 + c] = I->cc->stick[k] ? rel[c] : s * nk[c];
-            }
-        apply_a(&o, I->zc, I->kv);
-        for (size_t k = 0; k < n3; k++)
-            I->rhs[k] -= I->kv[k];
-    }
-    double rhs0 = sqrt(dot(I->rhs, I->rhs, n3));
+    sq_imp_project(I, I->rhs);
+    if (I->ncuse)
+        contacts_prescribe(&o, I, L);
+    double rhs0 = sqrt(sq_imp_dot(I->rhs, I->rhs, n3));
     /* held nodes move first: d += h u on their unconstrained axes */
     if (mask)
         for (int i = 0; i < n; i++)
@@ -954,7 +603,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
         int warm = nt == 0 && I->have_prev;
         if (warm) {
             memcpy(I->x, I->dvprev, sizeof(double) * n3);
-            project(I, I->x);
+            sq_imp_project(I, I->x);
         }
         st->iterations += pcg(&o, def, I->rhs, I->x, warm, deadline, &relres, &capped);
         if (nt == 0 && I->ncuse)
@@ -1002,8 +651,8 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
                     size_t k = 3 * (size_t)i + c;
                     I->rhs[k] = h * L->f[k] - M->mass[i] * I->dv[k];
                 }
-            project(I, I->rhs);
-            st->newton_residual = rhs0 > 0 ? sqrt(dot(I->rhs, I->rhs, n3)) / rhs0 : 0;
+            sq_imp_project(I, I->rhs);
+            st->newton_residual = rhs0 > 0 ? sqrt(sq_imp_dot(I->rhs, I->rhs, n3)) / rhs0 : 0;
             if (st->newton_residual <= def->tol)
                 more = 0;
         }
@@ -1012,17 +661,8 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     }
     memcpy(I->dvprev, I->dv, sizeof(double) * n3);
     I->have_prev = 1;
-    if (I->ncuse) { /* the constraints' impulses: M (v1 - v0) - h f(end state) */
-        forces_now(L, mat, g);
-        for (int k = 0; k < I->cc->n; k++)
-            if (I->cuse[k]) {
-                const int i = I->cc->node[k];
-                for (int c = 0; c < 3; c++) {
-                    const size_t j = 3 * (size_t)i + c;
-                    I->cc->impulse[3 * (size_t)k + c] = M->mass[i] * (L->v[j] - I->v0[j]) - h * L->f[j];
-                }
-            }
-    }
+    if (I->ncuse)
+        contacts_impulses(I, L, mat, g, h);
     /* L->f holds the last force pass's values (the step's start, or with Newton iterations an
      * intermediate state): the caller evaluates the end state's force when it needs it */
 }

@@ -92,6 +92,41 @@ void net_haptic_close_owner(sq_session *s, uint64_t owner)
     pthread_mutex_unlock(&h->mu);
 }
 
+/* a field haptic does not take: an error naming it sent, 1 */
+static int unknown_field(client *c, const sq_request *req, const cJSON *o)
+{
+    static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping", "ramp"};
+    const cJSON *it;
+    cJSON_ArrayForEach(it, o) {
+        int ok = 0;
+        for (size_t k = 0; k < sizeof known / sizeof *known; k++)
+            ok |= !strcmp(it->string, known[k]);
+        if (!ok) {
+            char m[160];
+            snprintf(m, sizeof m, "haptic.%.60s: unknown field; haptic takes tool, open, stiffness, "
+                     "damping, ramp, ref", it->string);
+            net_send_error(c, req, SQ_CODE_BAD_FIELD, m);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* the shape of the session's tool id (0 for one known only by its id so far), -1 if none */
+static int tool_shape(sq_session *s, int id)
+{
+    int shape = -1;
+    pthread_mutex_lock(&s->mu);
+    for (int i = 0; i < s->ntool_ids; i++)
+        if (s->tool_ids[i] == id)
+            shape = 0;
+    for (int i = 0; i < s->snap.ntools; i++)
+        if (s->snap.tools[i].id == id)
+            shape = (int)s->snap.tools[i].shape;
+    pthread_mutex_unlock(&s->mu);
+    return shape;
+}
+
 int net_haptic_request(client *c, const char *text, size_t len)
 {
     /* cheap test first: every other request goes on to the decoder untouched */
@@ -106,19 +141,9 @@ int net_haptic_request(client *c, const char *text, size_t len)
     sq_request req;
     read_ref(o, &req);
     char m[320];
-    const cJSON *it;
-    cJSON_ArrayForEach(it, o) {
-        static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping", "ramp"};
-        int ok = 0;
-        for (size_t k = 0; k < sizeof known / sizeof *known; k++)
-            ok |= !strcmp(it->string, known[k]);
-        if (!ok) {
-            snprintf(m, sizeof m, "haptic.%.60s: unknown field; haptic takes tool, open, stiffness, "
-                     "damping, ramp, ref", it->string);
-            net_send_error(c, &req, SQ_CODE_BAD_FIELD, m);
-            cJSON_Delete(o);
-            return 1;
-        }
+    if (unknown_field(c, &req, o)) {
+        cJSON_Delete(o);
+        return 1;
     }
     srec *r = c->sess;
     if (!c->greeted) {
@@ -162,16 +187,9 @@ int net_haptic_request(client *c, const char *text, size_t len)
     if (read_number(c, &req, o, "stiffness", "haptic.stiffness", 0, SQ_HAPTIC_STIFFNESS_MAX, &has_k, &k) ||
         read_number(c, &req, o, "damping", "haptic.damping", 0, SQ_HAPTIC_DAMPING_MAX, &has_b, &b))
         goto done;
-    int id = (int)tool->valuedouble, shape = -1;
+    int id = (int)tool->valuedouble;
     sq_session *s = r->s;
-    pthread_mutex_lock(&s->mu);
-    for (int i = 0; i < s->ntool_ids; i++)
-        if (s->tool_ids[i] == id)
-            shape = 0;
-    for (int i = 0; i < s->snap.ntools; i++)
-        if (s->snap.tools[i].id == id)
-            shape = (int)s->snap.tools[i].shape;
-    pthread_mutex_unlock(&s->mu);
+    const int shape = tool_shape(s, id);
     if (shape < 0) {
         snprintf(m, sizeof m, "haptic.tool: %d is not a tool of this session; create it with a "
                  "tool request first", id);
