@@ -632,10 +632,10 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
             c = t;
         }
     }
-    lod->guard.bound_cpu = 0;
+    lod->cpl.bound_cpu = 0;
     if (changed) {
         coupling_bound(lod);
-        lod->guard.bound_cpu = sq_thread_cpu() - c;
+        lod->cpl.bound_cpu = sq_thread_cpu() - c;
     }
     if (first && lod->reserve.reserve_live) /* a new material under a budget: every array reserved and
                                      * mapped, whatever it costs (first budgeted frame: frame.c) */

@@ -267,7 +267,6 @@ typedef struct sq_lod_guard {
     double last_c_end;                   /* thread CPU clock at the last frame's end, s */
     double untimed;                      /* thread CPU time since then that is not the product's
                                           * (sq_lod_untimed: a measuring harness), s */
-    double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (at load, sq_lod_prepare_budget,
@@ -341,6 +340,8 @@ typedef struct sq_lod_coupling_of {
     double *abs_sum;                     /* scratch of the coupled bound: sum of |weights| of
                                           * each ring ghost's sources (coupling.c) */
     int abs_cap;
+    double bound_cpu;                    /* thread CPU time of the last coupled bound (read by
+                                          * pass.c for the guard's cost model), s */
 } sq_lod_coupling_of;
 
 struct sq_lod {
