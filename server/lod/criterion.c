@@ -1,6 +1,7 @@
 /* criterion.c - stage: the split/merge criterion and the decisions it drives.
  *
- * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian,
+ * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian
+ * (its weights made at creation, state.c's sq_lodx_criterion_weights),
  * judged from each level's static equilibrium; splits of active nodes above lod.split,
  * merges of split nodes whose children are all below lod.merge, the node-update cap
  * (sq_lodx_enforce_cap), and the stand-alone pass sq_lod_adapt. The frame runs this at its end, when
@@ -16,78 +17,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-
-/* ---------------------------------------------------------------- criterion operator */
-
-static int cmp_tri(const void *pa, const void *pb)
-{
-    const int *a = pa, *b = pb;
-    for (int c = 0; c < 3; c++)
-        if (a[c] != b[c])
-            return a[c] < b[c] ? -1 : 1;
-    return 0;
-}
-
-static void sort3(int *t)
-{
-    int a;
-    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
-    if (t[1] > t[2]) { a = t[1]; t[1] = t[2]; t[2] = a; }
-    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
-}
-
-/* weights w_ij (CSR of the mesh adjacency) with Lap(d)_i = -(1/vol_i) sum_j w_ij d_j.
- * Interior rows are the lumped FEM Laplacian sum_T V a_i . a_j. On boundary rows that
- * operator also holds the boundary flux (a linear field gets a Laplacian of order
- * |grad d| / h there, which would split every surface node of a body that merely sags),
- * so the flux of the tet's own gradient through the node's boundary faces is removed:
- * for the face opposite q of tet T, A n = -3 V a_q, and each of its three nodes i gets
- * (A/3) (grad d . n) = -V sum_m (a_m . a_q) d_m. A linear field then has zero Laplacian at
- * every node, and the criterion measures only curvature, as the paper intends. */
-double *sq_lodx_criterion_weights(const sq_mesh *m)
-{
-    int nnz = m->adj_start[m->nnodes];
-    double *w = sq_calloc((size_t)SQ_MAX(nnz, 1), sizeof(double));
-    int *keys = sq_malloc(sizeof(int) * 3 * (size_t)SQ_MAX(m->ntris, 1));
-    for (int t = 0; t < m->ntris; t++) {
-        memcpy(keys + 3 * t, m->tris + 3 * t, 3 * sizeof(int));
-        sort3(keys + 3 * t);
-    }
-    qsort(keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri);
-    for (int t = 0; t < m->ntets; t++) {
-        const int *tn = m->tets + 4 * t;
-        double a[4][3];
-        double V = fabs(sq_tet_gradients(m, t, a));
-        for (int i = 0; i < 4; i++)
-            for (int j = 0; j < 4; j++) {
-                int s = adj_find(m, tn[i], tn[j]);
-                if (s >= 0)
-                    w[s] += V * (a[i][0] * a[j][0] + a[i][1] * a[j][1] + a[i][2] * a[j][2]);
-            }
-        for (int q = 0; q < 4; q++) {
-            int face[3], nf = 0;
-            for (int i = 0; i < 4; i++)
-                if (i != q)
-                    face[nf++] = tn[i];
-            if (!m->on_boundary[face[0]] || !m->on_boundary[face[1]] || !m->on_boundary[face[2]])
-                continue;
-            sort3(face);
-            if (!bsearch(face, keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri))
-                continue;
-            for (int i = 0; i < 4; i++) {
-                if (i == q)
-                    continue;
-                for (int mm = 0; mm < 4; mm++) {
-                    int s = adj_find(m, tn[i], tn[mm]);
-                    if (s >= 0)
-                        w[s] += V * (a[mm][0] * a[q][0] + a[mm][1] * a[q][1] + a[mm][2] * a[q][2]);
-                }
-            }
-        }
-    }
-    free(keys);
-    return w;
-}
 
 /* ---------------------------------------------------------------- split / merge */
 

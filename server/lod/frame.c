@@ -29,6 +29,7 @@
 #include "lod/reserve.h"
 #include "lod/ring.h"
 #include "lod/state.h"
+#include "lod/statics.h"
 #include "lod/tick.h"
 
 #include <math.h>

@@ -14,4 +14,7 @@ void sq_lodx_pull_level(sq_lod *lod, int k);
 /* the end-of-frame cascade (coarse ghosts pushed only where something reads them) */
 void sq_lodx_cascade_needed(sq_lod *lod);
 
+/* Laplacian weights of the criterion per CSR entry of the mesh adjacency (made at creation) */
+double *sq_lodx_criterion_weights(const sq_mesh *m);
+
 #endif
