@@ -12,6 +12,7 @@
 #include "lod/coupling.h"
 #include "lod/lod_vec.h"
 #include "lod/reserve.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -625,7 +626,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         lod->lev[k].cpl.blocks_cpu = 0;
         if (lod->lev[k].cpl.blocks_dirty) {
             build_ring_blocks(lod, k);
-            lod->lev[k].tk.hot_valid = 0;
+            sq_lodx_tick_hot_stale(lod, k);
             changed = 1;
             double t = sq_thread_cpu();
             lod->lev[k].cpl.blocks_cpu = t - c; /* the guard's cost model (frame.c) */

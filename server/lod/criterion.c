@@ -11,6 +11,7 @@
 #include "lod/activeset.h"
 #include "lod/criterion.h"
 #include "lod/state.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -79,8 +80,7 @@ void sq_lodx_merge_node(sq_lod *lod, int k, int p)
     sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
         lod->lev[k + 1].lay.state[ln->child[c]] = ST_COARSE;
-    memcpy(lk->tk.d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
-    memcpy(lk->tk.v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
+    sq_lodx_tick_start_node(lod, k, p);
     /* children become coarse ghosts and take their parent-tet value at once */
     for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
         int j = ln->child[c];
@@ -122,8 +122,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 int j = ln->child[c];
                 lod->lev[k + 1].lay.state[j] = ST_ACTIVE;
                 sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-                memcpy(lod->lev[k + 1].tk.d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
-                memcpy(lod->lev[k + 1].tk.v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
+                sq_lodx_tick_start_node(lod, k + 1, j);
             }
             *projected += extra;
             out->splits++;

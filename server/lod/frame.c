@@ -100,10 +100,7 @@ static void stage_layout(lod_frame *fr)
     fr->nticks = 1L << nmax;
     for (int k = 0; k < L; k++)
         fr->stride[k] = 1L << (nmax - sub_log2(lod, k));
-    for (int k = 0; k < L; k++) {
-        lod->lev[k].tk.step_start = -fr->stride[k]; /* the previous frame's last step ended at tick 0 */
-        lod->lev[k].tk.step_len = fr->stride[k];
-    }
+    sq_lodx_tick_clock(lod, fr->stride); /* the previous frame's last step ended at tick 0 */
     if (sq_lodx_corot_on(lod))
         sq_lodx_corot_layout(lod, mat); /* corotational levels: tet lists of the layout */
 }

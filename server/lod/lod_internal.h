@@ -143,7 +143,9 @@ typedef struct sq_lod_rates {
 } sq_lod_rates;
 
 /* a level's clock within the frame and the tick's scratch: d + b v, the hot ring list (tick.c;
- * the clock set up by frame.c's layout stage and state.c's reset) */
+ * the other stages set the clock, the hot list's staleness and step-start values through
+ * tick.c's sq_lodx_tick_* setters; state.c's create and reset, and holds.c's held nodes' step
+ * start, write it directly) */
 typedef struct sq_lod_tick_state {
     int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
                                  * level in hot_mask read: those evaluated between two steps of the
