@@ -3,7 +3,8 @@
  * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian
  * (its weights made at creation, state.c's sq_lodx_criterion_weights),
  * judged from each level's static equilibrium; splits of active nodes above lod.split,
- * merges of split nodes whose children are all below lod.merge, the node-update cap
+ * merges of split nodes whose children are all below lod.merge (each made by state.c's
+ * sq_lodx_split_node, sq_lodx_merge_node), the node-update cap
  * (sq_lodx_enforce_cap), and the stand-alone pass sq_lod_adapt. The frame runs this at its end, when
  * every level is at the same time (frame.c, tick_adapt).
  */
@@ -11,7 +12,6 @@
 #include "lod/activeset.h"
 #include "lod/criterion.h"
 #include "lod/state.h"
-#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -69,25 +69,6 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
     return sq_lodx_delta(lod, level, node);
 }
 
-/* merge node p of level k: it starts from its value interpolated from its child tet, its
- * children become coarse ghosts at their parent-tet values (the criterion's and the guard's merges) */
-void sq_lodx_merge_node(sq_lod *lod, int k, int p)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_lod_link *ln = &lod->h.link[k];
-    lk->lay.state[p] = ST_ACTIVE;
-    /* the merged node starts from its interpolated value (pulled from its child tet) */
-    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
-        lod->lev[k + 1].lay.state[ln->child[c]] = ST_COARSE;
-    sq_lodx_tick_start_node(lod, k, p);
-    /* children become coarse ghosts and take their parent-tet value at once */
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
-        int j = ln->child[c];
-        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-    }
-}
-
 /* split/merge between levels k and k+1 (both at the same time); `allow_split` from the
  * budget; the node-update cap refuses splits that would exceed it */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out)
@@ -97,7 +78,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         return;
     const sq_lod_def *def = &lod->def;
     const sq_lod_link *ln = &lod->h.link[k];
-    sq_level *Lk = &lod->lv[k], *Lf = &lod->lv[k + 1];
+    sq_level *Lk = &lod->lv[k];
     int forced = def->split <= 0;
     long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
     int changed = 0;
@@ -115,15 +96,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 out->refused = 1;
                 continue;
             }
-            /* children start from their interpolated d and v (parent tet, values now) */
-            lk->lay.state[i] = ST_SPLIT;
-            lk->lay.fresh[i] = 1;
-            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
-                int j = ln->child[c];
-                lod->lev[k + 1].lay.state[j] = ST_ACTIVE;
-                sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-                sq_lodx_tick_start_node(lod, k + 1, j);
-            }
+            sq_lodx_split_node(lod, k, i); /* children from their interpolated d and v (state.c) */
             *projected += extra;
             out->splits++;
             changed = 1;
@@ -164,8 +137,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
             changed = 1;
         }
     }
-    for (int i = 0; i < Lk->model.n; i++)
-        lk->lay.fresh[i] = 0;
+    sq_lodx_fresh_clear(lod, k);
     if (changed) {
         out->changed[k] = out->changed[k + 1] = 1;
     }

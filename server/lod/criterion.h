@@ -12,7 +12,6 @@
 double sq_lodx_delta(const sq_lod *lod, int k, int i);
 /* split/merge between levels k and k+1; merges until the node-update cap fits */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out);
-void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, values interpolated */
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 
 #endif

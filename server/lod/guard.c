@@ -12,6 +12,7 @@
 #include "lod/frame.h"
 #include "lod/guard.h"
 #include "lod/lod_test.h"
+#include "lod/state.h"
 
 /* ---------------------------------------------------------------- the guard's cost model
  *

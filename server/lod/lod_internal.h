@@ -166,8 +166,10 @@ typedef struct sq_lod_tick_state {
 } sq_lod_tick_state;
 
 /* a level's layout: which node is active, which a ghost, the ring and its active sources, the
- * frontier (states set by criterion.c and guard.c, the lists rebuilt by state.c's
- * sq_lodx_rebuild_level, the sources by ring.c, hold_of by holds.c) */
+ * frontier (a split or merge's states set by state.c for criterion.c and guard.c, the pass's
+ * temporary masks and limited set by guard.c, the lists rebuilt by state.c's
+ * sq_lodx_rebuild_level, the sources by ring.c and corotational.c, hold_of and the integrated
+ * mask by holds.c) */
 typedef struct sq_lod_layout {
     /* --- the layout: which node is active, which a ghost (rebuilt by sq_lodx_rebuild_level) */
     unsigned char *state;       /* ST_ACTIVE, ST_SPLIT or ST_COARSE of each node (n) */

@@ -9,8 +9,9 @@
  * active (they start from their interpolated displacement and velocity); merging does the
  * reverse when all children are calm.
  *
- * Here: creation and destruction, the definition (set_def) and reset, the bookkeeping of a
- * level's states (its ghost, ring and frontier lists), ghost values brought up to date from
+ * Here: creation (with the criterion's weights) and destruction, the definition (set_def) and
+ * reset, one split or merge of a node (the states and start values criterion.c and guard.c
+ * decide), the bookkeeping of a level's states (its ghost, ring and frontier lists), ghost values brought up to date from
  * the active nodes (pull, push, cascade, sync), and the consistency check of the tree.
  */
 #include "lod/lod.h"
@@ -262,6 +263,54 @@ static int check_def(const sq_lod_def *def, int L, sq_err *err)
 static int start_level(const sq_lod *lod)
 {
     return lod->def.split <= 0 ? lod->top : lod->def.level;
+}
+
+/* ---------------------------------------------------------------- a node split or merged
+ *
+ * the node states a split/merge decision changes (criterion.c's pass, guard.c's merges), the
+ * values the changed nodes start from; the lists follow in sq_lodx_rebuild_level */
+
+/* split node p of level k: its children become active and start from their d and v
+ * interpolated from the parent tet (values now); p is fresh (not merged back in this pass) */
+void sq_lodx_split_node(sq_lod *lod, int k, int i)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    sq_level *Lf = &lod->lv[k + 1];
+    /* children start from their interpolated d and v (parent tet, values now) */
+    lk->lay.state[i] = ST_SPLIT;
+    lk->lay.fresh[i] = 1;
+    for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
+        int j = ln->child[c];
+        lod->lev[k + 1].lay.state[j] = ST_ACTIVE;
+        sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+        sq_lodx_tick_start_node(lod, k + 1, j);
+    }
+}
+
+void sq_lodx_fresh_clear(sq_lod *lod, int k)
+{
+    for (int i = 0; i < lod->lv[k].model.n; i++)
+        lod->lev[k].lay.fresh[i] = 0;
+}
+
+/* merge node p of level k: it starts from its value interpolated from its child tet, its
+ * children become coarse ghosts at their parent-tet values (the criterion's and the guard's merges) */
+void sq_lodx_merge_node(sq_lod *lod, int k, int p)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    lk->lay.state[p] = ST_ACTIVE;
+    /* the merged node starts from its interpolated value (pulled from its child tet) */
+    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
+        lod->lev[k + 1].lay.state[ln->child[c]] = ST_COARSE;
+    sq_lodx_tick_start_node(lod, k, p);
+    /* children become coarse ghosts and take their parent-tet value at once */
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
+        int j = ln->child[c];
+        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+    }
 }
 
 /* ---------------------------------------------------------------- criterion weights
