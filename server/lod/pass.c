@@ -117,8 +117,7 @@ long sq_lod_prepare_budget(sq_lod *lod)
 {
     if (lod->reserve.reserve_live || !lod->cpl.have_mat)
         return 0;
-    lod->reserve.reserve_live = 1;
-    long pages = sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS) + sq_lodx_map_state(lod);
+    long pages = sq_lodx_reserve_live(lod);
     if (!lod->guard.cost_calibrated) {
         sq_lod_frame_in in;
         memset(&in, 0, sizeof in);

@@ -242,3 +242,8 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
     return pages;
 }
 
+long sq_lodx_reserve_live(sq_lod *lod)
+{
+    lod->reserve.reserve_live = 1;
+    return sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS) + sq_lodx_map_state(lod);
+}
