@@ -629,7 +629,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
             sq_lodx_tick_hot_stale(lod, k);
             changed = 1;
             double t = sq_thread_cpu();
-            lod->lev[k].cpl.blocks_cpu = t - c; /* the guard's cost model (frame.c) */
+            lod->lev[k].cpl.blocks_cpu = t - c; /* the guard's cost model (pass.c, guard.c) */
             c = t;
         }
     }
@@ -639,7 +639,7 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         lod->cpl.bound_cpu = sq_thread_cpu() - c;
     }
     if (first && lod->reserve.reserve_live) /* a new material under a budget: every array reserved and
-                                     * mapped, whatever it costs (first budgeted frame: frame.c) */
+                                     * mapped, whatever it costs (first budgeted frame: pass.c) */
         sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
 }
 

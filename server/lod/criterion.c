@@ -6,7 +6,7 @@
  * merges of split nodes whose children are all below lod.merge (each made by state.c's
  * sq_lodx_split_node, sq_lodx_merge_node), the node-update cap
  * (sq_lodx_enforce_cap), and the stand-alone pass sq_lod_adapt. The frame runs this at its end, when
- * every level is at the same time (frame.c, tick_adapt).
+ * every level is at the same time (frame.c's criterion stage).
  */
 #include "lod/lod.h"
 #include "lod/activeset.h"

@@ -2,7 +2,8 @@
  * (docs/lod.md, "Guaranteed frame rate"): the learned costs (sq_lodx_learn), what a pass and a
  * region cost, the node updates that fit; the merges the guard makes when a frame would not fit,
  * the pass limit (which regions a split/merge pass may change), the rest of merged regions.
- * frame.c's stages measure and ask; this file holds the model's arithmetic.
+ * frame.c's and pass.c's stages measure and ask; this file holds the model's arithmetic, its
+ * learning and the guard's parts of the stages (the guard stage, the budgeted split/merge).
  */
 #include <math.h>
 #include <stdlib.h>

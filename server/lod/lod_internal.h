@@ -27,8 +27,8 @@ typedef struct sq_lod_test {
 } sq_lod_test;
 
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
-/* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (frame.c,
- * guard.c): neither read as active nor as split nor as a coarse ghost, so the node is
+/* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (guard.c's
+ * sq_lodx_guard_adapt): neither read as active nor as split nor as a coarse ghost, so the node is
  * neither split nor merged (its value is read as it is stored, as for an active or split node) */
 enum { ST_RESTING = 3, ST_LIMITED_ACTIVE = 4, ST_LIMITED_SPLIT = 5 };
 #define SQ_BLOCKS_CHUNK 1024  /* element-block cache slots per chunk (1.2 MB, 2.4 viscous) */
@@ -224,7 +224,7 @@ typedef struct sq_lod_lists {
  * (displacements), m/s (velocities), N (forces); stiffness blocks are 3x3, N/m, row-major */
 typedef struct sq_lod_level {
     sq_lod_layout lay;                   /* the layout: states, ghosts, ring, frontier, sources
-                                          * (state.c, criterion.c, ring.c) */
+                                          * (state.c, guard.c, ring.c, holds.c) */
     sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
     double *d_static;           /* static displacement under the body's gravity, m (n x 3);
                                  * NULL: judged from 0 */
@@ -246,11 +246,14 @@ typedef struct {
 } sq_cost_track;
 
 /* the guaranteed frame rate's state (docs/lod.md "Guaranteed frame rate"): the cost model,
- * learned by frame.c's stages through guard.c, and the rests of the regions the guard merged */
+ * learned and written by guard.c (frame.c's and pass.c's measurements handed to it), and the
+ * rests of the regions the guard merged (state.c's reset clears last_time, activeset.c's
+ * sq_lodx_free frees guard_hold) */
 typedef struct sq_lod_guard {
-    /* cost model of the guaranteed frame rate (frame.c measures, guard.c models; docs/lod.md
-     * "Guaranteed frame rate"): thread CPU s, each a maximum over the last measurements that decays by 10 % a frame (a
-     * frame after a rebuild costs more per update than a quiet one) */
+    /* cost model of the guaranteed frame rate (frame.c and pass.c measure, guard.c learns and
+     * models; docs/lod.md "Guaranteed frame rate"): thread CPU s, each a maximum over the last
+     * measurements that decays by 10 % a frame (a frame after a rebuild costs more per update
+     * than a quiet one) */
     double last_time;                    /* CPU time of the previous frame, s */
     double cost_update;                  /* per node update of the ticks (ghost values, forces,
                                           * integration), s (0: none measured yet) */
@@ -316,7 +319,7 @@ typedef struct sq_lod_push {
                                           * frame */
 } sq_lod_push;
 
-/* the static equilibria the criterion judges the displacement from (activeset.c) */
+/* the static equilibria the criterion judges the displacement from (statics.c) */
 typedef struct sq_lod_statics {
     /* the criterion judges the displacement from each level's static equilibrium under the
      * body's constant load (gravity), so a sag alone keeps nothing refined (lev[k].d_static) */
@@ -362,12 +365,12 @@ struct sq_lod {
                                           * operator-derived sums (own_rowsum) are taken */
     sq_lod_coupling_of cpl;              /* what the coupling blocks were built for (coupling.c) */
     sq_lod_holds holds;                  /* the frame's tool holds (holds.c) */
-    sq_lod_guard guard;                  /* the guard's cost model and rests (guard.c, frame.c) */
+    sq_lod_guard guard;                  /* the guard's cost model and rests (guard.c) */
     sq_lod_reserve reserve;              /* the coupling arrays' reserve (reserve.c) */
     long frames;                         /* frames run (sq_lod_frame), for def.adapt_every */
     sq_lod_test test;                    /* test-only switches and counters (lod_test.h) */
     sq_lod_push push;                    /* ghost values pushed on demand (activeset.c) */
-    sq_lod_statics statics;              /* the static loads the criterion judges from (activeset.c) */
+    sq_lod_statics statics;              /* the static loads the criterion judges from (statics.c) */
     sq_lod_node_view view;               /* node levels given out (views.c) */
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
