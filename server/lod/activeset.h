@@ -1,5 +1,5 @@
 /* activeset.h - activeset.c's entry points for the other files of the lod module: per-level index
- * lists, the needed set, on-demand ghost values, static loads.
+ * lists, the needed set, on-demand ghost values.
  * Not part of the module's contract (lod.h).
  */
 #ifndef SQ_LOD_ACTIVESET_H
@@ -22,8 +22,6 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3]);
 /* interp_node reading stale coarse-ghost corners on demand */
 void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, const double *b);
 void sq_lodx_free(sq_lod *lod, int k);
-/* static equilibria of the levels up to the top for gravity (once per gravity and material) */
-void sq_lodx_static_loads(sq_lod *lod, const double gravity[3]);
 void sq_lodx_sort_ints(int *a, int n);
 
 #endif

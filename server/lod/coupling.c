@@ -12,6 +12,7 @@
 #include "lod/coupling.h"
 #include "lod/lod_vec.h"
 #include "lod/reserve.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -625,20 +626,20 @@ void sq_lodx_update_ring_blocks(sq_lod *lod, const sq_material *mat)
         lod->lev[k].cpl.blocks_cpu = 0;
         if (lod->lev[k].cpl.blocks_dirty) {
             build_ring_blocks(lod, k);
-            lod->lev[k].tk.hot_valid = 0;
+            sq_lodx_tick_hot_stale(lod, k);
             changed = 1;
             double t = sq_thread_cpu();
-            lod->lev[k].cpl.blocks_cpu = t - c; /* the guard's cost model (frame.c) */
+            lod->lev[k].cpl.blocks_cpu = t - c; /* the guard's cost model (pass.c, guard.c) */
             c = t;
         }
     }
-    lod->guard.bound_cpu = 0;
+    lod->cpl.bound_cpu = 0;
     if (changed) {
         coupling_bound(lod);
-        lod->guard.bound_cpu = sq_thread_cpu() - c;
+        lod->cpl.bound_cpu = sq_thread_cpu() - c;
     }
     if (first && lod->reserve.reserve_live) /* a new material under a budget: every array reserved and
-                                     * mapped, whatever it costs (first budgeted frame: frame.c) */
+                                     * mapped, whatever it costs (first budgeted frame: pass.c) */
         sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS);
 }
 

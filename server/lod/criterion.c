@@ -1,10 +1,12 @@
 /* criterion.c - stage: the split/merge criterion and the decisions it drives.
  *
- * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian,
+ * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian
+ * (its weights made at creation, state.c's sq_lodx_criterion_weights),
  * judged from each level's static equilibrium; splits of active nodes above lod.split,
- * merges of split nodes whose children are all below lod.merge, the node-update cap
+ * merges of split nodes whose children are all below lod.merge (each made by state.c's
+ * sq_lodx_split_node, sq_lodx_merge_node), the node-update cap
  * (sq_lodx_enforce_cap), and the stand-alone pass sq_lod_adapt. The frame runs this at its end, when
- * every level is at the same time (frame.c, tick_adapt).
+ * every level is at the same time (frame.c's criterion stage).
  */
 #include "lod/lod.h"
 #include "lod/activeset.h"
@@ -16,78 +18,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-
-/* ---------------------------------------------------------------- criterion operator */
-
-static int cmp_tri(const void *pa, const void *pb)
-{
-    const int *a = pa, *b = pb;
-    for (int c = 0; c < 3; c++)
-        if (a[c] != b[c])
-            return a[c] < b[c] ? -1 : 1;
-    return 0;
-}
-
-static void sort3(int *t)
-{
-    int a;
-    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
-    if (t[1] > t[2]) { a = t[1]; t[1] = t[2]; t[2] = a; }
-    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
-}
-
-/* weights w_ij (CSR of the mesh adjacency) with Lap(d)_i = -(1/vol_i) sum_j w_ij d_j.
- * Interior rows are the lumped FEM Laplacian sum_T V a_i . a_j. On boundary rows that
- * operator also holds the boundary flux (a linear field gets a Laplacian of order
- * |grad d| / h there, which would split every surface node of a body that merely sags),
- * so the flux of the tet's own gradient through the node's boundary faces is removed:
- * for the face opposite q of tet T, A n = -3 V a_q, and each of its three nodes i gets
- * (A/3) (grad d . n) = -V sum_m (a_m . a_q) d_m. A linear field then has zero Laplacian at
- * every node, and the criterion measures only curvature, as the paper intends. */
-double *sq_lodx_criterion_weights(const sq_mesh *m)
-{
-    int nnz = m->adj_start[m->nnodes];
-    double *w = sq_calloc((size_t)SQ_MAX(nnz, 1), sizeof(double));
-    int *keys = sq_malloc(sizeof(int) * 3 * (size_t)SQ_MAX(m->ntris, 1));
-    for (int t = 0; t < m->ntris; t++) {
-        memcpy(keys + 3 * t, m->tris + 3 * t, 3 * sizeof(int));
-        sort3(keys + 3 * t);
-    }
-    qsort(keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri);
-    for (int t = 0; t < m->ntets; t++) {
-        const int *tn = m->tets + 4 * t;
-        double a[4][3];
-        double V = fabs(sq_tet_gradients(m, t, a));
-        for (int i = 0; i < 4; i++)
-            for (int j = 0; j < 4; j++) {
-                int s = adj_find(m, tn[i], tn[j]);
-                if (s >= 0)
-                    w[s] += V * (a[i][0] * a[j][0] + a[i][1] * a[j][1] + a[i][2] * a[j][2]);
-            }
-        for (int q = 0; q < 4; q++) {
-            int face[3], nf = 0;
-            for (int i = 0; i < 4; i++)
-                if (i != q)
-                    face[nf++] = tn[i];
-            if (!m->on_boundary[face[0]] || !m->on_boundary[face[1]] || !m->on_boundary[face[2]])
-                continue;
-            sort3(face);
-            if (!bsearch(face, keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri))
-                continue;
-            for (int i = 0; i < 4; i++) {
-                if (i == q)
-                    continue;
-                for (int mm = 0; mm < 4; mm++) {
-                    int s = adj_find(m, tn[i], tn[mm]);
-                    if (s >= 0)
-                        w[s] += V * (a[mm][0] * a[q][0] + a[mm][1] * a[q][1] + a[mm][2] * a[q][2]);
-                }
-            }
-        }
-    }
-    free(keys);
-    return w;
-}
 
 /* ---------------------------------------------------------------- split / merge */
 
@@ -139,26 +69,6 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
     return sq_lodx_delta(lod, level, node);
 }
 
-/* merge node p of level k: it starts from its value interpolated from its child tet, its
- * children become coarse ghosts at their parent-tet values (the criterion's and the guard's merges) */
-void sq_lodx_merge_node(sq_lod *lod, int k, int p)
-{
-    sq_lod_level *lk = &lod->lev[k];
-    const sq_lod_link *ln = &lod->h.link[k];
-    lk->lay.state[p] = ST_ACTIVE;
-    /* the merged node starts from its interpolated value (pulled from its child tet) */
-    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
-        lod->lev[k + 1].lay.state[ln->child[c]] = ST_COARSE;
-    memcpy(lk->tk.d_start + 3 * p, lod->lv[k].d + 3 * p, 3 * sizeof(double));
-    memcpy(lk->tk.v_start + 3 * p, lod->lv[k].v + 3 * p, 3 * sizeof(double));
-    /* children become coarse ghosts and take their parent-tet value at once */
-    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
-        int j = ln->child[c];
-        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-    }
-}
-
 /* split/merge between levels k and k+1 (both at the same time); `allow_split` from the
  * budget; the node-update cap refuses splits that would exceed it */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out)
@@ -168,7 +78,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         return;
     const sq_lod_def *def = &lod->def;
     const sq_lod_link *ln = &lod->h.link[k];
-    sq_level *Lk = &lod->lv[k], *Lf = &lod->lv[k + 1];
+    sq_level *Lk = &lod->lv[k];
     int forced = def->split <= 0;
     long cost_k = 1L << sub_log2(lod, k), cost_f = 1L << sub_log2(lod, k + 1);
     int changed = 0;
@@ -186,16 +96,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
                 out->refused = 1;
                 continue;
             }
-            /* children start from their interpolated d and v (parent tet, values now) */
-            lk->lay.state[i] = ST_SPLIT;
-            lk->lay.fresh[i] = 1;
-            for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
-                int j = ln->child[c];
-                lod->lev[k + 1].lay.state[j] = ST_ACTIVE;
-                sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
-                memcpy(lod->lev[k + 1].tk.d_start + 3 * j, Lf->d + 3 * j, 3 * sizeof(double));
-                memcpy(lod->lev[k + 1].tk.v_start + 3 * j, Lf->v + 3 * j, 3 * sizeof(double));
-            }
+            sq_lodx_split_node(lod, k, i); /* children from their interpolated d and v (state.c) */
             *projected += extra;
             out->splits++;
             changed = 1;
@@ -236,8 +137,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
             changed = 1;
         }
     }
-    for (int i = 0; i < Lk->model.n; i++)
-        lk->lay.fresh[i] = 0;
+    sq_lodx_fresh_clear(lod, k);
     if (changed) {
         out->changed[k] = out->changed[k + 1] = 1;
     }

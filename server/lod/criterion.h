@@ -10,11 +10,8 @@
 /* the criterion delta = hbar^2 |Lap(d - d_static)| at node i of level k, ghost
  * neighbours the last cascade did not push read on demand (sq_lodx_value) */
 double sq_lodx_delta(const sq_lod *lod, int k, int i);
-/* Laplacian weights of the criterion per CSR entry of the mesh adjacency */
-double *sq_lodx_criterion_weights(const sq_mesh *m);
 /* split/merge between levels k and k+1; merges until the node-update cap fits */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out);
-void sq_lodx_merge_node(sq_lod *lod, int k, int p); /* criterion.c: one merge, values interpolated */
 void sq_lodx_enforce_cap(sq_lod *lod, long *projected, adapt_out *out);
 
 #endif

@@ -2,15 +2,18 @@
  * (docs/lod.md, "Guaranteed frame rate"): the learned costs (sq_lodx_learn), what a pass and a
  * region cost, the node updates that fit; the merges the guard makes when a frame would not fit,
  * the pass limit (which regions a split/merge pass may change), the rest of merged regions.
- * frame.c's stages measure and ask; this file holds the model's arithmetic.
+ * frame.c's and pass.c's stages measure and ask; this file holds the model's arithmetic, its
+ * learning and the guard's parts of the stages (the guard stage, the budgeted split/merge).
  */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "lod/criterion.h"
+#include "lod/frame.h"
 #include "lod/guard.h"
 #include "lod/lod_test.h"
+#include "lod/state.h"
 
 /* ---------------------------------------------------------------- the guard's cost model
  *
@@ -320,4 +323,188 @@ void sq_lodx_guard_limit_undo(sq_lod *lod, int k)
         lk->lay.state[p] = lk->lay.state[p] == ST_LIMITED_ACTIVE ? ST_ACTIVE : ST_SPLIT;
     }
     lk->lay.nlimited = 0;
+}
+
+/* ---------------------------------------------------------------- the guard's parts of the stages
+ *
+ * frame.c's stages run these on the frame's context (lod_frame, frame.h): the guard stage's
+ * budget and cap, the cost per update measured by the ticks, the budgeted split/merge of the
+ * criterion stage, the frame's cost at its end; pass.c's pass hands over its measured parts. */
+
+void sq_lod_untimed(sq_lod *lod, double cpu_s)
+{
+    if (cpu_s > 0)
+        lod->guard.untimed += cpu_s;
+}
+
+/* guaranteed frame rate, the guard stage (frame.c's stage_guard): no splitting after a frame
+ * over budget (merging still allowed); the frame's budget less the time around it. Returns 1
+ * with a budget (then the pass's reserve and calibration, sq_lodx_pass_prepare, and
+ * sq_lodx_guard_cap follow) */
+int sq_lodx_guard_open(lod_frame *fr)
+{
+    sq_lod *lod = fr->lod;
+    double budget_s = fr->in->budget_s;
+    fr->prev_time = lod->guard.last_time;
+    fr->fr_budget = lod->def.budget * budget_s;
+    /* the thread's time between two frames of this body (the body's own work around the lod
+     * frame: tool holds, node levels, health; the caller's between its steps, less what it
+     * declared not the product's, sq_lod_untimed), up to a quarter of the period, is not the
+     * lod's */
+    fr->outside_raw = lod->guard.last_c_end > 0 ? fr->c_start - lod->guard.last_c_end - lod->guard.untimed : 0;
+    lod->guard.untimed = 0;
+    if (budget_s > 0 && lod->guard.last_c_end > 0) {
+        double outside = fmin(fmax(fr->outside_raw, 0.0), 0.25 * budget_s);
+        sq_lodx_guard_learn(lod, &lod->guard.cost_outside, &lod->guard.tr_outside, outside);
+        fr->fr_budget = fmax(0.0, fr->fr_budget - lod->guard.cost_outside);
+    }
+    fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
+    fr->cap_user = lod->def.max_node_updates;
+    fr->cap_guard = 0;
+    fr->coarse_ms = 0;
+    if (budget_s <= 0)
+        return 0;
+    lod->guard.guard_clock++;
+    return 1;
+}
+
+/* the node updates the next frames may have (the cost model above), once the pass terms are
+ * calibrated */
+void sq_lodx_guard_cap(lod_frame *fr)
+{
+    sq_lod *lod = fr->lod;
+    fr->guard_on = lod->guard.cost_update > 0;
+    if (fr->guard_on) {
+        /* the layout must fit without a pass; level 0 alone, the cheapest layout */
+        fr->cap_guard = sq_lodx_guard_updates_fitting(lod, fr->fr_budget);
+        fr->coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
+                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
+    }
+}
+
+/* a measured tick time per node update into the cost model */
+static void learn_update(sq_lod *lod, double c_ticks, long updates)
+{
+    if (updates > 0)
+        sq_lodx_guard_learn(lod, &lod->guard.cost_update, &lod->guard.tr_update, c_ticks / (double)updates);
+}
+
+void sq_lodx_guard_ticks_measured(lod_frame *fr)
+{
+    sq_lod *lod = fr->lod;
+    learn_update(lod, fr->c_ticks, fr->tc.updates);
+    if (fr->in->budget_s > 0 && lod->guard.cost_update > 0 && lod->guard.cost_calibrated)
+        fr->guard_on = 1;
+}
+
+/* the criterion stage with the guard on (docs/lod.md "Guaranteed frame rate"): a pair of
+ * levels is adapted only when its rebuild fits in what is left of the frame; splits stop where
+ * the next frame and a pass would pass SQ_GUARD_SPLIT_HEADROOM of the budget; regions the
+ * guard merged rest; and when the next frame would not fit even without a pass, the least
+ * needed regions merge. now: the thread CPU clock at the stage's start; pairs: the split/merge
+ * pairs run this frame (def.adapt_every) */
+void sq_lodx_guard_adapt(lod_frame *fr, double now, int pairs)
+{
+    sq_lod *lod = fr->lod;
+    int L = lod->L;
+    double B = fr->fr_budget;
+    /* what is left of this frame once the rest of it (push, feedback: within the fixed cost)
+     * is paid */
+    double used = lod->guard.cost_given ? lod->guard.cost_update * (double)fr->tc.updates + fr->modeled_pass : now - fr->c_start;
+    double left = B - used - lod->guard.cost_fixed;
+    long keep = sq_lodx_guard_updates_fitting(lod, B);
+    long split_cap = sq_lodx_guard_updates_fitting(lod, SQ_GUARD_SPLIT_HEADROOM * B - SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, sq_lodx_guard_all_levels(lod), 0));
+    if (fr->cap_user > 0) {
+        keep = SQ_MIN(keep, fr->cap_user);
+        split_cap = SQ_MIN(split_cap, fr->cap_user);
+    }
+    unsigned sched = 0;
+    for (int k = 0; k + 1 < L && k < lod->top && pairs; k++) {
+        double pc = SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, 3u << k, sched);
+        if (pc > left) {
+            fr->ao.refused = 1; /* deferred: this pair's splits and merges wait for a frame with room */
+            continue;
+        }
+        /* the regions this pass can change; when the criterion wants more, the merges it
+         * wants (least needed first), then the splits (most needed first) up to that count,
+         * the others held out of this pass */
+        double rc = SQ_GUARD_PASS_MARGIN * sq_lodx_guard_region_cost(lod, k);
+        long afford = rc > 0 ? (long)fmin(1e9, fmax(0.0, (left - pc) / rc)) : 1000000000L;
+        int allow = !fr->over_budget && split_cap > 0 && fr->projected < split_cap;
+        int s0 = fr->ao.splits, m0 = fr->ao.merges;
+        lod->def.max_node_updates = split_cap;
+        sq_lodx_guard_rest_mask(lod, k, 1);
+        long held = sq_lodx_guard_limit(lod, k, allow, afford);
+        sq_lodx_adapt_pair(lod, k, allow, &fr->projected, &fr->ao);
+        if (held > 0) {
+            sq_lodx_guard_limit_undo(lod, k);
+            fr->ao.refused = 1;
+        }
+        sq_lodx_guard_rest_mask(lod, k, 0);
+        unsigned now_sched = 0;
+        for (int m = 0; m < L; m++)
+            now_sched |= fr->ao.changed[m] ? 1u << m : 0u;
+        left -= SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, now_sched, sched) + rc * (double)(fr->ao.splits - s0 + fr->ao.merges - m0);
+        sched = now_sched;
+    }
+    lod->def.max_node_updates = fr->cap_user;
+    if (fr->projected > keep) {
+        /* the next frame would not fit even without a pass: merge the least needed regions,
+         * as many as this frame can rebuild (the next frame's layout stage merges the rest) */
+        double pc = SQ_GUARD_PASS_MARGIN * sq_lodx_guard_pass_cost(lod, sq_lodx_guard_all_levels(lod), sched), rc = 0;
+        for (int k = 0; k + 1 < L; k++)
+            rc = fmax(rc, SQ_GUARD_PASS_MARGIN * sq_lodx_guard_region_cost(lod, k));
+        long most = rc > 0 ? (long)fmin(1e9, (left - pc) / rc) : 1000000000L;
+        if (most > 0)
+            fr->guard_merges += sq_lodx_guard_merge(lod, keep, &fr->projected, &fr->ao, SQ_GUARD_REST_FRAMES, most);
+    }
+}
+
+void sq_lodx_guard_pass_measured(sq_lod *lod, unsigned mask, const double *t_level, const long *nchg, double couple)
+{
+    int L = lod->L;
+    /* learn: each level's list rebuild; its block build, as a floor when none of its nodes
+     * changed (the calibration pass), else per changed node above the floor; the bound; the
+     * rest (sources, needed set) */
+    for (int k = 0; k < L; k++) {
+        if (!(mask & (1u << k)) && lod->lev[k].cpl.blocks_cpu == 0)
+            continue;
+        if (mask & (1u << k))
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_level[k], &lod->guard.tr_level[k], t_level[k]);
+        if (nchg[k] == 0)
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_blocks[k], &lod->guard.tr_blocks[k], lod->lev[k].cpl.blocks_cpu);
+        else
+            sq_lodx_guard_learn_pass(lod, &lod->guard.cost_block_change[k], &lod->guard.tr_block_change[k],
+                  fmax(0.0, lod->lev[k].cpl.blocks_cpu - lod->guard.cost_blocks[k]) / (double)nchg[k]);
+    }
+    sq_lodx_guard_learn_pass(lod, &lod->guard.cost_bound, &lod->guard.tr_bound, lod->cpl.bound_cpu);
+    sq_lodx_guard_learn_pass(lod, &lod->guard.cost_couple, &lod->guard.tr_couple, couple);
+}
+
+void sq_lodx_guard_calibrated(sq_lod *lod)
+{
+    lod->guard.cost_calibrated = 1;
+    /* a start for the cost per changed node until passes measure it (the decaying maximum then
+     * rises at once to a higher measurement, and falls 3 % a pass) */
+    for (int k = 0; k < lod->L && !lod->guard.cost_given; k++)
+        lod->guard.cost_block_change[k] = fmax(lod->guard.cost_block_change[k], SQ_GUARD_BLOCK_CHANGE_START);
+}
+
+long sq_lodx_guard_frame_end(lod_frame *fr, double c_end, double cpu)
+{
+    sq_lod *lod = fr->lod;
+    long updates = fr->tc.updates;
+    lod->guard.last_c_end = c_end;
+    if (fr->c_ticks == 0 && updates > 0) { /* a frame abandoned before its criterion stage */
+        fr->c_ticks = fmax(0.0, cpu - fr->c_pass);
+        learn_update(lod, fr->c_ticks, updates);
+    }
+    /* what is neither ticks nor passes (nor the reserve and owed estimates, done only with room left):
+     * criterion, push, feedback, guard, layout, holds */
+    sq_lodx_guard_learn(lod, &lod->guard.cost_fixed, &lod->guard.tr_fixed, fmax(0.0, cpu - fr->c_ticks - fr->c_pass - fr->c_reserve - fr->c_owed));
+    lod->guard.guard_modeled = lod->guard.cost_fixed + lod->guard.cost_update * (double)updates + fr->modeled_pass;
+    lod->guard.last_time = lod->guard.cost_given ? lod->guard.guard_modeled : cpu; /* given costs: deterministic */
+    long next = sq_lod_projected_updates(lod);
+    lod->guard.guard_predicted = lod->guard.cost_fixed + lod->guard.cost_update * (double)next;
+    return next;
 }

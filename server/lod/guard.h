@@ -56,4 +56,27 @@ long sq_lodx_guard_merge(sq_lod *lod, long cap, long *projected, adapt_out *out,
 long sq_lodx_guard_limit(sq_lod *lod, int k, int allow_split, long most);
 void sq_lodx_guard_limit_undo(sq_lod *lod, int k);
 
+/* the guard's parts of frame.c's stages, on the frame's context (frame.h) */
+typedef struct lod_frame lod_frame;
+/* the guard stage: the frame's budget (less the time around the frame, learned), splits
+ * allowed or not; returns 1 with a budget, then sq_lodx_guard_cap once the pass terms are
+ * calibrated (pass.c's sq_lodx_pass_prepare): the node-update cap that fits */
+int sq_lodx_guard_open(lod_frame *fr);
+void sq_lodx_guard_cap(lod_frame *fr);
+/* the ticks' thread CPU time (fr->c_ticks) per node update learned; the guard on once a cost
+ * per update is known with a budget */
+void sq_lodx_guard_ticks_measured(lod_frame *fr);
+/* the criterion stage's split/merge within the budget and the guard's merges (the guard on);
+ * now: the thread CPU clock at the stage's start; pairs: 1 if the split/merge pairs run */
+void sq_lodx_guard_adapt(lod_frame *fr, double now, int pairs);
+/* a measured pass (pass.c) into the pass terms: t_level[k] the rebuild of each level in mask,
+ * nchg[k] its changed nodes, couple the sources and lists; the blocks' and the bound's times
+ * read from lev[k].cpl.blocks_cpu and cpl.bound_cpu */
+void sq_lodx_guard_pass_measured(sq_lod *lod, unsigned mask, const double *t_level, const long *nchg, double couple);
+/* the calibration pass done (pass.c): the start of the cost per changed node */
+void sq_lodx_guard_calibrated(sq_lod *lod);
+/* the frame's end: its fixed cost learned, its modeled cost, the next frame's prediction;
+ * returns the next frame's node updates (without a pass) */
+long sq_lodx_guard_frame_end(lod_frame *fr, double c_end, double cpu);
+
 #endif

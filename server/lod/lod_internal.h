@@ -27,8 +27,8 @@ typedef struct sq_lod_test {
 } sq_lod_test;
 
 enum { ST_COARSE = 0, ST_ACTIVE = 1, ST_SPLIT = 2 };
-/* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (frame.c,
- * guard.c): neither read as active nor as split nor as a coarse ghost, so the node is
+/* states the guard gives a node while sq_lodx_adapt_pair runs, never outside it (guard.c's
+ * sq_lodx_guard_adapt): neither read as active nor as split nor as a coarse ghost, so the node is
  * neither split nor merged (its value is read as it is stored, as for an active or split node) */
 enum { ST_RESTING = 3, ST_LIMITED_ACTIVE = 4, ST_LIMITED_SPLIT = 5 };
 #define SQ_BLOCKS_CHUNK 1024  /* element-block cache slots per chunk (1.2 MB, 2.4 viscous) */
@@ -145,7 +145,9 @@ typedef struct sq_lod_rates {
 } sq_lod_rates;
 
 /* a level's clock within the frame and the tick's scratch: d + b v, the hot ring list (tick.c;
- * the clock set up by frame.c's layout stage and state.c's reset) */
+ * the other stages set the clock, the hot list's staleness and step-start values through
+ * tick.c's sq_lodx_tick_* setters; state.c's create and reset, and holds.c's held nodes' step
+ * start, write it directly) */
 typedef struct sq_lod_tick_state {
     int *hot, nhot;             /* ring positions of the ghosts the ring rows with a source on a
                                  * level in hot_mask read: those evaluated between two steps of the
@@ -166,8 +168,10 @@ typedef struct sq_lod_tick_state {
 } sq_lod_tick_state;
 
 /* a level's layout: which node is active, which a ghost, the ring and its active sources, the
- * frontier (states set by criterion.c and guard.c, the lists rebuilt by state.c's
- * sq_lodx_rebuild_level, the sources by ring.c, hold_of by holds.c) */
+ * frontier (a split or merge's states set by state.c for criterion.c and guard.c, the pass's
+ * temporary masks and limited set by guard.c, the lists rebuilt by state.c's
+ * sq_lodx_rebuild_level, the sources by ring.c and corotational.c, hold_of and the integrated
+ * mask by holds.c) */
 typedef struct sq_lod_layout {
     /* --- the layout: which node is active, which a ghost (rebuilt by sq_lodx_rebuild_level) */
     unsigned char *state;       /* ST_ACTIVE, ST_SPLIT or ST_COARSE of each node (n) */
@@ -222,7 +226,7 @@ typedef struct sq_lod_lists {
  * (displacements), m/s (velocities), N (forces); stiffness blocks are 3x3, N/m, row-major */
 typedef struct sq_lod_level {
     sq_lod_layout lay;                   /* the layout: states, ghosts, ring, frontier, sources
-                                          * (state.c, criterion.c, ring.c) */
+                                          * (state.c, guard.c, ring.c, holds.c) */
     sq_lod_tables tab;                   /* the mesh tables (state.c; shared by sq_lod_create_like) */
     double *d_static;           /* static displacement under the body's gravity, m (n x 3);
                                  * NULL: judged from 0 */
@@ -244,11 +248,14 @@ typedef struct {
 } sq_cost_track;
 
 /* the guaranteed frame rate's state (docs/lod.md "Guaranteed frame rate"): the cost model,
- * learned by frame.c's stages through guard.c, and the rests of the regions the guard merged */
+ * learned and written by guard.c (frame.c's and pass.c's measurements handed to it), and the
+ * rests of the regions the guard merged (state.c's reset clears last_time, activeset.c's
+ * sq_lodx_free frees guard_hold) */
 typedef struct sq_lod_guard {
-    /* cost model of the guaranteed frame rate (frame.c measures, guard.c models; docs/lod.md
-     * "Guaranteed frame rate"): thread CPU s, each a maximum over the last measurements that decays by 10 % a frame (a
-     * frame after a rebuild costs more per update than a quiet one) */
+    /* cost model of the guaranteed frame rate (frame.c and pass.c measure, guard.c learns and
+     * models; docs/lod.md "Guaranteed frame rate"): thread CPU s, each a maximum over the last
+     * measurements that decays by 10 % a frame (a frame after a rebuild costs more per update
+     * than a quiet one) */
     double last_time;                    /* CPU time of the previous frame, s */
     double cost_update;                  /* per node update of the ticks (ghost values, forces,
                                           * integration), s (0: none measured yet) */
@@ -269,7 +276,6 @@ typedef struct sq_lod_guard {
     double last_c_end;                   /* thread CPU clock at the last frame's end, s */
     double untimed;                      /* thread CPU time since then that is not the product's
                                           * (sq_lod_untimed: a measuring harness), s */
-    double bound_cpu;                    /* thread CPU time of the last coupled bound, s */
     int cost_given;                      /* 1: the costs are the caller's (sq_lodx_set_costs,
                                           * deterministic tests), not measured */
     int cost_calibrated;                 /* 1: a rebuild pass was timed (at load, sq_lod_prepare_budget,
@@ -315,7 +321,7 @@ typedef struct sq_lod_push {
                                           * frame */
 } sq_lod_push;
 
-/* the static equilibria the criterion judges the displacement from (activeset.c) */
+/* the static equilibria the criterion judges the displacement from (statics.c) */
 typedef struct sq_lod_statics {
     /* the criterion judges the displacement from each level's static equilibrium under the
      * body's constant load (gravity), so a sag alone keeps nothing refined (lev[k].d_static) */
@@ -343,6 +349,8 @@ typedef struct sq_lod_coupling_of {
     double *abs_sum;                     /* scratch of the coupled bound: sum of |weights| of
                                           * each ring ghost's sources (coupling.c) */
     int abs_cap;
+    double bound_cpu;                    /* thread CPU time of the last coupled bound (read by
+                                          * pass.c for the guard's cost model), s */
 } sq_lod_coupling_of;
 
 struct sq_lod {
@@ -359,12 +367,12 @@ struct sq_lod {
                                           * operator-derived sums (own_rowsum) are taken */
     sq_lod_coupling_of cpl;              /* what the coupling blocks were built for (coupling.c) */
     sq_lod_holds holds;                  /* the frame's tool holds (holds.c) */
-    sq_lod_guard guard;                  /* the guard's cost model and rests (guard.c, frame.c) */
+    sq_lod_guard guard;                  /* the guard's cost model and rests (guard.c) */
     sq_lod_reserve reserve;              /* the coupling arrays' reserve (reserve.c) */
     long frames;                         /* frames run (sq_lod_frame), for def.adapt_every */
     sq_lod_test test;                    /* test-only switches and counters (lod_test.h) */
     sq_lod_push push;                    /* ghost values pushed on demand (activeset.c) */
-    sq_lod_statics statics;              /* the static loads the criterion judges from (activeset.c) */
+    sq_lod_statics statics;              /* the static loads the criterion judges from (statics.c) */
     sq_lod_node_view view;               /* node levels given out (views.c) */
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };

@@ -4,6 +4,7 @@
  * faults (coupling.c builds into them; frame.c calls the reserve). */
 #include "lod/lod.h"
 #include "lod/reserve.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -57,9 +58,8 @@ long sq_lodx_map_state(sq_lod *lod)
         sq_level *L = &lod->lv[k];
         sq_lod_level *lk = &lod->lev[k];
         size_t n = (size_t)L->model.n, n3 = 3 * n * sizeof(double);
-        if (!lk->tk.w_tick) /* (made on first use otherwise, sq_lodx_form_w) */
-            lk->tk.w_tick = sq_calloc(3 * n + 1, sizeof(double));
-        void *const a[] = {L->d, L->v, L->f, L->acc, lk->tk.d_start, lk->tk.v_start, lk->tk.w_tick};
+        double *w = sq_lodx_tick_w(lod, k); /* (made on first use otherwise, sq_lodx_form_w) */
+        void *const a[] = {L->d, L->v, L->f, L->acc, lk->tk.d_start, lk->tk.v_start, w};
         for (size_t i = 0; i < sizeof a / sizeof a[0]; i++)
             pages += keep_pages(a[i], n3);
         pages += keep_pages(lk->lists.push_stamp, n * sizeof(unsigned));
@@ -242,3 +242,8 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
     return pages;
 }
 
+long sq_lodx_reserve_live(sq_lod *lod)
+{
+    lod->reserve.reserve_live = 1;
+    return sq_lodx_reserve_blocks(lod, 1e9, SQ_RESERVE_LOAD_CHUNKS) + sq_lodx_map_state(lod);
+}

@@ -15,6 +15,9 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead);
  * before (the first push of the finest level's ghosts: 9.6 ms of page faults in box-big's
  * frame 1) then cost no fault; returns the pages touched */
 long sq_lodx_map_state(sq_lod *lod);
+/* a live budget from now on (reserve_live): every coupling array reserved and mapped
+ * (SQ_RESERVE_LOAD_CHUNKS ahead), the state arrays mapped; returns the pages */
+long sq_lodx_reserve_live(sq_lod *lod);
 /* chunks of each cache (element blocks, column-form rows) mapped ahead of use at load, where a
  * frame keeps one: a refinement's first touches of new cache pages then fall at load, not in
  * its frames (docs/lod.md "Guaranteed frame rate") */

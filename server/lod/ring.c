@@ -8,6 +8,7 @@
 #include "lod/lod.h"
 #include "lod/corotational.h"
 #include "lod/ring.h"
+#include "lod/tick.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -106,7 +107,7 @@ void sq_lodx_build_sources(sq_lod *lod)
     for (int k = 0; k < lod->L; k++) {
         int total = 0;
         lod->lev[k].lay.src_start[0] = 0;
-        lod->lev[k].tk.hot_valid = 0;
+        sq_lodx_tick_hot_stale(lod, k);
         for (int r = 0; r < lod->lev[k].lay.nring; r++) {
             int n = 0;
             expand(lod, k, lod->lev[k].lay.ring[r], 1.0, 0, &buf, &n, &cap);

@@ -9,8 +9,9 @@
  * active (they start from their interpolated displacement and velocity); merging does the
  * reverse when all children are calm.
  *
- * Here: creation and destruction, the definition (set_def) and reset, the bookkeeping of a
- * level's states (its ghost, ring and frontier lists), ghost values brought up to date from
+ * Here: creation (with the criterion's weights) and destruction, the definition (set_def) and
+ * reset, one split or merge of a node (the states and start values criterion.c and guard.c
+ * decide), the bookkeeping of a level's states (its ghost, ring and frontier lists), ghost values brought up to date from
  * the active nodes (pull, push, cascade, sync), and the consistency check of the tree.
  */
 #include "lod/lod.h"
@@ -18,7 +19,6 @@
 #include "lod/bound.h"
 #include "lod/corotational.h"
 #include "lod/coupling.h"
-#include "lod/criterion.h"
 #include "lod/lod_vec.h"
 #include "lod/ring.h"
 #include "lod/state.h"
@@ -264,6 +264,130 @@ static int start_level(const sq_lod *lod)
 {
     return lod->def.split <= 0 ? lod->top : lod->def.level;
 }
+
+/* ---------------------------------------------------------------- a node split or merged
+ *
+ * the node states a split/merge decision changes (criterion.c's pass, guard.c's merges), the
+ * values the changed nodes start from; the lists follow in sq_lodx_rebuild_level */
+
+/* split node p of level k: its children become active and start from their d and v
+ * interpolated from the parent tet (values now); p is fresh (not merged back in this pass) */
+void sq_lodx_split_node(sq_lod *lod, int k, int i)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    sq_level *Lf = &lod->lv[k + 1];
+    /* children start from their interpolated d and v (parent tet, values now) */
+    lk->lay.state[i] = ST_SPLIT;
+    lk->lay.fresh[i] = 1;
+    for (int c = ln->child_start[i]; c < ln->child_start[i + 1]; c++) {
+        int j = ln->child[c];
+        lod->lev[k + 1].lay.state[j] = ST_ACTIVE;
+        sq_lodx_interp(lod, Lf, j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+        sq_lodx_tick_start_node(lod, k + 1, j);
+    }
+}
+
+void sq_lodx_fresh_clear(sq_lod *lod, int k)
+{
+    for (int i = 0; i < lod->lv[k].model.n; i++)
+        lod->lev[k].lay.fresh[i] = 0;
+}
+
+/* merge node p of level k: it starts from its value interpolated from its child tet, its
+ * children become coarse ghosts at their parent-tet values (the criterion's and the guard's merges) */
+void sq_lodx_merge_node(sq_lod *lod, int k, int p)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    const sq_lod_link *ln = &lod->h.link[k];
+    lk->lay.state[p] = ST_ACTIVE;
+    /* the merged node starts from its interpolated value (pulled from its child tet) */
+    sq_lodx_interp(lod, &lod->lv[k], p, k + 1, ln->down_tet[p], ln->down_bary + 4 * p);
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++)
+        lod->lev[k + 1].lay.state[ln->child[c]] = ST_COARSE;
+    sq_lodx_tick_start_node(lod, k, p);
+    /* children become coarse ghosts and take their parent-tet value at once */
+    for (int c = ln->child_start[p]; c < ln->child_start[p + 1]; c++) {
+        int j = ln->child[c];
+        sq_lodx_interp(lod, &lod->lv[k + 1], j, k, ln->up_tet[j], ln->up_bary + 4 * j);
+    }
+}
+
+/* ---------------------------------------------------------------- criterion weights
+ *
+ * the criterion's Laplacian weights, a const table of each level (tab.crit_weight), made here at
+ * creation; criterion.c reads them */
+
+static int cmp_tri(const void *pa, const void *pb)
+{
+    const int *a = pa, *b = pb;
+    for (int c = 0; c < 3; c++)
+        if (a[c] != b[c])
+            return a[c] < b[c] ? -1 : 1;
+    return 0;
+}
+
+static void sort3(int *t)
+{
+    int a;
+    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
+    if (t[1] > t[2]) { a = t[1]; t[1] = t[2]; t[2] = a; }
+    if (t[0] > t[1]) { a = t[0]; t[0] = t[1]; t[1] = a; }
+}
+
+/* weights w_ij (CSR of the mesh adjacency) with Lap(d)_i = -(1/vol_i) sum_j w_ij d_j.
+ * Interior rows are the lumped FEM Laplacian sum_T V a_i . a_j. On boundary rows that
+ * operator also holds the boundary flux (a linear field gets a Laplacian of order
+ * |grad d| / h there, which would split every surface node of a body that merely sags),
+ * so the flux of the tet's own gradient through the node's boundary faces is removed:
+ * for the face opposite q of tet T, A n = -3 V a_q, and each of its three nodes i gets
+ * (A/3) (grad d . n) = -V sum_m (a_m . a_q) d_m. A linear field then has zero Laplacian at
+ * every node, and the criterion measures only curvature, as the paper intends. */
+double *sq_lodx_criterion_weights(const sq_mesh *m)
+{
+    int nnz = m->adj_start[m->nnodes];
+    double *w = sq_calloc((size_t)SQ_MAX(nnz, 1), sizeof(double));
+    int *keys = sq_malloc(sizeof(int) * 3 * (size_t)SQ_MAX(m->ntris, 1));
+    for (int t = 0; t < m->ntris; t++) {
+        memcpy(keys + 3 * t, m->tris + 3 * t, 3 * sizeof(int));
+        sort3(keys + 3 * t);
+    }
+    qsort(keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri);
+    for (int t = 0; t < m->ntets; t++) {
+        const int *tn = m->tets + 4 * t;
+        double a[4][3];
+        double V = fabs(sq_tet_gradients(m, t, a));
+        for (int i = 0; i < 4; i++)
+            for (int j = 0; j < 4; j++) {
+                int s = adj_find(m, tn[i], tn[j]);
+                if (s >= 0)
+                    w[s] += V * (a[i][0] * a[j][0] + a[i][1] * a[j][1] + a[i][2] * a[j][2]);
+            }
+        for (int q = 0; q < 4; q++) {
+            int face[3], nf = 0;
+            for (int i = 0; i < 4; i++)
+                if (i != q)
+                    face[nf++] = tn[i];
+            if (!m->on_boundary[face[0]] || !m->on_boundary[face[1]] || !m->on_boundary[face[2]])
+                continue;
+            sort3(face);
+            if (!bsearch(face, keys, (size_t)m->ntris, 3 * sizeof(int), cmp_tri))
+                continue;
+            for (int i = 0; i < 4; i++) {
+                if (i == q)
+                    continue;
+                for (int mm = 0; mm < 4; mm++) {
+                    int s = adj_find(m, tn[i], tn[mm]);
+                    if (s >= 0)
+                        w[s] += V * (a[mm][0] * a[q][0] + a[mm][1] * a[q][1] + a[mm][2] * a[q][2]);
+                }
+            }
+        }
+    }
+    free(keys);
+    return w;
+}
+
 
 /* like (may be NULL): a state over the same meshes whose hierarchy and mesh-derived per-level
  * tables this one borrows instead of building them (sq_lod_create_like) */

@@ -581,3 +581,37 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     }
     return rows;
 }
+
+/* ---------------------------------------------------------------- the level's clock and scratch
+ *
+ * what the other stages set in lev[k].tk, through these: the substep clock of the frame
+ * (frame.c's layout stage), the hot ring list out of date (ring.c's sources, coupling.c's
+ * blocks), a node's step-start values (criterion.c's splits and merges), d + b v's buffer
+ * mapped ahead (reserve.c) */
+
+void sq_lodx_tick_clock(sq_lod *lod, const long *stride)
+{
+    for (int k = 0; k < lod->L; k++) {
+        lod->lev[k].tk.step_start = -stride[k]; /* the previous frame's last step ended at tick 0 */
+        lod->lev[k].tk.step_len = stride[k];
+    }
+}
+
+void sq_lodx_tick_hot_stale(sq_lod *lod, int k)
+{
+    lod->lev[k].tk.hot_valid = 0;
+}
+
+void sq_lodx_tick_start_node(sq_lod *lod, int k, int j)
+{
+    memcpy(lod->lev[k].tk.d_start + 3 * j, lod->lv[k].d + 3 * j, 3 * sizeof(double));
+    memcpy(lod->lev[k].tk.v_start + 3 * j, lod->lv[k].v + 3 * j, 3 * sizeof(double));
+}
+
+double *sq_lodx_tick_w(sq_lod *lod, int k)
+{
+    sq_lod_level *lk = &lod->lev[k];
+    if (!lk->tk.w_tick)
+        lk->tk.w_tick = sq_calloc(3 * (size_t)lod->lv[k].model.n + 1, sizeof(double));
+    return lk->tk.w_tick;
+}

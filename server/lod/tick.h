@@ -34,4 +34,13 @@ void sq_lodx_eval_ring(sq_lod *lod, int k, long t);
 int sq_lodx_eval_ring_hot(sq_lod *lod, int k, long t, unsigned mask);
 int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t);
 
+/* the other stages' writes of a level's tick state: the frame's substep clock (level k steps
+ * every stride[k] ticks, its last step ended at tick 0); the hot ring list of level k out of date;
+ * node j of level k's step-start values from its current d and v; the buffer of d + b v (made
+ * if not yet, returned) */
+void sq_lodx_tick_clock(sq_lod *lod, const long *stride);
+void sq_lodx_tick_hot_stale(sq_lod *lod, int k);
+void sq_lodx_tick_start_node(sq_lod *lod, int k, int j);
+double *sq_lodx_tick_w(sq_lod *lod, int k);
+
 #endif
