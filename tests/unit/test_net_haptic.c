@@ -120,31 +120,40 @@ SQ_TEST(net_haptic_passivity_controller)
     CHECK(e_out < 0.02);
 }
 
-/* the body's grab model against two frames with the tool moved by h: the frames' feedback
- * change over h estimates K along the motion (the free nodes move too in the frame, so the
- * instantaneous K of the held nodes is stiffer: the bound below states it) */
-SQ_TEST(net_haptic_body_model_grab)
+/* a 1 m cube of 4^3 boxes (E 100 kPa) glued at its base, and a grab tool on its top face's
+ * centre (radius 0.2 m); the mesh in *m (freed by the caller after the body) */
+static sq_body *grab_cube(sq_mesh **m, sq_tool *t)
 {
     sq_err err = {{0}};
     const double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
-    sq_mesh *m = sq_mesh_box(4, 4, 4, size, origin, &err);
-    CHECK(m != NULL);
+    *m = sq_mesh_box(4, 4, 4, size, origin, &err);
+    CHECK(*m != NULL);
     sq_body_def d = sq_body_def_default();
     d.nlevels = 1;
-    d.levels[0] = m;
+    d.levels[0] = *m;
     CHECK(sq_material_from_E_nu(&d.material, 1e5, 0.3, &err) == 0);
     d.nconstraints = 1;
     d.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
     sq_body *b = sq_body_create(&d, &err);
     CHECK(b != NULL);
+    memset(t, 0, sizeof *t);
+    t->id = 1;
+    t->shape = SQ_TOOL_GRAB;
+    t->active = 1;
+    t->radius = 0.2;
+    t->pos[0] = t->pos[1] = 0.5;
+    t->pos[2] = 1.0;
+    return b;
+}
+
+/* the body's grab model against two frames with the tool moved by h: the frames' feedback
+ * change over h estimates K along the motion (the free nodes move too in the frame, so the
+ * instantaneous K of the held nodes is stiffer: the bound below states it) */
+SQ_TEST(net_haptic_body_model_grab)
+{
+    sq_mesh *m;
     sq_tool t;
-    memset(&t, 0, sizeof t);
-    t.id = 1;
-    t.shape = SQ_TOOL_GRAB;
-    t.active = 1;
-    t.radius = 0.2;
-    t.pos[0] = t.pos[1] = 0.5;
-    t.pos[2] = 1.0;
+    sq_body *b = grab_cube(&m, &t);
     sq_tool_feedback fb;
     for (int k = 0; k < 5; k++)
         sq_body_frame(b, &t, 1, &fb, NULL, 0);
@@ -209,26 +218,9 @@ static int live_source(void *arg, int id, double frac, double pos[3])
 
 SQ_TEST(net_haptic_live_pose_fixed_substep)
 {
-    sq_err err = {{0}};
-    const double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
-    sq_mesh *m = sq_mesh_box(4, 4, 4, size, origin, &err);
-    CHECK(m != NULL);
-    sq_body_def d = sq_body_def_default();
-    d.nlevels = 1;
-    d.levels[0] = m;
-    CHECK(sq_material_from_E_nu(&d.material, 1e5, 0.3, &err) == 0);
-    d.nconstraints = 1;
-    d.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
-    sq_body *b = sq_body_create(&d, &err);
-    CHECK(b != NULL);
+    sq_mesh *m;
     sq_tool t;
-    memset(&t, 0, sizeof t);
-    t.id = 1;
-    t.shape = SQ_TOOL_GRAB;
-    t.active = 1;
-    t.radius = 0.2;
-    t.pos[0] = t.pos[1] = 0.5;
-    t.pos[2] = 1.0;
+    sq_body *b = grab_cube(&m, &t);
     sq_tool_feedback fb0, fb1;
     for (int k = 0; k < 3; k++)
         sq_body_frame(b, &t, 1, &fb0, NULL, 0);
