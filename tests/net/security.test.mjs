@@ -173,13 +173,15 @@ test('compute budget: a scene far over its budget is paused with an over_budget 
   const os = await import('node:os');
   const path = await import('node:path');
   const { makeBoxScene } = await import('./harness.mjs');
-  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-sec-')), 'box12', 12);
-  // a 0.2 ms budget: the 12^3 box needs several ms per frame
+  // a 0.2 ms budget: the 20^3 box needs about 3 ms per frame, 15x over (the pause needs 10
+  // frames in a row over 2x the budget; the 12^3 box, at 0.3 ms with the sharp step bound, was
+  // not far enough over to be sure of it)
+  const dir = await makeBoxScene(mkdtempSync(path.join(os.tmpdir(), 'squish-sec-')), 'box20', 20);
   const srv = await startServer(['--scenes', dir, '--frame-budget', '0.01']);
   try {
     const c = await SquishClient.connect(srv.url);
     const ev = c.waitFor(e => e.kind === 'over_budget', 10000, 'event');
-    await c.open('box12');
+    await c.open('box20');
     const e = await ev;
     assert.match(e.message, /session paused: its frames take [\d.]+ ms of CPU, over the frame budget of 0\.2 ms/);
     assert.ok(e.frame_ms > e.budget_ms);
