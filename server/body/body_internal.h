@@ -114,7 +114,8 @@ struct sq_body {
     sq_contact_point *con_pt;
     double *con_normal, *con_u, *con_imp, *con_f; /* per constraint: 3 each */
     double *con_vrel;                      /* per constraint: prescribed normal speed off the obstacle */
-    unsigned char *con_stick, *con_mark;   /* per constraint; per node */
+    unsigned char *con_stick;              /* per constraint */
+    int *con_mark;                         /* per node: its constraint's index + 1 this step, or 0 */
     sq_implicit_contacts con_set;
 };
 

@@ -84,7 +84,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
         return;
     if (!b->con_mark) {
         const size_t ns = (size_t)(n > 0 ? n : 1);
-        b->con_mark = sq_calloc(ns, 1);
+        b->con_mark = sq_calloc(ns, sizeof(int));
         b->con_stick = sq_calloc(ns, 1);
         b->con_node = sq_malloc(ns * sizeof(int));
         b->con_pt = sq_malloc(ns * sizeof(sq_contact_point));
@@ -103,23 +103,20 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
             b->con_stick[m] = b->con_stick[k];
             b->con_vrel[m] = 0;
             memmove(b->con_f + 3 * (size_t)m, b->con_f + 3 * (size_t)k, 3 * sizeof(double));
-            b->con_mark[i] = (unsigned char)1;
+            b->con_mark[i] = m + 1;
             m++;
         }
-    const int kept = m;
     for (int i = 0; i < n; i++) /* met by the last pass (its normal replaces a kept one's) */
         if (b->cstamp > 0 && b->cpoint[i].stamp == b->cstamp) {
             if (b->con_mark[i]) {
-                for (int k = 0; k < kept; k++)
-                    if (b->con_node[k] == i)
-                        b->con_pt[k] = b->cpoint[i];
+                b->con_pt[b->con_mark[i] - 1] = b->cpoint[i];
                 continue;
             }
             b->con_node[m] = i;
             b->con_pt[m] = b->cpoint[i];
             b->con_stick[m] = 0;
             b->con_f[3 * (size_t)m] = b->con_f[3 * (size_t)m + 1] = b->con_f[3 * (size_t)m + 2] = 0;
-            b->con_mark[i] = 1;
+            b->con_mark[i] = m + 1;
             b->con_vrel[m] = 0;
             m++;
         }
@@ -154,7 +151,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
             b->con_stick[m] = 0;
             b->con_f[3 * (size_t)m] = b->con_f[3 * (size_t)m + 1] = b->con_f[3 * (size_t)m + 2] = 0;
             b->con_vrel[m] = -phi / h;
-            b->con_mark[i] = 1;
+            b->con_mark[i] = m + 1;
             m++;
             break;
         }
@@ -270,7 +267,8 @@ void sq_body_contact_free(sq_body *b)
     b->con_node = NULL;
     b->con_pt = NULL;
     b->con_normal = b->con_u = b->con_imp = b->con_f = b->con_vrel = NULL;
-    b->con_mark = b->con_stick = NULL;
+    b->con_mark = NULL;
+    b->con_stick = NULL;
     b->cpoint_n = b->ncon = 0;
     free(b->reaction);
     b->reaction = NULL;
