@@ -20,12 +20,9 @@
 static int write_locking(const char *dir, int quick)
 {
     char path[1100];
-    snprintf(path, sizeof path, "%s/locking.csv", dir);
-    FILE *f = fopen(path, "w");
-    if (!f) {
-        fprintf(stderr, "squish sweep: cannot write %s: %s; choose another --out\n", path, strerror(errno));
+    FILE *f = sq_cmd_open_out("sweep", dir, "locking.csv", path, sizeof path);
+    if (!f)
         return -1;
-    }
     static const double nus[] = {0, 0.3, 0.4, 0.45, 0.49, 0.499, 0.4999};
     static const int res[][2] = {{10, 1}, {20, 2}, {40, 4}};
     /* the finest beam has 41 x 5 x 5 nodes: CG is a few seconds */
@@ -129,16 +126,11 @@ int sq_cmd_sweep(int argc, char **argv)
     sq_progress_end(&prog);
 
     char path[1100], mpath[1100];
-    snprintf(path, sizeof path, "%s/sweep.csv", out);
-    snprintf(mpath, sizeof mpath, "%s/sweep.md", out);
-    FILE *f = fopen(path, "w"), *md = fopen(mpath, "w");
-    if (!f || !md) {
-        fprintf(stderr, "squish sweep: cannot write %s: %s; choose another --out\n", !f ? path : mpath,
-                strerror(errno));
+    FILE *f = sq_cmd_open_out("sweep", out, "sweep.csv", path, sizeof path);
+    FILE *md = f ? sq_cmd_open_out("sweep", out, "sweep.md", mpath, sizeof mpath) : NULL;
+    if (!md) {
         if (f)
             fclose(f);
-        if (md)
-            fclose(md);
         return 1;
     }
     fprintf(f, "group,case,status,failed,substeps,bound_s,dt_s,steps_per_s,frames,resets,max_disp_m,"

@@ -437,12 +437,9 @@ static int write_csv(const char *out, const sq_tradeoff_variant *v, const sq_tra
                      const sq_tradeoff_ref *ref)
 {
     char path[1100];
-    snprintf(path, sizeof path, "%s/tradeoff.csv", out);
-    FILE *f = fopen(path, "w");
-    if (!f) {
-        fprintf(stderr, "squish tradeoff: cannot write %s: %s\n", path, strerror(errno));
+    FILE *f = sq_cmd_open_out("tradeoff", out, "tradeoff.csv", path, sizeof path);
+    if (!f)
         return -1;
-    }
     fprintf(f, "setting,kind,operator,lod,level,split_m,step_fraction,substeps,frames,sim_s,"
                "node_updates_per_s,wall_s_per_s,rms_err_m,max_err_m,rms_rel,probe_err_m,final_rms_m,"
                "final_max_m,resets,pareto,cpu_s_per_s,cpu_late_frames,cpu_max_s,error,integrator,cg_iterations_per_frame\n");

@@ -12,4 +12,9 @@ int sq_cmd_sweep(int argc, char **argv);    /* cmd_sweep.c: stability sweep (eng
 int sq_bench_implicit(int quick);           /* cmd_bench_implicit.c: squish bench implicit */
 int sq_bench_contact(int quick);            /* cmd_bench_contact.c: squish bench contact */
 
+#include <stdio.h>
+/* DIR/NAME opened for writing, its path in path[n]; NULL after saying on stderr which file
+ * `squish CMD` cannot write and why, and to choose another --out (main.c) */
+FILE *sq_cmd_open_out(const char *cmd, const char *dir, const char *name, char *path, size_t n);
+
 #endif

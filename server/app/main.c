@@ -1,4 +1,5 @@
 /* main.c - the `squish` command line front end. */
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -9,6 +10,15 @@
 /* the debug switches (util/util.h sq_debug_options) from the one environment variable SQ_DEBUG:
  * words separated by commas or spaces, e.g. SQ_DEBUG=guard_trace,sharp_trace or
  * SQ_DEBUG=sharp_check=2. Returns -1 (and says so) on a word it does not know */
+FILE *sq_cmd_open_out(const char *cmd, const char *dir, const char *name, char *path, size_t n)
+{
+    snprintf(path, n, "%s/%s", dir, name);
+    FILE *f = fopen(path, "w");
+    if (!f)
+        fprintf(stderr, "squish %s: cannot write %s: %s; choose another --out\n", cmd, path, strerror(errno));
+    return f;
+}
+
 static int read_debug(const char *s, sq_debug_options *o)
 {
     static const struct {

@@ -5,6 +5,7 @@
  */
 #include <cJSON.h>
 #include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -129,78 +130,68 @@ double sq_tradeoff_scene_split(const cJSON *root)
     return cJSON_IsNumber(sp) && sp->valuedouble > 0 ? sp->valuedouble : 0.005;
 }
 
+/* the grid's rows: each a kind, fixed (its level) or adaptive (its split), an operator, a step
+ * fraction and, for the integrator rows, backward Euler's steps a frame and CG tolerance */
+typedef struct {
+    sq_tradeoff_variant *v;
+    int n;
+} grid;
+
+static void row(grid *g, sq_tradeoff_variant proto, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void row(grid *g, sq_tradeoff_variant proto, const char *fmt, ...)
+{
+    sq_tradeoff_variant *v = &g->v[g->n++];
+    *v = proto;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(v->name, sizeof v->name, fmt, ap);
+    va_end(ap);
+}
+
+#define FIXED(kind, level, op, fraction) ((sq_tradeoff_variant){"", kind, 0, level, 0, op, fraction, 0, 0, 0})
+#define ADAPTIVE(kind, split, op, fraction) ((sq_tradeoff_variant){"", kind, 1, 0, split, op, fraction, 0, 0, 0})
+#define IMPLICIT(level, substeps, tol) ((sq_tradeoff_variant){"", "integrator", 0, level, 0, SQ_OPERATOR_FEM, 0.9, 1, substeps, tol})
+
 int sq_tradeoff_build_grid(sq_tradeoff_variant *v, int finest, double s0, int quick, double ref_fraction)
 {
-    int n = 0;
-    /* the reference first */
-    v[n++] = (sq_tradeoff_variant){"reference", "reference", 0, finest, 0, SQ_OPERATOR_FEM, ref_fraction, 0, 0, 0};
-    for (int k = 0; k <= finest; k++) {
-        v[n] = (sq_tradeoff_variant){"", "fixed", 0, k, 0, SQ_OPERATOR_FEM, 0.9, 0, 0, 0};
-        snprintf(v[n].name, sizeof v[n].name, "fixed L%d", k);
-        n++;
-    }
+    grid g = {v, 0};
+    row(&g, FIXED("reference", finest, SQ_OPERATOR_FEM, ref_fraction), "reference"); /* the reference first */
+    for (int k = 0; k <= finest; k++)
+        row(&g, FIXED("fixed", k, SQ_OPERATOR_FEM, 0.9), "fixed L%d", k);
     static const double full_f[] = {0, 0.1, 0.3, 1, 3, 10, INFINITY};
     static const double quick_f[] = {0.3, 1, 3};
     const double *f = quick ? quick_f : full_f;
     int nf = quick ? (int)SQ_COUNTOF(quick_f) : (int)SQ_COUNTOF(full_f);
-    if (finest > 0)
-        for (int i = 0; i < nf; i++) {
-            double s = isinf(f[i]) ? INFINITY : f[i] * s0;
-            v[n] = (sq_tradeoff_variant){"", "adaptive", 1, 0, s, SQ_OPERATOR_FEM, 0.9, 0, 0, 0};
-            if (isinf(s))
-                snprintf(v[n].name, sizeof v[n].name, "adaptive split inf");
-            else
-                snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g", s);
-            n++;
-        }
-    v[n] = (sq_tradeoff_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.5, 0, 0, 0};
-    snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.5", finest);
-    n++;
-    if (!quick) {
-        /* finer than the reference: its error is the floor below which differences are noise
-         * (tool contact sets change with the step) */
-        v[n] = (sq_tradeoff_variant){"", "step", 0, finest, 0, SQ_OPERATOR_FEM, 0.1, 0, 0, 0};
-        snprintf(v[n].name, sizeof v[n].name, "fixed L%d step 0.1", finest);
-        n++;
+    for (int i = 0; finest > 0 && i < nf; i++) {
+        if (isinf(f[i]))
+            row(&g, ADAPTIVE("adaptive", INFINITY, SQ_OPERATOR_FEM, 0.9), "adaptive split inf");
+        else
+            row(&g, ADAPTIVE("adaptive", f[i] * s0, SQ_OPERATOR_FEM, 0.9), "adaptive split %.3g", f[i] * s0);
     }
+    row(&g, FIXED("step", finest, SQ_OPERATOR_FEM, 0.5), "fixed L%d step 0.5", finest);
+    if (!quick) /* finer than the reference: its error is the floor below which differences are
+                 * noise (tool contact sets change with the step) */
+        row(&g, FIXED("step", finest, SQ_OPERATOR_FEM, 0.1), "fixed L%d step 0.1", finest);
     if (!quick && finest > 0) {
-        v[n] = (sq_tradeoff_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.25, 0, 0, 0};
-        snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.25", s0);
-        n++;
-        v[n] = (sq_tradeoff_variant){"", "step", 1, 0, s0, SQ_OPERATOR_FEM, 0.5, 0, 0, 0};
-        snprintf(v[n].name, sizeof v[n].name, "adaptive split %.3g step 0.5", s0);
-        n++;
+        row(&g, ADAPTIVE("step", s0, SQ_OPERATOR_FEM, 0.25), "adaptive split %.3g step 0.25", s0);
+        row(&g, ADAPTIVE("step", s0, SQ_OPERATOR_FEM, 0.5), "adaptive split %.3g step 0.5", s0);
     }
     /* the integrator axis: backward Euler on the finest level at 1, 2 and 4 steps a frame (CG to
      * 1e-6), and at one step with looser and tighter tolerances */
     static const int subs[] = {1, 2, 4};
-    for (size_t k = 0; k < SQ_COUNTOF(subs); k++) {
-        if (quick && subs[k] == 2)
-            continue;
-        v[n] = (sq_tradeoff_variant){"", "integrator", 0, finest, 0, SQ_OPERATOR_FEM, 0.9, 1, subs[k], 1e-6};
-        snprintf(v[n].name, sizeof v[n].name, "implicit L%d x%d tol 1e-6", finest, subs[k]);
-        n++;
-    }
+    for (size_t k = 0; k < SQ_COUNTOF(subs); k++)
+        if (!(quick && subs[k] == 2))
+            row(&g, IMPLICIT(finest, subs[k], 1e-6), "implicit L%d x%d tol 1e-6", finest, subs[k]);
     static const double tols[] = {1e-3, 1e-9};
-    for (size_t k = 0; k < SQ_COUNTOF(tols); k++) {
-        if (quick && k)
-            continue;
-        v[n] = (sq_tradeoff_variant){"", "integrator", 0, finest, 0, SQ_OPERATOR_FEM, 0.9, 1, 1, tols[k]};
-        snprintf(v[n].name, sizeof v[n].name, "implicit L%d x1 tol %g", finest, tols[k]);
-        n++;
-    }
-    v[n] = (sq_tradeoff_variant){"", "operator", 0, finest, 0, SQ_OPERATOR_PAPER, 0.9, 0, 0, 0};
-    snprintf(v[n].name, sizeof v[n].name, "paper fixed L%d", finest);
-    n++;
+    for (size_t k = 0; k < SQ_COUNTOF(tols); k++)
+        if (!(quick && k))
+            row(&g, IMPLICIT(finest, 1, tols[k]), "implicit L%d x1 tol %g", finest, tols[k]);
+    row(&g, FIXED("operator", finest, SQ_OPERATOR_PAPER, 0.9), "paper fixed L%d", finest);
     if (!quick && finest > 0) {
-        v[n] = (sq_tradeoff_variant){"", "operator", 1, 0, s0, SQ_OPERATOR_PAPER, 0.9, 0, 0, 0};
-        snprintf(v[n].name, sizeof v[n].name, "paper adaptive split %.3g", s0);
-        n++;
-        v[n] = (sq_tradeoff_variant){"", "operator", 0, 0, 0, SQ_OPERATOR_PAPER, 0.9, 0, 0, 0};
-        snprintf(v[n].name, sizeof v[n].name, "paper fixed L0");
-        n++;
+        row(&g, ADAPTIVE("operator", s0, SQ_OPERATOR_PAPER, 0.9), "paper adaptive split %.3g", s0);
+        row(&g, FIXED("operator", 0, SQ_OPERATOR_PAPER, 0.9), "paper fixed L0");
     }
-    return n;
+    return g.n;
 }
 
 /* ---- sampling ------------------------------------------------------------------------------ */
