@@ -358,6 +358,11 @@ void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const doub
     corot_forces(L, mat, g, f, 50, 0);
 }
 
+void sq_level_corot_forces_frozen(const sq_level *L, const sq_material *mat, const double g[3], double *f)
+{
+    corot_forces(L, mat, g, f, 0, 0);
+}
+
 void sq_level_corot_converge(sq_level *L)
 {
     sq_corot *C = L->corot;

@@ -754,6 +754,15 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
     level_ops[L->op_kind].forces(L, mat, gravity, active, f_out, acc);
 }
 
+void sq_level_forces_frozen(const sq_level *L, const sq_material *mat, const double gravity[3], double *f_out,
+                            double *acc)
+{
+    if (L->op_kind == SQ_LEVEL_OP_COROT)
+        sq_level_corot_forces_frozen(L, mat, gravity, f_out);
+    else
+        sq_level_forces_to(L, mat, gravity, NULL, f_out, acc);
+}
+
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
 {
     const int n = L->model.n;

@@ -146,9 +146,8 @@ static sq_body *grab_cube(sq_mesh **m, sq_tool *t)
     return b;
 }
 
-/* the body's grab model against two frames with the tool moved by h: the frames' feedback
- * change over h estimates K along the motion (the free nodes move too in the frame, so the
- * instantaneous K of the held nodes is stiffer: the bound below states it) */
+/* the body's grab model against the frames with the tool moved by h: the settled feedback's
+ * change over h is the static stiffness the condensed K stands for */
 SQ_TEST(net_haptic_body_model_grab)
 {
     sq_mesh *m;
@@ -174,16 +173,30 @@ SQ_TEST(net_haptic_body_model_grab)
     for (int i = 0; i < 3 * n; i++)
         h1 += u[i] * (i + 1);
     CHECK(h0 == h1);
-    /* the model's force against the feedback two frames report with the tool moved 1 mm up:
-     * the frames' change is softer than the held nodes' instantaneous K (free nodes follow
-     * within the frame) but of the same sign; K is within 1x..20x of it */
-    double f0z = fb.force[2];
+    /* the relaxation goes on from call to call (frame to frame): converged within 20 */
+    int calls = 1;
+    while (mod.cg_iterations > 0 && calls < 20) {
+        CHECK(sq_body_tool_model(b, 0, &t, &mod) == 0);
+        calls++;
+    }
+    printf("    relaxed in %d calls: K_zz %.6g N/m\n", calls, mod.K[8]);
+    CHECK(mod.cg_iterations == 0);
+    /* against what the frames report with the tool moved 1 mm up and the body settled there:
+     * the condensed K is that static stiffness (the body is linear and the grab keeps its
+     * nodes). The undamped body rings about its new rest with a period of ~80 frames: the mean
+     * over frames 201-600 stands for the rest, within ~1 %; 2 % is asserted (the instantaneous
+     * stiffness of the held nodes, what the model used before, is 1.9x this) */
+    double f0z = fb.force[2], sum = 0;
     t.pos[2] += 1e-3;
-    for (int k = 0; k < 3; k++)
+    for (int k = 0; k < 600; k++) {
         sq_body_frame(b, &t, 1, &fb, NULL, 0);
-    double kf = (fb.force[2] - f0z) / 1e-3;
+        if (k >= 200)
+            sum += fb.force[2];
+    }
+    double kf = (sum / 400 - f0z) / 1e-3;
+    printf("    settled: %.6g N/m\n", kf);
     CHECK(kf < 0);
-    CHECK(mod.K[8] <= kf && mod.K[8] > 20 * kf);
+    CHECK(fabs(mod.K[8] - kf) <= 0.02 * fabs(kf));
     sq_body_destroy(b);
     sq_mesh_free(m);
 }
