@@ -36,6 +36,7 @@ sq_body_def sq_body_def_default(void)
     d.lod.adapt_every = 1;
     d.frame_dt = 1.0 / 50.0;
     d.step_fraction = 0.9;
+    d.sharp_step = 1; /* the sharp bound, Gershgorin its ceiling and fallback (docs/stability.md) */
     d.integrator = SQ_INTEGRATOR_EXPLICIT;
     d.implicit = sq_implicit_def_default();
     return d;

@@ -34,14 +34,15 @@ typedef struct sq_body_def {
     int sharp_step;       /* 1 = step from a Lanczos estimate of the bound (Gershgorin as ceiling):
                              2^n substeps, the next power of two at or above the count the bound
                              needs (fixed mode), per level from the coupled operator (adaptive,
-                             lod/bound.c); 0 = Gershgorin, 2^n. Scenes default to 1; the C default
-                             (sq_body_def_default) is still 0 */
+                             lod/bound.c); 0 = Gershgorin, 2^n. The default is 1, for scenes
+                             and sq_body_def_default alike */
     sq_integrator_kind integrator; /* explicit (default) or implicit (backward Euler, fixed lod) */
     sq_implicit_def implicit;      /* the implicit step's settings (sq_implicit_def_default) */
     int nodal_pressure;   /* SQ_PRESSURE_*: 1 average nodal pressure tets, 2 smoothed (fem, linear, fixed lod; less locking) */
 } sq_body_def;
 
-/* defaults: fem, gravity 0, 50 Hz, fixed lod at level 0, budget 0.95, step_fraction 0.9 */
+/* defaults: fem, gravity 0, 50 Hz, fixed lod at level 0, budget 0.95, step_fraction 0.9, the sharp
+ * step bound (sharp_step 1) */
 sq_body_def sq_body_def_default(void);
 
 /* tools (paper section 5) */

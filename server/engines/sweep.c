@@ -256,6 +256,10 @@ static sq_mesh *case_def(const sq_sweep_case *c, sq_body_def *def, sq_mesh *extr
         def->constraints[0].axes = 7;
     }
     def->elasticity = c->elasticity;
+    /* the Gershgorin bound: the sweep checks it at the extremes, its table's "bound" column and
+     * the test-only steps at 1, 1.5 and 2 x the bound are Gershgorin's (docs/stability.md); the
+     * sharp rule, every body's default, has its own tests */
+    def->sharp_step = 0;
     def->integrator = c->integrator;
     if (c->integrator == SQ_INTEGRATOR_IMPLICIT) {
         def->implicit.substeps = c->substeps > 0 ? c->substeps : 1;

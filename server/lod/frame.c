@@ -213,8 +213,7 @@ static void frame_profile(lod_frame *fr, sq_frame_profile *prof)
     double t_end = sq_now(), c_end = sq_thread_cpu();
     double cpu = c_end - fr->c_start;
     long next = sq_lodx_guard_frame_end(fr, c_end, cpu); /* the cost model (guard.c) */
-    double coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
-                                                    (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
+    double coarse_ms = 1e3 * sq_lodx_guard_coarse_cost(lod); /* the model just learned */
     if (sq_debug()->guard_trace && budget_s > 0)
         fprintf(stderr,
                 "guard %ld: cpu %.2f ms (ticks %.2f, passes %d %.2f, rest %.2f; outside %.2f, before this frame %.2f), "

@@ -22,7 +22,6 @@ typedef struct lod_frame {
     double prev_time;                /* CPU time of the previous frame, s */
     int over_budget;                 /* 1: the previous frame was over budget, no splits */
     long cap_user, cap_guard;        /* the user's node-update cap; the guard's (0: none) */
-    double coarse_ms;                /* predicted cost of every region at level 0, ms */
     double c_ticks;                  /* thread CPU time of the ticks (pull, step), s */
     double c_pass;                   /* thread CPU time of the split/merge passes' rebuilds, s */
     double c_mark;                   /* thread CPU time the last non-tick stage ended, s */

@@ -149,6 +149,13 @@ long sq_lodx_guard_updates_fitting(const sq_lod *lod, double seconds)
     return fit > 1e15 ? (long)1e15 : SQ_MAX((long)fit, 0L);
 }
 
+/* every region at level 0, the cheapest layout */
+double sq_lodx_guard_coarse_cost(const sq_lod *lod)
+{
+    return lod->guard.cost_fixed +
+           lod->guard.cost_update * (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0));
+}
+
 /* nodes of level k the guard merged and that still rest: out of the split pass (their state
  * is masked as ST_RESTING while sq_lodx_adapt_pair runs: neither split nor merge reads it as
  * active); hide = 0 restores them and counts any that was split in its rest anyway */
@@ -361,7 +368,6 @@ int sq_lodx_guard_open(lod_frame *fr)
     fr->over_budget = budget_s > 0 && fr->prev_time > fr->fr_budget;
     fr->cap_user = lod->def.max_node_updates;
     fr->cap_guard = 0;
-    fr->coarse_ms = 0;
     if (budget_s <= 0)
         return 0;
     lod->guard.guard_clock++;
@@ -374,12 +380,8 @@ void sq_lodx_guard_cap(lod_frame *fr)
 {
     sq_lod *lod = fr->lod;
     fr->guard_on = lod->guard.cost_update > 0;
-    if (fr->guard_on) {
-        /* the layout must fit without a pass; level 0 alone, the cheapest layout */
+    if (fr->guard_on) /* the layout must fit without a pass */
         fr->cap_guard = sq_lodx_guard_updates_fitting(lod, fr->fr_budget);
-        fr->coarse_ms = 1e3 * (lod->guard.cost_fixed + lod->guard.cost_update *
-                                                     (double)((long)lod->lv[0].model.nfree << sub_log2(lod, 0)));
-    }
 }
 
 /* a measured tick time per node update into the cost model */

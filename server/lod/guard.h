@@ -42,6 +42,9 @@ double sq_lodx_guard_pass_cost(const sq_lod *lod, unsigned mask, unsigned done);
 unsigned sq_lodx_guard_all_levels(const sq_lod *lod);
 /* node updates that fit in `seconds` of a frame's budget after its fixed cost */
 long sq_lodx_guard_updates_fitting(const sq_lod *lod, double seconds);
+/* the model's cost of a frame with every region at level 0 (its fixed cost and level 0's free
+ * nodes at level 0's substeps), s: above the budget, no layout fits (the coarse warning) */
+double sq_lodx_guard_coarse_cost(const sq_lod *lod);
 /* the resting nodes of level k masked out of the split pass (hide 1) or restored (hide 0) */
 void sq_lodx_guard_rest_mask(sq_lod *lod, int k, int hide);
 /* the guard: merge the least needed mergeable regions (smallest criterion over

@@ -10,9 +10,6 @@
 #include "sq_test.h"
 #include "test_lod_helpers.h"
 
-/* three cube levels: 3, 6 (jittered) and 12 cells */
-static int poke_meshes(sq_mesh **m) { return lh_cube_levels(m, 3, (const int[]){3, 6, 12}); }
-
 /* the scripted poke: a 0.2 m sphere presses the top face 0.1 m deep over 0.5 s, holds, and
  * is released at t = 1 s */
 static sq_tool poke_tool(double t)
@@ -96,18 +93,15 @@ SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
 SQ_TEST(lod_poke_refines_near_tool_and_merges_back)
 {
     sq_mesh *m[3];
-    if (!poke_meshes(m)) {
+    if (!lh_poke_meshes(m)) {
         CHECK(0);
         return;
     }
-    sq_body_def def = lh_cube_def(m, 3);
-    def.gravity[2] = 0; /* the poke alone deforms it: refinement must follow the tool */
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_body_def def = lh_poke_def(m, 0); /* no gravity: the poke alone deforms it, refinement must follow the tool */
     sq_err e = {{0}};
-    sq_body *b = sq_body_create(&def, &e);
+    sq_body *b = lh_body(&def);
     CHECK(b != NULL);
     if (!b) {
-        fprintf(stderr, "%s\n", e.msg);
         lh_free_meshes(m, 3);
         return;
     }
@@ -236,15 +230,12 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
 SQ_TEST(lod_frame_stage_times_add_up)
 {
     sq_mesh *m[3];
-    if (!poke_meshes(m)) {
+    if (!lh_poke_meshes(m)) {
         CHECK(0);
         return;
     }
-    sq_body_def def = lh_cube_def(m, 3);
-    def.gravity[2] = 0;
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
-    sq_err e = {{0}};
-    sq_body *b = sq_body_create(&def, &e);
+    sq_body_def def = lh_poke_def(m, 0);
+    sq_body *b = lh_body(&def);
     CHECK(b != NULL);
     if (!b) {
         lh_free_meshes(m, 3);
@@ -360,15 +351,12 @@ SQ_TEST(lod_tool_feedback_balances_supports_mixed_levels)
 SQ_TEST(lod_budget_refuses_splits_and_warns)
 {
     sq_mesh *m[3];
-    if (!poke_meshes(m)) {
+    if (!lh_poke_meshes(m)) {
         CHECK(0);
         return;
     }
-    sq_body_def def = lh_cube_def(m, 3);
-    def.gravity[2] = 0;
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
-    sq_err e = {{0}};
-    sq_body *b = sq_body_create(&def, &e);
+    sq_body_def def = lh_poke_def(m, 0);
+    sq_body *b = lh_body(&def);
     CHECK(b != NULL);
     if (!b) {
         lh_free_meshes(m, 3);
@@ -398,13 +386,10 @@ SQ_TEST(lod_budget_refuses_splits_and_warns)
  * and split/merge period; NULL (a failed check) if it cannot be made */
 static sq_body *poke_body(sq_mesh **m, long max_node_updates, int adapt_every)
 {
-    sq_body_def def = lh_cube_def(m, 3);
-    def.gravity[2] = 0;
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    sq_body_def def = lh_poke_def(m, 0);
     def.lod.max_node_updates = max_node_updates;
     def.lod.adapt_every = adapt_every;
-    sq_err e = {{0}};
-    sq_body *b = sq_body_create(&def, &e);
+    sq_body *b = lh_body(&def);
     CHECK(b != NULL);
     return b;
 }
@@ -423,7 +408,7 @@ static void poke_frame(sq_body *b, int f, sq_frame_profile *prof)
 SQ_TEST(lod_node_update_cap_holds)
 {
     sq_mesh *m[3];
-    if (!poke_meshes(m)) {
+    if (!lh_poke_meshes(m)) {
         CHECK(0);
         return;
     }
@@ -457,7 +442,7 @@ SQ_TEST(lod_node_update_cap_holds)
 SQ_TEST(lod_adapt_every_spaces_the_split_merge_passes)
 {
     sq_mesh *m[3];
-    if (!poke_meshes(m)) {
+    if (!lh_poke_meshes(m)) {
         CHECK(0);
         return;
     }

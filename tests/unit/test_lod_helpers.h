@@ -133,6 +133,38 @@ static inline sq_body_def lh_cube_def(sq_mesh **m, int nlevels)
     return def;
 }
 
+/* the adaptive tests' poked cube: three cube levels of 3, 6 (jittered) and 12 cells in m[0..2]
+ * (lh_cube_levels; on failure the made ones freed and 0) */
+static inline int lh_poke_meshes(sq_mesh **m)
+{
+    if (lh_cube_levels(m, 3, (const int[]){3, 6, 12}))
+        return 1;
+    lh_free_meshes(m, 3);
+    return 0;
+}
+
+/* the poked cube's definition on lh_poke_meshes' levels: the paper's cube (lh_cube_def),
+ * adaptive at split 0.05 and merge 0.00625, with its gravity or (gravity 0) without, so that
+ * the poke alone deforms it */
+static inline sq_body_def lh_poke_def(sq_mesh **m, int gravity)
+{
+    sq_body_def def = lh_cube_def(m, 3);
+    if (!gravity)
+        def.gravity[2] = 0;
+    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
+    return def;
+}
+
+/* a body of def, or NULL with the error printed */
+static inline sq_body *lh_body(const sq_body_def *def)
+{
+    sq_err e = {{0}};
+    sq_body *b = sq_body_create(def, &e);
+    if (!b)
+        fprintf(stderr, "sq_body_create: %s\n", e.msg);
+    return b;
+}
+
 static inline double lh_norm3(const double *v) { return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
 
 static inline sq_tool lh_sphere(double x, double y, double z, double r, int active)

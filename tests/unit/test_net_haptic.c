@@ -120,9 +120,9 @@ SQ_TEST(net_haptic_passivity_controller)
     CHECK(e_out < 0.02);
 }
 
-/* a 1 m cube of 4^3 boxes (E 100 kPa) glued at its base, and a grab tool on its top face's
- * centre (radius 0.2 m); the mesh in *m (freed by the caller after the body) */
-static sq_body *grab_cube(sq_mesh **m, sq_tool *t)
+/* a 1 m cube of 4^3 boxes (Young's modulus E, Pa; nu 0.3) glued at its base, and a grab tool
+ * on its top face's centre (radius 0.2 m); the mesh in *m (freed by the caller after the body) */
+static sq_body *grab_cube(sq_mesh **m, sq_tool *t, double E)
 {
     sq_err err = {{0}};
     const double size[3] = {1, 1, 1}, origin[3] = {0, 0, 0};
@@ -131,7 +131,7 @@ static sq_body *grab_cube(sq_mesh **m, sq_tool *t)
     sq_body_def d = sq_body_def_default();
     d.nlevels = 1;
     d.levels[0] = *m;
-    CHECK(sq_material_from_E_nu(&d.material, 1e5, 0.3, &err) == 0);
+    CHECK(sq_material_from_E_nu(&d.material, E, 0.3, &err) == 0);
     d.nconstraints = 1;
     d.constraints[0] = (sq_constraint){SQ_REGION_BOX, {-1, -1, -1}, {2, 2, 1e-6}, 7};
     sq_body *b = sq_body_create(&d, &err);
@@ -152,7 +152,7 @@ SQ_TEST(net_haptic_body_model_grab)
 {
     sq_mesh *m;
     sq_tool t;
-    sq_body *b = grab_cube(&m, &t);
+    sq_body *b = grab_cube(&m, &t, 1e5);
     sq_tool_feedback fb;
     for (int k = 0; k < 5; k++)
         sq_body_frame(b, &t, 1, &fb, NULL, 0);
@@ -229,11 +229,14 @@ static int live_source(void *arg, int id, double frac, double pos[3])
     return 1;
 }
 
+/* the cube at 400 kPa: the step needs twice the 100 kPa cube's substeps, which under the sharp
+ * bound (the default) are 2 (a count between 1 and 2 rounded to 2^n), too few for the three
+ * calls the test reads; at 400 kPa the count is between 2 and 4, so 4 substeps (Gershgorin: 8) */
 SQ_TEST(net_haptic_live_pose_fixed_substep)
 {
     sq_mesh *m;
     sq_tool t;
-    sq_body *b = grab_cube(&m, &t);
+    sq_body *b = grab_cube(&m, &t, 4e5);
     sq_tool_feedback fb0, fb1;
     for (int k = 0; k < 3; k++)
         sq_body_frame(b, &t, 1, &fb0, NULL, 0);
@@ -244,7 +247,7 @@ SQ_TEST(net_haptic_live_pose_fixed_substep)
     sq_body_set_pose_source(b, live_source, &p);
     sq_body_frame(b, &t, 1, &fb1, NULL, 0);
     int nsub = p.calls - 1;
-    CHECK(nsub >= 3); /* this soft coarse cube: 4 */
+    CHECK(nsub >= 3); /* this coarse cube at 400 kPa: 4 */
     /* call s (s >= 1) comes before substep s - 1: the change read at call 2 is on the node
      * at call 3, one substep later, by the pose's change exactly (a grab follows the tool) */
     CHECK_NEAR(p.z[3] - p.z[2], 1e-3, 1e-12);
@@ -255,17 +258,21 @@ SQ_TEST(net_haptic_live_pose_fixed_substep)
     sq_mesh_free(m);
 }
 
+/* the adaptive tests' poked cube (lh_poke_def, three levels, no gravity): under the sharp bound
+ * (the default) its frame has 8 ticks (Gershgorin: 32); the two-level cube the test had before
+ * has 4 under it, too few for the six calls the test reads */
 SQ_TEST(net_haptic_live_pose_lod_tick)
 {
-    sq_mesh *m[2];
-    CHECK(lh_cube_levels(m, 2, (const int[]){3, 6}));
-    sq_body_def def = lh_cube_def(m, 2);
-    def.lod = lh_lod(SQ_LOD_ADAPTIVE, 0.05, 0.00625);
-    sq_err e = {{0}};
-    sq_body *b = sq_body_create(&def, &e);
+    sq_mesh *m[3];
+    if (!lh_poke_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_poke_def(m, 0);
+    sq_body *b = lh_body(&def);
     CHECK(b != NULL);
     if (!b) {
-        lh_free_meshes(m, 2);
+        lh_free_meshes(m, 3);
         return;
     }
     sq_tool t = lh_sphere(0.5, 0.5, 1.15, 0.2, 1);
@@ -296,7 +303,7 @@ SQ_TEST(net_haptic_live_pose_lod_tick)
     CHECK(p.z[4] == p.z[2]);
     sq_body_set_pose_source(b, NULL, NULL);
     sq_body_destroy(b);
-    lh_free_meshes(m, 2);
+    lh_free_meshes(m, 3);
 }
 
 SQ_TEST(net_haptic_pose_sources)
