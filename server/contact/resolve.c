@@ -543,6 +543,41 @@ static double target_inv_mass(const sq_contact_target *t, int i)
     return 1.0 / t->mass[i];
 }
 
+/* a target's point at barycentric weights bary on triangle tv as a combination of the target's
+ * unknowns: its nodes themselves, or through the target's map (duplicates merged, since the
+ * point's effective mass needs each unknown's whole coefficient) */
+#define TARGET_TERMS 96
+typedef struct {
+    int n;
+    int dof[TARGET_TERMS];
+    double c[TARGET_TERMS];
+} target_terms;
+
+static void point_terms(const sq_contact_target *t, const int *tv, const double bary[3], target_terms *p)
+{
+    p->n = 0;
+    for (int j = 0; j < 3; j++) {
+        if (!t->map_start) {
+            p->dof[p->n] = tv[j];
+            p->c[p->n++] = bary[j];
+            continue;
+        }
+        for (int e = t->map_start[tv[j]]; e < t->map_start[tv[j] + 1]; e++) {
+            const int q = t->map_dof[e];
+            const double c = bary[j] * t->map_w[e];
+            int u = 0;
+            while (u < p->n && p->dof[u] != q)
+                u++;
+            if (u < p->n)
+                p->c[u] += c;
+            else if (p->n < TARGET_TERMS) { /* rows hold at most 32 terms: never full */
+                p->dof[p->n] = q;
+                p->c[p->n++] = c;
+            }
+        }
+    }
+}
+
 int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_contact_nodes *nodes, double *d,
                             double *v, double h, sq_contact_sum *sum)
 {
@@ -563,15 +598,17 @@ int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_conta
             double bary[3], depth, n[3];
             if (!inside_at(S, p, t->reach, &tri, bary, &depth, n))
                 continue;
-            const int *tv = S->tris + 3 * (size_t)tri;
+            target_terms P;
+            point_terms(t, S->tris + 3 * (size_t)tri, bary, &P);
             double vt_pt[3] = {0, 0, 0}, Winv = 0;
-            for (int j = 0; j < 3; j++) {
+            for (int e = 0; e < P.n; e++) {
                 /* the target's velocity with the reactions of this frame's earlier impulses, as
                  * if applied already: each impulse sees the pair as the earlier ones left it */
-                double wi = target_inv_mass(t, tv[j]);
-                Winv += bary[j] * bary[j] * wi;
+                const size_t q = (size_t)P.dof[e];
+                double wi = target_inv_mass(t, P.dof[e]);
+                Winv += P.c[e] * P.c[e] * wi;
                 for (int c = 0; c < 3; c++)
-                    vt_pt[c] += bary[j] * (t->v[3 * (size_t)tv[j] + c] + wi * t->reaction[3 * (size_t)tv[j] + c]);
+                    vt_pt[c] += P.c[e] * (t->v[3 * q + c] + wi * t->reaction[3 * q + c]);
             }
             const double m = nodes->mass[i];
             /* the impulse's mass: the smaller of the node's and the triangle point's */
@@ -602,8 +639,8 @@ int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_conta
                 double J = m * dv;
                 if (sum)
                     sum->impulse[c] += J;
-                for (int j = 0; j < 3; j++)
-                    t->reaction[3 * (size_t)tv[j] + c] -= bary[j] * J;
+                for (int e = 0; e < P.n; e++)
+                    t->reaction[3 * (size_t)P.dof[e] + c] -= P.c[e] * J;
             }
         }
     }
