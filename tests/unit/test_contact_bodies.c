@@ -213,3 +213,30 @@ SQ_TEST(contact_adaptive_region_pressed_by_a_body_refines)
     CHECK(near > 2 * far); /* the contact region, not the whole block */
     CHECK(l1_off == 0);    /* without contact nothing presses it */
 }
+
+/* a body starting inside another is refused at load naming both, adaptive bodies too (either
+ * side); touching is fine */
+SQ_TEST(contact_adaptive_body_starting_inside_another_is_refused)
+{
+    const char *body = "{\"name\": \"%s\", %s, \"scale\": 0.2, \"offset\": [%g, 0, 0],"
+                       " \"material\": {\"E\": 30000, \"nu\": 0.3}, \"elasticity\": \"corotational\"}";
+    const char *lods[3][2] = {{LOD_ADAPTIVE, LOD_ADAPTIVE}, {LOD_ADAPTIVE, LOD_FIXED1}, {LOD_FIXED1, LOD_ADAPTIVE}};
+    for (int c = 0; c < 3; c++)
+        for (int overlap = 0; overlap < 2; overlap++) {
+            char a[600], b[600], text[1500];
+            snprintf(a, sizeof a, body, "first", lods[c][0], 0.0);
+            snprintf(b, sizeof b, body, "second", lods[c][1], overlap ? 0.1 : 0.2);
+            snprintf(text, sizeof text, "{\"name\": \"t\", \"gravity\": [0, 0, 0], \"bodies\": [%s, %s]}", a, b);
+            sq_err e = {{0}};
+            sq_scene *sc = sq_scene_parse(text, th_scenes_dir(), "t.json", &e);
+            if (overlap) {
+                CHECK(sc == NULL);
+                CHECK_CONTAINS(e.msg, "starts inside body");
+                CHECK_CONTAINS(e.msg, "\"first\"");
+                CHECK_CONTAINS(e.msg, "\"second\"");
+            } else {
+                CHECK(sc != NULL); /* touching faces */
+            }
+            sq_scene_free(sc);
+        }
+}
