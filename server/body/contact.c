@@ -201,14 +201,14 @@ void sq_body_set_targets(sq_body *b, const sq_contact_target *t, int n)
 
 static double mean_edge(const sq_body *b);
 
-static int reaction_of(sq_body *b, size_t n3)
+/* the reactions' array for n3 entries (zeroed when it is made) */
+static void reaction_of(sq_body *b, size_t n3)
 {
     if (b->reaction_n3 != n3) {
         free(b->reaction);
         b->reaction = sq_calloc(n3 ? n3 : 1, sizeof(double));
         b->reaction_n3 = n3;
     }
-    return 0;
 }
 
 /* an adaptive body's target: the finest level's surface where the frame's push left it (the
@@ -218,6 +218,7 @@ static int reaction_of(sq_body *b, size_t n3)
  * them with the reactions so far) */
 static int lod_target(sq_body *b, double mu, sq_contact_target *out)
 {
+    const double t0 = sq_thread_cpu(); /* the map, the copies and the refit: contact time */
     const int F = b->fine;
     sq_level *Lf = &b->level[F];
     const sq_mesh *m = Lf->model.mesh;
@@ -249,7 +250,6 @@ static int lod_target(sq_body *b, double mu, sq_contact_target *out)
     reaction_of(b, 3 * (size_t)nd);
     if (!b->csurf[F])
         b->csurf[F] = sq_contact_surface_create(m->nnodes, m->ntris, m->tris);
-    double t0 = sq_thread_cpu();
     sq_contact_surface_update(b->csurf[F], m->x, Lf->d);
     b->contact_cpu += sq_thread_cpu() - t0;
     b->tmap = map;
