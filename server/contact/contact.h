@@ -17,7 +17,8 @@
  *
  * Body against body works the same way at every substep of each body, with the other bodies'
  * surfaces as moving targets (sq_contact_target): equal and opposite impulses on the node and
- * on the other's triangle's three nodes (barycentric weights).
+ * on the other's triangle's three nodes (barycentric weights), or, for an adaptive target, on
+ * the active nodes its triangle's nodes are made of (the target's map, its transpose).
  *
  * Units SI: m, kg, s, N. Module order: util mesh level contact lod body ... (the contact module
  * needs util only).

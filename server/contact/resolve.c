@@ -1,5 +1,6 @@
-/* resolve.c - contact of a body's surface nodes with the obstacles (once per substep) and with
- * another body's surface (once per frame): docs/physics.md section 13. */
+/* resolve.c - contact of a body's surface nodes with the obstacles and with other bodies'
+ * surfaces (a fixed body's nodes, or an adaptive body's finest surface through its map onto
+ * the active nodes), once per substep: docs/physics.md section 13. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
