@@ -285,8 +285,8 @@ int sq_body_contact_target(sq_body *b, double mu, sq_contact_target *out)
 }
 
 /* an adaptive target's reactions: each unknown's impulse (the transpose of the map) as a
- * velocity change M^-1 J of its active node; the anchor's and held or constrained nodes' are
- * counted only. Returns whether any was left */
+ * velocity change M^-1 J of its active node; the anchor's and constrained nodes' are counted
+ * only. Returns whether any was left */
 static int apply_lod(sq_body *b, double sum[3])
 {
     const sq_lod_surface_map *map = b->tmap;
