@@ -198,16 +198,17 @@ void sq_lod_flushed_d(const sq_lod *lod, int level, int node, double d[3]);
  * body's contact target (docs/physics.md section 13): each finest surface node as a combination
  * of active nodes (its "unknowns"): itself when active, else its interpolation expanded through
  * the hierarchy (coarse ghost: its parent tet, split ghost: its child tet) down to active nodes,
- * duplicates merged, the weights renormalised to 1 as the ring ghosts' sources are. A finest
- * node with a constrained axis, or without an active source, is the anchor (the last unknown:
- * infinite mass, it moves nothing). The rows sum to 1, so an impulse handed back through the
- * transpose keeps its sum (momentum). Rebuilt when the node states change; valid until then */
+ * duplicates merged, the weights renormalised to 1 as the ring ghosts' sources are. A node with
+ * a constrained axis (which the push holds at zero) stands for the anchor (unknown 0: infinite
+ * mass, it moves nothing), a finest node without an active source too. The rows sum to 1, so an
+ * impulse handed back through the transpose keeps its sum (momentum). Rebuilt when the node
+ * states change; valid until then */
 typedef struct sq_lod_surface_map {
     int nrow;                 /* the finest level's nodes (rows off the surface are empty) */
     const int *start;         /* row j: entries start[j] .. start[j + 1] - 1 (nrow + 1) */
     const int *dof;           /* each entry's unknown */
     const double *w;          /* each entry's weight */
-    int ndof;                 /* unknowns: the active nodes named, then the anchor (ndof - 1) */
+    int ndof;                 /* unknowns: the anchor (0), then the active nodes named */
     const int *level, *node;  /* each unknown's active node; the anchor's -1, -1 */
 } sq_lod_surface_map;
 const sq_lod_surface_map *sq_lod_surface_map_get(sq_lod *lod);

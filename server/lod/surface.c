@@ -5,8 +5,8 @@
  * hierarchy as the ring ghosts are (ring.c): a coarse ghost into its parent tet's corners, a
  * split ghost into its child tet's, each corner again until an active node is reached, within
  * a depth of levels + 1 hops (a coarse ghost's chain to level 0 plus one detour through a split
- * corner), sources still ghosts dropped, duplicates merged and the weights renormalised to sum
- * 1; when the negative weights outweigh the net one only the positive sources are kept (the
+ * corner), sources still ghosts dropped, a ghost with a constrained axis taken as the anchor
+ * (the push holds it at zero there), duplicates merged and the weights renormalised to sum 1; when the negative weights outweigh the net one only the positive sources are kept (the
  * ring's rule, ring.c states why). The map is rebuilt only when the node states change.
  */
 #include "lod/lod.h"
@@ -27,9 +27,11 @@ typedef struct term {
 static void expand(const sq_lod *lod, int lev, int j, double w, int depth, term *buf, int *n)
 {
     const unsigned char st = lod->lev[lev].lay.state[j];
-    if (st == ST_ACTIVE) {
+    if (st == ST_ACTIVE || lod->lv[lev].model.fixed[j]) {
+        /* an active node; a ghost with a constrained axis is held at zero there by the push
+         * (its value is not its interpolation): the anchor's share */
         if (*n < BUF_MAX)
-            buf[(*n)++] = (term){lev, j, w};
+            buf[(*n)++] = st == ST_ACTIVE ? (term){lev, j, w} : (term){-1, -1, w};
         return;
     }
     if (depth > lod->L)
@@ -72,7 +74,8 @@ static int cmp_weight(const void *pa, const void *pb) /* largest |w| first, then
     return cmp_term(pa, pb);
 }
 
-/* finest node j's row: its active terms, merged, renormalised; the count (0: the anchor) */
+/* finest node j's row: its active terms (and the anchor's share), merged, renormalised; the
+ * count (0: no source, the anchor alone) */
 static int row_of(const sq_lod *lod, int j, term *buf)
 {
     int n = 0;
@@ -117,6 +120,8 @@ static int row_of(const sq_lod *lod, int j, term *buf)
 
 static int dof_of(sq_lod_surface_store *s, int level, int node)
 {
+    if (level < 0)
+        return 0; /* the anchor */
     int *at = &s->dof_at[s->off[level] + node];
     if (*at < 0) {
         if (s->map.ndof == s->dof_cap) {
@@ -151,9 +156,14 @@ static void build(sq_lod *lod)
             if (s->level[q] >= 0)
                 s->dof_at[s->off[s->level[q]] + s->node[q]] = -1;
     }
-    s->map.ndof = 0;
+    if (!s->dof_cap) {
+        s->dof_cap = 256;
+        s->level = sq_malloc(sizeof(int) * (size_t)s->dof_cap);
+        s->node = sq_malloc(sizeof(int) * (size_t)s->dof_cap);
+    }
+    s->map.ndof = 1; /* unknown 0: the anchor */
+    s->level[0] = s->node[0] = -1;
     term *buf = sq_malloc(sizeof(term) * BUF_MAX);
-    int *anchored = sq_malloc(sizeof(int) * (size_t)SQ_MAX(fm->nsurf, 1)), nanch = 0;
     int ne = 0;
     /* rows in node order */
     unsigned char *on = sq_calloc((size_t)SQ_MAX(nf, 1), 1);
@@ -169,8 +179,8 @@ static void build(sq_lod *lod)
             s->dof = sq_realloc(s->dof, sizeof(int) * (size_t)s->cap);
             s->w = sq_realloc(s->w, sizeof(double) * (size_t)s->cap);
         }
-        if (u == 0) { /* the anchor, numbered once every active unknown is */
-            anchored[nanch++] = ne;
+        if (u == 0) { /* constrained, or no active source: the anchor */
+            s->dof[ne] = 0;
             s->w[ne++] = 1.0;
             continue;
         }
@@ -180,17 +190,7 @@ static void build(sq_lod *lod)
         }
     }
     s->start[nf] = ne;
-    if (s->map.ndof == s->dof_cap) {
-        s->dof_cap = s->dof_cap ? 2 * s->dof_cap : 256;
-        s->level = sq_realloc(s->level, sizeof(int) * (size_t)s->dof_cap);
-        s->node = sq_realloc(s->node, sizeof(int) * (size_t)s->dof_cap);
-    }
-    const int anchor = s->map.ndof++;
-    s->level[anchor] = s->node[anchor] = -1;
-    for (int a = 0; a < nanch; a++)
-        s->dof[anchored[a]] = anchor;
     free(on);
-    free(anchored);
     free(buf);
     s->map.nrow = nf;
     s->map.start = s->start;
