@@ -227,7 +227,8 @@ void sq_body_set_targets(sq_body *b, const sq_contact_target *t, int n);
  * contact force (before_frame: b's own frame is next, counted in it) */
 void sq_body_contact_apply(sq_body *b, int before_frame);
 /* deepest penetration of a's surface nodes into b's surface (m; searched within b's mean
- * surface edge x 2) */
+ * surface edge x 2): each body's simulated level, an adaptive body's finest surface as the
+ * frame's push left it */
 double sq_body_contact_depth(sq_body *a, sq_body *b);
 
 /* write the finest level (or the fixed level) as VTK with displacement, velocity, level */
