@@ -216,17 +216,21 @@ void sq_body_contact_force(const sq_body *b, double force[3], int *nodes, double
  * 0, the lod frame's passes are in its step time), s */
 double sq_body_contact_cpu(const sq_body *b);
 /* body against body every substep (docs/physics.md section 13): b's simulated level as a target
- * of another body's steps, its surface updated to where it stands now (fixed lod; -1 for an
- * adaptive body). The target stays valid until b next changes */
+ * of another body's steps, its surface updated to where it stands now (fixed lod: the simulated
+ * level's nodes; adaptive: the finest surface as combinations of the active nodes, lod.h
+ * sq_lod_surface_map_get, its reactions handed back to them). The target stays valid until b
+ * next changes; 0 */
 int sq_body_contact_target(sq_body *b, double mu, sq_contact_target *out);
-/* the targets b's next frame meets (borrowed; NULL/0: none). Adaptive bodies neither meet
- * targets nor are one (their lod frame has no such pass) */
+/* the targets b's next frame meets (borrowed; NULL/0: none): fixed bodies meet them with the
+ * simulated level's surface nodes, adaptive ones with every level's integrated surface nodes
+ * after each of its steps */
 void sq_body_set_targets(sq_body *b, const sq_contact_target *t, int n);
 /* the reactions other bodies' frames left on b, applied as velocity changes and counted in its
  * contact force (before_frame: b's own frame is next, counted in it) */
 void sq_body_contact_apply(sq_body *b, int before_frame);
 /* deepest penetration of a's surface nodes into b's surface (m; searched within b's mean
- * surface edge x 2) */
+ * surface edge x 2): each body's simulated level, an adaptive body's finest surface as the
+ * frame's push left it */
 double sq_body_contact_depth(sq_body *a, sq_body *b);
 
 /* write the finest level (or the fixed level) as VTK with displacement, velocity, level */

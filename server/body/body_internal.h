@@ -101,6 +101,13 @@ struct sq_body {
     double *reaction;                      /* impulses on this body's nodes from others' frames (n x 3) */
     size_t reaction_n3;
     double carry[3];                       /* reaction impulses applied before this frame's start */
+    /* an adaptive body as a target: its finest surface from its active nodes (lod's map, valid
+     * from sq_body_contact_target to sq_body_contact_apply) and each unknown's velocity, mass,
+     * constrained and held marks; reaction is then per unknown */
+    const struct sq_lod_surface_map *tmap;
+    double *tdof_v, *tdof_mass;
+    unsigned char *tdof_fixed, *tdof_mask;
+    int tdof_cap;
     unsigned char *touched[SQ_MAX_LEVELS]; /* nodes in contact this frame, per level (n_k): left
                                               out of the sleep test's residual */
     int touched_n[SQ_MAX_LEVELS];

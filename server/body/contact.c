@@ -6,6 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "lod/lod.h"
 #include "body/body_internal.h"
 
 void sq_body_set_obstacles(sq_body *b, const sq_obstacle *obs, int n)
@@ -197,10 +198,69 @@ void sq_body_set_targets(sq_body *b, const sq_contact_target *t, int n)
 
 static double mean_edge(const sq_body *b);
 
+/* the reactions' array for n3 entries (zeroed when it is made) */
+static void reaction_of(sq_body *b, size_t n3)
+{
+    if (b->reaction_n3 != n3) {
+        free(b->reaction);
+        b->reaction = sq_calloc(n3 ? n3 : 1, sizeof(double));
+        b->reaction_n3 = n3;
+    }
+}
+
+/* an adaptive body's target: the finest level's surface where the frame's push left it (the
+ * finest surface nodes are always pushed: the rendered surface), read through lod's map as
+ * combinations of the active nodes, so the impulses on it go to the active nodes through the
+ * transpose (sq_lod_surface_map_get); the unknowns' velocities copied (the contact pass reads
+ * them with the reactions so far) */
+static int lod_target(sq_body *b, double mu, sq_contact_target *out)
+{
+    const double t0 = sq_thread_cpu(); /* the map, the copies and the refit: contact time */
+    const int F = b->fine;
+    sq_level *Lf = &b->level[F];
+    const sq_mesh *m = Lf->model.mesh;
+    const sq_lod_surface_map *map = sq_lod_surface_map_get(b->lod);
+    const int nd = map->ndof;
+    if (b->tdof_cap < nd) {
+        b->tdof_cap = SQ_MAX(nd, 2 * b->tdof_cap);
+        b->tdof_v = sq_realloc(b->tdof_v, sizeof(double) * 3 * (size_t)b->tdof_cap);
+        b->tdof_mass = sq_realloc(b->tdof_mass, sizeof(double) * (size_t)b->tdof_cap);
+        b->tdof_fixed = sq_realloc(b->tdof_fixed, (size_t)b->tdof_cap);
+        b->tdof_mask = sq_realloc(b->tdof_mask, (size_t)b->tdof_cap);
+    }
+    for (int q = 0; q < nd; q++) {
+        const int k = map->level[q], i = map->node[q];
+        b->tdof_mask[q] = 1;
+        if (k < 0) { /* the anchor: constrained, moves nothing */
+            b->tdof_v[3 * q] = b->tdof_v[3 * q + 1] = b->tdof_v[3 * q + 2] = 0;
+            b->tdof_mass[q] = 1;
+            b->tdof_fixed[q] = 1;
+            continue;
+        }
+        const sq_level *L = &b->level[k];
+        memcpy(b->tdof_v + 3 * (size_t)q, L->v + 3 * (size_t)i, 3 * sizeof(double));
+        b->tdof_mass[q] = L->model.mass[i];
+        b->tdof_fixed[q] = L->model.fixed[i];
+    }
+    /* held nodes are not marked: as a fixed body's target, whose mask is restored to all ones
+     * by the frame's end (docs/physics.md section 13, "What is not done") */
+    reaction_of(b, 3 * (size_t)nd);
+    if (!b->csurf[F])
+        b->csurf[F] = sq_contact_surface_create(m->nnodes, m->ntris, m->tris);
+    sq_contact_surface_update(b->csurf[F], m->x, Lf->d);
+    b->contact_cpu += sq_thread_cpu() - t0;
+    b->tmap = map;
+    *out = (sq_contact_target){.n = nd, .surf = b->csurf[F], .v = b->tdof_v, .mass = b->tdof_mass,
+                               .fixed = b->tdof_fixed, .mask = b->tdof_mask, .reaction = b->reaction, .mu = mu,
+                               .reach = 2 * mean_edge(b), .map_start = map->start, .map_dof = map->dof,
+                               .map_w = map->w};
+    return 0;
+}
+
 int sq_body_contact_target(sq_body *b, double mu, sq_contact_target *out)
 {
     if (b->lod)
-        return -1;
+        return lod_target(b, mu, out);
     int k = b->cur;
     sq_level *L = &b->level[k];
     const sq_mesh *m = L->model.mesh;
@@ -221,15 +281,42 @@ int sq_body_contact_target(sq_body *b, double mu, sq_contact_target *out)
     return 0;
 }
 
+/* an adaptive target's reactions: each unknown's impulse (the transpose of the map) as a
+ * velocity change M^-1 J of its active node; the anchor's and constrained nodes' are counted
+ * only. Returns whether any was left */
+static int apply_lod(sq_body *b, double sum[3])
+{
+    const sq_lod_surface_map *map = b->tmap;
+    int any = 0;
+    for (int q = 0; map && 3 * (size_t)q < b->reaction_n3 && q < map->ndof; q++) {
+        double *r = b->reaction + 3 * (size_t)q;
+        if (r[0] == 0 && r[1] == 0 && r[2] == 0)
+            continue;
+        any = 1;
+        const int k = map->level[q], i = map->node[q];
+        if (k >= 0 && !b->tdof_fixed[q] && b->tdof_mask[q]) {
+            sq_level *L = &b->level[k];
+            for (int c = 0; c < 3; c++)
+                L->v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
+        }
+        for (int c = 0; c < 3; c++)
+            sum[c] += r[c];
+        r[0] = r[1] = r[2] = 0;
+    }
+    return any;
+}
+
 void sq_body_contact_apply(sq_body *b, int before_frame)
 {
-    if (!b->reaction || b->lod)
+    if (!b->reaction)
         return;
     sq_level *L = &b->level[b->cur];
     const unsigned char *mask = b->nheld[b->cur] ? b->mask[b->cur] : NULL;
     double sum[3] = {0, 0, 0};
     int any = 0;
-    for (int i = 0; i < L->model.n; i++) {
+    if (b->lod)
+        any = apply_lod(b, sum);
+    for (int i = 0; !b->lod && i < L->model.n; i++) {
         double *r = b->reaction + 3 * (size_t)i;
         if (r[0] == 0 && r[1] == 0 && r[2] == 0)
             continue;
@@ -272,6 +359,15 @@ void sq_body_contact_free(sq_body *b)
     b->cpoint_n = b->ncon = 0;
     free(b->reaction);
     b->reaction = NULL;
+    b->reaction_n3 = 0;
+    free(b->tdof_v);
+    free(b->tdof_mass);
+    free(b->tdof_fixed);
+    free(b->tdof_mask);
+    b->tdof_v = b->tdof_mass = NULL;
+    b->tdof_fixed = b->tdof_mask = NULL;
+    b->tdof_cap = 0;
+    b->tmap = NULL;
     for (int k = 0; k < SQ_MAX_LEVELS; k++) {
         free(b->touched[k]);
         b->touched[k] = NULL;
@@ -297,7 +393,7 @@ void sq_body_contact_force(const sq_body *b, double force[3], int *nodes, double
 
 static sq_contact_side side_of(sq_body *b, sq_contact_nodes *nd)
 {
-    int k = b->cur;
+    int k = sq_body_sim_level(b); /* adaptive: the finest surface where the push left it */
     sq_level *L = &b->level[k];
     const sq_mesh *m = L->model.mesh;
     if (!b->csurf[k])
@@ -310,7 +406,7 @@ static sq_contact_side side_of(sq_body *b, sq_contact_nodes *nd)
 
 static double mean_edge(const sq_body *b)
 {
-    const sq_level *L = &b->level[b->cur];
+    const sq_level *L = &b->level[sq_body_sim_level(b)];
     const sq_mesh *m = L->model.mesh;
     double s = 0;
     for (int k = 0; k < m->nsurf; k++)
@@ -320,8 +416,6 @@ static double mean_edge(const sq_body *b)
 
 double sq_body_contact_depth(sq_body *a, sq_body *b)
 {
-    if (a->lod || b->lod)
-        return 0;
     sq_contact_nodes na, nb;
     sq_contact_side sa = side_of(a, &na), sb = side_of(b, &nb);
     return sq_contact_depth(&sa, &sb, 2 * mean_edge(b));

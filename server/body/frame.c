@@ -350,7 +350,8 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
             sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
                                   .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s,
-                                  .obstacles = b->obstacles, .nobstacles = b->nobstacles, .contact = &b->contact,
+                                  .obstacles = b->obstacles, .nobstacles = b->nobstacles, .targets = b->targets,
+                                  .ntargets = b->ntargets, .contact = &b->contact,
                                   .touched = b->touched, .live = b->live ? live_lod : NULL, .live_arg = b};
             memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
             sq_lod_frame(b->lod, &in, force, prof);

@@ -105,6 +105,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         sq_body_prepare_surface_map(b);
         sq_body_set_levels_fixed(b);
     }
+    b->tmap = NULL; /* an adaptive target's map is the lod's: made again at the next target */
     for (int k = 0; k < SQ_MAX_LEVELS; k++)
         if (b->ready[k])
             sq_body_clear_held(b, k);

@@ -17,7 +17,8 @@
  *
  * Body against body works the same way at every substep of each body, with the other bodies'
  * surfaces as moving targets (sq_contact_target): equal and opposite impulses on the node and
- * on the other's triangle's three nodes (barycentric weights).
+ * on the other's triangle's three nodes (barycentric weights), or, for an adaptive target, on
+ * the active nodes its triangle's nodes are made of (the target's map, its transpose).
  *
  * Units SI: m, kg, s, N. Module order: util mesh level contact lod body ... (the contact module
  * needs util only).
@@ -178,6 +179,13 @@ typedef struct sq_contact_target {
     double *reaction;          /* impulses on the target's nodes (n x 3), added to, N s */
     double mu;                 /* Coulomb friction between the two bodies */
     double reach;              /* how deep a node may be and still be found, m */
+    /* NULL, or the surface's nodes as combinations of the target's unknowns (an adaptive body:
+     * its finest surface from its active nodes, docs/physics.md section 13): node i stands for
+     * sum_e map_w[e] x[map_dof[e]], e from map_start[i] to map_start[i + 1] - 1. Then v, mass,
+     * fixed, mask and reaction are the unknowns' (n of them), the point's velocity and effective
+     * mass are read through the combination and the reaction handed back through its transpose */
+    const int *map_start, *map_dof;
+    const double *map_w;
 } sq_contact_target;
 
 /* one step's contact of the listed nodes with the targets (after the obstacles' pass of the

@@ -1,5 +1,6 @@
-/* resolve.c - contact of a body's surface nodes with the obstacles (once per substep) and with
- * another body's surface (once per frame): docs/physics.md section 13. */
+/* resolve.c - contact of a body's surface nodes with the obstacles and with other bodies'
+ * surfaces (a fixed body's nodes, or an adaptive body's finest surface through its map onto
+ * the active nodes), once per substep: docs/physics.md section 13. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -543,28 +544,60 @@ static double target_inv_mass(const sq_contact_target *t, int i)
     return 1.0 / t->mass[i];
 }
 
-int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_contact_nodes *nodes, double *d,
-                            double *v, double h, sq_contact_sum *sum)
+/* a mapped target's point at barycentric weights bary on triangle tv as a combination of the
+ * target's unknowns (duplicates merged, since the point's effective mass needs each unknown's
+ * whole coefficient) */
+#define TARGET_TERMS 96
+typedef struct {
+    int n;
+    int dof[TARGET_TERMS];
+    double c[TARGET_TERMS];
+} target_terms;
+
+static void point_terms(const sq_contact_target *t, const int *tv, const double bary[3], target_terms *p)
+{
+    p->n = 0;
+    for (int j = 0; j < 3; j++) {
+        for (int e = t->map_start[tv[j]]; e < t->map_start[tv[j] + 1]; e++) {
+            const int q = t->map_dof[e];
+            const double c = bary[j] * t->map_w[e];
+            int u = 0;
+            while (u < p->n && p->dof[u] != q)
+                u++;
+            if (u < p->n)
+                p->c[u] += c;
+            else if (p->n < TARGET_TERMS) { /* rows hold at most 32 terms: never full */
+                p->dof[p->n] = q;
+                p->c[p->n++] = c;
+            }
+        }
+    }
+}
+
+/* the listed nodes against one target; `mapped` (a constant at each call, so the fixed target's
+ * loop is compiled without the map's) reads the target through its map */
+static inline __attribute__((always_inline)) int step_target(const sq_contact_target *t, const sq_contact_nodes *nodes,
+                                                             double *d, double *v, double h, sq_contact_sum *sum,
+                                                             const int mapped)
 {
     int touching = 0;
-    for (int g = 0; g < ntg; g++) {
-        const sq_contact_target *t = &tg[g];
-        const sq_contact_surface *S = t->surf;
-        if (!S || !S->bvh)
+    const sq_contact_surface *S = t->surf;
+    for (int k = 0; k < nodes->n; k++) {
+        int i = nodes->list[k];
+        if (nodes->fixed[i] || (nodes->mask && !nodes->mask[i]))
             continue;
-        for (int k = 0; k < nodes->n; k++) {
-            int i = nodes->list[k];
-            if (nodes->fixed[i] || (nodes->mask && !nodes->mask[i]))
-                continue;
-            double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i, p[3];
-            for (int c = 0; c < 3; c++)
-                p[c] = nodes->X[3 * (size_t)i + c] + di[c];
-            int tri;
-            double bary[3], depth, n[3];
-            if (!inside_at(S, p, t->reach, &tri, bary, &depth, n))
-                continue;
-            const int *tv = S->tris + 3 * (size_t)tri;
-            double vt_pt[3] = {0, 0, 0}, Winv = 0;
+        double *di = d + 3 * (size_t)i, *vi = v + 3 * (size_t)i, p[3];
+        for (int c = 0; c < 3; c++)
+            p[c] = nodes->X[3 * (size_t)i + c] + di[c];
+        int tri;
+        double bary[3], depth, n[3];
+        if (!inside_at(S, p, t->reach, &tri, bary, &depth, n))
+            continue;
+        const int *tv = S->tris + 3 * (size_t)tri;
+        target_terms P;
+        P.n = 0;
+        double vt_pt[3] = {0, 0, 0}, Winv = 0;
+        if (!mapped) /* the triangle's own nodes (the same sums as the mapped loop) */
             for (int j = 0; j < 3; j++) {
                 /* the target's velocity with the reactions of this frame's earlier impulses, as
                  * if applied already: each impulse sees the pair as the earlier ones left it */
@@ -573,39 +606,63 @@ int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_conta
                 for (int c = 0; c < 3; c++)
                     vt_pt[c] += bary[j] * (t->v[3 * (size_t)tv[j] + c] + wi * t->reaction[3 * (size_t)tv[j] + c]);
             }
-            const double m = nodes->mass[i];
-            /* the impulse's mass: the smaller of the node's and the triangle point's */
-            double meff = Winv > 0 ? fmin(m, 1.0 / Winv) : m;
-            double vr[3];
+        else
+            point_terms(t, tv, bary, &P);
+        for (int e = 0; mapped && e < P.n; e++) { /* through the map: the unknowns */
+            const size_t q = (size_t)P.dof[e];
+            double wi = target_inv_mass(t, P.dof[e]);
+            Winv += P.c[e] * P.c[e] * wi;
             for (int c = 0; c < 3; c++)
-                vr[c] = vi[c] - vt_pt[c];
-            double vn = dot3(vr, n), phi = -depth, phi0 = phi - h * vn;
-            /* started outside: land on the surface; started inside (the target moved into it, or
-             * a node deeper than one step): leave at half the depth per step */
-            double vn1 = phi0 > 0 ? -phi0 / h : 0;
-            double mt = Winv > 0 ? 1.0 / Winv : INFINITY;
-            double dpos = phi0 > 0 ? 0 : depth * (isinf(mt) ? 1.0 : mt / (m + mt));
-            if (vn1 < vn)
-                vn1 = vn;
-            double dvn = (vn1 - vn) * meff / m, vt[3]; /* the node's normal velocity change */
-            for (int c = 0; c < 3; c++)
-                vt[c] = vr[c] - vn * n[c];
-            double vt1[3] = {vt[0], vt[1], vt[2]};
-            friction(vt1, dvn, t->mu, t->mu);
-            touching++;
-            if (nodes->touched)
-                nodes->touched[i] = 1;
-            for (int c = 0; c < 3; c++) {
-                double dv = dvn * n[c] + (vt1[c] - vt[c]) * meff / m;
-                vi[c] += dv;
-                di[c] += h * dv + dpos * n[c];
-                double J = m * dv;
-                if (sum)
-                    sum->impulse[c] += J;
+                vt_pt[c] += P.c[e] * (t->v[3 * q + c] + wi * t->reaction[3 * q + c]);
+        }
+        const double m = nodes->mass[i];
+        /* the impulse's mass: the smaller of the node's and the triangle point's */
+        double meff = Winv > 0 ? fmin(m, 1.0 / Winv) : m;
+        double vr[3];
+        for (int c = 0; c < 3; c++)
+            vr[c] = vi[c] - vt_pt[c];
+        double vn = dot3(vr, n), phi = -depth, phi0 = phi - h * vn;
+        /* started outside: land on the surface; started inside (the target moved into it, or
+         * a node deeper than one step): leave by the target's share of the depth */
+        double vn1 = phi0 > 0 ? -phi0 / h : 0;
+        double mt = Winv > 0 ? 1.0 / Winv : INFINITY;
+        double dpos = phi0 > 0 ? 0 : depth * (isinf(mt) ? 1.0 : mt / (m + mt));
+        if (vn1 < vn)
+            vn1 = vn;
+        double dvn = (vn1 - vn) * meff / m, vt[3]; /* the node's normal velocity change */
+        for (int c = 0; c < 3; c++)
+            vt[c] = vr[c] - vn * n[c];
+        double vt1[3] = {vt[0], vt[1], vt[2]};
+        friction(vt1, dvn, t->mu, t->mu);
+        touching++;
+        if (nodes->touched)
+            nodes->touched[i] = 1;
+        for (int c = 0; c < 3; c++) {
+            double dv = dvn * n[c] + (vt1[c] - vt[c]) * meff / m;
+            vi[c] += dv;
+            di[c] += h * dv + dpos * n[c];
+            double J = m * dv;
+            if (sum)
+                sum->impulse[c] += J;
+            if (!mapped)
                 for (int j = 0; j < 3; j++)
                     t->reaction[3 * (size_t)tv[j] + c] -= bary[j] * J;
-            }
+            for (int e = 0; mapped && e < P.n; e++)
+                t->reaction[3 * (size_t)P.dof[e] + c] -= P.c[e] * J;
         }
+    }
+    return touching;
+}
+
+int sq_contact_step_targets(const sq_contact_target *tg, int ntg, const sq_contact_nodes *nodes, double *d,
+                            double *v, double h, sq_contact_sum *sum)
+{
+    int touching = 0;
+    for (int g = 0; g < ntg; g++) {
+        const sq_contact_target *t = &tg[g];
+        if (!t->surf || !t->surf->bvh)
+            continue;
+        touching += t->map_start ? step_target(t, nodes, d, v, h, sum, 1) : step_target(t, nodes, d, v, h, sum, 0);
     }
     if (sum)
         sum->nodes += touching;

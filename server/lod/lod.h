@@ -145,6 +145,9 @@ typedef struct sq_lod_frame_in {
     const sq_obstacle *obstacles; /* met by every level's integrated surface nodes after each of
                                      its steps (contact/contact.h), nobstacles of them */
     int nobstacles;
+    const sq_contact_target *targets; /* other bodies' surfaces, met by the same nodes after the
+                                         obstacles (body against body), ntargets of them */
+    int ntargets;
     sq_contact_sum *contact; /* the contact impulses are added here (may be NULL) */
     unsigned char **touched; /* NULL, or per level an array (nodes) set to 1 where contact acted */
     /* NULL, or live holds (a haptic device between frames): called at each tick with the
@@ -190,6 +193,25 @@ void sq_lod_flush(sq_lod *lod);
 /* the displacement of node `node` of level `level` as sq_lod_flush would leave it, without
  * flushing (a probe reads four nodes: a flush pushes every stale coarse ghost of the body) */
 void sq_lod_flushed_d(const sq_lod *lod, int level, int node, double d[3]);
+
+/* the finest level's surface as the active nodes make it, for an adaptive body that is another
+ * body's contact target (docs/physics.md section 13): each finest surface node as a combination
+ * of active nodes (its "unknowns"): itself when active, else its interpolation expanded through
+ * the hierarchy (coarse ghost: its parent tet, split ghost: its child tet) down to active nodes,
+ * duplicates merged, the weights renormalised to 1 as the ring ghosts' sources are. A node with
+ * a constrained axis (which the push holds at zero) stands for the anchor (unknown 0: infinite
+ * mass, it moves nothing), a finest node without an active source too. The rows sum to 1, so an
+ * impulse handed back through the transpose keeps its sum (momentum). Rebuilt when the node
+ * states change; valid until then */
+typedef struct sq_lod_surface_map {
+    int nrow;                 /* the finest level's nodes (rows off the surface are empty) */
+    const int *start;         /* row j: entries start[j] .. start[j + 1] - 1 (nrow + 1) */
+    const int *dof;           /* each entry's unknown */
+    const double *w;          /* each entry's weight */
+    int ndof;                 /* unknowns: the anchor (0), then the active nodes named */
+    const int *level, *node;  /* each unknown's active node; the anchor's -1, -1 */
+} sq_lod_surface_map;
+const sq_lod_surface_map *sq_lod_surface_map_get(sq_lod *lod);
 
 /* the material the next frames use (sq_lod_frame passes it too): lets sq_lod_energy and
  * sq_lod_sync account for the level coupling before the first frame */

@@ -339,6 +339,19 @@ typedef struct sq_lod_node_view {
     unsigned char *nlv[2];               /* scratch of sq_lod_node_levels (largest level) */
 } sq_lod_node_view;
 
+/* the finest surface as combinations of active nodes (surface.c, sq_lod_surface_map_get) */
+typedef struct sq_lod_surface_store {
+    long gen;                            /* view.gen it was built at (-1: never) */
+    int *start, *dof;                    /* rows (n_finest + 1) and entries (cap) */
+    double *w;
+    int cap;
+    int *level, *node;                   /* each unknown's active node (dof_cap) */
+    int dof_cap;
+    int *dof_at;                         /* unknown of node i of level k at off[k] + i, else -1 */
+    int off[SQ_MAX_LEVELS + 1];
+    sq_lod_surface_map map;
+} sq_lod_surface_store;
+
 /* what the coupling blocks were built for: material, operator, level-0 K; the coupled bound's
  * scratch (coupling.c) */
 typedef struct sq_lod_coupling_of {
@@ -374,6 +387,7 @@ struct sq_lod {
     sq_lod_push push;                    /* ghost values pushed on demand (activeset.c) */
     sq_lod_statics statics;              /* the static loads the criterion judges from (statics.c) */
     sq_lod_node_view view;               /* node levels given out (views.c) */
+    sq_lod_surface_store surf;           /* the finest surface from the active nodes (surface.c) */
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
 };
 

@@ -18,6 +18,7 @@
 #include "lod/activeset.h"
 #include "lod/bound.h"
 #include "lod/corotational.h"
+#include "lod/surface.h"
 #include "lod/coupling.h"
 #include "lod/lod_vec.h"
 #include "lod/ring.h"
@@ -413,6 +414,7 @@ static sq_lod *create(sq_level *levels, int nlevels, const sq_lod_def *def, cons
     lod->def = *def;
     lod->top = top_of(def, nlevels);
     lod->view.nl_gen = -1;
+    lod->surf.gen = -1;
     int share = like && like->L == nlevels;
     for (int k = 0; share && k < nlevels; k++)
         share = like->h.mesh[k] == meshes[k];
@@ -603,6 +605,7 @@ void sq_lod_destroy(sq_lod *lod)
     }
     free(lod->view.nlv[0]);
     free(lod->view.nlv[1]);
+    sq_lodx_surface_free(lod);
     free(lod->cpl.abs_sum);
     free(lod->holds.he);
     free(lod->holds.hold_entry_of);

@@ -103,12 +103,16 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
                 sq_level_integrate(Lk, dtk, NULL);
             else
                 sq_lodx_integrate(lod, k, dtk);
-            if (in->nobstacles > 0) { /* contact of the level's integrated surface nodes */
+            if (in->nobstacles > 0 || in->ntargets > 0) { /* contact of the level's integrated surface
+                                                               * nodes: obstacles, then other bodies */
                 const sq_mesh *mk = Lk->model.mesh;
                 sq_contact_nodes nd = {.n = mk->nsurf, .list = mk->surf_nodes, .X = mk->x, .mass = Lk->model.mass,
                                        .fixed = Lk->model.fixed, .mask = lod->lev[k].lay.integrated,
                                        .touched = in->touched ? in->touched[k] : NULL};
-                sq_contact_step(in->obstacles, in->nobstacles, &nd, Lk->d, Lk->v, dtk, in->contact);
+                if (in->nobstacles > 0)
+                    sq_contact_step(in->obstacles, in->nobstacles, &nd, Lk->d, Lk->v, dtk, in->contact);
+                if (in->ntargets > 0)
+                    sq_contact_step_targets(in->targets, in->ntargets, &nd, Lk->d, Lk->v, dtk, in->contact);
             }
         }
         c->updates += lod->lev[k].lay.nintegrated;

@@ -230,7 +230,6 @@ int scene_check_overlaps(pctx *c, const sq_scene *s)
     for (int b = 0; b < s->nbodies; b++) {
         const sq_body_def *d = &s->bodies[b];
         const sq_mesh *m = d->levels[d->nlevels - 1];
-        int fixed_mode = d->lod.mode == SQ_LOD_FIXED;
         scene_join_index(p, sizeof p, "bodies", b);
         for (int k = 0; k < m->nsurf; k++) {
             const double *x = m->x + 3 * (size_t)m->surf_nodes[k];
@@ -244,11 +243,11 @@ int scene_check_overlaps(pctx *c, const sq_scene *s)
                                       "%.3g m deep; move the body (\"offset\") or the obstacle so they only touch",
                                       s->body_names[b], ob.name, x[0], x[1], x[2], -phi);
             }
-            if (!s->body_contact || !fixed_mode)
+            if (!s->body_contact) /* fixed or adaptive: both meet other bodies */
                 continue;
             for (int j = 0; j < s->nbodies; j++) {
                 const sq_body_def *dj = &s->bodies[j];
-                if (j == b || dj->lod.mode != SQ_LOD_FIXED)
+                if (j == b)
                     continue;
                 double bary[4];
                 const sq_mesh *mj = dj->levels[dj->nlevels - 1];

@@ -61,7 +61,7 @@ typedef struct sq_scene {
     int nobstacles;
     sq_obstacle_script obstacles[SQ_MAX_OBSTACLES];
     sq_trimesh *trimeshes[SQ_MAX_OBSTACLES];      /* owned: the mesh obstacles' triangles */
-    int body_contact;      /* "contact".bodies: fixed-lod bodies collide with each other (default 1) */
+    int body_contact;      /* "contact".bodies: bodies collide with each other, fixed or adaptive lod (default 1) */
     double body_friction;  /* "contact".friction between bodies (default 0.5) */
     double duration;       /* default run length of `squish run`, s (key "duration", default 2) */
     int nlisted[SQ_MAX_BODIES];                   /* levels listed in the file per body */
