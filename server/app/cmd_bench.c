@@ -55,7 +55,7 @@ static double bytes_per_node_step(const sq_level *L)
 {
     double per_entry = 9 * sizeof(double) + sizeof(int);
     double per_node = 4 + 96 + 48 + 24 + 8 + 1;
-    if (L->corot) /* per tet: 3 gradients + volume + quaternion read, quaternion written, 4 indices */
+    if (L->state.corot) /* per tet: 3 gradients + volume + quaternion read, quaternion written, 4 indices */
         return (14.0 * 8 + 4 * 8 + 16) * L->model.mesh->ntets / L->model.n + per_node;
     return per_entry * L->model.up_start[L->model.n] / L->model.n + per_node;
 }

@@ -30,7 +30,7 @@ static void add_feedback(const sq_body *b, const sq_level *L, int nk, int ntools
         int i = b->khold[h].node, t = b->khold[h].tool;
         if (force && t >= 0 && t < ntools)
             for (int c = 0; c < 3; c++)
-                force[t][c] += w * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
+                force[t][c] += w * (L->state.f[3 * i + c] - L->model.mass[i] * g[c]);
     }
 }
 
@@ -100,8 +100,8 @@ static void save_frame_start(sq_body *b, const sq_level *L)
         b->save_n3 = n3;
         b->save_nq = nq;
     }
-    memcpy(b->save_d, L->d, sizeof(double) * n3);
-    memcpy(b->save_v, L->v, sizeof(double) * n3);
+    memcpy(b->save_d, L->state.d, sizeof(double) * n3);
+    memcpy(b->save_v, L->state.v, sizeof(double) * n3);
     sq_level_corot_save(L, b->save_q);
 }
 
@@ -124,14 +124,14 @@ static void live_holds_fixed(sq_body *b, sq_level *L, double frac)
         int k = b->khold_of[h], i = b->khold[k].node;
         for (int c = 0; c < 3; c++)
             if (!(L->model.fixed[i] & (1u << c)))
-                L->d[3 * (size_t)i + c] = b->khold[k].target[c] + b->live_shift[3 * (size_t)k + c] / b->kcount[k];
+                L->state.d[3 * (size_t)i + c] = b->khold[k].target[c] + b->live_shift[3 * (size_t)k + c] / b->kcount[k];
     }
 }
 
 static void load_frame_start(sq_body *b, sq_level *L)
 {
-    memcpy(L->d, b->save_d, sizeof(double) * b->save_n3);
-    memcpy(L->v, b->save_v, sizeof(double) * b->save_n3);
+    memcpy(L->state.d, b->save_d, sizeof(double) * b->save_n3);
+    memcpy(L->state.v, b->save_v, sizeof(double) * b->save_n3);
     sq_level_corot_load(L, b->save_q);
 }
 
@@ -218,7 +218,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             sq_body_surface_disp(b, s, u);
             knode = b->surf_near[s];
             for (int c = 0; c < 3; c++)
-                t[c] = L->d[3 * knode + c] + holds[h].target[c] - u[c];
+                t[c] = L->state.d[3 * knode + c] + holds[h].target[c] - u[c];
         }
         int idx = hold_of[knode];
         if (idx < 0) {
@@ -244,10 +244,10 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         for (int c = 0; c < 3; c++)
             kh->target[c] /= count[h];
         double keep[3];
-        memcpy(keep, L->d + 3 * (size_t)i, sizeof keep);
-        sq_level_apply_hold(L, i, kh->target, L->d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
+        memcpy(keep, L->state.d + 3 * (size_t)i, sizeof keep);
+        sq_level_apply_hold(L, i, kh->target, L->state.d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
         if (implicit)
-            memcpy(L->d + 3 * (size_t)i, keep, sizeof keep);
+            memcpy(L->state.d + 3 * (size_t)i, keep, sizeof keep);
         mask[i] = 0;
         hold_of[i] = -1;
     }
@@ -259,7 +259,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             int i = b->khold[h].node;
             for (int c = 0; c < 3; c++)
                 if (!(L->model.fixed[i] & (1u << c)))
-                    L->d[3 * (size_t)i + c] = b->khold[h].target[c];
+                    L->state.d[3 * (size_t)i + c] = b->khold[h].target[c];
         }
         nsub = b->def.implicit.substeps;
     } else {

@@ -88,7 +88,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
         sq_body_hold_projection(m, &b->holds[h], tool, P + 9 * j, nrm);
         for (int c = 0; c < 3; c++)
             nsum[c] += nrm[c];
-        memcpy(d0 + 3 * j, L->d + 3 * (size_t)b->holds[h].node, 3 * sizeof(double));
+        memcpy(d0 + 3 * j, L->state.d + 3 * (size_t)b->holds[h].node, 3 * sizeof(double));
         node[j++] = b->holds[h].node;
         mask[b->holds[h].node] = 1;
     }
@@ -106,7 +106,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
         double fi[3], r[3];
         for (int c = 0; c < 3; c++) {
             fi[c] = f0[3 * (size_t)q + c] - L->model.mass[q] * g[c];
-            r[c] = m->x[3 * (size_t)q + c] + L->d[3 * (size_t)q + c] - tool->pos[c];
+            r[c] = m->x[3 * (size_t)q + c] + L->state.d[3 * (size_t)q + c] - tool->pos[c];
             out->f0[c] += fi[c];
         }
         out->torque[0] += r[1] * fi[2] - r[2] * fi[1];
@@ -119,10 +119,10 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
     for (int c = 0; c < 3; c++) {
         for (int i = 0; i < nh; i++)
             for (int r = 0; r < 3; r++)
-                L->d[3 * (size_t)node[i] + r] += eps * P[9 * i + 3 * r + c];
+                L->state.d[3 * (size_t)node[i] + r] += eps * P[9 * i + 3 * r + c];
         sq_level_forces_to(L, mat, g, mask, f1, acc);
         for (int i = 0; i < nh; i++) /* restored bit for bit: the state is not changed */
-            memcpy(L->d + 3 * (size_t)node[i], d0 + 3 * i, 3 * sizeof(double));
+            memcpy(L->state.d + 3 * (size_t)node[i], d0 + 3 * i, 3 * sizeof(double));
         for (int i = 0; i < nh; i++)
             mask[node[i]] = 2;
         for (int i = 0; i < nh; i++) {

@@ -44,13 +44,13 @@ void sq_body_step_bound_cost(const sq_body *b, long *estimates, double *cpu_s)
 const double *sq_body_displacement(const sq_body *b, int level)
 {
     sq_lod_flush(b->lod); /* ghosts nothing read during the frame, pushed now (no-op if fixed) */
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].d : NULL;
+    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].state.d : NULL;
 }
 
 const double *sq_body_velocity(const sq_body *b, int level)
 {
     sq_lod_flush(b->lod);
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].v : NULL;
+    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].state.v : NULL;
 }
 
 const unsigned char *sq_body_node_level(const sq_body *b) { return b->node_level; }
@@ -136,7 +136,7 @@ int sq_body_probe(const sq_body *b, const double p[3], double u[3])
             return -1;
     }
     if (!b->lod) {
-        sq_body_interp3(b->def.levels[k], b->level[k].d, t, bary, u);
+        sq_body_interp3(b->def.levels[k], b->level[k].state.d, t, bary, u);
         return 0;
     }
     /* the tet's corners as a flush would leave them, without flushing the whole body; the
@@ -165,7 +165,7 @@ double sq_body_kinetic_energy(const sq_body *b)
         const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
         for (int r = 0; r < na; r++) {
             int i = al ? al[r] : r;
-            const double *v = L->v + 3 * (size_t)i;
+            const double *v = L->state.v + 3 * (size_t)i;
             ke += 0.5 * L->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         }
     }
@@ -204,7 +204,7 @@ int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err)
     int *lev = sq_malloc(sizeof(int) * (size_t)m->nnodes);
     for (int i = 0; i < m->nnodes; i++)
         lev[i] = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->node_level[i] : k;
-    int rc = sq_mesh_write_vtk(m, path, b->level[k].d, b->level[k].v, lev, err);
+    int rc = sq_mesh_write_vtk(m, path, b->level[k].state.d, b->level[k].state.v, lev, err);
     free(lev);
     return rc;
 }

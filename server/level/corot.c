@@ -45,7 +45,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
     if (sq_material_check(mat, err) < 0)
         return -1;
     const sq_mesh *m = L->model.mesh;
-    sq_corot *C = L->corot;
+    sq_corot *C = L->state.corot;
     if (!C) {
         C = sq_calloc(1, sizeof *C);
         C->ntets = m->ntets;
@@ -55,7 +55,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C->to = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
         C->u = calloc_aligned(4 * (size_t)L->model.n + 4);
         C->acc = calloc_aligned(4 * (size_t)L->model.n + 4);
-        L->corot = C;
+        L->state.corot = C;
         L->op_kind = SQ_LEVEL_OP_COROT;
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
@@ -82,22 +82,22 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
 
 void sq_level_corot_free(sq_level *L)
 {
-    if (!L->corot)
+    if (!L->state.corot)
         return;
-    free(L->corot->g);
-    free(L->corot->q);
-    free(L->corot->to);
-    free(L->corot->u);
-    free(L->corot->acc);
-    free(L->corot);
-    L->corot = NULL;
-    L->op_kind = !L->anp ? SQ_LEVEL_OP_LINEAR
-                         : sq_anp_mode(L->anp) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
+    free(L->state.corot->g);
+    free(L->state.corot->q);
+    free(L->state.corot->to);
+    free(L->state.corot->u);
+    free(L->state.corot->acc);
+    free(L->state.corot);
+    L->state.corot = NULL;
+    L->op_kind = !L->state.anp ? SQ_LEVEL_OP_LINEAR
+                         : sq_anp_mode(L->state.anp) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
 }
 
 void sq_level_corot_reset(sq_level *L)
 {
-    sq_corot *C = L->corot;
+    sq_corot *C = L->state.corot;
     if (!C)
         return;
     size_t nq = 4 * CW * (size_t)C->nblocks;
@@ -109,25 +109,25 @@ void sq_level_corot_reset(sq_level *L)
 
 size_t sq_level_corot_state_len(const sq_level *L)
 {
-    return L->corot ? 4 * CW * (size_t)L->corot->nblocks : 0;
+    return L->state.corot ? 4 * CW * (size_t)L->state.corot->nblocks : 0;
 }
 
 void sq_level_corot_save(const sq_level *L, double *q)
 {
-    if (L->corot)
-        memcpy(q, L->corot->q, sizeof(double) * sq_level_corot_state_len(L));
+    if (L->state.corot)
+        memcpy(q, L->state.corot->q, sizeof(double) * sq_level_corot_state_len(L));
 }
 
 void sq_level_corot_load(sq_level *L, const double *q)
 {
-    if (L->corot)
-        memcpy(L->corot->q, q, sizeof(double) * sq_level_corot_state_len(L));
+    if (L->state.corot)
+        memcpy(L->state.corot->q, q, sizeof(double) * sq_level_corot_state_len(L));
 }
 
 void sq_level_corot_copy(sq_level *dst, const sq_level *src)
 {
-    if (dst->corot && src->corot && dst->corot->ntets == src->corot->ntets)
-        memcpy(dst->corot->q, src->corot->q, sizeof(double) * 4 * CW * (size_t)src->corot->nblocks);
+    if (dst->state.corot && src->state.corot && dst->state.corot->ntets == src->state.corot->ntets)
+        memcpy(dst->state.corot->q, src->state.corot->q, sizeof(double) * 4 * CW * (size_t)src->state.corot->nblocks);
 }
 
 /* elastic (+ damping) element forces of every tet added into f (n x 3), one tet at a time;
@@ -138,10 +138,10 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src)
  * proportional to K): R from I + grad d, and R D_T R^T v added. */
 static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int iters, int store)
 {
-    for (int t = 0; t < L->corot->ntets; t++) {
+    for (int t = 0; t < L->state.corot->ntets; t++) {
         const int *tv = L->model.mesh->tets + 4 * (size_t)t;
         double f12[12];
-        tet_force(L->corot, mat, t, tv, L->d, L->v, iters, store, f12);
+        tet_force(L->state.corot, mat, t, tv, L->state.d, L->state.v, iters, store, f12);
         for (int k = 0; k < 4; k++) {
             double *fk = f + 3 * (size_t)tv[k];
             fk[0] += f12[3 * k];
@@ -158,8 +158,8 @@ static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int
  * (the same fma, so the same values) */
 static void corot_gather_source(sq_level *L, double b)
 {
-    sq_corot *C = L->corot;
-    const double *restrict d = L->d, *restrict v = L->v;
+    sq_corot *C = L->state.corot;
+    const double *restrict d = L->state.d, *restrict v = L->state.v;
     double *restrict u = C->u;
     const vd vb = VSET1(b);
     if (b != 0)
@@ -181,7 +181,7 @@ static void corot_gather_source(sq_level *L, double b)
  * the single-loop form: the values are the same. */
 static void corot_tets_simd(sq_level *L)
 {
-    sq_corot *C = L->corot;
+    sq_corot *C = L->state.corot;
     const double *u = C->u;
     double *acc = C->acc;
     const vd one = VSET1(1.0), half = VSET1(0.5);
@@ -301,7 +301,7 @@ static void corot_forces(const sq_level *L, const sq_material *mat, const double
     for (int i = 0; i < L->model.n; i++) {
         const double mi = L->model.mass[i];
         for (int c = 0; c < 3; c++)
-            f[3 * i + c] = mi * (g[c] - a * L->v[3 * i + c]);
+            f[3 * i + c] = mi * (g[c] - a * L->state.v[3 * i + c]);
     }
     corot_tets(L, mat, f, iters, store);
 }
@@ -311,12 +311,12 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
 {
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
-        sq_corot *C = L->corot;
+        sq_corot *C = L->state.corot;
         corot_gather_source(L, mat->rayleigh_stiffness);
         corot_tets_simd(L);
         /* forces, then symplectic Euler as in sq_level_integrate (the same operations per
          * component, so the same values; lane 3 is never stored) */
-        double *restrict acc = C->acc, *restrict f = L->f, *restrict vv = L->v, *restrict dd = L->d;
+        double *restrict acc = C->acc, *restrict f = L->state.f, *restrict vv = L->state.v, *restrict dd = L->state.d;
         const unsigned char *restrict fixed = L->model.fixed;
         const vd va = VSET1(mat->rayleigh_mass), vg = _mm256_setr_pd(g[0], g[1], g[2], 0), vdt = VSET1(dt);
         const vd zero = _mm256_setzero_pd();
@@ -344,12 +344,12 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
         return;
     }
 #endif
-    corot_forces(L, mat, g, L->f, 1, 1);
+    corot_forces(L, mat, g, L->state.f, 1, 1);
     /* symplectic Euler node by node, the update of level.c's sq_level_integrate */
     for (int i = 0; i < L->model.n; i++)
         if (!mask || mask[i])
-            sq_level_euler_node(L->v, L->d, i, dt / L->model.mass[i], dt, L->f[3 * i], L->f[3 * i + 1],
-                                L->f[3 * i + 2], L->model.fixed[i]);
+            sq_level_euler_node(L->state.v, L->state.d, i, dt / L->model.mass[i], dt, L->state.f[3 * i], L->state.f[3 * i + 1],
+                                L->state.f[3 * i + 2], L->model.fixed[i]);
 }
 
 void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
@@ -360,13 +360,13 @@ void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const doub
 
 void sq_level_corot_converge(sq_level *L)
 {
-    sq_corot *C = L->corot;
+    sq_corot *C = L->state.corot;
     if (!C)
         return;
     for (int t = 0; t < C->ntets; t++) {
         double G[10], q[4], F[9], R[9];
         tet_load(C, t, G, q);
-        tet_grad(G, L->model.mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_grad(G, L->model.mesh->tets + 4 * (size_t)t, L->state.d, NULL, 0, F, 1.0);
         tet_rotation(q, F, 50, R);
         tet_store_q(C, t, q);
     }
@@ -374,10 +374,10 @@ void sq_level_corot_converge(sq_level *L)
 
 double sq_level_corot_energy(const sq_level *L)
 {
-    const sq_corot *C = L->corot;
+    const sq_corot *C = L->state.corot;
     double e = 0;
     for (int t = 0; t < C->ntets; t++)
-        e += tet_energy(C, t, L->model.mesh->tets + 4 * (size_t)t, L->d);
+        e += tet_energy(C, t, L->model.mesh->tets + 4 * (size_t)t, L->state.d);
     return e;
 }
 
@@ -391,7 +391,7 @@ int sq_level_corot_inverted(const sq_level *L)
         for (int k = 0; k < 3; k++)
             for (int c = 0; c < 3; c++)
                 G[3 * k + c] = a[k][c];
-        tet_grad(G, m->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_grad(G, m->tets + 4 * (size_t)t, L->state.d, NULL, 0, F, 1.0);
         double det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
                      F[2] * (F[3] * F[7] - F[4] * F[6]);
         n += det <= 0;
@@ -407,5 +407,5 @@ void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const doubl
         return;
     }
 #endif
-    corot_forces(L, mat, g, L->f, 1, 1);
+    corot_forces(L, mat, g, L->state.f, 1, 1);
 }

@@ -18,13 +18,13 @@ void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, 
                               int iters, int store, double *f4)
 {
     static const int tv[4] = {0, 1, 2, 3};
-    tet_force(L->corot, mat, t, tv, d4, v4, iters, store, f4);
+    tet_force(L->state.corot, mat, t, tv, d4, v4, iters, store, f4);
 }
 
 double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4)
 {
     static const int tv[4] = {0, 1, 2, 3};
-    return tet_energy(L->corot, t, tv, d4);
+    return tet_energy(L->state.corot, t, tv, d4);
 }
 
 #ifdef COROT_SIMD
@@ -33,7 +33,7 @@ double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4)
 static void tet_force4_simd(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
                             const double *v, int store, double *f)
 {
-    sq_corot *C = L->corot;
+    sq_corot *C = L->state.corot;
     const double b = mat->rayleigh_stiffness;
     const vd one = VSET1(1.0), half = VSET1(0.5);
     const vd m2n = VSET1(-2 * C->mu), lamn = VSET1(-C->lambda);

@@ -23,8 +23,8 @@
 
 sq_implicit *sq_imp_get(sq_level *L)
 {
-    if (L->implicit)
-        return L->implicit;
+    if (L->state.implicit)
+        return L->state.implicit;
     const sq_level_model *M = &L->model;
     sq_implicit *I = sq_calloc(1, sizeof *I);
     size_t n3 = 3 * (size_t)M->n;
@@ -37,13 +37,13 @@ sq_implicit *sq_imp_get(sq_level *L)
     I->pre = imp_calloc(9 * (size_t)M->n, sizeof(double));
     I->rot = imp_calloc(9 * (size_t)I->ntets, sizeof(double));
     I->freeax = imp_calloc((size_t)M->n, 1);
-    L->implicit = I;
+    L->state.implicit = I;
     return I;
 }
 
 void sq_level_implicit_free(sq_level *L)
 {
-    sq_implicit *I = L->implicit;
+    sq_implicit *I = L->state.implicit;
     if (!I)
         return;
     double *vecs[] = {I->x, I->r, I->z, I->p, I->q, I->rhs, I->kv, I->dv, I->d0, I->v0, I->pre, I->rot, I->zo,
@@ -57,7 +57,7 @@ void sq_level_implicit_free(sq_level *L)
     free(I->kup_r);
     free(I->tet_edge);
     free(I);
-    L->implicit = NULL;
+    L->state.implicit = NULL;
 }
 
 
@@ -67,11 +67,11 @@ void sq_imp_apply_k(const imp_op *o, const double *x, double *y)
     const sq_level *L = o->L;
     const sq_level_model *M = &L->model;
     const size_t n3 = 3 * (size_t)M->n;
-    if (L->anp) {
+    if (L->state.anp) {
         sq_level_anp_apply(L, x, y);
         return;
     }
-    if (L->corot) { /* the warped stiffness assembled at the linearisation, by the fused pass */
+    if (L->state.corot) { /* the warped stiffness assembled at the linearisation, by the fused pass */
         sq_level_model W = *M;
         W.Kup = o->I->kup_r;
         sq_level_neg_k(&W, x, y, o->I->acc);
@@ -155,8 +155,8 @@ void sq_imp_apply_a(const imp_op *o, const double *x, double *y)
  * copied per tet for the warped stiffness */
 static void corot_linearise(sq_level *L)
 {
-    sq_implicit *I = L->implicit;
-    const sq_corot *C = L->corot;
+    sq_implicit *I = L->state.implicit;
+    const sq_corot *C = L->state.corot;
     const sq_level_model *M = &L->model;
     sq_level_corot_converge(L);
     if (!I->kup_r) {
@@ -300,7 +300,7 @@ static void precond_setup(const imp_op *o, int kind)
     const sq_level_model *M = &o->L->model;
     sq_implicit *I = (sq_implicit *)o->I;
     double *blk = sq_malloc(sizeof(double) * 9 * (size_t)M->n);
-    sq_imp_diag_blocks(o, M, o->L->corot ? I->kup_r : NULL, blk);
+    sq_imp_diag_blocks(o, M, o->L->state.corot ? I->kup_r : NULL, blk);
     for (int i = 0; i < M->n; i++) {
         const double *B = blk + 9 * (size_t)i;
         double *out = I->pre + 9 * (size_t)i;
@@ -444,7 +444,7 @@ static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, dou
 /* the force of the current state into L->f (corotational: rotations converged and stored) */
 static void forces_now(sq_level *L, const sq_material *mat, const double g[3])
 {
-    if (L->corot)
+    if (L->state.corot)
         corot_linearise(L);
     sq_level_forces(L, mat, g, NULL);
 }
@@ -454,7 +454,7 @@ static unsigned long long state_hash(const sq_level *L, const double g[3])
 {
     unsigned long long h = 1469598103934665603ull;
     const size_t n3 = 3 * (size_t)L->model.n;
-    const double *arr[3] = {L->d, L->v, g};
+    const double *arr[3] = {L->state.d, L->state.v, g};
     const size_t len[3] = {n3, n3, 3};
     for (int a = 0; a < 3; a++)
         for (size_t k = 0; k < len[a]; k++) {
@@ -471,7 +471,7 @@ static double total_energy(const sq_level *L, const double g[3])
     const sq_level_model *M = &L->model;
     double e = sq_level_elastic_energy(L);
     for (int i = 0; i < M->n; i++) {
-        const double *v = L->v + 3 * (size_t)i, *d = L->d + 3 * (size_t)i;
+        const double *v = L->state.v + 3 * (size_t)i, *d = L->state.d + 3 * (size_t)i;
         e += M->mass[i] * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g[0] * d[0] + g[1] * d[1] + g[2] * d[2]));
     }
     return e;
@@ -513,7 +513,7 @@ static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level *
         if (I->cuse[k]) {
             const double *nk = I->cc->normal + 3 * (size_t)k, *uk = I->cc->u + 3 * (size_t)k;
             const size_t i3 = 3 * (size_t)I->cc->node[k];
-            double rel[3] = {uk[0] - L->v[i3], uk[1] - L->v[i3 + 1], uk[2] - L->v[i3 + 2]};
+            double rel[3] = {uk[0] - L->state.v[i3], uk[1] - L->state.v[i3 + 1], uk[2] - L->state.v[i3 + 2]};
             const double s = rel[0] * nk[0] + rel[1] * nk[1] + rel[2] * nk[2];
             for (int c = 0; c < 3; c++)
                 I->zc[i3 + c] = I->cc->stick[k] ? rel[c] : s * nk[c];
@@ -532,7 +532,7 @@ static void contacts_impulses(sq_implicit *I, sq_level *L, const sq_material *ma
             const int i = I->cc->node[k];
             for (int c = 0; c < 3; c++) {
                 const size_t j = 3 * (size_t)i + c;
-                I->cc->impulse[3 * (size_t)k + c] = L->model.mass[i] * (L->v[j] - I->v0[j]) - h * L->f[j];
+                I->cc->impulse[3 * (size_t)k + c] = L->model.mass[i] * (L->state.v[j] - I->v0[j]) - h * L->state.f[j];
             }
         }
 }
@@ -552,11 +552,11 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
      * step's start, not in the operator: docs/physics.md); stiffness damping b with Rayleigh */
     const int visc = mat->use_viscosity != 0;
     imp_op o = {.L = L, .I = I, .cm = 1 + h * mat->rayleigh_mass,
-                .ck = h * h + (visc ? 0 : h * mat->rayleigh_stiffness), .cd = visc && M->D && !L->corot ? h : 0};
-    memcpy(I->d0, L->d, sizeof(double) * n3);
-    memcpy(I->v0, L->v, sizeof(double) * n3);
+                .ck = h * h + (visc ? 0 : h * mat->rayleigh_stiffness), .cd = visc && M->D && !L->state.corot ? h : 0};
+    memcpy(I->d0, L->state.d, sizeof(double) * n3);
+    memcpy(I->v0, L->state.v, sizeof(double) * n3);
     /* corotational without holds: the start energy, for the Newton iterations' energy guard */
-    const int e0_known = L->corot && !mask;
+    const int e0_known = L->state.corot && !mask;
     double e0 = 0;
     if (e0_known)
         e0 = I->e_valid && I->e_hash == state_hash(L, g) ? I->e_cache : total_energy(L, g);
@@ -570,11 +570,11 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     for (int i = 0; i < n; i++) {
         unsigned fx = M->fixed[i];
         for (int c = 0; c < 3; c++)
-            I->x[3 * i + c] = (fx & (1u << c)) ? 0 : L->v[3 * i + c];
+            I->x[3 * i + c] = (fx & (1u << c)) ? 0 : L->state.v[3 * i + c];
     }
     sq_imp_apply_k(&o, I->x, I->kv);
     for (size_t k = 0; k < n3; k++)
-        I->rhs[k] = h * (L->f[k] - h * I->kv[k]);
+        I->rhs[k] = h * (L->state.f[k] - h * I->kv[k]);
     if (I->ncuse) /* the contacts' forces (kinetic friction) */
         for (int k = 0; k < I->cc->n; k++)
             if (I->cuse[k])
@@ -590,7 +590,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             if (!mask[i])
                 for (int c = 0; c < 3; c++)
                     if (!(M->fixed[i] & (1u << c)))
-                        L->d[3 * i + c] += h * L->v[3 * i + c];
+                        L->state.d[3 * i + c] += h * L->state.v[3 * i + c];
 
     memset(st, 0, sizeof *st);
     memset(I->dv, 0, sizeof(double) * n3);
@@ -620,13 +620,13 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             for (int c = 0; c < 3; c++) {
                 size_t k = 3 * (size_t)i + c;
                 if (fa & (1u << c)) {
-                    L->v[k] = I->v0[k] + I->dv[k];
-                    L->d[k] = I->d0[k] + h * L->v[k];
+                    L->state.v[k] = I->v0[k] + I->dv[k];
+                    L->state.d[k] = I->d0[k] + h * L->state.v[k];
                 }
             }
         }
         st->newton = nt + 1;
-        if (!L->corot)
+        if (!L->state.corot)
             break; /* linear (and nodal-pressure) bodies: the one solve is the step */
         /* corotational: the Newton iterations asked for, and more (up to the maximum) while the
          * energy of a body no tool holds is above the step's start: the warped stiffness is not
@@ -649,7 +649,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             for (int i = 0; i < n; i++)
                 for (int c = 0; c < 3; c++) {
                     size_t k = 3 * (size_t)i + c;
-                    I->rhs[k] = h * L->f[k] - M->mass[i] * I->dv[k];
+                    I->rhs[k] = h * L->state.f[k] - M->mass[i] * I->dv[k];
                 }
             sq_imp_project(I, I->rhs);
             st->newton_residual = rhs0 > 0 ? sqrt(sq_imp_dot(I->rhs, I->rhs, n3)) / rhs0 : 0;

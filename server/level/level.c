@@ -119,10 +119,10 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     L->model.hbar = sq_calloc((size_t)L->model.n, sizeof(double));
     L->model.fixed = sq_calloc((size_t)L->model.n, 1);
     /* one spare double after d, v and acc: the vector force pass loads 4 lanes per node */
-    L->d = sq_calloc(n3 + 1, sizeof(double));
-    L->v = sq_calloc(n3 + 1, sizeof(double));
-    L->f = sq_calloc(n3, sizeof(double));
-    L->acc = sq_calloc(n3 + 1, sizeof(double));
+    L->state.d = sq_calloc(n3 + 1, sizeof(double));
+    L->state.v = sq_calloc(n3 + 1, sizeof(double));
+    L->state.f = sq_calloc(n3, sizeof(double));
+    L->state.acc = sq_calloc(n3 + 1, sizeof(double));
 
     /* fixed axes: a tolerance of 1e-9 of the bounding-box diagonal absorbs rounding */
     double diag = 0;
@@ -168,10 +168,10 @@ void sq_level_init_shared(sq_level *L, const sq_level *src)
     L->model_shared = 1;
     size_t n3 = 3 * (size_t)L->model.n;
     /* as sq_level_init: one spare double after d, v and acc */
-    L->d = sq_calloc(n3 + 1, sizeof(double));
-    L->v = sq_calloc(n3 + 1, sizeof(double));
-    L->f = sq_calloc(n3, sizeof(double));
-    L->acc = sq_calloc(n3 + 1, sizeof(double));
+    L->state.d = sq_calloc(n3 + 1, sizeof(double));
+    L->state.v = sq_calloc(n3 + 1, sizeof(double));
+    L->state.f = sq_calloc(n3, sizeof(double));
+    L->state.acc = sq_calloc(n3 + 1, sizeof(double));
     L->omega_max = src->omega_max; /* sq_level_set_material's figure for this model */
 }
 
@@ -191,10 +191,10 @@ void sq_level_free(sq_level *L)
         free(L->model.up_col);
         free(L->model.Kup);
     }
-    free(L->d);
-    free(L->v);
-    free(L->f);
-    free(L->acc);
+    free(L->state.d);
+    free(L->state.v);
+    free(L->state.f);
+    free(L->state.acc);
     sq_level_corot_free(L);
     sq_level_anp_free(L);
     sq_level_implicit_free(L);
@@ -316,7 +316,7 @@ static void scaled_matvec(const sq_level *L, const double *rm, const double *x, 
  * the step's matrix-free pass of level/anp.c; scratch: 3n doubles); the element-wise K otherwise */
 static void scaled_matvec_own(const sq_level *L, const double *rm, const double *x, double *y, double *z)
 {
-    if (!L->anp) {
+    if (!L->state.anp) {
         scaled_matvec(L, rm, x, y);
         return;
     }
@@ -421,7 +421,7 @@ static double lanczos_max(const sq_level *L, int iters, int own)
 {
     size_t n3 = 3 * (size_t)L->model.n;
     double *Q = sq_calloc(2 * n3 + 1, sizeof(double)), *q = Q,
-           *w = sq_malloc((n3 + 1) * sizeof(double)), *z = own && L->anp ? sq_malloc(n3 * sizeof(double)) : NULL;
+           *w = sq_malloc((n3 + 1) * sizeof(double)), *z = own && L->state.anp ? sq_malloc(n3 * sizeof(double)) : NULL;
     double *alpha = sq_malloc(sizeof(double) * (size_t)(iters + 1)),
            *beta = sq_malloc(sizeof(double) * (size_t)(iters + 1)), *rm = sq_malloc(sizeof(double) * (size_t)SQ_MAX(L->model.n, 1));
     for (int i = 0; i < L->model.n; i++)
@@ -650,7 +650,7 @@ static void linear_step(sq_level *L, const sq_material *mat, const double gravit
         sq_level_integrate(L, dt, mask);
         return;
     }
-    forces_all(&L->model, L->d, L->v, L->f, L->acc, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt,
+    forces_all(&L->model, L->state.d, L->state.v, L->state.f, L->state.acc, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt,
                mask);
 }
 
@@ -660,8 +660,8 @@ static void linear_forces(const sq_level *L, const sq_material *mat, const doubl
     const int n = L->model.n;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     const double a = mat->rayleigh_mass;
-    const double *restrict d = L->d;
-    const double *restrict v = L->v;
+    const double *restrict d = L->state.d;
+    const double *restrict v = L->state.v;
     double *restrict f = f_out;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
@@ -690,9 +690,9 @@ static double linear_energy(const sq_level *L)
 {
     double e = 0;
     for (int i = 0; i < L->model.n; i++) {
-        const double *di = L->d + 3 * (size_t)i;
+        const double *di = L->state.d + 3 * (size_t)i;
         for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
-            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
+            const double *B = L->model.K + 9 * (size_t)p, *dj = L->state.d + 3 * (size_t)L->model.col[p];
             for (int r = 0; r < 3; r++)
                 e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
         }
@@ -712,7 +712,7 @@ static void corot_forces_row(const sq_level *L, const sq_material *mat, const do
 
 static void anp_step(sq_level *L, const sq_material *mat, const double g[3], double dt, const unsigned char *mask)
 {
-    sq_level_anp_forces(L, mat, g, L->f);
+    sq_level_anp_forces(L, mat, g, L->state.f);
     sq_level_integrate(L, dt, mask);
 }
 
@@ -745,7 +745,7 @@ void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3],
 void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
                      const unsigned char *active)
 {
-    sq_level_forces_to(L, mat, gravity, active, L->f, L->acc);
+    sq_level_forces_to(L, mat, gravity, active, L->state.f, L->state.acc);
 }
 
 void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
@@ -757,9 +757,9 @@ void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double 
 void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
 {
     const int n = L->model.n;
-    double *restrict d = L->d;
-    double *restrict v = L->v;
-    const double *restrict f = L->f;
+    double *restrict d = L->state.d;
+    double *restrict v = L->state.v;
+    const double *restrict f = L->state.f;
     const double *restrict mass = L->model.mass;
     const unsigned char *restrict fixed = L->model.fixed;
     for (int i = 0; i < n; i++) {
@@ -773,7 +773,7 @@ void sq_level_laplacian(const sq_level *L, int i, double out[3])
 {
     double s0 = 0, s1 = 0, s2 = 0;
     for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-        const double *dj = L->d + 3 * (size_t)L->model.col[e];
+        const double *dj = L->state.d + 3 * (size_t)L->model.col[e];
         double w = L->model.lap[e];
         s0 += w * dj[0];
         s1 += w * dj[1];
@@ -812,8 +812,8 @@ void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double 
     for (int c = 0; c < 3; c++) {
         if (fx & (1u << c))
             continue; /* the constraint wins: the axis stays at rest */
-        L->v[3 * i + c] = span > 0 ? (goal[c] - from[c]) / span : 0.0; /* before d: from may be d */
-        L->d[3 * i + c] = goal[c];
+        L->state.v[3 * i + c] = span > 0 ? (goal[c] - from[c]) / span : 0.0; /* before d: from may be d */
+        L->state.d[3 * i + c] = goal[c];
     }
 }
 

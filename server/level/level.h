@@ -104,31 +104,38 @@ typedef struct sq_level_model {
     double *Kup;           /* blocks (up_start[n] x 9) */
 } sq_level_model;
 
-/* one level: its constant model, its state (d, v), the scratch of the force passes and the
- * step settings chosen for it */
-typedef struct sq_level {
-    sq_level_model model;  /* constant part (owned; read-only outside init/set_material) */
-    int model_shared;      /* 1: model is another level's (sq_level_init_shared), not freed here */
-
-    double *d;             /* state: displacement (n x 3), m */
-    double *v;             /* state: velocity (n x 3), m/s */
+/* the changing state of one level: displacement and velocity, the scratch of the force passes,
+ * and the element models' data with their state (the corotational rotations, the nodal
+ * pressure scratch, the implicit solve's vectors). The step, the force passes and the
+ * integration take (const sq_level_model *, sq_level_state *): they write only here. */
+typedef struct sq_level_state {
+    double *d;             /* displacement (n x 3), m */
+    double *v;             /* velocity (n x 3), m/s */
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
     double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
+    /* rest data and state of the optional element models (kept together: see docs/physics.md) */
+    sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
+    sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
+    sq_implicit *implicit; /* backward Euler scratch (level/implicit.c), allocated by the first step */
+} sq_level_state;
+
+/* one level: its constant model, its state, and the step settings chosen for it */
+typedef struct sq_level {
+    sq_level_model model;  /* constant part (owned; read-only outside init/set_material and the
+                              element models' enable) */
+    int model_shared;      /* 1: model is another level's (sq_level_init_shared), not freed here */
+    sq_level_state state;  /* changing part: d, v, scratch, element models' state */
 
     double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
     double bound;          /* stability bound on the step with damping, s */
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
-    /* rest data and state of the optional element models (kept together: see docs/physics.md) */
-    sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
-    sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
      * as the ceiling), its bound, and its substeps per frame (a power of two) */
     double omega_est;      /* rad/s */
     double bound_sharp;    /* s */
     int nsub;              /* substeps per frame */
     double dt_fixed;       /* frame_dt / nsub, s */
-    sq_implicit *implicit; /* backward Euler scratch (level/implicit.c), allocated by the first step */
     sq_level_op_kind op_kind; /* the row of the operator table the step uses (set with the element model) */
 } sq_level;
 

@@ -689,7 +689,7 @@ SQ_TEST(lod_guard_load_check_copy_shares_what_it_only_reads)
         for (int k = 0; k < nl; k++) {
             const sq_level *Lb = sq_body_level(b, k), *Lc = &copy->level[k], *Lf = &fresh->level[k];
             CHECK(Lc->model_shared == 1 && Lc->model.K == Lb->model.K && Lc->model.Kup == Lb->model.Kup);
-            CHECK(Lc->d != Lb->d && Lc->v != Lb->v); /* the state is the copy's own */
+            CHECK(Lc->state.d != Lb->state.d && Lc->state.v != Lb->state.v); /* the state is the copy's own */
             CHECK(Lf->model_shared == 0 && Lf->model.K != Lb->model.K);
             CHECK(copy->lod->lev[k].tab.tet_geom == b->lod->lev[k].tab.tet_geom);
             CHECK(copy->lod->lev[k].cpl.blocks_slot != b->lod->lev[k].cpl.blocks_slot);
