@@ -149,13 +149,13 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             snprintf(label, sizeof label, "bench step %s %d nodes", name, m->nnodes);
             sq_progress pr;
             sq_progress_begin(&pr, label, seconds);
-            sq_level_step(&L, &def.material, g, L.dt, NULL);
+            sq_level_step(&L.model, &L.state, &def.material, g, L.dt, NULL);
             long steps = 0;
             int batch = SQ_MAX(1, (int)(2e6 / m->nnodes));
             double t0 = sq_now(), c0 = sq_thread_cpu(), t = 0;
             while (t < seconds) {
                 for (int k = 0; k < batch; k++)
-                    sq_level_step(&L, &def.material, g, L.dt, NULL);
+                    sq_level_step(&L.model, &L.state, &def.material, g, L.dt, NULL);
                 steps += batch;
                 t = sq_now() - t0;
                 sq_progress_update(&pr, t);

@@ -72,7 +72,7 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
         tot.newton += st.newton;
         tot.newton_residual = SQ_MAX(tot.newton_residual, st.newton_residual);
         if (nk && force) {
-            sq_level_forces(L, mat, g, NULL); /* the end state's force */
+            sq_level_forces(&L->model, &L->state, mat, g, NULL); /* the end state's force */
             add_feedback(b, L, nk, ntools, force, inv);
         }
     }
@@ -154,7 +154,7 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
                 break; /* the server is stopping: the frame is abandoned */
             if (b->live)
                 live_holds_fixed(b, L, (s + 1.0) / nsub); /* the newest haptic poses (sq_body_set_pose_source) */
-            sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
+            sq_level_step(&L->model, &L->state, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
             sq_body_contact_step(b, L, nk ? mask : NULL, sdt);
             add_feedback(b, L, nk, ntools, force, inv);
         }
@@ -245,7 +245,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             kh->target[c] /= count[h];
         double keep[3];
         memcpy(keep, L->state.d + 3 * (size_t)i, sizeof keep);
-        sq_level_apply_hold(L, i, kh->target, L->state.d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
+        sq_level_apply_hold(&L->model, &L->state, i, kh->target, L->state.d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
         if (implicit)
             memcpy(L->state.d + 3 * (size_t)i, keep, sizeof keep);
         mask[i] = 0;

@@ -94,7 +94,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
     }
     const sq_material *mat = &b->def.material;
     const double *g = b->def.gravity;
-    sq_level_forces_to(L, mat, g, mask, f0, acc);
+    sq_level_forces_to(&L->model, &L->state, mat, g, mask, f0, acc);
 
     /* f0 and the torque about p0: the held nodes' unbalanced force (as the frame's feedback),
      * each node counted once */
@@ -120,7 +120,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
         for (int i = 0; i < nh; i++)
             for (int r = 0; r < 3; r++)
                 L->state.d[3 * (size_t)node[i] + r] += eps * P[9 * i + 3 * r + c];
-        sq_level_forces_to(L, mat, g, mask, f1, acc);
+        sq_level_forces_to(&L->model, &L->state, mat, g, mask, f1, acc);
         for (int i = 0; i < nh; i++) /* restored bit for bit: the state is not changed */
             memcpy(L->state.d + 3 * (size_t)node[i], d0 + 3 * i, 3 * sizeof(double));
         for (int i = 0; i < nh; i++)

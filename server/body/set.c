@@ -94,7 +94,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         int from = sq_body_sim_level(b); /* the lod mode is still the old one */
         if (from != lod->level) {
             sq_body_transfer_state(b, from, lod->level);
-            sq_level_corot_converge(&b->level[lod->level]);
+            sq_level_corot_converge(&b->level[lod->level].model, &b->level[lod->level].state);
         }
         if (was_adaptive) {
             sq_lod_destroy(b->lod);
@@ -153,7 +153,7 @@ int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
                     sq_level_corot_free(&b->level[j]);
                 return -1;
             }
-            sq_level_corot_converge(&b->level[k]);
+            sq_level_corot_converge(&b->level[k].model, &b->level[k].state);
         } else {
             sq_level_corot_free(&b->level[k]);
         }

@@ -89,7 +89,7 @@ long sq_body_frames(const sq_body *b) { return b->frames; }
 int sq_body_inverted_tets(const sq_body *b)
 {
     int k = sq_body_sim_level(b);
-    return sq_level_corot_inverted(&b->level[k]);
+    return sq_level_corot_inverted(&b->level[k].model, &b->level[k].state);
 }
 
 sq_level *sq_body_level(sq_body *b, int level)
@@ -177,7 +177,7 @@ double sq_body_elastic_energy(const sq_body *b)
 {
     sq_lod_flush(b->lod);
     int k = sq_body_sim_level(b);
-    return sq_level_elastic_energy(&b->level[k]);
+    return sq_level_elastic_energy(&b->level[k].model, &b->level[k].state);
 }
 
 double sq_body_residual(const sq_body *b)
@@ -189,7 +189,7 @@ double sq_body_residual(const sq_body *b)
     const sq_level *L = &b->level[k];
     size_t n3 = 3 * (size_t)L->model.n;
     double *f = sq_malloc(sizeof(double) * n3), *acc = sq_calloc(n3 + 1, sizeof(double));
-    sq_level_forces_to(L, &b->def.material, b->def.gravity, NULL, f, acc);
+    sq_level_forces_to(&L->model, &L->state, &b->def.material, b->def.gravity, NULL, f, acc);
     double r = sq_level_residual(&L->model, f, b->def.gravity, NULL, 0, b->held[k]);
     free(f);
     free(acc);

@@ -187,8 +187,8 @@ static void run_above_bound(sq_body *b, const sq_sweep_case *c, sq_sweep_result 
     double d0 = 1e-6 * SW_SIZE, dmax = 0;
     int steps = 4000, s;
     for (s = 0; s < steps; s++) {
-        sq_level_forces(L, &def->material, def->gravity, NULL);
-        sq_level_integrate(L, dt, NULL);
+        sq_level_forces(&L->model, &L->state, &def->material, def->gravity, NULL);
+        sq_level_integrate(&L->model, &L->state, dt, NULL);
         dmax = 0;
         for (int i = 0; i < 3 * L->model.n; i++)
             dmax = isfinite(L->state.d[i]) && isfinite(dmax) ? fmax(dmax, fabs(L->state.d[i])) : NAN;

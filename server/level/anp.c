@@ -418,7 +418,7 @@ int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op
     if (!L->state.anp)
         L->state.anp = sq_anp_create(L->model.mesh, L->model.n, mode);
     if (!L->state.corot) /* corotational elasticity keeps its row */
-        L->op_kind = mode == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
+        L->model.op_kind = mode == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
     sq_anp_set_moduli(L->state.anp, mat->mu, mat->lambda);
     return 0;
 }
@@ -428,42 +428,42 @@ void sq_level_anp_free(sq_level *L)
     sq_anp_destroy(L->state.anp);
     L->state.anp = NULL;
     if (!L->state.corot)
-        L->op_kind = SQ_LEVEL_OP_LINEAR;
+        L->model.op_kind = SQ_LEVEL_OP_LINEAR;
 }
 
-void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
+void sq_level_anp_apply(const sq_level_model *M, const sq_level_state *S, const double *x, double *y)
 {
-    anp_apply_blocked(L->state.anp, L->model.vol, x, y);
+    anp_apply_blocked(S->anp, M->vol, x, y);
 }
 
-void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
+void sq_level_anp_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f)
 {
-    sq_anp *A = L->state.anp;
+    sq_anp *A = S->anp;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness, a = mat->rayleigh_mass;
-    size_t n3 = 3 * (size_t)L->model.n;
+    size_t n3 = 3 * (size_t)M->n;
     for (size_t k = 0; k < n3; k++)
-        A->w[k] = L->state.d[k] + b * L->state.v[k];
-    sq_level_anp_apply(L, A->w, f); /* f = K_np (d + b v) */
-    for (int i = 0; i < L->model.n; i++) {
+        A->w[k] = S->d[k] + b * S->v[k];
+    sq_level_anp_apply(M, S, A->w, f); /* f = K_np (d + b v) */
+    for (int i = 0; i < M->n; i++) {
         double *fi = f + 3 * (size_t)i;
         for (int c = 0; c < 3; c++)
-            fi[c] = L->model.mass[i] * (g[c] - a * L->state.v[3 * i + c]) - fi[c];
-        if (mat->use_viscosity && L->model.D) /* the paper's viscosities: the element-wise D blocks */
-            for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-                const double *B = L->model.D + 9 * (size_t)e, *vj = L->state.v + 3 * (size_t)L->model.col[e];
+            fi[c] = M->mass[i] * (g[c] - a * S->v[3 * i + c]) - fi[c];
+        if (mat->use_viscosity && M->D) /* the paper's viscosities: the element-wise D blocks */
+            for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+                const double *B = M->D + 9 * (size_t)e, *vj = S->v + 3 * (size_t)M->col[e];
                 for (int r = 0; r < 3; r++)
                     fi[r] -= B[3 * r] * vj[0] + B[3 * r + 1] * vj[1] + B[3 * r + 2] * vj[2];
             }
     }
 }
 
-double sq_level_anp_energy(const sq_level *L)
+double sq_level_anp_energy(const sq_level_model *M, const sq_level_state *S)
 {
-    size_t n3 = 3 * (size_t)L->model.n;
+    size_t n3 = 3 * (size_t)M->n;
     double *y = sq_malloc(sizeof(double) * n3), e = 0;
-    sq_level_anp_apply(L, L->state.d, y);
+    sq_level_anp_apply(M, S, S->d, y);
     for (size_t k = 0; k < n3; k++)
-        e += L->state.d[k] * y[k];
+        e += S->d[k] * y[k];
     free(y);
     return 0.5 * e;
 }

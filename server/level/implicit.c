@@ -68,7 +68,7 @@ void sq_imp_apply_k(const imp_op *o, const double *x, double *y)
     const sq_level_model *M = &L->model;
     const size_t n3 = 3 * (size_t)M->n;
     if (L->state.anp) {
-        sq_level_anp_apply(L, x, y);
+        sq_level_anp_apply(&L->model, &L->state, x, y);
         return;
     }
     if (L->state.corot) { /* the warped stiffness assembled at the linearisation, by the fused pass */
@@ -158,7 +158,7 @@ static void corot_linearise(sq_level *L)
     sq_implicit *I = L->state.implicit;
     const sq_corot *C = L->state.corot;
     const sq_level_model *M = &L->model;
-    sq_level_corot_converge(L);
+    sq_level_corot_converge(&L->model, &L->state);
     if (!I->kup_r) {
         I->kup_r = imp_calloc(9 * (size_t)M->up_start[M->n], sizeof(double));
         I->tet_edge = imp_calloc(6 * (size_t)C->ntets, sizeof(int));
@@ -446,7 +446,7 @@ static void forces_now(sq_level *L, const sq_material *mat, const double g[3])
 {
     if (L->state.corot)
         corot_linearise(L);
-    sq_level_forces(L, mat, g, NULL);
+    sq_level_forces(&L->model, &L->state, mat, g, NULL);
 }
 
 /* FNV-1a over the bits of d, v and g: equal exactly when the state is the same */
@@ -469,7 +469,7 @@ static unsigned long long state_hash(const sq_level *L, const double g[3])
 static double total_energy(const sq_level *L, const double g[3])
 {
     const sq_level_model *M = &L->model;
-    double e = sq_level_elastic_energy(L);
+    double e = sq_level_elastic_energy(&L->model, &L->state);
     for (int i = 0; i < M->n; i++) {
         const double *v = L->state.v + 3 * (size_t)i, *d = L->state.d + 3 * (size_t)i;
         e += M->mass[i] * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g[0] * d[0] + g[1] * d[1] + g[2] * d[2]));

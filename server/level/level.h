@@ -102,6 +102,9 @@ typedef struct sq_level_model {
     int *up_start;         /* CSR rows (n+1) */
     int *up_col;           /* columns j > i (up_start[n]) */
     double *Kup;           /* blocks (up_start[n] x 9) */
+    /* the row of the operator table the step uses, set with the element model (sq_level_init:
+     * linear; sq_level_corot_enable, sq_level_anp_enable and their frees) */
+    sq_level_op_kind op_kind;
 } sq_level_model;
 
 /* the changing state of one level: displacement and velocity, the scratch of the force passes,
@@ -136,23 +139,23 @@ typedef struct sq_level {
     double bound_sharp;    /* s */
     int nsub;              /* substeps per frame */
     double dt_fixed;       /* frame_dt / nsub, s */
-    sq_level_op_kind op_kind; /* the row of the operator table the step uses (set with the element model) */
 } sq_level;
 
-/* one row of the operator table: the explicit step (forces of all nodes, then symplectic Euler
- * on the nodes with mask[i] != 0; dt = 0 computes the forces into L->f only), the force pass
- * into f (acc: the linear pass's all-zero scratch of 3 n + 1, left zero; active may be NULL)
- * and the elastic energy */
+/* one row of the operator table, on a level's const model M and its state S: the explicit step
+ * (forces of all nodes, then symplectic Euler on the nodes with mask[i] != 0; dt = 0 computes
+ * the forces into S->f only), the force pass into f (acc: the linear pass's all-zero scratch of
+ * 3 n + 1, left zero; active may be NULL; S only read) and the elastic energy */
 typedef struct sq_level_ops {
     const char *name;
-    void (*step)(sq_level *L, const sq_material *mat, const double g[3], double dt, const unsigned char *mask);
-    void (*forces)(const sq_level *L, const sq_material *mat, const double g[3], const unsigned char *active,
-                   double *f, double *acc);
-    double (*energy)(const sq_level *L);
+    void (*step)(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
+                 const unsigned char *mask);
+    void (*forces)(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+                   const unsigned char *active, double *f, double *acc);
+    double (*energy)(const sq_level_model *M, const sq_level_state *S);
 } sq_level_ops;
-/* the table's row of kind k (NULL out of range), and the row a level steps with */
+/* the table's row of kind k (NULL out of range), and the row a model steps with */
 const sq_level_ops *sq_level_ops_of(sq_level_op_kind k);
-static inline const sq_level_ops *sq_level_ops_get(const sq_level *L) { return sq_level_ops_of(L->op_kind); }
+static inline const sq_level_ops *sq_level_ops_get(const sq_level_model *M) { return sq_level_ops_of(M->op_kind); }
 
 /* health warnings (body/body.h counts them per kind; docs/physics.md "Health"): a kind and up
  * to four values, the first of which is the one counted as "last value" */
@@ -321,12 +324,12 @@ static inline void sq_level_tet_block(sq_operator_kind op, double V, const doubl
 
 /* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
  * NULL), reading d and v of all neighbours (ghost values included) */
-void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
+void sq_level_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
                      const unsigned char *active);
 
 /* the same forces of L's state written to f (n x 3) instead of L->f, with acc an all-zero
  * scratch of 3 n + 1 doubles (left all zero): L (model and state) is only read */
-void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
+void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double gravity[3],
                         const unsigned char *active, double *f, double *acc);
 
 /* residual force measure of forces f (n x 3) over the listed nodes (the list active of nactive
@@ -363,15 +366,15 @@ static inline __attribute__((always_inline)) void sq_level_euler_node(double *re
  * the displacement is set to goal and the velocity to (goal - from) / span (0 if span <= 0);
  * a constrained axis is left as it is, at zero: a constraint wins over a tool
  * (docs/physics.md) */
-void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double from[3], double span);
+void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3], const double from[3], double span);
 
 /* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
-void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
+void sq_level_integrate(const sq_level_model *M, sq_level_state *S, double dt, const unsigned char *active);
 
 /* one step of all nodes in a single pass: sq_level_forces(L, mat, gravity, NULL) followed by
  * sq_level_integrate(L, dt, mask) (same values), fused so the operator is streamed once; nodes
  * with mask[i] == 0 (mask may be NULL) get their force in L->f but are not integrated */
-void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3], double dt,
                    const unsigned char *mask);
 
 /* y = -K x (n x 3) by the step's fused upper-half pass: x must have one readable double past
@@ -380,7 +383,7 @@ void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double 
 
 /* Laplacian of the displacement at node i, -(1/vol_i) sum_j lap_ij d_j (m^-1); lap_ij is the
  * (positive semi-definite) stiffness of -Lap, hence the minus sign */
-void sq_level_laplacian(const sq_level *L, int i, double out[3]);
+void sq_level_laplacian(const sq_level_model *M, const sq_level_state *S, int i, double out[3]);
 
 /* y = A x for a symmetric positive definite operator A on the level's nodes (3n values) */
 typedef void (*sq_level_op)(const sq_level_model *M, const void *ctx, const double *x, double *y);
@@ -414,9 +417,9 @@ int sq_level_static_solve_pressure(const sq_level_model *M, const sq_material *m
  * enable (mode SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED) refuses the paper operator */
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err);
 void sq_level_anp_free(sq_level *L);
-void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
-void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
-double sq_level_anp_energy(const sq_level *L);
+void sq_level_anp_apply(const sq_level_model *M, const sq_level_state *S, const double *x, double *y); /* y = K_np x */
+void sq_level_anp_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f); /* into f */
+double sq_level_anp_energy(const sq_level_model *M, const sq_level_state *S);
 /* the operator alone, on a mesh with n nodes of nodal volumes vol (the static solve's use) */
 sq_anp *sq_anp_create(const sq_mesh *m, int n, int mode);
 void sq_anp_set_moduli(sq_anp *A, double mu, double lambda);
@@ -427,7 +430,7 @@ void sq_anp_apply_fast(const sq_anp *A, const double *vol, const double *x, doub
 void sq_anp_destroy(sq_anp *A);
 
 /* 0.5 d.K d of the level's current displacement (J) */
-double sq_level_elastic_energy(const sq_level *L);
+double sq_level_elastic_energy(const sq_level_model *M, const sq_level_state *S);
 
 /* corotational elasticity (level/corot.c; fem operator; fixed mode, and adaptive through lod/): per-tet rest gradients and
  * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
@@ -441,11 +444,11 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: cop
 size_t sq_level_corot_state_len(const sq_level *L);
 void sq_level_corot_save(const sq_level *L, double *q);
 void sq_level_corot_load(sq_level *L, const double *q);
-void sq_level_corot_converge(sq_level *L);                     /* rotations converged to the current d */
-void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
+void sq_level_corot_converge(const sq_level_model *M, sq_level_state *S);                     /* rotations converged to the current d */
+void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
                          const unsigned char *mask);
-void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
-double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
+void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f); /* into f */
+double sq_level_corot_energy(const sq_level_model *M, const sq_level_state *S);               /* corotational elastic energy, J */
 /* the adaptive frame's pieces (lod/corotational.c): the element force of tet t (elastic and
  * stiffness or viscous damping; no mass damping, no gravity) from corner values d4, v4 (4 x 3,
  * the tet's corners in mesh order) into f4 (4 x 3), the stored rotation improved iters times
@@ -453,17 +456,17 @@ double sq_level_corot_energy(const sq_level *L);               /* corotational e
  * energy of tet t at corner displacements d4 (rotation converged, not stored); and the step's
  * force pass alone (into L->f, one rotation update per tet, stored: the values
  * sq_level_corot_step integrates) */
-void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, const double *d4, const double *v4,
+void sq_level_corot_tet_force(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, int t, const double *d4, const double *v4,
                               int iters, int store, double *f4);
-double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4);
-void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const double g[3]);
+double sq_level_corot_tet_energy(const sq_level_model *M, const sq_level_state *S, int t, const double *d4);
+void sq_level_corot_step_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3]);
 /* four tets t[0..3] at once (t[l] < 0: an empty lane, zero force), one rotation update each:
  * corner values d, v and forces f laid out tet after tet (12 per tet); the vector pass's
  * arithmetic in AVX2 builds (without viscosity), else the per-tet one */
-void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
+void sq_level_corot_tet_force4(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const int t[4], const double *d,
                                const double *v, int store, double *f);
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
-int sq_level_corot_inverted(const sq_level *L);
+int sq_level_corot_inverted(const sq_level_model *M, const sq_level_state *S);
 
 
 /* ---- backward Euler (level/implicit.c; docs/physics.md section 12) ---- */

@@ -78,7 +78,7 @@ static void converge_tet(sq_lod *lod, const sq_material *mat, int k, int t)
     double d4[12], v4[12], f4[12];
     for (int q = 0; q < 4; q++)
         sq_lodx_value(lod, k, tv[q], d4 + 3 * q, v4 + 3 * q);
-    sq_level_corot_tet_force(L, mat, t, d4, v4, 50, 1, f4);
+    sq_level_corot_tet_force(&L->model, &L->state, mat, t, d4, v4, 50, 1, f4);
 }
 
 /* the tet lists of level k for the current layout; the rotations of tets that start being
@@ -187,7 +187,7 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     const sq_mesh *m = L->model.mesh;
     if (lk->lay.nactive == L->model.n && !lod->test.corot_tets_always) {
         /* no ghosts: the fixed step's pass */
-        sq_level_corot_step_forces(L, mat, gravity);
+        sq_level_corot_step_forces(&L->model, &L->state, mat, gravity);
         return;
     }
     const double a = mat->rayleigh_mass;
@@ -230,7 +230,7 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
                 memcpy(V + 12 * l + 3 * q, &vq, sizeof vq);
             }
         }
-        sq_level_corot_tet_force4(L, mat, t4, D, V, 1, F);
+        sq_level_corot_tet_force4(&L->model, &L->state, mat, t4, D, V, 1, F);
         /* active corners into f, ghost corners into their ring ghost's gf, in tet order */
         for (int l = 0; l < 4; l++) {
             if (t4[l] < 0)
@@ -282,7 +282,7 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
                 if (t4[l] >= 0)
                     gather(lod, k, t4[l], fr, D + 12 * l, V + 12 * l);
             }
-            sq_level_corot_tet_force4(Lk, mat, t4, D, V, 0, F);
+            sq_level_corot_tet_force4(&Lk->model, &Lk->state, mat, t4, D, V, 0, F);
             for (int l = 0; l < 4; l++) {
                 if (t4[l] < 0)
                     continue;
@@ -360,7 +360,7 @@ double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)
             double d4[12];
             for (int q = 0; q < 4; q++)
                 memcpy(d4 + 3 * q, L->state.d + 3 * (size_t)tv[q], 3 * sizeof(double));
-            ee += (na < 4 ? 0.5 : 1.0) * sq_level_corot_tet_energy(L, t, d4);
+            ee += (na < 4 ? 0.5 : 1.0) * sq_level_corot_tet_energy(&L->model, &L->state, t, d4);
         }
     }
     if (kinetic)

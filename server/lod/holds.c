@@ -87,7 +87,7 @@ static void start_holds(sq_lod *lod, double T)
         double goal[3];
         for (int c = 0; c < 3; c++)
             goal[c] = E->gsum[c] / E->count;
-        sq_level_apply_hold(Lk, E->node, goal, E->from, span); /* constrained axes stay at rest */
+        sq_level_apply_hold(&Lk->model, &Lk->state, E->node, goal, E->from, span); /* constrained axes stay at rest */
         for (int c = 0; c < 3; c++) {
             if (fx & (1u << c))
                 continue;

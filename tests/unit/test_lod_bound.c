@@ -110,7 +110,7 @@ static void coupled_forces(sq_lod *lod, const sq_material *mat)
         sq_lodx_eval_ring(lod, m, 1);
     for (int m = 0; m < lod->L; m++)
         if (lod->lev[m].lay.nactive > 0) {
-            sq_level_forces(&lod->lv[m], mat, g, NULL);
+            sq_level_forces(&lod->lv[m].model, &lod->lv[m].state, mat, g, NULL);
             sq_lodx_front_correct(lod, mat, m);
         }
     for (int m = 0; m < lod->L; m++)

@@ -205,7 +205,7 @@ static double rigid_force(int corot, int level_force[3], double out[3])
     }
     /* an outside change of state: the rotations converged to it (a no-op for linear levels) */
     for (int k = 0; k < 3; k++)
-        sq_level_corot_converge(sq_body_level(b, k));
+        sq_level_corot_converge(&(sq_body_level(b, k))->model, &(sq_body_level(b, k))->state);
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     double worst = 0;
     for (int k = 0; k < 3; k++) {
@@ -353,7 +353,7 @@ SQ_TEST(lod_corot_energy_across_split_merge_and_undamped_run)
             lv[k].state.d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.2 * x[2] * x[2] * (1 + 0.3 * x[0]);
         }
     sq_lod_sync(lod);
-    double g[3] = {0, 0, 0}, Ek, Ee, E0 = sq_lod_energy(lod, &Ek, &Ee), E0_level = sq_level_corot_energy(&lv[0]);
+    double g[3] = {0, 0, 0}, Ek, Ee, E0 = sq_lod_energy(lod, &Ek, &Ee), E0_level = sq_level_corot_energy(&lv[0].model, &lv[0].state);
     double e_lin = 0; /* the linear energy of the same field */
     for (int i = 0; i < lv[0].model.n; i++) {
         double f[3] = {0, 0, 0};

@@ -586,11 +586,11 @@ SQ_TEST(lod_guard_load_check_times_a_real_coarse_frame)
         sq_body_substeps(b, sub);
         size_t nn = (size_t)L->model.n;
         double *f = sq_malloc(sizeof(double) * 3 * nn), *acc = sq_calloc(3 * nn + 1, sizeof(double));
-        sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc);
+        sq_level_forces_to(&L->model, &L->state, &def->material, def->gravity, NULL, f, acc);
         double c0 = sq_thread_cpu(), c = c0;
         long reps = 0;
         while (c - c0 < 20e-3 || reps < 10) {
-            sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc);
+            sq_level_forces_to(&L->model, &L->state, &def->material, def->gravity, NULL, f, acc);
             reps++;
             c = sq_thread_cpu();
         }

@@ -155,8 +155,8 @@ static double run_at(sq_level *L, const sq_material *mat, double dt, int steps)
         L->state.v[k] = 0;
     }
     for (int s = 0; s < steps; s++) {
-        sq_level_forces(L, mat, zero, NULL);
-        sq_level_integrate(L, dt, NULL);
+        sq_level_forces(&L->model, &L->state, mat, zero, NULL);
+        sq_level_integrate(&L->model, &L->state, dt, NULL);
     }
     double mx = 0;
     for (size_t k = 0; k < n3; k++) {
@@ -270,12 +270,12 @@ SQ_TEST(physics_viscosity_damps_and_tightens_bound)
                 L->state.v[3 * i] = 0.1 * m->x[3 * i + 2];
         int steps = (int)ceil(1.0 / B.dt);
         for (int s = 0; s < steps; s++)
-            sq_level_step(L, mats[k], g, B.dt, NULL);
+            sq_level_step(&L->model, &L->state, mats[k], g, B.dt, NULL);
         double ke = 0;
         for (int i = 0; i < L->model.n; i++)
             ke += 0.5 * L->model.mass[i] * (L->state.v[3 * i] * L->state.v[3 * i] + L->state.v[3 * i + 1] * L->state.v[3 * i + 1] +
                                       L->state.v[3 * i + 2] * L->state.v[3 * i + 2]);
-        E[k] = ke + sq_level_elastic_energy(L);
+        E[k] = ke + sq_level_elastic_energy(&L->model, &L->state);
     }
     fprintf(stderr, "    viscosity: energy after 1 s %.4g J (undamped) vs %.4g J (phi=2000, psi=5000 Pa s)\n", E[0], E[1]);
     CHECK(isfinite(E[1]) && E[1] < 0.2 * E[0]);

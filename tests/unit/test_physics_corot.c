@@ -57,10 +57,10 @@ SQ_TEST(corot_rigid_rotation_gives_zero_force)
         for (int s = 0; s < 40; s++) {
             memcpy(L.state.d, d, sizeof(double) * 3 * m->nnodes);
             memset(L.state.v, 0, sizeof(double) * 3 * m->nnodes);
-            sq_level_corot_step(&L, &m0, zero, 0, NULL);
+            sq_level_corot_step(&L.model, &L.state, &m0, zero, 0, NULL);
         }
         double cor_step = max_force(&L);
-        double energy = sq_level_corot_energy(&L);
+        double energy = sq_level_corot_energy(&L.model, &L.state);
         fprintf(stderr, "    axis %d: max |f| linear %.4g N, corotational %.3g N (step path %.3g N), energy %.3g J\n",
                 a, lin, cor, cor_step, energy);
         CHECK(lin > 1);
@@ -504,7 +504,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     L = sq_body_level(b, 0);
     CHECK(L->state.corot != NULL);
     sq_body_reset(b);
-    CHECK(sq_level_corot_energy(L) == 0);
+    CHECK(sq_level_corot_energy(&L->model, &L->state) == 0);
     CHECK(L->state.d[3 * (L->model.n - 1) + 2] == 0);
     /* blow-up: a NaN (which poisons the rotations of its tets) is detected, the body and its
      * rotations are reset, and the next frames are finite and sag as before */
@@ -551,10 +551,10 @@ SQ_TEST(corot_vector_step_matches_scalar_forces)
     /* rotations of I + grad(d + b v), converged: step with dt = 0 until they stop moving */
     double g[3] = {0, 0, -9.81};
     for (int s = 0; s < 30; s++)
-        sq_level_corot_step(&L, &mat, g, 0, NULL);
+        sq_level_corot_step(&L.model, &L.state, &mat, g, 0, NULL);
     double *fv = malloc(sizeof(double) * 3 * m->nnodes);
     memcpy(fv, L.state.f, sizeof(double) * 3 * m->nnodes);
-    sq_level_corot_forces(&L, &mat, g, L.state.f);
+    sq_level_corot_forces(&L.model, &L.state, &mat, g, L.state.f);
     double num = 0, den = 0;
     for (int i = 0; i < 3 * m->nnodes; i++) {
         num += (fv[i] - L.state.f[i]) * (fv[i] - L.state.f[i]);

@@ -235,12 +235,12 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
     for (int mode = 0; mode < 3; mode++) {
         if (mode == 0) {
             memcpy(L.state.d, x, sizeof(double) * n3);
-            ex[0] = 2 * sq_level_elastic_energy(&L);
+            ex[0] = 2 * sq_level_elastic_energy(&L.model, &L.state);
             continue;
         }
         CHECK(sq_level_anp_enable(&L, &mat, SQ_OPERATOR_FEM, mode, &e) == 0);
-        sq_level_anp_apply(&L, x, kx);
-        sq_level_anp_apply(&L, y, ky);
+        sq_level_anp_apply(&L.model, &L.state, x, kx);
+        sq_level_anp_apply(&L.model, &L.state, y, ky);
         double xky = 0, ykx = 0, xkx = 0, scale = 0;
         for (size_t k = 0; k < n3; k++) {
             xky += x[k] * ky[k];
@@ -265,7 +265,7 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
             y[3 * i + 1] = -2 + w[2] * X[0] - w[0] * X[2];
             y[3 * i + 2] = 0.5 + w[0] * X[1] - w[1] * X[0];
         }
-        sq_level_anp_apply(&L, y, ky);
+        sq_level_anp_apply(&L.model, &L.state, y, ky);
         double rig = 0;
         for (size_t k = 0; k < n3; k++)
             rig = th_max(rig, fabs(ky[k]));
@@ -295,7 +295,7 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
             x[k] /= nx;
             y[k] = x[k] / sqrt(L.model.mass[k / 3]);
         }
-        sq_level_anp_apply(&L, y, ky);
+        sq_level_anp_apply(&L.model, &L.state, y, ky);
         lam = 0;
         for (size_t k = 0; k < n3; k++) {
             x[k] = ky[k] / sqrt(L.model.mass[k / 3]);

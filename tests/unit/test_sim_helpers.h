@@ -124,7 +124,7 @@ static inline void th_elastic_force(sq_level *L, const sq_material *mat, const d
     m.use_viscosity = 0;
     memcpy(L->state.d, d, sizeof(double) * 3 * (size_t)L->model.n);
     memset(L->state.v, 0, sizeof(double) * 3 * (size_t)L->model.n);
-    sq_level_forces(L, &m, zero, NULL);
+    sq_level_forces(&L->model, &L->state, &m, zero, NULL);
 }
 
 /* largest |entry| of the level's K, a scale for force tolerances */

@@ -235,9 +235,9 @@ SQ_TEST(sim_level_step_equals_forces_then_integrate)
             A.state.v[k] = B.state.v[k] = 1e-2 * cos(0.7 * k);
         }
         for (int s = 0; s < 20; s++) {
-            sq_level_forces(&A, &mat, g, NULL);
-            sq_level_integrate(&A, 1e-3, mask);
-            sq_level_step(&B, &mat, g, 1e-3, mask);
+            sq_level_forces(&A.model, &A.state, &mat, g, NULL);
+            sq_level_integrate(&A.model, &A.state, 1e-3, mask);
+            sq_level_step(&B.model, &B.state, &mat, g, 1e-3, mask);
         }
         CHECK(memcmp(A.state.d, B.state.d, sizeof(double) * 3 * m->nnodes) == 0);
         CHECK(memcmp(A.state.v, B.state.v, sizeof(double) * 3 * m->nnodes) == 0);
@@ -269,9 +269,9 @@ SQ_TEST(sim_level_masked_forces_match_fast_pass)
     unsigned char *all = malloc(m->nnodes);
     memset(all, 1, m->nnodes);
     double *fast = malloc(sizeof(double) * 3 * m->nnodes);
-    sq_level_forces(&L, &mat, g, NULL);
+    sq_level_forces(&L.model, &L.state, &mat, g, NULL);
     memcpy(fast, L.state.f, sizeof(double) * 3 * m->nnodes);
-    sq_level_forces(&L, &mat, g, all);
+    sq_level_forces(&L.model, &L.state, &mat, g, all);
     double diff = 0, scale = 0;
     for (int k = 0; k < 3 * m->nnodes; k++) {
         diff = th_max(diff, fabs(fast[k] - L.state.f[k]));
@@ -386,7 +386,7 @@ SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
         memcpy(v0, L.state.v, sizeof(double) * n3);
         for (size_t k = 0; k < n3; k++)
             L.state.f[k] = -7; /* a marker: forces_to must not write it */
-        sq_level_forces_to(&L, &mat, g, NULL, f, acc);
+        sq_level_forces_to(&L.model, &L.state, &mat, g, NULL, f, acc);
         int fmark = 0, accz = 0;
         for (size_t k = 0; k < n3; k++) {
             fmark += L.state.f[k] == -7;
@@ -394,7 +394,7 @@ SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
         }
         CHECK(fmark == (int)n3 && accz == (int)n3);
         CHECK(memcmp(d0, L.state.d, sizeof(double) * n3) == 0 && memcmp(v0, L.state.v, sizeof(double) * n3) == 0);
-        sq_level_forces(&L, &mat, g, NULL);
+        sq_level_forces(&L.model, &L.state, &mat, g, NULL);
         CHECK(memcmp(f, L.state.f, sizeof(double) * n3) == 0);
         double fmax = 0;
         for (size_t k = 0; k < n3; k++)

@@ -189,8 +189,8 @@ SQ_TEST(stability_above_bound_blows_up_test_only)
             }
             double dmax = 0;
             for (int s = 0; s < 1000; s++) {
-                sq_level_forces(L, &mat, sq_body_get_def(b)->gravity, NULL);
-                sq_level_integrate(L, frac[k] * L->bound, NULL);
+                sq_level_forces(&L->model, &L->state, &mat, sq_body_get_def(b)->gravity, NULL);
+                sq_level_integrate(&L->model, &L->state, frac[k] * L->bound, NULL);
             }
             for (int i = 0; i < 3 * L->model.n; i++)
                 dmax = th_max(dmax, fabs(L->state.d[i]));
