@@ -78,7 +78,7 @@ static double con_jn(const sq_body *b, int k)
 
 void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
 {
-    sq_level_implicit_set_contacts(L, NULL);
+    sq_level_implicit_set_contacts(&L->model, &L->state, NULL);
     const int n = L->model.n;
     if (!b->nobstacles || !b->cpoint || b->cpoint_n != n)
         return;
@@ -169,7 +169,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
     b->ncon = m;
     b->con_set = (sq_implicit_contacts){.n = m, .node = b->con_node, .normal = b->con_normal, .u = b->con_u,
                                         .stick = b->con_stick, .force = b->con_f, .impulse = b->con_imp};
-    sq_level_implicit_set_contacts(L, &b->con_set);
+    sq_level_implicit_set_contacts(&L->model, &L->state, &b->con_set);
 }
 
 void sq_body_contact_constrained(sq_body *b, sq_level *L, double h)

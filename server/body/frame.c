@@ -48,22 +48,22 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
     const double deadline = budget_s > 0 ? sq_thread_cpu() + budget_s : 0;
     if (def->precond == SQ_PRECOND_MULTIGRID) {
         /* the body's coarser levels are the hierarchy (built once; block Jacobi without any) */
-        const sq_level *coarse[SQ_MAX_LEVELS];
+        const sq_level_model *coarse[SQ_MAX_LEVELS];
         int nc = 0;
         for (int k = b->cur - 1; k >= 0; k--) {
             sq_err ignore = {{0}};
             if (sq_body_ensure_level(b, k, &ignore) < 0)
                 break;
-            coarse[nc++] = &b->level[k];
+            coarse[nc++] = &b->level[k].model;
         }
-        sq_level_implicit_set_coarse(L, coarse, nc);
+        sq_level_implicit_set_coarse(&L->model, &L->state, coarse, nc);
     }
     sq_implicit_stats st, tot;
     memset(&tot, 0, sizeof tot);
     for (int s = 0; s < nsub; s++) {
         sq_body_contact_constraints(b, L, h);
-        sq_level_implicit_step(L, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
-        sq_level_implicit_set_contacts(L, NULL);
+        sq_level_implicit_step(&L->model, &L->state, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
+        sq_level_implicit_set_contacts(&L->model, &L->state, NULL);
         sq_body_contact_constrained(b, L, h);
         sq_body_contact_step(b, L, nk ? b->mask[b->cur] : NULL, h);
         tot.iterations += st.iterations;

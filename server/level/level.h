@@ -505,8 +505,8 @@ int sq_implicit_def_check(const sq_implicit_def *d, sq_err *err);
  * with mask[i] == 0 (held by a tool) move at their velocity v_i (prescribed: d_i += h v_i on the
  * unconstrained axes) and are projected out of the solve, as are constrained axes. CG stops at def->tol, at
  * def->max_iter, or once the thread's CPU clock (sq_thread_cpu) passes deadline (0: none) */
-void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[3], double h,
-                            const unsigned char *mask, const sq_implicit_def *def, double deadline,
+void sq_level_implicit_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                            double h, const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st);
 void sq_level_implicit_free(sq_level *L);
 
@@ -528,12 +528,13 @@ typedef struct sq_implicit_contacts {
     double *impulse;             /* n x 3, written by the step */
 } sq_implicit_contacts;
 /* the contacts of L's next implicit steps (borrowed until set again; NULL: none) */
-void sq_level_implicit_set_contacts(sq_level *L, const sq_implicit_contacts *cc);
+void sq_level_implicit_set_contacts(const sq_level_model *M, sq_level_state *S, const sq_implicit_contacts *cc);
 /* the multigrid preconditioner's hierarchy: coarse[0] the next coarser level (another mesh of
  * the same shape), coarse[1] the one below, ...; each fine node is located in the coarser rest
  * mesh (sq_mesh_locate) and its barycentrics are the prolongation (their transpose restricts).
  * The levels are borrowed (they must outlive L's solves). Returns the levels used; with none,
  * SQ_PRECOND_MULTIGRID is block Jacobi */
-int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse);
+int sq_level_implicit_set_coarse(const sq_level_model *M, sq_level_state *S, const sq_level_model *const *coarse,
+                                 int ncoarse);
 
 #endif
