@@ -36,9 +36,10 @@ static void add_feedback(const sq_body *b, const sq_level *L, int nk, int ntools
 
 /* the implicit frame's steps (level/implicit.c): substeps backward Euler steps of
  * frame_dt / substeps, held nodes projected out; feedback from the force at each step's end
- * state; CG stopped by the frame budget when there is one (budget_s > 0) */
-static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
-                           sq_frame_profile *prof)
+ * state; CG stopped by the frame budget when there is one (budget_s > 0); the held nodes put
+ * at their targets at the end. Returns the substeps stepped */
+static int implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                          sq_frame_profile *prof)
 {
     const sq_material *mat = &b->def.material;
     const double *g = b->def.gravity;
@@ -87,6 +88,13 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
             sq_body_count_health(b, SQ_HEALTH_SOLVE_UNCONVERGED, tot.residual);
         }
     }
+    for (int k = 0; k < nk; k++) { /* at the target exactly (the steps' sum of h u, to round-off) */
+        int i = b->khold[k].node;
+        for (int c = 0; c < 3; c++)
+            if (!(L->model.fixed[i] & (1u << c)))
+                L->state.d[3 * (size_t)i + c] = b->khold[k].target[c];
+    }
+    return nsub;
 }
 
 /* the explicit frame's start state (after the holds): d, v and the corotational rotations */
@@ -138,8 +146,10 @@ static void load_frame_start(sq_body *b, sq_level *L)
 /* the explicit frame's substeps: forces on all nodes, feedback on held nodes, integrate the
  * others; a frame that diverges is re-run from its start with twice the substeps (up to
  * SQ_RETRY_MAX times; docs/physics.md section 11). Returns the substeps stepped */
-static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], sq_frame_profile *prof)
+static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                          sq_frame_profile *prof)
 {
+    (void)budget_s; /* the explicit substeps are not cut by the budget */
     const sq_material *mat = &b->def.material;
     const double *g = b->def.gravity;
     unsigned char *mask = b->mask[b->cur];
@@ -187,6 +197,22 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
     }
     return nsub;
 }
+
+/* the integrators of the fixed-level frame, one row per sq_integrator_kind: the body's
+ * def.integrator, chosen at creation (or by sq_body_set_integrator), picks the row, and the
+ * frame runs it without asking which it is */
+typedef struct frame_integrator {
+    const char *name;
+    int hold_velocity; /* 1: a hold prescribes the velocity only, the steps bring d to the target */
+    /* the frame's substeps after the holds; returns the substeps stepped */
+    int (*steps)(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                 sq_frame_profile *prof);
+} frame_integrator;
+
+static const frame_integrator integrators[] = {
+    [SQ_INTEGRATOR_EXPLICIT] = {"explicit", 0, explicit_steps}, /* symplectic Euler substeps */
+    [SQ_INTEGRATOR_IMPLICIT] = {"implicit", 1, implicit_steps}, /* backward Euler by CG */
+};
 
 static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                         sq_frame_profile *prof, double budget_s)
@@ -237,7 +263,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     /* held nodes: displacement set to the target, velocity to (target - old) / frame_dt, on the
      * free axes (the one hold rule of both modes: sq_level_apply_hold); implicit: the velocity
      * only, the displacement reaching the target through the frame's steps */
-    const int implicit = b->def.integrator == SQ_INTEGRATOR_IMPLICIT;
+    const frame_integrator *in = &integrators[b->def.integrator];
     for (int h = 0; h < nk; h++) {
         sq_hold *kh = &b->khold[h];
         int i = kh->node;
@@ -246,25 +272,13 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
         double keep[3];
         memcpy(keep, L->state.d + 3 * (size_t)i, sizeof keep);
         sq_level_apply_hold(&L->model, &L->state, i, kh->target, L->state.d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
-        if (implicit)
+        if (in->hold_velocity)
             memcpy(L->state.d + 3 * (size_t)i, keep, sizeof keep);
         mask[i] = 0;
         hold_of[i] = -1;
     }
 
-    int nsub;
-    if (implicit) {
-        implicit_steps(b, L, nk, ntools, force, budget_s, prof);
-        for (int h = 0; h < nk; h++) { /* at the target exactly (the steps' sum of h u, to round-off) */
-            int i = b->khold[h].node;
-            for (int c = 0; c < 3; c++)
-                if (!(L->model.fixed[i] & (1u << c)))
-                    L->state.d[3 * (size_t)i + c] = b->khold[h].target[c];
-        }
-        nsub = b->def.implicit.substeps;
-    } else {
-        nsub = explicit_steps(b, L, nk, ntools, force, prof);
-    }
+    int nsub = in->steps(b, L, nk, ntools, force, budget_s, prof);
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;
     mark_held(b, b->cur, b->khold, nk);

@@ -66,7 +66,9 @@ typedef struct sq_implicit sq_implicit;
  * model is set (sq_level_init: linear; sq_level_corot_enable: corotational; sq_level_anp_enable:
  * nodal or smoothed) and dispatched through level.c's table of sq_level_ops, one row per kind
  * (corotational wins over a pressure mode when both are enabled, as it always has). The
- * implicit step (sq_level_implicit_step) is the body's integrator choice, not a row here. */
+ * integrator (these rows' symplectic Euler substeps, or backward Euler by CG,
+ * sq_level_implicit_step, on the same operator) is a row of the fixed frame's integrator
+ * table in body/frame.c, picked by the body's def.integrator. */
 typedef enum sq_level_op_kind {
     SQ_LEVEL_OP_LINEAR = 0,   /* element-wise linear blocks K (and D) */
     SQ_LEVEL_OP_COROT = 1,    /* corotational tets (level/corot.c) */
