@@ -417,8 +417,7 @@ int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op
         sq_level_anp_free(L);
     if (!L->state.anp)
         L->state.anp = sq_anp_create(L->model.mesh, L->model.n, mode);
-    if (!L->state.corot) /* corotational elasticity keeps its row */
-        L->model.op_kind = mode == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
+    sq_level_op_update(L); /* corotational elasticity keeps its row */
     sq_anp_set_moduli(L->state.anp, mat->mu, mat->lambda);
     return 0;
 }
@@ -427,8 +426,7 @@ void sq_level_anp_free(sq_level *L)
 {
     sq_anp_destroy(L->state.anp);
     L->state.anp = NULL;
-    if (!L->state.corot)
-        L->model.op_kind = SQ_LEVEL_OP_LINEAR;
+    sq_level_op_update(L);
 }
 
 void sq_level_anp_apply(const sq_level_model *M, const sq_level_state *S, const double *x, double *y)

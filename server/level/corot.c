@@ -56,7 +56,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C->u = calloc_aligned(4 * (size_t)L->model.n + 4);
         C->acc = calloc_aligned(4 * (size_t)L->model.n + 4);
         L->state.corot = C;
-        L->model.op_kind = SQ_LEVEL_OP_COROT;
+        sq_level_op_update(L);
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
             double V = sq_tet_gradients(m, t, a);
@@ -91,8 +91,7 @@ void sq_level_corot_free(sq_level *L)
     free(L->state.corot->acc);
     free(L->state.corot);
     L->state.corot = NULL;
-    L->model.op_kind = !L->state.anp ? SQ_LEVEL_OP_LINEAR
-                         : sq_anp_mode(L->state.anp) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
+    sq_level_op_update(L);
 }
 
 void sq_level_corot_reset(sq_level *L)

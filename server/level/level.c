@@ -165,7 +165,7 @@ void sq_level_init_shared(sq_level *L, const sq_level *src)
 {
     memset(L, 0, sizeof *L);
     L->model = src->model;
-    L->model.op_kind = SQ_LEVEL_OP_LINEAR; /* the element models are not shared: linear until enabled */
+    sq_level_op_update(L); /* the element models are not shared: linear until enabled */
     L->model_shared = 1;
     size_t n3 = 3 * (size_t)L->model.n;
     /* as sq_level_init: one spare double after d, v and acc */
@@ -731,6 +731,15 @@ static const sq_level_ops level_ops[SQ_LEVEL_OP_NKINDS] = {
     [SQ_LEVEL_OP_NODAL] = {"nodal", anp_step, anp_forces_row, sq_level_anp_energy},
     [SQ_LEVEL_OP_SMOOTHED] = {"smoothed", anp_step, anp_forces_row, sq_level_anp_energy},
 };
+
+void sq_level_op_update(sq_level *L)
+{
+    const sq_anp *A = L->state.anp;
+    L->model.op_kind = L->state.corot ? SQ_LEVEL_OP_COROT
+                       : !A       ? SQ_LEVEL_OP_LINEAR
+                       : sq_anp_mode(A) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED
+                                                                : SQ_LEVEL_OP_NODAL;
+}
 
 const sq_level_ops *sq_level_ops_of(sq_level_op_kind k)
 {

@@ -155,6 +155,10 @@ typedef struct sq_level_ops {
                    const unsigned char *active, double *f, double *acc);
     double (*energy)(const sq_level_model *M, const sq_level_state *S);
 } sq_level_ops;
+/* the model's row from the element models its state holds (corotational, else nodal or
+ * smoothed, else linear): the one writer of op_kind, called by the enables and frees of
+ * level/corot.c and level/anp.c and by sq_level_init_shared */
+void sq_level_op_update(sq_level *L);
 /* the table's row of kind k (NULL out of range), and the row a model steps with */
 const sq_level_ops *sq_level_ops_of(sq_level_op_kind k);
 static inline const sq_level_ops *sq_level_ops_get(const sq_level_model *M) { return sq_level_ops_of(M->op_kind); }
