@@ -434,7 +434,8 @@ void sq_level_anp_apply(const sq_level_model *M, const sq_level_state *S, const 
     anp_apply_blocked(S->anp, M->vol, x, y);
 }
 
-void sq_level_anp_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f)
+void sq_level_anp_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+                         double *f)
 {
     sq_anp *A = S->anp;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness, a = mat->rayleigh_mass;

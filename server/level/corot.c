@@ -135,7 +135,8 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src)
  * f = -R K_T (R^T (x + b v) - X): the elastic force plus b R K_T R^T v, with R the rotation of
  * I + grad(d + b v) (it differs from that of I + grad d by O(b |grad v|)). Viscosities (not
  * proportional to K): R from I + grad d, and R D_T R^T v added. */
-static void corot_tets(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, double *f, int iters, int store)
+static void corot_tets(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, double *f, int iters,
+                       int store)
 {
     for (int t = 0; t < S->corot->ntets; t++) {
         const int *tv = M->mesh->tets + 4 * (size_t)t;
@@ -292,7 +293,8 @@ static void corot_tets_simd(sq_corot *C)
 #endif
 
 /* f = m (g - a v) + element forces */
-static void corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f, int iters,
+static void corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+                         double *f, int iters,
                          int store)
 {
     const double a = mat->rayleigh_mass;
@@ -304,7 +306,8 @@ static void corot_forces(const sq_level_model *M, const sq_level_state *S, const
     corot_tets(M, S, mat, f, iters, store);
 }
 
-void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
+void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                         double dt,
                          const unsigned char *mask)
 {
 #ifdef COROT_SIMD
@@ -350,7 +353,8 @@ void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_ma
                                 S->f[3 * i + 2], M->fixed[i]);
 }
 
-void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f)
+void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                           const double g[3], double *f)
 {
     /* rotations iterated to convergence from the stored ones, not stored: the state is unchanged */
     corot_forces(M, S, mat, g, f, 50, 0);
@@ -401,7 +405,7 @@ void sq_level_corot_step_forces(const sq_level_model *M, sq_level_state *S, cons
 {
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
-        sq_level_corot_step(M, S, mat, g, 0, NULL); /* dt = 0: forces into L->f, rotations stored, no update */
+        sq_level_corot_step(M, S, mat, g, 0, NULL); /* dt = 0: forces into S->f, rotations stored, no update */
         return;
     }
 #endif

@@ -438,7 +438,7 @@ static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, dou
     return it + pcg_run(o, def, SQ_PRECOND_BLOCK, def->max_iter - it, 1, b, x, deadline, relres, capped);
 }
 
-/* the force of the current state into L->f (corotational: rotations converged and stored) */
+/* the force of the current state into S->f (corotational: rotations converged and stored) */
 static void forces_now(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3])
 {
     if (S->corot)
@@ -520,7 +520,8 @@ static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level_s
 }
 
 /* the constraints' impulses after the step: M (v1 - v0) - h f(end state) */
-static void contacts_impulses(sq_implicit *I, const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double h)
+static void contacts_impulses(sq_implicit *I, const sq_level_model *M, sq_level_state *S, const sq_material *mat,
+                              const double g[3], double h)
 {
     forces_now(M, S, mat, g);
     for (int k = 0; k < I->cc->n; k++)
@@ -533,7 +534,8 @@ static void contacts_impulses(sq_implicit *I, const sq_level_model *M, sq_level_
         }
 }
 
-void sq_level_implicit_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double h,
+void sq_level_implicit_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                            double h,
                             const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st)
 {
@@ -658,6 +660,6 @@ void sq_level_implicit_step(const sq_level_model *M, sq_level_state *S, const sq
     I->have_prev = 1;
     if (I->ncuse)
         contacts_impulses(I, M, S, mat, g, h);
-    /* L->f holds the last force pass's values (the step's start, or with Newton iterations an
+    /* S->f holds the last force pass's values (the step's start, or with Newton iterations an
      * intermediate state): the caller evaluates the end state's force when it needs it */
 }

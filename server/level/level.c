@@ -483,7 +483,7 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
         return sq_err_set(err, "frame period %g s is out of range: give a frame rate > 0", frame_dt);
     if (!(step_fraction > 0 && step_fraction <= 1))
         return sq_err_set(err, "step_fraction %g is out of range: give 0 < step_fraction <= 1", step_fraction);
-    /* the estimate on the operator the step applies: with "pressure" nodal or smoothed (L->anp)
+    /* the estimate on the operator the step applies: with "pressure" nodal or smoothed (L->state.anp)
      * that operator, never stiffer than the element-wise K (docs/physics.md section 10), so the
      * element-wise Gershgorin bound stays a safe ceiling */
     double g2 = L->omega_max * L->omega_max, lz = sq_level_lanczos_max_own(L, iters);
@@ -642,7 +642,8 @@ void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double 
 
 /* ---- the linear row of the operator table ---- */
 
-static void linear_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3], double dt,
+static void linear_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
+                        double dt,
                         const unsigned char *mask)
 {
     if (mat->use_viscosity && M->D) {
@@ -655,7 +656,8 @@ static void linear_step(const sq_level_model *M, sq_level_state *S, const sq_mat
                mask);
 }
 
-static void linear_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double gravity[3],
+static void linear_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                          const double gravity[3],
                           const unsigned char *active, double *f_out, double *acc)
 {
     const int n = M->n;
@@ -703,7 +705,8 @@ static double linear_energy(const sq_level_model *M, const sq_level_state *S)
 
 /* ---- the element models' rows: their force passes are level/corot.c's and level/anp.c's ---- */
 
-static void corot_forces_row(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+static void corot_forces_row(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                             const double g[3],
                              const unsigned char *active, double *f, double *acc)
 {
     (void)active; /* all nodes (a superset of the active ones) */
@@ -711,7 +714,8 @@ static void corot_forces_row(const sq_level_model *M, const sq_level_state *S, c
     sq_level_corot_forces(M, S, mat, g, f);
 }
 
-static void anp_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt, const unsigned char *mask)
+static void anp_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
+                     const unsigned char *mask)
 {
     sq_level_anp_forces(M, S, mat, g, S->f);
     sq_level_integrate(M, S, dt, mask);
@@ -746,7 +750,8 @@ const sq_level_ops *sq_level_ops_of(sq_level_op_kind k)
     return (unsigned)k < SQ_LEVEL_OP_NKINDS ? &level_ops[k] : NULL;
 }
 
-void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3], double dt,
+void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
+                   double dt,
                    const unsigned char *mask)
 {
     level_ops[M->op_kind].step(M, S, mat, gravity, dt, mask);
@@ -758,7 +763,8 @@ void sq_level_forces(const sq_level_model *M, sq_level_state *S, const sq_materi
     sq_level_forces_to(M, S, mat, gravity, active, S->f, S->acc);
 }
 
-void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double gravity[3],
+void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                        const double gravity[3],
                         const unsigned char *active, double *f_out, double *acc)
 {
     level_ops[M->op_kind].forces(M, S, mat, gravity, active, f_out, acc);
@@ -816,7 +822,8 @@ double sq_level_residual(const sq_level_model *M, const double *f, const double 
     return r;
 }
 
-void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3], const double from[3], double span)
+void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3],
+                         const double from[3], double span)
 {
     const unsigned fx = M->fixed[i];
     for (int c = 0; c < 3; c++) {

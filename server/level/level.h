@@ -223,7 +223,7 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
                          sq_err *err);
 
 /* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes, K the operator
- * the step applies (the element-wise blocks, or with L->anp the nodal-pressure or smoothed
+ * the step applies (the element-wise blocks, or with L->state.anp the nodal-pressure or smoothed
  * operator, which must be enabled first), estimated by `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
  * from it, and the smallest power of two n with frame_dt / n <= step_fraction * bound (the rule
  * of the Gershgorin step and of lod's levels; sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
@@ -233,7 +233,7 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
  * blocks (whatever the pressure mode) */
 double sq_level_lanczos_max(const sq_level *L, int iters);
 /* the same for the operator the step applies: the matrix-free nodal-pressure or smoothed operator
- * (level/anp.c) when L->anp is set, else the same as sq_level_lanczos_max (the same arithmetic) */
+ * (level/anp.c) when L->state.anp is set, else the same as sq_level_lanczos_max (the same arithmetic) */
 double sq_level_lanczos_max_own(const sq_level *L, int iters);
 /* largest eigenvalue of the symmetric tridiagonal (alpha diagonal, beta off-diagonal) of
  * size m, by bisection on the Sturm count (to 1e-15 relative): a Lanczos run's Ritz value */
@@ -333,9 +333,10 @@ static inline void sq_level_tet_block(sq_operator_kind op, double V, const doubl
 void sq_level_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
                      const unsigned char *active);
 
-/* the same forces of L's state written to f (n x 3) instead of L->f, with acc an all-zero
- * scratch of 3 n + 1 doubles (left all zero): L (model and state) is only read */
-void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double gravity[3],
+/* the same forces of the state S written to f (n x 3) instead of S->f, with acc an all-zero
+ * scratch of 3 n + 1 doubles (left all zero): M and S are only read */
+void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                        const double gravity[3],
                         const unsigned char *active, double *f, double *acc);
 
 /* residual force measure of forces f (n x 3) over the listed nodes (the list active of nactive
@@ -372,15 +373,17 @@ static inline __attribute__((always_inline)) void sq_level_euler_node(double *re
  * the displacement is set to goal and the velocity to (goal - from) / span (0 if span <= 0);
  * a constrained axis is left as it is, at zero: a constraint wins over a tool
  * (docs/physics.md) */
-void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3], const double from[3], double span);
+void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3],
+                         const double from[3], double span);
 
 /* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
 void sq_level_integrate(const sq_level_model *M, sq_level_state *S, double dt, const unsigned char *active);
 
-/* one step of all nodes in a single pass: sq_level_forces(L, mat, gravity, NULL) followed by
- * sq_level_integrate(L, dt, mask) (same values), fused so the operator is streamed once; nodes
- * with mask[i] == 0 (mask may be NULL) get their force in L->f but are not integrated */
-void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3], double dt,
+/* one step of all nodes in a single pass: sq_level_forces(M, S, mat, gravity, NULL) followed by
+ * sq_level_integrate(M, S, dt, mask) (same values), fused so the operator is streamed once; nodes
+ * with mask[i] == 0 (mask may be NULL) get their force in S->f but are not integrated */
+void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
+                   double dt,
                    const unsigned char *mask);
 
 /* y = -K x (n x 3) by the step's fused upper-half pass: x must have one readable double past
@@ -418,7 +421,7 @@ int sq_level_static_solve_pressure(const sq_level_model *M, const sq_material *m
                                    double tol, int max_iter, double *d, int *iterations, sq_err *err);
 
 /* average nodal pressure tets and smoothed tets (level/anp.c; fem operator, linear elasticity,
- * fixed mode): with L->anp set, sq_level_step and sq_level_forces use them, and so does the sharp
+ * fixed mode): with L->state.anp set, sq_level_step and sq_level_forces use them, and so does the sharp
  * bound's Lanczos estimate (call sq_level_choose_step_sharp again after enabling or freeing);
  * enable (mode SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED) refuses the paper operator */
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err);
@@ -440,7 +443,7 @@ double sq_level_elastic_energy(const sq_level_model *M, const sq_level_state *S)
 
 /* corotational elasticity (level/corot.c; fem operator; fixed mode, and adaptive through lod/): per-tet rest gradients and
  * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
- * operator. With L->corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
+ * operator. With L->state.corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
  * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
 int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
 void sq_level_corot_free(sq_level *L);
@@ -451,7 +454,8 @@ size_t sq_level_corot_state_len(const sq_level *L);
 void sq_level_corot_save(const sq_level *L, double *q);
 void sq_level_corot_load(sq_level *L, const double *q);
 void sq_level_corot_converge(const sq_level_model *M, sq_level_state *S);                     /* rotations converged to the current d */
-void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
+void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                         double dt,
                          const unsigned char *mask);
 void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f); /* into f */
 double sq_level_corot_energy(const sq_level_model *M, const sq_level_state *S);               /* corotational elastic energy, J */
@@ -460,16 +464,18 @@ double sq_level_corot_energy(const sq_level_model *M, const sq_level_state *S); 
  * the tet's corners in mesh order) into f4 (4 x 3), the stored rotation improved iters times
  * (stopping once converged) and stored back if store (the scalar pass's arithmetic); the
  * energy of tet t at corner displacements d4 (rotation converged, not stored); and the step's
- * force pass alone (into L->f, one rotation update per tet, stored: the values
+ * force pass alone (into S->f, one rotation update per tet, stored: the values
  * sq_level_corot_step integrates) */
-void sq_level_corot_tet_force(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, int t, const double *d4, const double *v4,
+void sq_level_corot_tet_force(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, int t,
+                              const double *d4, const double *v4,
                               int iters, int store, double *f4);
 double sq_level_corot_tet_energy(const sq_level_model *M, const sq_level_state *S, int t, const double *d4);
 void sq_level_corot_step_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3]);
 /* four tets t[0..3] at once (t[l] < 0: an empty lane, zero force), one rotation update each:
  * corner values d, v and forces f laid out tet after tet (12 per tet); the vector pass's
  * arithmetic in AVX2 builds (without viscosity), else the per-tet one */
-void sq_level_corot_tet_force4(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const int t[4], const double *d,
+void sq_level_corot_tet_force4(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                               const int t[4], const double *d,
                                const double *v, int store, double *f);
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
 int sq_level_corot_inverted(const sq_level_model *M, const sq_level_state *S);
