@@ -100,7 +100,7 @@ static int implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
 /* the explicit frame's start state (after the holds): d, v and the corotational rotations */
 static void save_frame_start(sq_body *b, const sq_level *L)
 {
-    size_t n3 = 3 * (size_t)L->model.n, nq = sq_level_corot_state_len(L);
+    size_t n3 = 3 * (size_t)L->model.n, nq = sq_level_corot_state_len(&L->state);
     if (b->save_n3 != n3 || b->save_nq != nq) {
         b->save_d = sq_realloc(b->save_d, sizeof(double) * n3);
         b->save_v = sq_realloc(b->save_v, sizeof(double) * n3);
@@ -110,7 +110,7 @@ static void save_frame_start(sq_body *b, const sq_level *L)
     }
     memcpy(b->save_d, L->state.d, sizeof(double) * n3);
     memcpy(b->save_v, L->state.v, sizeof(double) * n3);
-    sq_level_corot_save(L, b->save_q);
+    sq_level_corot_save(&L->state, b->save_q);
 }
 
 /* a substep of a frame with live tools: the nodes they hold moved to the newest poses (the
@@ -140,7 +140,7 @@ static void load_frame_start(sq_body *b, sq_level *L)
 {
     memcpy(L->state.d, b->save_d, sizeof(double) * b->save_n3);
     memcpy(L->state.v, b->save_v, sizeof(double) * b->save_n3);
-    sq_level_corot_load(L, b->save_q);
+    sq_level_corot_load(&L->state, b->save_q);
 }
 
 /* the explicit frame's substeps: forces on all nodes, feedback on held nodes, integrate the

@@ -49,7 +49,7 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         size_t n3 = 3 * (size_t)b->level[k].model.n;
         memcpy(fresh[k].state.d, b->level[k].state.d, sizeof(double) * n3);
         memcpy(fresh[k].state.v, b->level[k].state.v, sizeof(double) * n3);
-        sq_level_corot_copy(&fresh[k], &b->level[k]);
+        sq_level_corot_copy(&fresh[k].state, &b->level[k].state);
         sq_level_free(&b->level[k]);
         b->level[k] = fresh[k]; /* same address: the lod module's pointer stays valid */
     }
@@ -124,7 +124,7 @@ void sq_body_reset(sq_body *b)
         memset(b->level[k].state.d, 0, sizeof(double) * n3);
         memset(b->level[k].state.v, 0, sizeof(double) * n3);
         memset(b->level[k].state.f, 0, sizeof(double) * n3);
-        sq_level_corot_reset(&b->level[k]);
+        sq_level_corot_reset(&b->level[k].state);
         sq_body_clear_held(b, k);
     }
     if (b->lod) {

@@ -73,7 +73,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
             for (int k = 0; k < 4; k++)
                 tb[CW * k + tet_lane(t)] = 4 * m->tets[4 * t + k];
         }
-        sq_level_corot_reset(L);
+        sq_level_corot_reset(&L->state);
     }
     C->mu = mat->mu;
     C->lambda = mat->lambda;
@@ -94,9 +94,9 @@ void sq_level_corot_free(sq_level *L)
     sq_level_op_update(L);
 }
 
-void sq_level_corot_reset(sq_level *L)
+void sq_level_corot_reset(sq_level_state *S)
 {
-    sq_corot *C = L->state.corot;
+    sq_corot *C = S->corot;
     if (!C)
         return;
     size_t nq = 4 * CW * (size_t)C->nblocks;
@@ -106,27 +106,27 @@ void sq_level_corot_reset(sq_level *L)
             C->q[4 * CW * (size_t)b + l] = 1;
 }
 
-size_t sq_level_corot_state_len(const sq_level *L)
+size_t sq_level_corot_state_len(const sq_level_state *S)
 {
-    return L->state.corot ? 4 * CW * (size_t)L->state.corot->nblocks : 0;
+    return S->corot ? 4 * CW * (size_t)S->corot->nblocks : 0;
 }
 
-void sq_level_corot_save(const sq_level *L, double *q)
+void sq_level_corot_save(const sq_level_state *S, double *q)
 {
-    if (L->state.corot)
-        memcpy(q, L->state.corot->q, sizeof(double) * sq_level_corot_state_len(L));
+    if (S->corot)
+        memcpy(q, S->corot->q, sizeof(double) * sq_level_corot_state_len(S));
 }
 
-void sq_level_corot_load(sq_level *L, const double *q)
+void sq_level_corot_load(sq_level_state *S, const double *q)
 {
-    if (L->state.corot)
-        memcpy(L->state.corot->q, q, sizeof(double) * sq_level_corot_state_len(L));
+    if (S->corot)
+        memcpy(S->corot->q, q, sizeof(double) * sq_level_corot_state_len(S));
 }
 
-void sq_level_corot_copy(sq_level *dst, const sq_level *src)
+void sq_level_corot_copy(sq_level_state *dst, const sq_level_state *src)
 {
-    if (dst->state.corot && src->state.corot && dst->state.corot->ntets == src->state.corot->ntets)
-        memcpy(dst->state.corot->q, src->state.corot->q, sizeof(double) * 4 * CW * (size_t)src->state.corot->nblocks);
+    if (dst->corot && src->corot && dst->corot->ntets == src->corot->ntets)
+        memcpy(dst->corot->q, src->corot->q, sizeof(double) * 4 * CW * (size_t)src->corot->nblocks);
 }
 
 /* elastic (+ damping) element forces of every tet added into f (n x 3), one tet at a time;

@@ -447,12 +447,12 @@ double sq_level_elastic_energy(const sq_level_model *M, const sq_level_state *S)
  * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
 int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
 void sq_level_corot_free(sq_level *L);
-void sq_level_corot_reset(sq_level *L);                        /* rotations to identity */
-void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: copy the rotations */
+void sq_level_corot_reset(sq_level_state *S);                          /* rotations to identity */
+void sq_level_corot_copy(sq_level_state *dst, const sq_level_state *src); /* same mesh: copy the rotations */
 /* the stored rotations as a flat array: its length (0 without corot), save into q, load from q */
-size_t sq_level_corot_state_len(const sq_level *L);
-void sq_level_corot_save(const sq_level *L, double *q);
-void sq_level_corot_load(sq_level *L, const double *q);
+size_t sq_level_corot_state_len(const sq_level_state *S);
+void sq_level_corot_save(const sq_level_state *S, double *q);
+void sq_level_corot_load(sq_level_state *S, const double *q);
 void sq_level_corot_converge(const sq_level_model *M, sq_level_state *S);                     /* rotations converged to the current d */
 void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
                          double dt,

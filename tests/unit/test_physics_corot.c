@@ -51,7 +51,7 @@ SQ_TEST(corot_rigid_rotation_gives_zero_force)
         th_elastic_force(&L, &mat, d);
         double cor = max_force(&L);
         /* also through the stepping path: rotations converge over steps from identity */
-        sq_level_corot_reset(&L);
+        sq_level_corot_reset(&L.state);
         sq_material m0 = mat;
         double zero[3] = {0, 0, 0};
         for (int s = 0; s < 40; s++) {
