@@ -55,7 +55,7 @@ static double bytes_per_node_step(const sq_level *L)
 {
     double per_entry = 9 * sizeof(double) + sizeof(int);
     double per_node = 4 + 96 + 48 + 24 + 8 + 1;
-    if (L->corot) /* per tet: 3 gradients + volume + quaternion read, quaternion written, 4 indices */
+    if (L->state.corot) /* per tet: 3 gradients + volume + quaternion read, quaternion written, 4 indices */
         return (14.0 * 8 + 4 * 8 + 16) * L->model.mesh->ntets / L->model.n + per_node;
     return per_entry * L->model.up_start[L->model.n] / L->model.n + per_node;
 }
@@ -149,13 +149,13 @@ static int bench_step(const char *sizes, double seconds, int op_mask)
             snprintf(label, sizeof label, "bench step %s %d nodes", name, m->nnodes);
             sq_progress pr;
             sq_progress_begin(&pr, label, seconds);
-            sq_level_step(&L, &def.material, g, L.dt, NULL);
+            sq_level_step(&L.model, &L.state, &def.material, g, L.dt, NULL);
             long steps = 0;
             int batch = SQ_MAX(1, (int)(2e6 / m->nnodes));
             double t0 = sq_now(), c0 = sq_thread_cpu(), t = 0;
             while (t < seconds) {
                 for (int k = 0; k < batch; k++)
-                    sq_level_step(&L, &def.material, g, L.dt, NULL);
+                    sq_level_step(&L.model, &L.state, &def.material, g, L.dt, NULL);
                 steps += batch;
                 t = sq_now() - t0;
                 sq_progress_update(&pr, t);

@@ -309,7 +309,7 @@ static int bench_first_mode(int quick)
             return -1;
         }
         sq_level *L0 = sq_body_level(bb.b, sq_body_sim_level(bb.b));
-        if (first_mode(L0, L0->d, &e) < 0) {
+        if (first_mode(L0, L0->state.d, &e) < 0) {
             fprintf(stderr, "squish bench implicit: %s\n", e.msg);
             beam_free(&bb);
             return -1;

@@ -190,8 +190,8 @@ void sq_body_transfer_state(sq_body *b, int src, int dst)
         int t = sq_mesh_locate(S->model.mesh, T->model.mesh->x + 3 * (size_t)i, bary);
         if (t < 0)
             continue;
-        sq_body_interp3(S->model.mesh, S->d, t, bary, T->d + 3 * (size_t)i);
-        sq_body_interp3(S->model.mesh, S->v, t, bary, T->v + 3 * (size_t)i);
+        sq_body_interp3(S->model.mesh, S->state.d, t, bary, T->state.d + 3 * (size_t)i);
+        sq_body_interp3(S->model.mesh, S->state.v, t, bary, T->state.v + 3 * (size_t)i);
     }
 }
 
@@ -224,13 +224,13 @@ void sq_body_surface_disp(const sq_body *b, int s, double u[3])
 {
     const sq_mesh *fm = b->def.levels[b->fine];
     if (b->def.lod.mode == SQ_LOD_ADAPTIVE || b->cur == b->fine) {
-        const double *d = b->level[b->fine].d + 3 * (size_t)fm->surf_nodes[s];
+        const double *d = b->level[b->fine].state.d + 3 * (size_t)fm->surf_nodes[s];
         u[0] = d[0];
         u[1] = d[1];
         u[2] = d[2];
         return;
     }
-    sq_body_interp3(b->def.levels[b->cur], b->level[b->cur].d, b->surf_tet[s], b->surf_bary + 4 * (size_t)s, u);
+    sq_body_interp3(b->def.levels[b->cur], b->level[b->cur].state.d, b->surf_tet[s], b->surf_bary + 4 * (size_t)s, u);
 }
 
 void sq_body_set_levels_fixed(sq_body *b)

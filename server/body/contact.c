@@ -44,9 +44,9 @@ void sq_body_contact_step(sq_body *b, sq_level *L, const unsigned char *mask, do
         nd.stamp = ++b->cstamp;
     }
     if (b->nobstacles)
-        sq_contact_step(b->obstacles, b->nobstacles, &nd, L->d, L->v, h, &b->contact);
+        sq_contact_step(b->obstacles, b->nobstacles, &nd, L->state.d, L->state.v, h, &b->contact);
     if (b->ntargets)
-        sq_contact_step_targets(b->targets, b->ntargets, &nd, L->d, L->v, h, &b->contact);
+        sq_contact_step_targets(b->targets, b->ntargets, &nd, L->state.d, L->state.v, h, &b->contact);
     b->contact_cpu += sq_thread_cpu() - t0;
 }
 
@@ -79,7 +79,7 @@ static double con_jn(const sq_body *b, int k)
 
 void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
 {
-    sq_level_implicit_set_contacts(L, NULL);
+    sq_level_implicit_set_contacts(&L->model, &L->state, NULL);
     const int n = L->model.n;
     if (!b->nobstacles || !b->cpoint || b->cpoint_n != n)
         return;
@@ -135,7 +135,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
             continue;
         double x[3];
         for (int c = 0; c < 3; c++)
-            x[c] = mesh->x[3 * (size_t)i + c] + L->d[3 * (size_t)i + c];
+            x[c] = mesh->x[3 * (size_t)i + c] + L->state.d[3 * (size_t)i + c];
         for (int o = 0; o < b->nobstacles; o++) {
             const sq_obstacle *ob = &b->obstacles[o];
             double nrm[3];
@@ -144,7 +144,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
                 continue;
             double vn = 0;
             for (int c = 0; c < 3; c++)
-                vn += (L->v[3 * (size_t)i + c] - ob->velocity[c] + h * g[c]) * nrm[c];
+                vn += (L->state.v[3 * (size_t)i + c] - ob->velocity[c] + h * g[c]) * nrm[c];
             if (!(vn < 0 && phi + h * vn < 0))
                 continue;
             b->con_pt[m] = sq_contact_point_at(ob, o, nrm, 0);
@@ -167,7 +167,7 @@ void sq_body_contact_constraints(sq_body *b, sq_level *L, double h)
     b->ncon = m;
     b->con_set = (sq_implicit_contacts){.n = m, .node = b->con_node, .normal = b->con_normal, .u = b->con_u,
                                         .stick = b->con_stick, .force = b->con_f, .impulse = b->con_imp};
-    sq_level_implicit_set_contacts(L, &b->con_set);
+    sq_level_implicit_set_contacts(&L->model, &L->state, &b->con_set);
 }
 
 void sq_body_contact_constrained(sq_body *b, sq_level *L, double h)
@@ -175,8 +175,8 @@ void sq_body_contact_constrained(sq_body *b, sq_level *L, double h)
     if (!b->ncon)
         return;
     double t0 = sq_thread_cpu();
-    sq_contact_constrained(b->con_pt, b->ncon, b->con_node, b->con_imp, b->con_stick, b->con_f, L->model.mass, L->d,
-                           L->v, h, &b->contact);
+    sq_contact_constrained(b->con_pt, b->ncon, b->con_node, b->con_imp, b->con_stick, b->con_f, L->model.mass, L->state.d,
+                           L->state.v, h, &b->contact);
     for (int k = 0; k < b->ncon; k++)
         if (con_jn(b, k) > 0 && b->touched[b->cur])
             b->touched[b->cur][b->con_node[k]] = 1;
@@ -238,7 +238,7 @@ static int lod_target(sq_body *b, double mu, sq_contact_target *out)
             continue;
         }
         const sq_level *L = &b->level[k];
-        memcpy(b->tdof_v + 3 * (size_t)q, L->v + 3 * (size_t)i, 3 * sizeof(double));
+        memcpy(b->tdof_v + 3 * (size_t)q, L->state.v + 3 * (size_t)i, 3 * sizeof(double));
         b->tdof_mass[q] = L->model.mass[i];
         b->tdof_fixed[q] = L->model.fixed[i];
     }
@@ -247,7 +247,7 @@ static int lod_target(sq_body *b, double mu, sq_contact_target *out)
     reaction_of(b, 3 * (size_t)nd);
     if (!b->csurf[F])
         b->csurf[F] = sq_contact_surface_create(m->nnodes, m->ntris, m->tris);
-    sq_contact_surface_update(b->csurf[F], m->x, Lf->d);
+    sq_contact_surface_update(b->csurf[F], m->x, Lf->state.d);
     b->contact_cpu += sq_thread_cpu() - t0;
     b->tmap = map;
     *out = (sq_contact_target){.n = nd, .surf = b->csurf[F], .v = b->tdof_v, .mass = b->tdof_mass,
@@ -273,9 +273,9 @@ int sq_body_contact_target(sq_body *b, double mu, sq_contact_target *out)
     if (!b->csurf[k])
         b->csurf[k] = sq_contact_surface_create(m->nnodes, m->ntris, m->tris);
     double t0 = sq_thread_cpu();
-    sq_contact_surface_update(b->csurf[k], m->x, L->d);
+    sq_contact_surface_update(b->csurf[k], m->x, L->state.d);
     b->contact_cpu += sq_thread_cpu() - t0;
-    *out = (sq_contact_target){.n = L->model.n, .surf = b->csurf[k], .v = L->v, .mass = L->model.mass,
+    *out = (sq_contact_target){.n = L->model.n, .surf = b->csurf[k], .v = L->state.v, .mass = L->model.mass,
                                .fixed = L->model.fixed, .mask = b->nheld[k] ? b->mask[k] : NULL,
                                .reaction = b->reaction, .mu = mu, .reach = 2 * mean_edge(b)};
     return 0;
@@ -297,7 +297,7 @@ static int apply_lod(sq_body *b, double sum[3])
         if (k >= 0 && !b->tdof_fixed[q] && b->tdof_mask[q]) {
             sq_level *L = &b->level[k];
             for (int c = 0; c < 3; c++)
-                L->v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
+                L->state.v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
         }
         for (int c = 0; c < 3; c++)
             sum[c] += r[c];
@@ -323,7 +323,7 @@ void sq_body_contact_apply(sq_body *b, int before_frame)
         any = 1;
         if (!L->model.fixed[i] && !(mask && !mask[i]))
             for (int c = 0; c < 3; c++)
-                L->v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
+                L->state.v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
         for (int c = 0; c < 3; c++)
             sum[c] += r[c];
         r[0] = r[1] = r[2] = 0;
@@ -400,7 +400,7 @@ static sq_contact_side side_of(sq_body *b, sq_contact_nodes *nd)
         b->csurf[k] = sq_contact_surface_create(m->nnodes, m->ntris, m->tris);
     /* nodes a tool holds this frame move with the tool: infinite mass to the other body */
     *nd = surface_nodes(L, b->nheld[k] ? b->mask[k] : NULL);
-    sq_contact_side s = {.surf = b->csurf[k], .nodes = nd, .d = L->d, .v = L->v};
+    sq_contact_side s = {.surf = b->csurf[k], .nodes = nd, .d = L->state.d, .v = L->state.v};
     return s;
 }
 

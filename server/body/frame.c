@@ -30,15 +30,16 @@ static void add_feedback(const sq_body *b, const sq_level *L, int nk, int ntools
         int i = b->khold[h].node, t = b->khold[h].tool;
         if (force && t >= 0 && t < ntools)
             for (int c = 0; c < 3; c++)
-                force[t][c] += w * (L->f[3 * i + c] - L->model.mass[i] * g[c]);
+                force[t][c] += w * (L->state.f[3 * i + c] - L->model.mass[i] * g[c]);
     }
 }
 
 /* the implicit frame's steps (level/implicit.c): substeps backward Euler steps of
  * frame_dt / substeps, held nodes projected out; feedback from the force at each step's end
- * state; CG stopped by the frame budget when there is one (budget_s > 0) */
-static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
-                           sq_frame_profile *prof)
+ * state; CG stopped by the frame budget when there is one (budget_s > 0); the held nodes put
+ * at their targets at the end. Returns the substeps stepped */
+static int implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                          sq_frame_profile *prof)
 {
     const sq_material *mat = &b->def.material;
     const double *g = b->def.gravity;
@@ -48,22 +49,22 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
     const double deadline = budget_s > 0 ? sq_thread_cpu() + budget_s : 0;
     if (def->precond == SQ_PRECOND_MULTIGRID) {
         /* the body's coarser levels are the hierarchy (built once; block Jacobi without any) */
-        const sq_level *coarse[SQ_MAX_LEVELS];
+        const sq_level_model *coarse[SQ_MAX_LEVELS];
         int nc = 0;
         for (int k = b->cur - 1; k >= 0; k--) {
             sq_err ignore = {{0}};
             if (sq_body_ensure_level(b, k, &ignore) < 0)
                 break;
-            coarse[nc++] = &b->level[k];
+            coarse[nc++] = &b->level[k].model;
         }
-        sq_level_implicit_set_coarse(L, coarse, nc);
+        sq_level_implicit_set_coarse(&L->model, &L->state, coarse, nc);
     }
     sq_implicit_stats st, tot;
     memset(&tot, 0, sizeof tot);
     for (int s = 0; s < nsub; s++) {
         sq_body_contact_constraints(b, L, h);
-        sq_level_implicit_step(L, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
-        sq_level_implicit_set_contacts(L, NULL);
+        sq_level_implicit_step(&L->model, &L->state, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
+        sq_level_implicit_set_contacts(&L->model, &L->state, NULL);
         sq_body_contact_constrained(b, L, h);
         sq_body_contact_step(b, L, nk ? b->mask[b->cur] : NULL, h);
         tot.iterations += st.iterations;
@@ -72,7 +73,7 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
         tot.newton += st.newton;
         tot.newton_residual = SQ_MAX(tot.newton_residual, st.newton_residual);
         if (nk && force) {
-            sq_level_forces(L, mat, g, NULL); /* the end state's force */
+            sq_level_forces(&L->model, &L->state, mat, g, NULL); /* the end state's force */
             add_feedback(b, L, nk, ntools, force, inv);
         }
     }
@@ -87,12 +88,19 @@ static void implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (
             sq_body_count_health(b, SQ_HEALTH_SOLVE_UNCONVERGED, tot.residual);
         }
     }
+    for (int k = 0; k < nk; k++) { /* at the target exactly (the steps' sum of h u, to round-off) */
+        int i = b->khold[k].node;
+        for (int c = 0; c < 3; c++)
+            if (!(L->model.fixed[i] & (1u << c)))
+                L->state.d[3 * (size_t)i + c] = b->khold[k].target[c];
+    }
+    return nsub;
 }
 
 /* the explicit frame's start state (after the holds): d, v and the corotational rotations */
 static void save_frame_start(sq_body *b, const sq_level *L)
 {
-    size_t n3 = 3 * (size_t)L->model.n, nq = sq_level_corot_state_len(L);
+    size_t n3 = 3 * (size_t)L->model.n, nq = sq_level_corot_state_len(&L->state);
     if (b->save_n3 != n3 || b->save_nq != nq) {
         b->save_d = sq_realloc(b->save_d, sizeof(double) * n3);
         b->save_v = sq_realloc(b->save_v, sizeof(double) * n3);
@@ -100,9 +108,9 @@ static void save_frame_start(sq_body *b, const sq_level *L)
         b->save_n3 = n3;
         b->save_nq = nq;
     }
-    memcpy(b->save_d, L->d, sizeof(double) * n3);
-    memcpy(b->save_v, L->v, sizeof(double) * n3);
-    sq_level_corot_save(L, b->save_q);
+    memcpy(b->save_d, L->state.d, sizeof(double) * n3);
+    memcpy(b->save_v, L->state.v, sizeof(double) * n3);
+    sq_level_corot_save(&L->state, b->save_q);
 }
 
 /* a substep of a frame with live tools: the nodes they hold moved to the newest poses (the
@@ -124,22 +132,24 @@ static void live_holds_fixed(sq_body *b, sq_level *L, double frac)
         int k = b->khold_of[h], i = b->khold[k].node;
         for (int c = 0; c < 3; c++)
             if (!(L->model.fixed[i] & (1u << c)))
-                L->d[3 * (size_t)i + c] = b->khold[k].target[c] + b->live_shift[3 * (size_t)k + c] / b->kcount[k];
+                L->state.d[3 * (size_t)i + c] = b->khold[k].target[c] + b->live_shift[3 * (size_t)k + c] / b->kcount[k];
     }
 }
 
 static void load_frame_start(sq_body *b, sq_level *L)
 {
-    memcpy(L->d, b->save_d, sizeof(double) * b->save_n3);
-    memcpy(L->v, b->save_v, sizeof(double) * b->save_n3);
-    sq_level_corot_load(L, b->save_q);
+    memcpy(L->state.d, b->save_d, sizeof(double) * b->save_n3);
+    memcpy(L->state.v, b->save_v, sizeof(double) * b->save_n3);
+    sq_level_corot_load(&L->state, b->save_q);
 }
 
 /* the explicit frame's substeps: forces on all nodes, feedback on held nodes, integrate the
  * others; a frame that diverges is re-run from its start with twice the substeps (up to
  * SQ_RETRY_MAX times; docs/physics.md section 11). Returns the substeps stepped */
-static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], sq_frame_profile *prof)
+static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                          sq_frame_profile *prof)
 {
+    (void)budget_s; /* the explicit substeps are not cut by the budget */
     const sq_material *mat = &b->def.material;
     const double *g = b->def.gravity;
     unsigned char *mask = b->mask[b->cur];
@@ -154,7 +164,7 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
                 break; /* the server is stopping: the frame is abandoned */
             if (b->live)
                 live_holds_fixed(b, L, (s + 1.0) / nsub); /* the newest haptic poses (sq_body_set_pose_source) */
-            sq_level_step(L, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
+            sq_level_step(&L->model, &L->state, mat, g, sdt, nk ? mask : NULL); /* L->f: forces before the update */
             sq_body_contact_step(b, L, nk ? mask : NULL, sdt);
             add_feedback(b, L, nk, ntools, force, inv);
         }
@@ -188,6 +198,22 @@ static int explicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
     return nsub;
 }
 
+/* the integrators of the fixed-level frame, one row per sq_integrator_kind: the body's
+ * def.integrator, chosen at creation (or by sq_body_set_integrator), picks the row, and the
+ * frame runs it without asking which it is */
+typedef struct frame_integrator {
+    const char *name;
+    int hold_velocity; /* 1: a hold prescribes the velocity only, the steps bring d to the target */
+    /* the frame's substeps after the holds; returns the substeps stepped */
+    int (*steps)(sq_body *b, sq_level *L, int nk, int ntools, double (*force)[3], double budget_s,
+                 sq_frame_profile *prof);
+} frame_integrator;
+
+static const frame_integrator integrators[] = {
+    [SQ_INTEGRATOR_EXPLICIT] = {"explicit", 0, explicit_steps}, /* symplectic Euler substeps */
+    [SQ_INTEGRATOR_IMPLICIT] = {"implicit", 1, implicit_steps}, /* backward Euler by CG */
+};
+
 static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools, double (*force)[3],
                         sq_frame_profile *prof, double budget_s)
 {
@@ -218,7 +244,7 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
             sq_body_surface_disp(b, s, u);
             knode = b->surf_near[s];
             for (int c = 0; c < 3; c++)
-                t[c] = L->d[3 * knode + c] + holds[h].target[c] - u[c];
+                t[c] = L->state.d[3 * knode + c] + holds[h].target[c] - u[c];
         }
         int idx = hold_of[knode];
         if (idx < 0) {
@@ -237,34 +263,22 @@ static void frame_fixed(sq_body *b, const sq_hold *holds, int nholds, int ntools
     /* held nodes: displacement set to the target, velocity to (target - old) / frame_dt, on the
      * free axes (the one hold rule of both modes: sq_level_apply_hold); implicit: the velocity
      * only, the displacement reaching the target through the frame's steps */
-    const int implicit = b->def.integrator == SQ_INTEGRATOR_IMPLICIT;
+    const frame_integrator *in = &integrators[b->def.integrator];
     for (int h = 0; h < nk; h++) {
         sq_hold *kh = &b->khold[h];
         int i = kh->node;
         for (int c = 0; c < 3; c++)
             kh->target[c] /= count[h];
         double keep[3];
-        memcpy(keep, L->d + 3 * (size_t)i, sizeof keep);
-        sq_level_apply_hold(L, i, kh->target, L->d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
-        if (implicit)
-            memcpy(L->d + 3 * (size_t)i, keep, sizeof keep);
+        memcpy(keep, L->state.d + 3 * (size_t)i, sizeof keep);
+        sq_level_apply_hold(&L->model, &L->state, i, kh->target, L->state.d + 3 * (size_t)i, b->def.frame_dt); /* clamped axes stay */
+        if (in->hold_velocity)
+            memcpy(L->state.d + 3 * (size_t)i, keep, sizeof keep);
         mask[i] = 0;
         hold_of[i] = -1;
     }
 
-    int nsub;
-    if (implicit) {
-        implicit_steps(b, L, nk, ntools, force, budget_s, prof);
-        for (int h = 0; h < nk; h++) { /* at the target exactly (the steps' sum of h u, to round-off) */
-            int i = b->khold[h].node;
-            for (int c = 0; c < 3; c++)
-                if (!(L->model.fixed[i] & (1u << c)))
-                    L->d[3 * (size_t)i + c] = b->khold[h].target[c];
-        }
-        nsub = b->def.implicit.substeps;
-    } else {
-        nsub = explicit_steps(b, L, nk, ntools, force, prof);
-    }
+    int nsub = in->steps(b, L, nk, ntools, force, budget_s, prof);
     for (int h = 0; h < nk; h++)
         mask[b->khold[h].node] = 1;
     mark_held(b, b->cur, b->khold, nk);

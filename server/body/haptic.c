@@ -68,7 +68,8 @@ void sq_body_hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *
 #define CONDENSE_MAX 6    /* iterations a column a frame at most (the next frame goes on) */
 
 typedef struct {
-    sq_level lin;              /* the level with d -> the argument, v -> 0 */
+    const sq_level_model *M;
+    sq_level_state lin;        /* the level's state with d -> the argument, v -> 0 */
     const sq_material *mat;
     double *F0;                /* f(0) of lin */
     double *acc;               /* zero scratch, 3n + 1 */
@@ -104,8 +105,8 @@ static void k_apply(condense_ws *w, const double *x, double *y)
 {
     static const double g0[3] = {0, 0, 0};
     w->lin.d = (double *)x; /* only read */
-    sq_level_forces_frozen(&w->lin, w->mat, g0, y, w->acc);
-    for (int i = 0; i < 3 * w->lin.model.n; i++)
+    sq_level_forces_frozen(w->M, &w->lin, w->mat, g0, y, w->acc);
+    for (int i = 0; i < 3 * w->M->n; i++)
         y[i] = -(y[i] - w->F0[i]);
 }
 
@@ -118,7 +119,8 @@ static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, c
 {
     const sq_level_model *M = &L->model;
     const int n = M->n;
-    w->lin = *L;
+    w->M = M;
+    w->lin = L->state;
     w->mat = mat;
     w->acc = vec(n);
     w->zero = vec(n);
@@ -128,7 +130,7 @@ static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, c
         **e = vec(n);
     static const double g0[3] = {0, 0, 0};
     w->lin.d = w->zero;
-    sq_level_forces_frozen(&w->lin, mat, g0, w->F0, w->acc);
+    sq_level_forces_frozen(w->M, &w->lin, mat, g0, w->F0, w->acc);
     w->rel = sq_malloc((size_t)n);
     w->Dinv = sq_calloc(9 * (size_t)n, sizeof(double));
     for (int i = 0; i < n; i++) {
@@ -156,7 +158,7 @@ static void ws_free(condense_ws *w)
 static double dot_rel(const condense_ws *w, const double *a, const double *b)
 {
     double s = 0;
-    for (int i = 0; i < w->lin.model.n; i++)
+    for (int i = 0; i < w->M->n; i++)
         if (w->rel[i])
             s += a[3 * i] * b[3 * i] + a[3 * i + 1] * b[3 * i + 1] + a[3 * i + 2] * b[3 * i + 2];
     return s;
@@ -164,7 +166,7 @@ static double dot_rel(const condense_ws *w, const double *a, const double *b)
 
 static void precondition(const condense_ws *w, const double *r, double *z)
 {
-    for (int i = 0; i < w->lin.model.n; i++) {
+    for (int i = 0; i < w->M->n; i++) {
         const double *D = w->Dinv + 9 * (size_t)i, *ri = r + 3 * (size_t)i;
         for (int c = 0; c < 3; c++)
             z[3 * i + c] = w->rel[i] ? D[3 * c] * ri[0] + D[3 * c + 1] * ri[1] + D[3 * c + 2] * ri[2] : 0;
@@ -175,7 +177,7 @@ static void precondition(const condense_ws *w, const double *r, double *z)
  * and w->kx hold K u and K x (all rows); returns the iterations */
 static int relax(condense_ws *w, const double *u, double *x)
 {
-    const int n = w->lin.model.n;
+    const int n = w->M->n;
     double *r = w->r, *z = w->z, *p = w->p, *q = w->q;
     for (int i = 0; i < n; i++)
         if (!w->rel[i])
@@ -286,7 +288,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
     }
     const sq_material *mat = &b->def.material;
     const double *g = b->def.gravity;
-    sq_level_forces_to(L, mat, g, mask, f0, acc);
+    sq_level_forces_to(&L->model, &L->state, mat, g, mask, f0, acc);
 
     /* f0 and the torque about p0: the held nodes' unbalanced force (as the frame's feedback),
      * each node counted once */
@@ -298,7 +300,7 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
         double fi[3], r[3];
         for (int c = 0; c < 3; c++) {
             fi[c] = f0[3 * (size_t)q + c] - L->model.mass[q] * g[c];
-            r[c] = m->x[3 * (size_t)q + c] + L->d[3 * (size_t)q + c] - tool->pos[c];
+            r[c] = m->x[3 * (size_t)q + c] + L->state.d[3 * (size_t)q + c] - tool->pos[c];
             out->f0[c] += fi[c];
         }
         out->torque[0] += r[1] * fi[2] - r[2] * fi[1];

@@ -30,7 +30,7 @@ sq_health_kind sq_body_diverged(const sq_body *b, double *value)
             for (int r = 0; r < na; r++) {
                 int i = al ? al[r] : r;
                 for (int c = 0; c < 3; c++)
-                    mean[c] += L->model.mass[i] * L->d[3 * (size_t)i + c];
+                    mean[c] += L->model.mass[i] * L->state.d[3 * (size_t)i + c];
                 m += L->model.mass[i];
             }
             for (int c = 0; c < 3; c++)
@@ -38,7 +38,7 @@ sq_health_kind sq_body_diverged(const sq_body *b, double *value)
         }
         for (int r = 0; r < na; r++) {
             int i = al ? al[r] : r;
-            const double *d = L->d + 3 * (size_t)i, *v = L->v + 3 * (size_t)i;
+            const double *d = L->state.d + 3 * (size_t)i, *v = L->state.v + 3 * (size_t)i;
             double e[3] = {d[0] - mean[0], d[1] - mean[1], d[2] - mean[2]};
             double dd = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
             double vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
@@ -105,7 +105,7 @@ int sq_body_check_health(sq_body *b, sq_frame_profile *prof, int nholds)
             for (int r = 0; r < na; r++)
                 M += b->level[k].model.mass[al ? al[r] : r];
             /* nodes in contact carry the contact's reaction: not a residual */
-            res = SQ_MAX(res, sq_level_residual(&b->level[k].model, b->level[k].f, b->def.gravity, al, na,
+            res = SQ_MAX(res, sq_level_residual(&b->level[k].model, b->level[k].state.f, b->def.gravity, al, na,
                                                 b->touched[k]));
         }
         double vrms = M > 0 ? sqrt(2 * ke / M) : 0;

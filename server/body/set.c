@@ -47,9 +47,9 @@ int sq_body_set_material(sq_body *b, const sq_material *m, sq_operator_kind op, 
         if (!b->ready[k])
             continue;
         size_t n3 = 3 * (size_t)b->level[k].model.n;
-        memcpy(fresh[k].d, b->level[k].d, sizeof(double) * n3);
-        memcpy(fresh[k].v, b->level[k].v, sizeof(double) * n3);
-        sq_level_corot_copy(&fresh[k], &b->level[k]);
+        memcpy(fresh[k].state.d, b->level[k].state.d, sizeof(double) * n3);
+        memcpy(fresh[k].state.v, b->level[k].state.v, sizeof(double) * n3);
+        sq_level_corot_copy(&fresh[k].state, &b->level[k].state);
         sq_level_free(&b->level[k]);
         b->level[k] = fresh[k]; /* same address: the lod module's pointer stays valid */
     }
@@ -94,7 +94,7 @@ int sq_body_set_lod(sq_body *b, const sq_lod_def *lod, sq_err *err)
         int from = sq_body_sim_level(b); /* the lod mode is still the old one */
         if (from != lod->level) {
             sq_body_transfer_state(b, from, lod->level);
-            sq_level_corot_converge(&b->level[lod->level]);
+            sq_level_corot_converge(&b->level[lod->level].model, &b->level[lod->level].state);
         }
         if (was_adaptive) {
             sq_lod_destroy(b->lod);
@@ -122,10 +122,10 @@ void sq_body_reset(sq_body *b)
         if (!b->ready[k])
             continue;
         size_t n3 = 3 * (size_t)b->level[k].model.n;
-        memset(b->level[k].d, 0, sizeof(double) * n3);
-        memset(b->level[k].v, 0, sizeof(double) * n3);
-        memset(b->level[k].f, 0, sizeof(double) * n3);
-        sq_level_corot_reset(&b->level[k]);
+        memset(b->level[k].state.d, 0, sizeof(double) * n3);
+        memset(b->level[k].state.v, 0, sizeof(double) * n3);
+        memset(b->level[k].state.f, 0, sizeof(double) * n3);
+        sq_level_corot_reset(&b->level[k].state);
         sq_body_clear_held(b, k);
     }
     if (b->lod) {
@@ -154,7 +154,7 @@ int sq_body_set_elasticity(sq_body *b, sq_elasticity_kind e, sq_err *err)
                     sq_level_corot_free(&b->level[j]);
                 return -1;
             }
-            sq_level_corot_converge(&b->level[k]);
+            sq_level_corot_converge(&b->level[k].model, &b->level[k].state);
         } else {
             sq_level_corot_free(&b->level[k]);
         }

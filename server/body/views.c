@@ -44,13 +44,13 @@ void sq_body_step_bound_cost(const sq_body *b, long *estimates, double *cpu_s)
 const double *sq_body_displacement(const sq_body *b, int level)
 {
     sq_lod_flush(b->lod); /* ghosts nothing read during the frame, pushed now (no-op if fixed) */
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].d : NULL;
+    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].state.d : NULL;
 }
 
 const double *sq_body_velocity(const sq_body *b, int level)
 {
     sq_lod_flush(b->lod);
-    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].v : NULL;
+    return level >= 0 && level < SQ_MAX_LEVELS && b->ready[level] ? b->level[level].state.v : NULL;
 }
 
 const unsigned char *sq_body_node_level(const sq_body *b) { return b->node_level; }
@@ -89,7 +89,7 @@ long sq_body_frames(const sq_body *b) { return b->frames; }
 int sq_body_inverted_tets(const sq_body *b)
 {
     int k = sq_body_sim_level(b);
-    return sq_level_corot_inverted(&b->level[k]);
+    return sq_level_corot_inverted(&b->level[k].model, &b->level[k].state);
 }
 
 sq_level *sq_body_level(sq_body *b, int level)
@@ -136,7 +136,7 @@ int sq_body_probe(const sq_body *b, const double p[3], double u[3])
             return -1;
     }
     if (!b->lod) {
-        sq_body_interp3(b->def.levels[k], b->level[k].d, t, bary, u);
+        sq_body_interp3(b->def.levels[k], b->level[k].state.d, t, bary, u);
         return 0;
     }
     /* the tet's corners as a flush would leave them, without flushing the whole body; the
@@ -165,7 +165,7 @@ double sq_body_kinetic_energy(const sq_body *b)
         const int *al = b->lod ? sq_lod_active_list(b->lod, k, &na) : NULL;
         for (int r = 0; r < na; r++) {
             int i = al ? al[r] : r;
-            const double *v = L->v + 3 * (size_t)i;
+            const double *v = L->state.v + 3 * (size_t)i;
             ke += 0.5 * L->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
         }
     }
@@ -177,7 +177,7 @@ double sq_body_elastic_energy(const sq_body *b)
 {
     sq_lod_flush(b->lod);
     int k = sq_body_sim_level(b);
-    return sq_level_elastic_energy(&b->level[k]);
+    return sq_level_elastic_energy(&b->level[k].model, &b->level[k].state);
 }
 
 double sq_body_residual(const sq_body *b)
@@ -189,7 +189,7 @@ double sq_body_residual(const sq_body *b)
     const sq_level *L = &b->level[k];
     size_t n3 = 3 * (size_t)L->model.n;
     double *f = sq_malloc(sizeof(double) * n3), *acc = sq_calloc(n3 + 1, sizeof(double));
-    sq_level_forces_to(L, &b->def.material, b->def.gravity, NULL, f, acc);
+    sq_level_forces_to(&L->model, &L->state, &b->def.material, b->def.gravity, NULL, f, acc);
     double r = sq_level_residual(&L->model, f, b->def.gravity, NULL, 0, b->held[k]);
     free(f);
     free(acc);
@@ -204,7 +204,7 @@ int sq_body_write_vtk(const sq_body *b, const char *path, sq_err *err)
     int *lev = sq_malloc(sizeof(int) * (size_t)m->nnodes);
     for (int i = 0; i < m->nnodes; i++)
         lev[i] = b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->node_level[i] : k;
-    int rc = sq_mesh_write_vtk(m, path, b->level[k].d, b->level[k].v, lev, err);
+    int rc = sq_mesh_write_vtk(m, path, b->level[k].state.d, b->level[k].state.v, lev, err);
     free(lev);
     return rc;
 }

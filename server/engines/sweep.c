@@ -170,7 +170,7 @@ static double total_energy(sq_body *b)
     const double *g = sq_body_get_def(b)->gravity;
     double ep = 0;
     for (int i = 0; i < L->model.n; i++)
-        ep -= L->model.mass[i] * (g[0] * L->d[3 * i] + g[1] * L->d[3 * i + 1] + g[2] * L->d[3 * i + 2]);
+        ep -= L->model.mass[i] * (g[0] * L->state.d[3 * i] + g[1] * L->state.d[3 * i + 1] + g[2] * L->state.d[3 * i + 2]);
     return sq_body_kinetic_energy(b) + sq_body_elastic_energy(b) + ep;
 }
 
@@ -183,15 +183,15 @@ static void run_above_bound(sq_body *b, const sq_sweep_case *c, sq_sweep_result 
     double dt = c->above_bound * L->bound;
     for (int i = 0; i < L->model.n; i++)
         for (int k = 0; k < 3; k++)
-            L->d[3 * i + k] = (L->model.fixed[i] & (1u << k)) ? 0 : 1e-6 * SW_SIZE * ((i + k) % 2 ? 1 : -1);
+            L->state.d[3 * i + k] = (L->model.fixed[i] & (1u << k)) ? 0 : 1e-6 * SW_SIZE * ((i + k) % 2 ? 1 : -1);
     double d0 = 1e-6 * SW_SIZE, dmax = 0;
     int steps = 4000, s;
     for (s = 0; s < steps; s++) {
-        sq_level_forces(L, &def->material, def->gravity, NULL);
-        sq_level_integrate(L, dt, NULL);
+        sq_level_forces(&L->model, &L->state, &def->material, def->gravity, NULL);
+        sq_level_integrate(&L->model, &L->state, dt, NULL);
         dmax = 0;
         for (int i = 0; i < 3 * L->model.n; i++)
-            dmax = isfinite(L->d[i]) && isfinite(dmax) ? fmax(dmax, fabs(L->d[i])) : NAN;
+            dmax = isfinite(L->state.d[i]) && isfinite(dmax) ? fmax(dmax, fabs(L->state.d[i])) : NAN;
         if (!isfinite(dmax) || dmax > 1e6 * SW_SIZE)
             break;
     }

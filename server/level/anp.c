@@ -413,57 +413,56 @@ int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op
                                "the paper operator");
     if (mode != SQ_PRESSURE_NODAL && mode != SQ_PRESSURE_SMOOTHED)
         return sq_err_set(err, "pressure mode %d is unknown: use element, nodal or smoothed", mode);
-    if (L->anp && L->anp->mode != mode)
+    if (L->state.anp && L->state.anp->mode != mode)
         sq_level_anp_free(L);
-    if (!L->anp)
-        L->anp = sq_anp_create(L->model.mesh, L->model.n, mode);
-    if (!L->corot) /* corotational elasticity keeps its row */
-        L->op_kind = mode == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
-    sq_anp_set_moduli(L->anp, mat->mu, mat->lambda);
+    if (!L->state.anp)
+        L->state.anp = sq_anp_create(L->model.mesh, L->model.n, mode);
+    sq_level_op_update(L); /* corotational elasticity keeps its row */
+    sq_anp_set_moduli(L->state.anp, mat->mu, mat->lambda);
     return 0;
 }
 
 void sq_level_anp_free(sq_level *L)
 {
-    sq_anp_destroy(L->anp);
-    L->anp = NULL;
-    if (!L->corot)
-        L->op_kind = SQ_LEVEL_OP_LINEAR;
+    sq_anp_destroy(L->state.anp);
+    L->state.anp = NULL;
+    sq_level_op_update(L);
 }
 
-void sq_level_anp_apply(const sq_level *L, const double *x, double *y)
+void sq_level_anp_apply(const sq_level_model *M, const sq_level_state *S, const double *x, double *y)
 {
-    anp_apply_blocked(L->anp, L->model.vol, x, y);
+    anp_apply_blocked(S->anp, M->vol, x, y);
 }
 
-void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
+void sq_level_anp_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+                         double *f)
 {
-    sq_anp *A = L->anp;
+    sq_anp *A = S->anp;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness, a = mat->rayleigh_mass;
-    size_t n3 = 3 * (size_t)L->model.n;
+    size_t n3 = 3 * (size_t)M->n;
     for (size_t k = 0; k < n3; k++)
-        A->w[k] = L->d[k] + b * L->v[k];
-    sq_level_anp_apply(L, A->w, f); /* f = K_np (d + b v) */
-    for (int i = 0; i < L->model.n; i++) {
+        A->w[k] = S->d[k] + b * S->v[k];
+    sq_level_anp_apply(M, S, A->w, f); /* f = K_np (d + b v) */
+    for (int i = 0; i < M->n; i++) {
         double *fi = f + 3 * (size_t)i;
         for (int c = 0; c < 3; c++)
-            fi[c] = L->model.mass[i] * (g[c] - a * L->v[3 * i + c]) - fi[c];
-        if (mat->use_viscosity && L->model.D) /* the paper's viscosities: the element-wise D blocks */
-            for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-                const double *B = L->model.D + 9 * (size_t)e, *vj = L->v + 3 * (size_t)L->model.col[e];
+            fi[c] = M->mass[i] * (g[c] - a * S->v[3 * i + c]) - fi[c];
+        if (mat->use_viscosity && M->D) /* the paper's viscosities: the element-wise D blocks */
+            for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+                const double *B = M->D + 9 * (size_t)e, *vj = S->v + 3 * (size_t)M->col[e];
                 for (int r = 0; r < 3; r++)
                     fi[r] -= B[3 * r] * vj[0] + B[3 * r + 1] * vj[1] + B[3 * r + 2] * vj[2];
             }
     }
 }
 
-double sq_level_anp_energy(const sq_level *L)
+double sq_level_anp_energy(const sq_level_model *M, const sq_level_state *S)
 {
-    size_t n3 = 3 * (size_t)L->model.n;
+    size_t n3 = 3 * (size_t)M->n;
     double *y = sq_malloc(sizeof(double) * n3), e = 0;
-    sq_level_anp_apply(L, L->d, y);
+    sq_level_anp_apply(M, S, S->d, y);
     for (size_t k = 0; k < n3; k++)
-        e += L->d[k] * y[k];
+        e += S->d[k] * y[k];
     free(y);
     return 0.5 * e;
 }

@@ -45,7 +45,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
     if (sq_material_check(mat, err) < 0)
         return -1;
     const sq_mesh *m = L->model.mesh;
-    sq_corot *C = L->corot;
+    sq_corot *C = L->state.corot;
     if (!C) {
         C = sq_calloc(1, sizeof *C);
         C->ntets = m->ntets;
@@ -55,8 +55,8 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
         C->to = sq_calloc(4 * CW * (size_t)C->nblocks, sizeof(int));
         C->u = calloc_aligned(4 * (size_t)L->model.n + 4);
         C->acc = calloc_aligned(4 * (size_t)L->model.n + 4);
-        L->corot = C;
-        L->op_kind = SQ_LEVEL_OP_COROT;
+        L->state.corot = C;
+        sq_level_op_update(L);
         for (int t = 0; t < m->ntets; t++) {
             double a[4][3];
             double V = sq_tet_gradients(m, t, a);
@@ -73,7 +73,7 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
             for (int k = 0; k < 4; k++)
                 tb[CW * k + tet_lane(t)] = 4 * m->tets[4 * t + k];
         }
-        sq_level_corot_reset(L);
+        sq_level_corot_reset(&L->state);
     }
     C->mu = mat->mu;
     C->lambda = mat->lambda;
@@ -82,22 +82,21 @@ int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind 
 
 void sq_level_corot_free(sq_level *L)
 {
-    if (!L->corot)
+    if (!L->state.corot)
         return;
-    free(L->corot->g);
-    free(L->corot->q);
-    free(L->corot->to);
-    free(L->corot->u);
-    free(L->corot->acc);
-    free(L->corot);
-    L->corot = NULL;
-    L->op_kind = !L->anp ? SQ_LEVEL_OP_LINEAR
-                         : sq_anp_mode(L->anp) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED : SQ_LEVEL_OP_NODAL;
+    free(L->state.corot->g);
+    free(L->state.corot->q);
+    free(L->state.corot->to);
+    free(L->state.corot->u);
+    free(L->state.corot->acc);
+    free(L->state.corot);
+    L->state.corot = NULL;
+    sq_level_op_update(L);
 }
 
-void sq_level_corot_reset(sq_level *L)
+void sq_level_corot_reset(sq_level_state *S)
 {
-    sq_corot *C = L->corot;
+    sq_corot *C = S->corot;
     if (!C)
         return;
     size_t nq = 4 * CW * (size_t)C->nblocks;
@@ -107,24 +106,24 @@ void sq_level_corot_reset(sq_level *L)
             C->q[4 * CW * (size_t)b + l] = 1;
 }
 
-size_t sq_level_corot_state_len(const sq_level *L)
+size_t sq_level_corot_state_len(const sq_level_state *S)
 {
-    return L->corot ? 4 * CW * (size_t)L->corot->nblocks : 0;
+    return S->corot ? 4 * CW * (size_t)S->corot->nblocks : 0;
 }
 
-void sq_level_corot_save(const sq_level *L, double *q)
+void sq_level_corot_save(const sq_level_state *S, double *q)
 {
-    if (L->corot)
-        memcpy(q, L->corot->q, sizeof(double) * sq_level_corot_state_len(L));
+    if (S->corot)
+        memcpy(q, S->corot->q, sizeof(double) * sq_level_corot_state_len(S));
 }
 
-void sq_level_corot_load(sq_level *L, const double *q)
+void sq_level_corot_load(sq_level_state *S, const double *q)
 {
-    if (L->corot)
-        memcpy(L->corot->q, q, sizeof(double) * sq_level_corot_state_len(L));
+    if (S->corot)
+        memcpy(S->corot->q, q, sizeof(double) * sq_level_corot_state_len(S));
 }
 
-void sq_level_corot_copy(sq_level *dst, const sq_level *src)
+void sq_level_corot_copy(sq_level_state *dst, const sq_level_state *src)
 {
     if (dst->corot && src->corot && dst->corot->ntets == src->corot->ntets)
         memcpy(dst->corot->q, src->corot->q, sizeof(double) * 4 * CW * (size_t)src->corot->nblocks);
@@ -136,12 +135,13 @@ void sq_level_corot_copy(sq_level *dst, const sq_level *src)
  * f = -R K_T (R^T (x + b v) - X): the elastic force plus b R K_T R^T v, with R the rotation of
  * I + grad(d + b v) (it differs from that of I + grad d by O(b |grad v|)). Viscosities (not
  * proportional to K): R from I + grad d, and R D_T R^T v added. */
-static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int iters, int store)
+static void corot_tets(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, double *f, int iters,
+                       int store)
 {
-    for (int t = 0; t < L->corot->ntets; t++) {
-        const int *tv = L->model.mesh->tets + 4 * (size_t)t;
+    for (int t = 0; t < S->corot->ntets; t++) {
+        const int *tv = M->mesh->tets + 4 * (size_t)t;
         double f12[12];
-        tet_force(L->corot, mat, t, tv, L->d, L->v, iters, store, f12);
+        tet_force(S->corot, mat, t, tv, S->d, S->v, iters, store, f12);
         for (int k = 0; k < 4; k++) {
             double *fk = f + 3 * (size_t)tv[k];
             fk[0] += f12[3 * k];
@@ -156,17 +156,17 @@ static void corot_tets(const sq_level *L, const sq_material *mat, double *f, int
 /* u = d + b v per node into C->u (n x 4; lane 3 is whatever follows, never used): the tet
  * pass then gathers one aligned row per node instead of two unaligned ones and a multiply-add
  * (the same fma, so the same values) */
-static void corot_gather_source(sq_level *L, double b)
+static void corot_gather_source(const sq_level_model *M, sq_level_state *S, double b)
 {
-    sq_corot *C = L->corot;
-    const double *restrict d = L->d, *restrict v = L->v;
+    sq_corot *C = S->corot;
+    const double *restrict d = S->d, *restrict v = S->v;
     double *restrict u = C->u;
     const vd vb = VSET1(b);
     if (b != 0)
-        for (int i = 0; i < L->model.n; i++)
+        for (int i = 0; i < M->n; i++)
             _mm256_store_pd(u + 4 * (size_t)i, VFMA(vb, _mm256_loadu_pd(v + 3 * (size_t)i), _mm256_loadu_pd(d + 3 * (size_t)i)));
     else
-        for (int i = 0; i < L->model.n; i++)
+        for (int i = 0; i < M->n; i++)
             _mm256_store_pd(u + 4 * (size_t)i, _mm256_loadu_pd(d + 3 * (size_t)i));
 }
 
@@ -179,9 +179,8 @@ static void corot_gather_source(sq_level *L, double b)
  * dependency chain (F, R, S, a Newton solve with a division, the quaternion update, R and S
  * again, stress, forces) is longer than the out-of-order window. Each expression is the one of
  * the single-loop form: the values are the same. */
-static void corot_tets_simd(sq_level *L)
+static void corot_tets_simd(sq_corot *C)
 {
-    sq_corot *C = L->corot;
     const double *u = C->u;
     double *acc = C->acc;
     const vd one = VSET1(1.0), half = VSET1(0.5);
@@ -294,37 +293,39 @@ static void corot_tets_simd(sq_level *L)
 #endif
 
 /* f = m (g - a v) + element forces */
-static void corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f, int iters,
+static void corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+                         double *f, int iters,
                          int store)
 {
     const double a = mat->rayleigh_mass;
-    for (int i = 0; i < L->model.n; i++) {
-        const double mi = L->model.mass[i];
+    for (int i = 0; i < M->n; i++) {
+        const double mi = M->mass[i];
         for (int c = 0; c < 3; c++)
-            f[3 * i + c] = mi * (g[c] - a * L->v[3 * i + c]);
+            f[3 * i + c] = mi * (g[c] - a * S->v[3 * i + c]);
     }
-    corot_tets(L, mat, f, iters, store);
+    corot_tets(M, S, mat, f, iters, store);
 }
 
-void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
+void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                         double dt,
                          const unsigned char *mask)
 {
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
-        sq_corot *C = L->corot;
-        corot_gather_source(L, mat->rayleigh_stiffness);
-        corot_tets_simd(L);
+        sq_corot *C = S->corot;
+        corot_gather_source(M, S, mat->rayleigh_stiffness);
+        corot_tets_simd(S->corot);
         /* forces, then symplectic Euler as in sq_level_integrate (the same operations per
          * component, so the same values; lane 3 is never stored) */
-        double *restrict acc = C->acc, *restrict f = L->f, *restrict vv = L->v, *restrict dd = L->d;
-        const unsigned char *restrict fixed = L->model.fixed;
+        double *restrict acc = C->acc, *restrict f = S->f, *restrict vv = S->v, *restrict dd = S->d;
+        const unsigned char *restrict fixed = M->fixed;
         const vd va = VSET1(mat->rayleigh_mass), vg = _mm256_setr_pd(g[0], g[1], g[2], 0), vdt = VSET1(dt);
         const vd zero = _mm256_setzero_pd();
         /* lanes of the constrained axes of fixed bits 0..7, all ones */
         static const long long fixlanes[8][4] = {{0, 0, 0, 0},   {-1, 0, 0, 0},  {0, -1, 0, 0},  {-1, -1, 0, 0},
                                                  {0, 0, -1, 0},  {-1, 0, -1, 0}, {0, -1, -1, 0}, {-1, -1, -1, 0}};
-        for (int i = 0; i < L->model.n; i++) {
-            const double mi = L->model.mass[i];
+        for (int i = 0; i < M->n; i++) {
+            const double mi = M->mass[i];
             double *ai = acc + 4 * (size_t)i, *fi = f + 3 * (size_t)i, *vi = vv + 3 * (size_t)i, *di = dd + 3 * (size_t)i;
             const vd v0 = _mm256_loadu_pd(vi); /* lane 3: the next node's (or the padding) */
             const vd fv = VADD(_mm256_load_pd(ai), VMUL(VSET1(mi), VSUB(vg, VMUL(va, v0))));
@@ -344,51 +345,53 @@ void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3],
         return;
     }
 #endif
-    corot_forces(L, mat, g, L->f, 1, 1);
+    corot_forces(M, S, mat, g, S->f, 1, 1);
     /* symplectic Euler node by node, the update of level.c's sq_level_integrate */
-    for (int i = 0; i < L->model.n; i++)
+    for (int i = 0; i < M->n; i++)
         if (!mask || mask[i])
-            sq_level_euler_node(L->v, L->d, i, dt / L->model.mass[i], dt, L->f[3 * i], L->f[3 * i + 1],
-                                L->f[3 * i + 2], L->model.fixed[i]);
+            sq_level_euler_node(S->v, S->d, i, dt / M->mass[i], dt, S->f[3 * i], S->f[3 * i + 1],
+                                S->f[3 * i + 2], M->fixed[i]);
 }
 
-void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f)
+void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                           const double g[3], double *f)
 {
     /* rotations iterated to convergence from the stored ones, not stored: the state is unchanged */
-    corot_forces(L, mat, g, f, 50, 0);
+    corot_forces(M, S, mat, g, f, 50, 0);
 }
 
-void sq_level_corot_forces_frozen(const sq_level *L, const sq_material *mat, const double g[3], double *f)
+void sq_level_corot_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                                  const double g[3], double *f)
 {
-    corot_forces(L, mat, g, f, 0, 0);
+    corot_forces(M, S, mat, g, f, 0, 0);
 }
 
-void sq_level_corot_converge(sq_level *L)
+void sq_level_corot_converge(const sq_level_model *M, sq_level_state *S)
 {
-    sq_corot *C = L->corot;
+    sq_corot *C = S->corot;
     if (!C)
         return;
     for (int t = 0; t < C->ntets; t++) {
         double G[10], q[4], F[9], R[9];
         tet_load(C, t, G, q);
-        tet_grad(G, L->model.mesh->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_grad(G, M->mesh->tets + 4 * (size_t)t, S->d, NULL, 0, F, 1.0);
         tet_rotation(q, F, 50, R);
         tet_store_q(C, t, q);
     }
 }
 
-double sq_level_corot_energy(const sq_level *L)
+double sq_level_corot_energy(const sq_level_model *M, const sq_level_state *S)
 {
-    const sq_corot *C = L->corot;
+    const sq_corot *C = S->corot;
     double e = 0;
     for (int t = 0; t < C->ntets; t++)
-        e += tet_energy(C, t, L->model.mesh->tets + 4 * (size_t)t, L->d);
+        e += tet_energy(C, t, M->mesh->tets + 4 * (size_t)t, S->d);
     return e;
 }
 
-int sq_level_corot_inverted(const sq_level *L)
+int sq_level_corot_inverted(const sq_level_model *M, const sq_level_state *S)
 {
-    const sq_mesh *m = L->model.mesh;
+    const sq_mesh *m = M->mesh;
     int n = 0;
     for (int t = 0; t < m->ntets; t++) {
         double a[4][3], G[10], F[9];
@@ -396,7 +399,7 @@ int sq_level_corot_inverted(const sq_level *L)
         for (int k = 0; k < 3; k++)
             for (int c = 0; c < 3; c++)
                 G[3 * k + c] = a[k][c];
-        tet_grad(G, m->tets + 4 * (size_t)t, L->d, NULL, 0, F, 1.0);
+        tet_grad(G, m->tets + 4 * (size_t)t, S->d, NULL, 0, F, 1.0);
         double det = F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) +
                      F[2] * (F[3] * F[7] - F[4] * F[6]);
         n += det <= 0;
@@ -404,13 +407,13 @@ int sq_level_corot_inverted(const sq_level *L)
     return n;
 }
 
-void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const double g[3])
+void sq_level_corot_step_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3])
 {
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
-        sq_level_corot_step(L, mat, g, 0, NULL); /* dt = 0: forces into L->f, rotations stored, no update */
+        sq_level_corot_step(M, S, mat, g, 0, NULL); /* dt = 0: forces into S->f, rotations stored, no update */
         return;
     }
 #endif
-    corot_forces(L, mat, g, L->f, 1, 1);
+    corot_forces(M, S, mat, g, S->f, 1, 1);
 }

@@ -14,26 +14,27 @@
  * the element force. These give it the element force of one tet from given corner values by
  * the scalar pass's own kernel (tet_force, corot_impl.h), four at once with the vector pass's. */
 
-void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, const double *d4, const double *v4,
-                              int iters, int store, double *f4)
+void sq_level_corot_tet_force(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, int t,
+                              const double *d4, const double *v4, int iters, int store, double *f4)
 {
+    (void)M; /* the tet's data are the corotational state's */
     static const int tv[4] = {0, 1, 2, 3};
-    tet_force(L->corot, mat, t, tv, d4, v4, iters, store, f4);
+    tet_force(S->corot, mat, t, tv, d4, v4, iters, store, f4);
 }
 
-double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4)
+double sq_level_corot_tet_energy(const sq_level_model *M, const sq_level_state *S, int t, const double *d4)
 {
+    (void)M;
     static const int tv[4] = {0, 1, 2, 3};
-    return tet_energy(L->corot, t, tv, d4);
+    return tet_energy(S->corot, t, tv, d4);
 }
 
 #ifdef COROT_SIMD
 /* four tets at once (lanes; t[l] < 0: an empty lane), Rayleigh or no stiffness damping: the
  * vector pass's arithmetic (corot_tets_simd) on corner values gathered by the caller */
-static void tet_force4_simd(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
-                            const double *v, int store, double *f)
+static void tet_force4_simd(sq_corot *C, const sq_material *mat, const int t[4], const double *d, const double *v,
+                            int store, double *f)
 {
-    sq_corot *C = L->corot;
     const double b = mat->rayleigh_stiffness;
     const vd one = VSET1(1.0), half = VSET1(0.5);
     const vd m2n = VSET1(-2 * C->mu), lamn = VSET1(-C->lambda);
@@ -130,18 +131,18 @@ static void tet_force4_simd(const sq_level *L, const sq_material *mat, const int
 }
 #endif
 
-void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
-                               const double *v, int store, double *f)
+void sq_level_corot_tet_force4(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const int t[4],
+                               const double *d, const double *v, int store, double *f)
 {
 #ifdef COROT_SIMD
     if (!mat->use_viscosity) {
-        tet_force4_simd(L, mat, t, d, v, store, f);
+        tet_force4_simd(S->corot, mat, t, d, v, store, f);
         return;
     }
 #endif
     for (int l = 0; l < 4; l++)
         if (t[l] >= 0)
-            sq_level_corot_tet_force(L, mat, t[l], d + 12 * l, v + 12 * l, 1, store, f + 12 * l);
+            sq_level_corot_tet_force(M, S, mat, t[l], d + 12 * l, v + 12 * l, 1, store, f + 12 * l);
         else
             memset(f + 12 * l, 0, 12 * sizeof(double));
 }

@@ -21,11 +21,10 @@
 #include "level/implicit_impl.h"
 #include "level/level.h"
 
-sq_implicit *sq_imp_get(sq_level *L)
+sq_implicit *sq_imp_get(const sq_level_model *M, sq_level_state *S)
 {
-    if (L->implicit)
-        return L->implicit;
-    const sq_level_model *M = &L->model;
+    if (S->implicit)
+        return S->implicit;
     sq_implicit *I = sq_calloc(1, sizeof *I);
     size_t n3 = 3 * (size_t)M->n;
     I->n = M->n;
@@ -37,13 +36,13 @@ sq_implicit *sq_imp_get(sq_level *L)
     I->pre = imp_calloc(9 * (size_t)M->n, sizeof(double));
     I->rot = imp_calloc(9 * (size_t)I->ntets, sizeof(double));
     I->freeax = imp_calloc((size_t)M->n, 1);
-    L->implicit = I;
+    S->implicit = I;
     return I;
 }
 
 void sq_level_implicit_free(sq_level *L)
 {
-    sq_implicit *I = L->implicit;
+    sq_implicit *I = L->state.implicit;
     if (!I)
         return;
     double *vecs[] = {I->x, I->r, I->z, I->p, I->q, I->rhs, I->kv, I->dv, I->d0, I->v0, I->pre, I->rot, I->zo,
@@ -57,21 +56,20 @@ void sq_level_implicit_free(sq_level *L)
     free(I->kup_r);
     free(I->tet_edge);
     free(I);
-    L->implicit = NULL;
+    L->state.implicit = NULL;
 }
 
 
 /* y = K x for the operator the step applies (x already projected) */
 void sq_imp_apply_k(const imp_op *o, const double *x, double *y)
 {
-    const sq_level *L = o->L;
-    const sq_level_model *M = &L->model;
+    const sq_level_model *M = o->M;
     const size_t n3 = 3 * (size_t)M->n;
-    if (L->anp) {
-        sq_level_anp_apply(L, x, y);
+    if (o->S->anp) {
+        sq_level_anp_apply(M, o->S, x, y);
         return;
     }
-    if (L->corot) { /* the warped stiffness assembled at the linearisation, by the fused pass */
+    if (o->S->corot) { /* the warped stiffness assembled at the linearisation, by the fused pass */
         sq_level_model W = *M;
         W.Kup = o->I->kup_r;
         sq_level_neg_k(&W, x, y, o->I->acc);
@@ -106,9 +104,9 @@ void sq_imp_project(const sq_implicit *I, double *x)
             }
 }
 
-void sq_level_implicit_set_contacts(sq_level *L, const sq_implicit_contacts *cc)
+void sq_level_implicit_set_contacts(const sq_level_model *M, sq_level_state *S, const sq_implicit_contacts *cc)
 {
-    sq_implicit *I = sq_imp_get(L);
+    sq_implicit *I = sq_imp_get(M, S);
     I->cc = cc && cc->n > 0 ? cc : NULL;
 }
 
@@ -134,7 +132,7 @@ static void contacts_begin(sq_implicit *I)
 
 void sq_imp_apply_a(const imp_op *o, const double *x, double *y)
 {
-    const sq_level_model *M = &o->L->model;
+    const sq_level_model *M = o->M;
     sq_imp_apply_k(o, x, y);
     for (int i = 0; i < M->n; i++) {
         const double mi = o->cm * M->mass[i];
@@ -153,12 +151,11 @@ void sq_imp_apply_a(const imp_op *o, const double *x, double *y)
 
 /* corotational: the rotations of the current state (converged from the stored ones and stored),
  * copied per tet for the warped stiffness */
-static void corot_linearise(sq_level *L)
+static void corot_linearise(const sq_level_model *M, sq_level_state *S)
 {
-    sq_implicit *I = L->implicit;
-    const sq_corot *C = L->corot;
-    const sq_level_model *M = &L->model;
-    sq_level_corot_converge(L);
+    sq_implicit *I = S->implicit;
+    const sq_corot *C = S->corot;
+    sq_level_corot_converge(M, S);
     if (!I->kup_r) {
         I->kup_r = imp_calloc(9 * (size_t)M->up_start[M->n], sizeof(double));
         I->tet_edge = imp_calloc(6 * (size_t)C->ntets, sizeof(int));
@@ -297,10 +294,10 @@ void sq_imp_block_apply(const double *dinv, int n, const double *r, double *z)
 /* the preconditioner's data for this solve */
 static void precond_setup(const imp_op *o, int kind)
 {
-    const sq_level_model *M = &o->L->model;
+    const sq_level_model *M = o->M;
     sq_implicit *I = (sq_implicit *)o->I;
     double *blk = sq_malloc(sizeof(double) * 9 * (size_t)M->n);
-    sq_imp_diag_blocks(o, M, o->L->corot ? I->kup_r : NULL, blk);
+    sq_imp_diag_blocks(o, M, o->S->corot ? I->kup_r : NULL, blk);
     for (int i = 0; i < M->n; i++) {
         const double *B = blk + 9 * (size_t)i;
         double *out = I->pre + 9 * (size_t)i;
@@ -441,20 +438,20 @@ static int pcg(const imp_op *o, const sq_implicit_def *def, const double *b, dou
     return it + pcg_run(o, def, SQ_PRECOND_BLOCK, def->max_iter - it, 1, b, x, deadline, relres, capped);
 }
 
-/* the force of the current state into L->f (corotational: rotations converged and stored) */
-static void forces_now(sq_level *L, const sq_material *mat, const double g[3])
+/* the force of the current state into S->f (corotational: rotations converged and stored) */
+static void forces_now(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3])
 {
-    if (L->corot)
-        corot_linearise(L);
-    sq_level_forces(L, mat, g, NULL);
+    if (S->corot)
+        corot_linearise(M, S);
+    sq_level_forces(M, S, mat, g, NULL);
 }
 
 /* FNV-1a over the bits of d, v and g: equal exactly when the state is the same */
-static unsigned long long state_hash(const sq_level *L, const double g[3])
+static unsigned long long state_hash(const sq_level_model *M, const sq_level_state *S, const double g[3])
 {
     unsigned long long h = 1469598103934665603ull;
-    const size_t n3 = 3 * (size_t)L->model.n;
-    const double *arr[3] = {L->d, L->v, g};
+    const size_t n3 = 3 * (size_t)M->n;
+    const double *arr[3] = {S->d, S->v, g};
     const size_t len[3] = {n3, n3, 3};
     for (int a = 0; a < 3; a++)
         for (size_t k = 0; k < len[a]; k++) {
@@ -466,12 +463,11 @@ static unsigned long long state_hash(const sq_level *L, const double g[3])
 }
 
 /* kinetic + elastic + gravity potential energy of the state, J */
-static double total_energy(const sq_level *L, const double g[3])
+static double total_energy(const sq_level_model *M, const sq_level_state *S, const double g[3])
 {
-    const sq_level_model *M = &L->model;
-    double e = sq_level_elastic_energy(L);
+    double e = sq_level_elastic_energy(M, S);
     for (int i = 0; i < M->n; i++) {
-        const double *v = L->v + 3 * (size_t)i, *d = L->d + 3 * (size_t)i;
+        const double *v = S->v + 3 * (size_t)i, *d = S->d + 3 * (size_t)i;
         e += M->mass[i] * (0.5 * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) - (g[0] * d[0] + g[1] * d[1] + g[2] * d[2]));
     }
     return e;
@@ -503,7 +499,7 @@ sq_implicit_def sq_implicit_def_default(void)
 
 /* the contacts' prescribed part z of dv (the whole velocity relative to the obstacle at a
  * sticking contact, its normal part at a sliding one): rhs -= P A z, the solve adds z */
-static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level *L)
+static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level_state *S)
 {
     const size_t n3 = 3 * (size_t)I->n;
     if (!I->zc)
@@ -513,7 +509,7 @@ static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level *
         if (I->cuse[k]) {
             const double *nk = I->cc->normal + 3 * (size_t)k, *uk = I->cc->u + 3 * (size_t)k;
             const size_t i3 = 3 * (size_t)I->cc->node[k];
-            double rel[3] = {uk[0] - L->v[i3], uk[1] - L->v[i3 + 1], uk[2] - L->v[i3 + 2]};
+            double rel[3] = {uk[0] - S->v[i3], uk[1] - S->v[i3 + 1], uk[2] - S->v[i3 + 2]};
             const double s = rel[0] * nk[0] + rel[1] * nk[1] + rel[2] * nk[2];
             for (int c = 0; c < 3; c++)
                 I->zc[i3 + c] = I->cc->stick[k] ? rel[c] : s * nk[c];
@@ -524,25 +520,26 @@ static void contacts_prescribe(const imp_op *o, sq_implicit *I, const sq_level *
 }
 
 /* the constraints' impulses after the step: M (v1 - v0) - h f(end state) */
-static void contacts_impulses(sq_implicit *I, sq_level *L, const sq_material *mat, const double g[3], double h)
+static void contacts_impulses(sq_implicit *I, const sq_level_model *M, sq_level_state *S, const sq_material *mat,
+                              const double g[3], double h)
 {
-    forces_now(L, mat, g);
+    forces_now(M, S, mat, g);
     for (int k = 0; k < I->cc->n; k++)
         if (I->cuse[k]) {
             const int i = I->cc->node[k];
             for (int c = 0; c < 3; c++) {
                 const size_t j = 3 * (size_t)i + c;
-                I->cc->impulse[3 * (size_t)k + c] = L->model.mass[i] * (L->v[j] - I->v0[j]) - h * L->f[j];
+                I->cc->impulse[3 * (size_t)k + c] = M->mass[i] * (S->v[j] - I->v0[j]) - h * S->f[j];
             }
         }
 }
 
-void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[3], double h,
+void sq_level_implicit_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                            double h,
                             const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st)
 {
-    sq_implicit *I = sq_imp_get(L);
-    const sq_level_model *M = &L->model;
+    sq_implicit *I = sq_imp_get(M, S);
     const int n = M->n;
     const size_t n3 = 3 * (size_t)n;
     for (int i = 0; i < n; i++)
@@ -551,30 +548,30 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     /* c_d: the viscosity blocks (linear operators; corotational viscosity is applied from the
      * step's start, not in the operator: docs/physics.md); stiffness damping b with Rayleigh */
     const int visc = mat->use_viscosity != 0;
-    imp_op o = {.L = L, .I = I, .cm = 1 + h * mat->rayleigh_mass,
-                .ck = h * h + (visc ? 0 : h * mat->rayleigh_stiffness), .cd = visc && M->D && !L->corot ? h : 0};
-    memcpy(I->d0, L->d, sizeof(double) * n3);
-    memcpy(I->v0, L->v, sizeof(double) * n3);
+    imp_op o = {.M = M, .S = S, .I = I, .cm = 1 + h * mat->rayleigh_mass,
+                .ck = h * h + (visc ? 0 : h * mat->rayleigh_stiffness), .cd = visc && M->D && !S->corot ? h : 0};
+    memcpy(I->d0, S->d, sizeof(double) * n3);
+    memcpy(I->v0, S->v, sizeof(double) * n3);
     /* corotational without holds: the start energy, for the Newton iterations' energy guard */
-    const int e0_known = L->corot && !mask;
+    const int e0_known = S->corot && !mask;
     double e0 = 0;
     if (e0_known)
-        e0 = I->e_valid && I->e_hash == state_hash(L, g) ? I->e_cache : total_energy(L, g);
+        e0 = I->e_valid && I->e_hash == state_hash(M, S, g) ? I->e_cache : total_energy(M, S, g);
     I->e_valid = 0;
 
     /* f0 at the step's start (corotational: the rotations of the linearisation) */
-    forces_now(L, mat, g);
+    forces_now(M, S, mat, g);
     /* rhs = h P (f0 - h K w), w = P v0 + H u: the free nodes' velocities and the held nodes'
      * prescribed ones u (their displacement advances by h u in the step: a tool's motion enters
      * the solve as a known increment, not as a jump of the start state) */
     for (int i = 0; i < n; i++) {
         unsigned fx = M->fixed[i];
         for (int c = 0; c < 3; c++)
-            I->x[3 * i + c] = (fx & (1u << c)) ? 0 : L->v[3 * i + c];
+            I->x[3 * i + c] = (fx & (1u << c)) ? 0 : S->v[3 * i + c];
     }
     sq_imp_apply_k(&o, I->x, I->kv);
     for (size_t k = 0; k < n3; k++)
-        I->rhs[k] = h * (L->f[k] - h * I->kv[k]);
+        I->rhs[k] = h * (S->f[k] - h * I->kv[k]);
     if (I->ncuse) /* the contacts' forces (kinetic friction) */
         for (int k = 0; k < I->cc->n; k++)
             if (I->cuse[k])
@@ -582,7 +579,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
                     I->rhs[3 * (size_t)I->cc->node[k] + c] += h * I->cc->force[3 * (size_t)k + c];
     sq_imp_project(I, I->rhs);
     if (I->ncuse)
-        contacts_prescribe(&o, I, L);
+        contacts_prescribe(&o, I, S);
     double rhs0 = sqrt(sq_imp_dot(I->rhs, I->rhs, n3));
     /* held nodes move first: d += h u on their unconstrained axes */
     if (mask)
@@ -590,7 +587,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             if (!mask[i])
                 for (int c = 0; c < 3; c++)
                     if (!(M->fixed[i] & (1u << c)))
-                        L->d[3 * i + c] += h * L->v[3 * i + c];
+                        S->d[3 * i + c] += h * S->v[3 * i + c];
 
     memset(st, 0, sizeof *st);
     memset(I->dv, 0, sizeof(double) * n3);
@@ -620,13 +617,13 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
             for (int c = 0; c < 3; c++) {
                 size_t k = 3 * (size_t)i + c;
                 if (fa & (1u << c)) {
-                    L->v[k] = I->v0[k] + I->dv[k];
-                    L->d[k] = I->d0[k] + h * L->v[k];
+                    S->v[k] = I->v0[k] + I->dv[k];
+                    S->d[k] = I->d0[k] + h * S->v[k];
                 }
             }
         }
         st->newton = nt + 1;
-        if (!L->corot)
+        if (!S->corot)
             break; /* linear (and nodal-pressure) bodies: the one solve is the step */
         /* corotational: the Newton iterations asked for, and more (up to the maximum) while the
          * energy of a body no tool holds is above the step's start: the warped stiffness is not
@@ -635,21 +632,21 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
          * not be converged either) */
         int more = nt + 1 < def->newton;
         if (!more && e0_known && !capped && nt + 1 < SQ_IMPLICIT_MAX_NEWTON) {
-            const double e1 = total_energy(L, g);
+            const double e1 = total_energy(M, S, g);
             more = e1 > e0 + 1e-12 * fabs(e0);
             if (!more) { /* the next step's start energy, if nothing changes the state */
                 I->e_cache = e1;
-                I->e_hash = state_hash(L, g);
+                I->e_hash = state_hash(M, S, g);
                 I->e_valid = 1;
             }
         }
         if (more || def->newton > 1) {
             /* Newton residual P (h f(d1, v1) - M dv), re-linearised at the new state */
-            forces_now(L, mat, g);
+            forces_now(M, S, mat, g);
             for (int i = 0; i < n; i++)
                 for (int c = 0; c < 3; c++) {
                     size_t k = 3 * (size_t)i + c;
-                    I->rhs[k] = h * L->f[k] - M->mass[i] * I->dv[k];
+                    I->rhs[k] = h * S->f[k] - M->mass[i] * I->dv[k];
                 }
             sq_imp_project(I, I->rhs);
             st->newton_residual = rhs0 > 0 ? sqrt(sq_imp_dot(I->rhs, I->rhs, n3)) / rhs0 : 0;
@@ -662,7 +659,7 @@ void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[
     memcpy(I->dvprev, I->dv, sizeof(double) * n3);
     I->have_prev = 1;
     if (I->ncuse)
-        contacts_impulses(I, L, mat, g, h);
-    /* L->f holds the last force pass's values (the step's start, or with Newton iterations an
+        contacts_impulses(I, M, S, mat, g, h);
+    /* S->f holds the last force pass's values (the step's start, or with Newton iterations an
      * intermediate state): the caller evaluates the end state's force when it needs it */
 }

@@ -13,7 +13,7 @@
  * smoother's damping, and for every node of the next finer level the tet of this level's rest
  * mesh containing it with its barycentrics (the prolongation; its transpose restricts) */
 typedef struct mg_level {
-    const sq_level *L;
+    const sq_level_model *M;
     int n;
     double *x, *b, *r, *t;     /* 3 n */
     double *dinv;              /* 9 n */
@@ -67,7 +67,8 @@ struct sq_implicit {
 
 /* the operator of one solve: y = P (c_m M + c_k K + c_d D) P x */
 typedef struct imp_op {
-    const sq_level *L;
+    const sq_level_model *M;
+    const sq_level_state *S;
     const sq_implicit *I;
     double cm, ck, cd;
 } imp_op;
@@ -75,7 +76,7 @@ typedef struct imp_op {
 static inline void *imp_calloc(size_t count, size_t size) { return sq_calloc(count ? count : 1, size); }
 
 /* implicit.c */
-sq_implicit *sq_imp_get(sq_level *L); /* the level's solve state, made at the first call */
+sq_implicit *sq_imp_get(const sq_level_model *M, sq_level_state *S); /* S's solve state, made at the first call */
 void sq_imp_apply_k(const imp_op *o, const double *x, double *y);   /* y = K x */
 void sq_imp_apply_a(const imp_op *o, const double *x, double *y);   /* y = P A x */
 void sq_imp_project(const sq_implicit *I, double *x);               /* x = P x */

@@ -26,7 +26,7 @@ void sq_imp_mg_free(sq_implicit *I)
  * axes zeroed */
 void sq_imp_coarse_dinv(const imp_op *o, mg_level *g)
 {
-    const sq_level_model *M = &g->L->model;
+    const sq_level_model *M = g->M;
     sq_imp_diag_blocks(o, M, NULL, g->dinv);
     for (int i = 0; i < M->n; i++) {
         double B[9];
@@ -39,7 +39,7 @@ void sq_imp_coarse_dinv(const imp_op *o, mg_level *g)
 /* y = (c_m M + c_k K + c_d D) x on coarse level g, constrained axes zeroed */
 static void coarse_apply(const imp_op *o, const mg_level *g, const double *x, double *y)
 {
-    const sq_level_model *M = &g->L->model;
+    const sq_level_model *M = g->M;
     sq_level_neg_k(M, x, y, g->acc); /* y = -K x, the fused pass */
     for (int i = 0; i < M->n; i++) {
         const double s0 = -y[3 * i], s1 = -y[3 * i + 1], s2 = -y[3 * i + 2];
@@ -111,7 +111,7 @@ static void cyc_smooth(const imp_op *o, int j, double omega, const double *b, do
 #define SQ_MG_DENSE 2400
 static int coarse_factor(const imp_op *o, mg_level *g)
 {
-    const sq_level_model *M = &g->L->model;
+    const sq_level_model *M = g->M;
     const int N = 3 * g->n;
     if (!g->chol)
         g->chol = sq_malloc(sizeof(double) * (size_t)N * (size_t)N);
@@ -185,7 +185,7 @@ static void coarsest_solve(const imp_op *o, mg_level *g, const double *b, double
             }
             for (int i = 0; i < g->n; i++)
                 for (int r = 0; r < 3; r++)
-                    if (g->L->model.fixed[i] & (1u << r))
+                    if (g->M->fixed[i] & (1u << r))
                         x[3 * i + r] = 0;
             return;
         }
@@ -244,7 +244,7 @@ __attribute__((noinline)) void sq_imp_vcycle(const imp_op *o, int j, const doubl
     /* restrict to level j + 1 (coarse level mg[j]): b_c = P^T r, constrained axes zeroed */
     mg_level *c = &I->mg[j];
     memset(c->b, 0, sizeof(double) * 3 * (size_t)c->n);
-    const int *tets = c->L->model.mesh->tets;
+    const int *tets = c->M->mesh->tets;
     for (int i = 0; i < n; i++) {
         const int *tv = tets + 4 * (size_t)c->tet[i];
         const double *w = c->bary + 4 * (size_t)i;
@@ -254,7 +254,7 @@ __attribute__((noinline)) void sq_imp_vcycle(const imp_op *o, int j, const doubl
     }
     for (int i = 0; i < c->n; i++)
         for (int q = 0; q < 3; q++)
-            if (c->L->model.fixed[i] & (1u << q))
+            if (c->M->fixed[i] & (1u << q))
                 c->b[3 * (size_t)i + q] = 0;
     sq_imp_vcycle(o, j + 1, c->b, c->x);
     /* prolongate and correct: x += P x_c, then this level's projection */
@@ -273,7 +273,7 @@ __attribute__((noinline)) void sq_imp_vcycle(const imp_op *o, int j, const doubl
     else
         for (int i = 0; i < n; i++)
             for (int q = 0; q < 3; q++)
-                if (I->mg[j - 1].L->model.fixed[i] & (1u << q))
+                if (I->mg[j - 1].M->fixed[i] & (1u << q))
                     t[3 * (size_t)i + q] = 0;
     for (size_t k = 0; k < n3; k++)
         x[k] += t[k];
@@ -281,24 +281,25 @@ __attribute__((noinline)) void sq_imp_vcycle(const imp_op *o, int j, const doubl
         cyc_smooth(o, j, omega, b, x, r, t);
 }
 
-int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse)
+int sq_level_implicit_set_coarse(const sq_level_model *M, sq_level_state *S, const sq_level_model *const *coarse,
+                                 int ncoarse)
 {
-    sq_implicit *I = sq_imp_get(L);
+    sq_implicit *I = sq_imp_get(M, S);
     if (ncoarse > SQ_MAX_LEVELS - 1)
         ncoarse = SQ_MAX_LEVELS - 1;
     /* the same hierarchy as already built: nothing to do */
     int same = I->nmg == ncoarse;
     for (int j = 0; same && j < ncoarse; j++)
-        same = I->mg[j].L == coarse[j] && I->mg[j].n == coarse[j]->model.n;
+        same = I->mg[j].M == coarse[j] && I->mg[j].n == coarse[j]->n;
     if (same)
         return ncoarse;
     sq_imp_mg_free(I);
-    const sq_mesh *fine = L->model.mesh;
+    const sq_mesh *fine = M->mesh;
     for (int j = 0; j < ncoarse; j++) {
         mg_level *g = &I->mg[j];
         memset(g, 0, sizeof *g);
-        g->L = coarse[j];
-        g->n = coarse[j]->model.n;
+        g->M = coarse[j];
+        g->n = coarse[j]->n;
         size_t n3 = 3 * (size_t)g->n;
         g->x = imp_calloc(n3 + 1, sizeof(double));
         g->b = imp_calloc(n3 + 1, sizeof(double));
@@ -310,8 +311,8 @@ int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int
         g->tet = imp_calloc((size_t)g->nfine, sizeof(int));
         g->bary = imp_calloc(4 * (size_t)g->nfine, sizeof(double));
         for (int i = 0; i < g->nfine; i++)
-            g->tet[i] = sq_mesh_locate(coarse[j]->model.mesh, fine->x + 3 * (size_t)i, g->bary + 4 * (size_t)i);
-        fine = coarse[j]->model.mesh;
+            g->tet[i] = sq_mesh_locate(coarse[j]->mesh, fine->x + 3 * (size_t)i, g->bary + 4 * (size_t)i);
+        fine = coarse[j]->mesh;
         I->nmg = j + 1;
     }
     I->omega_cm = I->omega_ck = -1;

@@ -119,10 +119,10 @@ int sq_level_init(sq_level *L, const sq_mesh *mesh, const sq_material *mat, sq_o
     L->model.hbar = sq_calloc((size_t)L->model.n, sizeof(double));
     L->model.fixed = sq_calloc((size_t)L->model.n, 1);
     /* one spare double after d, v and acc: the vector force pass loads 4 lanes per node */
-    L->d = sq_calloc(n3 + 1, sizeof(double));
-    L->v = sq_calloc(n3 + 1, sizeof(double));
-    L->f = sq_calloc(n3, sizeof(double));
-    L->acc = sq_calloc(n3 + 1, sizeof(double));
+    L->state.d = sq_calloc(n3 + 1, sizeof(double));
+    L->state.v = sq_calloc(n3 + 1, sizeof(double));
+    L->state.f = sq_calloc(n3, sizeof(double));
+    L->state.acc = sq_calloc(n3 + 1, sizeof(double));
 
     /* fixed axes: a tolerance of 1e-9 of the bounding-box diagonal absorbs rounding */
     double diag = 0;
@@ -165,13 +165,14 @@ void sq_level_init_shared(sq_level *L, const sq_level *src)
 {
     memset(L, 0, sizeof *L);
     L->model = src->model;
+    sq_level_op_update(L); /* the element models are not shared: linear until enabled */
     L->model_shared = 1;
     size_t n3 = 3 * (size_t)L->model.n;
     /* as sq_level_init: one spare double after d, v and acc */
-    L->d = sq_calloc(n3 + 1, sizeof(double));
-    L->v = sq_calloc(n3 + 1, sizeof(double));
-    L->f = sq_calloc(n3, sizeof(double));
-    L->acc = sq_calloc(n3 + 1, sizeof(double));
+    L->state.d = sq_calloc(n3 + 1, sizeof(double));
+    L->state.v = sq_calloc(n3 + 1, sizeof(double));
+    L->state.f = sq_calloc(n3, sizeof(double));
+    L->state.acc = sq_calloc(n3 + 1, sizeof(double));
     L->omega_max = src->omega_max; /* sq_level_set_material's figure for this model */
 }
 
@@ -191,10 +192,10 @@ void sq_level_free(sq_level *L)
         free(L->model.up_col);
         free(L->model.Kup);
     }
-    free(L->d);
-    free(L->v);
-    free(L->f);
-    free(L->acc);
+    free(L->state.d);
+    free(L->state.v);
+    free(L->state.f);
+    free(L->state.acc);
     sq_level_corot_free(L);
     sq_level_anp_free(L);
     sq_level_implicit_free(L);
@@ -316,14 +317,14 @@ static void scaled_matvec(const sq_level *L, const double *rm, const double *x, 
  * the step's matrix-free pass of level/anp.c; scratch: 3n doubles); the element-wise K otherwise */
 static void scaled_matvec_own(const sq_level *L, const double *rm, const double *x, double *y, double *z)
 {
-    if (!L->anp) {
+    if (!L->state.anp) {
         scaled_matvec(L, rm, x, y);
         return;
     }
     for (int i = 0; i < L->model.n; i++)
         for (int r = 0; r < 3; r++)
             z[3 * i + r] = (L->model.fixed[i] & (1u << r)) ? 0 : x[3 * i + r] / rm[i];
-    sq_level_anp_apply(L, z, y);
+    sq_level_anp_apply(&L->model, &L->state, z, y);
     for (int i = 0; i < L->model.n; i++)
         for (int r = 0; r < 3; r++)
             y[3 * i + r] = (L->model.fixed[i] & (1u << r)) ? 0 : y[3 * i + r] / rm[i];
@@ -421,7 +422,7 @@ static double lanczos_max(const sq_level *L, int iters, int own)
 {
     size_t n3 = 3 * (size_t)L->model.n;
     double *Q = sq_calloc(2 * n3 + 1, sizeof(double)), *q = Q,
-           *w = sq_malloc((n3 + 1) * sizeof(double)), *z = own && L->anp ? sq_malloc(n3 * sizeof(double)) : NULL;
+           *w = sq_malloc((n3 + 1) * sizeof(double)), *z = own && L->state.anp ? sq_malloc(n3 * sizeof(double)) : NULL;
     double *alpha = sq_malloc(sizeof(double) * (size_t)(iters + 1)),
            *beta = sq_malloc(sizeof(double) * (size_t)(iters + 1)), *rm = sq_malloc(sizeof(double) * (size_t)SQ_MAX(L->model.n, 1));
     for (int i = 0; i < L->model.n; i++)
@@ -482,7 +483,7 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
         return sq_err_set(err, "frame period %g s is out of range: give a frame rate > 0", frame_dt);
     if (!(step_fraction > 0 && step_fraction <= 1))
         return sq_err_set(err, "step_fraction %g is out of range: give 0 < step_fraction <= 1", step_fraction);
-    /* the estimate on the operator the step applies: with "pressure" nodal or smoothed (L->anp)
+    /* the estimate on the operator the step applies: with "pressure" nodal or smoothed (L->state.anp)
      * that operator, never stiffer than the element-wise K (docs/physics.md section 10), so the
      * element-wise Gershgorin bound stays a safe ceiling */
     double g2 = L->omega_max * L->omega_max, lz = sq_level_lanczos_max_own(L, iters);
@@ -641,36 +642,38 @@ void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double 
 
 /* ---- the linear row of the operator table ---- */
 
-static void linear_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+static void linear_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
+                        double dt,
                         const unsigned char *mask)
 {
-    if (mat->use_viscosity && L->model.D) {
+    if (mat->use_viscosity && M->D) {
         /* the viscosity blocks are applied row by row: two passes */
-        sq_level_forces(L, mat, gravity, NULL);
-        sq_level_integrate(L, dt, mask);
+        sq_level_forces(M, S, mat, gravity, NULL);
+        sq_level_integrate(M, S, dt, mask);
         return;
     }
-    forces_all(&L->model, L->d, L->v, L->f, L->acc, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt,
+    forces_all(M, S->d, S->v, S->f, S->acc, mat->rayleigh_stiffness, mat->rayleigh_mass, gravity, dt,
                mask);
 }
 
-static void linear_forces(const sq_level *L, const sq_material *mat, const double gravity[3],
+static void linear_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                          const double gravity[3],
                           const unsigned char *active, double *f_out, double *acc)
 {
-    const int n = L->model.n;
+    const int n = M->n;
     const double b = mat->use_viscosity ? 0 : mat->rayleigh_stiffness;
     const double a = mat->rayleigh_mass;
-    const double *restrict d = L->d;
-    const double *restrict v = L->v;
+    const double *restrict d = S->d;
+    const double *restrict v = S->v;
     double *restrict f = f_out;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
 
     if (!active) {
         /* dt = 0: the pass writes f and acc only (d and v are read) */
-        forces_all(&L->model, (double *)d, (double *)v, f, acc, b, a, gravity, 0, NULL);
-        if (L->model.D && mat->use_viscosity)
+        forces_all(M, (double *)d, (double *)v, f, acc, b, a, gravity, 0, NULL);
+        if (M->D && mat->use_viscosity)
             for (int i = 0; i < n; i++)
-                sq_level_row(&L->model, L->model.D, v, i, f + 3 * (size_t)i);
+                sq_level_row(M, M->D, v, i, f + 3 * (size_t)i);
         return;
     }
     /* masked: full rows of K for the active nodes only; d + b v formed per neighbour, so the
@@ -679,20 +682,20 @@ static void linear_forces(const sq_level *L, const sq_material *mat, const doubl
         if (!active[i])
             continue;
         double *fi = f + 3 * (size_t)i;
-        sq_level_node_force(&L->model, d, v, a, b, g0, g1, g2, i, fi);
-        if (L->model.D && mat->use_viscosity)
-            sq_level_row(&L->model, L->model.D, v, i, fi);
+        sq_level_node_force(M, d, v, a, b, g0, g1, g2, i, fi);
+        if (M->D && mat->use_viscosity)
+            sq_level_row(M, M->D, v, i, fi);
     }
 }
 
 /* 0.5 d.K d */
-static double linear_energy(const sq_level *L)
+static double linear_energy(const sq_level_model *M, const sq_level_state *S)
 {
     double e = 0;
-    for (int i = 0; i < L->model.n; i++) {
-        const double *di = L->d + 3 * (size_t)i;
-        for (int p = L->model.row_start[i]; p < L->model.row_start[i + 1]; p++) {
-            const double *B = L->model.K + 9 * (size_t)p, *dj = L->d + 3 * (size_t)L->model.col[p];
+    for (int i = 0; i < M->n; i++) {
+        const double *di = S->d + 3 * (size_t)i;
+        for (int p = M->row_start[i]; p < M->row_start[i + 1]; p++) {
+            const double *B = M->K + 9 * (size_t)p, *dj = S->d + 3 * (size_t)M->col[p];
             for (int r = 0; r < 3; r++)
                 e += di[r] * (B[3 * r] * dj[0] + B[3 * r + 1] * dj[1] + B[3 * r + 2] * dj[2]);
         }
@@ -702,26 +705,28 @@ static double linear_energy(const sq_level *L)
 
 /* ---- the element models' rows: their force passes are level/corot.c's and level/anp.c's ---- */
 
-static void corot_forces_row(const sq_level *L, const sq_material *mat, const double g[3],
+static void corot_forces_row(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                             const double g[3],
                              const unsigned char *active, double *f, double *acc)
 {
     (void)active; /* all nodes (a superset of the active ones) */
     (void)acc;
-    sq_level_corot_forces(L, mat, g, f);
+    sq_level_corot_forces(M, S, mat, g, f);
 }
 
-static void anp_step(sq_level *L, const sq_material *mat, const double g[3], double dt, const unsigned char *mask)
+static void anp_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
+                     const unsigned char *mask)
 {
-    sq_level_anp_forces(L, mat, g, L->f);
-    sq_level_integrate(L, dt, mask);
+    sq_level_anp_forces(M, S, mat, g, S->f);
+    sq_level_integrate(M, S, dt, mask);
 }
 
-static void anp_forces_row(const sq_level *L, const sq_material *mat, const double g[3],
+static void anp_forces_row(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
                            const unsigned char *active, double *f, double *acc)
 {
     (void)active; /* all nodes */
     (void)acc;
-    sq_level_anp_forces(L, mat, g, f);
+    sq_level_anp_forces(M, S, mat, g, f);
 }
 
 static const sq_level_ops level_ops[SQ_LEVEL_OP_NKINDS] = {
@@ -731,46 +736,57 @@ static const sq_level_ops level_ops[SQ_LEVEL_OP_NKINDS] = {
     [SQ_LEVEL_OP_SMOOTHED] = {"smoothed", anp_step, anp_forces_row, sq_level_anp_energy},
 };
 
+void sq_level_op_update(sq_level *L)
+{
+    const sq_anp *A = L->state.anp;
+    L->model.op_kind = L->state.corot ? SQ_LEVEL_OP_COROT
+                       : !A       ? SQ_LEVEL_OP_LINEAR
+                       : sq_anp_mode(A) == SQ_PRESSURE_SMOOTHED ? SQ_LEVEL_OP_SMOOTHED
+                                                                : SQ_LEVEL_OP_NODAL;
+}
+
 const sq_level_ops *sq_level_ops_of(sq_level_op_kind k)
 {
     return (unsigned)k < SQ_LEVEL_OP_NKINDS ? &level_ops[k] : NULL;
 }
 
-void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
+                   double dt,
                    const unsigned char *mask)
 {
-    level_ops[L->op_kind].step(L, mat, gravity, dt, mask);
+    level_ops[M->op_kind].step(M, S, mat, gravity, dt, mask);
 }
 
-void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
+void sq_level_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
                      const unsigned char *active)
 {
-    sq_level_forces_to(L, mat, gravity, active, L->f, L->acc);
+    sq_level_forces_to(M, S, mat, gravity, active, S->f, S->acc);
 }
 
-void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
+void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                        const double gravity[3],
                         const unsigned char *active, double *f_out, double *acc)
 {
-    level_ops[L->op_kind].forces(L, mat, gravity, active, f_out, acc);
+    level_ops[M->op_kind].forces(M, S, mat, gravity, active, f_out, acc);
 }
 
-void sq_level_forces_frozen(const sq_level *L, const sq_material *mat, const double gravity[3], double *f_out,
-                            double *acc)
+void sq_level_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                            const double gravity[3], double *f_out, double *acc)
 {
-    if (L->op_kind == SQ_LEVEL_OP_COROT)
-        sq_level_corot_forces_frozen(L, mat, gravity, f_out);
+    if (M->op_kind == SQ_LEVEL_OP_COROT)
+        sq_level_corot_forces_frozen(M, S, mat, gravity, f_out);
     else
-        sq_level_forces_to(L, mat, gravity, NULL, f_out, acc);
+        sq_level_forces_to(M, S, mat, gravity, NULL, f_out, acc);
 }
 
-void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
+void sq_level_integrate(const sq_level_model *M, sq_level_state *S, double dt, const unsigned char *active)
 {
-    const int n = L->model.n;
-    double *restrict d = L->d;
-    double *restrict v = L->v;
-    const double *restrict f = L->f;
-    const double *restrict mass = L->model.mass;
-    const unsigned char *restrict fixed = L->model.fixed;
+    const int n = M->n;
+    double *restrict d = S->d;
+    double *restrict v = S->v;
+    const double *restrict f = S->f;
+    const double *restrict mass = M->mass;
+    const unsigned char *restrict fixed = M->fixed;
     for (int i = 0; i < n; i++) {
         if (active && !active[i])
             continue;
@@ -778,17 +794,17 @@ void sq_level_integrate(sq_level *L, double dt, const unsigned char *active)
     }
 }
 
-void sq_level_laplacian(const sq_level *L, int i, double out[3])
+void sq_level_laplacian(const sq_level_model *M, const sq_level_state *S, int i, double out[3])
 {
     double s0 = 0, s1 = 0, s2 = 0;
-    for (int e = L->model.row_start[i]; e < L->model.row_start[i + 1]; e++) {
-        const double *dj = L->d + 3 * (size_t)L->model.col[e];
-        double w = L->model.lap[e];
+    for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++) {
+        const double *dj = S->d + 3 * (size_t)M->col[e];
+        double w = M->lap[e];
         s0 += w * dj[0];
         s1 += w * dj[1];
         s2 += w * dj[2];
     }
-    double iv = L->model.vol[i] > 0 ? -1.0 / L->model.vol[i] : 0;
+    double iv = M->vol[i] > 0 ? -1.0 / M->vol[i] : 0;
     out[0] = s0 * iv;
     out[1] = s1 * iv;
     out[2] = s2 * iv;
@@ -815,19 +831,20 @@ double sq_level_residual(const sq_level_model *M, const double *f, const double 
     return r;
 }
 
-void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double from[3], double span)
+void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3],
+                         const double from[3], double span)
 {
-    const unsigned fx = L->model.fixed[i];
+    const unsigned fx = M->fixed[i];
     for (int c = 0; c < 3; c++) {
         if (fx & (1u << c))
             continue; /* the constraint wins: the axis stays at rest */
-        L->v[3 * i + c] = span > 0 ? (goal[c] - from[c]) / span : 0.0; /* before d: from may be d */
-        L->d[3 * i + c] = goal[c];
+        S->v[3 * i + c] = span > 0 ? (goal[c] - from[c]) / span : 0.0; /* before d: from may be d */
+        S->d[3 * i + c] = goal[c];
     }
 }
 
 /* 0.5 d.K d of level k (the corotational energy with corotational elasticity) */
-double sq_level_elastic_energy(const sq_level *L)
+double sq_level_elastic_energy(const sq_level_model *M, const sq_level_state *S)
 {
-    return level_ops[L->op_kind].energy(L);
+    return level_ops[M->op_kind].energy(M, S);
 }

@@ -66,7 +66,9 @@ typedef struct sq_implicit sq_implicit;
  * model is set (sq_level_init: linear; sq_level_corot_enable: corotational; sq_level_anp_enable:
  * nodal or smoothed) and dispatched through level.c's table of sq_level_ops, one row per kind
  * (corotational wins over a pressure mode when both are enabled, as it always has). The
- * implicit step (sq_level_implicit_step) is the body's integrator choice, not a row here. */
+ * integrator (these rows' symplectic Euler substeps, or backward Euler by CG,
+ * sq_level_implicit_step, on the same operator) is a row of the fixed frame's integrator
+ * table in body/frame.c, picked by the body's def.integrator. */
 typedef enum sq_level_op_kind {
     SQ_LEVEL_OP_LINEAR = 0,   /* element-wise linear blocks K (and D) */
     SQ_LEVEL_OP_COROT = 1,    /* corotational tets (level/corot.c) */
@@ -102,50 +104,64 @@ typedef struct sq_level_model {
     int *up_start;         /* CSR rows (n+1) */
     int *up_col;           /* columns j > i (up_start[n]) */
     double *Kup;           /* blocks (up_start[n] x 9) */
+    /* the row of the operator table the step uses, set with the element model (sq_level_init:
+     * linear; sq_level_corot_enable, sq_level_anp_enable and their frees) */
+    sq_level_op_kind op_kind;
 } sq_level_model;
 
-/* one level: its constant model, its state (d, v), the scratch of the force passes and the
- * step settings chosen for it */
-typedef struct sq_level {
-    sq_level_model model;  /* constant part (owned; read-only outside init/set_material) */
-    int model_shared;      /* 1: model is another level's (sq_level_init_shared), not freed here */
-
-    double *d;             /* state: displacement (n x 3), m */
-    double *v;             /* state: velocity (n x 3), m/s */
+/* the changing state of one level: displacement and velocity, the scratch of the force passes,
+ * and the element models' data with their state (the corotational rotations, the nodal
+ * pressure scratch, the implicit solve's vectors). The step, the force passes and the
+ * integration take (const sq_level_model *, sq_level_state *): they write only here. */
+typedef struct sq_level_state {
+    double *d;             /* displacement (n x 3), m */
+    double *v;             /* velocity (n x 3), m/s */
     double *f;             /* scratch: total force of the last force pass (n x 3), N */
     double *acc;           /* scratch: force accumulator of the fast pass, all zero between calls (n x 3) */
+    /* rest data and state of the optional element models (kept together: see docs/physics.md) */
+    sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
+    sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
+    sq_implicit *implicit; /* backward Euler scratch (level/implicit.c), allocated by the first step */
+} sq_level_state;
+
+/* one level: its constant model, its state, and the step settings chosen for it */
+typedef struct sq_level {
+    sq_level_model model;  /* constant part (owned; read-only outside init/set_material and the
+                              element models' enable) */
+    int model_shared;      /* 1: model is another level's (sq_level_init_shared), not freed here */
+    sq_level_state state;  /* changing part: d, v, scratch, element models' state */
 
     double omega_max;      /* Gershgorin bound on the largest angular frequency, rad/s */
     double bound;          /* stability bound on the step with damping, s */
     int substeps_log2;     /* n: this level steps dt = frame_dt / 2^n */
     double dt;             /* frame_dt / 2^n, s */
-    /* rest data and state of the optional element models (kept together: see docs/physics.md) */
-    sq_corot *corot;       /* corotational elasticity (level/corot.c): rest gradients + rotations, NULL: linear */
-    sq_anp *anp;           /* average nodal pressure tets (level/anp.c), NULL: element-wise */
     /* fixed mode (sq_level_choose_step_sharp): largest omega estimated by Lanczos (Gershgorin
      * as the ceiling), its bound, and its substeps per frame (a power of two) */
     double omega_est;      /* rad/s */
     double bound_sharp;    /* s */
     int nsub;              /* substeps per frame */
     double dt_fixed;       /* frame_dt / nsub, s */
-    sq_implicit *implicit; /* backward Euler scratch (level/implicit.c), allocated by the first step */
-    sq_level_op_kind op_kind; /* the row of the operator table the step uses (set with the element model) */
 } sq_level;
 
-/* one row of the operator table: the explicit step (forces of all nodes, then symplectic Euler
- * on the nodes with mask[i] != 0; dt = 0 computes the forces into L->f only), the force pass
- * into f (acc: the linear pass's all-zero scratch of 3 n + 1, left zero; active may be NULL)
- * and the elastic energy */
+/* one row of the operator table, on a level's const model M and its state S: the explicit step
+ * (forces of all nodes, then symplectic Euler on the nodes with mask[i] != 0; dt = 0 computes
+ * the forces into S->f only), the force pass into f (acc: the linear pass's all-zero scratch of
+ * 3 n + 1, left zero; active may be NULL; S only read) and the elastic energy */
 typedef struct sq_level_ops {
     const char *name;
-    void (*step)(sq_level *L, const sq_material *mat, const double g[3], double dt, const unsigned char *mask);
-    void (*forces)(const sq_level *L, const sq_material *mat, const double g[3], const unsigned char *active,
-                   double *f, double *acc);
-    double (*energy)(const sq_level *L);
+    void (*step)(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3], double dt,
+                 const unsigned char *mask);
+    void (*forces)(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3],
+                   const unsigned char *active, double *f, double *acc);
+    double (*energy)(const sq_level_model *M, const sq_level_state *S);
 } sq_level_ops;
-/* the table's row of kind k (NULL out of range), and the row a level steps with */
+/* the model's row from the element models its state holds (corotational, else nodal or
+ * smoothed, else linear): the one writer of op_kind, called by the enables and frees of
+ * level/corot.c and level/anp.c and by sq_level_init_shared */
+void sq_level_op_update(sq_level *L);
+/* the table's row of kind k (NULL out of range), and the row a model steps with */
 const sq_level_ops *sq_level_ops_of(sq_level_op_kind k);
-static inline const sq_level_ops *sq_level_ops_get(const sq_level *L) { return sq_level_ops_of(L->op_kind); }
+static inline const sq_level_ops *sq_level_ops_get(const sq_level_model *M) { return sq_level_ops_of(M->op_kind); }
 
 /* health warnings (body/body.h counts them per kind; docs/physics.md "Health"): a kind and up
  * to four values, the first of which is the one counted as "last value" */
@@ -207,7 +223,7 @@ int sq_level_choose_step(sq_level *L, const sq_material *mat, double frame_dt, d
                          sq_err *err);
 
 /* the sharp bound of fixed mode: lambda_max(M^-1 K) over the unconstrained axes, K the operator
- * the step applies (the element-wise blocks, or with L->anp the nodal-pressure or smoothed
+ * the step applies (the element-wise blocks, or with L->state.anp the nodal-pressure or smoothed
  * operator, which must be enabled first), estimated by `iters` Lanczos steps (Ritz value plus its residual, capped by Gershgorin), the damped bound
  * from it, and the smallest power of two n with frame_dt / n <= step_fraction * bound (the rule
  * of the Gershgorin step and of lod's levels; sets omega_est, bound_sharp, nsub, dt_fixed); -1 + err above 2^20 substeps per frame */
@@ -217,7 +233,7 @@ int sq_level_choose_step_sharp(sq_level *L, const sq_material *mat, double frame
  * blocks (whatever the pressure mode) */
 double sq_level_lanczos_max(const sq_level *L, int iters);
 /* the same for the operator the step applies: the matrix-free nodal-pressure or smoothed operator
- * (level/anp.c) when L->anp is set, else the same as sq_level_lanczos_max (the same arithmetic) */
+ * (level/anp.c) when L->state.anp is set, else the same as sq_level_lanczos_max (the same arithmetic) */
 double sq_level_lanczos_max_own(const sq_level *L, int iters);
 /* largest eigenvalue of the symmetric tridiagonal (alpha diagonal, beta off-diagonal) of
  * size m, by bisection on the Sturm count (to 1e-15 relative): a Lanczos run's Ritz value */
@@ -314,17 +330,18 @@ static inline void sq_level_tet_block(sq_operator_kind op, double V, const doubl
 
 /* forces f_i (elastic + damping + gravity) on the nodes with active[i] != 0 (all if active is
  * NULL), reading d and v of all neighbours (ghost values included) */
-void sq_level_forces(sq_level *L, const sq_material *mat, const double gravity[3],
+void sq_level_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
                      const unsigned char *active);
 
-/* the same forces of L's state written to f (n x 3) instead of L->f, with acc an all-zero
- * scratch of 3 n + 1 doubles (left all zero): L (model and state) is only read */
-void sq_level_forces_to(const sq_level *L, const sq_material *mat, const double gravity[3],
+/* the same forces of the state S written to f (n x 3) instead of S->f, with acc an all-zero
+ * scratch of 3 n + 1 doubles (left all zero): M and S are only read */
+void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                        const double gravity[3],
                         const unsigned char *active, double *f, double *acc);
 /* the same with a corotational level's rotations frozen as they stand: f is then affine in d,
  * so f(d + x) - f(d) = -K x with the operator the step uses (its stiffness at this state) */
-void sq_level_forces_frozen(const sq_level *L, const sq_material *mat, const double gravity[3], double *f_out,
-                            double *acc);
+void sq_level_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                            const double gravity[3], double *f_out, double *acc);
 
 /* residual force measure of forces f (n x 3) over the listed nodes (the list active of nactive
  * nodes; all when NULL) that are not fully constrained and not held (held may be NULL: a held
@@ -360,15 +377,17 @@ static inline __attribute__((always_inline)) void sq_level_euler_node(double *re
  * the displacement is set to goal and the velocity to (goal - from) / span (0 if span <= 0);
  * a constrained axis is left as it is, at zero: a constraint wins over a tool
  * (docs/physics.md) */
-void sq_level_apply_hold(sq_level *L, int i, const double goal[3], const double from[3], double span);
+void sq_level_apply_hold(const sq_level_model *M, sq_level_state *S, int i, const double goal[3],
+                         const double from[3], double span);
 
 /* symplectic Euler on active nodes: v += dt f/m; constrained axes zeroed; d += dt v */
-void sq_level_integrate(sq_level *L, double dt, const unsigned char *active);
+void sq_level_integrate(const sq_level_model *M, sq_level_state *S, double dt, const unsigned char *active);
 
-/* one step of all nodes in a single pass: sq_level_forces(L, mat, gravity, NULL) followed by
- * sq_level_integrate(L, dt, mask) (same values), fused so the operator is streamed once; nodes
- * with mask[i] == 0 (mask may be NULL) get their force in L->f but are not integrated */
-void sq_level_step(sq_level *L, const sq_material *mat, const double gravity[3], double dt,
+/* one step of all nodes in a single pass: sq_level_forces(M, S, mat, gravity, NULL) followed by
+ * sq_level_integrate(M, S, dt, mask) (same values), fused so the operator is streamed once; nodes
+ * with mask[i] == 0 (mask may be NULL) get their force in S->f but are not integrated */
+void sq_level_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double gravity[3],
+                   double dt,
                    const unsigned char *mask);
 
 /* y = -K x (n x 3) by the step's fused upper-half pass: x must have one readable double past
@@ -377,7 +396,7 @@ void sq_level_neg_k(const sq_level_model *M, const double *x, double *y, double 
 
 /* Laplacian of the displacement at node i, -(1/vol_i) sum_j lap_ij d_j (m^-1); lap_ij is the
  * (positive semi-definite) stiffness of -Lap, hence the minus sign */
-void sq_level_laplacian(const sq_level *L, int i, double out[3]);
+void sq_level_laplacian(const sq_level_model *M, const sq_level_state *S, int i, double out[3]);
 
 /* y = A x for a symmetric positive definite operator A on the level's nodes (3n values) */
 typedef void (*sq_level_op)(const sq_level_model *M, const void *ctx, const double *x, double *y);
@@ -406,14 +425,14 @@ int sq_level_static_solve_pressure(const sq_level_model *M, const sq_material *m
                                    double tol, int max_iter, double *d, int *iterations, sq_err *err);
 
 /* average nodal pressure tets and smoothed tets (level/anp.c; fem operator, linear elasticity,
- * fixed mode): with L->anp set, sq_level_step and sq_level_forces use them, and so does the sharp
+ * fixed mode): with L->state.anp set, sq_level_step and sq_level_forces use them, and so does the sharp
  * bound's Lanczos estimate (call sq_level_choose_step_sharp again after enabling or freeing);
  * enable (mode SQ_PRESSURE_NODAL or SQ_PRESSURE_SMOOTHED) refuses the paper operator */
 int sq_level_anp_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, int mode, sq_err *err);
 void sq_level_anp_free(sq_level *L);
-void sq_level_anp_apply(const sq_level *L, const double *x, double *y); /* y = K_np x */
-void sq_level_anp_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
-double sq_level_anp_energy(const sq_level *L);
+void sq_level_anp_apply(const sq_level_model *M, const sq_level_state *S, const double *x, double *y); /* y = K_np x */
+void sq_level_anp_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f); /* into f */
+double sq_level_anp_energy(const sq_level_model *M, const sq_level_state *S);
 /* the operator alone, on a mesh with n nodes of nodal volumes vol (the static solve's use) */
 sq_anp *sq_anp_create(const sq_mesh *m, int n, int mode);
 void sq_anp_set_moduli(sq_anp *A, double mu, double lambda);
@@ -424,45 +443,49 @@ void sq_anp_apply_fast(const sq_anp *A, const double *vol, const double *x, doub
 void sq_anp_destroy(sq_anp *A);
 
 /* 0.5 d.K d of the level's current displacement (J) */
-double sq_level_elastic_energy(const sq_level *L);
+double sq_level_elastic_energy(const sq_level_model *M, const sq_level_state *S);
 
 /* corotational elasticity (level/corot.c; fem operator; fixed mode, and adaptive through lod/): per-tet rest gradients and
  * rotations. enable: allocate (rotations identity) or update the moduli; -1 + err for the paper
- * operator. With L->corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
+ * operator. With L->state.corot set, sq_level_step and sq_level_forces compute f = -R K_T (R^T x - X)
  * per tet (damping rotated the same way); sq_level_forces leaves the stored rotations as they are */
 int sq_level_corot_enable(sq_level *L, const sq_material *mat, sq_operator_kind op, sq_err *err);
 void sq_level_corot_free(sq_level *L);
-void sq_level_corot_reset(sq_level *L);                        /* rotations to identity */
-void sq_level_corot_copy(sq_level *dst, const sq_level *src);  /* same mesh: copy the rotations */
+void sq_level_corot_reset(sq_level_state *S);                          /* rotations to identity */
+void sq_level_corot_copy(sq_level_state *dst, const sq_level_state *src); /* same mesh: copy the rotations */
 /* the stored rotations as a flat array: its length (0 without corot), save into q, load from q */
-size_t sq_level_corot_state_len(const sq_level *L);
-void sq_level_corot_save(const sq_level *L, double *q);
-void sq_level_corot_load(sq_level *L, const double *q);
-void sq_level_corot_converge(sq_level *L);                     /* rotations converged to the current d */
-void sq_level_corot_step(sq_level *L, const sq_material *mat, const double g[3], double dt,
+size_t sq_level_corot_state_len(const sq_level_state *S);
+void sq_level_corot_save(const sq_level_state *S, double *q);
+void sq_level_corot_load(sq_level_state *S, const double *q);
+void sq_level_corot_converge(const sq_level_model *M, sq_level_state *S);                     /* rotations converged to the current d */
+void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                         double dt,
                          const unsigned char *mask);
-void sq_level_corot_forces(const sq_level *L, const sq_material *mat, const double g[3], double *f); /* into f */
+void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f); /* into f */
 /* the same with the stored rotations as they stand (not iterated): affine in d */
-void sq_level_corot_forces_frozen(const sq_level *L, const sq_material *mat, const double g[3], double *f);
-double sq_level_corot_energy(const sq_level *L);               /* corotational elastic energy, J */
+void sq_level_corot_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                                  const double g[3], double *f);
+double sq_level_corot_energy(const sq_level_model *M, const sq_level_state *S);               /* corotational elastic energy, J */
 /* the adaptive frame's pieces (lod/corotational.c): the element force of tet t (elastic and
  * stiffness or viscous damping; no mass damping, no gravity) from corner values d4, v4 (4 x 3,
  * the tet's corners in mesh order) into f4 (4 x 3), the stored rotation improved iters times
  * (stopping once converged) and stored back if store (the scalar pass's arithmetic); the
  * energy of tet t at corner displacements d4 (rotation converged, not stored); and the step's
- * force pass alone (into L->f, one rotation update per tet, stored: the values
+ * force pass alone (into S->f, one rotation update per tet, stored: the values
  * sq_level_corot_step integrates) */
-void sq_level_corot_tet_force(const sq_level *L, const sq_material *mat, int t, const double *d4, const double *v4,
+void sq_level_corot_tet_force(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, int t,
+                              const double *d4, const double *v4,
                               int iters, int store, double *f4);
-double sq_level_corot_tet_energy(const sq_level *L, int t, const double *d4);
-void sq_level_corot_step_forces(sq_level *L, const sq_material *mat, const double g[3]);
+double sq_level_corot_tet_energy(const sq_level_model *M, const sq_level_state *S, int t, const double *d4);
+void sq_level_corot_step_forces(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3]);
 /* four tets t[0..3] at once (t[l] < 0: an empty lane, zero force), one rotation update each:
  * corner values d, v and forces f laid out tet after tet (12 per tet); the vector pass's
  * arithmetic in AVX2 builds (without viscosity), else the per-tet one */
-void sq_level_corot_tet_force4(const sq_level *L, const sq_material *mat, const int t[4], const double *d,
+void sq_level_corot_tet_force4(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                               const int t[4], const double *d,
                                const double *v, int store, double *f);
 /* tets with det F <= 0 at the current displacement (any level, linear or not) */
-int sq_level_corot_inverted(const sq_level *L);
+int sq_level_corot_inverted(const sq_level_model *M, const sq_level_state *S);
 
 
 /* ---- backward Euler (level/implicit.c; docs/physics.md section 12) ---- */
@@ -501,8 +524,8 @@ int sq_implicit_def_check(const sq_implicit_def *d, sq_err *err);
  * with mask[i] == 0 (held by a tool) move at their velocity v_i (prescribed: d_i += h v_i on the
  * unconstrained axes) and are projected out of the solve, as are constrained axes. CG stops at def->tol, at
  * def->max_iter, or once the thread's CPU clock (sq_thread_cpu) passes deadline (0: none) */
-void sq_level_implicit_step(sq_level *L, const sq_material *mat, const double g[3], double h,
-                            const unsigned char *mask, const sq_implicit_def *def, double deadline,
+void sq_level_implicit_step(const sq_level_model *M, sq_level_state *S, const sq_material *mat, const double g[3],
+                            double h, const unsigned char *mask, const sq_implicit_def *def, double deadline,
                             sq_implicit_stats *st);
 void sq_level_implicit_free(sq_level *L);
 
@@ -524,12 +547,13 @@ typedef struct sq_implicit_contacts {
     double *impulse;             /* n x 3, written by the step */
 } sq_implicit_contacts;
 /* the contacts of L's next implicit steps (borrowed until set again; NULL: none) */
-void sq_level_implicit_set_contacts(sq_level *L, const sq_implicit_contacts *cc);
+void sq_level_implicit_set_contacts(const sq_level_model *M, sq_level_state *S, const sq_implicit_contacts *cc);
 /* the multigrid preconditioner's hierarchy: coarse[0] the next coarser level (another mesh of
  * the same shape), coarse[1] the one below, ...; each fine node is located in the coarser rest
  * mesh (sq_mesh_locate) and its barycentrics are the prolongation (their transpose restricts).
  * The levels are borrowed (they must outlive L's solves). Returns the levels used; with none,
  * SQ_PRECOND_MULTIGRID is block Jacobi */
-int sq_level_implicit_set_coarse(sq_level *L, const sq_level *const *coarse, int ncoarse);
+int sq_level_implicit_set_coarse(const sq_level_model *M, sq_level_state *S, const sq_level_model *const *coarse,
+                                 int ncoarse);
 
 #endif

@@ -364,7 +364,7 @@ void sq_lodx_save_cascade(sq_lod *lod)
             lod->lev[k].lists.cascade_value = sq_realloc(lod->lev[k].lists.cascade_value,
                                                    sizeof(double) * 6 * (size_t)lod->lev[k].lists.cascade_value_cap);
         }
-        const double *d = lod->lv[k].d, *v = lod->lv[k].v;
+        const double *d = lod->lv[k].state.d, *v = lod->lv[k].state.v;
         for (int r = 0; r < nr; r++) {
             size_t j = 3 * (size_t)lod->lev[k].lay.ring[r];
             double *c = lod->lev[k].lists.cascade_value + 6 * (size_t)r;
@@ -398,7 +398,7 @@ void sq_lod_flush(sq_lod *lod)
             const double *b = ln->up_bary + 4 * j;
             double d[3] = {0, 0, 0}, v[3] = {0, 0, 0};
             for (int m = 0; m < 4; m++) {
-                const double *sd = src->d + 3 * tn[m], *sv = src->v + 3 * tn[m];
+                const double *sd = src->state.d + 3 * tn[m], *sv = src->state.v + 3 * tn[m];
                 if (ri[tn[m]] >= 0) {
                     sd = lod->lev[k - 1].lists.cascade_value + 6 * (size_t)ri[tn[m]];
                     sv = sd + 3;
@@ -411,8 +411,8 @@ void sq_lod_flush(sq_lod *lod)
             unsigned char fx = dst->model.fixed[j];
             for (int a = 0; a < 3; a++) {
                 int free_axis = !(fx & (1u << a));
-                dst->d[3 * j + a] = free_axis ? d[a] : 0.0;
-                dst->v[3 * j + a] = free_axis ? v[a] : 0.0;
+                dst->state.d[3 * j + a] = free_axis ? d[a] : 0.0;
+                dst->state.v[3 * j + a] = free_axis ? v[a] : 0.0;
             }
         }
     }
@@ -425,7 +425,7 @@ void sq_lod_flushed_d(const sq_lod *lod, int k, int j, double d[3])
     /* what sq_lod_flush leaves as it is: everything when nothing is stale, a node that is not a
      * coarse ghost, one the last cascade pushed */
     if (!lod->push.stale || k == 0 || lod->lev[k].lay.state[j] != ST_COARSE || lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no) {
-        memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
+        memcpy(d, Lk->state.d + 3 * (size_t)j, 3 * sizeof(double));
         return;
     }
     /* what it writes: the parent tet's corners as the flush of level k - 1 left them, a ring
@@ -457,8 +457,8 @@ void sq_lodx_value(const sq_lod *lod, int k, int j, double d[3], double v[3])
      * not a flush brought its stored value up to date), so a flush never changes the trajectory */
     if (k == 0 || lod->lev[k].lay.state[j] != ST_COARSE || lod->push.full_no == lod->push.cascade_no ||
         lod->lev[k].lists.push_stamp[j] == lod->push.cascade_no) {
-        memcpy(d, Lk->d + 3 * (size_t)j, 3 * sizeof(double));
-        memcpy(v, Lk->v + 3 * (size_t)j, 3 * sizeof(double));
+        memcpy(d, Lk->state.d + 3 * (size_t)j, 3 * sizeof(double));
+        memcpy(v, Lk->state.v + 3 * (size_t)j, 3 * sizeof(double));
         return;
     }
     const sq_lod_link *ln = &lod->h.link[k - 1];
@@ -497,8 +497,8 @@ void sq_lodx_interp(sq_lod *lod, sq_level *dst, int i, int src_level, int t, con
     unsigned char fx = dst->model.fixed[i];
     for (int a = 0; a < 3; a++) {
         int free_axis = !(fx & (1u << a));
-        dst->d[3 * i + a] = free_axis ? d[a] : 0.0;
-        dst->v[3 * i + a] = free_axis ? v[a] : 0.0;
+        dst->state.d[3 * i + a] = free_axis ? d[a] : 0.0;
+        dst->state.v[3 * i + a] = free_axis ? v[a] : 0.0;
     }
 }
 

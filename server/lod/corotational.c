@@ -47,7 +47,7 @@ struct sq_lod_corot {
 
 int sq_lodx_corot_on(const sq_lod *lod)
 {
-    return lod->lv[0].corot != NULL;
+    return lod->lv[0].state.corot != NULL;
 }
 
 void sq_lodx_corot_free(sq_lod *lod, int k)
@@ -78,7 +78,7 @@ static void converge_tet(sq_lod *lod, const sq_material *mat, int k, int t)
     double d4[12], v4[12], f4[12];
     for (int q = 0; q < 4; q++)
         sq_lodx_value(lod, k, tv[q], d4 + 3 * q, v4 + 3 * q);
-    sq_level_corot_tet_force(L, mat, t, d4, v4, 50, 1, f4);
+    sq_level_corot_tet_force(&L->model, &L->state, mat, t, d4, v4, 50, 1, f4);
 }
 
 /* the tet lists of level k for the current layout; the rotations of tets that start being
@@ -126,7 +126,7 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
     }
     if (!c->mact)
         c->mact = sq_malloc(sizeof(int) * (size_t)SQ_MAX(L->model.n, 1));
-    double *f = lod->lv[k].f;
+    double *f = lod->lv[k].state.f;
     for (int e = 0; e < c->ntet; e++) {
         const int *tv = m->tets + 4 * (size_t)c->tet[e];
         for (int q = 0; q < 4; q++) {
@@ -152,7 +152,7 @@ static void build_lists(sq_lod *lod, const sq_material *mat, int k)
 void sq_lodx_corot_layout(sq_lod *lod, const sq_material *mat)
 {
     for (int k = 0; k < lod->L; k++)
-        if (lod->lv[k].corot && (!lod->lev[k].corot || lod->lev[k].corot->gen != lod->view.gen))
+        if (lod->lv[k].state.corot && (!lod->lev[k].corot || lod->lev[k].corot->gen != lod->view.gen))
             build_lists(lod, mat, k);
 }
 
@@ -167,7 +167,7 @@ static void gather(const sq_lod *lod, int k, int t, double fr, double d4[12], do
     for (int q = 0; q < 4; q++) {
         size_t j = 3 * (size_t)tv[q];
         for (int a = 0; a < 3; a++) {
-            double d = L->d[j + a], v = L->v[j + a];
+            double d = L->state.d[j + a], v = L->state.v[j + a];
             if (fr < 1 && act[tv[q]]) {
                 const double d0 = c->d0[j + a], v0 = c->v0[j + a];
                 d = d0 + fr * (d - d0);
@@ -187,7 +187,7 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
     const sq_mesh *m = L->model.mesh;
     if (lk->lay.nactive == L->model.n && !lod->test.corot_tets_always) {
         /* no ghosts: the fixed step's pass */
-        sq_level_corot_step_forces(L, mat, gravity);
+        sq_level_corot_step_forces(&L->model, &L->state, mat, gravity);
         return;
     }
     const double a = mat->rayleigh_mass;
@@ -195,19 +195,19 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
         int i = lk->lists.active_list[r];
         const double mi = L->model.mass[i];
         for (int q = 0; q < 3; q++)
-            L->f[3 * i + q] = mi * (gravity[q] - a * L->v[3 * i + q]);
+            L->state.f[3 * i + q] = mi * (gravity[q] - a * L->state.v[3 * i + q]);
     }
     if (lk->lay.nring > 0)
         memset(c->gf, 0, sizeof(double) * 3 * (size_t)lk->lay.nring);
     /* start values of the active corners of mixed tets, read between this step's ticks */
     for (int x = 0; x < c->nmact; x++) {
         size_t j = 3 * (size_t)c->mact[x];
-        memcpy(c->d0 + j, L->d + j, 3 * sizeof(double));
-        memcpy(c->v0 + j, L->v + j, 3 * sizeof(double));
+        memcpy(c->d0 + j, L->state.d + j, 3 * sizeof(double));
+        memcpy(c->v0 + j, L->state.v + j, 3 * sizeof(double));
     }
     /* four tets at a time (the vector pass's arithmetic in AVX2 builds), scattered in tet order */
     const int *tets = m->tets;
-    const double *d = L->d, *v = L->v;
+    const double *d = L->state.d, *v = L->state.v;
     int e2 = 0; /* position in the mixed list (both lists increase) */
     for (int e = 0; e < c->ntet; e += 4) {
         int t4[4];
@@ -230,7 +230,7 @@ void sq_lodx_corot_forces(sq_lod *lod, const sq_material *mat, const double grav
                 memcpy(V + 12 * l + 3 * q, &vq, sizeof vq);
             }
         }
-        sq_level_corot_tet_force4(L, mat, t4, D, V, 1, F);
+        sq_level_corot_tet_force4(&L->model, &L->state, mat, t4, D, V, 1, F);
         /* active corners into f, ghost corners into their ring ghost's gf, in tet order */
         for (int l = 0; l < 4; l++) {
             if (t4[l] < 0)
@@ -282,7 +282,7 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
                 if (t4[l] >= 0)
                     gather(lod, k, t4[l], fr, D + 12 * l, V + 12 * l);
             }
-            sq_level_corot_tet_force4(Lk, mat, t4, D, V, 0, F);
+            sq_level_corot_tet_force4(&Lk->model, &Lk->state, mat, t4, D, V, 0, F);
             for (int l = 0; l < 4; l++) {
                 if (t4[l] < 0)
                     continue;
@@ -309,7 +309,7 @@ int sq_lodx_corot_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     const double *fw = lk->lay.src_weight, *gf = c->gf;
     double *Fl[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++)
-        Fl[m] = lod->lv[m].f;
+        Fl[m] = lod->lv[m].state.f;
     for (int r = 0; r < nring; r++) {
         if (!(src_levels[r] & due_bits))
             continue;
@@ -347,10 +347,10 @@ double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)
         const sq_mesh *m = L->model.mesh;
         for (int i = 0; i < L->model.n; i++)
             if (lk->lay.state[i] == ST_ACTIVE) {
-                const double *v = L->v + 3 * (size_t)i;
+                const double *v = L->state.v + 3 * (size_t)i;
                 ek += 0.5 * L->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             }
-        if (!L->corot)
+        if (!L->state.corot)
             continue;
         for (int t = 0; t < m->ntets; t++) {
             const int *tv = m->tets + 4 * (size_t)t;
@@ -359,8 +359,8 @@ double sq_lodx_corot_energy(const sq_lod *lod, double *kinetic, double *elastic)
                 continue;
             double d4[12];
             for (int q = 0; q < 4; q++)
-                memcpy(d4 + 3 * q, L->d + 3 * (size_t)tv[q], 3 * sizeof(double));
-            ee += (na < 4 ? 0.5 : 1.0) * sq_level_corot_tet_energy(L, t, d4);
+                memcpy(d4 + 3 * q, L->state.d + 3 * (size_t)tv[q], 3 * sizeof(double));
+            ee += (na < 4 ? 0.5 : 1.0) * sq_level_corot_tet_energy(&L->model, &L->state, t, d4);
         }
     }
     if (kinetic)
@@ -547,7 +547,7 @@ void sq_lodx_corot_affine_sources(sq_lod *lod)
     int cap = 0;
     for (int k = 0; k < lod->L; k++) {
         sq_lod_level *lk = &lod->lev[k];
-        if (!lod->lv[k].corot || lk->lay.nring == 0)
+        if (!lod->lv[k].state.corot || lk->lay.nring == 0)
             continue;
         int ncap = SQ_MAX(2 * lk->lay.src_start[lk->lay.nring], 64);
         int *nl = sq_malloc(sizeof(int) * (size_t)ncap), *nn = sq_malloc(sizeof(int) * (size_t)ncap);
@@ -743,7 +743,7 @@ int sq_lodx_corot_static(sq_lod *lod, int k, const double g[3], double *d, int *
     const sq_level_model *M = &L->model;
     const sq_mesh *m = M->mesh;
     size_t n3 = 3 * (size_t)M->n;
-    if (!L->corot || !lod->cpl.have_mat)
+    if (!L->state.corot || !lod->cpl.have_mat)
         return -1;
     double *x = sq_malloc(sizeof(double) * n3), *r = sq_malloc(sizeof(double) * n3);
     double *dx = sq_malloc(sizeof(double) * n3);

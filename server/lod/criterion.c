@@ -36,7 +36,7 @@ double sq_lodx_delta(const sq_lod *lod, int k, int i)
     const double *ds = lk->d_static;
     for (int q = L->model.row_start[i]; q < L->model.row_start[i + 1]; q++) {
         int j = L->model.col[q];
-        const double *dj = L->d + 3 * j;
+        const double *dj = L->state.d + 3 * j;
         double fresh[3], fv[3];
         if (k > 0 && st[j] == ST_COARSE && !all_valid && ps[j] != lod->push.cascade_no) {
             /* a neighbour the last cascade did not push (a node that just became active in

@@ -43,7 +43,7 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
         return;
     }
     sq_level *Lk = &lod->lv[k];
-    const double *dj = lod->lv[F].d + 3 * hd->node;
+    const double *dj = lod->lv[F].state.d + 3 * hd->node;
     int e = lod->lev[k].lay.hold_of[a];
     if (e < 0) {
         if (lod->holds.nhe == lod->holds.cap_he) {
@@ -56,7 +56,7 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
         E->level = k;
         E->node = a;
         E->t_from = t_now;
-        memcpy(E->from, Lk->d + 3 * a, sizeof(E->from));
+        memcpy(E->from, Lk->state.d + 3 * a, sizeof(E->from));
         lod->lev[k].lay.hold_of[a] = e;
         if (lod->lev[k].lay.integrated[a]) {
             lod->lev[k].lay.integrated[a] = 0;
@@ -67,7 +67,7 @@ static void map_hold(sq_lod *lod, const sq_hold *hd, int h, double t_now)
     /* the hold node itself takes its target; an ancestor the same translation */
     for (int c = 0; c < 3; c++)
         E->gsum[c] += (k == F && a == hd->node) ? hd->target[c]
-                                                : Lk->d[3 * a + c] + (hd->target[c] - dj[c]);
+                                                : Lk->state.d[3 * a + c] + (hd->target[c] - dj[c]);
     E->count++;
     E->pending = 1;
     lod->holds.hold_entry_of[h] = e;
@@ -87,12 +87,12 @@ static void start_holds(sq_lod *lod, double T)
         double goal[3];
         for (int c = 0; c < 3; c++)
             goal[c] = E->gsum[c] / E->count;
-        sq_level_apply_hold(Lk, E->node, goal, E->from, span); /* constrained axes stay at rest */
+        sq_level_apply_hold(&Lk->model, &Lk->state, E->node, goal, E->from, span); /* constrained axes stay at rest */
         for (int c = 0; c < 3; c++) {
             if (fx & (1u << c))
                 continue;
-            lod->lev[E->level].tk.d_start[3 * E->node + c] = Lk->d[3 * E->node + c];
-            lod->lev[E->level].tk.v_start[3 * E->node + c] = Lk->v[3 * E->node + c];
+            lod->lev[E->level].tk.d_start[3 * E->node + c] = Lk->state.d[3 * E->node + c];
+            lod->lev[E->level].tk.v_start[3 * E->node + c] = Lk->state.v[3 * E->node + c];
         }
     }
 }
@@ -144,7 +144,7 @@ void sq_lodx_hold_sample(sq_lod *lod, int k, const double gravity[3])
             continue;
         int i = E->node;
         for (int c = 0; c < 3; c++)
-            E->fsum[c] += Lk->f[3 * i + c] - Lk->model.mass[i] * gravity[c];
+            E->fsum[c] += Lk->state.f[3 * i + c] - Lk->model.mass[i] * gravity[c];
         E->nf++;
     }
 }
@@ -200,6 +200,6 @@ void sq_lodx_hold_live(sq_lod *lod, const sq_lod_frame_in *in, double frac)
         unsigned char fx = Lk->model.fixed[E->node];
         for (int c = 0; c < 3; c++)
             if (!(fx & (1u << c)))
-                Lk->d[3 * E->node + c] = (E->gsum[c] + E->shift[c]) / E->count;
+                Lk->state.d[3 * E->node + c] = (E->gsum[c] + E->shift[c]) / E->count;
     }
 }

@@ -102,10 +102,10 @@ static inline void interp_node(sq_level *dst, int i, const sq_level *src, int t,
     sq_v4 d = {0, 0, 0, 0}, v = {0, 0, 0, 0};
     for (int m = 0; m < 4; m++) {
         const sq_v4 bm = v4_set1(b[m]);
-        d += bm * v4_load(src->d + 3 * (size_t)tn[m]);
-        v += bm * v4_load(src->v + 3 * (size_t)tn[m]);
+        d += bm * v4_load(src->state.d + 3 * (size_t)tn[m]);
+        v += bm * v4_load(src->state.v + 3 * (size_t)tn[m]);
     }
-    sq_lodx_store_free(dst->model.fixed[i], &d, &v, dst->d + 3 * (size_t)i, dst->v + 3 * (size_t)i);
+    sq_lodx_store_free(dst->model.fixed[i], &d, &v, dst->state.d + 3 * (size_t)i, dst->state.v + 3 * (size_t)i);
 }
 
 #endif

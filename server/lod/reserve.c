@@ -59,7 +59,7 @@ long sq_lodx_map_state(sq_lod *lod)
         sq_lod_level *lk = &lod->lev[k];
         size_t n = (size_t)L->model.n, n3 = 3 * n * sizeof(double);
         double *w = sq_lodx_tick_w(lod, k); /* (made on first use otherwise, sq_lodx_form_w) */
-        void *const a[] = {L->d, L->v, L->f, L->acc, lk->tk.d_start, lk->tk.v_start, w};
+        void *const a[] = {L->state.d, L->state.v, L->state.f, L->state.acc, lk->tk.d_start, lk->tk.v_start, w};
         for (size_t i = 0; i < sizeof a / sizeof a[0]; i++)
             pages += keep_pages(a[i], n3);
         pages += keep_pages(lk->lists.push_stamp, n * sizeof(unsigned));
@@ -229,7 +229,7 @@ long sq_lodx_reserve_blocks(sq_lod *lod, double seconds, int ahead)
         }
         bytes += (long)(sizeof(double) * (size_t)SQ_MAX(lk->cpl.blocks_per, 0)) * lk->cpl.blocks_cap;
         /* the inner rows' column-form cache (no viscosity: the viscous pass does not read it) */
-        if (!visc && !L->corot)
+        if (!visc && !L->state.corot)
             pending += reserve_krow(lk, &L->model, c0, seconds, ahead, &pages);
         bytes += (long)(sizeof(double) * 12) * lk->cpl.krow_cap + (lk->cpl.krow_at ? (long)sizeof(int) * L->model.n : 0);
     }

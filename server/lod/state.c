@@ -198,8 +198,8 @@ void sq_lod_sync(sq_lod *lod)
         lod->lev[k].tk.step_start = -1;
         lod->lev[k].tk.step_len = 1;
         size_t n3 = 3 * (size_t)lod->lv[k].model.n;
-        memcpy(lod->lev[k].tk.d_start, lod->lv[k].d, n3 * sizeof(double));
-        memcpy(lod->lev[k].tk.v_start, lod->lv[k].v, n3 * sizeof(double));
+        memcpy(lod->lev[k].tk.d_start, lod->lv[k].state.d, n3 * sizeof(double));
+        memcpy(lod->lev[k].tk.v_start, lod->lv[k].state.v, n3 * sizeof(double));
     }
     sq_lodx_build_sources(lod);
     sq_lodx_update_ring_blocks(lod, NULL);

@@ -39,7 +39,7 @@ void sq_lodx_static_loads(sq_lod *lod, const double gravity[3])
         sq_err err = {{0}};
         int it = 0;
         if (sq_level_static_solve(&Lk->model, gravity, 1e-8, 20 * Lk->model.n + 1000, d, &it, &err) == 0) {
-            if (Lk->corot) /* the corotational level's own equilibrium (corotational.c) */
+            if (Lk->state.corot) /* the corotational level's own equilibrium (corotational.c) */
                 sq_lodx_corot_static(lod, k, gravity, d, &it);
             lod->lev[k].d_static = d;
         }
@@ -63,7 +63,7 @@ void sq_lod_set_loads_like(sq_lod *lod, const sq_material *mat, const double gra
                like->statics.stat_k == lod->lv[0].model.K && !memcmp(like->statics.stat_g, gravity, sizeof like->statics.stat_g) &&
                lod->cpl.have_mat && !memcmp(&like->statics.stat_mat, &lod->cpl.mat, sizeof lod->cpl.mat);
     for (int k = 0; same && k < lod->L; k++)
-        same = like->lv[k].model.K == lod->lv[k].model.K && !like->lv[k].corot == !lod->lv[k].corot;
+        same = like->lv[k].model.K == lod->lv[k].model.K && !like->lv[k].state.corot == !lod->lv[k].state.corot;
     if (!same) {
         sq_lodx_static_loads(lod, gravity);
         return;

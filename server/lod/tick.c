@@ -40,7 +40,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
     double frame_dt = in->frame_dt;
     int L = lod->L;
     for (int k = 0; k < L; k++)
-        if (lod->lev[k].tk.due && lod->lev[k].lay.nactive > 0 && lod->lv[k].corot) {
+        if (lod->lev[k].tk.due && lod->lev[k].lay.nactive > 0 && lod->lv[k].state.corot) {
             sq_lodx_corot_forces(lod, mat, gravity, k); /* tet by tet (corotational.c) */
         } else if (lod->lev[k].tk.due && lod->lev[k].lay.nactive > 0) {
             c->frontier_rows += lod->lev[k].lay.nfrontier;
@@ -53,10 +53,10 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
              * pass: use it once 60% of the level is active (with the frontier rows folded,
              * 60% beat 40% by 5-8% CPU on the organ and 3.6% instructions on cube-poke) */
             if (5 * lod->lev[k].lay.nactive >= 3 * lod->lv[k].model.n) {
-                sq_level_forces(&lod->lv[k], mat, gravity, NULL);
+                sq_level_forces(&lod->lv[k].model, &lod->lv[k].state, mat, gravity, NULL);
                 sq_lodx_front_correct(lod, mat, k);
             } else if (mat->use_viscosity) {
-                sq_level_forces(&lod->lv[k], mat, gravity, lod->lev[k].lay.active);
+                sq_level_forces(&lod->lv[k].model, &lod->lv[k].state, mat, gravity, lod->lev[k].lay.active);
                 sq_lodx_front_correct(lod, mat, k);
             } else {
                 /* interior rows by the level's pass, frontier rows with their
@@ -67,7 +67,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
         }
     for (int k = 0; k < L; k++)
         if (lod->lev[k].lay.nactive > 0 && lod->lev[k].lay.nring > 0) {
-            if (!lod->lev[k].tk.due && lod->lv[k].corot) {
+            if (!lod->lev[k].tk.due && lod->lv[k].state.corot) {
                 /* the tet-by-tet reactions read every ring ghost */
                 sq_lodx_eval_ring(lod, k, t);
                 c->ring_values += lod->lev[k].lay.nring;
@@ -81,7 +81,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
                     faster |= stride[m] < stride[k] ? 1u << m : 0u;
                 c->ring_values += sq_lodx_eval_ring_hot(lod, k, t, faster);
             }
-            if (lod->lv[k].corot)
+            if (lod->lv[k].state.corot)
                 c->ring_rows += sq_lodx_corot_couple_out(lod, mat, k, t);
             else
                 c->ring_rows += sq_lodx_couple_out(lod, mat, k, t);
@@ -100,7 +100,7 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
         if (lod->lev[k].lay.nintegrated > 0) {
             double dtk = lod->lev[k].rate.extra_log2 ? frame_dt / (double)(1L << sub_log2(lod, k)) : Lk->dt;
             if (lod->lev[k].lay.nintegrated == Lk->model.n)
-                sq_level_integrate(Lk, dtk, NULL);
+                sq_level_integrate(&Lk->model, &Lk->state, dtk, NULL);
             else
                 sq_lodx_integrate(lod, k, dtk);
             if (in->nobstacles > 0 || in->ntargets > 0) { /* contact of the level's integrated surface
@@ -110,9 +110,10 @@ void sq_lodx_tick_step(sq_lod *lod, const sq_lod_frame_in *in, long t, const lon
                                        .fixed = Lk->model.fixed, .mask = lod->lev[k].lay.integrated,
                                        .touched = in->touched ? in->touched[k] : NULL};
                 if (in->nobstacles > 0)
-                    sq_contact_step(in->obstacles, in->nobstacles, &nd, Lk->d, Lk->v, dtk, in->contact);
+                    sq_contact_step(in->obstacles, in->nobstacles, &nd, Lk->state.d, Lk->state.v, dtk, in->contact);
                 if (in->ntargets > 0)
-                    sq_contact_step_targets(in->targets, in->ntargets, &nd, Lk->d, Lk->v, dtk, in->contact);
+                    sq_contact_step_targets(in->targets, in->ntargets, &nd, Lk->state.d, Lk->state.v, dtk,
+                                            in->contact);
             }
         }
         c->updates += lod->lev[k].lay.nintegrated;
@@ -164,7 +165,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
 {
     sq_level *L = &lod->lv[k];
     const double b = mat->rayleigh_stiffness, a = mat->rayleigh_mass;
-    const double *restrict d = L->d, *restrict v = L->v;
+    const double *restrict d = L->state.d, *restrict v = L->state.v;
     const double g0 = gravity[0], g1 = gravity[1], g2 = gravity[2];
     const int *il = lod->lev[k].lists.inner_list, n = lod->lev[k].lists.ninner_list;
     const int *row_start = L->model.row_start, *col = L->model.col;
@@ -190,7 +191,7 @@ void sq_lodx_rows(sq_lod *lod, const sq_material *mat, const double gravity[3], 
             for (int e = e0; e < e1; e++, T += 12)
                 acc += v4_block(T, v4_load(d + 3 * (size_t)col[e]));
         const double m = mass[i];
-        double *fi = L->f + 3 * (size_t)i;
+        double *fi = L->state.f + 3 * (size_t)i;
         fi[0] = m * (g0 - a * v[3 * i]) - acc[0];
         fi[1] = m * (g1 - a * v[3 * i + 1]) - acc[1];
         fi[2] = m * (g2 - a * v[3 * i + 2]) - acc[2];
@@ -204,7 +205,7 @@ void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k)
     if (!lk->tk.w_tick)
         lk->tk.w_tick = sq_calloc(3 * (size_t)L->model.n + 1, sizeof(double));
     const sq_v4 bb = v4_set1(mat->rayleigh_stiffness);
-    const double *restrict d = L->d, *restrict v = L->v;
+    const double *restrict d = L->state.d, *restrict v = L->state.v;
     double *restrict W = lk->tk.w_tick;
     /* each component as the kernels formed it per block, d + b v; 4 lanes stored per node: the
      * fourth is the next node's first component, from its current d and v too, so whatever
@@ -226,8 +227,8 @@ void sq_lodx_form_w(sq_lod *lod, const sq_material *mat, int k)
 void sq_lodx_integrate(sq_lod *lod, int k, double dt)
 {
     sq_level *L = &lod->lv[k];
-    double *restrict d = L->d, *restrict v = L->v;
-    const double *restrict f = L->f;
+    double *restrict d = L->state.d, *restrict v = L->state.v;
+    const double *restrict f = L->state.f;
     const int *ml = lod->lev[k].lists.integrated_list;
     for (int r = 0; r < lod->lev[k].lists.nintegrated_list; r++) {
         int i = ml[r];
@@ -239,7 +240,7 @@ void sq_lodx_integrate(sq_lod *lod, int k, double dt)
 void sq_lodx_save_prev(sq_lod *lod, int k)
 {
     sq_lod_level *lk = &lod->lev[k];
-    const double *d = lod->lv[k].d, *v = lod->lv[k].v;
+    const double *d = lod->lv[k].state.d, *v = lod->lv[k].state.v;
     double *dp = lk->tk.d_start, *vp = lk->tk.v_start;
     const int n = lk->lists.nread_list, *list = lk->lists.read_list;
     for (int r = 0; r < n; r++) {
@@ -270,10 +271,10 @@ void sq_lodx_front_correct(sq_lod *lod, const sq_material *mat, int k)
         int i = frontier[r];
         const double *B = lk->cpl.front_K;
         const double *Bd = visc ? lk->cpl.front_D : NULL;
-        double *fi = L->f + 3 * i;
+        double *fi = L->state.f + 3 * i;
         for (int e = front_off[r]; e < front_off[r + 1]; e++) {
             int l = front_col[e];
-            const double *dl = L->d + 3 * l, *vl = L->v + 3 * l, *K = B + 9 * e;
+            const double *dl = L->state.d + 3 * l, *vl = L->state.v + 3 * l, *K = B + 9 * e;
             double w[3] = {dl[0] + b * vl[0], dl[1] + b * vl[1], dl[2] + b * vl[2]};
             for (int rr = 0; rr < 3; rr++)
                 fi[rr] += K[3 * rr] * w[0] + K[3 * rr + 1] * w[1] + K[3 * rr + 2] * w[2];
@@ -296,7 +297,7 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
     sq_lod_level *lk = &lod->lev[k];
     sq_level *L = &lod->lv[k];
     const double a = mat->rayleigh_mass;
-    const double *restrict v = L->v;
+    const double *restrict v = L->state.v;
     if (!lk->tk.w_ok) /* called outside the frame's tick */
         sq_lodx_form_w(lod, mat, k);
     const double *T = lk->cpl.front_T;
@@ -305,7 +306,7 @@ void sq_lodx_front_rows(sq_lod *lod, const sq_material *mat, const double gravit
     const int nfrontier = lk->lay.nfrontier, *frontier = lk->lay.frontier;
     const int *row_start = L->model.row_start, *col = L->model.col;
     const double *mass = L->model.mass;
-    double *f = L->f;
+    double *f = L->state.f;
     for (int r = 0; r < nfrontier; r++) {
         int i = frontier[r];
         sq_v4 acc = {0, 0, 0, 0};
@@ -341,14 +342,14 @@ static inline __attribute__((always_inline)) void eval_list(sq_lod *lod, int k, 
     for (int m = 0; m < lod->L; m++) {
         double f = (double)(t - lod->lev[m].tk.step_start) / (double)lod->lev[m].tk.step_len;
         fr[m] = f < 0 ? 0 : (f > 1 ? 1 : f);
-        dcur[m] = lod->lv[m].d;
-        vcur[m] = lod->lv[m].v;
+        dcur[m] = lod->lv[m].state.d;
+        vcur[m] = lod->lv[m].state.v;
     }
     /* the level's lists in locals (the value stores below would make the compiler reload them) */
     const int *ring = lk->lay.ring, *src_start = lk->lay.src_start;
     const int *fl = lk->lay.src_level, *fn = lk->lay.src_node, *rend = lk->lay.src_rend;
     const double *fw = lk->lay.src_weight;
-    double *restrict Dk = Lk->d, *restrict Vk = Lk->v;
+    double *restrict Dk = Lk->state.d, *restrict Vk = Lk->state.v;
     const unsigned char *fixed = Lk->model.fixed;
     for (int x = 0; x < n; x++) {
         const int r = list ? list[x] : x;
@@ -442,7 +443,7 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         /* no viscosity: the three rows of a block in the lanes of one vector (the ring rows in
          * column form), each lane summed as the scalar rows were: g_r -= (K_r0 w0 + K_r1 w1)
          * + K_r2 w2 */
-        const double *restrict d = L->d, *restrict v = L->v;
+        const double *restrict d = L->state.d, *restrict v = L->state.v;
         const double *T = lk->cpl.ring_T;
         const int *col = lk->cpl.ring_col;
         const sq_v4 bb = v4_set1(b);
@@ -480,8 +481,8 @@ static void ring_force(const sq_lod *lod, const sq_material *mat, int k, int r, 
         int l = lk->cpl.ring_col[e];
         double dl[3], vl[3];
         for (int c = 0; c < 3; c++) {
-            dl[c] = L->d[3 * l + c];
-            vl[c] = L->v[3 * l + c];
+            dl[c] = L->state.d[3 * l + c];
+            vl[c] = L->state.v[3 * l + c];
         }
         if (fr < 1 && act[l])
             for (int c = 0; c < 3; c++) {
@@ -530,7 +531,7 @@ int sq_lodx_couple_out(sq_lod *lod, const sq_material *mat, int k, long t)
     const unsigned char *fixed = Lk->model.fixed;
     double *Fl[SQ_MAX_LEVELS];
     for (int m = 0; m < lod->L; m++)
-        Fl[m] = lod->lv[m].f;
+        Fl[m] = lod->lv[m].state.f;
     for (int r = 0; r < nring; r++) {
         int j = ring[r];
         int a = src_start[r], b = src_start[r + 1];
@@ -608,8 +609,8 @@ void sq_lodx_tick_hot_stale(sq_lod *lod, int k)
 
 void sq_lodx_tick_start_node(sq_lod *lod, int k, int j)
 {
-    memcpy(lod->lev[k].tk.d_start + 3 * j, lod->lv[k].d + 3 * j, 3 * sizeof(double));
-    memcpy(lod->lev[k].tk.v_start + 3 * j, lod->lv[k].v + 3 * j, 3 * sizeof(double));
+    memcpy(lod->lev[k].tk.d_start + 3 * j, lod->lv[k].state.d + 3 * j, 3 * sizeof(double));
+    memcpy(lod->lev[k].tk.v_start + 3 * j, lod->lv[k].state.v + 3 * j, 3 * sizeof(double));
 }
 
 double *sq_lodx_tick_w(sq_lod *lod, int k)

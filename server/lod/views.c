@@ -92,11 +92,11 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
         for (int i = 0; i < Lk->model.n; i++) {
             if (lod->lev[k].lay.state[i] != ST_ACTIVE)
                 continue;
-            const double *v = Lk->v + 3 * i, *d = Lk->d + 3 * i;
+            const double *v = Lk->state.v + 3 * i, *d = Lk->state.d + 3 * i;
             ek += 0.5 * Lk->model.mass[i] * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             double f[3] = {0, 0, 0};
             for (int q = Lk->model.row_start[i]; q < Lk->model.row_start[i + 1]; q++) {
-                const double *K = Lk->model.K + 9 * q, *dl = Lk->d + 3 * Lk->model.col[q];
+                const double *K = Lk->model.K + 9 * q, *dl = Lk->state.d + 3 * Lk->model.col[q];
                 for (int r = 0; r < 3; r++)
                     f[r] += K[3 * r] * dl[0] + K[3 * r + 1] * dl[1] + K[3 * r + 2] * dl[2];
             }
@@ -106,10 +106,10 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
             continue;
         for (int r = 0; r < lod->lev[k].lay.nfrontier; r++) {
             int i = lod->lev[k].lay.frontier[r];
-            const double *d = Lk->d + 3 * i;
+            const double *d = Lk->state.d + 3 * i;
             double f[3] = {0, 0, 0};
             for (int e = lod->lev[k].cpl.front_off[r]; e < lod->lev[k].cpl.front_off[r + 1]; e++) {
-                const double *K = lod->lev[k].cpl.front_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].cpl.front_col[e];
+                const double *K = lod->lev[k].cpl.front_K + 9 * (size_t)e, *dl = Lk->state.d + 3 * lod->lev[k].cpl.front_col[e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }
@@ -117,10 +117,10 @@ double sq_lod_energy(const sq_lod *lod, double *kinetic, double *elastic)
         }
         for (int r = 0; r < lod->lev[k].lay.nring; r++) {
             int j = lod->lev[k].lay.ring[r];
-            const double *d = Lk->d + 3 * j;
+            const double *d = Lk->state.d + 3 * j;
             double f[3] = {0, 0, 0};
             for (int e = lod->lev[k].cpl.ring_off[r]; e < lod->lev[k].cpl.ring_off[r + 1]; e++) {
-                const double *K = lod->lev[k].cpl.ring_K + 9 * (size_t)e, *dl = Lk->d + 3 * lod->lev[k].cpl.ring_col[e];
+                const double *K = lod->lev[k].cpl.ring_K + 9 * (size_t)e, *dl = Lk->state.d + 3 * lod->lev[k].cpl.ring_col[e];
                 for (int rr = 0; rr < 3; rr++)
                     f[rr] += K[3 * rr] * dl[0] + K[3 * rr + 1] * dl[1] + K[3 * rr + 2] * dl[2];
             }

@@ -171,11 +171,11 @@ static double force_pass_cpu(sq_body *body, int *level, int *nodes, int *steps)
     *steps = sub[k] > 0 ? sub[k] : 1 << L->substeps_log2;
     size_t nn = (size_t)L->model.n;
     double *f = sq_malloc(sizeof(double) * 3 * nn), *acc = sq_calloc(3 * nn + 1, sizeof(double));
-    sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc); /* warm */
+    sq_level_forces_to(&L->model, &L->state, &def->material, def->gravity, NULL, f, acc); /* warm */
     double c0 = sq_thread_cpu(), c = c0;
     int reps = 0;
     while (reps < 3 || (c - c0 < 2e-3 && reps < 200)) {
-        sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc);
+        sq_level_forces_to(&L->model, &L->state, &def->material, def->gravity, NULL, f, acc);
         reps++;
         c = sq_thread_cpu();
     }

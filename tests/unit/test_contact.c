@@ -248,7 +248,7 @@ static double lowest_z(sq_body *b)
     const sq_level *L = sq_body_level(b, sq_body_sim_level(b));
     double z = INFINITY;
     for (int i = 0; i < L->model.n; i++)
-        z = fmin(z, L->model.mesh->x[3 * i + 2] + L->d[3 * i + 2]);
+        z = fmin(z, L->model.mesh->x[3 * i + 2] + L->state.d[3 * i + 2]);
     return z;
 }
 
@@ -298,7 +298,7 @@ static double bottom_x(sq_body *b)
     int n = 0;
     for (int i = 0; i < L->model.n; i++)
         if (L->model.mesh->x[3 * i + 2] < 1e-3) {
-            s += L->model.mesh->x[3 * i] + L->d[3 * i];
+            s += L->model.mesh->x[3 * i] + L->state.d[3 * i];
             n++;
         }
     return n ? s / n : NAN;
@@ -408,7 +408,7 @@ static void undamped_drop(double E, const char *extra)
             sq_world_step(w, 0);
         double pe = 0;
         for (int i = 0; i < L->model.n; i++)
-            pe += L->model.mass[i] * 9.81 * (L->model.mesh->x[3 * i + 2] + L->d[3 * i + 2]);
+            pe += L->model.mass[i] * 9.81 * (L->model.mesh->x[3 * i + 2] + L->state.d[3 * i + 2]);
         double E = sq_body_kinetic_energy(b) + sq_body_elastic_energy(b) + pe;
         if (f == 0)
             E0 = E;
@@ -625,8 +625,8 @@ SQ_TEST(contact_adaptive_forced_finest_equals_fixed_finest)
         CHECK(Lf->model.n == La->model.n);
         double dmax = 0, diff = 0;
         for (int i = 0; Lf->model.n == La->model.n && i < 3 * Lf->model.n; i++) {
-            dmax = fmax(dmax, fabs(Lf->d[i]));
-            diff = fmax(diff, fabs(Lf->d[i] - La->d[i]));
+            dmax = fmax(dmax, fabs(Lf->state.d[i]));
+            diff = fmax(diff, fabs(Lf->state.d[i] - La->state.d[i]));
         }
         double Ff[3], Fa[3];
         sq_body_contact_force(wf->bodies[0], Ff, NULL, NULL);
@@ -670,7 +670,7 @@ SQ_TEST(contact_adaptive_rests_on_floor)
         M += L->model.mass[i];
     double low = INFINITY;
     for (int i = 0; i < L->model.n; i++)
-        low = fmin(low, L->model.mesh->x[3 * i + 2] + L->d[3 * i + 2]);
+        low = fmin(low, L->model.mesh->x[3 * i + 2] + L->state.d[3 * i + 2]);
     int active[SQ_MAX_LEVELS];
     sq_body_active_nodes(b, active);
     printf("    mean contact force %.6g N, weight %.6g N, lowest node %.3g m, active %d %d %d\n", fz, M * 9.81, low,
@@ -874,7 +874,7 @@ static int implicit_rest(double E, double *fz, double *weight, double *deepest, 
     *ke = 0;
     for (int i = 0; i < L->model.n; i++)
         for (int c = 0; c < 3; c++)
-            *ke += 0.5 * L->model.mass[i] * L->v[3 * i + c] * L->v[3 * i + c];
+            *ke += 0.5 * L->model.mass[i] * L->state.v[3 * i + c] * L->state.v[3 * i + c];
     int resets = (int)w->resets;
     sq_world_destroy(w);
     sq_scene_free(sc);

@@ -137,7 +137,7 @@ SQ_TEST(contact_adaptive_pair_forced_finest_equals_fixed_finest)
             const sq_level *Lf = sq_body_level(wf->bodies[b], sq_body_sim_level(wf->bodies[b]));
             const sq_level *La = sq_body_level(wa->bodies[b], sq_body_sim_level(wa->bodies[b]));
             CHECK(Lf->model.n == 142 && La->model.n == 142);
-            const double *df = Lf->d, *da = La->d;
+            const double *df = Lf->state.d, *da = La->state.d;
             for (int i = 0; Lf->model.n == La->model.n && i < 3 * Lf->model.n; i++) {
                 dmax = fmax(dmax, fabs(df[i]));
                 diff = fmax(diff, fabs(df[i] - da[i]));
@@ -294,12 +294,12 @@ SQ_TEST(contact_adaptive_surface_map_rows)
                 bad += !sq_lod_active(b->lod, k)[i];
                 const sq_level *Lk = sq_body_level(b, k);
                 for (int c = 0; c < 3; c++)
-                    pd[c] += map->w[q] * Lk->d[3 * (size_t)i + c];
+                    pd[c] += map->w[q] * Lk->state.d[3 * (size_t)i + c];
             }
             worst = fmax(worst, fabs(sum - 1));
             for (int c = 0; c < 3 && !Lf->model.fixed[j]; c++) {
-                dmax = fmax(dmax, fabs(Lf->d[3 * (size_t)j + c]));
-                diff = fmax(diff, fabs(pd[c] - Lf->d[3 * (size_t)j + c]));
+                dmax = fmax(dmax, fabs(Lf->state.d[3 * (size_t)j + c]));
+                diff = fmax(diff, fabs(pd[c] - Lf->state.d[3 * (size_t)j + c]));
             }
         }
         printf("    active %d %d %d; worst |row sum - 1| %.3g, %d bad entries, longest row %d; max |d| %.4g m,"

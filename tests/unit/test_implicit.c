@@ -85,8 +85,8 @@ static void energy_check(sq_elasticity_kind el, int substeps, int newton)
     CHECK(sq_body_set_integrator(b, SQ_INTEGRATOR_IMPLICIT, &def.implicit, &e) == 0);
     /* the bent shape: the static sag under 20 g (the body itself has no gravity) */
     double g[3] = {0, 0, -196.2};
-    CHECK(sq_level_static_solve(&L->model, g, 1e-10, 20000, L->d, NULL, &e) == 0);
-    sq_level_corot_reset(L);
+    CHECK(sq_level_static_solve(&L->model, g, 1e-10, 20000, L->state.d, NULL, &e) == 0);
+    sq_level_corot_reset(&L->state);
     double e0 = sq_body_kinetic_energy(b) + sq_body_elastic_energy(b), prev = e0, grew = 0;
     for (int f = 0; f < 150; f++) {
         sq_frame_profile pf;

@@ -57,7 +57,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
                 sq_lod_flushed_d(b[0]->lod, k, j, pre[k] + 3 * (size_t)j);
         sq_lod_flush(b[0]->lod);
         for (int k = 1; k < 4; k++)
-            bad_flushed += memcmp(pre[k], b[0]->level[k].d, sizeof(double) * 3 * (size_t)m[k]->nnodes) != 0;
+            bad_flushed += memcmp(pre[k], b[0]->level[k].state.d, sizeof(double) * 3 * (size_t)m[k]->nnodes) != 0;
         diff_frames += p[0].node_updates != p[1].node_updates || p[0].active[3] != p[1].active[3] ||
                        p[0].splits != p[1].splits || p[0].merges != p[1].merges;
         max_fine = SQ_MAX(max_fine, p[0].active[3]);
@@ -77,7 +77,7 @@ SQ_TEST(lod_flush_does_not_change_the_trajectory)
     int same = 1;
     for (int k = 0; k < 4; k++) {
         size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
-        same &= !memcmp(b[0]->level[k].d, b[1]->level[k].d, n3) && !memcmp(b[0]->level[k].v, b[1]->level[k].v, n3);
+        same &= !memcmp(b[0]->level[k].state.d, b[1]->level[k].state.d, n3) && !memcmp(b[0]->level[k].state.v, b[1]->level[k].state.v, n3);
     }
     if (getenv("SQ_LOD_VERBOSE"))
         fprintf(stderr, "flush: finest active up to %ld of %d, %ld splits %ld merges, %ld frames differ, "
@@ -127,8 +127,8 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
         size_t n3 = 3 * (size_t)m[k]->nnodes;
         d[k] = malloc(sizeof(double) * n3);
         v[k] = malloc(sizeof(double) * n3);
-        memcpy(d[k], b->level[k].d, sizeof(double) * n3);
-        memcpy(v[k], b->level[k].v, sizeof(double) * n3);
+        memcpy(d[k], b->level[k].state.d, sizeof(double) * n3);
+        memcpy(v[k], b->level[k].state.v, sizeof(double) * n3);
     }
     for (int k = 1; k < 4; k++) {
         const sq_lod_link *ln = &lod->h.link[k - 1];
@@ -152,7 +152,7 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
     int surf_ok = 1;
     for (int s = 0; s < nsurf; s++) {
         int j = m[F]->surf_nodes[s];
-        surf_ok &= !memcmp(b->level[F].d + 3 * j, d[F] + 3 * j, 3 * sizeof(double));
+        surf_ok &= !memcmp(b->level[F].state.d + 3 * j, d[F] + 3 * j, 3 * sizeof(double));
     }
     CHECK(surf_ok);
     sq_lod_flush(lod);
@@ -160,13 +160,13 @@ SQ_TEST(lod_coarse_frame_pushes_what_is_read)
     int all_ok = 1;
     for (int k = 1; k < 4; k++) {
         size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
-        all_ok &= !memcmp(b->level[k].d, d[k], n3) && !memcmp(b->level[k].v, v[k], n3);
+        all_ok &= !memcmp(b->level[k].state.d, d[k], n3) && !memcmp(b->level[k].state.v, v[k], n3);
     }
     CHECK(all_ok);
     /* something moved: gravity sags the body */
     double sag = 0;
     for (int j = 0; j < nF; j++)
-        sag = fmax(sag, fabs(b->level[F].d[3 * j + 2]));
+        sag = fmax(sag, fabs(b->level[F].state.d[3 * j + 2]));
     CHECK(sag > 1e-4);
     for (int k = 0; k < 4; k++) {
         free(d[k]);
@@ -198,11 +198,11 @@ SQ_TEST(lod_static_sag_splits_nothing)
         return;
     /* every level at its own static equilibrium */
     for (int k = 0; k < 2; k++)
-        memcpy(b->level[k].d, lod->lev[k].d_static, sizeof(double) * 3 * (size_t)m[k]->nnodes);
+        memcpy(b->level[k].state.d, lod->lev[k].d_static, sizeof(double) * 3 * (size_t)m[k]->nnodes);
     double filt = 0, raw = 0, sag = 0;
     for (int i = 0; i < m[0]->nnodes; i++) {
         filt = fmax(filt, sq_lod_delta(lod, 0, i));
-        sag = fmax(sag, fabs(b->level[0].d[3 * i + 2]));
+        sag = fmax(sag, fabs(b->level[0].state.d[3 * i + 2]));
     }
     double *keep = lod->lev[0].d_static;
     lod->lev[0].d_static = NULL;
@@ -349,8 +349,8 @@ SQ_TEST(lod_incremental_rebuild_equals_full)
             for (int k = 0; k < 4; k++) {
                 size_t n3 = 3 * (size_t)m[k]->nnodes * sizeof(double);
                 same &= same_level(b[0]->lod, b[1]->lod, k);
-                same &= !memcmp(b[0]->level[k].d, b[1]->level[k].d, n3) &&
-                        !memcmp(b[0]->level[k].v, b[1]->level[k].v, n3);
+                same &= !memcmp(b[0]->level[k].state.d, b[1]->level[k].state.d, n3) &&
+                        !memcmp(b[0]->level[k].state.v, b[1]->level[k].state.v, n3);
             }
             bad_frames += !same;
             splits += p[0].splits;

@@ -55,9 +55,9 @@ SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
     for (int k = 0; k < 2; k++)
         for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
-            lv[k].d[3 * i] = 0.01 * x[0] + 0.003 * x[1] + 0.002;
-            lv[k].d[3 * i + 1] = -0.004 * x[2];
-            lv[k].d[3 * i + 2] = 0.005 * x[0] - 0.001;
+            lv[k].state.d[3 * i] = 0.01 * x[0] + 0.003 * x[1] + 0.002;
+            lv[k].state.d[3 * i + 1] = -0.004 * x[2];
+            lv[k].state.d[3 * i + 2] = 0.005 * x[0] - 0.001;
         }
     double worst = 0;
     for (int k = 0; k < 2; k++)
@@ -70,8 +70,8 @@ SQ_TEST(lod_criterion_zero_on_linear_fields_curvature_inside)
     double a = 0.05;
     for (int i = 0; i < lv[0].model.n; i++) {
         const double *x = m[0]->x + 3 * i;
-        lv[0].d[3 * i] = a * x[0] * x[0];
-        lv[0].d[3 * i + 1] = lv[0].d[3 * i + 2] = 0;
+        lv[0].state.d[3 * i] = a * x[0] * x[0];
+        lv[0].state.d[3 * i + 1] = lv[0].state.d[3 * i + 2] = 0;
     }
     int checked = 0;
     for (int i = 0; i < lv[0].model.n; i++) {
@@ -186,7 +186,7 @@ SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
     for (int k = 0; k < 2; k++)
         for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
-            lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
+            lv[k].state.d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
         }
     sq_lod_sync(lod);
     double g[3] = {0, 0, 0}, E0 = sq_lod_energy(lod, NULL, NULL);
@@ -317,7 +317,7 @@ static void feedback_balance(double split, double merge, int want_mixed)
         for (int i = 0; i < L->model.n; i++)
             if (act[i] && L->model.fixed[i] == 7)
                 for (int c = 0; c < 3; c++)
-                    R[c] += L->f[3 * i + c];
+                    R[c] += L->state.f[3 * i + c];
     }
     double sum[3] = {fb.force[0] + R[0], fb.force[1] + R[1], fb.force[2] + R[2]};
     if (getenv("SQ_LOD_VERBOSE"))
@@ -543,7 +543,7 @@ SQ_TEST(lod_ring_blocks_follow_material_change)
     for (int k = 0; k < 2; k++)
         for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
-            lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
+            lv[k].state.d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.02 * x[2] * x[2] * (1 + 0.3 * x[0]);
         }
     sq_lod_sync(lod);
     int sp = 0, mg = 0;

@@ -110,7 +110,7 @@ static void coupled_forces(sq_lod *lod, const sq_material *mat)
         sq_lodx_eval_ring(lod, m, 1);
     for (int m = 0; m < lod->L; m++)
         if (lod->lev[m].lay.nactive > 0) {
-            sq_level_forces(&lod->lv[m], mat, g, NULL);
+            sq_level_forces(&lod->lv[m].model, &lod->lv[m].state, mat, g, NULL);
             sq_lodx_front_correct(lod, mat, m);
         }
     for (int m = 0; m < lod->L; m++)
@@ -124,15 +124,15 @@ static double *dense_operator(sq_lod *lod, const sq_material *mat, const dof *do
     double *A = calloc((size_t)nd * nd, sizeof(double));
     for (int j = 0; j < nd; j++) {
         for (int m = 0; m < lod->L; m++) {
-            memset(lod->lv[m].d, 0, sizeof(double) * 3 * lod->lv[m].model.n);
-            memset(lod->lv[m].v, 0, sizeof(double) * 3 * lod->lv[m].model.n);
+            memset(lod->lv[m].state.d, 0, sizeof(double) * 3 * lod->lv[m].model.n);
+            memset(lod->lv[m].state.v, 0, sizeof(double) * 3 * lod->lv[m].model.n);
         }
-        lod->lv[dofs[j].level].d[3 * dofs[j].node + dofs[j].axis] = 1;
+        lod->lv[dofs[j].level].state.d[3 * dofs[j].node + dofs[j].axis] = 1;
         coupled_forces(lod, mat);
         double mj = lod->lv[dofs[j].level].model.mass[dofs[j].node];
         for (int i = 0; i < nd; i++) {
             double mi = lod->lv[dofs[i].level].model.mass[dofs[i].node];
-            A[(size_t)i * nd + j] = -lod->lv[dofs[i].level].f[3 * dofs[i].node + dofs[i].axis] / sqrt(mi * mj);
+            A[(size_t)i * nd + j] = -lod->lv[dofs[i].level].state.f[3 * dofs[i].node + dofs[i].axis] / sqrt(mi * mj);
         }
     }
     return A;
@@ -170,7 +170,7 @@ static sq_lod *bent_lod(sq_mesh **m, sq_level *lv, const sq_material *mat)
         for (int k = 0; k < 3; k++)
             for (int i = 0; i < lv[k].model.n; i++) {
                 const double *x = m[k]->x + 3 * i;
-                lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.05 * x[2] * x[2] * x[0] * x[0] * x[1] * x[1];
+                lv[k].state.d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.05 * x[2] * x[2] * x[0] * x[0] * x[1] * x[1];
             }
         int sp = 0, mg = 0;
         sq_lod_adapt(lod, 1, &sp, &mg);
@@ -359,17 +359,17 @@ SQ_TEST(lod_sharp_step_within_the_coupled_bound_and_blows_up_above)
     double growth[2] = {0, 0};
     for (int s = 0; s < 2; s++) {
         for (int k = 0; k < 3; k++) {
-            memset(lv[k].v, 0, sizeof(double) * 3 * lv[k].model.n);
+            memset(lv[k].state.v, 0, sizeof(double) * 3 * lv[k].model.n);
             for (int i = 0; i < lv[k].model.n; i++) {
                 const double *x = m[k]->x + 3 * i;
-                lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.01 * x[2] * x[2] * (1 + 0.3 * x[0] * x[1]);
-                lv[k].d[3 * i + 1] = lv[k].d[3 * i + 2] = 0;
+                lv[k].state.d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.01 * x[2] * x[2] * (1 + 0.3 * x[0] * x[1]);
+                lv[k].state.d[3 * i + 1] = lv[k].state.d[3 * i + 2] = 0;
             }
         }
         /* a little of every mode: small deterministic noise on the free axes */
         uint64_t seed = 7;
         for (int j = 0; j < nd; j++)
-            lv[dofs[j].level].d[3 * dofs[j].node + dofs[j].axis] += 1e-6 * lh_rand(&seed);
+            lv[dofs[j].level].state.d[3 * dofs[j].node + dofs[j].axis] += 1e-6 * lh_rand(&seed);
         sq_lod_sync(lod);
         double E0 = sq_lod_energy(lod, NULL, NULL), worst = 0;
         /* every level's step scaled (the frame takes frame_dt / 2^n, or the level's dt when it

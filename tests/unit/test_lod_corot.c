@@ -205,14 +205,14 @@ static double rigid_force(int corot, int level_force[3], double out[3])
             const double *x = m[k]->x + 3 * i;
             double p[3] = {x[0] - 0.5, x[1] - 0.5, x[2] - 0.5};
             for (int r = 0; r < 3; r++) {
-                L->d[3 * i + r] = R[3 * r] * p[0] + R[3 * r + 1] * p[1] + R[3 * r + 2] * p[2] - p[r];
-                L->v[3 * i + r] = 0;
+                L->state.d[3 * i + r] = R[3 * r] * p[0] + R[3 * r + 1] * p[1] + R[3 * r + 2] * p[2] - p[r];
+                L->state.v[3 * i + r] = 0;
             }
         }
     }
     /* an outside change of state: the rotations converged to it (a no-op for linear levels) */
     for (int k = 0; k < 3; k++)
-        sq_level_corot_converge(sq_body_level(b, k));
+        sq_level_corot_converge(&(sq_body_level(b, k))->model, &(sq_body_level(b, k))->state);
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     double worst = 0;
     for (int k = 0; k < 3; k++) {
@@ -221,7 +221,7 @@ static double rigid_force(int corot, int level_force[3], double out[3])
         out[k] = 0;
         for (int i = 0; i < L->model.n; i++)
             if (act[i])
-                out[k] = fmax(out[k], L->model.mass[i] * lh_norm3(L->v + 3 * i) / def.frame_dt);
+                out[k] = fmax(out[k], L->model.mass[i] * lh_norm3(L->state.v + 3 * i) / def.frame_dt);
         worst = fmax(worst, out[k]);
         CHECK(prof.active[k] == level_force[k]);
     }
@@ -360,15 +360,15 @@ SQ_TEST(lod_corot_energy_across_split_merge_and_undamped_run)
     for (int k = 0; k < 2; k++)
         for (int i = 0; i < lv[k].model.n; i++) {
             const double *x = m[k]->x + 3 * i;
-            lv[k].d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.2 * x[2] * x[2] * (1 + 0.3 * x[0]);
+            lv[k].state.d[3 * i] = lv[k].model.fixed[i] ? 0 : 0.2 * x[2] * x[2] * (1 + 0.3 * x[0]);
         }
     sq_lod_sync(lod);
-    double g[3] = {0, 0, 0}, Ek, Ee, E0 = sq_lod_energy(lod, &Ek, &Ee), E0_level = sq_level_corot_energy(&lv[0]);
+    double g[3] = {0, 0, 0}, Ek, Ee, E0 = sq_lod_energy(lod, &Ek, &Ee), E0_level = sq_level_corot_energy(&lv[0].model, &lv[0].state);
     double e_lin = 0; /* the linear energy of the same field */
     for (int i = 0; i < lv[0].model.n; i++) {
         double f[3] = {0, 0, 0};
-        sq_level_row(&lv[0].model, lv[0].model.K, lv[0].d, i, f);
-        e_lin -= 0.5 * (lv[0].d[3 * i] * f[0] + lv[0].d[3 * i + 1] * f[1] + lv[0].d[3 * i + 2] * f[2]);
+        sq_level_row(&lv[0].model, lv[0].model.K, lv[0].state.d, i, f);
+        e_lin -= 0.5 * (lv[0].state.d[3 * i] * f[0] + lv[0].state.d[3 * i + 1] * f[1] + lv[0].state.d[3 * i + 2] * f[2]);
     }
     double worst_event = 0, worst_drift = 0;
     int nsplit = 0, nmerge = 0, mixed_frames = 0;
@@ -443,7 +443,7 @@ SQ_TEST(lod_corot_tool_feedback_balances_supports_mixed_levels)
         for (int i = 0; i < L->model.n; i++)
             if (act[i] && L->model.fixed[i] == 7)
                 for (int c = 0; c < 3; c++)
-                    R[c] += L->f[3 * i + c];
+                    R[c] += L->state.f[3 * i + c];
     }
     double sum[3] = {fb.force[0] + R[0], fb.force[1] + R[1], fb.force[2] + R[2]};
     if (getenv("SQ_LOD_VERBOSE"))

@@ -595,11 +595,11 @@ SQ_TEST(lod_guard_load_check_times_a_real_coarse_frame)
         sq_body_substeps(b, sub);
         size_t nn = (size_t)L->model.n;
         double *f = sq_malloc(sizeof(double) * 3 * nn), *acc = sq_calloc(3 * nn + 1, sizeof(double));
-        sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc);
+        sq_level_forces_to(&L->model, &L->state, &def->material, def->gravity, NULL, f, acc);
         double c0 = sq_thread_cpu(), c = c0;
         long reps = 0;
         while (c - c0 < 20e-3 || reps < 10) {
-            sq_level_forces_to(L, &def->material, def->gravity, NULL, f, acc);
+            sq_level_forces_to(&L->model, &L->state, &def->material, def->gravity, NULL, f, acc);
             reps++;
             c = sq_thread_cpu();
         }
@@ -698,7 +698,7 @@ SQ_TEST(lod_guard_load_check_copy_shares_what_it_only_reads)
         for (int k = 0; k < nl; k++) {
             const sq_level *Lb = sq_body_level(b, k), *Lc = &copy->level[k], *Lf = &fresh->level[k];
             CHECK(Lc->model_shared == 1 && Lc->model.K == Lb->model.K && Lc->model.Kup == Lb->model.Kup);
-            CHECK(Lc->d != Lb->d && Lc->v != Lb->v); /* the state is the copy's own */
+            CHECK(Lc->state.d != Lb->state.d && Lc->state.v != Lb->state.v); /* the state is the copy's own */
             CHECK(Lf->model_shared == 0 && Lf->model.K != Lb->model.K);
             CHECK(copy->lod->lev[k].tab.tet_geom == b->lod->lev[k].tab.tet_geom);
             CHECK(copy->lod->lev[k].cpl.blocks_slot != b->lod->lev[k].cpl.blocks_slot);

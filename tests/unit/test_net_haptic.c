@@ -242,7 +242,7 @@ SQ_TEST(net_haptic_live_pose_fixed_substep)
         sq_body_frame(b, &t, 1, &fb0, NULL, 0);
     CHECK(b->nholds > 0 && b->level[0].model.nfree > 0);
     /* a frame with the source: the pose moves 1 mm up from the second substep's call */
-    live_probe p = {.dz = 1e-3, .switch_at = 2, .d = b->level[0].d, .node = b->holds[0].node};
+    live_probe p = {.dz = 1e-3, .switch_at = 2, .d = b->level[0].state.d, .node = b->holds[0].node};
     memcpy(p.base, t.pos, sizeof p.base);
     sq_body_set_pose_source(b, live_source, &p);
     sq_body_frame(b, &t, 1, &fb1, NULL, 0);
@@ -292,7 +292,7 @@ SQ_TEST(net_haptic_live_pose_lod_tick)
     }
     p.calls = 0;
     p.switch_at = 4;
-    p.d = lod->lv[k].d;
+    p.d = lod->lv[k].state.d;
     p.node = node;
     sq_body_frame(b, &t, 1, NULL, NULL, 0);
     CHECK(p.calls > 6);

@@ -107,7 +107,7 @@ SQ_TEST(physics_damped_run_settles_to_static_solution)
         CHECK(sq_level_static_solve(&L->model, def.gravity, 1e-13, 10000, ds, NULL, &e) == 0);
         double diff = 0, scale = 0;
         for (int i = 0; i < 3 * m->nnodes; i++) {
-            diff = th_max(diff, fabs(L->d[i] - ds[i]));
+            diff = th_max(diff, fabs(L->state.d[i] - ds[i]));
             scale = th_max(scale, fabs(ds[i]));
         }
         fprintf(stderr, "    settle %s: max |d - d_static| / max |d_static| = %.3g\n", op ? "paper" : "fem",
@@ -151,18 +151,18 @@ static double run_at(sq_level *L, const sq_material *mat, double dt, int steps)
     static const double zero[3] = {0, 0, 0};
     size_t n3 = 3 * (size_t)L->model.n;
     for (size_t k = 0; k < n3; k++) {
-        L->d[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? 0 : 1e-6 * sin(3.0 + 1.37 * (double)k);
-        L->v[k] = 0;
+        L->state.d[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? 0 : 1e-6 * sin(3.0 + 1.37 * (double)k);
+        L->state.v[k] = 0;
     }
     for (int s = 0; s < steps; s++) {
-        sq_level_forces(L, mat, zero, NULL);
-        sq_level_integrate(L, dt, NULL);
+        sq_level_forces(&L->model, &L->state, mat, zero, NULL);
+        sq_level_integrate(&L->model, &L->state, dt, NULL);
     }
     double mx = 0;
     for (size_t k = 0; k < n3; k++) {
-        if (!isfinite(L->d[k]))
+        if (!isfinite(L->state.d[k]))
             return INFINITY; /* (fmax would skip a NaN) */
-        mx = th_max(mx, fabs(L->d[k]));
+        mx = th_max(mx, fabs(L->state.d[k]));
     }
     return mx;
 }
@@ -267,15 +267,15 @@ SQ_TEST(physics_viscosity_damps_and_tightens_bound)
         sq_level *L = Ls[k];
         for (int i = 0; i < L->model.n; i++)
             if (!L->model.fixed[i])
-                L->v[3 * i] = 0.1 * m->x[3 * i + 2];
+                L->state.v[3 * i] = 0.1 * m->x[3 * i + 2];
         int steps = (int)ceil(1.0 / B.dt);
         for (int s = 0; s < steps; s++)
-            sq_level_step(L, mats[k], g, B.dt, NULL);
+            sq_level_step(&L->model, &L->state, mats[k], g, B.dt, NULL);
         double ke = 0;
         for (int i = 0; i < L->model.n; i++)
-            ke += 0.5 * L->model.mass[i] * (L->v[3 * i] * L->v[3 * i] + L->v[3 * i + 1] * L->v[3 * i + 1] +
-                                      L->v[3 * i + 2] * L->v[3 * i + 2]);
-        E[k] = ke + sq_level_elastic_energy(L);
+            ke += 0.5 * L->model.mass[i] * (L->state.v[3 * i] * L->state.v[3 * i] + L->state.v[3 * i + 1] * L->state.v[3 * i + 1] +
+                                      L->state.v[3 * i + 2] * L->state.v[3 * i + 2]);
+        E[k] = ke + sq_level_elastic_energy(&L->model, &L->state);
     }
     fprintf(stderr, "    viscosity: energy after 1 s %.4g J (undamped) vs %.4g J (phi=2000, psi=5000 Pa s)\n", E[0], E[1]);
     CHECK(isfinite(E[1]) && E[1] < 0.2 * E[0]);

@@ -25,7 +25,7 @@ static double max_force(const sq_level *L)
 {
     double s = 0;
     for (int i = 0; i < L->model.n; i++)
-        s = th_max(s, th_norm3(L->f + 3 * i));
+        s = th_max(s, th_norm3(L->state.f + 3 * i));
     return s;
 }
 
@@ -51,16 +51,16 @@ SQ_TEST(corot_rigid_rotation_gives_zero_force)
         th_elastic_force(&L, &mat, d);
         double cor = max_force(&L);
         /* also through the stepping path: rotations converge over steps from identity */
-        sq_level_corot_reset(&L);
+        sq_level_corot_reset(&L.state);
         sq_material m0 = mat;
         double zero[3] = {0, 0, 0};
         for (int s = 0; s < 40; s++) {
-            memcpy(L.d, d, sizeof(double) * 3 * m->nnodes);
-            memset(L.v, 0, sizeof(double) * 3 * m->nnodes);
-            sq_level_corot_step(&L, &m0, zero, 0, NULL);
+            memcpy(L.state.d, d, sizeof(double) * 3 * m->nnodes);
+            memset(L.state.v, 0, sizeof(double) * 3 * m->nnodes);
+            sq_level_corot_step(&L.model, &L.state, &m0, zero, 0, NULL);
         }
         double cor_step = max_force(&L);
-        double energy = sq_level_corot_energy(&L);
+        double energy = sq_level_corot_energy(&L.model, &L.state);
         fprintf(stderr, "    axis %d: max |f| linear %.4g N, corotational %.3g N (step path %.3g N), energy %.3g J\n",
                 a, lin, cor, cor_step, energy);
         CHECK(lin > 1);
@@ -99,11 +99,11 @@ SQ_TEST(corot_small_strain_agrees_with_linear_to_second_order)
             d[3 * i + 2] = s * (-0.15 * x[0] * x[0] + 0.4 * x[0] * x[1]);
         }
         th_elastic_force(&L, &mat, d);
-        memcpy(fl, L.f, sizeof(double) * 3 * m->nnodes);
+        memcpy(fl, L.state.f, sizeof(double) * 3 * m->nnodes);
         th_elastic_force(&C, &mat, d);
         double num = 0, den = 0;
         for (int i = 0; i < 3 * m->nnodes; i++) {
-            num += (C.f[i] - fl[i]) * (C.f[i] - fl[i]);
+            num += (C.state.f[i] - fl[i]) * (C.state.f[i] - fl[i]);
             den += fl[i] * fl[i];
         }
         rel[k] = sqrt(num / den);
@@ -450,7 +450,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     sq_err e = {{0}};
     sq_body *ba = sq_body_create(&def, &e); /* adaptive + corotational: accepted */
     CHECK(ba != NULL);
-    CHECK(ba && sq_body_level(ba, 1)->corot != NULL);
+    CHECK(ba && sq_body_level(ba, 1)->state.corot != NULL);
     sq_body_destroy(ba);
     def.lod.mode = SQ_LOD_FIXED;
     def.op = SQ_OPERATOR_PAPER;
@@ -462,7 +462,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     for (int f = 0; f < 20; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     const sq_level *L = sq_body_level(b, 1);
-    double tip = L->d[3 * (L->model.n - 1) + 2];
+    double tip = L->state.d[3 * (L->model.n - 1) + 2];
     CHECK(tip < 0);
     /* refusals leave everything as it was */
     sq_material mat = def.material;
@@ -472,18 +472,18 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     lod.mode = SQ_LOD_ADAPTIVE;
     CHECK(sq_body_get_def(b)->elasticity == SQ_ELASTICITY_COROTATIONAL);
     CHECK(sq_body_get_def(b)->lod.mode == SQ_LOD_FIXED);
-    CHECK(L->corot != NULL);
-    CHECK(L->d[3 * (L->model.n - 1) + 2] == tip);
+    CHECK(L->state.corot != NULL);
+    CHECK(L->state.d[3 * (L->model.n - 1) + 2] == tip);
     /* a material change keeps the rotations and the corotational model */
     mat.mu *= 1.1;
     CHECK(sq_body_set_material(b, &mat, SQ_OPERATOR_FEM, &e) == 0);
     L = sq_body_level(b, 1);
-    CHECK(L->corot != NULL);
+    CHECK(L->state.corot != NULL);
     /* energy: corotational (the linear one of the same state differs) */
     double ec = sq_body_elastic_energy(b);
     CHECK(ec > 0);
     CHECK(sq_body_set_elasticity(b, SQ_ELASTICITY_LINEAR, &e) == 0);
-    CHECK(sq_body_level(b, 1)->corot == NULL);
+    CHECK(sq_body_level(b, 1)->state.corot == NULL);
     double el = sq_body_elastic_energy(b);
     fprintf(stderr, "    energy corotational %.6g J, linear %.6g J of the same state\n", ec, el);
     CHECK(fabs(ec - el) < 0.05 * el); /* small sag: the models agree closely */
@@ -491,7 +491,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     /* linear + adaptive, then corotational switched on in adaptive mode (accepted) and off */
     CHECK(sq_body_set_lod(b, &lod, &e) == 0);
     CHECK(sq_body_set_elasticity(b, SQ_ELASTICITY_COROTATIONAL, &e) == 0);
-    CHECK(sq_body_level(b, 1)->corot != NULL);
+    CHECK(sq_body_level(b, 1)->state.corot != NULL);
     for (int f = 0; f < 3; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     CHECK(sq_body_set_elasticity(b, SQ_ELASTICITY_LINEAR, &e) == 0);
@@ -502,16 +502,16 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     for (int f = 0; f < 5; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     L = sq_body_level(b, 0);
-    CHECK(L->corot != NULL);
+    CHECK(L->state.corot != NULL);
     sq_body_reset(b);
-    CHECK(sq_level_corot_energy(L) == 0);
-    CHECK(L->d[3 * (L->model.n - 1) + 2] == 0);
+    CHECK(sq_level_corot_energy(&L->model, &L->state) == 0);
+    CHECK(L->state.d[3 * (L->model.n - 1) + 2] == 0);
     /* blow-up: a NaN (which poisons the rotations of its tets) is detected, the body and its
      * rotations are reset, and the next frames are finite and sag as before */
     for (int f = 0; f < 5; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
-    double sag5 = L->d[3 * (L->model.n - 1) + 2];
-    sq_body_level(b, 0)->d[3 * (L->model.n - 1)] = NAN;
+    double sag5 = L->state.d[3 * (L->model.n - 1) + 2];
+    sq_body_level(b, 0)->state.d[3 * (L->model.n - 1)] = NAN;
     sq_frame_profile prof;
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.reset == 1);
@@ -519,7 +519,7 @@ SQ_TEST(corot_body_switch_refusals_and_reset)
     for (int f = 0; f < 5; f++)
         sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(!prof.reset);
-    CHECK(L->d[3 * (L->model.n - 1) + 2] == sag5); /* bit for bit the run from rest */
+    CHECK(L->state.d[3 * (L->model.n - 1) + 2] == sag5); /* bit for bit the run from rest */
     sq_body_destroy(b);
     sq_mesh_free(m);
     sq_mesh_free(m2);
@@ -542,23 +542,23 @@ SQ_TEST(corot_vector_step_matches_scalar_forces)
     for (int i = 0; i < m->nnodes; i++) {
         const double *x = m->x + 3 * i;
         double th = 1.2 * x[0]; /* bent through ~34 degrees along the length, plus a twist */
-        L.d[3 * i] = (x[0] * cos(th) - x[2] * sin(th)) - x[0];
-        L.d[3 * i + 1] = 0.02 * sin(3 * x[0]);
-        L.d[3 * i + 2] = (x[0] * sin(th) + x[2] * cos(th)) - x[2];
+        L.state.d[3 * i] = (x[0] * cos(th) - x[2] * sin(th)) - x[0];
+        L.state.d[3 * i + 1] = 0.02 * sin(3 * x[0]);
+        L.state.d[3 * i + 2] = (x[0] * sin(th) + x[2] * cos(th)) - x[2];
         for (int c = 0; c < 3; c++)
-            L.v[3 * i + c] = 0.1 * sin(7 * x[0] + c);
+            L.state.v[3 * i + c] = 0.1 * sin(7 * x[0] + c);
     }
     /* rotations of I + grad(d + b v), converged: step with dt = 0 until they stop moving */
     double g[3] = {0, 0, -9.81};
     for (int s = 0; s < 30; s++)
-        sq_level_corot_step(&L, &mat, g, 0, NULL);
+        sq_level_corot_step(&L.model, &L.state, &mat, g, 0, NULL);
     double *fv = malloc(sizeof(double) * 3 * m->nnodes);
-    memcpy(fv, L.f, sizeof(double) * 3 * m->nnodes);
-    sq_level_corot_forces(&L, &mat, g, L.f);
+    memcpy(fv, L.state.f, sizeof(double) * 3 * m->nnodes);
+    sq_level_corot_forces(&L.model, &L.state, &mat, g, L.state.f);
     double num = 0, den = 0;
     for (int i = 0; i < 3 * m->nnodes; i++) {
-        num += (fv[i] - L.f[i]) * (fv[i] - L.f[i]);
-        den += L.f[i] * L.f[i];
+        num += (fv[i] - L.state.f[i]) * (fv[i] - L.state.f[i]);
+        den += L.state.f[i] * L.state.f[i];
     }
     fprintf(stderr, "    step vs scalar forces: relative difference %.3g (|f| %.3g N)\n", sqrt(num / den), sqrt(den));
     CHECK(den > 0);

@@ -176,7 +176,7 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
     CHECK(sq_level_static_solve(&L->model, def.gravity, 1e-12, 100000, dl, NULL, &e) == 0);
     double diff = 0, scale = 0, tl = 0;
     for (int i = 0; i < 3 * m->nnodes; i++) {
-        diff = th_max(diff, fabs(L->d[i] - ds[i]));
+        diff = th_max(diff, fabs(L->state.d[i] - ds[i]));
         scale = th_max(scale, fabs(ds[i]));
         tl = th_max(tl, fabs(dl[i]));
     }
@@ -192,10 +192,10 @@ SQ_TEST(locking_nodal_pressure_body_settles_and_refuses)
     CHECK(sq_body_get_def(b)->nodal_pressure == 1);
     double e_np = sq_body_elastic_energy(b);
     CHECK(sq_body_set_pressure(b, 0, &e) == 0);
-    CHECK(sq_body_level(b, 0)->anp == NULL);
+    CHECK(sq_body_level(b, 0)->state.anp == NULL);
     CHECK(sq_body_elastic_energy(b) > e_np); /* the same state costs more energy element-wise */
     CHECK(sq_body_set_pressure(b, 1, &e) == 0);
-    CHECK(sq_body_level(b, 0)->anp != NULL);
+    CHECK(sq_body_level(b, 0)->state.anp != NULL);
     free(ds);
     free(dl);
     sq_body_destroy(b);
@@ -234,13 +234,13 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
     double ex[3]; /* x.Kx: element-wise, nodal pressure, smoothed */
     for (int mode = 0; mode < 3; mode++) {
         if (mode == 0) {
-            memcpy(L.d, x, sizeof(double) * n3);
-            ex[0] = 2 * sq_level_elastic_energy(&L);
+            memcpy(L.state.d, x, sizeof(double) * n3);
+            ex[0] = 2 * sq_level_elastic_energy(&L.model, &L.state);
             continue;
         }
         CHECK(sq_level_anp_enable(&L, &mat, SQ_OPERATOR_FEM, mode, &e) == 0);
-        sq_level_anp_apply(&L, x, kx);
-        sq_level_anp_apply(&L, y, ky);
+        sq_level_anp_apply(&L.model, &L.state, x, kx);
+        sq_level_anp_apply(&L.model, &L.state, y, ky);
         double xky = 0, ykx = 0, xkx = 0, scale = 0;
         for (size_t k = 0; k < n3; k++) {
             xky += x[k] * ky[k];
@@ -251,7 +251,7 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
         ex[mode] = xkx;
         CHECK(fabs(xky - ykx) <= 1e-12 * fabs(xkx));
         /* the step's blocked pass (four tets at once) against the plain per-tet form */
-        sq_anp_apply(L.anp, m, L.model.vol, x, ky);
+        sq_anp_apply(L.state.anp, m, L.model.vol, x, ky);
         double dfast = 0;
         for (size_t k = 0; k < n3; k++)
             dfast = th_max(dfast, fabs(ky[k] - kx[k]));
@@ -265,7 +265,7 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
             y[3 * i + 1] = -2 + w[2] * X[0] - w[0] * X[2];
             y[3 * i + 2] = 0.5 + w[0] * X[1] - w[1] * X[0];
         }
-        sq_level_anp_apply(&L, y, ky);
+        sq_level_anp_apply(&L.model, &L.state, y, ky);
         double rig = 0;
         for (size_t k = 0; k < n3; k++)
             rig = th_max(rig, fabs(ky[k]));
@@ -279,7 +279,7 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
     }
     fprintf(stderr, "    x.Kx element %.6g, nodal %.6g, smoothed %.6g\n", ex[0], ex[1], ex[2]);
     CHECK(ex[2] > 0 && ex[2] < ex[1] && ex[1] < ex[0]);
-    CHECK(sq_anp_mode(L.anp) == SQ_PRESSURE_SMOOTHED);
+    CHECK(sq_anp_mode(L.state.anp) == SQ_PRESSURE_SMOOTHED);
     /* the step bound: the smoothed lambda_max(M^-1 K) (300 power iterations on M^-1/2 K M^-1/2,
      * a lower estimate) stays below the element-wise operator's Lanczos estimate and its
      * Gershgorin ceiling, which the step uses */
@@ -295,7 +295,7 @@ SQ_TEST(locking_smoothed_operator_symmetric_rigid_softer)
             x[k] /= nx;
             y[k] = x[k] / sqrt(L.model.mass[k / 3]);
         }
-        sq_level_anp_apply(&L, y, ky);
+        sq_level_anp_apply(&L.model, &L.state, y, ky);
         lam = 0;
         for (size_t k = 0; k < n3; k++) {
             x[k] = ky[k] / sqrt(L.model.mass[k / 3]);
@@ -347,8 +347,8 @@ SQ_TEST(locking_smoothed_body_settles_and_refuses)
     for (int f = 0; f < 250; f++)
         sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
-    TH_REQUIRE(L->anp);
-    CHECK(sq_anp_mode(L->anp) == SQ_PRESSURE_SMOOTHED);
+    TH_REQUIRE(L->state.anp);
+    CHECK(sq_anp_mode(L->state.anp) == SQ_PRESSURE_SMOOTHED);
     size_t n3 = 3 * (size_t)m->nnodes;
     double *ds = malloc(sizeof(double) * n3), *dn = malloc(sizeof(double) * n3), *dl = malloc(sizeof(double) * n3);
     CHECK(sq_level_static_solve_pressure(&L->model, &def.material, SQ_PRESSURE_SMOOTHED, def.gravity, 1e-12, 100000, ds,
@@ -358,7 +358,7 @@ SQ_TEST(locking_smoothed_body_settles_and_refuses)
     CHECK(sq_level_static_solve(&L->model, def.gravity, 1e-12, 100000, dl, NULL, &e) == 0);
     double diff = 0, scale = 0, tn = 0, tl = 0;
     for (size_t i = 0; i < n3; i++) {
-        diff = th_max(diff, fabs(L->d[i] - ds[i]));
+        diff = th_max(diff, fabs(L->state.d[i] - ds[i]));
         scale = th_max(scale, fabs(ds[i]));
         tn = th_max(tn, fabs(dn[i]));
         tl = th_max(tl, fabs(dl[i]));
@@ -383,14 +383,14 @@ SQ_TEST(locking_smoothed_body_settles_and_refuses)
     /* switching keeps the state; the same state costs more energy nodal, more again element-wise */
     double e_sm = sq_body_elastic_energy(b);
     CHECK(sq_body_set_pressure(b, SQ_PRESSURE_NODAL, &e) == 0);
-    CHECK(sq_anp_mode(sq_body_level(b, 0)->anp) == SQ_PRESSURE_NODAL);
+    CHECK(sq_anp_mode(sq_body_level(b, 0)->state.anp) == SQ_PRESSURE_NODAL);
     double e_np = sq_body_elastic_energy(b);
     CHECK(sq_body_set_pressure(b, SQ_PRESSURE_ELEMENT, &e) == 0);
-    CHECK(sq_body_level(b, 0)->anp == NULL);
+    CHECK(sq_body_level(b, 0)->state.anp == NULL);
     double e_el = sq_body_elastic_energy(b);
     CHECK(e_sm < e_np && e_np < e_el);
     CHECK(sq_body_set_pressure(b, SQ_PRESSURE_SMOOTHED, &e) == 0);
-    CHECK(sq_anp_mode(sq_body_level(b, 0)->anp) == SQ_PRESSURE_SMOOTHED);
+    CHECK(sq_anp_mode(sq_body_level(b, 0)->state.anp) == SQ_PRESSURE_SMOOTHED);
     CHECK(fabs(sq_body_elastic_energy(b) - e_sm) <= 1e-12 * e_sm);
     free(ds);
     free(dn);

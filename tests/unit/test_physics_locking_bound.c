@@ -22,8 +22,8 @@ static double own_true_omega(const sq_level *L)
             continue;
         memset(x, 0, sizeof(double) * n3);
         x[k] = 1 / sqrt(L->model.mass[k / 3]);
-        if (L->anp)
-            sq_level_anp_apply(L, x, y);
+        if (L->state.anp)
+            sq_level_anp_apply(&L->model, &L->state, x, y);
         else
             for (int i = 0; i < L->model.n; i++) {
                 for (int r = 0; r < 3; r++)
@@ -56,19 +56,19 @@ static double run_own(sq_level *L, const sq_material *mat, double dt, int steps)
     static const double zero[3] = {0, 0, 0};
     size_t n3 = 3 * (size_t)L->model.n;
     for (size_t k = 0; k < n3; k++) {
-        L->d[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? 0 : 1e-6 * sin(3.0 + 1.37 * (double)k);
-        L->v[k] = 0;
+        L->state.d[k] = (L->model.fixed[k / 3] & (1u << (k % 3))) ? 0 : 1e-6 * sin(3.0 + 1.37 * (double)k);
+        L->state.v[k] = 0;
     }
     for (int s = 0; s < steps; s++) {
-        sq_level_step(L, mat, zero, dt, NULL);
-        if (s % 256 == 0 && !(fabs(L->d[3 * (L->model.n - 1)]) < 1e6))
+        sq_level_step(&L->model, &L->state, mat, zero, dt, NULL);
+        if (s % 256 == 0 && !(fabs(L->state.d[3 * (L->model.n - 1)]) < 1e6))
             break;
     }
     double mx = 0;
     for (size_t k = 0; k < n3; k++) {
-        if (!isfinite(L->d[k]))
+        if (!isfinite(L->state.d[k]))
             return INFINITY;
-        mx = th_max(mx, fabs(L->d[k]));
+        mx = th_max(mx, fabs(L->state.d[k]));
     }
     return mx;
 }
@@ -195,7 +195,7 @@ SQ_TEST(locking_sharp_bound_substeps_drop_on_beam_l1)
                         x[k] /= nx;
                         y[k] = x[k] / sqrt(L.model.mass[k / 3]);
                     }
-                    sq_level_anp_apply(&L, y, ky);
+                    sq_level_anp_apply(&L.model, &L.state, y, ky);
                     lam = 0;
                     for (size_t k = 0; k < n3; k++) {
                         int fx = L.model.fixed[k / 3] & (1u << (k % 3));

@@ -125,7 +125,7 @@ SQ_TEST(sim_body_nan_resets_and_reports)
     TH_REQUIRE(b);
     sq_body_frame(b, NULL, 0, NULL, NULL, 0);
     sq_level *L = sq_body_level(b, 0);
-    L->d[3 * (L->model.n - 1) + 2] = NAN;
+    L->state.d[3 * (L->model.n - 1) + 2] = NAN;
     sq_frame_profile prof;
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.reset == 1);
@@ -142,7 +142,7 @@ SQ_TEST(sim_body_nan_resets_and_reports)
     CHECK(hs[SQ_HEALTH_BLOWUP_SPEED].count == 0 && hs[SQ_HEALTH_BLOWUP_STRETCH].count == 0);
     CHECK(strcmp(sq_health_kind_name(SQ_HEALTH_BLOWUP_NAN), "blowup_nan") == 0);
     for (int i = 0; i < 3 * L->model.n; i++)
-        CHECK(L->d[i] == 0 && L->v[i] == 0);
+        CHECK(L->state.d[i] == 0 && L->state.v[i] == 0);
     /* and it keeps going */
     sq_body_frame(b, NULL, 0, NULL, &prof, 0);
     CHECK(prof.reset == 0);
@@ -165,7 +165,7 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     sq_level *L = sq_body_level(b, 0);
     size_t n3 = 3 * (size_t)L->model.n;
     double *d0 = malloc(sizeof(double) * n3), K0 = L->model.K[0], dt0 = L->dt;
-    memcpy(d0, L->d, sizeof(double) * n3);
+    memcpy(d0, L->state.d, sizeof(double) * n3);
     sq_material hard = def.material;
     CHECK(sq_material_from_E_nu(&hard, 1e18, 0.3, &e) == 0);
     CHECK(sq_body_set_material(b, &hard, SQ_OPERATOR_FEM, &e) == -1);
@@ -173,7 +173,7 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     CHECK_CONTAINS(e.msg, "the limit is 2^20");
     CHECK_CONTAINS(e.msg, "E=1e+18");
     L = sq_body_level(b, 0);
-    CHECK(memcmp(d0, L->d, sizeof(double) * n3) == 0);
+    CHECK(memcmp(d0, L->state.d, sizeof(double) * n3) == 0);
     CHECK(L->model.K[0] == K0 && L->dt == dt0);
     CHECK(sq_body_get_def(b)->material.mu == def.material.mu);
     /* a bad value names itself */
@@ -186,7 +186,7 @@ SQ_TEST(sim_body_set_material_refusal_keeps_state)
     soft.mu *= 0.5;
     CHECK(sq_body_set_material(b, &soft, SQ_OPERATOR_PAPER, &e) == 0);
     L = sq_body_level(b, 0);
-    CHECK(memcmp(d0, L->d, sizeof(double) * n3) == 0);
+    CHECK(memcmp(d0, L->state.d, sizeof(double) * n3) == 0);
     CHECK(L->dt >= dt0);
     free(d0);
     sq_body_destroy(b);
@@ -296,8 +296,8 @@ SQ_TEST(sim_body_deterministic)
             sq_body_frame(b[k], &t, 1, NULL, NULL, 0);
         }
         const sq_level *L = sq_body_level(b[k], 0);
-        h[k] = sq_hash_bytes(SQ_HASH_INIT, L->d, sizeof(double) * 3 * L->model.n);
-        h[k] = sq_hash_bytes(h[k], L->v, sizeof(double) * 3 * L->model.n);
+        h[k] = sq_hash_bytes(SQ_HASH_INIT, L->state.d, sizeof(double) * 3 * L->model.n);
+        h[k] = sq_hash_bytes(h[k], L->state.v, sizeof(double) * 3 * L->model.n);
     }
     CHECK(h[0] == h[1]);
     CHECK(sq_body_kinetic_energy(b[0]) > 0);

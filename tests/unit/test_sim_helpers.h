@@ -122,9 +122,9 @@ static inline void th_elastic_force(sq_level *L, const sq_material *mat, const d
     sq_material m = *mat;
     m.rayleigh_mass = m.rayleigh_stiffness = 0;
     m.use_viscosity = 0;
-    memcpy(L->d, d, sizeof(double) * 3 * (size_t)L->model.n);
-    memset(L->v, 0, sizeof(double) * 3 * (size_t)L->model.n);
-    sq_level_forces(L, &m, zero, NULL);
+    memcpy(L->state.d, d, sizeof(double) * 3 * (size_t)L->model.n);
+    memset(L->state.v, 0, sizeof(double) * 3 * (size_t)L->model.n);
+    sq_level_forces(&L->model, &L->state, &m, zero, NULL);
 }
 
 /* largest |entry| of the level's K, a scale for force tolerances */
@@ -162,10 +162,10 @@ static inline double th_tool_balance(const sq_level *L, const sq_mesh *m, const 
         Mt += L->model.mass[i];
         if (L->model.fixed[i] == 7)
             for (int c = 0; c < 3; c++)
-                R[c] -= L->f[3 * i + c];
+                R[c] -= L->state.f[3 * i + c];
         const double *x = m->x + 3 * i;
-        double p[3] = {x[0] + L->d[3 * i] - t->pos[0], x[1] + L->d[3 * i + 1] - t->pos[1],
-                       x[2] + L->d[3 * i + 2] - t->pos[2]};
+        double p[3] = {x[0] + L->state.d[3 * i] - t->pos[0], x[1] + L->state.d[3 * i + 1] - t->pos[1],
+                       x[2] + L->state.d[3 * i + 2] - t->pos[2]};
         if (m->on_boundary[i] && fabs(th_norm3(p) - t->radius) < 1e-12)
             Mh += L->model.mass[i];
     }
@@ -183,7 +183,7 @@ static inline void th_force_split(const sq_mesh *m, const sq_level *L, double *i
 {
     double fi = 0, fb = 0;
     for (int i = 0; i < m->nnodes; i++) {
-        double f = th_norm3(L->f + 3 * i);
+        double f = th_norm3(L->state.f + 3 * i);
         if (m->on_boundary[i])
             fb = th_max(fb, f);
         else

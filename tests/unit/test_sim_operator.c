@@ -23,7 +23,7 @@ static void check_translation(sq_operator_kind op)
     th_elastic_force(&L, &mat, d);
     double worst = 0;
     for (int i = 0; i < m->nnodes; i++)
-        worst = th_max(worst, th_norm3(L.f + 3 * i));
+        worst = th_max(worst, th_norm3(L.state.f + 3 * i));
     CHECK(worst <= FTOL(&L));
     free(d);
     sq_level_free(&L);
@@ -231,17 +231,17 @@ SQ_TEST(sim_level_step_equals_forces_then_integrate)
                 mask[i] = i % 5 != 3;
         }
         for (int k = 0; k < 3 * m->nnodes; k++) {
-            A.d[k] = B.d[k] = 1e-3 * sin(0.3 * k);
-            A.v[k] = B.v[k] = 1e-2 * cos(0.7 * k);
+            A.state.d[k] = B.state.d[k] = 1e-3 * sin(0.3 * k);
+            A.state.v[k] = B.state.v[k] = 1e-2 * cos(0.7 * k);
         }
         for (int s = 0; s < 20; s++) {
-            sq_level_forces(&A, &mat, g, NULL);
-            sq_level_integrate(&A, 1e-3, mask);
-            sq_level_step(&B, &mat, g, 1e-3, mask);
+            sq_level_forces(&A.model, &A.state, &mat, g, NULL);
+            sq_level_integrate(&A.model, &A.state, 1e-3, mask);
+            sq_level_step(&B.model, &B.state, &mat, g, 1e-3, mask);
         }
-        CHECK(memcmp(A.d, B.d, sizeof(double) * 3 * m->nnodes) == 0);
-        CHECK(memcmp(A.v, B.v, sizeof(double) * 3 * m->nnodes) == 0);
-        CHECK(memcmp(A.f, B.f, sizeof(double) * 3 * m->nnodes) == 0);
+        CHECK(memcmp(A.state.d, B.state.d, sizeof(double) * 3 * m->nnodes) == 0);
+        CHECK(memcmp(A.state.v, B.state.v, sizeof(double) * 3 * m->nnodes) == 0);
+        CHECK(memcmp(A.state.f, B.state.f, sizeof(double) * 3 * m->nnodes) == 0);
         free(mask);
         sq_level_free(&A);
         sq_level_free(&B);
@@ -263,18 +263,18 @@ SQ_TEST(sim_level_masked_forces_match_fast_pass)
     sq_err e = {{0}};
     CHECK(sq_level_init(&L, m, &mat, SQ_OPERATOR_PAPER, NULL, 0, &e) == 0);
     for (int k = 0; k < 3 * m->nnodes; k++) {
-        L.d[k] = 1e-2 * sin(0.9 * k);
-        L.v[k] = 1e-1 * cos(0.4 * k);
+        L.state.d[k] = 1e-2 * sin(0.9 * k);
+        L.state.v[k] = 1e-1 * cos(0.4 * k);
     }
     unsigned char *all = malloc(m->nnodes);
     memset(all, 1, m->nnodes);
     double *fast = malloc(sizeof(double) * 3 * m->nnodes);
-    sq_level_forces(&L, &mat, g, NULL);
-    memcpy(fast, L.f, sizeof(double) * 3 * m->nnodes);
-    sq_level_forces(&L, &mat, g, all);
+    sq_level_forces(&L.model, &L.state, &mat, g, NULL);
+    memcpy(fast, L.state.f, sizeof(double) * 3 * m->nnodes);
+    sq_level_forces(&L.model, &L.state, &mat, g, all);
     double diff = 0, scale = 0;
     for (int k = 0; k < 3 * m->nnodes; k++) {
-        diff = th_max(diff, fabs(fast[k] - L.f[k]));
+        diff = th_max(diff, fabs(fast[k] - L.state.f[k]));
         scale = th_max(scale, fabs(fast[k]));
     }
     CHECK(scale > 0);
@@ -313,7 +313,7 @@ SQ_TEST(sim_operator_identities_on_shipped_meshes)
             th_elastic_force(&L[op], &mat, dt);
             double ft = 0, fi, fb;
             for (int i = 0; i < m->nnodes; i++)
-                ft = th_max(ft, th_norm3(L[op].f + 3 * i));
+                ft = th_max(ft, th_norm3(L[op].state.f + 3 * i));
             th_elastic_force(&L[op], &mat, dr);
             th_force_split(m, &L[op], &fi, &fb);
             CHECK(ft <= tol);
@@ -377,25 +377,25 @@ SQ_TEST(sim_operator_forces_to_matches_and_reads_only)
         uint64_t s = 12345;
         for (size_t k = 0; k < n3; k++) {
             s = s * 6364136223846793005ULL + 1442695040888963407ULL;
-            L.d[k] = 1e-2 * ((double)(s >> 11) / 9007199254740992.0 - 0.5);
-            L.v[k] = 1e-1 * ((double)((s * 3) >> 11) / 9007199254740992.0 - 0.5);
+            L.state.d[k] = 1e-2 * ((double)(s >> 11) / 9007199254740992.0 - 0.5);
+            L.state.v[k] = 1e-1 * ((double)((s * 3) >> 11) / 9007199254740992.0 - 0.5);
         }
         double *d0 = malloc(sizeof(double) * n3), *v0 = malloc(sizeof(double) * n3);
         double *f = malloc(sizeof(double) * n3), *acc = calloc(n3 + 1, sizeof(double));
-        memcpy(d0, L.d, sizeof(double) * n3);
-        memcpy(v0, L.v, sizeof(double) * n3);
+        memcpy(d0, L.state.d, sizeof(double) * n3);
+        memcpy(v0, L.state.v, sizeof(double) * n3);
         for (size_t k = 0; k < n3; k++)
-            L.f[k] = -7; /* a marker: forces_to must not write it */
-        sq_level_forces_to(&L, &mat, g, NULL, f, acc);
+            L.state.f[k] = -7; /* a marker: forces_to must not write it */
+        sq_level_forces_to(&L.model, &L.state, &mat, g, NULL, f, acc);
         int fmark = 0, accz = 0;
         for (size_t k = 0; k < n3; k++) {
-            fmark += L.f[k] == -7;
+            fmark += L.state.f[k] == -7;
             accz += acc[k] == 0;
         }
         CHECK(fmark == (int)n3 && accz == (int)n3);
-        CHECK(memcmp(d0, L.d, sizeof(double) * n3) == 0 && memcmp(v0, L.v, sizeof(double) * n3) == 0);
-        sq_level_forces(&L, &mat, g, NULL);
-        CHECK(memcmp(f, L.f, sizeof(double) * n3) == 0);
+        CHECK(memcmp(d0, L.state.d, sizeof(double) * n3) == 0 && memcmp(v0, L.state.v, sizeof(double) * n3) == 0);
+        sq_level_forces(&L.model, &L.state, &mat, g, NULL);
+        CHECK(memcmp(f, L.state.f, sizeof(double) * n3) == 0);
         double fmax = 0;
         for (size_t k = 0; k < n3; k++)
             fmax = th_max(fmax, fabs(f[k]));

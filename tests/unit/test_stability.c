@@ -37,7 +37,7 @@ static double total_energy(sq_body *b)
     const sq_level *L = sq_body_level(b, sq_body_fixed_level(b));
     double ep = 0;
     for (int i = 0; i < L->model.n; i++)
-        ep += L->model.mass[i] * 9.81 * L->d[3 * i + 2];
+        ep += L->model.mass[i] * 9.81 * L->state.d[3 * i + 2];
     return sq_body_kinetic_energy(b) + sq_body_elastic_energy(b) + ep;
 }
 
@@ -184,16 +184,16 @@ SQ_TEST(stability_above_bound_blows_up_test_only)
         static const double frac[2] = {1.0, 2.0};
         for (int k = 0; k < 2; k++) {
             for (int i = 0; i < 3 * L->model.n; i++) {
-                L->d[i] = (L->model.fixed[i / 3] & (1u << (i % 3))) ? 0 : 1e-7 * (i % 2 ? 1 : -1);
-                L->v[i] = 0;
+                L->state.d[i] = (L->model.fixed[i / 3] & (1u << (i % 3))) ? 0 : 1e-7 * (i % 2 ? 1 : -1);
+                L->state.v[i] = 0;
             }
             double dmax = 0;
             for (int s = 0; s < 1000; s++) {
-                sq_level_forces(L, &mat, sq_body_get_def(b)->gravity, NULL);
-                sq_level_integrate(L, frac[k] * L->bound, NULL);
+                sq_level_forces(&L->model, &L->state, &mat, sq_body_get_def(b)->gravity, NULL);
+                sq_level_integrate(&L->model, &L->state, frac[k] * L->bound, NULL);
             }
             for (int i = 0; i < 3 * L->model.n; i++)
-                dmax = th_max(dmax, fabs(L->d[i]));
+                dmax = th_max(dmax, fabs(L->state.d[i]));
             grow[k] = dmax;
         }
         /* at the bound: gravity sag only (~1e-4 m); at 2x: exponential growth (or overflow) */
