@@ -59,6 +59,12 @@ if [ "$checked" = 0 ]; then
     echo "layers: no sources under $SRC"
     exit 1
 fi
+# the environment is read by the commands only (server/app/): the library takes its switches
+# from the options the commands set (util/util.h sq_debug_options, engines' sq_tradeoff_debug)
+while IFS=: read -r f line _; do
+    echo "layers: ${f#"$SRC"/}:$line reads the environment: read it in server/app/ and pass it in an options struct"
+    bad=1
+done < <(grep -rn --include='*.[ch]' '\bgetenv[[:space:]]*(' "$SRC" | grep -v "^$SRC/app/")
 # the size rule: no file over 900 lines, no function over 150 (tests/lengths.sh)
 bash "$(dirname "$0")/lengths.sh" "$SRC" || bad=1
 [ "$bad" = 0 ] || exit 1

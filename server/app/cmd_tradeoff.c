@@ -572,6 +572,10 @@ int sq_cmd_tradeoff(int argc, char **argv)
     int rc = parse_args(argc, argv, &o);
     if (rc >= 0)
         return rc;
+    const char *maxl = getenv("SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL"), *tr = getenv("SQ_TRADEOFF_TRACE");
+    sq_tradeoff_set_debug(&(sq_tradeoff_debug){.adaptive_max_level = maxl ? atoi(maxl) : -1,
+                                               .ref_file = getenv("SQ_TRADEOFF_REF"),
+                                               .trace = tr ? atoi(tr) : 0});
     to_setup st;
     if (load_setup(&o, &st))
         return 1;

@@ -7,9 +7,6 @@
 #include "app/commands.h"
 #include "util/util.h"
 
-/* the debug switches (util/util.h sq_debug_options) from the one environment variable SQ_DEBUG:
- * words separated by commas or spaces, e.g. SQ_DEBUG=guard_trace,sharp_trace or
- * SQ_DEBUG=sharp_check=2. Returns -1 (and says so) on a word it does not know */
 FILE *sq_cmd_open_out(const char *cmd, const char *dir, const char *name, char *path, size_t n)
 {
     snprintf(path, n, "%s/%s", dir, name);
@@ -19,6 +16,9 @@ FILE *sq_cmd_open_out(const char *cmd, const char *dir, const char *name, char *
     return f;
 }
 
+/* the debug switches (util/util.h sq_debug_options) from the one environment variable SQ_DEBUG:
+ * words separated by commas or spaces, e.g. SQ_DEBUG=guard_trace,sharp_trace or
+ * SQ_DEBUG=sharp_check=2. Returns -1 (and says so) on a word it does not know */
 static int read_debug(const char *s, sq_debug_options *o)
 {
     static const struct {

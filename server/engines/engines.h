@@ -83,6 +83,14 @@ int sq_tradeoff_body_finest(const cJSON *body, int override);
 void sq_tradeoff_scene_caps(const cJSON *root, double caps[SQ_MAX_BODIES]);
 /* the scene's adaptive split threshold (m) */
 double sq_tradeoff_scene_split(const cJSON *root);
+/* the engine's debugging switches, set by the command (app/cmd_tradeoff.c reads them from
+ * SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL, SQ_TRADEOFF_REF and SQ_TRADEOFF_TRACE; docs/lod.md) */
+typedef struct sq_tradeoff_debug {
+    int adaptive_max_level; /* >= 0: the adaptive rows run with lod.max_level at most this; -1 off */
+    const char *ref_file;   /* the reference cached in this file (ref_file_read), or NULL */
+    int trace;              /* 1: each frame of a budgeted run on stderr; 2: of every run */
+} sq_tradeoff_debug;
+void sq_tradeoff_set_debug(const sq_tradeoff_debug *d);
 /* fills v with the grid of settings (reference first); returns their count */
 int sq_tradeoff_build_grid(sq_tradeoff_variant *v, int finest, double s0, int quick, double ref_fraction);
 /* the scene text of variant v (cJSON_free it) */

@@ -16,6 +16,13 @@
  * row read from the cache keeps its CPU time (format 1 files are stepped and written again) */
 #define REF_FILE_FORMAT 2L
 
+static sq_tradeoff_debug debug = {.adaptive_max_level = -1};
+
+void sq_tradeoff_set_debug(const sq_tradeoff_debug *d)
+{
+    debug = *d;
+}
+
 /* ---- scene variants through the scene's own JSON ------------------------------------------ */
 
 static void set_item(cJSON *obj, const char *key, cJSON *val)
@@ -84,11 +91,10 @@ char *sq_tradeoff_variant_text(cJSON *root, const sq_tradeoff_variant *v, int fi
         const cJSON *every = given ? cJSON_GetObjectItemCaseSensitive(given, "adapt_every") : NULL;
         if (cJSON_IsNumber(every))
             cJSON_AddNumberToObject(lod, "adapt_every", every->valuedouble);
-        /* debugging: SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL=K runs the adaptive rows (unbudgeted and
-         * guarded) with lod.max_level at most K, measured against the same reference (docs/lod.md
-         * "The depth of the adaptive body") */
-        if (v->adaptive && getenv("SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL"))
-            fin = SQ_MIN(fin, atoi(getenv("SQ_TRADEOFF_ADAPTIVE_MAX_LEVEL")));
+        /* debugging: the adaptive rows (unbudgeted and guarded) with lod.max_level at most K,
+         * measured against the same reference (docs/lod.md "The depth of the adaptive body") */
+        if (v->adaptive && debug.adaptive_max_level >= 0)
+            fin = SQ_MIN(fin, debug.adaptive_max_level);
         cJSON_AddNumberToObject(lod, "max_level", fin);
         cJSON_AddNumberToObject(lod, "level", v->adaptive ? 0 : SQ_MIN(v->level, fin));
         if (v->adaptive) {
@@ -518,11 +524,9 @@ int sq_tradeoff_run_variant(const sq_scene *scene, sq_tradeoff_ref *ref, int rec
         double dt = sq_body_level_dt(b0, k);
         r->substeps_finest = dt > 0 ? (int)lround(sq_body_get_def(b0)->frame_dt / dt) : 0;
     }
-    /* debugging: SQ_TRADEOFF_REF=FILE (ref_file_read); SQ_TRADEOFF_TRACE=1 prints each frame
-     * of a budgeted run on stderr (2: of every run) */
-    const char *ref_file = getenv("SQ_TRADEOFF_REF");
-    int trace = getenv("SQ_TRADEOFF_TRACE") ? atoi(getenv("SQ_TRADEOFF_TRACE")) : 0;
-    trace = trace > 1 || (trace > 0 && budget_s > 0);
+    /* debugging (sq_tradeoff_debug): the cached reference; each frame traced */
+    const char *ref_file = debug.ref_file;
+    const int trace = debug.trace > 1 || (debug.trace > 0 && budget_s > 0);
     if (record && ref_file && ref_file_read(ref_file, ref, scene, r)) {
         sq_world_destroy(w);
         return 0;

@@ -30,6 +30,7 @@ plant "an upward include (body -> net)" body/body.c '#include "net/net.h"' 'body
 plant "another folder's internal header" body/body.c '#include "lod/lod_internal.h"' 'only its public header'
 plant "a bare relative include" scene/world.c '#include "scene.h"' 'write it as'
 plant "a folder outside the order" util/util.c '#include "extra/extra.h"' "no module 'extra'"
+plant "the environment read below app/" lod/frame.c 'static const char *planted(void) { return getenv("SQ_X"); }' 'reads the environment'
 mkdir -p "$tmp/x"; rm -rf "$tmp/server"; cp -r server "$tmp/server"; mkdir "$tmp/server/extra"; touch "$tmp/server/extra/extra.c"
 if bash tests/layers.sh "$tmp/server" 2>&1 | grep -q "not in the module order"; then ok "a new folder must be placed in the order"; else bad "a new folder outside the order passes"; fi
 
