@@ -85,7 +85,6 @@ typedef struct sq_tool_model {
     double normal[3];  /* push: mean contact normal, from the tool into the body (unit); 0 else */
     double torque[3];  /* reaction torque about p0 (box: the tool has no orientation, so it is
                           the torque at p0, held constant between frames), N m */
-    int cg_iterations; /* the condensation's conjugate-gradient iterations over K's 3 columns */
 } sq_tool_model;
 
 /* create; computes operators and stability bounds; NULL + err (with numbers) if the
