@@ -385,6 +385,7 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
 {
     if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
         return;
+    const double c0 = sq_thread_cpu();
     int n = 0, ids[SQ_MAX_TOOLS];
     pthread_mutex_lock(&h->mu);
     for (int i = 0; i < SQ_MAX_TOOLS; i++)
@@ -440,5 +441,6 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
                 h->ch[i].model_valid = valid[k];
                 h->ch[i].model_frame = w->frame;
             }
+    h->model_cpu_s = sq_thread_cpu() - c0;
     pthread_mutex_unlock(&h->mu);
 }

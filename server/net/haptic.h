@@ -129,6 +129,7 @@ typedef struct sq_haptic_hub {
     uint32_t next_id;
     long bad_channel;                /* poses on a channel the sender does not own */
     long bad_pose;                   /* pose messages that could not be decoded */
+    double model_cpu_s;              /* session-thread CPU time of the last frame's models, s */
     sq_haptic_channel ch[SQ_MAX_TOOLS];
     sq_haptic_live live[SQ_MAX_TOOLS]; /* per slot of ch, never cleared by an opening */
     /* the frame's ramps (session thread only: set by sq_haptic_before_frame) */

@@ -81,6 +81,7 @@ cJSON *net_haptic_stats_json(sq_session *s)
             cJSON_AddItemToArray(a, channel_json(&s->haptic.ch[i]));
     cJSON_AddNumberToObject(o, "bad_channel", (double)s->haptic.bad_channel);
     cJSON_AddNumberToObject(o, "bad_pose", (double)s->haptic.bad_pose);
+    cJSON_AddNumberToObject(o, "model_ms", 1e3 * s->haptic.model_cpu_s);
     pthread_mutex_unlock(&s->haptic.mu);
     return o;
 }

@@ -283,8 +283,15 @@ void sq_session_step_frame(sq_session *s, sq_out_kind kind)
     sq_world_set_pose_source(s->world, sq_haptic_pose_source(&s->haptic, s->lockstep), &s->haptic);
     sq_world_step(s->world, s->lockstep ? 0 : s->period);
     budget_account(s, sq_thread_cpu() - c0);
-    sq_haptic_after_frame(&s->haptic, s->world); /* the channels' models, outside the budget */
+    /* the channels' models, outside the budget. Real time: after the frame is published, so
+     * that the channel delays no frame (the poses meanwhile get the last frame's model, as
+     * between any two frames); lockstep: before it, so that the poses a client sends once it
+     * has the step's frames get that frame's model (deterministic) */
+    if (s->lockstep)
+        sq_haptic_after_frame(&s->haptic, s->world);
     publish(s, kind, sq_now() - t0, sq_thread_cpu() - c0);
+    if (!s->lockstep)
+        sq_haptic_after_frame(&s->haptic, s->world);
 }
 
 

@@ -70,6 +70,7 @@ try {
   const rtt = [];
   const server = { p50: [], p99: [], max: [] };
   let answered = 0, sent = 0;
+  const modelMs = []; // the session thread's CPU for the last frame's haptic model, per round
   for (let round = 0; round < ROUNDS; round++) {
     // without the channel: the tool pressed by tool requests at 50 Hz (same motion)
     setPhase('closed');
@@ -100,6 +101,7 @@ try {
     const st = await c.stats();
     const ch = (st.haptic?.channels || []).find(x => x.channel === channel);
     if (ch?.latency) for (const k of ['p50', 'p99', 'max']) server[k].push(ch.latency[k]);
+    if (st.haptic?.model_ms !== undefined) modelMs.push(st.haptic.model_ms);
     await c.hapticClose(2);
   }
   const st = await c.stats();
@@ -110,6 +112,7 @@ try {
   if (server.p50.length) // per round; the worst round's
     results.server_ms = { p50: +Math.max(...server.p50).toFixed(3), p99: +Math.max(...server.p99).toFixed(3), max: +Math.max(...server.max).toFixed(3) };
   results.deadline_misses = st.deadline_misses;
+  if (modelMs.length) results.model_ms = modelMs;
   if (child) {
     const done = new Promise(res => child.once('message', res));
     child.send({ stop: true });
@@ -121,7 +124,8 @@ try {
     results.viewer_frames = viewers.map(v => v.binaries).reduce((a, b) => Math.min(a, b), Infinity);
     for (const v of viewers) await v.close();
   }
-  const fm = (a) => ({ n: a.length, p50: +pct(a, 0.5).toFixed(2), p95: +pct(a, 0.95).toFixed(2) });
+  // (an old server's frames have no frame_cpu_ms: null through the child's IPC, NaN here)
+  const fm = (a) => { a = a.filter(Number.isFinite); return a.length ? { n: a.length, p50: +pct(a, 0.5).toFixed(2), p95: +pct(a, 0.95).toFixed(2) } : { n: 0, p50: null, p95: null }; };
   // frame_ms: the frame's wall time (what a viewer waits for); frame_cpu_ms: its session
   // thread's CPU time (what it cost; an old server without it gives NaN)
   results.frame_wall_ms = { channel_closed: fm(frameMs.closed), channel_open: fm(frameMs.open) };
@@ -137,6 +141,7 @@ try {
   for (const [name, f] of [['wall', results.frame_wall_ms], ['CPU', results.frame_cpu_ms]])
     console.log(`  frame ${name}: channel closed p50 ${f.channel_closed.p50} ms p95 ${f.channel_closed.p95} ms (n ${f.channel_closed.n}); ` +
                 `open p50 ${f.channel_open.p50} ms p95 ${f.channel_open.p95} ms (n ${f.channel_open.n})`);
+  if (results.model_ms) console.log(`  the haptic model's CPU after a frame (one per round, after the frame is published): ${results.model_ms.map(x => x.toFixed(3)).join(', ')} ms`);
   console.log(`  deadline misses ${results.deadline_misses}; fewest binary messages (frames) a viewer got ${results.viewer_frames}`);
   const j = arg('--json', null);
   if (j) writeFileSync(j, JSON.stringify(results, null, 2));
