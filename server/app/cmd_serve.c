@@ -50,6 +50,10 @@ static void usage(FILE *f)
             "  --idle-timeout S    close a WebSocket silent for S seconds (default 300)\n"
             "  --max-sessions-per-addr N  sessions that clients without the token at one address\n"
             "                      may have running (default 0: no cap; not behind a proxy)\n"
+            "  --io-priority N     1..99: run the service thread (WebSocket I/O, haptic forces)\n"
+            "                      SCHED_FIFO at N, so that a busy machine cannot delay a pose;\n"
+            "                      sessions' threads stay normal (needs CAP_SYS_NICE or\n"
+            "                      RLIMIT_RTPRIO; without it a warning, and normal priority)\n"
             "  --verbose           log sessions and connections\n"
             "  --instance K        1..99: this server is instance K behind a proxy; every session\n"
             "                      id ends in K's two digits (docs/deploy.md, docker/nginx.conf)\n"
@@ -151,7 +155,7 @@ static int is_value_flag(const char *a)
                                         "--max-sessions", "--max-clients", "--max-message", "--rate",
                                         "--grace", "--precision", "--instance", "--frame-budget",
                                         "--max-conns", "--max-conns-per-addr", "--idle-timeout",
-                                        "--max-sessions-per-addr", NULL};
+                                        "--max-sessions-per-addr", "--io-priority", NULL};
     for (int i = 0; flags[i]; i++)
         if (!strcmp(a, flags[i]))
             return 1;
@@ -235,6 +239,8 @@ int sq_cmd_serve(int argc, char **argv)
             rc = int_arg(a, v, 0, 1024, &o.max_sessions_per_addr);
         } else if (!strcmp(a, "--idle-timeout")) {
             rc = num_arg(a, v, 1, 86400, &o.idle_timeout);
+        } else if (!strcmp(a, "--io-priority")) {
+            rc = int_arg(a, v, 1, 99, &o.io_priority);
         } else {
             fprintf(stderr, "squish serve: unknown option '%s'; see squish serve --help\n", a);
             return 2;

@@ -21,6 +21,7 @@ static int on_receive(server *srv, struct lws *wsi, client *c, const void *in, s
 {
     if (!c)
         return -1;
+    double t_read = sq_now(); /* a pose's read time: its channel's latency starts here */
     if (lws_is_first_fragment(wsi)) {
         c->rx_len = 0;
         c->rx_oversize = 0;
@@ -44,7 +45,7 @@ static int on_receive(server *srv, struct lws *wsi, client *c, const void *in, s
     /* messages not read as JSON: their errors say "ref": null */
     static const sq_request unread = {.ref_kind = SQ_REF_NULL};
     if (c->rx_binary && !c->rx_oversize && sq_haptic_is_message((unsigned char *)c->rx, c->rx_len)) {
-        net_haptic_binary(c, (unsigned char *)c->rx, c->rx_len);
+        net_haptic_binary(c, (unsigned char *)c->rx, c->rx_len, t_read);
     } else if (c->rx_binary) {
         net_send_error(c, &unread, SQ_CODE_BAD_JSON, "binary messages are not accepted; send JSON text");
     } else if (c->rx_oversize) {

@@ -3,9 +3,14 @@
  * A realtime frame goes into a one-slot-per-body mailbox of the client (a newer frame
  * replaces an unsent one: the client skips it, counted), everything else into its bounded
  * FIFO (a client that stops reading is dropped). Writes happen only in SERVER_WRITEABLE, one
- * message per callback (net_write_one). Refused requests are counted here for /metrics.
+ * message per callback (net_write_one), at most PASS_WRITES per service pass to clients
+ * without a haptic channel (the others are asked again for the next pass): a frame's fan-out
+ * to many viewers is spread over a few passes, and a haptic pose that arrives meanwhile is
+ * read after at most PASS_WRITES writes instead of after all of them. Refused requests are
+ * counted here for /metrics.
  */
 #include "net/server.h"
+#include "net/haptic_ws.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -116,6 +121,10 @@ int net_write_one(client *c)
 {
     if (c->closing)
         return -1;
+    if (!c->haptic && c->srv->pass_writes >= PASS_WRITES) {
+        lws_callback_on_writable(c->wsi); /* this pass has written its share: the next one */
+        return 0;
+    }
     sq_blob *b = NULL;
     if (c->fcount) {
         b = c->fifo[c->fhead];
@@ -143,6 +152,10 @@ int net_write_one(client *c)
         c->sess->bytes_sent += b->len;
     c->srv->bytes_out += b->len;
     size_t len = b->len;
+    if (c->haptic && b->binary && len == SQ_HAPTIC_FORCE_BYTES && sq_haptic_is_message(b->msg, len))
+        net_haptic_written(c, b);
+    else if (!c->haptic)
+        c->srv->pass_writes++;
     sq_blob_unref(b);
     if (n < (int)len)
         return -1;

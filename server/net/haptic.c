@@ -255,6 +255,29 @@ void sq_haptic_hub_init(sq_haptic_hub *h)
         h->live[i].tool = -1;
 }
 
+void sq_haptic_latency_add(sq_haptic_latency *l, double seconds)
+{
+    double us = seconds * 1e6;
+    int k = us <= 1 ? 0 : (int)ceil(4 * log2(us));
+    l->bins[k < SQ_HAPTIC_LAT_BINS ? k : SQ_HAPTIC_LAT_BINS - 1]++;
+    l->n++;
+    if (seconds > l->max)
+        l->max = seconds;
+}
+
+double sq_haptic_latency_quantile(const sq_haptic_latency *l, double p)
+{
+    if (l->n <= 0)
+        return 0;
+    long want = (long)ceil(p * (double)l->n), seen = 0;
+    for (int k = 0; k < SQ_HAPTIC_LAT_BINS; k++) {
+        seen += l->bins[k];
+        if (seen >= want && seen > 0)
+            return fmin(1e-6 * exp2(k / 4.0), l->max);
+    }
+    return l->max;
+}
+
 void sq_haptic_live_publish(sq_haptic_hub *h, int i, int tool, const double *pos)
 {
     sq_haptic_live *L = &h->live[i];
@@ -362,6 +385,7 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
 {
     if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
         return;
+    const double c0 = sq_thread_cpu();
     int n = 0, ids[SQ_MAX_TOOLS];
     pthread_mutex_lock(&h->mu);
     for (int i = 0; i < SQ_MAX_TOOLS; i++)
@@ -417,5 +441,6 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
                 h->ch[i].model_valid = valid[k];
                 h->ch[i].model_frame = w->frame;
             }
+    h->model_cpu_s = sq_thread_cpu() - c0;
     pthread_mutex_unlock(&h->mu);
 }

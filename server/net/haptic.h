@@ -78,6 +78,19 @@ typedef struct sq_haptic_out {
 void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out);
 
+/* the server's own share of a pose's round trip, pose read (its receive callback) to force
+ * written (lws_write returned): a histogram of 2^(k/4) us bins, k = 0 .. SQ_HAPTIC_LAT_BINS-1
+ * (1 us .. 0.9 s, 19 % wide), since the channel opened */
+#define SQ_HAPTIC_LAT_BINS 80
+typedef struct sq_haptic_latency {
+    uint32_t bins[SQ_HAPTIC_LAT_BINS];
+    long n;
+    double max;                      /* s */
+} sq_haptic_latency;
+void sq_haptic_latency_add(sq_haptic_latency *l, double seconds);
+/* the p-quantile (0 < p <= 1), s: the upper edge of its bin (at most max); 0 with no sample */
+double sq_haptic_latency_quantile(const sq_haptic_latency *l, double p);
+
 /* one open channel */
 typedef struct sq_haptic_channel {
     uint32_t id;                     /* 0: free slot */
@@ -98,6 +111,7 @@ typedef struct sq_haptic_channel {
     double tokens, last_refill;      /* rate limit */
     double last_error;               /* time of the last error message sent (1 per s) */
     long poses, answered, dropped_rate, dropped_bad;
+    sq_haptic_latency latency;       /* answered poses: read to written (service thread) */
 } sq_haptic_channel;
 
 /* the newest coupled tool position of a channel slot for the step's substeps: a seqlock
@@ -115,6 +129,7 @@ typedef struct sq_haptic_hub {
     uint32_t next_id;
     long bad_channel;                /* poses on a channel the sender does not own */
     long bad_pose;                   /* pose messages that could not be decoded */
+    double model_cpu_s;              /* session-thread CPU time of the last frame's models, s */
     sq_haptic_channel ch[SQ_MAX_TOOLS];
     sq_haptic_live live[SQ_MAX_TOOLS]; /* per slot of ch, never cleared by an opening */
     /* the frame's ramps (session thread only: set by sq_haptic_before_frame) */

@@ -11,6 +11,7 @@
 
 #include "net/server.h"
 #include "net/haptic_ws.h"
+#include "net/le.h"
 
 /* the ref of a raw request object, for the reply */
 static void read_ref(const cJSON *o, sq_request *req)
@@ -62,6 +63,11 @@ static cJSON *channel_json(const sq_haptic_channel *ch)
     cJSON_AddNumberToObject(o, "dropped_bad", (double)ch->dropped_bad);
     cJSON_AddNumberToObject(o, "model_frame", (double)ch->model_frame);
     cJSON_AddNumberToObject(o, "model_nodes", ch->model_valid ? ch->model.nnodes : 0);
+    cJSON *l = cJSON_AddObjectToObject(o, "latency");
+    cJSON_AddNumberToObject(l, "n", (double)ch->latency.n);
+    cJSON_AddNumberToObject(l, "p50", 1e3 * sq_haptic_latency_quantile(&ch->latency, 0.5));
+    cJSON_AddNumberToObject(l, "p99", 1e3 * sq_haptic_latency_quantile(&ch->latency, 0.99));
+    cJSON_AddNumberToObject(l, "max", 1e3 * ch->latency.max);
     return o;
 }
 
@@ -75,6 +81,7 @@ cJSON *net_haptic_stats_json(sq_session *s)
             cJSON_AddItemToArray(a, channel_json(&s->haptic.ch[i]));
     cJSON_AddNumberToObject(o, "bad_channel", (double)s->haptic.bad_channel);
     cJSON_AddNumberToObject(o, "bad_pose", (double)s->haptic.bad_pose);
+    cJSON_AddNumberToObject(o, "model_ms", 1e3 * s->haptic.model_cpu_s);
     pthread_mutex_unlock(&s->haptic.mu);
     return o;
 }
@@ -234,6 +241,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
         __atomic_add_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
     }
     ch->owner = c->serial;
+    c->haptic = 1;
     ch->shape = shape;
     if (ramp)
         ch->ramp = cJSON_IsTrue(ramp);
@@ -274,20 +282,39 @@ static void pose_error(client *c, double *last, sq_net_code code, const char *ms
     net_send_error(c, &none, code, msg);
 }
 
+/* the read-to-written time of a force of channel id (slot of hub h) */
+static void record_latency(sq_session *s, uint32_t id, double seconds)
+{
+    sq_haptic_hub *h = &s->haptic;
+    pthread_mutex_lock(&h->mu);
+    for (int i = 0; i < SQ_MAX_TOOLS; i++)
+        if (h->ch[i].id && h->ch[i].id == id)
+            sq_haptic_latency_add(&h->ch[i].latency, seconds);
+    pthread_mutex_unlock(&h->mu);
+}
+
 /* a force out: written now, from the pose's receive callback, when nothing waits in the
  * client's queue and its socket takes it without blocking (lws_send_pipe_choked); else
- * queued like any reply. Through the queue it would wait for the next pass of the service
- * loop's writeable callbacks, behind the frames that pass writes to every viewer (20 of them
- * in tests/net/bench-haptic.mjs), which is the tail of the channel's round trip */
-static void send_force(client *c, sq_blob *b)
+ * queued like any reply (timed when written: net_haptic_written). The pose's receive
+ * callback comes at most PASS_WRITES other clients' writes after the pass began (clients.c),
+ * and the force does not wait for the next writeable pass behind the frames that pass writes
+ * to every viewer (20 of them in tests/net/bench-haptic.mjs) */
+static void send_force(client *c, sq_blob *b, uint32_t id, uint32_t seq, double t_read)
 {
     if (c->closing || c->fcount > 0 || lws_send_pipe_choked(c->wsi)) {
+        if (c->hq_n < HQ_MAX && !c->closing) {
+            int k = (c->hq_head + c->hq_n++) % HQ_MAX;
+            c->hq_read[k] = t_read;
+            c->hq_seq[k] = seq;
+        }
         net_fifo_push(c, b);
         return;
     }
     int n = lws_write(c->wsi, b->msg, b->len, LWS_WRITE_BINARY);
-    if (c->sess)
+    if (c->sess) {
         c->sess->bytes_sent += b->len;
+        record_latency(c->sess->s, id, sq_now() - t_read);
+    }
     c->srv->bytes_out += b->len;
     if (n < (int)b->len) { /* a failed connection: closed from its next writeable callback */
         c->closing = 1;
@@ -296,7 +323,20 @@ static void send_force(client *c, sq_blob *b)
     sq_blob_unref(b);
 }
 
-void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
+void net_haptic_written(client *c, const sq_blob *b)
+{
+    if (!c->hq_n || !c->sess)
+        return;
+    uint32_t id = get_u32(b->msg + 8), seq = get_u32(b->msg + 12);
+    if (c->hq_seq[c->hq_head] != seq)
+        return; /* queued while the ring was full: not timed */
+    double t_read = c->hq_read[c->hq_head];
+    c->hq_head = (c->hq_head + 1) % HQ_MAX;
+    c->hq_n--;
+    record_latency(c->sess->s, id, sq_now() - t_read);
+}
+
+void net_haptic_binary(client *c, const unsigned char *msg, size_t len, double t_read)
 {
     sq_haptic_pose p;
     char why[200];
@@ -370,5 +410,5 @@ void net_haptic_binary(client *c, const unsigned char *msg, size_t len)
     pthread_mutex_unlock(&h->mu);
     sq_blob *b = sq_blob_new(SQ_HAPTIC_FORCE_BYTES, 1);
     sq_haptic_force_encode(p.channel, p.seq, frame, p.t, &out, b->msg);
-    send_force(c, b);
+    send_force(c, b, p.channel, p.seq, t_read);
 }

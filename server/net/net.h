@@ -279,6 +279,8 @@ typedef struct sq_serve_options {
     int max_sessions_per_addr; /* sessions opened without the token from one address that may
                                   run at once, 0 = no cap (behind a proxy every client shares
                                   the proxy's address) */
+    int io_priority;         /* 0: normal; 1..99: the service thread runs SCHED_FIFO at it
+                                (threads it starts reset to normal) */
 } sq_serve_options;
 
 sq_serve_options sq_serve_options_default(void);

@@ -216,6 +216,7 @@ cJSON *net_stats_json(server *srv, srec *r, client *c, const sq_request *req)
     cJSON_AddBoolToObject(o, "paused", p->paused);
     cJSON_AddNumberToObject(o, "budget_used", p->budget_used);
     cJSON_AddNumberToObject(o, "frame_ms", 1e3 * p->frame_s);
+    cJSON_AddNumberToObject(o, "frame_cpu_ms", 1e3 * p->frame_cpu_s);
     cJSON_AddNumberToObject(o, "deadline_misses", (double)p->deadline_misses);
     cJSON_AddNumberToObject(o, "overruns", (double)p->overruns);
     cJSON_AddNumberToObject(o, "resets", (double)p->resets);

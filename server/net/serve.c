@@ -9,7 +9,9 @@
 #include "net/server.h"
 
 #include <dirent.h>
+#include <errno.h>
 #include <math.h>
+#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <sys/resource.h>
@@ -265,6 +267,20 @@ static int fit_fd_limit(int max_conns)
     return max_conns;
 }
 
+/* --io-priority: the calling (service) thread SCHED_FIFO at prio, with SCHED_RESET_ON_FORK,
+ * so that the session threads it starts later run at normal priority. Only the service
+ * thread, whose work per wake-up is bounded (PASS_WRITES), preempts the rest of the machine:
+ * a pose is read when it arrives, not when the scheduler gets round to it. */
+static void raise_io_priority(int prio)
+{
+    if (prio <= 0)
+        return;
+    struct sched_param sp = {.sched_priority = prio};
+    if (sched_setscheduler(0, SCHED_FIFO | SCHED_RESET_ON_FORK, &sp))
+        fprintf(stderr, "squish serve: --io-priority %d: %s (needs CAP_SYS_NICE or an RLIMIT_RTPRIO "
+                "of at least %d); the service thread keeps normal priority\n", prio, strerror(errno), prio);
+}
+
 /* the listening line on stdout: address, viewer, scenes */
 static void print_listening(const server *srv, int port, int builtin)
 {
@@ -307,6 +323,7 @@ static void shutdown_sessions(server *srv)
     }
     double until = sq_now() + 0.3;
     while (sq_now() < until) {
+        srv->pass_writes = 0;
         lws_service(srv->ctx, 0);
         int busy = 0;
         for (int i = 0; i < srv->nslots; i++)
@@ -410,6 +427,7 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     srv.conns = sq_conns_new(max_conns, opt->max_conns_per_addr);
     srv.guard = sq_guard_new();
 
+    raise_io_priority(opt->io_priority); /* before any thread is started */
     srv.snapshotter = sq_snapshotter_start(net_wake, &srv);
     srv.ctx = lws_create_context(&info);
     if (!srv.ctx) {
@@ -429,9 +447,11 @@ int sq_serve(const sq_serve_options *opt, sq_err *err)
     signal(SIGPIPE, SIG_IGN);
 
     lws_sul_schedule(srv.ctx, 0, &srv.sul, net_tick, TICK_US);
-    while (!interrupted)
+    while (!interrupted) {
+        srv.pass_writes = 0; /* the pass's budget of writes (PASS_WRITES, clients.c) */
         if (lws_service(srv.ctx, 0) < 0)
             break;
+    }
 
     /* clean shutdown: tell the clients, flush for a moment, then close everything; every
      * session thread is told to stop first, so that frames in progress end together */

@@ -28,6 +28,10 @@
 
 _Static_assert(LWS_PRE <= SQ_BLOB_PRE, "blob headroom must hold LWS_PRE");
 
+#define HQ_MAX 64                /* queued haptic forces per client whose latency is timed */
+#define PASS_WRITES 4            /* messages written per service pass to clients without a
+                                    haptic channel: the rest wait for the next pass, so that
+                                    a pose never waits behind a whole fan-out of frames */
 #define FIFO_MAX 4096            /* queued messages per client before it is dropped */
 #define FIFO_MAX_BYTES (32u << 20) /* queued bytes per client before it is dropped */
 #define CLIENT_MAX_JOBS 64       /* requests of one client waiting for its session thread */
@@ -75,6 +79,11 @@ typedef struct client {
     uint64_t nodes_mark;             /* `pushed` when the whole nodes reply was queued */
     char addr[SQ_ADDR_MAX];          /* peer address */
     double haptic_last_error;        /* when this client last got a haptic pose error */
+    int haptic;                      /* 1: it has opened a haptic channel: its writes are not
+                                        held back by the per-pass budget (PASS_WRITES) */
+    double hq_read[HQ_MAX];          /* read times of its forces waiting in the FIFO, oldest */
+    uint32_t hq_seq[HQ_MAX];         /* first (a ring from hq_head), with their poses' seq */
+    int hq_head, hq_n;               /* beyond HQ_MAX waiting forces are not timed */
 } client;
 
 /* per-connection data lws allocates: a WebSocket client, or a waiting snapshot request */
@@ -130,6 +139,8 @@ typedef struct server {
     sq_guard *guard;                 /* wrong tokens per address */
     /* counters for /metrics */
     uint64_t bytes_out;              /* WebSocket message bytes written */
+    int pass_writes;                 /* messages written in this service pass (serve.c's loop
+                                        clears it before each lws_service) */
     long frames_ended, misses_ended, resets_ended; /* of sessions that ended */
     int nrefused;
     struct { const char *code; long n; } refused[48]; /* error replies and HTTP statuses */

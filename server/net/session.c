@@ -205,7 +205,7 @@ void sq_session_sync_tool_ids(sq_session *s)
 
 /* encode the current state of every body and post it (kind < 0: only keep it as the newest
  * frame, for clients that join) */
-static void publish(sq_session *s, int kind, double frame_s)
+static void publish(sq_session *s, int kind, double frame_s, double cpu_s)
 {
     sq_world *w = s->world;
     sq_blob *frames[SQ_MAX_BODIES];
@@ -237,6 +237,8 @@ static void publish(sq_session *s, int kind, double frame_s)
     if (kind >= 0 && sq_net_obstacles_move(s->scene))
         sq_session_post_locked(s, SQ_OUT_TEXT, 0, 0, sq_reply_blob(sq_obstacles_frame_json(w)));
     snapshot_locked(s, frame_s);
+    if (frame_s >= 0)
+        s->snap.frame_cpu_s = cpu_s;
     pthread_mutex_unlock(&s->mu);
 }
 
@@ -281,8 +283,15 @@ void sq_session_step_frame(sq_session *s, sq_out_kind kind)
     sq_world_set_pose_source(s->world, sq_haptic_pose_source(&s->haptic, s->lockstep), &s->haptic);
     sq_world_step(s->world, s->lockstep ? 0 : s->period);
     budget_account(s, sq_thread_cpu() - c0);
-    sq_haptic_after_frame(&s->haptic, s->world); /* the channels' models, outside the budget */
-    publish(s, kind, sq_now() - t0);
+    /* the channels' models, outside the budget. Real time: after the frame is published, so
+     * that the channel delays no frame (the poses meanwhile get the last frame's model, as
+     * between any two frames); lockstep: before it, so that the poses a client sends once it
+     * has the step's frames get that frame's model (deterministic) */
+    if (s->lockstep)
+        sq_haptic_after_frame(&s->haptic, s->world);
+    publish(s, kind, sq_now() - t0, sq_thread_cpu() - c0);
+    if (!s->lockstep)
+        sq_haptic_after_frame(&s->haptic, s->world);
 }
 
 
@@ -320,7 +329,7 @@ static int setup(sq_session *s)
     char *bj = sq_bodies_json(s);
     /* frame 0 is kept before the session says it is ready: every client gets it with its
      * opened/joined (published after READY, a client served in between had no frame 0) */
-    publish(s, -1, 0);
+    publish(s, -1, 0, 0);
     pthread_mutex_lock(&s->mu);
     s->nbodies = w->nbodies;
     for (int b = 0; b < w->nbodies; b++)
@@ -411,7 +420,7 @@ static void *session_main(void *arg)
         if (!s->lockstep && !s->paused && !idle)
             sq_session_step_frame(s, SQ_OUT_FRAME);
         else if (changed && !s->lockstep)
-            publish(s, SQ_OUT_FRAME, -1); /* paused: show tool moves, resets, settings */
+            publish(s, SQ_OUT_FRAME, -1, 0); /* paused: show tool moves, resets, settings */
         s->wake(s->wake_arg);
 
         if (!s->lockstep) {

@@ -52,7 +52,9 @@ typedef struct sq_snapshot {
     long frame;
     double time;
     int paused;
-    double frame_s;                  /* compute time of the last frame, s */
+    double frame_s;                  /* compute time of the last frame, s (wall clock) */
+    double frame_cpu_s;              /* its session thread's CPU time, s (step and haptic
+                                        models: what the frame cost, whatever else ran) */
     double budget_used;              /* frame_s / period */
     long deadline_misses, resets;
     long overruns;                   /* frames whose compute alone exceeded the period */

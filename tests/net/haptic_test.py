@@ -202,6 +202,7 @@ def test_input(url):
     # the flood: 20 kHz for 2 s on the controller's channel while the viewer counts frames
     pose = [encode_pose(ch, 1000 + k, 1 + k * 5e-5, (0.5, 0.5, 1.07)) for k in range(40000)]
     b0, tb = v.frames_received, time.time()
+    vs0 = v.stats()
     time.sleep(2.0)  # the viewer's frame rate without the flood, the baseline
     base = (v.frames_received - b0) / (time.time() - tb)
     f0 = v.frames_received
@@ -221,9 +222,17 @@ def test_input(url):
     time.sleep(0.3)
     fr = (v.frames_received - f0) / (time.time() - t0)
     st = c.stats()["haptic"]["channels"][0]
+    vs1 = v.stats()
     rate = len(pose) / elapsed
+    # which side a low frame rate comes from: frames the session did not step in time (its
+    # deadline misses: a loaded machine) or frames the server stepped but skipped for this
+    # viewer (a newer one replaced an unsent one: the viewer did not read, or the service
+    # thread did not write); both counted from before the baseline to after the flood
     print(f"# flood: {len(pose)} poses in {elapsed:.2f} s ({rate:.0f}/s), answered {len(got)}, "
-          f"dropped_rate {st['dropped_rate']}, viewer {fr:.1f} frames/s")
+          f"dropped_rate {st['dropped_rate']}, viewer {fr:.1f} frames/s; since the baseline the session "
+          f"stepped {vs1['frame'] - vs0['frame']} frames, {vs1['deadline_misses'] - vs0['deadline_misses']} "
+          f"of them late (deadline misses), and skipped {vs1['skipped'] - vs0['skipped']} for the viewer; "
+          f"load {os.getloadavg()[0]:.2f}")
     check(rate > 15000, f"the flood ran at {rate:.0f} poses/s (> 15 kHz)")
     check(st["dropped_rate"] > 0 and len(got) <= 2000 * (elapsed + 0.5) + 100,
           f"the channel answered at most max_rate ({len(got)} in {elapsed:.2f} s), dropped {st['dropped_rate']}")
