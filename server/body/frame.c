@@ -34,6 +34,31 @@ static void add_feedback(const sq_body *b, const sq_level *L, int nk, int ntools
     }
 }
 
+/* an implicit frame's step s of nsub with live tools: the held nodes' targets from the newest
+ * poses (the mean of their holds' targets, as the frame's start made them), and their velocity
+ * re-aimed to reach them by the frame's end (the steps move held nodes by h v) */
+static void live_holds_implicit(sq_body *b, sq_level *L, int nk, int s, int nsub)
+{
+    if (!sq_body_live_refresh(b, (double)s / nsub))
+        return;
+    for (int k = 0; k < nk; k++)
+        memset(b->khold[k].target, 0, sizeof b->khold[k].target);
+    for (int h = 0; h < b->nholds; h++) {
+        const double *t = b->live_on[h] ? b->live_target + 3 * (size_t)h : b->holds[h].target;
+        for (int c = 0; c < 3; c++)
+            b->khold[b->khold_of[h]].target[c] += t[c];
+    }
+    const double left = b->def.frame_dt * (nsub - s) / nsub;
+    for (int k = 0; k < nk; k++) {
+        const int i = b->khold[k].node;
+        for (int c = 0; c < 3; c++) {
+            b->khold[k].target[c] /= b->kcount[k];
+            if (!(L->model.fixed[i] & (1u << c)))
+                L->state.v[3 * (size_t)i + c] = (b->khold[k].target[c] - L->state.d[3 * (size_t)i + c]) / left;
+        }
+    }
+}
+
 /* the implicit frame's steps (level/implicit.c): substeps backward Euler steps of
  * frame_dt / substeps, held nodes projected out; feedback from the force at each step's end
  * state; CG stopped by the frame budget when there is one (budget_s > 0); the held nodes put
@@ -62,6 +87,8 @@ static int implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
     sq_implicit_stats st, tot;
     memset(&tot, 0, sizeof tot);
     for (int s = 0; s < nsub; s++) {
+        if (b->live && nk) /* the newest poses before each step (a haptic channel) */
+            live_holds_implicit(b, L, nk, s, nsub);
         sq_body_contact_constraints(b, L, h);
         sq_level_implicit_step(&L->model, &L->state, mat, g, h, nk ? b->mask[b->cur] : NULL, def, deadline, &st);
         sq_level_implicit_set_contacts(&L->model, &L->state, NULL);

@@ -169,7 +169,7 @@ void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools)
 {
     b->live = 0;
     memset(b->live_tool, 0, sizeof b->live_tool);
-    if (!b->pose_fn || b->nholds == 0 || b->def.integrator == SQ_INTEGRATOR_IMPLICIT)
+    if (!b->pose_fn || b->nholds == 0)
         return;
     for (int t = 0; t < ntools && t < SQ_MAX_TOOLS; t++) {
         double p[3];

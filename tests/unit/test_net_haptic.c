@@ -250,6 +250,43 @@ SQ_TEST(net_haptic_live_pose_fixed_substep)
     sq_mesh_free(m);
 }
 
+/* an implicit body (backward Euler, 4 steps a frame) takes the newest pose before each step:
+ * the held node is re-aimed at the moved target and ends the frame on it, 1 mm up (a grab
+ * follows the tool); without the live pose it would end at the frame start's target */
+SQ_TEST(net_haptic_live_pose_implicit_step)
+{
+    sq_mesh *m;
+    sq_tool t;
+    sq_body *b = grab_cube(&m, &t, 1e5);
+    sq_body_def def = *sq_body_get_def(b);
+    def.implicit.substeps = 4;
+    sq_err e = {{0}};
+    CHECK(sq_body_set_integrator(b, SQ_INTEGRATOR_IMPLICIT, &def.implicit, &e) == 0);
+    sq_tool_feedback fb;
+    for (int k = 0; k < 3; k++)
+        sq_body_frame(b, &t, 1, &fb, NULL, 0);
+    CHECK(b->nholds > 0);
+    const int node = b->holds[0].node;
+    const double z_start = b->level[0].state.d[3 * (size_t)node + 2];
+    /* the pose moves 1 mm up from the second step's call on (call 0 is the frame's start) */
+    live_probe p = {.dz = 1e-3, .switch_at = 2, .d = b->level[0].state.d, .node = node};
+    memcpy(p.base, t.pos, sizeof p.base);
+    sq_body_set_pose_source(b, live_source, &p);
+    sq_body_frame(b, &t, 1, &fb, NULL, 0);
+    const double z_end = b->level[0].state.d[3 * (size_t)node + 2];
+    printf("    calls %d; held node z: start %.6g, before the steps %.6g %.6g %.6g %.6g, end %.6g m\n", p.calls,
+           z_start, p.z[1], p.z[2], p.z[3], p.z[4], z_end);
+    CHECK(p.calls == 5); /* the frame's start and one call before each of the 4 steps */
+    /* the grab held the node still in the frames before: it ends 1 mm up (to round-off) */
+    CHECK_NEAR(z_end - z_start, 1e-3, 1e-12);
+    /* steps 1..3 move it by a third of the millimetre each (re-aimed before step 1) */
+    CHECK(p.z[2] == p.z[1]);
+    CHECK_NEAR(p.z[3] - p.z[2], 1e-3 / 3, 1e-12);
+    sq_body_set_pose_source(b, NULL, NULL);
+    sq_body_destroy(b);
+    sq_mesh_free(m);
+}
+
 /* the adaptive tests' poked cube (lh_poke_def, three levels, no gravity): under the sharp bound
  * (the default) its frame has 8 ticks (Gershgorin: 32); the two-level cube the test had before
  * has 4 under it, too few for the six calls the test reads */
