@@ -12,7 +12,7 @@
 #include "sq_test.h"
 #include "test_scene_helpers.h"
 
-/* the fixed test's lod (contact_two_bodies_squeezed_equal_and_opposite): one level, cube_l1 */
+/* the fixed pair's lod (contact_two_bodies_squeezed_equal_and_opposite): one level, cube_l1 */
 #define LOD_FIXED1 "\"levels\": [\"../cube/cube_l1.msh\"], \"lod\": {\"mode\": \"fixed\"}"
 /* adaptive on cube_l0 (44 nodes) and cube_l1 (142, the fixed test's mesh as the finest); the
  * thresholds leave the squeezed blocks mixed (about 26 level-0 and 65 level-1 active nodes):
@@ -101,6 +101,18 @@ static void squeeze_bars(const char *left, const char *right, const char *label)
     CHECK(w->resets == 0);
     sq_world_destroy(w);
     sq_scene_free(sc);
+}
+
+/* two blocks squeezed without gravity: the right one glued on its far face, the left one free
+ * and pushed 2 cm by a box tool: the contact forces on the two are equal and opposite within
+ * 1 % (by construction: every impulse has its opposite), the right block pushes back, nothing
+ * resets. Penetration: the issue's bar, no node of one inside the other deeper than 1 % of the
+ * 0.2 m edge (2 mm), over the last 20 frames (the tool at rest); measured 0.59 mm (0.29 %)
+ * since a node found inside leaves by a position move (docs/physics.md section 13); with the
+ * earlier exit at half the depth per step it was 2.13 mm (1.07 %) */
+SQ_TEST(contact_two_bodies_squeezed_equal_and_opposite)
+{
+    squeeze_bars(LOD_FIXED1, LOD_FIXED1, "fixed against fixed");
 }
 
 SQ_TEST(contact_adaptive_bodies_squeezed_equal_and_opposite)
