@@ -10,4 +10,27 @@
 /* sources of every ring ghost */
 void sq_lodx_build_sources(sq_lod *lod);
 
+/* one step of the hierarchy's interpolation of node j of level lev that is not active: a coarse
+ * node (ST_COARSE) takes the values of its tet one level coarser, a refined one those of its
+ * tet one level finer. Returns that tet's four nodes (at level *m, barycentric weights *b), or
+ * NULL at the ends of the hierarchy */
+static inline const int *sq_lodx_interp_tet(const sq_lod *lod, int lev, int j, int coarse, int *m, const double **b)
+{
+    int t;
+    if (coarse) {
+        if (lev == 0)
+            return NULL;
+        *m = lev - 1;
+        t = lod->h.link[*m].up_tet[j];
+        *b = lod->h.link[*m].up_bary + 4 * (size_t)j;
+    } else {
+        if (lev + 1 >= lod->L)
+            return NULL;
+        *m = lev + 1;
+        t = lod->h.link[lev].down_tet[j];
+        *b = lod->h.link[lev].down_bary + 4 * (size_t)j;
+    }
+    return lod->lv[*m].model.mesh->tets + 4 * (size_t)t;
+}
+
 #endif

@@ -10,6 +10,7 @@
  * ring's rule, ring.c states why). The map is rebuilt only when the node states change.
  */
 #include "lod/lod.h"
+#include "lod/ring.h"
 #include "lod/surface.h"
 
 #include <math.h>
@@ -36,22 +37,11 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, term 
     }
     if (depth > lod->L)
         return;
-    int m, t;
+    int m;
     const double *b;
-    if (st == ST_COARSE) {
-        if (lev == 0)
-            return;
-        m = lev - 1;
-        t = lod->h.link[m].up_tet[j];
-        b = lod->h.link[m].up_bary + 4 * (size_t)j;
-    } else {
-        if (lev + 1 >= lod->L)
-            return;
-        m = lev + 1;
-        t = lod->h.link[lev].down_tet[j];
-        b = lod->h.link[lev].down_bary + 4 * (size_t)j;
-    }
-    const int *tn = lod->lv[m].model.mesh->tets + 4 * (size_t)t;
+    const int *tn = sq_lodx_interp_tet(lod, lev, j, st == ST_COARSE, &m, &b);
+    if (!tn)
+        return;
     for (int q = 0; q < 4; q++)
         if (b[q] != 0)
             expand(lod, m, tn[q], w * b[q], depth + 1, buf, n);
