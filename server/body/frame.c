@@ -34,28 +34,57 @@ static void add_feedback(const sq_body *b, const sq_level *L, int nk, int ntools
     }
 }
 
-/* an implicit frame's step s of nsub with live tools: the held nodes' targets from the newest
- * poses (the mean of their holds' targets, as the frame's start made them), and their velocity
- * re-aimed to reach them by the frame's end (the steps move held nodes by h v) */
+/* the newest haptic poses (sq_body_set_pose_source) at fraction frac of the frame: live_shift of
+ * each khold a live hold feeds, the summed change of its holds' targets since the frame's start
+ * (zero from sq_body_live_begin until a pose changes); 0 when no pose changed */
+static int live_shifts(sq_body *b, double frac)
+{
+    if (!sq_body_live_refresh(b, frac))
+        return 0;
+    for (int h = 0; h < b->nholds; h++)
+        if (b->live_on[h])
+            memset(b->live_shift + 3 * (size_t)b->khold_of[h], 0, 3 * sizeof(double));
+    for (int h = 0; h < b->nholds; h++)
+        if (b->live_on[h])
+            for (int c = 0; c < 3; c++)
+                b->live_shift[3 * (size_t)b->khold_of[h] + c] += b->live_target[3 * (size_t)h + c] - b->holds[h].target[c];
+    return 1;
+}
+
+/* khold k's target with the newest poses: its frame-start target plus the mean change */
+static double live_target_of(const sq_body *b, int k, int c)
+{
+    return b->khold[k].target[c] + (b->live ? b->live_shift[3 * (size_t)k + c] / b->kcount[k] : 0);
+}
+
+/* an explicit substep with live tools: the nodes they hold moved to the newest poses
+ * (constrained axes stay) */
+static void live_holds_fixed(sq_body *b, sq_level *L, double frac)
+{
+    if (!live_shifts(b, frac))
+        return;
+    for (int h = 0; h < b->nholds; h++) {
+        if (!b->live_on[h])
+            continue;
+        int k = b->khold_of[h], i = b->khold[k].node;
+        for (int c = 0; c < 3; c++)
+            if (!(L->model.fixed[i] & (1u << c)))
+                L->state.d[3 * (size_t)i + c] = live_target_of(b, k, c);
+    }
+}
+
+/* an implicit frame's step s of nsub with live tools: the held nodes' velocity re-aimed at
+ * the newest targets, reached at the frame's end (the steps move held nodes by h v) */
 static void live_holds_implicit(sq_body *b, sq_level *L, int nk, int s, int nsub)
 {
-    if (!sq_body_live_refresh(b, (double)s / nsub))
+    if (!live_shifts(b, (double)s / nsub))
         return;
-    for (int k = 0; k < nk; k++)
-        memset(b->khold[k].target, 0, sizeof b->khold[k].target);
-    for (int h = 0; h < b->nholds; h++) {
-        const double *t = b->live_on[h] ? b->live_target + 3 * (size_t)h : b->holds[h].target;
-        for (int c = 0; c < 3; c++)
-            b->khold[b->khold_of[h]].target[c] += t[c];
-    }
     const double left = b->def.frame_dt * (nsub - s) / nsub;
     for (int k = 0; k < nk; k++) {
         const int i = b->khold[k].node;
-        for (int c = 0; c < 3; c++) {
-            b->khold[k].target[c] /= b->kcount[k];
+        for (int c = 0; c < 3; c++)
             if (!(L->model.fixed[i] & (1u << c)))
-                L->state.v[3 * (size_t)i + c] = (b->khold[k].target[c] - L->state.d[3 * (size_t)i + c]) / left;
-        }
+                L->state.v[3 * (size_t)i + c] = (live_target_of(b, k, c) - L->state.d[3 * (size_t)i + c]) / left;
     }
 }
 
@@ -119,7 +148,7 @@ static int implicit_steps(sq_body *b, sq_level *L, int nk, int ntools, double (*
         int i = b->khold[k].node;
         for (int c = 0; c < 3; c++)
             if (!(L->model.fixed[i] & (1u << c)))
-                L->state.d[3 * (size_t)i + c] = b->khold[k].target[c];
+                L->state.d[3 * (size_t)i + c] = live_target_of(b, k, c);
     }
     return nsub;
 }
@@ -138,29 +167,6 @@ static void save_frame_start(sq_body *b, const sq_level *L)
     memcpy(b->save_d, L->state.d, sizeof(double) * n3);
     memcpy(b->save_v, L->state.v, sizeof(double) * n3);
     sq_level_corot_save(&L->state, b->save_q);
-}
-
-/* a substep of a frame with live tools: the nodes they hold moved to the newest poses (the
- * khold's target plus the mean change of its holds' targets; constrained axes stay) */
-static void live_holds_fixed(sq_body *b, sq_level *L, double frac)
-{
-    if (!sq_body_live_refresh(b, frac))
-        return;
-    for (int h = 0; h < b->nholds; h++)
-        if (b->live_on[h])
-            memset(b->live_shift + 3 * (size_t)b->khold_of[h], 0, 3 * sizeof(double));
-    for (int h = 0; h < b->nholds; h++)
-        if (b->live_on[h])
-            for (int c = 0; c < 3; c++)
-                b->live_shift[3 * (size_t)b->khold_of[h] + c] += b->live_target[3 * (size_t)h + c] - b->holds[h].target[c];
-    for (int h = 0; h < b->nholds; h++) {
-        if (!b->live_on[h])
-            continue;
-        int k = b->khold_of[h], i = b->khold[k].node;
-        for (int c = 0; c < 3; c++)
-            if (!(L->model.fixed[i] & (1u << c)))
-                L->state.d[3 * (size_t)i + c] = b->khold[k].target[c] + b->live_shift[3 * (size_t)k + c] / b->kcount[k];
-    }
 }
 
 static void load_frame_start(sq_body *b, sq_level *L)

@@ -190,6 +190,7 @@ void sq_body_live_begin(sq_body *b, const sq_tool *tools, int ntools)
         b->live_on = sq_realloc(b->live_on, (size_t)b->nholds);
         b->live_shift = sq_realloc(b->live_shift, sizeof(double) * 3 * (size_t)b->nholds);
     }
+    memset(b->live_shift, 0, sizeof(double) * 3 * (size_t)b->nholds); /* no change yet (frame.c) */
     const sq_mesh *fm = b->def.levels[b->fine];
     for (int h = 0; h < b->nholds; h++) {
         const sq_hold *hd = &b->holds[h];
