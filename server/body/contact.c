@@ -316,18 +316,19 @@ void sq_body_contact_apply(sq_body *b, int before_frame)
     int any = 0;
     if (b->lod)
         any = apply_lod(b, sum);
-    for (int i = 0; !b->lod && i < L->model.n; i++) {
-        double *r = b->reaction + 3 * (size_t)i;
-        if (r[0] == 0 && r[1] == 0 && r[2] == 0)
-            continue;
-        any = 1;
-        if (!L->model.fixed[i] && !(mask && !mask[i]))
+    else
+        for (int i = 0; i < L->model.n; i++) {
+            double *r = b->reaction + 3 * (size_t)i;
+            if (r[0] == 0 && r[1] == 0 && r[2] == 0)
+                continue;
+            any = 1;
+            if (!L->model.fixed[i] && !(mask && !mask[i]))
+                for (int c = 0; c < 3; c++)
+                    L->state.v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
             for (int c = 0; c < 3; c++)
-                L->state.v[3 * (size_t)i + c] += r[c] / L->model.mass[i];
-        for (int c = 0; c < 3; c++)
-            sum[c] += r[c];
-        r[0] = r[1] = r[2] = 0;
-    }
+                sum[c] += r[c];
+            r[0] = r[1] = r[2] = 0;
+        }
     for (int c = 0; c < 3; c++) {
         if (before_frame)
             b->carry[c] += sum[c];

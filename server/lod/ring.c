@@ -37,10 +37,7 @@
 
 #define SOURCE_DEPTH 2
 
-typedef struct src_item {
-    int level, node;
-    double w;
-} src_item;
+typedef sq_lodx_source src_item;
 
 static int cmp_src(const void *pa, const void *pb)
 {
@@ -75,6 +72,56 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_i
             expand(lod, m, tn[q], w * b[q], depth + 1, buf, n, cap);
 }
 
+int sq_lodx_sources_combine(sq_lodx_source *buf, int n, double *sum_out)
+{
+    for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
+        src_item x = buf[i];
+        int q = i - 1;
+        while (q >= 0 && cmp_src(&buf[q], &x) > 0) {
+            buf[q + 1] = buf[q];
+            q--;
+        }
+        buf[q + 1] = x;
+    }
+    /* merge duplicates; the sum is the callers' to divide by */
+    int u = 0;
+    double sum = 0;
+    for (int i = 0; i < n; i++) {
+        if (u > 0 && buf[u - 1].level == buf[i].level && buf[u - 1].node == buf[i].node)
+            buf[u - 1].w += buf[i].w;
+        else
+            buf[u++] = buf[i];
+        sum += buf[i].w;
+    }
+    /* the kept weights must stay a bounded combination: the ghost's stiffness reaches
+     * each source scaled by its weight, twice (value and reaction), so the coupled row
+     * grows as the square of the weights. Negative coordinates (nodes outside the
+     * other mesh) extrapolate exactly only within their full set; once ghost sources
+     * are dropped, what is left can nearly cancel (a sphere's split ghost kept
+     * +0.056 and -0.054: weights of +-19 after dividing by the sum, 190 times the
+     * level's own stiffness on one node). When the negative weights outweigh the net
+     * one (L1 norm above 3 after renormalising; a full coordinate set with one
+     * coordinate down to -1 stays below), keep the positive sources only: a convex
+     * combination, still a translation. */
+    double neg = 0;
+    for (int i = 0; i < u; i++)
+        neg += buf[i].w < 0 ? -buf[i].w : 0;
+    if (neg > 0 && !(sum > neg)) {
+        int p = 0;
+        sum = 0;
+        for (int i = 0; i < u; i++)
+            if (buf[i].w > 0) {
+                buf[p++] = buf[i];
+                sum += buf[i].w;
+            }
+        u = p;
+    }
+    if (!(fabs(sum) > 1e-3))
+        u = 0;
+    *sum_out = sum;
+    return u;
+}
+
 /* the active sources of every ring ghost of every level */
 /* src_rend of every ring ghost's sources: where the run of consecutive sources on the same
  * level as source q ends (the value and reaction loops take one run per level) */
@@ -100,50 +147,9 @@ void sq_lodx_build_sources(sq_lod *lod)
         for (int r = 0; r < lod->lev[k].lay.nring; r++) {
             int n = 0;
             expand(lod, k, lod->lev[k].lay.ring[r], 1.0, 0, &buf, &n, &cap);
-            for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
-                src_item x = buf[i];
-                int q = i - 1;
-                while (q >= 0 && cmp_src(&buf[q], &x) > 0) {
-                    buf[q + 1] = buf[q];
-                    q--;
-                }
-                buf[q + 1] = x;
-            }
-            /* merge duplicates, renormalise */
-            int u = 0;
-            double sum = 0;
-            for (int i = 0; i < n; i++) {
-                if (u > 0 && buf[u - 1].level == buf[i].level && buf[u - 1].node == buf[i].node)
-                    buf[u - 1].w += buf[i].w;
-                else
-                    buf[u++] = buf[i];
-                sum += buf[i].w;
-            }
-            /* the kept weights must stay a bounded combination: the ghost's stiffness reaches
-             * each source scaled by its weight, twice (value and reaction), so the coupled row
-             * grows as the square of the weights. Negative coordinates (nodes outside the
-             * other mesh) extrapolate exactly only within their full set; once ghost sources
-             * are dropped, what is left can nearly cancel (a sphere's split ghost kept
-             * +0.056 and -0.054: weights of +-19 after dividing by the sum, 190 times the
-             * level's own stiffness on one node). When the negative weights outweigh the net
-             * one (L1 norm above 3 after renormalising; a full coordinate set with one
-             * coordinate down to -1 stays below), keep the positive sources only: a convex
-             * combination, still a translation. */
-            double neg = 0;
-            for (int i = 0; i < u; i++)
-                neg += buf[i].w < 0 ? -buf[i].w : 0;
-            if (neg > 0 && !(sum > neg)) {
-                int p = 0;
-                sum = 0;
-                for (int i = 0; i < u; i++)
-                    if (buf[i].w > 0) {
-                        buf[p++] = buf[i];
-                        sum += buf[i].w;
-                    }
-                u = p;
-            }
-            if (!(fabs(sum) > 1e-3))
-                u = 0; /* no active source: the ghost keeps its value and takes no force */
+            double sum;
+            int u = sq_lodx_sources_combine(buf, n, &sum); /* 0: no active source, the ghost keeps
+                                                            * its value and takes no force */
             if (total + u > lod->lev[k].lay.src_cap) {
                 lod->lev[k].lay.src_cap = SQ_MAX(2 * lod->lev[k].lay.src_cap, total + u + 1024);
                 size_t scap = (size_t)lod->lev[k].lay.src_cap;

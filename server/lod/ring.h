@@ -10,6 +10,18 @@
 /* sources of every ring ghost */
 void sq_lodx_build_sources(sq_lod *lod);
 
+/* an interpolated node's active sources, expanded through the hierarchy: weight w of node
+ * `node` of level `level` (surface.c: level -1 for its anchor) */
+typedef struct sq_lodx_source {
+    int level, node;
+    double w;
+} sq_lodx_source;
+
+/* buf[0..n) made a combination: sorted by level and node, duplicates merged, the positive
+ * sources only when the negative weights outweigh the net one (a bounded combination); returns
+ * the count kept (0 when the weights sum to under 1e-3: no active source) and their sum */
+int sq_lodx_sources_combine(sq_lodx_source *buf, int n, double *sum);
+
 /* one step of the hierarchy's interpolation of node j of level lev that is not active: a coarse
  * node (ST_COARSE) takes the values of its tet one level coarser, a refined one those of its
  * tet one level finer. Returns that tet's four nodes (at level *m, barycentric weights *b), or

@@ -20,10 +20,7 @@
 #define ROW_MAX 32   /* terms kept per row (the largest weights; a row seldom has over 16) */
 #define BUF_MAX 1024 /* expansion terms before merging */
 
-typedef struct term {
-    int level, node;
-    double w;
-} term;
+typedef sq_lodx_source term;
 
 static void expand(const sq_lod *lod, int lev, int j, double w, int depth, term *buf, int *n)
 {
@@ -70,29 +67,8 @@ static int row_of(const sq_lod *lod, int j, term *buf)
 {
     int n = 0;
     expand(lod, lod->L - 1, j, 1.0, 0, buf, &n);
-    qsort(buf, (size_t)n, sizeof *buf, cmp_term);
-    int u = 0;
-    for (int i = 0; i < n; i++) {
-        if (u > 0 && buf[u - 1].level == buf[i].level && buf[u - 1].node == buf[i].node)
-            buf[u - 1].w += buf[i].w;
-        else
-            buf[u++] = buf[i];
-    }
-    double sum = 0, neg = 0;
-    for (int i = 0; i < u; i++) {
-        sum += buf[i].w;
-        neg += buf[i].w < 0 ? -buf[i].w : 0;
-    }
-    if (neg > 0 && !(sum > neg)) { /* a bounded, convex combination: the positive sources */
-        int p = 0;
-        sum = 0;
-        for (int i = 0; i < u; i++)
-            if (buf[i].w > 0) {
-                buf[p++] = buf[i];
-                sum += buf[i].w;
-            }
-        u = p;
-    }
+    double sum;
+    int u = sq_lodx_sources_combine(buf, n, &sum);
     if (u > ROW_MAX) {
         qsort(buf, (size_t)u, sizeof *buf, cmp_weight);
         u = ROW_MAX;
