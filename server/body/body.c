@@ -437,6 +437,7 @@ void sq_body_destroy(sq_body *b)
         free(b->grab[t].disp);
     }
     sq_body_contact_free(b);
+    free(b->cond_x);
     free(b->surf_tet);
     free(b->surf_bary);
     free(b->surf_near);

@@ -81,10 +81,16 @@ typedef struct sq_tool_model {
     int push;          /* 1 sphere/box (unilateral: no pull), 0 grab */
     double p0[3];      /* tool position of the last frame, m */
     double f0[3];      /* reaction of the held nodes on the tool in the state the frame left, N */
-    double K[9];       /* d f / d p, row-major 3x3, N/m (negative semi-definite in a contact) */
+    double K[9];       /* d f / d p with the free nodes still (the instantaneous stiffness, what a
+                          sudden move meets), row-major 3x3, N/m (negative semi-definite) */
+    double Kc[9];      /* the same with the free nodes relaxed (condensed: what a slow move
+                          meets; softer than K), N/m */
     double normal[3];  /* push: mean contact normal, from the tool into the body (unit); 0 else */
     double torque[3];  /* reaction torque about p0 (box: the tool has no orientation, so it is
                           the torque at p0, held constant between frames), N m */
+    int cg_iterations; /* the condensation's conjugate-gradient iterations over Kc's 3 columns */
+    double tau;        /* s: the time over which the body's response goes from K to Kc, taken as
+                          the frame period (the next frame's f0 carries the rest) */
 } sq_tool_model;
 
 /* create; computes operators and stability bounds; NULL + err (with numbers) if the

@@ -124,6 +124,8 @@ struct sq_body {
     unsigned char *con_stick;              /* per constraint */
     int *con_mark;                         /* per node: its constraint's index + 1 this step, or 0 */
     sq_implicit_contacts con_set;
+    double *cond_x;                        /* haptic.c: the tool model's free-node relaxations, 3 x 3n */
+    size_t cond_n3;
 };
 
 #define SQ_RETRY_MAX 4    /* doublings of a diverged frame's substeps: up to 16x */

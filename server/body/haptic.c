@@ -55,6 +55,205 @@ void sq_body_hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *
             P[3 * r + c] = n[r] * n[c];
 }
 
+/* ---------------------------------------------------------------- the condensed stiffness */
+
+/* What a slow press meets is the held nodes' stiffness with the free nodes relaxed, the Schur
+ * complement K_hh - K_hf K_ff^-1 K_fh: moved by u, the held nodes bring the free ones along by
+ * x, K_ff x = -K_fh u. K is the operator the step uses at this state (sq_level_forces_frozen: a
+ * corotational level's rotations frozen as they stand, so K x = -(f(x) - f(0)) exactly, on a
+ * copy of the level whose d is x and v is 0: the state is only read). Each of the three
+ * columns (u = P_j e_c on the held nodes) is relaxed by block Jacobi preconditioned conjugate
+ * gradients started from the last frame's x, to a relative residual of CONDENSE_TOL or for
+ * CONDENSE_MAX iterations: a tool's model relaxes over its first frames (stiffer than the
+ * condensed value meanwhile, as an unrelaxed x is), then costs a few force passes a frame.
+ * The column is the held nodes' force change, -(K (u + x)) summed over them. */
+#define CONDENSE_TOL 1e-3 /* relative residual: the column to about 0.1 % */
+#define CONDENSE_MAX 6    /* iterations a column a frame at most (the next frame goes on) */
+
+typedef struct {
+    const sq_level_model *M;
+    sq_level_state lin;        /* the level's state with d -> the argument, v -> 0 */
+    const sq_material *mat;
+    double *F0;                /* f(0) of lin */
+    double *acc;               /* zero scratch, 3n + 1 */
+    unsigned char *rel;        /* 1: relaxed (neither held nor fixed) */
+    double *Dinv;              /* 9 per node: the inverse of K's diagonal block (relaxed nodes) */
+    double *r, *z, *p, *q, *kx, *ku, *zero; /* 3n (+1) each */
+} condense_ws;
+
+/* Ai = B^-1 (row-major 3x3); -1 if B is NULL or singular */
+static int inverse3(const double *B, double *Ai)
+{
+    if (!B)
+        return -1;
+    const double c0 = B[4] * B[8] - B[5] * B[7], c1 = B[5] * B[6] - B[3] * B[8], c2 = B[3] * B[7] - B[4] * B[6];
+    const double det = B[0] * c0 + B[1] * c1 + B[2] * c2;
+    if (!(fabs(det) > 0) || !isfinite(det))
+        return -1;
+    const double id = 1 / det;
+    Ai[0] = c0 * id;
+    Ai[1] = (B[2] * B[7] - B[1] * B[8]) * id;
+    Ai[2] = (B[1] * B[5] - B[2] * B[4]) * id;
+    Ai[3] = c1 * id;
+    Ai[4] = (B[0] * B[8] - B[2] * B[6]) * id;
+    Ai[5] = (B[2] * B[3] - B[0] * B[5]) * id;
+    Ai[6] = c2 * id;
+    Ai[7] = (B[1] * B[6] - B[0] * B[7]) * id;
+    Ai[8] = (B[0] * B[4] - B[1] * B[3]) * id;
+    return 0;
+}
+
+/* y = K x, all rows */
+static void k_apply(condense_ws *w, const double *x, double *y)
+{
+    static const double g0[3] = {0, 0, 0};
+    w->lin.d = (double *)x; /* only read */
+    sq_level_forces_frozen(w->M, &w->lin, w->mat, g0, y, w->acc);
+    for (int i = 0; i < 3 * w->M->n; i++)
+        y[i] = -(y[i] - w->F0[i]);
+}
+
+static double *vec(int n)
+{
+    return sq_calloc(3 * (size_t)n + 1, sizeof(double));
+}
+
+static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, const unsigned char *hold)
+{
+    const sq_level_model *M = &L->model;
+    const int n = M->n;
+    w->M = M;
+    w->lin = L->state;
+    w->mat = mat;
+    w->acc = vec(n);
+    w->zero = vec(n);
+    w->lin.v = w->zero;
+    w->F0 = vec(n);
+    for (double **v[] = {&w->r, &w->z, &w->p, &w->q, &w->kx, &w->ku}, ***e = v; e < v + 6; e++)
+        **e = vec(n);
+    static const double g0[3] = {0, 0, 0};
+    w->lin.d = w->zero;
+    sq_level_forces_frozen(w->M, &w->lin, mat, g0, w->F0, w->acc);
+    w->rel = sq_malloc((size_t)n);
+    w->Dinv = sq_calloc(9 * (size_t)n, sizeof(double));
+    for (int i = 0; i < n; i++) {
+        w->rel[i] = !hold[i] && !M->fixed[i];
+        if (!w->rel[i])
+            continue;
+        const double *B = NULL; /* the linear block as the preconditioner's: near enough */
+        for (int e = M->row_start[i]; e < M->row_start[i + 1]; e++)
+            if (M->col[e] == i)
+                B = M->K + 9 * (size_t)e;
+        double *Di = w->Dinv + 9 * (size_t)i;
+        if (inverse3(B, Di))
+            Di[0] = Di[4] = Di[8] = B && B[0] + B[4] + B[8] > 0 ? 3 / (B[0] + B[4] + B[8]) : 0;
+    }
+}
+
+static void ws_free(condense_ws *w)
+{
+    double *v[] = {w->F0, w->acc, w->r, w->z, w->p, w->q, w->kx, w->ku, w->zero, w->Dinv};
+    for (size_t k = 0; k < SQ_COUNTOF(v); k++)
+        free(v[k]);
+    free(w->rel);
+}
+
+static double dot_rel(const condense_ws *w, const double *a, const double *b)
+{
+    double s = 0;
+    for (int i = 0; i < w->M->n; i++)
+        if (w->rel[i])
+            s += a[3 * i] * b[3 * i] + a[3 * i + 1] * b[3 * i + 1] + a[3 * i + 2] * b[3 * i + 2];
+    return s;
+}
+
+static void precondition(const condense_ws *w, const double *r, double *z)
+{
+    for (int i = 0; i < w->M->n; i++) {
+        const double *D = w->Dinv + 9 * (size_t)i, *ri = r + 3 * (size_t)i;
+        for (int c = 0; c < 3; c++)
+            z[3 * i + c] = w->rel[i] ? D[3 * c] * ri[0] + D[3 * c + 1] * ri[1] + D[3 * c + 2] * ri[2] : 0;
+    }
+}
+
+/* x (3n, warm) relaxed for the held nodes' move u (3n, 0 off the held nodes); on return w->ku
+ * and w->kx hold K u and K x (all rows); returns the iterations */
+static int relax(condense_ws *w, const double *u, double *x)
+{
+    const int n = w->M->n;
+    double *r = w->r, *z = w->z, *p = w->p, *q = w->q;
+    for (int i = 0; i < n; i++)
+        if (!w->rel[i])
+            x[3 * i] = x[3 * i + 1] = x[3 * i + 2] = 0;
+    k_apply(w, u, w->ku);
+    k_apply(w, x, w->kx);
+    for (int i = 0; i < 3 * n; i++)
+        r[i] = w->rel[i / 3] ? -w->ku[i] - w->kx[i] : 0; /* r = -K_fh u - K_ff x */
+    double bb = dot_rel(w, w->ku, w->ku);
+    if (!(bb > 0))
+        return 0;
+    precondition(w, r, z);
+    memcpy(p, z, sizeof(double) * 3 * (size_t)n);
+    double rz = dot_rel(w, r, z);
+    int it = 0;
+    while (dot_rel(w, r, r) > CONDENSE_TOL * CONDENSE_TOL * bb && it < CONDENSE_MAX) {
+        k_apply(w, p, q);
+        const double pq = dot_rel(w, p, q);
+        if (!(pq > 0))
+            break; /* not positive along p (a free rigid motion): the iterate reached */
+        const double alpha = rz / pq;
+        for (int i = 0; i < 3 * n; i++) {
+            x[i] += alpha * p[i];
+            w->kx[i] += alpha * q[i];
+            r[i] = w->rel[i / 3] ? r[i] - alpha * q[i] : 0;
+        }
+        precondition(w, r, z);
+        const double rz1 = dot_rel(w, r, z);
+        for (int i = 0; i < 3 * n; i++)
+            p[i] = z[i] + rz1 / rz * p[i];
+        rz = rz1;
+        it++;
+    }
+    return it;
+}
+
+/* K's columns: column c moves the held nodes (node[0..nh), each listed once or more) by P_j e_c */
+static int condensed_k(sq_body *b, const sq_level *L, const sq_material *mat, const unsigned char *hold,
+                       const int *node, const double *P, int nh, double K[9])
+{
+    const size_t n3 = 3 * (size_t)L->model.n;
+    if (b->cond_n3 != n3) { /* the relaxations of the three columns, kept from frame to frame */
+        free(b->cond_x);
+        b->cond_x = sq_calloc(3 * n3, sizeof(double));
+        b->cond_n3 = n3;
+    }
+    condense_ws w;
+    ws_init(&w, L, mat, hold);
+    double *u = vec(L->model.n);
+    unsigned char *seen = sq_calloc((size_t)L->model.n, 1);
+    int its = 0;
+    for (int c = 0; c < 3; c++) {
+        for (int i = 0; i < nh; i++) /* a node held twice moves once: P of its last hold */
+            for (int r = 0; r < 3; r++)
+                u[3 * (size_t)node[i] + r] = P[9 * i + 3 * r + c];
+        its += relax(&w, u, b->cond_x + (size_t)c * n3);
+        for (int i = 0; i < nh; i++) {
+            const int j = node[i];
+            if (seen[j] == c + 1)
+                continue;
+            seen[j] = (unsigned char)(c + 1);
+            for (int r = 0; r < 3; r++)
+                K[3 * r + c] -= w.ku[3 * (size_t)j + r] + w.kx[3 * (size_t)j + r];
+        }
+        for (int i = 0; i < nh; i++)
+            memset(u + 3 * (size_t)node[i], 0, 3 * sizeof(double));
+    }
+    free(seen);
+    free(u);
+    ws_free(&w);
+    return its;
+}
+
 int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *out)
 {
     memset(out, 0, sizeof *out);
@@ -141,6 +340,14 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
         for (int c = r + 1; c < 3; c++) {
             double s = 0.5 * (out->K[3 * r + c] + out->K[3 * c + r]);
             out->K[3 * r + c] = out->K[3 * c + r] = s;
+        }
+    /* the condensed stiffness: the free nodes relaxed (mask still marks the held nodes) */
+    out->cg_iterations = condensed_k(b, L, mat, mask, node, P, nh, out->Kc);
+    out->tau = b->def.frame_dt;
+    for (int r = 0; r < 3; r++)
+        for (int c = r + 1; c < 3; c++) {
+            double s = 0.5 * (out->Kc[3 * r + c] + out->Kc[3 * c + r]);
+            out->Kc[3 * r + c] = out->Kc[3 * c + r] = s;
         }
     double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
     if (out->push && nn > 0)

@@ -360,6 +360,12 @@ void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, con
     corot_forces(M, S, mat, g, f, 50, 0);
 }
 
+void sq_level_corot_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                                  const double g[3], double *f)
+{
+    corot_forces(M, S, mat, g, f, 0, 0);
+}
+
 void sq_level_corot_converge(const sq_level_model *M, sq_level_state *S)
 {
     sq_corot *C = S->corot;

@@ -770,6 +770,15 @@ void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const 
     level_ops[M->op_kind].forces(M, S, mat, gravity, active, f_out, acc);
 }
 
+void sq_level_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                            const double gravity[3], double *f_out, double *acc)
+{
+    if (M->op_kind == SQ_LEVEL_OP_COROT)
+        sq_level_corot_forces_frozen(M, S, mat, gravity, f_out);
+    else
+        sq_level_forces_to(M, S, mat, gravity, NULL, f_out, acc);
+}
+
 void sq_level_integrate(const sq_level_model *M, sq_level_state *S, double dt, const unsigned char *active)
 {
     const int n = M->n;

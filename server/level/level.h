@@ -338,6 +338,10 @@ void sq_level_forces(const sq_level_model *M, sq_level_state *S, const sq_materi
 void sq_level_forces_to(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
                         const double gravity[3],
                         const unsigned char *active, double *f, double *acc);
+/* the same with a corotational level's rotations frozen as they stand: f is then affine in d,
+ * so f(d + x) - f(d) = -K x with the operator the step uses (its stiffness at this state) */
+void sq_level_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                            const double gravity[3], double *f_out, double *acc);
 
 /* residual force measure of forces f (n x 3) over the listed nodes (the list active of nactive
  * nodes; all when NULL) that are not fully constrained and not held (held may be NULL: a held
@@ -458,6 +462,9 @@ void sq_level_corot_step(const sq_level_model *M, sq_level_state *S, const sq_ma
                          double dt,
                          const unsigned char *mask);
 void sq_level_corot_forces(const sq_level_model *M, const sq_level_state *S, const sq_material *mat, const double g[3], double *f); /* into f */
+/* the same with the stored rotations as they stand (not iterated): affine in d */
+void sq_level_corot_forces_frozen(const sq_level_model *M, const sq_level_state *S, const sq_material *mat,
+                                  const double g[3], double *f);
 double sq_level_corot_energy(const sq_level_model *M, const sq_level_state *S);               /* corotational elastic energy, J */
 /* the adaptive frame's pieces (lod/corotational.c): the element force of tet t (elastic and
  * stiffness or viscous damping; no mass damping, no gravity) from corner values d4, v4 (4 x 3,

@@ -137,6 +137,74 @@ static unsigned coupled(const sq_tool_model *m, int valid, const sq_haptic_coupl
     return SQ_HAPTIC_F_CONTACT;
 }
 
+/* The body's force between frames, f(p, t) = f0 + Kc (p - p0) + arm(t) - arm_ref: a standard
+ * linear solid. Kc (the free nodes relaxed) is the spring a slow move meets; the arm, a spring
+ * D = K - Kc in series with a damper of time constant tau, adds the stiffening a quick move
+ * meets before the free nodes follow (K, the free nodes still), relaxing over tau:
+ * d arm / dt = D dp/dt - arm / tau. arm_ref is the arm at the model's arrival (the frame's f0
+ * already holds the arm's state then). Both elements are passive; a steady move meets Kc, a
+ * sudden one K. Over a pose step dt (the move taken as steady within it) the arm becomes
+ * e arm + phi D dp, e = exp(-dt / tau), phi = tau (1 - e) / dt. dp is the tool's move the
+ * device made, J dxd (J = dp/dxd of the coupling), not the move a new model's blend makes
+ * (that one is the body's own reply, already in the new f0); a contact's first pose moves the
+ * tool from the frame's p0, dp = p - p0, and meets K. The model handed to the coupling is
+ * affine in p: eff, f0' + K' (p - p0). */
+typedef struct {
+    double e, phi;
+    int fresh;       /* the contact's first pose: dp = p - p0 */
+    double g[3];     /* else the arm's increment phi D J dxd, N */
+} arm_step;
+
+static void arm_model(const sq_tool_model *m, int trusted, const double arm[3], const double arm_ref[3],
+                      const arm_step *a, sq_tool_model *eff)
+{
+    *eff = *m;
+    if (!trusted)
+        return; /* f0 + K (p - p0) */
+    for (int r = 0; r < 3; r++) {
+        eff->f0[r] = m->f0[r] + a->e * arm[r] - arm_ref[r] + (a->fresh ? 0 : a->g[r]);
+        for (int c = 0; c < 3; c++)
+            eff->K[3 * r + c] = m->Kc[3 * r + c] + (a->fresh ? a->phi * (m->K[3 * r + c] - m->Kc[3 * r + c]) : 0);
+    }
+}
+
+/* the arm's step for a pose at device time t, position xd (st: the state before it) */
+static arm_step arm_begin(const sq_haptic_state *st, const sq_haptic_coupling *cp, const double xd[3], double t)
+{
+    arm_step a = {.e = 1, .phi = 1, .fresh = !(st->has_last && st->contact)};
+    const sq_tool_model *m = &st->model;
+    const double tau = m->nnodes > 0 ? m->tau : 0;
+    const double dt = st->has_last ? t - st->t : 0;
+    if (!(tau > 0))
+        a.e = a.phi = 0;
+    else if (dt > 1e-9 && dt < 1e9) {
+        a.e = exp(-dt / tau);
+        a.phi = tau * (1 - a.e) / dt;
+    }
+    if (a.fresh)
+        return a;
+    double D[9], dxd[3], dp[3];
+    for (int k = 0; k < 9; k++)
+        D[k] = m->K[k] - m->Kc[k];
+    for (int c = 0; c < 3; c++)
+        dxd[c] = xd[c] - st->xd[c];
+    memcpy(dp, dxd, sizeof dp); /* no coupling: the tool is the device */
+    if (cp->stiffness > 0) {
+        /* J dxd = k (k I - Kc - phi D)^-1 dxd */
+        double A[9], b[3];
+        for (int r = 0; r < 3; r++) {
+            b[r] = cp->stiffness * dxd[r];
+            for (int c = 0; c < 3; c++)
+                A[3 * r + c] = (r == c ? cp->stiffness : 0) - m->Kc[3 * r + c] - (st->trusted ? a.phi : 1) * D[3 * r + c];
+        }
+        if (solve3(A, b, dp))
+            memcpy(dp, dxd, sizeof dp);
+    }
+    for (int r = 0; r < 3; r++)
+        a.g[r] = a.phi * (D[3 * r] * dp[0] + D[3 * r + 1] * dp[1] + D[3 * r + 2] * dp[2]);
+    return a;
+}
+
 void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out)
 {
@@ -148,23 +216,49 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
         if (st->has_model) {
             st->prev = st->model;
             st->prev_valid = st->model_valid;
+            memcpy(st->prev_arm_ref, st->arm_ref, sizeof st->arm_ref);
             st->blend_t0 = t;
             st->blending = 1;
+        }
+        /* the relaxing model only while the last one foretold this frame's force: a contact
+         * that goes on, whose new f0 the last model (with its arm) gave within
+         * SQ_HAPTIC_TRUST at the new p0; else (a new contact, a lost one, a split or merge, a
+         * tool striking the body) the instantaneous K alone, the stiff and passive end. The arm
+         * runs in both, so that the foretelling is always the relaxing model's */
+        int trust = 0;
+        if (st->has_model && st->model_valid && valid && st->model.nnodes > 0 && m->nnodes > 0 && st->contact) {
+            double pred[3], err = 0, mag = 0;
+            model_force(&st->model, m->p0, pred); /* f0 + K (p0' - p0): Kc below */
+            for (int r = 0; r < 3; r++) {
+                for (int c = 0; c < 3; c++)
+                    pred[r] -= (st->model.K[3 * r + c] - st->model.Kc[3 * r + c]) * (m->p0[c] - st->model.p0[c]);
+                pred[r] += st->arm[r] - st->arm_ref[r];
+                err += (pred[r] - m->f0[r]) * (pred[r] - m->f0[r]);
+                mag += m->f0[r] * m->f0[r];
+            }
+            trust = err <= SQ_HAPTIC_TRUST * SQ_HAPTIC_TRUST * mag;
         }
         st->model = *m;
         st->model_valid = valid;
         st->has_model = 1;
         st->frame = frame;
+        st->prev_trusted = st->trusted;
+        st->trusted = trust;
+        memcpy(st->arm_ref, st->arm, sizeof st->arm);
     }
     double w = st->blending ? (t - st->blend_t0) / SQ_HAPTIC_BLEND : 1;
     if (!(w < 1))
         st->blending = 0, w = 1;
     if (w < 0)
         w = 0;
-    out->flags = coupled(&st->model, st->model_valid, cp, xd, f, out->tool, out->torque);
+    const arm_step as = arm_begin(st, cp, xd, t);
+    sq_tool_model eff;
+    arm_model(&st->model, st->trusted, st->arm, st->arm_ref, &as, &eff);
+    out->flags = coupled(&eff, st->model_valid, cp, xd, f, out->tool, out->torque);
     if (st->blending) {
         double f1[3], p1[3], q1[3];
-        unsigned fl = coupled(&st->prev, st->prev_valid, cp, xd, f1, p1, q1);
+        arm_model(&st->prev, st->prev_trusted, st->arm, st->prev_arm_ref, &as, &eff);
+        unsigned fl = coupled(&eff, st->prev_valid, cp, xd, f1, p1, q1);
         for (int c = 0; c < 3; c++) {
             f[c] = w * f[c] + (1 - w) * f1[c];
             out->tool[c] = w * out->tool[c] + (1 - w) * p1[c];
@@ -175,8 +269,19 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
         if (!(fl & SQ_HAPTIC_F_NO_MODEL))
             out->flags &= ~SQ_HAPTIC_F_NO_MODEL;
     }
-    /* the damper on the tool-device relative velocity (device time differences) */
     int contact = (out->flags & SQ_HAPTIC_F_CONTACT) && !(out->flags & SQ_HAPTIC_F_RELEASED);
+    double arm1[3] = {0, 0, 0}; /* a lost contact lets the arm go (it held no energy to give back) */
+    for (int r = 0; contact && r < 3; r++) {
+        arm1[r] = as.e * st->arm[r] + (as.fresh ? 0 : as.g[r]);
+        for (int c = 0; as.fresh && c < 3; c++)
+            arm1[r] += as.phi * (st->model.K[3 * r + c] - st->model.Kc[3 * r + c]) * (out->tool[c] - st->model.p0[c]);
+    }
+    memcpy(st->arm, arm1, sizeof arm1);
+    if (!contact) {
+        memset(st->arm_ref, 0, sizeof st->arm_ref);
+        memset(st->prev_arm_ref, 0, sizeof st->prev_arm_ref);
+    }
+    /* the damper on the tool-device relative velocity (device time differences) */
     double dt = st->has_last ? t - st->t : 0;
     if (st->has_last && cp->damping > 0 && contact && st->contact) {
         if (dt > 1e-5 && dt < 0.1)
@@ -226,23 +331,29 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
     memcpy(st->p, out->tool, sizeof st->p);
 }
 
-/* a push is frictionless: its reaction and stiffness along the contact normal n only,
- * f0 <- min(0, n.f0) n, K <- min(0, n.K n) n n^T */
+/* a push is frictionless: its reaction and stiffnesses along the contact normal n only,
+ * f0 <- min(0, n.f0) n, K <- min(0, n.K n) n n^T, Kc <- max(n.K n, min(0, n.Kc n)) n n^T (Kc
+ * never stiffer than K: a condensation that has not converged is between the two) */
 static void frictionless(sq_tool_model *m)
 {
     const double *n = m->normal;
-    double fn = 0, kn = 0;
+    double fn = 0, kn = 0, kc = 0;
     for (int r = 0; r < 3; r++) {
         fn += n[r] * m->f0[r];
-        for (int c = 0; c < 3; c++)
+        for (int c = 0; c < 3; c++) {
             kn += n[r] * m->K[3 * r + c] * n[c];
+            kc += n[r] * m->Kc[3 * r + c] * n[c];
+        }
     }
     fn = fmin(fn, 0);
     kn = fmin(kn, 0);
+    kc = fmax(kn, fmin(kc, 0));
     for (int r = 0; r < 3; r++) {
         m->f0[r] = fn * n[r];
-        for (int c = 0; c < 3; c++)
+        for (int c = 0; c < 3; c++) {
             m->K[3 * r + c] = kn * n[r] * n[c];
+            m->Kc[3 * r + c] = kc * n[r] * n[c];
+        }
     }
 }
 
@@ -418,8 +529,12 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
                     sum->torque[c] += m.torque[c];
                     nsum[c] += m.nnodes * m.normal[c];
                 }
-                for (int c = 0; c < 9; c++)
+                for (int c = 0; c < 9; c++) {
                     sum->K[c] += m.K[c];
+                    sum->Kc[c] += m.Kc[c];
+                }
+                sum->tau = fmax(sum->tau, m.tau);
+                sum->cg_iterations += m.cg_iterations;
             }
             double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
             if (nn > 0)

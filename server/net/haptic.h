@@ -35,6 +35,8 @@
 #define SQ_HAPTIC_F_DISSIPATING 8u   /* the passivity controller added damping to this force */
 #define SQ_HAPTIC_BLEND 0.01         /* s of device time over which a new frame's model is
                                         blended in */
+#define SQ_HAPTIC_TRUST 0.1         /* the relaxing model is used while the last one foretold
+                                        the new frame's force within this fraction */
 #define SQ_HAPTIC_PC_MAX 200.0       /* largest damping the passivity controller adds, N s/m */
 
 /* the virtual coupling between device and tool: spring and damper */
@@ -56,6 +58,10 @@ typedef struct sq_haptic_state {
     double energy;                   /* J absorbed from the device so far: sum of
                                         -force_k . (xd_k+1 - xd_k) (passivity observer) */
     int contact;                     /* the last pose was in contact */
+    double arm[3];                   /* N: the relaxing arm's force (the body's short-time
+                                        stiffening K - Kc, relaxing over tau) */
+    double arm_ref[3], prev_arm_ref[3]; /* arm at the arrival of model and prev: their f0 holds it */
+    int trusted, prev_trusted;       /* model's (prev's) force relaxes (Kc and the arm); 0: K alone */
 } sq_haptic_state;
 
 /* one evaluation: what a pose gets back */
