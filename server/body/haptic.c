@@ -11,7 +11,9 @@
  * n n^T along the node's contact normal; a box: the normal of the face it lies on), and the
  * change of the summed reaction over eps is column c of K. The free nodes do not move in this
  * difference: K is the instantaneous stiffness of the held nodes (the upper end of what the body
- * shows before its free nodes respond); velocities are unchanged, so damping cancels.
+ * shows before its free nodes respond); velocities are unchanged, so damping cancels. Kc is the
+ * same with the free nodes relaxed (condensed, below): what a slow move meets. The channel
+ * (net/haptic.c) joins the two in a relaxing model.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -66,7 +68,9 @@ void sq_body_hold_projection(const sq_mesh *m, const sq_hold *h, const sq_tool *
  * gradients started from the last frame's x, to a relative residual of CONDENSE_TOL or for
  * CONDENSE_MAX iterations: a tool's model relaxes over its first frames (stiffer than the
  * condensed value meanwhile, as an unrelaxed x is), then costs a few force passes a frame.
- * The column is the held nodes' force change, -(K (u + x)) summed over them. */
+ * The column is the held nodes' force change, -(K (u + x)) summed over them. In adaptive lod
+ * only the free nodes the lod simulates at the finest level relax; the others stay still (a
+ * region simulated coarser is stiffer than the finest level relaxed there would be). */
 #define CONDENSE_TOL 1e-3 /* relative residual: the column to about 0.1 % */
 #define CONDENSE_MAX 6    /* iterations a column a frame at most (the next frame goes on) */
 
@@ -118,7 +122,8 @@ static double *vec(int n)
     return sq_calloc(3 * (size_t)n + 1, sizeof(double));
 }
 
-static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, const unsigned char *hold)
+static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, const unsigned char *hold,
+                    const unsigned char *node_level, int fine)
 {
     const sq_level_model *M = &L->model;
     const int n = M->n;
@@ -137,7 +142,7 @@ static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, c
     w->rel = sq_malloc((size_t)n);
     w->Dinv = sq_calloc(9 * (size_t)n, sizeof(double));
     for (int i = 0; i < n; i++) {
-        w->rel[i] = !hold[i] && !M->fixed[i];
+        w->rel[i] = !hold[i] && !M->fixed[i] && (!node_level || node_level[i] == fine);
         if (!w->rel[i])
             continue;
         const double *B = NULL; /* the linear block as the preconditioner's: near enough */
@@ -228,7 +233,7 @@ static int condensed_k(sq_body *b, const sq_level *L, const sq_material *mat, co
         b->cond_n3 = n3;
     }
     condense_ws w;
-    ws_init(&w, L, mat, hold);
+    ws_init(&w, L, mat, hold, b->def.lod.mode == SQ_LOD_ADAPTIVE ? b->node_level : NULL, b->fine);
     double *u = vec(L->model.n);
     unsigned char *seen = sq_calloc((size_t)L->model.n, 1);
     int its = 0;

@@ -270,6 +270,8 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
             out->flags &= ~SQ_HAPTIC_F_NO_MODEL;
     }
     int contact = (out->flags & SQ_HAPTIC_F_CONTACT) && !(out->flags & SQ_HAPTIC_F_RELEASED);
+    if (contact && st->trusted)
+        out->flags |= SQ_HAPTIC_F_RELAXING;
     double arm1[3] = {0, 0, 0}; /* a lost contact lets the arm go (it held no energy to give back) */
     for (int r = 0; contact && r < 3; r++) {
         arm1[r] = as.e * st->arm[r] + (as.fresh ? 0 : as.g[r]);

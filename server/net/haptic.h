@@ -33,6 +33,8 @@
 #define SQ_HAPTIC_F_RELEASED 2u      /* a push whose model would pull: force 0 */
 #define SQ_HAPTIC_F_NO_MODEL 4u      /* no frame since the channel opened: force 0 */
 #define SQ_HAPTIC_F_DISSIPATING 8u   /* the passivity controller added damping to this force */
+#define SQ_HAPTIC_F_RELAXING 16u     /* the force is the relaxing model's (Kc and the arm), not
+                                        the instantaneous K's */
 #define SQ_HAPTIC_BLEND 0.01         /* s of device time over which a new frame's model is
                                         blended in */
 #define SQ_HAPTIC_TRUST 0.1         /* the relaxing model is used while the last one foretold
