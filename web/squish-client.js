@@ -432,8 +432,9 @@ export class SquishClient extends Emitter {
 
   // ---- haptic channel (docs/protocol.md, "Haptic channel")
   /** Open the haptic channel of tool `tool`: resolves with { channel, max_rate, stiffness, damping, ... }. */
-  hapticOpen(tool, { stiffness, damping, ramp } = {}) {
+  hapticOpen(tool, { stiffness, damping, ramp, deviceMass } = {}) {
     const m = { type: 'haptic', tool };
+    if (deviceMass !== undefined) m.device_mass = deviceMass; // kg: bounds the passivity controller's damping
     if (stiffness !== undefined) m.stiffness = stiffness;
     if (damping !== undefined) m.damping = damping;
     if (ramp !== undefined) m.ramp = !!ramp; // lockstep: poses ramped over each frame's substeps

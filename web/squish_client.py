@@ -484,11 +484,15 @@ class SquishClient:
             self.off("nodes", on)
 
     # ------------------------------------------------------------------ haptic channel
-    def haptic_open(self, tool, stiffness=None, damping=None, ramp=None):
+    def haptic_open(self, tool, stiffness=None, damping=None, ramp=None, device_mass=None):
         """Open the haptic channel of tool `tool` (controller only); returns the reply
-        (channel, max_rate, stiffness, damping, ramp, ...). ramp: on a lockstep server, each
-        frame's substeps take the pose interpolated from the last frame's to the newest."""
+        (channel, max_rate, stiffness, damping, device_mass, ramp, ...). ramp: on a lockstep
+        server, each frame's substeps take the pose interpolated from the last frame's to the
+        newest. device_mass: the device's moving mass, kg (the passivity controller's damping
+        stays below it over the pose interval)."""
         m = {"type": "haptic", "tool": tool}
+        if device_mass is not None:
+            m["device_mass"] = device_mass
         if ramp is not None:
             m["ramp"] = bool(ramp)
         if stiffness is not None:

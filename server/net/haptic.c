@@ -315,8 +315,10 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
             dx2 += (xd[c] - st->xd[c]) * (xd[c] - st->xd[c]);
         }
         if (st->energy < 0 && dx2 > 0 && dt > 1e-5 && dt < 0.1) {
-            /* a damper alpha on v = dx / dt dissipates alpha |v|^2 dt over the next step */
-            double alpha = fmin(SQ_HAPTIC_PC_MAX, -st->energy * dt / dx2);
+            /* a damper alpha on v = dx / dt dissipates alpha |v|^2 dt over the next step; at
+             * most m / dt, or the sampled damper itself would make the device ring */
+            const double mass = cp->device_mass > 0 ? cp->device_mass : SQ_HAPTIC_DEVICE_MASS;
+            double alpha = fmin(mass / dt, -st->energy * dt / dx2);
             for (int c = 0; c < 3; c++)
                 f[c] -= alpha * (xd[c] - st->xd[c]) / dt;
             out->flags |= SQ_HAPTIC_F_DISSIPATING;

@@ -39,12 +39,19 @@
                                         blended in */
 #define SQ_HAPTIC_TRUST 0.1         /* the relaxing model is used while the last one foretold
                                         the new frame's force within this fraction */
-#define SQ_HAPTIC_PC_MAX 200.0       /* largest damping the passivity controller adds, N s/m */
+#define SQ_HAPTIC_DEVICE_MASS 0.2    /* default device mass, kg: the passivity controller's
+                                        damping stays below mass / pose interval */
+#define SQ_HAPTIC_DEVICE_MASS_MIN 1e-3
+#define SQ_HAPTIC_DEVICE_MASS_MAX 100.0
 
 /* the virtual coupling between device and tool: spring and damper */
 typedef struct sq_haptic_coupling {
     double stiffness;                /* N/m; 0 = no coupling: the tool is the device */
     double damping;                  /* N s/m, on the device-tool relative velocity */
+    double device_mass;              /* kg, the device's moving mass: the passivity controller
+                                        adds at most device_mass / dt (dt the pose interval), so
+                                        that b dt / m <= 1 (half the bound past which a damper
+                                        sampled every dt makes the device ring); 0: the default */
 } sq_haptic_coupling;
 
 /* the state of the coupling between two poses (service thread) */
@@ -81,7 +88,7 @@ typedef struct sq_haptic_out {
  * tool at once: that jump is not a velocity). A passivity observer keeps the energy the channel
  * has absorbed from the device (force held over each device step); when it is negative (the
  * channel gave energy back that it never took: a new frame's model can), a damper on the device
- * velocity, at most SQ_HAPTIC_PC_MAX, takes that energy back over the next step. A push
+ * velocity, at most device_mass / dt, takes that energy back over the next step. A push
  * never pulls: where f(p) points into the body the contact is lost (force 0, p = xd). Pure. */
 void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_haptic_coupling *cp,
                     sq_haptic_state *st, const double xd[3], double t, sq_haptic_out *out);

@@ -182,6 +182,33 @@ SQ_TEST(net_haptic_relaxing_model)
     CHECK(trusted_after_bad);
 }
 
+/* the controller's damping is bounded by the device mass over the pose interval: a deficit far
+ * beyond one step's worth is taken back at alpha = mass / dt (the sampled damper's b dt / m = 1),
+ * a small one at alpha = -E dt / dx^2; out of contact the model's force is 0, so the force is
+ * the damper's alone */
+SQ_TEST(net_haptic_passivity_controller_bound)
+{
+    sq_tool_model m;
+    memset(&m, 0, sizeof m);
+    const double masses[] = {0.02, 0, 1.0}; /* 0: the default, SQ_HAPTIC_DEVICE_MASS */
+    for (size_t k = 0; k < SQ_COUNTOF(masses); k++) {
+        sq_haptic_coupling cp = {.stiffness = 0, .damping = 0, .device_mass = masses[k]};
+        const double mass = masses[k] > 0 ? masses[k] : SQ_HAPTIC_DEVICE_MASS;
+        sq_haptic_state st;
+        memset(&st, 0, sizeof st);
+        sq_haptic_out o;
+        sq_haptic_eval(&m, 1, 1, &cp, &st, (double[3]){0, 0, 1.0}, 0.0, &o);
+        st.energy = -10.0; /* J: far more than one step can take back */
+        sq_haptic_eval(&m, 1, 1, &cp, &st, (double[3]){0, 0, 1.001}, 1e-3, &o);
+        CHECK(o.flags & SQ_HAPTIC_F_DISSIPATING);
+        CHECK_NEAR(o.force[2], -mass / 1e-3 * 1.0, 1e-9 * mass / 1e-3); /* v = 1 m/s */
+        st.energy = -1e-6; /* J: taken back in one step, alpha = 1e-6 * 1e-3 / 1e-6 = 1e-3 */
+        st.force[2] = 0;   /* the observer counts the last force over the step: none here */
+        sq_haptic_eval(&m, 1, 1, &cp, &st, (double[3]){0, 0, 1.002}, 2e-3, &o);
+        CHECK_NEAR(o.force[2], -1e-3 * 1.0, 1e-12);
+    }
+}
+
 /* a 1 m cube of 4^3 boxes (Young's modulus E, Pa; nu 0.3) glued at its base, and a grab tool
  * on its top face's centre (radius 0.2 m); the mesh in *m (freed by the caller after the body) */
 static sq_body *grab_cube(sq_mesh **m, sq_tool *t, double E)
