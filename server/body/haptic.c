@@ -222,9 +222,12 @@ static int relax(condense_ws *w, const double *u, double *x)
     return it;
 }
 
-/* K's columns: column c moves the held nodes (node[0..nh), each listed once or more) by P_j e_c */
+/* K's columns: column c moves the held nodes (node[0..nh), each listed once or more) by P_j e_c.
+ * A push (dir its unit mean normal, else NULL) is kept along its normal only (the channel's
+ * frictionless model): one column, the held nodes moved by P_j dir, gives K = (dir . col) dir
+ * dir^T at a third of the cost */
 static int condensed_k(sq_body *b, const sq_level *L, const sq_material *mat, const unsigned char *hold,
-                       const int *node, const double *P, int nh, double K[9])
+                       const int *node, const double *P, int nh, const double *dir, double K[9])
 {
     const size_t n3 = 3 * (size_t)L->model.n;
     if (b->cond_n3 != n3) { /* the relaxations of the three columns, kept from frame to frame */
@@ -237,19 +240,30 @@ static int condensed_k(sq_body *b, const sq_level *L, const sq_material *mat, co
     double *u = vec(L->model.n);
     unsigned char *seen = sq_calloc((size_t)L->model.n, 1);
     int its = 0;
-    for (int c = 0; c < 3; c++) {
+    for (int c = 0; c < (dir ? 1 : 3); c++) {
         for (int i = 0; i < nh; i++) /* a node held twice moves once: P of its last hold */
-            for (int r = 0; r < 3; r++)
-                u[3 * (size_t)node[i] + r] = P[9 * i + 3 * r + c];
+            for (int r = 0; r < 3; r++) {
+                const double *Pr = P + 9 * i + 3 * r;
+                u[3 * (size_t)node[i] + r] = dir ? Pr[0] * dir[0] + Pr[1] * dir[1] + Pr[2] * dir[2] : Pr[c];
+            }
         its += relax(&w, u, b->cond_x + (size_t)c * n3);
+        double col[3] = {0, 0, 0};
         for (int i = 0; i < nh; i++) {
             const int j = node[i];
             if (seen[j] == c + 1)
                 continue;
             seen[j] = (unsigned char)(c + 1);
             for (int r = 0; r < 3; r++)
-                K[3 * r + c] -= w.ku[3 * (size_t)j + r] + w.kx[3 * (size_t)j + r];
+                col[r] -= w.ku[3 * (size_t)j + r] + w.kx[3 * (size_t)j + r];
         }
+        if (dir) {
+            const double kn = dir[0] * col[0] + dir[1] * col[1] + dir[2] * col[2];
+            for (int r = 0; r < 3; r++)
+                for (int q = 0; q < 3; q++)
+                    K[3 * r + q] = kn * dir[r] * dir[q];
+        } else
+            for (int r = 0; r < 3; r++)
+                K[3 * r + c] = col[r];
         for (int i = 0; i < nh; i++)
             memset(u + 3 * (size_t)node[i], 0, 3 * sizeof(double));
     }
@@ -346,15 +360,17 @@ int sq_body_tool_model(sq_body *b, int t, const sq_tool *tool, sq_tool_model *ou
             double s = 0.5 * (out->K[3 * r + c] + out->K[3 * c + r]);
             out->K[3 * r + c] = out->K[3 * c + r] = s;
         }
-    /* the condensed stiffness: the free nodes relaxed (mask still marks the held nodes) */
-    out->cg_iterations = condensed_k(b, L, mat, mask, node, P, nh, out->Kc);
+    /* the condensed stiffness: the free nodes relaxed (mask still marks the held nodes); a
+     * push along its mean normal only */
+    double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
+    const double dir[3] = {nn > 0 ? nsum[0] / nn : 0, nn > 0 ? nsum[1] / nn : 0, nn > 0 ? nsum[2] / nn : 0};
+    out->cg_iterations = condensed_k(b, L, mat, mask, node, P, nh, out->push && nn > 0 ? dir : NULL, out->Kc);
     out->tau = b->def.frame_dt;
     for (int r = 0; r < 3; r++)
         for (int c = r + 1; c < 3; c++) {
             double s = 0.5 * (out->Kc[3 * r + c] + out->Kc[3 * c + r]);
             out->Kc[3 * r + c] = out->Kc[3 * c + r] = s;
         }
-    double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
     if (out->push && nn > 0)
         for (int c = 0; c < 3; c++)
             out->normal[c] = nsum[c] / nn;
