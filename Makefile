@@ -145,6 +145,8 @@ bench: deps node-deps
 	SQUISH=$(BUILD)/squish node tests/net/bench-haptic.mjs --viewers 20 --seconds 5 --rounds 2
 	@echo "=== haptic model accuracy: force at mid-frame against a 500 Hz reference, slow press, cube-poke and organ"
 	SQUISH=$(BUILD)/squish /usr/bin/python3 tests/net/haptic_accuracy.py
+	@echo "=== haptic loop passivity: simulated devices of 0.1, 0.2, 0.4 kg over three coupling stiffnesses each"
+	SQUISH=$(BUILD)/squish /usr/bin/python3 tests/net/haptic_sweep.py
 
 # regenerate the shipped level-of-detail meshes (needs gmsh; not part of `make test`)
 # the generated family (meshes/box: box-big.json's levels, made by squish itself; its fine levels
