@@ -69,11 +69,14 @@ static int parse_contact(pctx *c, sq_scene *s, const cJSON *root)
         const sq_body_def *d = &s->bodies[b];
         if (d->nconstraints || !s->nobstacles || s->nwarnings >= SQ_MAX_BODIES)
             continue; /* free bodies meeting obstacles: what contact needs of them */
-        if (d->elasticity != SQ_ELASTICITY_COROTATIONAL)
+        if (d->elasticity != SQ_ELASTICITY_COROTATIONAL) {
+            char name[sizeof s->body_names[0]]; /* a copy: the warning is written into *s too */
+            snprintf(name, sizeof name, "%s", s->body_names[b]);
             snprintf(s->warnings[s->nwarnings++], sizeof s->warnings[0],
                      "%s: bodies[%d] (\"%s\") is free (no \"fixed\" region) with linear elasticity: a rotation of "
                      "the whole body is taken for strain and inflates it; give \"elasticity\": \"corotational\"",
-                     c->label, b, s->body_names[b]);
+                     c->label, b, name);
+        }
     }
     return 0;
 }
