@@ -85,27 +85,6 @@ typedef struct {
     double *r, *z, *p, *q, *kx, *ku, *zero; /* 3n (+1) each */
 } condense_ws;
 
-/* Ai = B^-1 (row-major 3x3); -1 if B is NULL or singular */
-static int inverse3(const double *B, double *Ai)
-{
-    if (!B)
-        return -1;
-    const double c0 = B[4] * B[8] - B[5] * B[7], c1 = B[5] * B[6] - B[3] * B[8], c2 = B[3] * B[7] - B[4] * B[6];
-    const double det = B[0] * c0 + B[1] * c1 + B[2] * c2;
-    if (!(fabs(det) > 0) || !isfinite(det))
-        return -1;
-    const double id = 1 / det;
-    Ai[0] = c0 * id;
-    Ai[1] = (B[2] * B[7] - B[1] * B[8]) * id;
-    Ai[2] = (B[1] * B[5] - B[2] * B[4]) * id;
-    Ai[3] = c1 * id;
-    Ai[4] = (B[0] * B[8] - B[2] * B[6]) * id;
-    Ai[5] = (B[2] * B[3] - B[0] * B[5]) * id;
-    Ai[6] = c2 * id;
-    Ai[7] = (B[1] * B[6] - B[0] * B[7]) * id;
-    Ai[8] = (B[0] * B[4] - B[1] * B[3]) * id;
-    return 0;
-}
 
 /* y = K x, all rows */
 static void k_apply(condense_ws *w, const double *x, double *y)
@@ -150,7 +129,7 @@ static void ws_init(condense_ws *w, const sq_level *L, const sq_material *mat, c
             if (M->col[e] == i)
                 B = M->K + 9 * (size_t)e;
         double *Di = w->Dinv + 9 * (size_t)i;
-        if (inverse3(B, Di))
+        if (!B || sq_inv3(B, Di))
             Di[0] = Di[4] = Di[8] = B && B[0] + B[4] + B[8] > 0 ? 3 / (B[0] + B[4] + B[8]) : 0;
     }
 }

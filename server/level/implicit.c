@@ -224,21 +224,8 @@ int sq_imp_inv3_free(const double *Bin, unsigned fa, double *out)
             for (int k = 0; k < 3; k++) {
                 B[3 * c + k] = B[3 * k + c] = (k == c);
             }
-    double c00 = B[4] * B[8] - B[5] * B[7], c01 = B[5] * B[6] - B[3] * B[8], c02 = B[3] * B[7] - B[4] * B[6];
-    double det = B[0] * c00 + B[1] * c01 + B[2] * c02;
-    memset(out, 0, 9 * sizeof(double));
-    if (!(fabs(det) > 0) || !isfinite(det))
+    if (sq_inv3(B, out))
         return 0;
-    double id = 1.0 / det;
-    out[0] = c00 * id;
-    out[1] = (B[2] * B[7] - B[1] * B[8]) * id;
-    out[2] = (B[1] * B[5] - B[2] * B[4]) * id;
-    out[3] = c01 * id;
-    out[4] = (B[0] * B[8] - B[2] * B[6]) * id;
-    out[5] = (B[2] * B[3] - B[0] * B[5]) * id;
-    out[6] = c02 * id;
-    out[7] = (B[1] * B[6] - B[0] * B[7]) * id;
-    out[8] = (B[0] * B[4] - B[1] * B[3]) * id;
     for (int c = 0; c < 3; c++)
         if (!(fa & (1u << c)))
             for (int k = 0; k < 3; k++)

@@ -2,6 +2,7 @@
 #include "util/util.h"
 
 #include <errno.h>
+#include <math.h>
 #include <stdarg.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -240,5 +241,25 @@ int sq_mkdir_p(const char *dir)
         errno = ENOTDIR;
         return -1;
     }
+    return 0;
+}
+
+int sq_inv3(const double B[9], double out[9])
+{
+    const double c0 = B[4] * B[8] - B[5] * B[7], c1 = B[5] * B[6] - B[3] * B[8], c2 = B[3] * B[7] - B[4] * B[6];
+    const double det = B[0] * c0 + B[1] * c1 + B[2] * c2;
+    memset(out, 0, 9 * sizeof(double));
+    if (!(fabs(det) > 0) || !isfinite(det))
+        return -1;
+    const double id = 1.0 / det;
+    out[0] = c0 * id;
+    out[1] = (B[2] * B[7] - B[1] * B[8]) * id;
+    out[2] = (B[1] * B[5] - B[2] * B[4]) * id;
+    out[3] = c1 * id;
+    out[4] = (B[0] * B[8] - B[2] * B[6]) * id;
+    out[5] = (B[2] * B[3] - B[0] * B[5]) * id;
+    out[6] = c2 * id;
+    out[7] = (B[1] * B[6] - B[0] * B[7]) * id;
+    out[8] = (B[0] * B[4] - B[1] * B[3]) * id;
     return 0;
 }

@@ -55,6 +55,10 @@ static inline int sq_cancelled(void)
     return sq_cancel_flag && __atomic_load_n(sq_cancel_flag, __ATOMIC_RELAXED);
 }
 
+/* out = B^-1 for a 3x3 B (row-major), by cofactors; 0, or -1 when B is singular or its
+ * determinant not finite (then out = 0) */
+int sq_inv3(const double B[9], double out[9]);
+
 /* position of column j in row i of a CSR pattern whose rows are sorted (row i is
  * col[row_start[i] .. row_start[i + 1] - 1]), or -1: the mesh adjacency, a level's rows */
 static inline int sq_csr_find(const int *row_start, const int *col, int i, int j)

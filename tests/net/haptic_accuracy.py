@@ -18,8 +18,6 @@ contact with more than 1 N.
 """
 import json
 import os
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,6 +25,7 @@ import time
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 sys.path.insert(0, os.path.join(ROOT, "web"))
 from squish_client import SquishClient  # noqa: E402
+from pyserver import lockstep_server  # noqa: E402
 
 SQUISH = os.environ.get("SQUISH", os.path.join(ROOT, "build", "squish"))
 
@@ -142,20 +141,7 @@ def q(a, p):
 def main():
     tmp = tempfile.mkdtemp(prefix="squish-haptic-acc-")
     scenes(tmp)
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    srv = subprocess.Popen([SQUISH, "serve", "--host", "127.0.0.1", "--port", str(port), "--scenes", tmp,
-                            "--no-web", "--lockstep", "--rate", "100000"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        for _ in range(100):  # up to 10 s on a loaded machine
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-                break
-            except OSError:
-                time.sleep(0.1)
-        url = f"ws://127.0.0.1:{port}/ws"
+    with lockstep_server(SQUISH, tmp, ("--rate", "100000")) as url:
         for name in CASES:
             em, eh, ef = run(url, name)
             print(f"{name}: slow press 3 cm/s, force at mid-frame against the 500 Hz reference, "
@@ -168,9 +154,6 @@ def main():
                   f"at every substep (lockstep ramp; its frame force for the mid-frame force), {len(em)} frames "
                   f"over 1 N: model median {100 * q(em, 0.5):.1f} % p90 {100 * q(em, 0.9):.1f} %; zero-order hold "
                   f"median {100 * q(eh, 0.5):.1f} % p90 {100 * q(eh, 0.9):.1f} % (aim: model within 5 %)")
-    finally:
-        srv.terminate()
-        srv.wait()
 
 
 if __name__ == "__main__":

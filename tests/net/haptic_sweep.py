@@ -11,36 +11,20 @@ and between 10 and 100 Hz (contact chatter at the frame rate), and resets. A mea
 test: the stage test (tests/stages/haptic.sh) asserts the default coupling only.
 """
 import os
-import socket
-import subprocess
 import sys
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(HERE, "..", "..", "web"))
 import haptic_test as H  # noqa: E402
+from pyserver import lockstep_server  # noqa: E402
 
 SQUISH = os.environ.get("SQUISH", os.path.join(HERE, "..", "..", "build", "squish"))
 SWEEP = ((0.1, (250.0, 500.0, 1000.0)), (0.2, (500.0, 1000.0, 2000.0)), (0.4, (1000.0, 2000.0, 3000.0)))
 
 
 def main():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    srv = subprocess.Popen([SQUISH, "serve", "--host", "127.0.0.1", "--port", str(port), "--scenes",
-                            os.path.join(HERE, "..", "..", "meshes", "scenes"), "--no-web", "--lockstep"],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        for _ in range(100):  # up to 10 s on a loaded machine
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-                break
-            except OSError:
-                time.sleep(0.1)
-        url = f"ws://127.0.0.1:{port}/ws"
+    with lockstep_server(SQUISH, os.path.join(HERE, "..", "..", "meshes", "scenes")) as url:
         n = sum(len(ks) for _m, ks in SWEEP)
         done = 0
         for mass, ks in SWEEP:
@@ -59,9 +43,6 @@ def main():
                 print(f"device {mass} kg, coupling {k:5.0f} N/m: most net work on the device {1e3 * max(work):+.2f} mJ, "
                       f"{max(work) / tol:5.2f} x the tolerance {1e3 * tol:.2f} mJ ({'passive' if max(work) <= tol else 'NOT passive'}); "
                       f"force energy above 100 Hz {100 * high:.1f} %, 10-100 Hz {100 * band:.1f} %; resets {len(resets)}", flush=True)
-    finally:
-        srv.terminate()
-        srv.wait()
 
 
 if __name__ == "__main__":
