@@ -68,7 +68,6 @@ static int box_on(const sq_obstacle *o, int frames, int corot, const char *label
     def.material.density = 1000;
     def.material.rayleigh_mass = 2.0;
     def.gravity[2] = -9.81;
-    def.sharp_step = 1;
     def.elasticity = corot ? SQ_ELASTICITY_COROTATIONAL : SQ_ELASTICITY_LINEAR;
     sq_body *b = sq_body_create(&def, &e);
     if (!b) {

@@ -68,7 +68,6 @@ static int beam_make(bi_beam *bb, double lx, double s, int nx, int ns, int coars
     def.elasticity = el;
     def.integrator = SQ_INTEGRATOR_IMPLICIT;
     def.implicit = *imp;
-    def.sharp_step = 1;
     if (!(bb->b = sq_body_create(&def, err))) {
         beam_free(bb);
         return -1;
