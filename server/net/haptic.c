@@ -361,6 +361,29 @@ static void frictionless(sq_tool_model *m)
     }
 }
 
+/* S (symmetric 3x3) is positive semi-definite: its principal minors are >= 0 (less a
+ * rounding margin relative to its size) */
+static int psd3(const double S[9])
+{
+    const double tol = -1e-9 * (fabs(S[0]) + fabs(S[4]) + fabs(S[8]));
+    const double m2a = S[0] * S[4] - S[1] * S[3], m2b = S[0] * S[8] - S[2] * S[6], m2c = S[4] * S[8] - S[5] * S[7];
+    const double det = S[0] * m2c - S[1] * (S[3] * S[8] - S[5] * S[6]) + S[2] * (S[3] * S[7] - S[4] * S[6]);
+    const double t2 = tol * fabs(tol), t3 = t2 * fabs(tol);
+    return S[0] >= tol && S[4] >= tol && S[8] >= tol && m2a >= t2 && m2b >= t2 && m2c >= t2 && det >= t3;
+}
+
+/* a grab's Kc lies between 0 and K (-Kc and Kc - K positive semi-definite), as a condensation
+ * does; one that has not converged from a warm start may not, and is then not used */
+static int between(const double Kc[9], const double K[9])
+{
+    double a[9], b[9];
+    for (int k = 0; k < 9; k++) {
+        a[k] = -Kc[k];
+        b[k] = Kc[k] - K[k];
+    }
+    return psd3(a) && psd3(b);
+}
+
 void sq_haptic_hub_init(sq_haptic_hub *h)
 {
     memset(h, 0, sizeof *h);
@@ -546,6 +569,8 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
                     sum->normal[c] = nsum[c] / nn;
             if (sum->push && sum->nnodes > 0)
                 frictionless(sum);
+            else if (!between(sum->Kc, sum->K))
+                memcpy(sum->Kc, sum->K, sizeof sum->K); /* the relaxing model then is K's */
         }
     }
     pthread_mutex_lock(&h->mu);
