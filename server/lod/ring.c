@@ -39,7 +39,7 @@
 
 typedef sq_lodx_source src_item;
 
-static int cmp_src(const void *pa, const void *pb)
+int sq_lodx_source_cmp(const void *pa, const void *pb)
 {
     const src_item *a = pa, *b = pb;
     if (a->level != b->level)
@@ -47,20 +47,19 @@ static int cmp_src(const void *pa, const void *pb)
     return (a->node > b->node) - (a->node < b->node);
 }
 
-/* expand ghost j of level `lev` (weight w) into active sources */
-static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_item **buf, int *n,
-                   int *cap)
+static void expand(const sq_lod *lod, int lev, int j, double w, int depth, int max_depth, int anchors,
+                   src_item **buf, int *n, int *cap)
 {
-    unsigned char st = lod->lev[lev].lay.state[j];
-    if (st == ST_ACTIVE) {
+    const unsigned char st = lod->lev[lev].lay.state[j];
+    if (st == ST_ACTIVE || (anchors && lod->lv[lev].model.fixed[j])) {
         if (*n == *cap) {
             *cap = *cap ? 2 * *cap : 256;
             *buf = sq_realloc(*buf, sizeof(src_item) * (size_t)*cap);
         }
-        (*buf)[(*n)++] = (src_item){lev, j, w};
+        (*buf)[(*n)++] = st == ST_ACTIVE ? (src_item){lev, j, w} : (src_item){-1, -1, w};
         return;
     }
-    if (depth >= SOURCE_DEPTH)
+    if (depth >= max_depth)
         return;
     int m;
     const double *b;
@@ -69,7 +68,14 @@ static void expand(const sq_lod *lod, int lev, int j, double w, int depth, src_i
         return;
     for (int q = 0; q < 4; q++)
         if (b[q] != 0)
-            expand(lod, m, tn[q], w * b[q], depth + 1, buf, n, cap);
+            expand(lod, m, tn[q], w * b[q], depth + 1, max_depth, anchors, buf, n, cap);
+}
+
+void sq_lodx_expand(const sq_lod *lod, int lev, int j, int max_depth, int anchors, sq_lodx_source **buf, int *n,
+                    int *cap)
+{
+    *n = 0;
+    expand(lod, lev, j, 1.0, 0, max_depth, anchors, buf, n, cap);
 }
 
 int sq_lodx_sources_combine(sq_lodx_source *buf, int n, double *sum_out)
@@ -77,7 +83,7 @@ int sq_lodx_sources_combine(sq_lodx_source *buf, int n, double *sum_out)
     for (int i = 1; i < n; i++) { /* a few dozen items: insertion sort */
         src_item x = buf[i];
         int q = i - 1;
-        while (q >= 0 && cmp_src(&buf[q], &x) > 0) {
+        while (q >= 0 && sq_lodx_source_cmp(&buf[q], &x) > 0) {
             buf[q + 1] = buf[q];
             q--;
         }
@@ -145,8 +151,8 @@ void sq_lodx_build_sources(sq_lod *lod)
         lod->lev[k].lay.src_start[0] = 0;
         sq_lodx_tick_hot_stale(lod, k);
         for (int r = 0; r < lod->lev[k].lay.nring; r++) {
-            int n = 0;
-            expand(lod, k, lod->lev[k].lay.ring[r], 1.0, 0, &buf, &n, &cap);
+            int n;
+            sq_lodx_expand(lod, k, lod->lev[k].lay.ring[r], SOURCE_DEPTH, 0, &buf, &n, &cap);
             double sum;
             int u = sq_lodx_sources_combine(buf, n, &sum); /* 0: no active source, the ghost keeps
                                                             * its value and takes no force */

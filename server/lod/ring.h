@@ -17,6 +17,17 @@ typedef struct sq_lodx_source {
     double w;
 } sq_lodx_source;
 
+/* node j of level lev (not of itself a source) expanded through the hierarchy into active
+ * sources, in *buf[0..*n) (grown as needed, *cap its size): an active node is a source; any
+ * other is replaced by its interpolation tet's corners (sq_lodx_interp_tet), each with its
+ * weight, up to max_depth hops, and sources still not active after them dropped. anchors 1: a
+ * node with a constrained axis also ends the expansion, as the anchor (level and node -1; the
+ * push holds it at zero there) */
+void sq_lodx_expand(const sq_lod *lod, int lev, int j, int max_depth, int anchors, sq_lodx_source **buf, int *n,
+                    int *cap);
+/* sources by level, then node */
+int sq_lodx_source_cmp(const void *a, const void *b);
+
 /* buf[0..n) made a combination: sorted by level and node, duplicates merged, the positive
  * sources only when the negative weights outweigh the net one (a bounded combination); returns
  * the count kept (0 when the weights sum to under 1e-3: no active source) and their sum */

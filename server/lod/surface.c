@@ -18,39 +18,8 @@
 #include <string.h>
 
 #define ROW_MAX 32   /* terms kept per row (the largest weights; a row seldom has over 16) */
-#define BUF_MAX 1024 /* expansion terms before merging */
 
 typedef sq_lodx_source term;
-
-static void expand(const sq_lod *lod, int lev, int j, double w, int depth, term *buf, int *n)
-{
-    const unsigned char st = lod->lev[lev].lay.state[j];
-    if (st == ST_ACTIVE || lod->lv[lev].model.fixed[j]) {
-        /* an active node; a ghost with a constrained axis is held at zero there by the push
-         * (its value is not its interpolation): the anchor's share */
-        if (*n < BUF_MAX)
-            buf[(*n)++] = st == ST_ACTIVE ? (term){lev, j, w} : (term){-1, -1, w};
-        return;
-    }
-    if (depth > lod->L)
-        return;
-    int m;
-    const double *b;
-    const int *tn = sq_lodx_interp_tet(lod, lev, j, st == ST_COARSE, &m, &b);
-    if (!tn)
-        return;
-    for (int q = 0; q < 4; q++)
-        if (b[q] != 0)
-            expand(lod, m, tn[q], w * b[q], depth + 1, buf, n);
-}
-
-static int cmp_term(const void *pa, const void *pb)
-{
-    const term *a = pa, *b = pb;
-    if (a->level != b->level)
-        return a->level < b->level ? -1 : 1;
-    return (a->node > b->node) - (a->node < b->node);
-}
 
 static int cmp_weight(const void *pa, const void *pb) /* largest |w| first, then by node */
 {
@@ -58,15 +27,16 @@ static int cmp_weight(const void *pa, const void *pb) /* largest |w| first, then
     const double x = fabs(a->w), y = fabs(b->w);
     if (x != y)
         return x > y ? -1 : 1;
-    return cmp_term(pa, pb);
+    return sq_lodx_source_cmp(pa, pb);
 }
 
 /* finest node j's row: its active terms (and the anchor's share), merged, renormalised; the
  * count (0: no source, the anchor alone) */
-static int row_of(const sq_lod *lod, int j, term *buf)
+static int row_of(const sq_lod *lod, int j, term **bufp, int *cap)
 {
-    int n = 0;
-    expand(lod, lod->L - 1, j, 1.0, 0, buf, &n);
+    int n;
+    sq_lodx_expand(lod, lod->L - 1, j, lod->L + 1, 1, bufp, &n, cap);
+    term *buf = *bufp;
     double sum;
     int u = sq_lodx_sources_combine(buf, n, &sum);
     if (u > ROW_MAX) {
@@ -75,7 +45,7 @@ static int row_of(const sq_lod *lod, int j, term *buf)
         sum = 0;
         for (int i = 0; i < u; i++)
             sum += buf[i].w;
-        qsort(buf, (size_t)u, sizeof *buf, cmp_term);
+        qsort(buf, (size_t)u, sizeof *buf, sq_lodx_source_cmp);
     }
     if (!(fabs(sum) > 1e-3))
         return 0;
@@ -129,7 +99,8 @@ static void build(sq_lod *lod)
     }
     s->map.ndof = 1; /* unknown 0: the anchor */
     s->level[0] = s->node[0] = -1;
-    term *buf = sq_malloc(sizeof(term) * BUF_MAX);
+    term *buf = NULL;
+    int bcap = 0;
     int ne = 0;
     /* rows in node order */
     unsigned char *on = sq_calloc((size_t)SQ_MAX(nf, 1), 1);
@@ -139,7 +110,7 @@ static void build(sq_lod *lod)
         s->start[j] = ne;
         if (!on[j])
             continue;
-        int u = Lf->model.fixed[j] ? 0 : row_of(lod, j, buf);
+        int u = Lf->model.fixed[j] ? 0 : row_of(lod, j, &buf, &bcap);
         if (ne + SQ_MAX(u, 1) > s->cap) {
             s->cap = SQ_MAX(2 * s->cap, ne + ROW_MAX + 1024);
             s->dof = sq_realloc(s->dof, sizeof(int) * (size_t)s->cap);
