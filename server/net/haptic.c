@@ -561,7 +561,6 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
                     sum->Kc[c] += m.Kc[c];
                 }
                 sum->tau = fmax(sum->tau, m.tau);
-                sum->cg_iterations += m.cg_iterations;
             }
             double nn = sqrt(nsum[0] * nsum[0] + nsum[1] * nsum[1] + nsum[2] * nsum[2]);
             if (nn > 0)

@@ -82,8 +82,9 @@ typedef struct sq_haptic_out {
 } sq_haptic_out;
 
 /* the force for device position xd at device time t from model m (valid 0: none yet) with the
- * coupling: tool p solves k (xd - p) + f(p) = 0, f(p) = f0 + K (p - p0) (K is negative
- * semi-definite, so k I - K is invertible for k > 0); force = f(p) + c (v_p - v_d), the damper
+ * coupling: tool p solves k (xd - p) + f(p) = 0, f(p) = f0 + K (p - p0), or while the model
+ * is trusted the relaxing model between Kc and K (haptic.c: both negative semi-definite, so
+ * the system is invertible for k > 0); force = f(p) + c (v_p - v_d), the damper
  * acting only between two poses in contact on the same frame's model (a new model moves the
  * tool at once: that jump is not a velocity). A passivity observer keeps the energy the channel
  * has absorbed from the device (force held over each device step); when it is negative (the
