@@ -91,6 +91,7 @@ typedef struct sq_tool_model {
     int cg_iterations; /* the condensation's conjugate-gradient iterations over Kc's 3 columns */
     double tau;        /* s: the time over which the body's response goes from K to Kc, taken as
                           the frame period (the next frame's f0 carries the rest) */
+    double period;     /* s: the frame period, how often the model is renewed (0: not known) */
 } sq_tool_model;
 
 /* create; computes operators and stability bounds; NULL + err (with numbers) if the

@@ -210,14 +210,15 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
 {
     memset(out, 0, sizeof *out);
     double f[3];
-    /* a new frame's model: blended in over SQ_HAPTIC_BLEND s of device time from the one the
-     * last pose used, so that the force has no step at the frame rate */
+    /* a new frame's model: blended in over SQ_HAPTIC_BLEND of its frame period (device time)
+     * from the one the last pose used, so that the force has no step at the frame rate */
     if (!st->has_model || frame != st->frame) {
         if (st->has_model) {
             st->prev = st->model;
             st->prev_valid = st->model_valid;
             memcpy(st->prev_arm_ref, st->arm_ref, sizeof st->arm_ref);
             st->blend_t0 = t;
+            st->blend_len = SQ_HAPTIC_BLEND * (m->period > 0 ? m->period : SQ_HAPTIC_PERIOD);
             st->blending = 1;
         }
         /* the relaxing model only while the last one foretold this frame's force: a contact
@@ -246,7 +247,7 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
         st->trusted = trust;
         memcpy(st->arm_ref, st->arm, sizeof st->arm);
     }
-    double w = st->blending ? (t - st->blend_t0) / SQ_HAPTIC_BLEND : 1;
+    double w = st->blending ? (t - st->blend_t0) / st->blend_len : 1;
     if (!(w < 1))
         st->blending = 0, w = 1;
     if (w < 0)
@@ -535,6 +536,7 @@ void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)
     for (int k = 0; k < n; k++) {
         sq_tool_model *sum = &models[k];
         memset(sum, 0, sizeof *sum);
+        sum->period = w->scene->frame_rate > 0 ? 1.0 / w->scene->frame_rate : 0;
         valid[k] = 0;
         for (int i = 0; i < w->ntools; i++) {
             if (w->tools[i].id != ids[k])

@@ -35,8 +35,11 @@
 #define SQ_HAPTIC_F_DISSIPATING 8u   /* the passivity controller added damping to this force */
 #define SQ_HAPTIC_F_RELAXING 16u     /* the force is the relaxing model's (Kc and the arm), not
                                         the instantaneous K's */
-#define SQ_HAPTIC_BLEND 0.01         /* s of device time over which a new frame's model is
-                                        blended in */
+#define SQ_HAPTIC_BLEND 0.5          /* frame periods of device time over which a new frame's
+                                        model is blended in: done well before the next one
+                                        comes (a blend as long as the period never ends, and
+                                        each model's arrival steps the force) */
+#define SQ_HAPTIC_PERIOD 0.02        /* s, the frame period taken for a model that has none */
 #define SQ_HAPTIC_TRUST 0.1         /* the relaxing model is used while the last one foretold
                                         the new frame's force within this fraction */
 #define SQ_HAPTIC_DEVICE_MASS 0.2    /* default device mass, kg: the passivity controller's
@@ -62,7 +65,7 @@ typedef struct sq_haptic_state {
     int has_model, model_valid, prev_valid, blending;
     int ever_contact;                /* a pose of this channel has been in contact */
     sq_tool_model model, prev;       /* the model of the last pose, the one blended from */
-    double blend_t0;                 /* device time the blend began */
+    double blend_t0, blend_len;      /* device time the blend began, and its length (s) */
     double force[3];                 /* the force answered to the last pose, N */
     double energy;                   /* J absorbed from the device so far: sum of
                                         -force_k . (xd_k+1 - xd_k) (passivity observer) */

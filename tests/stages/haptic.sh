@@ -17,10 +17,10 @@ stop() { [ -n "$srv_pid" ] && kill "$srv_pid" 2>/dev/null && wait "$srv_pid" 2>/
 trap 'stop; rm -rf "$TMP"' EXIT
 
 free_port() { "$PY" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1]); s.close()'; }
-start() { # start [flags...]: a server on a free port, url in $url
+start() { # start [flags...]: a server on a free port, url in $url (scenes from $scenes)
     local port
     port=$(free_port)
-    "$SQUISH" serve --host 127.0.0.1 --port "$port" --scenes meshes/scenes --no-web "$@" >"$tmp/serve.log" 2>&1 &
+    "$SQUISH" serve --host 127.0.0.1 --port "$port" --scenes "${scenes:-meshes/scenes}" --no-web "$@" >"$tmp/serve.log" 2>&1 &
     srv_pid=$!
     for _ in $(seq 100); do
         "$PY" -c "import urllib.request,sys; urllib.request.urlopen('http://127.0.0.1:$port/healthz')" 2>/dev/null && break
@@ -46,6 +46,19 @@ else
     bad "tests/net/example_haptic.py"; cat "$tmp/example.out"
 fi
 stop
+
+# the same device on cube-poke at 100 frames a second (the model renewed every 10 ms)
+if "$PY" tests/net/haptic_test.py scene 100 "$tmp/scenes-100"; then
+    scenes=$tmp/scenes-100 start --lockstep
+    "$PY" tests/net/haptic_test.py device-rate "$url" 100 >"$tmp/rate.out" 2>&1
+    rc=$?
+    cat "$tmp/rate.out"
+    count "$tmp/rate.out"
+    [ "$rc" = 0 ] || grep -q '^not ok' "$tmp/rate.out" || bad "haptic_test.py device-rate exited with $rc"
+    stop
+else
+    bad "haptic_test.py scene 100: could not write the 100 Hz scene"
+fi
 
 start
 "$PY" tests/net/haptic_test.py input "$url" >"$tmp/input.out" 2>&1

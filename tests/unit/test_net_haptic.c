@@ -235,6 +235,36 @@ static sq_body *grab_cube(sq_mesh **m, sq_tool *t, double E)
     return b;
 }
 
+/* A new frame's model is blended in over half its frame period, whatever the rate: a blend as
+ * long as the period would never end at 100 Hz and each model's arrival would step the force
+ * (measured: the device of tests/net/haptic_test.py gave energy at every coupling then). The
+ * device is still (no damper, no controller at work): the force is the weights' mix, exact to
+ * rounding (1e-12 N on 10 N). */
+SQ_TEST(net_haptic_blend_follows_period)
+{
+    static const double periods[] = {0.01, 0.02, 0.04};
+    for (size_t q = 0; q < SQ_COUNTOF(periods); q++) {
+        const double T = periods[q];
+        sq_haptic_coupling cp = {.stiffness = 0, .damping = 0};
+        sq_haptic_state st;
+        memset(&st, 0, sizeof st);
+        sq_haptic_out o;
+        const double xd[3] = {0, 0, 1.0};
+        sq_tool_model a = grab_model(100), b = grab_model(100);
+        a.f0[2] = 0;
+        b.f0[2] = 10;
+        a.period = b.period = T;
+        sq_haptic_eval(&a, 1, 1, &cp, &st, xd, 0.0, &o);
+        CHECK_NEAR(o.force[2], 0.0, 1e-12);
+        sq_haptic_eval(&b, 1, 2, &cp, &st, xd, 1e-3, &o); /* b arrives: its blend starts */
+        CHECK_NEAR(o.force[2], 0.0, 1e-12);
+        sq_haptic_eval(&b, 1, 2, &cp, &st, xd, 1e-3 + 0.25 * T, &o);
+        CHECK_NEAR(o.force[2], 5.0, 1e-12); /* half way */
+        sq_haptic_eval(&b, 1, 2, &cp, &st, xd, 1e-3 + 0.5 * T, &o);
+        CHECK_NEAR(o.force[2], 10.0, 1e-12); /* done at half the period, before the next model */
+    }
+}
+
 /* the body's grab model against the frames with the tool moved by h: the settled feedback's
  * change over h is the static stiffness, the model's condensed Kc; its instantaneous K is
  * stiffer */
