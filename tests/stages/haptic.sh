@@ -32,13 +32,18 @@ count() { # count FILE: add the file's ok / not ok lines
     pass=$((pass + $(grep -c '^ok - ' "$1")))
     fail=$((fail + $(grep -c '^not ok - ' "$1")))
 }
+check_mode() { # check_mode NAME ARGS...: haptic_test.py ARGS..., shown and counted as NAME
+    local name=$1 rc
+    shift
+    "$PY" tests/net/haptic_test.py "$@" >"$tmp/$name.out" 2>&1
+    rc=$?
+    cat "$tmp/$name.out"
+    count "$tmp/$name.out"
+    [ "$rc" = 0 ] || grep -q '^not ok' "$tmp/$name.out" || bad "haptic_test.py $1 exited with $rc"
+}
 
 start --lockstep
-"$PY" tests/net/haptic_test.py device "$url" >"$tmp/device.out" 2>&1
-rc=$?
-cat "$tmp/device.out"
-count "$tmp/device.out"
-[ "$rc" = 0 ] || grep -q '^not ok' "$tmp/device.out" || bad "haptic_test.py device exited with $rc"
+check_mode device device "$url"
 if "$PY" tests/net/example_haptic.py "$url" >"$tmp/example.out" 2>&1 && grep -q '^released' "$tmp/example.out" &&
    awk '/force/ { if ($8 + 0 > 1) hit = 1 } END { exit !hit }' "$tmp/example.out"; then
     ok "tests/net/example_haptic.py prints a force curve with the press felt (> 1 N)"
@@ -50,21 +55,13 @@ stop
 # the same device on cube-poke at 100 frames a second (the model renewed every 10 ms)
 if "$PY" tests/net/haptic_test.py scene 100 "$tmp/scenes-100"; then
     scenes=$tmp/scenes-100 start --lockstep
-    "$PY" tests/net/haptic_test.py device-rate "$url" 100 >"$tmp/rate.out" 2>&1
-    rc=$?
-    cat "$tmp/rate.out"
-    count "$tmp/rate.out"
-    [ "$rc" = 0 ] || grep -q '^not ok' "$tmp/rate.out" || bad "haptic_test.py device-rate exited with $rc"
+    check_mode rate device-rate "$url" 100
     stop
 else
     bad "haptic_test.py scene 100: could not write the 100 Hz scene"
 fi
 
 start
-"$PY" tests/net/haptic_test.py input "$url" >"$tmp/input.out" 2>&1
-rc=$?
-cat "$tmp/input.out"
-count "$tmp/input.out"
-[ "$rc" = 0 ] || grep -q '^not ok' "$tmp/input.out" || bad "haptic_test.py input exited with $rc"
+check_mode input input "$url"
 stop
 finish
