@@ -218,7 +218,6 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
             st->prev_valid = st->model_valid;
             memcpy(st->prev_arm_ref, st->arm_ref, sizeof st->arm_ref);
             st->blend_t0 = t;
-            st->blend_len = SQ_HAPTIC_BLEND * (m->period > 0 ? m->period : SQ_HAPTIC_PERIOD);
             st->blending = 1;
         }
         /* the relaxing model only while the last one foretold this frame's force: a contact
@@ -247,7 +246,8 @@ void sq_haptic_eval(const sq_tool_model *m, int valid, long frame, const sq_hapt
         st->trusted = trust;
         memcpy(st->arm_ref, st->arm, sizeof st->arm);
     }
-    double w = st->blending ? (t - st->blend_t0) / st->blend_len : 1;
+    const double period = st->model.period > 0 ? st->model.period : SQ_HAPTIC_PERIOD;
+    double w = st->blending ? (t - st->blend_t0) / (SQ_HAPTIC_BLEND * period) : 1;
     if (!(w < 1))
         st->blending = 0, w = 1;
     if (w < 0)

@@ -65,7 +65,7 @@ typedef struct sq_haptic_state {
     int has_model, model_valid, prev_valid, blending;
     int ever_contact;                /* a pose of this channel has been in contact */
     sq_tool_model model, prev;       /* the model of the last pose, the one blended from */
-    double blend_t0, blend_len;      /* device time the blend began, and its length (s) */
+    double blend_t0;                 /* device time the blend began */
     double force[3];                 /* the force answered to the last pose, N */
     double energy;                   /* J absorbed from the device so far: sum of
                                         -force_k . (xd_k+1 - xd_k) (passivity observer) */

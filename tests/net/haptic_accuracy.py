@@ -25,7 +25,7 @@ import time
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
 sys.path.insert(0, os.path.join(ROOT, "web"))
 from squish_client import SquishClient  # noqa: E402
-from pyserver import lockstep_server  # noqa: E402
+from pyserver import load_scene, lockstep_server  # noqa: E402
 
 SQUISH = os.environ.get("SQUISH", os.path.join(ROOT, "build", "squish"))
 
@@ -44,10 +44,8 @@ CASES = {
 
 def scenes(tmp):
     for name, (f, *_r, lod) in CASES.items():
-        src = os.path.join(ROOT, "meshes", "scenes", f)
-        s = json.load(open(src))
+        s = load_scene(os.path.join(ROOT, "meshes", "scenes", f))
         for b in s["bodies"]:
-            b["levels"] = [os.path.abspath(os.path.join(os.path.dirname(src), p)) for p in b["levels"]]
             if lod:
                 b["lod"] = dict(lod)
         s["tools"] = []  # the press is driven by this script

@@ -4,7 +4,8 @@
 
 The simulated device of tests/net/haptic_test.py (a mass on a 300 N/m, 5 N s/m hand, 1 kHz,
 pressing cube-poke's top, dragging, releasing) on a --lockstep server, for each frame rate of
-the scene (50 Hz as shipped, 25 and 100 Hz), device mass and coupling stiffness (coupling damping 2 N s/m, the channel told the device's mass). Prints
+the scene (50 Hz as shipped, 25 and 100 Hz), device mass and coupling stiffness (coupling
+damping 2 N s/m, the channel told the device's mass). Prints
 for each: the channel's most net work on the device against the test's tolerance (5 % of the
 most it absorbed; above 1.0 the loop gave the device energy), the force's energy above 100 Hz,
 and between 10 and 100 Hz (contact chatter at the frame rate), and resets. A measurement, not a
@@ -50,7 +51,7 @@ def main():
                     except TimeoutError as e:
                         print(f"{what}: no answer ({e})", flush=True)
                         continue
-                    tol = 0.05 * max(1e-3, -min(work))
+                    tol = H.tolerance(work)
                     fz = [f[2] for f in forces]
                     high = H.high_fraction(fz[:2000], H.DT, 100.0)
                     band = H.high_fraction(fz[:2000], H.DT, 10.0) - high

@@ -2,8 +2,12 @@
 started on a free loopback port, waited for, stopped on leaving.
 
     with lockstep_server(squish, scenes_dir, extra_args) as url: ...
+    load_scene(path): a scene file's JSON with its levels' paths made absolute (to be changed and
+    written elsewhere)
 """
 import contextlib
+import json
+import os
 import socket
 import subprocess
 import time
@@ -30,3 +34,10 @@ def lockstep_server(squish, scenes, extra=()):
     finally:
         srv.terminate()
         srv.wait()
+
+
+def load_scene(path):
+    s = json.load(open(path))
+    for b in s["bodies"]:
+        b["levels"] = [os.path.abspath(os.path.join(os.path.dirname(path), p)) for p in b["levels"]]
+    return s
