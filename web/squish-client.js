@@ -432,8 +432,9 @@ export class SquishClient extends Emitter {
 
   // ---- haptic channel (docs/protocol.md, "Haptic channel")
   /** Open the haptic channel of tool `tool`: resolves with { channel, max_rate, stiffness, damping, ... }. */
-  hapticOpen(tool, { stiffness, damping, ramp, deviceMass } = {}) {
+  hapticOpen(tool, { stiffness, damping, ramp, deviceMass, focus } = {}) {
     const m = { type: 'haptic', tool };
+    if (focus !== undefined) m.focus = focus; // tool sizes an adaptive body keeps at its finest level about the tool
     if (deviceMass !== undefined) m.device_mass = deviceMass; // kg: bounds the passivity controller's damping
     if (stiffness !== undefined) m.stiffness = stiffness;
     if (damping !== undefined) m.damping = damping;

@@ -484,13 +484,16 @@ class SquishClient:
             self.off("nodes", on)
 
     # ------------------------------------------------------------------ haptic channel
-    def haptic_open(self, tool, stiffness=None, damping=None, ramp=None, device_mass=None):
+    def haptic_open(self, tool, stiffness=None, damping=None, ramp=None, device_mass=None, focus=None):
         """Open the haptic channel of tool `tool` (controller only); returns the reply
-        (channel, max_rate, stiffness, damping, device_mass, ramp, ...). ramp: on a lockstep
-        server, each frame's substeps take the pose interpolated from the last frame's to the
-        newest. device_mass: the device's moving mass, kg (the passivity controller's damping
-        stays below it over the pose interval)."""
+        (channel, max_rate, stiffness, damping, device_mass, focus, ramp, ...). ramp: on a
+        lockstep server, each frame's substeps take the pose interpolated from the last frame's
+        to the newest. device_mass: the device's moving mass, kg (the passivity controller's
+        damping stays below it over the pose interval). focus: tool sizes about the tool an
+        adaptive body keeps at its finest level (0: the lod's criterion alone)."""
         m = {"type": "haptic", "tool": tool}
+        if focus is not None:
+            m["focus"] = focus
         if device_mass is not None:
             m["device_mass"] = device_mass
         if ramp is not None:

@@ -63,6 +63,11 @@ typedef struct sq_tool {
     /* grab: 1 = this body may not use the nearest-node fallback (set per body by the world:
      * the fallback only takes the one body nearest to the capture point) */
     int no_fallback;
+    /* an adaptive body keeps its finest level within focus times the tool's size (sphere
+     * radius, box half-diagonal, grab capture radius) of pos; 0: the lod's criterion alone
+     * (set by a haptic channel on its tool, from the channel's `focus`: a split or merge near
+     * the tool would change the felt force in a step no model of one frame foresees) */
+    double focus;
 } sq_tool;
 
 typedef struct sq_tool_feedback {

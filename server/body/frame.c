@@ -347,6 +347,25 @@ void sq_body_prepare_budget(sq_body *b)
         sq_lod_prepare_budget(b->lod);
 }
 
+/* the spheres an adaptive frame keeps at the finest level: each active tool with a focus
+ * (sq_tool.focus), centre its pos, radius focus times its size (sphere radius, box
+ * half-diagonal, grab capture radius); returns how many */
+static int focus_spheres(const sq_tool *tools, int ntools, double out[][4])
+{
+    int n = 0;
+    for (int t = 0; t < ntools && n < SQ_MAX_TOOLS; t++) {
+        const sq_tool *tl = &tools[t];
+        if (!tl->active || !(tl->focus > 0))
+            continue;
+        const double size = tl->shape == SQ_TOOL_BOX
+                                ? sqrt(tl->half[0] * tl->half[0] + tl->half[1] * tl->half[1] + tl->half[2] * tl->half[2])
+                                : tl->radius;
+        memcpy(out[n], tl->pos, 3 * sizeof(double));
+        out[n++][3] = tl->focus * size;
+    }
+    return n;
+}
+
 int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback *feedback,
                   sq_frame_profile *prof, double frame_budget_s)
 {
@@ -395,11 +414,14 @@ int sq_body_frame(sq_body *b, const sq_tool *tools, int ntools, sq_tool_feedback
     } else {
         b->sleeping = 0;
         if (b->def.lod.mode == SQ_LOD_ADAPTIVE) {
+            double focus[SQ_MAX_TOOLS][4];
+            const int nfocus = focus_spheres(tools, ntools, focus);
             sq_lod_frame_in in = {.mat = &b->def.material, .frame_dt = b->def.frame_dt, .holds = b->holds,
                                   .nholds = nholds, .ntools = ntools, .budget_s = frame_budget_s,
                                   .obstacles = b->obstacles, .nobstacles = b->nobstacles, .targets = b->targets,
                                   .ntargets = b->ntargets, .contact = &b->contact,
-                                  .touched = b->touched, .live = b->live ? live_lod : NULL, .live_arg = b};
+                                  .touched = b->touched, .live = b->live ? live_lod : NULL, .live_arg = b,
+                                  .focus = nfocus ? (const double(*)[4])focus : NULL, .nfocus = nfocus};
             memcpy(in.gravity, b->def.gravity, sizeof in.gravity);
             sq_lod_frame(b->lod, &in, force, prof);
             sq_body_count_health(b, prof->event_kind, prof->event_value[0]); /* budget warnings */

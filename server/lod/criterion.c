@@ -2,8 +2,9 @@
  *
  * delta_i = hbar_i^2 |Lap(d)_i| (paper Eq. 9) with the boundary-corrected lumped Laplacian
  * (its weights made at creation, state.c's sq_lodx_criterion_weights),
- * judged from each level's static equilibrium; splits of active nodes above lod.split,
- * merges of split nodes whose children are all below lod.merge (each made by state.c's
+ * judged from each level's static equilibrium; splits of active nodes above lod.split (or
+ * inside one of the frame's focus spheres), merges of split nodes whose children are all
+ * below lod.merge (never inside a focus sphere) (each made by state.c's
  * sq_lodx_split_node, sq_lodx_merge_node), the node-update cap
  * (sq_lodx_enforce_cap), and the stand-alone pass sq_lod_adapt. The frame runs this at its end, when
  * every level is at the same time (frame.c's criterion stage).
@@ -69,6 +70,25 @@ double sq_lod_delta(const sq_lod *lod, int level, int node)
     return sq_lodx_delta(lod, level, node);
 }
 
+/* node i of level k (at its rest position plus its displacement) lies within its mean edge
+ * length (hbar) of a focus sphere of the frame (sq_lod_frame_in.focus): its neighbourhood
+ * reaches into the sphere, so it is kept at the finest level (a coarse node whose tets cover
+ * the sphere splits though the node itself lies outside) */
+static int in_focus(const sq_lod *lod, int k, int i)
+{
+    const sq_level *L = &lod->lv[k];
+    const double *x = L->model.mesh->x + 3 * (size_t)i, *d = L->state.d + 3 * (size_t)i;
+    for (int s = 0; s < lod->nfocus; s++) {
+        const double *f = lod->focus[s], reach = f[3] + L->model.hbar[i];
+        double r2 = 0;
+        for (int c = 0; c < 3; c++)
+            r2 += (x[c] + d[c] - f[c]) * (x[c] + d[c] - f[c]);
+        if (r2 < reach * reach)
+            return 1;
+    }
+    return 0;
+}
+
 /* split/merge between levels k and k+1 (both at the same time); `allow_split` from the
  * budget; the node-update cap refuses splits that would exceed it */
 void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, adapt_out *out)
@@ -88,7 +108,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         for (int i = 0; i < Lk->model.n; i++) {
             if (lk->lay.state[i] != ST_ACTIVE)
                 continue;
-            if (!forced && !(sq_lodx_delta(lod, k, i) > def->split))
+            if (!forced && !(sq_lodx_delta(lod, k, i) > def->split) && !(lod->nfocus && in_focus(lod, k, i)))
                 continue;
             int nch = ln->child_start[i + 1] - ln->child_start[i];
             long extra = nch * cost_f - cost_k;
@@ -109,7 +129,7 @@ void sq_lodx_adapt_pair(sq_lod *lod, int k, int allow_split, long *projected, ad
         if (parent_test)
             sq_lodx_pull_level(lod, k);
         for (int p = 0; p < Lk->model.n; p++) {
-            if (lk->lay.state[p] != ST_SPLIT || lk->lay.fresh[p])
+            if (lk->lay.state[p] != ST_SPLIT || lk->lay.fresh[p] || (lod->nfocus && in_focus(lod, k, p)))
                 continue;
             int ok = 1;
             int c0 = ln->child_start[p], c1 = ln->child_start[p + 1];

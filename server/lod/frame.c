@@ -296,6 +296,8 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
         sq_thread_usage(&fr.u0_user, &fr.u0_sys, &fr.u0_flt, &fr.u0_ivcsw);
     for (int t = 0; force && t < in->ntools; t++)
         force[t][0] = force[t][1] = force[t][2] = 0;
+    lod->focus = in->focus;
+    lod->nfocus = in->focus ? in->nfocus : 0;
 
     run_once(&fr, stage_guard, SQ_LOD_STAGE_GUARD);   /* splits allowed? the cap that fits */
     run_once(&fr, stage_layout, SQ_LOD_STAGE_LAYOUT); /* coupling, cap merges, substep clock */
@@ -318,4 +320,6 @@ void sq_lod_frame(sq_lod *lod, const sq_lod_frame_in *in, double (*force)[3], sq
     reserve_ahead(&fr);                            /* coupling arrays mapped ahead of need */
     frame_profile(&fr, prof);                      /* cost model, profile, events */
     lod->frames++;
+    lod->focus = NULL;
+    lod->nfocus = 0;
 }

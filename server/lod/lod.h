@@ -156,6 +156,13 @@ typedef struct sq_lod_frame_in {
      * (3 each) their targets now; their nodes are moved by the change (sq_lodx_hold_live) */
     int (*live)(void *arg, double frac, const unsigned char **on, const double **target);
     void *live_arg;
+    /* NULL, or nfocus spheres (centre x, y, z, radius; m, the body's coordinates) kept at the
+     * finest level: at the frame's end the active nodes inside one split whatever the
+     * criterion says (within the budget and the node-update cap) and split nodes inside one
+     * do not merge (a haptic channel's tool: a split near the tool would change its force in
+     * a step) */
+    const double (*focus)[4];
+    int nfocus;
 } sq_lod_frame_in;
 
 /* one adaptive frame of in->frame_dt: each level steps at its own dt (level->dt), in the

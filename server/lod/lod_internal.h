@@ -389,6 +389,8 @@ struct sq_lod {
     sq_lod_node_view view;               /* node levels given out (views.c) */
     sq_lod_surface_store surf;           /* the finest surface from the active nodes (surface.c) */
     struct lod_sharp *sharp;             /* the sharp step rule and its state (bound.c), NULL: off */
+    const double (*focus)[4];            /* during sq_lod_frame only: in->focus (criterion.c) */
+    int nfocus;
 };
 
 /* substep exponent a level runs at in the adaptive frame */

@@ -482,18 +482,35 @@ sq_pose_source_fn sq_haptic_pose_source(sq_haptic_hub *h, int lockstep)
     return h->nramp > 0 ? sq_haptic_ramp_pose : NULL;
 }
 
+/* each tool's focus: its open channel's, 0 for a tool without one (a closed channel's tool
+ * goes back to the lod's criterion alone) */
+static void set_focus(sq_world *w, const int *tool, const double *focus, int nopen)
+{
+    for (int i = 0; i < w->ntools; i++) {
+        w->tools[i].focus = 0;
+        for (int k = 0; k < nopen; k++)
+            if (tool[k] == w->tools[i].id)
+                w->tools[i].focus = focus[k];
+    }
+}
+
 void sq_haptic_before_frame(sq_haptic_hub *h, sq_world *w)
 {
     h->nramp = 0;
-    if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE))
+    if (!__atomic_load_n(&h->nopen, __ATOMIC_ACQUIRE)) {
+        set_focus(w, NULL, NULL, 0);
         return;
-    int n = 0, ids[SQ_MAX_TOOLS];
+    }
+    int n = 0, ids[SQ_MAX_TOOLS], nopen = 0, open_tool[SQ_MAX_TOOLS];
+    double open_focus[SQ_MAX_TOOLS];
     double pos[SQ_MAX_TOOLS][3];
     pthread_mutex_lock(&h->mu);
     for (int i = 0; i < SQ_MAX_TOOLS; i++) {
         sq_haptic_channel *ch = &h->ch[i];
         if (!ch->id)
             continue;
+        open_tool[nopen] = ch->tool;
+        open_focus[nopen++] = ch->focus;
         if (ch->ramp && (ch->has_pose || ch->ramp_has)) {
             const double *to = ch->has_pose ? ch->pose : ch->ramp_last;
             int k = h->nramp++;
@@ -518,6 +535,7 @@ void sq_haptic_before_frame(sq_haptic_hub *h, sq_world *w)
                 sq_err err = {{0}};
                 (void)sq_world_set_tool(w, &t, &err); /* a pose within bounds: cannot fail */
             }
+    set_focus(w, open_tool, open_focus, nopen);
 }
 
 void sq_haptic_after_frame(sq_haptic_hub *h, sq_world *w)

@@ -44,6 +44,9 @@
                                         the new frame's force within this fraction */
 #define SQ_HAPTIC_DEVICE_MASS 0.2    /* default device mass, kg: the passivity controller's
                                         damping stays below mass / pose interval */
+#define SQ_HAPTIC_FOCUS 3.0          /* default focus: an adaptive body keeps its finest level
+                                        within this many tool sizes of the tool (sq_tool.focus) */
+#define SQ_HAPTIC_FOCUS_MAX 100.0
 #define SQ_HAPTIC_DEVICE_MASS_MIN 1e-3
 #define SQ_HAPTIC_DEVICE_MASS_MAX 100.0
 
@@ -117,6 +120,8 @@ typedef struct sq_haptic_channel {
     uint64_t owner;                  /* client serial */
     int shape;                       /* sq_tool_shape at opening */
     sq_haptic_coupling coupling;
+    double focus;                    /* tool sizes kept at the finest level about the tool (the
+                                        request's "focus"; 0: the lod's criterion alone) */
     sq_haptic_state state;
     sq_tool_model model;             /* summed over the bodies */
     int model_valid;

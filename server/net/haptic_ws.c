@@ -102,7 +102,7 @@ void net_haptic_close_owner(sq_session *s, uint64_t owner)
 /* a field haptic does not take: an error naming it sent, 1 */
 static int unknown_field(client *c, const sq_request *req, const cJSON *o)
 {
-    static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping", "device_mass", "ramp"};
+    static const char *known[] = {"type", "ref", "tool", "open", "stiffness", "damping", "device_mass", "focus", "ramp"};
     const cJSON *it;
     cJSON_ArrayForEach(it, o) {
         int ok = 0;
@@ -111,7 +111,7 @@ static int unknown_field(client *c, const sq_request *req, const cJSON *o)
         if (!ok) {
             char m[160];
             snprintf(m, sizeof m, "haptic.%.60s: unknown field; haptic takes tool, open, stiffness, "
-                     "damping, device_mass, ramp, ref", it->string);
+                     "damping, device_mass, focus, ramp, ref", it->string);
             net_send_error(c, req, SQ_CODE_BAD_FIELD, m);
             return 1;
         }
@@ -189,12 +189,13 @@ int net_haptic_request(client *c, const char *text, size_t len)
         net_send_error(c, &req, SQ_CODE_BAD_FIELD, "haptic.ramp: must be true or false");
         goto done;
     }
-    int has_k, has_b, has_m;
-    double k = SQ_HAPTIC_STIFFNESS, b = SQ_HAPTIC_DAMPING, mass = SQ_HAPTIC_DEVICE_MASS;
+    int has_k, has_b, has_m, has_f;
+    double k = SQ_HAPTIC_STIFFNESS, b = SQ_HAPTIC_DAMPING, mass = SQ_HAPTIC_DEVICE_MASS, focus = SQ_HAPTIC_FOCUS;
     if (read_number(c, &req, o, "stiffness", "haptic.stiffness", 0, SQ_HAPTIC_STIFFNESS_MAX, &has_k, &k) ||
         read_number(c, &req, o, "damping", "haptic.damping", 0, SQ_HAPTIC_DAMPING_MAX, &has_b, &b) ||
         read_number(c, &req, o, "device_mass", "haptic.device_mass", SQ_HAPTIC_DEVICE_MASS_MIN,
-                    SQ_HAPTIC_DEVICE_MASS_MAX, &has_m, &mass))
+                    SQ_HAPTIC_DEVICE_MASS_MAX, &has_m, &mass) ||
+        read_number(c, &req, o, "focus", "haptic.focus", 0, SQ_HAPTIC_FOCUS_MAX, &has_f, &focus))
         goto done;
     int id = (int)tool->valuedouble;
     sq_session *s = r->s;
@@ -240,6 +241,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
         ch->tokens = SQ_HAPTIC_BURST;
         ch->last_refill = sq_now();
         ch->last_error = -1e9;
+        ch->focus = SQ_HAPTIC_FOCUS;
         __atomic_add_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
     }
     ch->owner = c->serial;
@@ -257,6 +259,8 @@ int net_haptic_request(client *c, const char *text, size_t len)
         ch->coupling.damping = 0;
     if (has_m || !ch->coupling.device_mass)
         ch->coupling.device_mass = mass;
+    if (has_f)
+        ch->focus = focus;
     cJSON_AddNumberToObject(rep, "channel", ch->id);
     cJSON_AddNumberToObject(rep, "tool", id);
     cJSON_AddBoolToObject(rep, "open", 1);
@@ -267,6 +271,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
     cJSON_AddNumberToObject(rep, "stiffness", ch->coupling.stiffness);
     cJSON_AddNumberToObject(rep, "damping", ch->coupling.damping);
     cJSON_AddNumberToObject(rep, "device_mass", ch->coupling.device_mass);
+    cJSON_AddNumberToObject(rep, "focus", ch->focus);
     cJSON_AddBoolToObject(rep, "ramp", ch->ramp);
     cJSON_AddNumberToObject(rep, "model_frame", (double)ch->model_frame);
     pthread_mutex_unlock(&h->mu);

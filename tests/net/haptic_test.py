@@ -8,6 +8,8 @@
   haptic_test.py device-rate URL RATE   (a --lockstep server of that scene) the same device at
                               the default coupling: passive, no reset (a frame rate other than
                               the shipped 50 Hz)
+  haptic_test.py focus URL    (a --lockstep server) a channel's focus keeps cube-poke's finest
+                              level about its tool; focus 0 or a closed channel does not
   haptic_test.py input URL    (a realtime server) answers; NaN, out of bounds, not owner, bad
                               message; a 20 kHz flood while a viewer's frame rate is checked
 
@@ -194,6 +196,41 @@ def test_device_rate(url, rate):
     check(not resets and st.get("resets", 0) == 0, f"{rate:g} Hz frames: no reset of the body")
 
 
+def test_focus(url):
+    """a channel's focus keeps an adaptive body's finest level about its tool: cube-poke at rest
+    with the tool clear of it refines nothing by its criterion; with a channel of focus 3 the
+    nodes within 3 radii split to the finest level (cube-poke's level 2) and stay; with focus 0,
+    or once the channel is closed, the criterion alone (no load) splits none and merges them"""
+    def finest(c):
+        return c.stats()["bodies"][0]["active_nodes"][2]
+
+    with SquishClient.connect(url, client="haptic-focus") as c:
+        c.open("cube-poke")
+        c.tool(id=1, shape="sphere", pos=[0.5, 0.5, 1.3], active=False)
+        c.tool(id=2, shape="sphere", pos=[0.5, 0.5, 1.3], radius=0.12)  # 18 cm above the top
+        c.step(5)
+        alone = finest(c)
+        ch = c.haptic_open(2, focus=0)
+        c.step(5)
+        zero = finest(c)
+        r0 = c.haptic_open(2)  # focus left out: kept
+        r = c.haptic_open(2, focus=3)
+        c.step(5)
+        on = finest(c)
+        c.step(5)
+        kept = finest(c)
+        c.haptic_close(2)
+        c.step(30)
+        after = finest(c)
+    print(f"# focus: finest-level active nodes, criterion alone {alone}, focus 0 {zero}, focus 3 {on} "
+          f"then {kept}, closed {after}")
+    check(ch["focus"] == 0 and r0["focus"] == 0 and r["focus"] == 3,
+          f"the reply gives the channel's focus, kept when left out ({ch['focus']}, {r0['focus']}, {r['focus']})")
+    check(alone == 0 and zero == 0, f"no focus: the body at rest refines nothing ({alone}, {zero} nodes)")
+    check(on > 0 and kept >= on, f"focus 3: the finest level about the tool ({on}, then {kept} nodes)")
+    check(after == 0, f"the channel closed: the criterion alone merges them ({after} nodes)")
+
+
 # ---------------------------------------------------------------- bad input and the flood
 def test_input(url):
     c = SquishClient.connect(url, client="haptic-input")
@@ -222,6 +259,13 @@ def test_input(url):
         check(False, "a device mass of 0 is refused")
     except SquishError as e:
         check(e.code == "out_of_range" and "haptic.device_mass" in e.message, f"device mass 0: {e.code}")
+    for bad in (-1, 101, "wide"):
+        try:
+            c.request({"type": "haptic", "tool": 2, "focus": bad})
+            check(False, f"focus {bad!r} is refused")
+        except SquishError as e:
+            want = "bad_field" if isinstance(bad, str) else "out_of_range"
+            check(e.code == want and "haptic.focus" in e.message, f"focus {bad!r}: {e.code}: {e.message}")
     try:
         c.request({"type": "haptic", "tool": 2, "spring": 1})
         check(False, "an unknown field is refused")
@@ -229,8 +273,8 @@ def test_input(url):
         check(e.code == "bad_field" and "spring" in e.message, f"an unknown field: {e.code}")
     r = c.haptic_open(2)
     ch = r["channel"]
-    check(r["max_rate"] == 2000 and r["version"] == 1 and r["device_mass"] == 0.2,
-          "the reply gives version 1, max_rate 2000 and the default device_mass 0.2 kg")
+    check(r["max_rate"] == 2000 and r["version"] == 1 and r["device_mass"] == 0.2 and r["focus"] == 3,
+          "the reply gives version 1, max_rate 2000, the default device_mass 0.2 kg and focus 3")
     time.sleep(0.1)
     f = c.haptic(ch, [0.5, 0.5, 1.07], 0.0)
     check(f["contact"] and f["force"][2] > 0, f"a pose in contact gets an upward force ({f['force'][2]:.2f} N)")
@@ -323,6 +367,6 @@ if __name__ == "__main__":
     if what == "device-rate":
         test_device_rate(sys.argv[2], float(sys.argv[3]))
     else:
-        {"device": test_device, "input": test_input}[what](sys.argv[2])
+        {"device": test_device, "focus": test_focus, "input": test_input}[what](sys.argv[2])
     print(f"haptic-{what}: {passed} passed, {failed} failed")
     sys.exit(1 if failed else 0)

@@ -44,6 +44,7 @@ check_mode() { # check_mode NAME ARGS...: haptic_test.py ARGS..., shown and coun
 
 start --lockstep
 check_mode device device "$url"
+check_mode focus focus "$url"
 if "$PY" tests/net/example_haptic.py "$url" >"$tmp/example.out" 2>&1 && grep -q '^released' "$tmp/example.out" &&
    awk '/force/ { if ($8 + 0 > 1) hit = 1 } END { exit !hit }' "$tmp/example.out"; then
     ok "tests/net/example_haptic.py prints a force curve with the press felt (> 1 N)"

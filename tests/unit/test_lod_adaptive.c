@@ -163,6 +163,67 @@ SQ_TEST(lod_poke_refines_near_tool_and_merges_back)
 /* undamped, no gravity, a bent cube let go: the adaptive body conserves energy (symplectic
  * steps of one energy, see adaptive.c), and a split or merge changes it only by re-sampling
  * the field */
+/* a tool's focus (sq_tool.focus, a haptic channel's) keeps the finest level about it: the
+ * body at rest and the tool clear of it, so the criterion alone splits nothing; with focus 3
+ * (a sphere of 3 radii, 15 cm) every finest node within it is simulated at the finest level
+ * after a few frames, and the region stays local (no finest node in the lower half); without
+ * the focus the criterion merges them all back. Counts, exact */
+SQ_TEST(lod_focus_keeps_the_finest_level_about_a_tool)
+{
+    sq_mesh *m[3];
+    if (!lh_poke_meshes(m)) {
+        CHECK(0);
+        return;
+    }
+    sq_body_def def = lh_poke_def(m, 0);
+    sq_body *b = lh_body(&def);
+    CHECK(b != NULL);
+    if (!b) {
+        lh_free_meshes(m, 3);
+        return;
+    }
+    sq_tool tool = lh_sphere(0.5, 0.5, 1.08, 0.05, 1); /* 3 cm above the top face */
+    sq_frame_profile prof;
+    int fine_alone = 0;
+    for (int f = 0; f < 5; f++) {
+        sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+        fine_alone = SQ_MAX(fine_alone, prof.active[2]);
+    }
+    tool.focus = 3;
+    for (int f = 0; f < 5; f++)
+        sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+    const unsigned char *act = sq_lod_active(b->lod, 2);
+    const double R = 3 * tool.radius;
+    int inside = 0, inside_fine = 0, low_fine = 0;
+    for (int i = 0; i < m[2]->nnodes; i++) {
+        const double *x = m[2]->x + 3 * i;
+        double r = sqrt((x[0] - 0.5) * (x[0] - 0.5) + (x[1] - 0.5) * (x[1] - 0.5) + (x[2] - 1.08) * (x[2] - 1.08));
+        if (r < R) {
+            inside++;
+            inside_fine += act[i] != 0;
+        }
+        low_fine += act[i] && x[2] < 0.5;
+    }
+    const int focused = prof.active[2];
+    tool.focus = 0;
+    int merged_at = -1;
+    for (int f = 0; f < 50 && merged_at < 0; f++) {
+        sq_body_frame(b, &tool, 1, NULL, &prof, 0);
+        if (prof.active[2] == 0)
+            merged_at = f;
+    }
+    if (getenv("SQ_LOD_VERBOSE"))
+        fprintf(stderr, "focus: finest active alone %d, focused %d (%d of the %d finest nodes within %.2f m), "
+                "%d in the lower half, all merged %d frames after\n", fine_alone, focused, inside_fine, inside,
+                R, low_fine, merged_at);
+    CHECK(fine_alone == 0);
+    CHECK(inside > 0 && inside_fine == inside);
+    CHECK(low_fine == 0);
+    CHECK(merged_at >= 0);
+    sq_body_destroy(b);
+    lh_free_meshes(m, 3);
+}
+
 SQ_TEST(lod_energy_across_split_merge_and_undamped_run)
 {
     sq_mesh *m[2];
