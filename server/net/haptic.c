@@ -76,6 +76,12 @@ void sq_haptic_force_encode(uint32_t channel, uint32_t seq, uint32_t frame, doub
     }
 }
 
+double sq_haptic_safe_stiffness(double mass, double frame_rate)
+{
+    const double k = SQ_HAPTIC_SAFE_RATE * frame_rate * mass;
+    return k > 0 ? fmin(k, SQ_HAPTIC_STIFFNESS_MAX) : 0;
+}
+
 /* f(p) = f0 + K (p - p0) */
 static void model_force(const sq_tool_model *m, const double p[3], double f[3])
 {

@@ -24,7 +24,10 @@
 #define SQ_HAPTIC_KIND_FORCE 2
 #define SQ_HAPTIC_MAX_RATE 2000.0    /* poses per second per channel (token bucket) */
 #define SQ_HAPTIC_BURST 100.0        /* its burst */
-#define SQ_HAPTIC_STIFFNESS 1000.0   /* default coupling spring, N/m */
+#define SQ_HAPTIC_SAFE_RATE 50.0     /* s^-1: the coupling spring passive in every measured run,
+                                        stiffness <= SQ_HAPTIC_SAFE_RATE x frame rate x device
+                                        mass (docs/protocol.md "Virtual coupling and passivity");
+                                        the default spring: 500 N/m at 50 Hz for 0.2 kg */
 #define SQ_HAPTIC_DAMPING 2.0        /* default coupling damper, N s/m */
 #define SQ_HAPTIC_STIFFNESS_MAX 1e5
 #define SQ_HAPTIC_DAMPING_MAX 1e3
@@ -113,6 +116,10 @@ void sq_haptic_latency_add(sq_haptic_latency *l, double seconds);
 /* the p-quantile (0 < p <= 1), s: the upper edge of its bin (at most max); 0 with no sample */
 double sq_haptic_latency_quantile(const sq_haptic_latency *l, double p);
 
+/* the coupling spring passive in every measured run for a device of `mass` kg on frames of
+ * `frame_rate` Hz, N/m (SQ_HAPTIC_SAFE_RATE), clamped to the request's range */
+double sq_haptic_safe_stiffness(double mass, double frame_rate);
+
 /* one open channel */
 typedef struct sq_haptic_channel {
     uint32_t id;                     /* 0: free slot */
@@ -120,6 +127,8 @@ typedef struct sq_haptic_channel {
     uint64_t owner;                  /* client serial */
     int shape;                       /* sq_tool_shape at opening */
     sq_haptic_coupling coupling;
+    int stiffness_given;             /* the coupling spring was given: else it follows the
+                                        device mass (sq_haptic_safe_stiffness) */
     double focus;                    /* tool sizes kept at the finest level about the tool (the
                                         request's "focus"; 0: the lod's criterion alone) */
     sq_haptic_state state;

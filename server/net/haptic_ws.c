@@ -190,7 +190,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
         goto done;
     }
     int has_k, has_b, has_m, has_f;
-    double k = SQ_HAPTIC_STIFFNESS, b = SQ_HAPTIC_DAMPING, mass = SQ_HAPTIC_DEVICE_MASS, focus = SQ_HAPTIC_FOCUS;
+    double k = 0, b = 0, mass = 0, focus = 0;
     if (read_number(c, &req, o, "stiffness", "haptic.stiffness", 0, SQ_HAPTIC_STIFFNESS_MAX, &has_k, &k) ||
         read_number(c, &req, o, "damping", "haptic.damping", 0, SQ_HAPTIC_DAMPING_MAX, &has_b, &b) ||
         read_number(c, &req, o, "device_mass", "haptic.device_mass", SQ_HAPTIC_DEVICE_MASS_MIN,
@@ -241,6 +241,8 @@ int net_haptic_request(client *c, const char *text, size_t len)
         ch->tokens = SQ_HAPTIC_BURST;
         ch->last_refill = sq_now();
         ch->last_error = -1e9;
+        ch->coupling.damping = SQ_HAPTIC_DAMPING;
+        ch->coupling.device_mass = SQ_HAPTIC_DEVICE_MASS;
         ch->focus = SQ_HAPTIC_FOCUS;
         __atomic_add_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
     }
@@ -249,16 +251,15 @@ int net_haptic_request(client *c, const char *text, size_t len)
     ch->shape = shape;
     if (ramp)
         ch->ramp = cJSON_IsTrue(ramp);
-    if (has_k || !ch->coupling.stiffness)
-        ch->coupling.stiffness = k;
-    if (has_b || !ch->coupling.damping)
+    if (has_b)
         ch->coupling.damping = b;
-    if (has_k && k == 0)
-        ch->coupling.stiffness = 0;
-    if (has_b && b == 0)
-        ch->coupling.damping = 0;
-    if (has_m || !ch->coupling.device_mass)
+    if (has_m)
         ch->coupling.device_mass = mass;
+    const double safe = sq_haptic_safe_stiffness(ch->coupling.device_mass, 1.0 / s->period);
+    if (has_k)
+        ch->coupling.stiffness = k, ch->stiffness_given = 1;
+    else if (!ch->stiffness_given)
+        ch->coupling.stiffness = safe; /* follows the device's mass */
     if (has_f)
         ch->focus = focus;
     cJSON_AddNumberToObject(rep, "channel", ch->id);
@@ -269,6 +270,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
     cJSON_AddNumberToObject(rep, "burst", SQ_HAPTIC_BURST);
     cJSON_AddNumberToObject(rep, "pos_max", SQ_NET_POS_MAX);
     cJSON_AddNumberToObject(rep, "stiffness", ch->coupling.stiffness);
+    cJSON_AddNumberToObject(rep, "stiffness_safe", safe);
     cJSON_AddNumberToObject(rep, "damping", ch->coupling.damping);
     cJSON_AddNumberToObject(rep, "device_mass", ch->coupling.device_mass);
     cJSON_AddNumberToObject(rep, "focus", ch->focus);

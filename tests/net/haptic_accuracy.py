@@ -30,20 +30,24 @@ from pyserver import load_scene, lockstep_server  # noqa: E402
 SQUISH = os.environ.get("SQUISH", os.path.join(ROOT, "build", "squish"))
 
 # name: (scene file, press start, press direction (unit), speed m/s, press time s, tool radius,
-# lod override or None). The scenes as shipped are adaptive: a split or merge near the tool
-# changes the force in a step no model of one frame foresees; the fixed-lod twins (the finest
-# level everywhere) show the model's own error.
+# lod override or None, the channel's focus or None for its default). The scenes as shipped are
+# adaptive, and the channel keeps the finest level about its tool (its focus); with focus 0 (the
+# lod's criterion alone) a split or merge near the tool changes the force in a step no model of
+# one frame foresees; the fixed-lod twins (the finest level everywhere) show the model's own
+# error.
 FIXED = {"mode": "fixed", "level": 2, "max_level": 2}
 CASES = {
-    "cube-poke": ("cube-poke.json", (0.5, 0.5, 1.10), (0, 0, -1), 0.03, 1.5, 0.12, None),
-    "organ": ("organ.json", (0.1, 0.1, 0.16), (0, 0, -1), 0.03, 1.5, 0.03, None),
-    "cube-poke-fixed": ("cube-poke.json", (0.5, 0.5, 1.10), (0, 0, -1), 0.03, 1.5, 0.12, FIXED),
-    "organ-fixed": ("organ.json", (0.1, 0.1, 0.16), (0, 0, -1), 0.03, 1.5, 0.03, FIXED),
+    "cube-poke": ("cube-poke.json", (0.5, 0.5, 1.10), (0, 0, -1), 0.03, 1.5, 0.12, None, None),
+    "organ": ("organ.json", (0.1, 0.1, 0.16), (0, 0, -1), 0.03, 1.5, 0.03, None, None),
+    "cube-poke-criterion": ("cube-poke.json", (0.5, 0.5, 1.10), (0, 0, -1), 0.03, 1.5, 0.12, None, 0),
+    "organ-criterion": ("organ.json", (0.1, 0.1, 0.16), (0, 0, -1), 0.03, 1.5, 0.03, None, 0),
+    "cube-poke-fixed": ("cube-poke.json", (0.5, 0.5, 1.10), (0, 0, -1), 0.03, 1.5, 0.12, FIXED, None),
+    "organ-fixed": ("organ.json", (0.1, 0.1, 0.16), (0, 0, -1), 0.03, 1.5, 0.03, FIXED, None),
 }
 
 
 def scenes(tmp):
-    for name, (f, *_r, lod) in CASES.items():
+    for name, (f, *_r, lod, _focus) in CASES.items():
         s = load_scene(os.path.join(ROOT, "meshes", "scenes", f))
         for b in s["bodies"]:
             if lod:
@@ -60,13 +64,15 @@ def pose(start, d, v, t):
 
 
 def run(url, name):
-    _f, start, d, v, T, radius, _lod = CASES[name]
+    _f, start, d, v, T, radius, _lod, focus = CASES[name]
     nframes = int(T * 50)
-    # reference: 500 Hz, the pose every 2 ms; feedback of every frame, by time
+    # reference: 500 Hz, the pose every 2 ms; feedback of every frame, by time (a channel that
+    # sends no pose, open for its focus only)
     ref = {}
     with SquishClient.connect(url) as c:
         c.open(name + "-ref")
         c.tool(id=2, shape="sphere", pos=pose(start, d, v, 0), radius=radius)
+        c.haptic_open(2, focus=focus)
         for k in range(1, nframes * 10 + 1):
             c.tool(id=2, pos=pose(start, d, v, k * 0.002))
             c.step(1)
@@ -77,7 +83,7 @@ def run(url, name):
     with SquishClient.connect(url) as c:
         c.open(name)
         c.tool(id=2, shape="sphere", pos=pose(start, d, v, 0), radius=radius)
-        ch = c.haptic_open(2, stiffness=0, damping=0)["channel"]
+        ch = c.haptic_open(2, stiffness=0, damping=0, focus=focus)["channel"]
         for k in range(1, nframes + 1):
             # the frame ending at 20 k ms is stepped with the pose of its end (as the reference)
             c.haptic(ch, pose(start, d, v, k * 0.02), k * 0.02)
@@ -105,13 +111,13 @@ def run_ramp(url, name):
     substep (the channel's lockstep ramp, from each frame's start pose to its end pose). Its
     frame force, the mean over the frame's substeps, stands for the force at mid-frame; the
     model made after frame k is asked at frame k+1's mid-frame pose."""
-    _f, start, d, v, T, radius, _lod = CASES[name]
+    _f, start, d, v, T, radius, _lod, focus = CASES[name]
     nframes = int(T * 50)
     truth, model = {}, {}
     with SquishClient.connect(url) as c:
         c.open(name)
         c.tool(id=2, shape="sphere", pos=pose(start, d, v, 0), radius=radius)
-        ch = c.haptic_open(2, stiffness=0, damping=0, ramp=True)["channel"]
+        ch = c.haptic_open(2, stiffness=0, damping=0, ramp=True, focus=focus)["channel"]
         c.haptic(ch, pose(start, d, v, 0), 0.0)
         c.step(1)  # the ramp's first end pose
         for k in range(1, nframes + 1):

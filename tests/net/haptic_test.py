@@ -275,6 +275,20 @@ def test_input(url):
     ch = r["channel"]
     check(r["max_rate"] == 2000 and r["version"] == 1 and r["device_mass"] == 0.2 and r["focus"] == 3,
           "the reply gives version 1, max_rate 2000, the default device_mass 0.2 kg and focus 3")
+    # the coupling spring, not given, is the measured safe side for the device's mass at the
+    # scene's 50 Hz: 50 x 50 x 0.2 = 500 N/m, following a later device_mass; a given one is kept
+    heavier = c.haptic_open(2, device_mass=0.4, damping=0)
+    kept = c.haptic_open(2)
+    given = c.haptic_open(2, stiffness=800)
+    lighter = c.haptic_open(2, device_mass=0.2, damping=2)
+    check(r["stiffness"] == 500 and r["stiffness_safe"] == 500,
+          f"the default coupling is the safe side for 0.2 kg at 50 Hz ({r['stiffness']}, safe {r['stiffness_safe']} N/m)")
+    check(heavier["stiffness"] == 1000 and heavier["stiffness_safe"] == 1000 and kept["stiffness"] == 1000,
+          f"a spring not given follows the device's mass (0.4 kg: {heavier['stiffness']}, then {kept['stiffness']} N/m)")
+    check(given["stiffness"] == 800 and lighter["stiffness"] == 800 and lighter["stiffness_safe"] == 500,
+          f"a given spring is kept ({given['stiffness']}, {lighter['stiffness']} N/m, safe {lighter['stiffness_safe']})")
+    check(kept["damping"] == 0 and lighter["damping"] == 2,
+          f"a damping of 0 is kept when left out ({kept['damping']}, then {lighter['damping']} N s/m)")
     time.sleep(0.1)
     f = c.haptic(ch, [0.5, 0.5, 1.07], 0.0)
     check(f["contact"] and f["force"][2] > 0, f"a pose in contact gets an upward force ({f['force'][2]:.2f} N)")
