@@ -16,7 +16,10 @@
 #include <stdint.h>
 
 #include "body/body.h"
+#include "scene/scene.h"
 
+/* the channel settings' ranges (SQ_HAPTIC_STIFFNESS_MAX ...) are scene/scene.h's, shared with
+ * the scene's "haptic" block */
 #define SQ_HAPTIC_VERSION 1
 #define SQ_HAPTIC_POSE_BYTES 48      /* client -> server, kind 1 */
 #define SQ_HAPTIC_FORCE_BYTES 104    /* server -> client, kind 2 */
@@ -29,8 +32,6 @@
                                         mass (docs/protocol.md "Virtual coupling and passivity");
                                         the default spring: 500 N/m at 50 Hz for 0.2 kg */
 #define SQ_HAPTIC_DAMPING 2.0        /* default coupling damper, N s/m */
-#define SQ_HAPTIC_STIFFNESS_MAX 1e5
-#define SQ_HAPTIC_DAMPING_MAX 1e3
 /* force flags */
 #define SQ_HAPTIC_F_CONTACT 1u       /* the model had held nodes */
 #define SQ_HAPTIC_F_RELEASED 2u      /* a push whose model would pull: force 0 */
@@ -49,9 +50,6 @@
                                         damping stays below mass / pose interval */
 #define SQ_HAPTIC_FOCUS 3.0          /* default focus: an adaptive body keeps its finest level
                                         within this many tool sizes of the tool (sq_tool.focus) */
-#define SQ_HAPTIC_FOCUS_MAX 100.0
-#define SQ_HAPTIC_DEVICE_MASS_MIN 1e-3
-#define SQ_HAPTIC_DEVICE_MASS_MAX 100.0
 
 /* the virtual coupling between device and tool: spring and damper */
 typedef struct sq_haptic_coupling {

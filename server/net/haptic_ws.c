@@ -134,6 +134,25 @@ static int tool_shape(sq_session *s, int id)
     return shape;
 }
 
+/* a free slot ch made channel of tool id, its settings the scene's "haptic" defaults, else the
+ * channel's own (h->mu held) */
+static void channel_new(sq_haptic_hub *h, sq_haptic_channel *ch, int id, const sq_scene_haptic *sh)
+{
+    memset(ch, 0, sizeof *ch);
+    ch->id = h->next_id++;
+    ch->tool = id;
+    ch->tokens = SQ_HAPTIC_BURST;
+    ch->last_refill = sq_now();
+    ch->last_error = -1e9;
+    ch->coupling.damping = sh->given & SQ_SCENE_HAPTIC_DAMPING ? sh->damping : SQ_HAPTIC_DAMPING;
+    ch->coupling.device_mass = sh->given & SQ_SCENE_HAPTIC_DEVICE_MASS ? sh->device_mass : SQ_HAPTIC_DEVICE_MASS;
+    ch->focus = sh->given & SQ_SCENE_HAPTIC_FOCUS ? sh->focus : SQ_HAPTIC_FOCUS;
+    if (sh->given & SQ_SCENE_HAPTIC_STIFFNESS) {
+        ch->coupling.stiffness = sh->stiffness;
+        ch->stiffness_given = 1;
+    }
+}
+
 int net_haptic_request(client *c, const char *text, size_t len)
 {
     /* cheap test first: every other request goes on to the decoder untouched */
@@ -235,15 +254,7 @@ int net_haptic_request(client *c, const char *text, size_t len)
             net_send_error(c, &req, SQ_CODE_INTERNAL, "haptic: no free channel slot");
             goto done;
         }
-        memset(ch, 0, sizeof *ch);
-        ch->id = h->next_id++;
-        ch->tool = id;
-        ch->tokens = SQ_HAPTIC_BURST;
-        ch->last_refill = sq_now();
-        ch->last_error = -1e9;
-        ch->coupling.damping = SQ_HAPTIC_DAMPING;
-        ch->coupling.device_mass = SQ_HAPTIC_DEVICE_MASS;
-        ch->focus = SQ_HAPTIC_FOCUS;
+        channel_new(h, ch, id, &s->scene->haptic);
         __atomic_add_fetch(&h->nopen, 1, __ATOMIC_RELEASE);
     }
     ch->owner = c->serial;

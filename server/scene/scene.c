@@ -8,6 +8,7 @@
 #include "scene/scene_internal.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -81,10 +82,51 @@ static int parse_contact(pctx *c, sq_scene *s, const cJSON *root)
     return 0;
 }
 
+/* "haptic": {"stiffness", "damping", "device_mass", "focus"}, each optional: the defaults of
+ * a haptic channel opened on this scene, in the ranges the protocol's request takes */
+static int parse_haptic(pctx *c, sq_scene *s, const cJSON *root)
+{
+    static const char *const keys[] = {"stiffness", "damping", "device_mass", "focus", NULL};
+    static const struct {
+        const char *key, *unit;
+        double lo, hi;
+        size_t off;
+        unsigned bit;
+    } field[] = {
+        {"stiffness", "N/m", 0, SQ_HAPTIC_STIFFNESS_MAX, offsetof(sq_scene_haptic, stiffness), SQ_SCENE_HAPTIC_STIFFNESS},
+        {"damping", "N s/m", 0, SQ_HAPTIC_DAMPING_MAX, offsetof(sq_scene_haptic, damping), SQ_SCENE_HAPTIC_DAMPING},
+        {"device_mass", "kg", SQ_HAPTIC_DEVICE_MASS_MIN, SQ_HAPTIC_DEVICE_MASS_MAX,
+         offsetof(sq_scene_haptic, device_mass), SQ_SCENE_HAPTIC_DEVICE_MASS},
+        {"focus", "tool sizes", 0, SQ_HAPTIC_FOCUS_MAX, offsetof(sq_scene_haptic, focus), SQ_SCENE_HAPTIC_FOCUS},
+    };
+    memset(&s->haptic, 0, sizeof s->haptic);
+    int bad;
+    const cJSON *h = scene_get_typed(c, root, "", "haptic", 0, 0, &bad);
+    if (bad || (h && scene_check_keys(c, h, "haptic", keys)))
+        return -1;
+    for (size_t k = 0; h && k < sizeof field / sizeof *field; k++) {
+        double v;
+        int found;
+        if (scene_get_number(c, h, "haptic", field[k].key, &v, &found))
+            return -1;
+        if (!found)
+            continue;
+        if (!(v >= field[k].lo && v <= field[k].hi)) {
+            char p[32];
+            scene_join(p, sizeof p, "haptic", field[k].key);
+            return scene_fail(c, p, "%g is out of range; use %g to %g (%s)", v, field[k].lo, field[k].hi, field[k].unit);
+        }
+        *(double *)((char *)&s->haptic + field[k].off) = v;
+        s->haptic.given |= field[k].bit;
+    }
+    return 0;
+}
+
 static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
 {
     static const char *const keys[] = {"name", "description", "meshes_made_by", "gravity", "frame_rate",
-                                       "duration", "bodies", "tools", "probes", "obstacles", "contact", NULL};
+                                       "duration", "bodies", "tools", "probes", "obstacles", "contact", "haptic",
+                                       NULL};
     if (!cJSON_IsObject(root))
         return scene_fail(c, "", "the top level is %s; a scene is a JSON object {\"name\": ..., \"bodies\": [...]}",
                     scene_type_name(root));
@@ -143,7 +185,7 @@ static int parse_root(pctx *c, sq_scene *s, const cJSON *root)
     if (no < 0)
         return -1;
     s->nobstacles = no;
-    if (parse_contact(c, s, root))
+    if (parse_contact(c, s, root) || parse_haptic(c, s, root))
         return -1;
     return scene_check_overlaps(c, s) ? -1 : 0;
 }

@@ -44,6 +44,21 @@ typedef struct sq_probe {
     double point[3];   /* rest-space point */
 } sq_probe;
 
+/* a haptic channel's settings: the ranges of the scene's "haptic" block and of the protocol's
+ * haptic request (docs/scenes.md, docs/protocol.md "Haptic channel") */
+#define SQ_HAPTIC_STIFFNESS_MAX 1e5  /* coupling spring, N/m, from 0 */
+#define SQ_HAPTIC_DAMPING_MAX 1e3    /* coupling damper, N s/m, from 0 */
+#define SQ_HAPTIC_DEVICE_MASS_MIN 1e-3 /* the device's moving mass, kg */
+#define SQ_HAPTIC_DEVICE_MASS_MAX 100.0
+#define SQ_HAPTIC_FOCUS_MAX 100.0    /* tool sizes kept at the finest level, from 0 */
+enum { SQ_SCENE_HAPTIC_STIFFNESS = 1, SQ_SCENE_HAPTIC_DAMPING = 2, SQ_SCENE_HAPTIC_DEVICE_MASS = 4,
+       SQ_SCENE_HAPTIC_FOCUS = 8 };
+typedef struct sq_scene_haptic {
+    double stiffness, damping, device_mass, focus;
+    unsigned given; /* SQ_SCENE_HAPTIC_* of the values the scene gives (others: the channel's
+                       own defaults); 0 in a zeroed scene */
+} sq_scene_haptic;
+
 typedef struct sq_scene {
     char name[64];
     char description[256];
@@ -64,6 +79,7 @@ typedef struct sq_scene {
     int body_contact;      /* "contact".bodies: bodies collide with each other, fixed or adaptive lod (default 1) */
     double body_friction;  /* "contact".friction between bodies (default 0.5) */
     double duration;       /* default run length of `squish run`, s (key "duration", default 2) */
+    sq_scene_haptic haptic; /* "haptic": the defaults of a haptic channel opened on this scene */
     int nlisted[SQ_MAX_BODIES];                   /* levels listed in the file per body */
     int nwarnings;                                /* load-time warnings (sq_scene_load prints them) */
     char warnings[SQ_MAX_BODIES][400];            /* e.g. an implausible mesh size: "scale" */

@@ -4,7 +4,10 @@
                               hand spring, stepped at 1 kHz by this client, presses the
                               cube-poke top, drags, releases; checks passivity, buzz, no reset,
                               the same numbers twice (lockstep determinism)
-  haptic_test.py scene RATE DIR   writes DIR/cube-poke.json: cube-poke at RATE frames a second
+  haptic_test.py scene RATE DIR   writes DIR/cube-poke.json: cube-poke at RATE frames a second,
+                              and DIR/cube-poke-coupled.json: cube-poke with a "haptic" block
+  haptic_test.py scene-haptic URL   (a server of that directory) a channel takes the scene's
+                              haptic defaults, a request's values win
   haptic_test.py device-rate URL RATE   (a --lockstep server of that scene) the same device at
                               the default coupling: passive, no reset (a frame rate other than
                               the shipped 50 Hz)
@@ -72,6 +75,42 @@ def scene_at_rate(directory, rate):
     s["frame_rate"] = rate
     os.makedirs(directory, exist_ok=True)
     json.dump(s, open(os.path.join(directory, "cube-poke.json"), "w"))
+
+
+COUPLED = {"stiffness": 700, "damping": 3, "device_mass": 0.3, "focus": 2}
+
+
+def scene_coupled(directory):
+    """cube-poke-coupled.json in directory: the shipped cube-poke with a "haptic" block"""
+    s = load_scene(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "meshes", "scenes",
+                                "cube-poke.json"))
+    s["name"] = "cube-poke-coupled"
+    s["haptic"] = dict(COUPLED)
+    os.makedirs(directory, exist_ok=True)
+    json.dump(s, open(os.path.join(directory, "cube-poke-coupled.json"), "w"))
+
+
+def test_scene_haptic(url):
+    """a scene's "haptic" block gives the defaults of a channel opened on it; a request's own
+    values win; a scene without one leaves the channel's defaults"""
+    with SquishClient.connect(url, client="haptic-scene") as c:
+        c.open("cube-poke-coupled")
+        c.tool(id=2, shape="sphere", pos=[0.5, 0.5, 1.3], radius=0.12)
+        r = c.haptic_open(2)
+        got = {k: r[k] for k in COUPLED}
+        check(got == COUPLED, f"a channel takes the scene's haptic defaults ({got})")
+        check(r["stiffness_safe"] == 750, f"stiffness_safe for the scene's 0.3 kg at 50 Hz: {r['stiffness_safe']} N/m")
+        r = c.haptic_open(2, focus=1, damping=2)
+        check(r["focus"] == 1 and r["damping"] == 2 and r["stiffness"] == 700,
+              f"a request's values win over the scene's ({r['focus']}, {r['damping']}, {r['stiffness']})")
+    with SquishClient.connect(url, client="haptic-scene") as c:
+        c.open("cube-poke")
+        c.tool(id=2, shape="sphere", pos=[0.5, 0.5, 1.3], radius=0.12)
+        r = c.haptic_open(2)
+        check(r["focus"] == 3 and r["device_mass"] == 0.2 and r["damping"] == 2 and
+              r["stiffness"] == r["stiffness_safe"],
+              f"a scene without one: the channel's defaults (focus {r['focus']}, {r['device_mass']} kg, "
+              f"{r['damping']} N s/m, {r['stiffness']} N/m)")
 
 
 def tolerance(work):
@@ -377,10 +416,12 @@ if __name__ == "__main__":
     what = sys.argv[1]
     if what == "scene":
         scene_at_rate(sys.argv[3], float(sys.argv[2]))
+        scene_coupled(sys.argv[3])
         sys.exit(0)
     if what == "device-rate":
         test_device_rate(sys.argv[2], float(sys.argv[3]))
     else:
-        {"device": test_device, "focus": test_focus, "input": test_input}[what](sys.argv[2])
+        {"device": test_device, "focus": test_focus, "scene-haptic": test_scene_haptic,
+         "input": test_input}[what](sys.argv[2])
     print(f"haptic-{what}: {passed} passed, {failed} failed")
     sys.exit(1 if failed else 0)

@@ -53,13 +53,15 @@ else
 fi
 stop
 
-# the same device on cube-poke at 100 frames a second (the model renewed every 10 ms)
+# the same device on cube-poke at 100 frames a second (the model renewed every 10 ms); a scene
+# with a "haptic" block gives a channel its defaults
 if "$PY" tests/net/haptic_test.py scene 100 "$tmp/scenes-100"; then
     scenes=$tmp/scenes-100 start --lockstep
     check_mode rate device-rate "$url" 100
+    check_mode scene-haptic scene-haptic "$url"
     stop
 else
-    bad "haptic_test.py scene 100: could not write the 100 Hz scene"
+    bad "haptic_test.py scene 100: could not write the 100 Hz and the coupled scenes"
 fi
 
 start

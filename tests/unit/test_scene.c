@@ -184,6 +184,11 @@ static const struct {
     {"{\"bodies\": [" BODY "], \"probes\": [{\"point\": [5, 5, 5]}]}",
      "t.json: probes[0].point: [5, 5, 5] is outside body \"cube\""},
     {"{\"bodies\": [" BODY "], \"probes\": [{\"name\": \"p\"}]}", "t.json: probes[0].point: missing"},
+    {"{\"bodies\": [" BODY "], \"haptic\": {\"focus\": 101}}", "t.json: haptic.focus: 101 is out of range"},
+    {"{\"bodies\": [" BODY "], \"haptic\": {\"device_mass\": 0}}", "t.json: haptic.device_mass: 0 is out of range"},
+    {"{\"bodies\": [" BODY "], \"haptic\": {\"stiffness\": -1}}", "t.json: haptic.stiffness: -1 is out of range"},
+    {"{\"bodies\": [" BODY "], \"haptic\": {\"spring\": 1}}", "t.json: haptic.spring: unknown key"},
+    {"{\"bodies\": [" BODY "], \"haptic\": [1]}", "t.json: haptic"},
     {"{\"bodies\": [" BODY "], \"probes\": [{\"name\": \"p\", \"point\": [1,1,1]}, "
      "{\"name\": \"p\", \"point\": [1,1,1]}]}",
      "t.json: probes[1].name: \"p\" is already the name of probes[0]"},
@@ -299,6 +304,14 @@ SQ_TEST(scene_defaults_of_a_minimal_scene)
     CHECK(d->lod.adapt_every == 1);
     CHECK(d->step_fraction == 0.9);
     CHECK(s->ntools == 0 && s->nprobes == 1 && !strcmp(s->probes[0].name, "probe0"));
+    CHECK(s->haptic.given == 0); /* a channel opened on it takes its own defaults */
+    sq_scene_free(s);
+
+    /* "haptic": the values given, and only those, marked given (0 is a value) */
+    s = parse("{\"bodies\": [{\"levels\": [\"a.msh\", \"b.msh\"], " MAT "}],"
+              " \"haptic\": {\"stiffness\": 0, \"focus\": 2.5}}", &e);
+    CHECK(s && s->haptic.given == (SQ_SCENE_HAPTIC_STIFFNESS | SQ_SCENE_HAPTIC_FOCUS) &&
+          s->haptic.stiffness == 0 && s->haptic.focus == 2.5);
     sq_scene_free(s);
 
     /* fixed at an explicit coarse level loads that level only */
